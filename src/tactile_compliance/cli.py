@@ -1,0 +1,182 @@
+"""The `tactile-compliance` command. Thin: parse arguments, call library functions, print."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from tactile_compliance import __version__
+
+app = typer.Typer(
+    name="tactile-compliance",
+    help=(
+        "Estimate an object's Young's modulus from one GelSight grasp.\n\n"
+        "Typical flow: `simulate` (or get real data) -> `import` -> `info` -> `split`."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+import_app = typer.Typer(
+    help="Import a raw dataset into a GraspStore (the one on-disk format every command reads).",
+    no_args_is_help=True,
+)
+app.add_typer(import_app, name="import")
+
+
+def _fail(message: str, code: int = 1) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code)
+
+
+def _size_option(size: str | None) -> tuple[int, int] | None:
+    from tactile_compliance.data.image_ops import parse_size
+
+    try:
+        return parse_size(size)
+    except ValueError as err:
+        raise typer.BadParameter(str(err)) from err
+
+
+def _version_callback(value: bool) -> None:
+    if value:
+        typer.echo(f"tactile-compliance {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_version_callback, is_eager=True, help="Show the version."
+        ),
+    ] = False,
+) -> None:
+    """Estimate an object's Young's modulus from one GelSight grasp."""
+
+
+@app.command()
+def info(
+    store: Annotated[Path, typer.Argument(help="GraspStore directory.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")] = False,
+) -> None:
+    """Show what a store holds: counts by material and shape, modulus range, resolution."""
+    from tactile_compliance.data.store import GraspStore, StoreError
+
+    try:
+        summary = GraspStore.open(store).summary()
+    except StoreError as err:
+        _fail(str(err))
+    if as_json:
+        typer.echo(json.dumps(summary, indent=2))
+        return
+    height, width = summary["image_size"]
+    lines = [
+        f"Store       {summary['path']}  (source: {summary['source']})",
+        f"Samples     {summary['num_samples']}  objects {summary['num_objects']}  "
+        f"grasps {summary['num_grasps']}",
+        f"Frames      3 x {height} x {width} x 3 ({summary['channel_order']}, uint8), "
+        f"{summary['frames_bytes'] / 1e6:.1f} MB",
+    ]
+    if summary["num_samples"]:
+        lines.append(
+            f"Modulus     {summary['modulus_pa_min']:.3g} .. {summary['modulus_pa_max']:.3g} Pa"
+        )
+    lines.append(
+        f"Inputs      force/width: {summary['has_force_width']}  "
+        f"estimates: {summary['has_estimates']}"
+    )
+    for key in ("fingers", "materials", "shapes"):
+        counts = ", ".join(f"{name} {count}" for name, count in summary[key].items())
+        lines.append(f"{key.capitalize():<11} {counts}")
+    typer.echo("\n".join(lines))
+
+
+def _run_import(run: object, report_json: Path | None) -> None:
+    from tactile_compliance.data.import_report import DataImportError
+    from tactile_compliance.data.object_table import ObjectTableError
+
+    try:
+        report = run()  # type: ignore[operator]
+    except (DataImportError, ObjectTableError, FileExistsError) as err:
+        _fail(str(err))
+    typer.echo(report.format())
+    if report_json is not None:
+        report_json.write_text(json.dumps(report.to_dict(), indent=2) + "\n")
+
+
+@import_app.command("burgess")
+def import_burgess_command(
+    src: Annotated[
+        Path, typer.Argument(help="The unpacked gelsight_youngs_modulus_dataset/ directory.")
+    ],
+    out: Annotated[Path, typer.Option("--out", help="Store directory to create.")],
+    objects: Annotated[
+        Optional[Path],  # noqa: UP045 (typer needs Optional on 3.10)
+        typer.Option(
+            "--objects",
+            help="Object table CSV (dataset_objects_and_compliance.csv); "
+            "labels come from it instead of metadata.json.",
+        ),
+    ] = None,
+    fingers: Annotated[
+        str, typer.Option(help="markerless (RGB.pkl), markers (RGB_markers.pkl) or both.")
+    ] = "both",
+    size: Annotated[
+        Optional[str], typer.Option("--size", help="Resize frames to HxW pixels, e.g. 224x224.")  # noqa: UP045
+    ] = None,
+    strict: Annotated[bool, typer.Option(help="Stop at the first problem.")] = False,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing store.")] = False,
+    report_json: Annotated[
+        Optional[Path], typer.Option("--report", help="Also write the import report as JSON.")  # noqa: UP045
+    ] = None,
+) -> None:
+    """Import the GelSight Young's-modulus dataset layout (real or simulated)."""
+    from tactile_compliance.data.burgess import import_burgess
+
+    if fingers not in ("markerless", "markers", "both"):
+        raise typer.BadParameter("--fingers must be markerless, markers or both")
+    image_size = _size_option(size)
+    _run_import(
+        lambda: import_burgess(
+            src,
+            out,
+            object_table=objects,
+            fingers=fingers,  # type: ignore[arg-type]
+            image_size=image_size,
+            strict=strict,
+            overwrite=overwrite,
+        ),
+        report_json,
+    )
+
+
+@import_app.command("yuan")
+def import_yuan_command(
+    src: Annotated[Path, typer.Argument(help="Directory of {SHAPE}_{hardness}_{n}.avi videos.")],
+    out: Annotated[Path, typer.Option("--out", help="Store directory to create.")],
+    size: Annotated[
+        Optional[str], typer.Option("--size", help="Resize frames to HxW pixels, e.g. 224x224.")  # noqa: UP045
+    ] = None,
+    strict: Annotated[bool, typer.Option(help="Stop at the first problem.")] = False,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing store.")] = False,
+    report_json: Annotated[
+        Optional[Path], typer.Option("--report", help="Also write the import report as JSON.")  # noqa: UP045
+    ] = None,
+) -> None:
+    """Import the Shore-hardness press videos (Yuan et al. 2017)."""
+    from tactile_compliance.data.yuan import import_yuan
+
+    image_size = _size_option(size)
+    _run_import(
+        lambda: import_yuan(src, out, image_size=image_size, strict=strict, overwrite=overwrite),
+        report_json,
+    )
+
+
+if __name__ == "__main__":  # pragma: no cover
+    app()

@@ -1,0 +1,300 @@
+"""Importer for the GelSight Young's-modulus dataset layout (Burgess et al. 2024).
+
+Layout (see ``docs/data.md``)::
+
+    SRC/{object}/metadata.json
+    SRC/{object}/grasp={g}/augmentation={k}/RGB.pkl            (3, H, W, 3) BGR difference images
+                                            RGB_markers.pkl    same, the other finger (markers)
+                                            depth.pkl, depth_markers.pkl   (3, H, W) mm
+                                            forces.pkl (3,) N, widths.pkl (3,) m
+                                            elastic_estimate.pkl, hertz_estimate.pkl  () Pa
+
+The synthetic generator writes the same layout, so this one importer serves real and
+synthetic data. Each (grasp, augmentation, finger) becomes one store sample.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import re
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+
+from tactile_compliance.data.image_ops import resize_frames
+from tactile_compliance.data.import_report import DataImportError, ImportReport
+from tactile_compliance.data.object_table import read_object_table, valid_modulus
+from tactile_compliance.data.safe_pickle import UnsafePickleError, load_numpy_pickle
+from tactile_compliance.data.store import FRAMES_PER_SAMPLE, GraspStoreWriter
+from tactile_compliance.progress import progress_bar
+
+FingerChoice = Literal["markerless", "markers", "both"]
+
+# finger name -> (image file, depth file)
+FINGER_FILES: dict[str, tuple[str, str]] = {
+    "markerless": ("RGB.pkl", "depth.pkl"),
+    "markers": ("RGB_markers.pkl", "depth_markers.pkl"),
+}
+_GRASP_DIR = re.compile(r"^grasp=(\d+)$")
+_AUGMENTATION_DIR = re.compile(r"^augmentation=(\d+)$")
+
+
+@dataclass(frozen=True)
+class ObjectLabel:
+    """Ground truth of one object."""
+
+    name: str
+    modulus_pa: float
+    material: str
+    shape: str
+
+
+class _SampleError(Exception):
+    """One sample cannot be imported; the message is the reason."""
+
+
+def _numbered_dirs(parent: Path, pattern: re.Pattern[str]) -> list[tuple[int, Path]]:
+    found = []
+    for child in parent.iterdir():
+        match = pattern.match(child.name)
+        if match and child.is_dir():
+            found.append((int(match.group(1)), child))
+    return sorted(found)
+
+
+def _load_array(path: Path, what: str) -> np.ndarray:
+    if not path.is_file():
+        raise _SampleError(f"missing file: {path.name}")
+    try:
+        return load_numpy_pickle(path)
+    except UnsafePickleError as err:
+        raise _SampleError(f"unsafe pickle rejected: {err}") from err
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError) as err:
+        raise _SampleError(f"corrupt pickle: {path.name} ({type(err).__name__}: {err})") from err
+    except OSError as err:
+        raise _SampleError(f"unreadable file: {path.name} ({err})") from err
+
+
+def _load_vector(directory: Path, name: str, length: int) -> np.ndarray:
+    array = _load_array(directory / name, name).astype(np.float64)
+    if array.shape != (length,):
+        raise _SampleError(f"wrong array shape: {name} is {array.shape}, expected ({length},)")
+    if not np.all(np.isfinite(array)):
+        raise _SampleError(f"non-finite values: {name}")
+    return array
+
+
+def _load_estimate(directory: Path, name: str) -> float:
+    """An analytical estimate in Pa, or NaN when absent (the filter decides what to drop)."""
+    if not (directory / name).is_file():
+        return float("nan")
+    array = _load_array(directory / name, name)
+    if array.size != 1:
+        raise _SampleError(f"wrong array shape: {name} is {array.shape}, expected a scalar")
+    return float(array.reshape(()))
+
+
+def _load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None) -> np.ndarray:
+    """Difference images as float32 RGB (3, H, W, 3); the files store BGR."""
+    array = _load_array(directory / name, name)
+    if array.ndim != 4 or array.shape[0] != FRAMES_PER_SAMPLE or array.shape[3] != 3:
+        raise _SampleError(f"wrong array shape: {name} is {array.shape}, expected (3, H, W, 3)")
+    if expected_hw is not None and tuple(array.shape[1:3]) != expected_hw:
+        raise _SampleError(
+            f"wrong array shape: {name} is {array.shape}, other samples are {expected_hw}"
+        )
+    if not np.all(np.isfinite(array)):
+        raise _SampleError(f"non-finite values: {name}")
+    # Explicit channel flip: the dataset was written by OpenCV (BGR); the store is RGB.
+    return np.ascontiguousarray(array[..., ::-1], dtype=np.float32)
+
+
+def _depth_maxima_mm(directory: Path, name: str) -> np.ndarray:
+    """Maximum gel depth of each frame in mm; NaN when the depth file is absent."""
+    if not (directory / name).is_file():
+        return np.full(FRAMES_PER_SAMPLE, np.nan)
+    depth = _load_array(directory / name, name)
+    if depth.ndim != 3 or depth.shape[0] != FRAMES_PER_SAMPLE:
+        raise _SampleError(f"wrong array shape: {name} is {depth.shape}, expected (3, H, W)")
+    if not np.all(np.isfinite(depth)):
+        raise _SampleError(f"non-finite values: {name}")
+    return depth.reshape(FRAMES_PER_SAMPLE, -1).max(axis=1).astype(np.float64)
+
+
+def _object_label(
+    object_dir: Path, table: pd.DataFrame | None, report: ImportReport
+) -> ObjectLabel | None:
+    """Labels from the object table when given, else from metadata.json; None = skip object."""
+    name = object_dir.name
+    if table is not None:
+        if name not in table.index:
+            report.problem(object_dir, "object absent from the object table")
+            return None
+        row = table.loc[name]
+        modulus, material, shape = row["modulus_pa"], row["material"], row["shape"]
+    else:
+        metadata_path = object_dir / "metadata.json"
+        if not metadata_path.is_file():
+            report.problem(
+                object_dir, "missing file: metadata.json (pass --objects TABLE.csv to label it)"
+            )
+            return None
+        try:
+            metadata: dict[str, Any] = json.loads(metadata_path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            report.problem(metadata_path, f"corrupt metadata.json: {err}")
+            return None
+        modulus = metadata.get("youngs_modulus")
+        material = metadata.get("material", "")
+        shape = metadata.get("shape", "")
+    if not valid_modulus(modulus):
+        report.problem(object_dir, f"invalid modulus: {modulus!r} (must be a finite number > 0 Pa)")
+        return None
+    return ObjectLabel(name, float(modulus), str(material), str(shape))  # type: ignore[arg-type]
+
+
+def _sample_dirs(object_dir: Path) -> Iterator[tuple[int, int, Path]]:
+    for grasp, grasp_dir in _numbered_dirs(object_dir, _GRASP_DIR):
+        for augmentation, aug_dir in _numbered_dirs(grasp_dir, _AUGMENTATION_DIR):
+            yield grasp, augmentation, aug_dir
+
+
+def _object_dirs(src: Path) -> list[Path]:
+    # A directory is an object when it holds metadata.json or grasp=* directories.
+    return sorted(
+        d
+        for d in src.iterdir()
+        if d.is_dir()
+        and not d.name.startswith(".")
+        and ((d / "metadata.json").exists() or any(d.glob("grasp=*")))
+    )
+
+
+def import_burgess(
+    src_dir: str | Path,
+    out_dir: str | Path,
+    *,
+    object_table: str | Path | None = None,
+    fingers: FingerChoice = "both",
+    image_size: tuple[int, int] | None = None,
+    strict: bool = False,
+    overwrite: bool = False,
+    progress: bool = True,
+    source_name: str = "burgess",
+) -> ImportReport:
+    """Import a GelSight Young's-modulus dataset tree into a GraspStore at ``out_dir``.
+
+    Args:
+        src_dir: the unpacked ``gelsight_youngs_modulus_dataset/`` directory.
+        out_dir: the store to create (refused if it exists, unless ``overwrite``).
+        object_table: CSV with the dataset's columns; when given, labels come from it.
+        fingers: which sensor's images to import; ``both`` gives two samples per grasp
+            and augmentation.
+        image_size: (height, width) in pixels to resize to; default keeps the source size.
+        strict: stop at the first problem instead of skipping and reporting.
+        overwrite: replace an existing store (atomically, only once the new one is complete).
+        progress: show a progress bar.
+        source_name: recorded in the store header (``synthetic`` for generated trees).
+    """
+    start = time.perf_counter()
+    src, out = Path(src_dir), Path(out_dir)
+    if not src.is_dir():
+        raise DataImportError(f"{src}: source directory not found")
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
+    if fingers not in ("markerless", "markers", "both"):
+        raise ValueError(f"fingers must be markerless, markers or both, got {fingers!r}")
+    finger_names = list(FINGER_FILES) if fingers == "both" else [fingers]
+    table = read_object_table(object_table) if object_table is not None else None
+    report = ImportReport(
+        source=source_name, source_dir=str(src), store_dir=str(out), strict=strict
+    )
+
+    object_dirs = _object_dirs(src)
+    report.objects_seen = len(object_dirs)
+    if not object_dirs:
+        raise DataImportError(f"{src}: no object directories (expected {{object}}/grasp=g/...)")
+
+    writer: GraspStoreWriter | None = None
+    source_hw: tuple[int, int] | None = None
+    try:
+        with progress_bar("Importing objects", total=len(object_dirs), enabled=progress) as advance:
+            for object_dir in object_dirs:
+                label = _object_label(object_dir, table, report)
+                imported_before = report.samples_imported
+                if label is not None:
+                    for grasp, augmentation, aug_dir in _sample_dirs(object_dir):
+                        try:
+                            forces_n = _load_vector(aug_dir, "forces.pkl", FRAMES_PER_SAMPLE)
+                            widths_m = _load_vector(aug_dir, "widths.pkl", FRAMES_PER_SAMPLE)
+                            elastic_pa = _load_estimate(aug_dir, "elastic_estimate.pkl")
+                            hertz_pa = _load_estimate(aug_dir, "hertz_estimate.pkl")
+                        except _SampleError as err:
+                            report.problem(aug_dir, str(err))
+                            continue
+                        for finger in finger_names:
+                            image_file, depth_file = FINGER_FILES[finger]
+                            try:
+                                frames = _load_frames(aug_dir, image_file, source_hw)
+                                depth_max_mm = _depth_maxima_mm(aug_dir, depth_file)
+                            except _SampleError as err:
+                                report.problem(aug_dir / image_file, str(err))
+                                continue
+                            if source_hw is None:
+                                source_hw = (frames.shape[1], frames.shape[2])
+                            if writer is None:
+                                writer = GraspStoreWriter(
+                                    out,
+                                    image_size=image_size or source_hw,
+                                    source=source_name,
+                                    creation_parameters={
+                                        "importer": "burgess",
+                                        "source_dir": str(src.resolve()),
+                                        "object_table": str(object_table) if object_table else None,
+                                        "fingers": fingers,
+                                        "source_image_size": list(source_hw),
+                                        "frame_kind": "difference",
+                                    },
+                                    overwrite=overwrite,
+                                )
+                            writer.append(
+                                resize_frames(frames, image_size),
+                                {
+                                    "object": label.name,
+                                    "grasp": grasp,
+                                    "augmentation": augmentation,
+                                    "finger": finger,
+                                    "material": label.material,
+                                    "shape": label.shape,
+                                    "modulus_pa": label.modulus_pa,
+                                    **{f"force_n_{i}": forces_n[i] for i in range(3)},
+                                    **{f"width_m_{i}": widths_m[i] for i in range(3)},
+                                    "elastic_estimate_pa": elastic_pa,
+                                    "hertz_estimate_pa": hertz_pa,
+                                    **{f"depth_max_mm_{i}": depth_max_mm[i] for i in range(3)},
+                                    "source_path": str((aug_dir / image_file).relative_to(src)),
+                                },
+                            )
+                            report.samples_imported += 1
+                    if report.samples_imported > imported_before:
+                        report.objects_imported += 1
+                    elif not any(True for _ in _sample_dirs(object_dir)):
+                        report.problem(object_dir, "no grasp=g/augmentation=k directories")
+                advance()
+        if writer is None:
+            raise DataImportError(
+                f"{src}: nothing importable ({len(report.problems)} problems)\n{report.format()}"
+            )
+        writer.commit()
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    report.seconds = time.perf_counter() - start
+    return report

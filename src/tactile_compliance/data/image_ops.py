@@ -1,0 +1,30 @@
+"""Small image operations shared by the importers."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """Parse ``"HxW"`` (pixels, e.g. ``"250x350"``) into (height, width); None passes through."""
+    if text is None or text == "":
+        return None
+    parts = text.lower().replace(" ", "").split("x")
+    if len(parts) != 2 or not all(p.isdigit() for p in parts) or min(int(p) for p in parts) < 1:
+        raise ValueError(
+            f"size must look like HxW with positive integers (e.g. 250x350), got {text!r}"
+        )
+    return int(parts[0]), int(parts[1])
+
+
+def resize_frames(frames: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
+    """Resize (T, H, W, C) frames to ``size`` = (height, width) px; area averaging to shrink."""
+    if size is None or tuple(frames.shape[1:3]) == tuple(size):
+        return frames
+    height, width = size
+    shrinking = height * width < frames.shape[1] * frames.shape[2]
+    interpolation = cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR
+    # cv2 handles float32 and uint8; float64 is converted to keep memory and time down.
+    work = frames.astype(np.float32) if frames.dtype not in (np.uint8, np.float32) else frames
+    return np.stack([cv2.resize(f, (width, height), interpolation=interpolation) for f in work])

@@ -1,0 +1,63 @@
+"""The command line: help texts, import + info round trip, clear errors."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from burgess_tree import write_tree
+from tactile_compliance.cli import app
+
+runner = CliRunner()
+
+
+def test_help_lists_commands():
+    result = runner.invoke(app, ["--help"])
+    assert result.exit_code == 0
+    for command in ("info", "import"):
+        assert command in result.output
+    result = runner.invoke(app, ["import", "--help"])
+    assert "burgess" in result.output and "yuan" in result.output
+
+
+def test_import_then_info(tmp_path):
+    write_tree(tmp_path / "src")
+    result = runner.invoke(
+        app,
+        [
+            "import",
+            "burgess",
+            str(tmp_path / "src"),
+            "--out",
+            str(tmp_path / "store"),
+            "--fingers",
+            "markerless",
+            "--size",
+            "6x8",
+            "--report",
+            str(tmp_path / "r.json"),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "Imported 12 samples" in result.output
+    assert json.loads((tmp_path / "r.json").read_text())["samples_imported"] == 12
+    result = runner.invoke(app, ["info", str(tmp_path / "store"), "--json"])
+    assert result.exit_code == 0
+    info = json.loads(result.output)
+    assert info["num_samples"] == 12 and info["image_size"] == [6, 8]
+    assert info["materials"] == {"Foam": 4, "Rubber": 4, "Metal": 4}
+    result = runner.invoke(app, ["info", str(tmp_path / "store")])
+    assert "Modulus     2e+04 .. 2e+11 Pa" in result.output
+
+
+def test_errors_are_clear(tmp_path):
+    write_tree(tmp_path / "src")
+    args = ["import", "burgess", str(tmp_path / "src"), "--out", str(tmp_path / "store")]
+    assert runner.invoke(app, args).exit_code == 0
+    again = runner.invoke(app, args)
+    assert again.exit_code == 1 and "--overwrite" in again.output
+    bad_size = runner.invoke(app, [*args, "--overwrite", "--size", "big"])
+    assert bad_size.exit_code != 0 and "HxW" in bad_size.output
+    missing = runner.invoke(app, ["info", str(tmp_path / "nothing")])
+    assert missing.exit_code == 1 and "no such store" in missing.output

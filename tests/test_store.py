@@ -1,0 +1,119 @@
+"""GraspStore: round trip, memory mapping, atomic writes, clear errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tactile_compliance.data.store import (
+    FRAMES_FILE,
+    HEADER_FILE,
+    GraspStore,
+    GraspStoreWriter,
+    StoreError,
+    frames_to_uint8,
+)
+
+
+def _row(i: int) -> dict:
+    return {
+        "object": f"obj_{i % 2}",
+        "grasp": i,
+        "augmentation": 0,
+        "finger": "markerless",
+        "material": "Rubber",
+        "shape": "Sphere",
+        "modulus_pa": 1e5 * (i + 1),
+        "force_n_0": 5.0,
+        "force_n_1": 20.0,
+        "force_n_2": 50.0 + i,
+        "width_m_0": 0.05,
+        "width_m_1": 0.049,
+        "width_m_2": 0.048,
+        "source_path": f"x/{i}",
+    }
+
+
+def test_round_trip_values_and_memmap(tmp_path):
+    rng = np.random.default_rng(0)
+    frames = [rng.uniform(0, 1, (3, 4, 5, 3)).astype(np.float32) for _ in range(3)]
+    with GraspStoreWriter(tmp_path / "s", image_size=(4, 5), source="test") as writer:
+        for i, f in enumerate(frames):
+            assert writer.append(f, _row(i)) == i
+    store = GraspStore.open(tmp_path / "s")
+    assert len(store) == 3
+    assert isinstance(store.frames, np.memmap)
+    assert store.frames.shape == (3, 3, 4, 5, 3)
+    # Quantisation error is at most half a grey level.
+    loaded = store.load_frames([2, 0])
+    assert np.abs(loaded[0] - frames[2]).max() <= 0.5 / 255 + 1e-7
+    assert np.abs(loaded[1] - frames[0]).max() <= 0.5 / 255 + 1e-7
+    assert store.forces_n()[1].tolist() == [5.0, 20.0, 51.0]
+    assert np.isnan(store.estimates_pa()).all()  # not given -> NaN
+    assert store.samples["sample_id"].tolist() == [0, 1, 2]
+    summary = store.summary()
+    assert summary["num_objects"] == 2 and summary["materials"] == {"Rubber": 3}
+    assert summary["modulus_pa_min"] == 1e5 and summary["modulus_pa_max"] == 3e5
+
+
+def test_frames_to_uint8_rounds_and_clips():
+    x = np.array([-0.1, 0.0, 0.5, 1.0, 1.2, 0.25 / 255])
+    assert frames_to_uint8(x).tolist() == [0, 0, 128, 255, 255, 0]
+
+
+def test_failed_write_leaves_nothing(tmp_path):
+    with pytest.raises(RuntimeError), GraspStoreWriter(tmp_path / "s", (4, 5), "test") as writer:
+        writer.append(np.zeros((3, 4, 5, 3)), _row(0))
+        raise RuntimeError("interrupted")
+    assert not (tmp_path / "s").exists()
+    assert list(tmp_path.iterdir()) == []  # the temporary directory is gone too
+
+
+def test_refuses_existing_without_overwrite_and_replaces_with(tmp_path):
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "first") as writer:
+        writer.append(np.zeros((3, 4, 5, 3)), _row(0))
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        GraspStoreWriter(tmp_path / "s", (4, 5), "second")
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "second", overwrite=True) as writer:
+        writer.append(np.zeros((3, 4, 5, 3)), _row(0))
+        writer.append(np.zeros((3, 4, 5, 3)), _row(1))
+    store = GraspStore.open(tmp_path / "s")
+    assert store.header.source == "second" and len(store) == 2
+
+
+def test_append_validates(tmp_path):
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "test") as writer:
+        with pytest.raises(ValueError, match="shape"):
+            writer.append(np.zeros((3, 5, 4, 3)), _row(0))
+        with pytest.raises(ValueError, match="NaN"):
+            writer.append(np.full((3, 4, 5, 3), np.nan), _row(0))
+        with pytest.raises(ValueError, match="unknown sample fields"):
+            writer.append(np.zeros((3, 4, 5, 3)), {**_row(0), "colour": "red"})
+        writer.append(np.zeros((3, 4, 5, 3)), _row(0))
+
+
+def test_open_rejects_incomplete_store(tmp_path):
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "test") as writer:
+        writer.append(np.zeros((3, 4, 5, 3)), _row(0))
+    with pytest.raises(StoreError, match="no such store"):
+        GraspStore.open(tmp_path / "missing")
+    # A truncated frames file is detected, not silently read.
+    frames_path = tmp_path / "s" / FRAMES_FILE
+    frames_path.write_bytes(frames_path.read_bytes()[:-1])
+    with pytest.raises(StoreError, match="expected 180 bytes"):
+        GraspStore.open(tmp_path / "s")
+    (tmp_path / "s" / HEADER_FILE).unlink()
+    with pytest.raises(StoreError, match="not a GraspStore"):
+        GraspStore.open(tmp_path / "s")
+
+
+def test_header_records_format(tmp_path):
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "test", {"seed": 3}) as writer:
+        writer.append(np.zeros((3, 4, 5, 3)), _row(0))
+    header = json.loads((tmp_path / "s" / HEADER_FILE).read_text())
+    assert header["channel_order"] == "RGB"
+    assert header["image_size"] == [4, 5]
+    assert header["creation_parameters"] == {"seed": 3}
+    assert header["format_version"] == 1
