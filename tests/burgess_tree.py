@@ -25,13 +25,17 @@ def dump(path: Path, array: object) -> None:
     path.write_bytes(pickle.dumps(array, protocol=4))
 
 
-def sample_values(seed: int, size: tuple[int, int] = (12, 16)) -> dict[str, np.ndarray]:
+def sample_values(
+    seed: int, size: tuple[int, int] = (12, 16), dtype: type = np.float64
+) -> dict[str, np.ndarray]:
     """Deterministic arrays of one augmentation directory (BGR images, depth in mm)."""
     rng = np.random.default_rng(seed)
     h, w = size
     return {
-        "RGB.pkl": (0.5 + 0.05 * rng.standard_normal((3, h, w, 3))).astype(np.float64),
-        "RGB_markers.pkl": (0.5 + 0.05 * rng.standard_normal((3, h, w, 3))).astype(np.float64),
+        "RGB.pkl": (0.5 + 0.05 * rng.standard_normal((3, h, w, 3), dtype=np.float32)).astype(dtype),
+        "RGB_markers.pkl": (
+            0.5 + 0.05 * rng.standard_normal((3, h, w, 3), dtype=np.float32)
+        ).astype(dtype),
         "depth.pkl": np.abs(rng.standard_normal((3, h, w)))
         * np.array([0.5, 1.0, 1.5])[:, None, None],
         "depth_markers.pkl": np.abs(rng.standard_normal((3, h, w))),
@@ -49,8 +53,11 @@ def write_tree(
     augmentations: int = 2,
     size: tuple[int, int] = (12, 16),
     metadata: bool = True,
+    dtype: type = np.float64,
+    keep: bool = True,
 ) -> dict[tuple[str, int, int], dict[str, np.ndarray]]:
-    """Write the tree; return the arrays written, keyed by (object, grasp, augmentation)."""
+    """Write the tree; return the arrays written, keyed by (object, grasp, augmentation)
+    (an empty dict when ``keep`` is False, for large benchmark trees)."""
     written = {}
     for index, (name, (modulus, material, shape)) in enumerate(objects.items()):
         object_dir = root / name
@@ -72,8 +79,9 @@ def write_tree(
             )
         for g in range(grasps):
             for k in range(augmentations):
-                values = sample_values(1000 * index + 10 * g + k, size)
+                values = sample_values(1000 * index + 10 * g + k, size, dtype)
                 for file_name, array in values.items():
                     dump(object_dir / f"grasp={g}" / f"augmentation={k}" / file_name, array)
-                written[(name, g, k)] = values
+                if keep:
+                    written[(name, g, k)] = values
     return written

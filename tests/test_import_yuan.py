@@ -1,0 +1,69 @@
+"""Importer for the Shore-hardness press videos."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from tactile_compliance.data.import_report import DataImportError
+from tactile_compliance.data.store import GraspStore
+from tactile_compliance.data.yuan import import_yuan, select_press_frames
+
+
+def _write_video(path, brightness: list[int], size=(24, 32)) -> None:
+    height, width = size
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (width, height))
+    assert writer.isOpened()
+    for level in brightness:
+        frame = np.full((height, width, 3), level, np.uint8)
+        frame[..., 0] = 10  # blue channel constant: checks the BGR -> RGB flip
+        writer.write(frame)
+    writer.release()
+
+
+def test_frame_selection_first_midway_brightest():
+    levels = np.array([10, 20, 40, 90, 60, 30], dtype=np.uint8)
+    frames = np.broadcast_to(levels[:, None, None, None], (6, 2, 2, 3))
+    assert select_press_frames(frames) == (0, 1, 3)
+
+
+def test_import_labels_and_frames(tmp_path):
+    src = tmp_path / "videos"
+    src.mkdir()
+    _write_video(src / "BASIC_60_1.avi", [20, 60, 100, 140, 120, 80])
+    _write_video(src / "HEMI_SPHERE_08_2.avi", [30, 30, 200, 40])
+    report = import_yuan(src, tmp_path / "store", progress=False)
+    assert report.problems == [] and report.samples_imported == 2
+    store = GraspStore.open(tmp_path / "store")
+    samples = store.samples.set_index("object")
+    # Larson: E[MPa] = 0.0037 exp(0.0718 S00); S00 = 60 -> 0.2748 MPa.
+    assert samples.loc["BASIC_60", "modulus_pa"] == pytest.approx(0.0037e6 * np.exp(0.0718 * 60))
+    assert samples.loc["BASIC_60", "modulus_pa"] == pytest.approx(2.748e5, rel=1e-3)
+    assert samples.loc["HEMI_SPHERE_08", "shape"] == "HEMI_SPHERE"
+    assert samples.loc["HEMI_SPHERE_08", "grasp"] == 2
+    assert samples["material"].eq("Silicone").all()
+    assert samples["force_n_0"].isna().all() and samples["hertz_estimate_pa"].isna().all()
+    # BASIC_60: frames 0 (first), 1 (midway), 3 (brightest); red/green follow the level.
+    frames = store.frames[int(samples.loc["BASIC_60", "sample_id"])]
+    red = frames[..., 0].reshape(3, -1).mean(axis=1)
+    blue = frames[..., 2].reshape(3, -1).mean(axis=1)
+    assert np.allclose(red, [20, 60, 140], atol=4)  # MJPG is lossy
+    assert np.allclose(blue, 10, atol=4)
+    assert store.header.creation_parameters["frame_kind"] == "raw"
+
+
+def test_bad_videos_are_reported(tmp_path):
+    src = tmp_path / "videos"
+    src.mkdir()
+    _write_video(src / "BASIC_60_1.avi", [20, 60, 100])
+    (src / "BASIC_70_1.avi").write_bytes(b"not a video at all")
+    _write_video(src / "notes.avi", [1, 2, 3])
+    report = import_yuan(src, tmp_path / "store", progress=False, image_size=(12, 16))
+    reasons = dict(report.reasons())
+    assert reasons == {"unreadable video": 1, "unexpected file name": 1}
+    assert GraspStore.open(tmp_path / "store").frames.shape == (1, 3, 12, 16, 3)
+    with pytest.raises(DataImportError, match="unreadable video"):
+        import_yuan(src, tmp_path / "store2", progress=False, strict=True)
+    with pytest.raises(FileExistsError):
+        import_yuan(src, tmp_path / "store", progress=False)
