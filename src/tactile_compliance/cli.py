@@ -178,5 +178,136 @@ def import_yuan_command(
     )
 
 
+def _load_config(config: str, overrides: list[str] | None) -> object:
+    from tactile_compliance.config import ConfigError, load_config
+
+    try:
+        return load_config(config, overrides or [])
+    except ConfigError as err:
+        _fail(str(err))
+    return None  # unreachable
+
+
+ConfigArg = Annotated[
+    str, typer.Option("--config", "-c", help="YAML config file or packaged preset name.")
+]
+SetOption = Annotated[
+    Optional[list[str]],  # noqa: UP045
+    typer.Option(
+        "--set", "-s", help="Override a config value: --set training.lr=1e-4 (repeatable)."
+    ),
+]
+
+
+@app.command()
+def presets() -> None:
+    """List the packaged configuration presets (usable wherever a config file is)."""
+    from tactile_compliance.config import list_presets
+
+    for name in list_presets():
+        typer.echo(name)
+
+
+@app.command()
+def split(
+    store: Annotated[Path, typer.Argument(help="GraspStore directory.")],
+    out: Annotated[Path, typer.Option("--out", help="Where to write the split JSON.")],
+    condition: Annotated[str, typer.Option(help="seen or unseen (split by object).")] = "seen",
+    grouping: Annotated[
+        str, typer.Option(help="seen: grasp (default) or per_sample (the paper's, leaks).")
+    ] = "grasp",
+    seed: Annotated[int, typer.Option(help="Random seed of the split.")] = 0,
+    config: Annotated[
+        str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
+    ] = "default",
+    overrides: SetOption = None,
+) -> None:
+    """Filter a store and draw a train/val/test split; print what it contains."""
+    from tactile_compliance.data.preprocess import filter_samples
+    from tactile_compliance.data.splits import make_split_from_config, summarise_split
+    from tactile_compliance.data.store import GraspStore
+
+    extra = [
+        f"data.store={store}",
+        f"split.condition={condition}",
+        f"split.grouping={grouping}",
+        f"seed={seed}",
+    ]
+    cfg = _load_config(config, [*extra, *(overrides or [])])
+    samples, report = filter_samples(GraspStore.open(store).samples, cfg)
+    typer.echo(str(report))
+    drawn = make_split_from_config(samples, cfg)
+    drawn.save(out)
+    typer.echo(f"\n{summarise_split(samples, drawn)}\n\nSplit written to {out}")
+
+
+@app.command("split-summary")
+def split_summary(
+    split_file: Annotated[Path, typer.Argument(help="A split JSON (from `split` or a run).")],
+    store: Annotated[Path, typer.Argument(help="The store the split was drawn from.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Show what a saved split contains (counts, materials, shapes, leakage checks)."""
+    from tactile_compliance.data.splits import Split, summarise_split
+    from tactile_compliance.data.store import GraspStore
+
+    summary = summarise_split(GraspStore.open(store).samples, Split.load(split_file))
+    typer.echo(json.dumps(summary.to_dict(), indent=2, default=str) if as_json else str(summary))
+
+
+@app.command()
+def train(
+    config: ConfigArg = "default",
+    overrides: SetOption = None,
+    run_dir: Annotated[
+        Optional[Path], typer.Option("--run-dir", help="Run directory (default: output_dir/NAME).")  # noqa: UP045
+    ] = None,
+    overwrite: Annotated[bool, typer.Option(help="Retrain a finished run.")] = False,
+) -> None:
+    """Train one configuration and evaluate its best epoch on the test split.
+
+    Writes a run directory (config, split, checkpoints, per-epoch log, predictions,
+    metrics.json). Re-running resumes an interrupted run or returns a finished one.
+    """
+    from tactile_compliance.training.train import train as train_run
+
+    cfg = _load_config(config, overrides)
+    try:
+        result = train_run(cfg, run_dir=run_dir, overwrite=overwrite)  # type: ignore[arg-type]
+    except (ValueError, FileNotFoundError) as err:
+        _fail(str(err))
+    test, median = result["test"], result["reference"]["median"]
+    typer.echo(
+        f"{result['run_name']}: best epoch {result['best_epoch']}, "
+        f"test log10 accuracy {test['log10_accuracy']:.3f}, N-MSE {test['nmse']:.4f} "
+        f"(median predictor {median['nmse']:.4f})\nRun directory: {result['run_dir']}"
+    )
+
+
+@app.command()
+def evaluate(
+    run_dir: Annotated[Path, typer.Argument(help="A finished run directory.")],
+    store: Annotated[
+        Optional[Path], typer.Option("--store", help="Evaluate on this store instead.")  # noqa: UP045
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Recompute metrics (overall, per material, shape, soft/hard) from a run's checkpoint."""
+    from tactile_compliance.evaluation.evaluate import evaluate_run
+
+    try:
+        evaluation = evaluate_run(run_dir, store)
+    except (ValueError, FileNotFoundError) as err:
+        _fail(str(err))
+    if as_json:
+        payload = {
+            "metrics": evaluation.metrics,
+            "groups": evaluation.groups.to_dict(orient="records"),
+        }
+        typer.echo(json.dumps(payload, indent=2))
+        return
+    typer.echo(evaluation.groups.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+
+
 if __name__ == "__main__":  # pragma: no cover
     app()

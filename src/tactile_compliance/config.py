@@ -1,0 +1,647 @@
+"""Typed, validated experiment configuration (YAML presets + command-line overrides).
+
+One :class:`ExperimentConfig` describes a run completely: data (store, label range, fingers),
+the sample filter, the split protocol, the sampling strategy, the input strategy,
+augmentation, model and training settings, the seed and the output directory.
+
+Loading::
+
+    cfg = load_config("default")                              # packaged preset
+    cfg = load_config("my_run.yaml", ["split.condition=unseen", "training.lr=1e-4"])
+
+* Every section forbids unknown keys; the error names the dotted key and lists the valid
+  keys of its section (a typo such as ``split.conditon`` never passes silently).
+* Wrong types / out-of-range values raise :class:`ConfigError` (a ``ValueError``) naming the
+  dotted path, the problem and the value given.
+* Overrides are ``dotted.key=value``; the value is parsed as YAML (``3`` -> int,
+  ``1e-4`` -> float, ``null`` -> None, ``[1, 2]`` -> list, ``Sphere`` -> str).
+* A YAML file may start from another preset or file with ``base: NAME_OR_PATH`` and only
+  list what differs (mappings are merged key by key).
+* Impossible combinations raise (Shore-hardness data with inputs other than Image,
+  ``per_sample`` grouping with the unseen condition); questionable ones warn (augmentation
+  with a frozen backbone: cached features cannot be augmented).
+
+Presets live in ``tactile_compliance/configs/*.yaml`` inside the installed package
+(:func:`list_presets`), so they are available without a source checkout.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib.resources
+import re
+import warnings
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, Literal, get_args, get_origin
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.data.preprocess import (
+    DEFAULT_EXCLUDED_MATERIALS,
+    UNKNOWN_GROUND_TRUTH_OBJECTS,
+)
+from tactile_compliance.data.splits import N_ROLLING_WINDOWS
+
+__all__ = [
+    "INPUT_STRATEGIES",
+    "AugmentationConfig",
+    "ConfigError",
+    "DataConfig",
+    "ExperimentConfig",
+    "FilterConfig",
+    "ModelConfig",
+    "SamplingConfig",
+    "SplitConfig",
+    "TrainingConfig",
+    "apply_overrides",
+    "check_config_against_samples",
+    "config_from_dict",
+    "config_to_dict",
+    "list_presets",
+    "load_config",
+    "preset_path",
+    "save_config",
+]
+
+#: The paper's four input strategies (same spelling as ``models.inputs.InputStrategy``).
+INPUT_STRATEGIES: tuple[str, ...] = ("Image", "ImageF", "ImageFW", "ALL")
+_NEEDS = {
+    "Image": (),
+    "ImageF": ("force",),
+    "ImageFW": ("force", "width"),
+    "ALL": ("force", "width", "estimates"),
+}
+_DEFAULT_NORM = NormalisationConstants()
+
+
+class ConfigError(ValueError):
+    """An experiment configuration is invalid; the message names the key(s) at fault."""
+
+
+class _Section(BaseModel):
+    # extra="forbid": unknown keys are errors; validate_assignment: edits in code are checked.
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+# =========================================================================== sections
+class DataConfig(_Section):
+    """Which data and how labels/images are scaled."""
+
+    store: str | None = Field(None, description="GraspStore directory (usually given on the CLI)")
+    source: Literal["auto", "burgess", "synthetic", "yuan"] = Field(
+        "auto", description="data source; auto = read from the store header at run time"
+    )
+    label_range_pa: tuple[float, float] = Field(
+        (1e3, 1e12), description="label log10 min-max range (Pa); [1e3, 1e7] for Shore data"
+    )
+    image_size: tuple[int, int] | None = Field(
+        None, description="(height, width) px to resize frames to; None keeps the store's size"
+    )
+    fingers: list[Literal["markerless", "markers"]] = Field(
+        ["markerless", "markers"], description="sensor fingers whose samples are used"
+    )
+    image_mean: tuple[float, float, float] = _DEFAULT_NORM.image_mean
+    image_std: tuple[float, float, float] = _DEFAULT_NORM.image_std
+
+    @field_validator("label_range_pa")
+    @classmethod
+    def _range(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0 < v[0] < v[1]:
+            raise ValueError(f"must be [min, max] in Pa with 0 < min < max, got {list(v)}")
+        return v
+
+    @field_validator("image_size", mode="before")
+    @classmethod
+    def _size(cls, v: Any) -> Any:
+        if isinstance(v, int) and not isinstance(v, bool):
+            v = (v, v)  # a single number means a square image
+        if v is not None and (
+            not isinstance(v, (list, tuple))
+            or len(v) != 2
+            or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in v)
+        ):
+            raise ValueError(f"must be null, a positive int or [height, width], got {v!r}")
+        return v
+
+    @field_validator("fingers")
+    @classmethod
+    def _fingers(cls, v: list[str]) -> list[str]:
+        if not v:
+            raise ValueError("at least one finger is needed")
+        if len(set(v)) != len(v):
+            raise ValueError(f"duplicate finger in {v}")
+        return v
+
+    @field_validator("image_std")
+    @classmethod
+    def _std(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if min(v) <= 0:
+            raise ValueError("standard deviations must be positive")
+        return v
+
+
+class FilterConfig(_Section):
+    """The sample filter (``data/preprocess.py``); each rule can be switched off."""
+
+    drop_missing_estimates: bool = True
+    drop_no_force_increase: bool = True
+    drop_no_width_decrease: bool = True
+    drop_no_depth_increase: bool = True
+    drop_single_sample_objects: bool = True
+    exclude_objects: list[str] = Field(default_factory=lambda: list(UNKNOWN_GROUND_TRUTH_OBJECTS))
+    exclude_materials: list[str] = Field(default_factory=lambda: list(DEFAULT_EXCLUDED_MATERIALS))
+
+
+class SplitConfig(_Section):
+    """Split protocol (``data/splits.py``)."""
+
+    condition: Literal["seen", "unseen"] = "seen"
+    grouping: Literal["grasp", "per_sample"] = "grasp"
+    test_fraction: float = Field(0.2, ge=0.0, lt=1.0)
+    val_fraction: float = Field(0.2, ge=0.0, lt=1.0)
+    stratify: bool = False
+    subset: int | str | None = Field(
+        None, description="none | rolling window 0-6 | shape name | soft | hard"
+    )
+    seed: int | None = Field(None, description="split seed; None = the run's seed")
+
+    @field_validator("subset", mode="before")
+    @classmethod
+    def _subset(cls, v: Any) -> Any:
+        if v is None:
+            return None
+        if isinstance(v, bool):
+            raise ValueError(f"must be none, a window index 0-6, a shape, soft or hard; got {v}")
+        if isinstance(v, str):
+            s = v.strip()
+            if s.lower() in ("", "none", "null"):
+                return None
+            if s.isdigit():
+                v = int(s)
+            elif s.lower() in ("soft", "hard"):
+                return s.lower()
+            else:
+                return s  # a shape name; checked against the data when the subset is selected
+        if isinstance(v, int):
+            if not 0 <= v < N_ROLLING_WINDOWS:
+                raise ValueError(f"rolling window index must be 0-{N_ROLLING_WINDOWS - 1}, got {v}")
+            return v
+        raise ValueError(
+            f"must be none, a window index 0-6, a shape, soft or hard; got {type(v).__name__}"
+        )
+
+
+class SamplingConfig(_Section):
+    """Random or balanced (oversampled) training / validation sets (``data/balance.py``)."""
+
+    strategy: Literal["random", "balanced"] = "random"
+    t_balance: float = Field(
+        0.5, ge=0.0, le=1.0, description="bins are raised to int(t_balance * largest bin)"
+    )
+    n_bins: int = Field(9, ge=1)
+    balance_validation: bool = Field(
+        True, description="balance the validation set too (the paper does); test never"
+    )
+
+
+class AugmentationConfig(_Section):
+    """Training-time augmentation (``data/augment.py``); never applied to val/test."""
+
+    enabled: bool = True
+    probability: float = Field(0.9, ge=0.0, le=1.0, description="per-sample pipeline probability")
+    hflip: float = Field(0.5, ge=0.0, le=1.0)
+    vflip: float = Field(0.5, ge=0.0, le=1.0)
+    brightness: float = Field(0.4, ge=0.0)
+    contrast: float = Field(0.4, ge=0.0)
+    saturation: float = Field(0.5, ge=0.0)
+    hue: float = Field(0.3, ge=0.0, le=0.5)
+    noise_std: float = Field(15 / 255, ge=0.0, description="Gaussian noise sigma, image units")
+
+
+class ModelConfig(_Section):
+    """Which model and its hyperparameters (names as in ``models.registry``)."""
+
+    name: str = "top10nn"
+    hparams: dict[str, Any] = Field(default_factory=dict)
+    backbone_weights: str = Field(
+        "none", description="none | imagenet | path to a state dict (sha256-checked)"
+    )
+    freeze_backbone: bool = False
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        if not v.strip():
+            raise ValueError("model name must not be empty")
+        return v.strip().lower()
+
+
+class TrainingConfig(_Section):
+    """Optimisation settings (paper: Adam, StepLR per epoch, early stopping on val N-MSE)."""
+
+    max_epochs: int = Field(200, ge=1)
+    patience: int = Field(30, ge=0, description="epochs without val N-MSE improvement")
+    lr: float = Field(3e-6, gt=0.0)
+    batch_size: int = Field(32, ge=1)
+    gamma: float | None = Field(None, gt=0.0, le=1.0, description="StepLR gamma; null = none")
+    l2_weight: float = Field(5e-5, ge=0.0)
+    precision: Literal["32", "bf16-mixed"] = "32"
+    compile: bool = False
+    num_workers: int = Field(0, ge=0)
+    device: str = "auto"
+
+    @field_validator("precision", mode="before")
+    @classmethod
+    def _precision(cls, v: Any) -> Any:
+        # YAML reads `precision: 32` as an int.
+        return str(v) if isinstance(v, int) and not isinstance(v, bool) else v
+
+    @field_validator("device")
+    @classmethod
+    def _device(cls, v: str) -> str:
+        if not re.fullmatch(r"auto|cpu|mps|cuda(:\d+)?", v):
+            raise ValueError(f"must be auto, cpu, mps, cuda or cuda:N; got {v!r}")
+        return v
+
+
+# =========================================================================== top level
+class ExperimentConfig(_Section):
+    """A complete, validated experiment configuration."""
+
+    data: DataConfig = Field(default_factory=DataConfig)
+    filters: FilterConfig = Field(default_factory=FilterConfig)
+    split: SplitConfig = Field(default_factory=SplitConfig)
+    sampling: SamplingConfig = Field(default_factory=SamplingConfig)
+    inputs: Literal["Image", "ImageF", "ImageFW", "ALL"] = "ALL"
+    augmentation: AugmentationConfig = Field(default_factory=AugmentationConfig)
+    model: ModelConfig = Field(default_factory=ModelConfig)
+    training: TrainingConfig = Field(default_factory=TrainingConfig)
+    seed: int = Field(0, ge=0)
+    output_dir: str = "runs"
+
+    @field_validator("inputs", mode="before")
+    @classmethod
+    def _inputs(cls, v: Any) -> Any:
+        # Accept any capitalisation and _/- ("image_fw"), like models.inputs.InputStrategy.
+        if isinstance(v, str):
+            key = v.strip().replace("_", "").replace("-", "").lower()
+            for name in INPUT_STRATEGIES:
+                if key == name.lower():
+                    return name
+            raise ValueError(f"unknown input strategy {v!r}; valid: {', '.join(INPUT_STRATEGIES)}")
+        return v
+
+    @model_validator(mode="after")
+    def _combinations(self) -> ExperimentConfig:
+        if self.data.source == "yuan" and self.inputs != "Image":
+            raise ValueError(
+                f"inputs={self.inputs} needs {'/'.join(_NEEDS[self.inputs])}, but "
+                "data.source=yuan (Shore-hardness videos) has no force, width or estimates; "
+                "use inputs: Image"
+            )
+        if self.split.condition == "unseen" and self.split.grouping == "per_sample":
+            raise ValueError(
+                "split.grouping=per_sample only applies to split.condition=seen "
+                "(unseen always splits by object)"
+            )
+        if self.augmentation.enabled and self.model.freeze_backbone:
+            warnings.warn(
+                "augmentation.enabled with model.freeze_backbone: frozen-backbone runs use "
+                "cached image features, which cannot be augmented; augmentation will have "
+                "no effect (set augmentation.enabled=false to silence this)",
+                UserWarning,
+                stacklevel=2,
+            )
+        return self
+
+    # ------------------------------------------------------------------ derived values
+    def normalisation_constants(self) -> NormalisationConstants:
+        """The dataset's normalisation constants (label range and image statistics)."""
+        return NormalisationConstants.from_label_range(
+            self.data.label_range_pa, image_mean=self.data.image_mean, image_std=self.data.image_std
+        )
+
+    @property
+    def uses_force(self) -> bool:
+        """Whether the input strategy includes the normal force."""
+        return "force" in _NEEDS[self.inputs]
+
+    @property
+    def uses_width(self) -> bool:
+        """Whether the input strategy includes the gripper width."""
+        return "width" in _NEEDS[self.inputs]
+
+    @property
+    def uses_estimates(self) -> bool:
+        """Whether the input strategy includes the analytical estimates."""
+        return "estimates" in _NEEDS[self.inputs]
+
+
+# =========================================================================== errors
+def _submodel(path: Sequence[Any]) -> type[BaseModel] | None:
+    """The section model at ``path`` (e.g. ("split",) -> SplitConfig), None if not a section."""
+    model: type[BaseModel] = ExperimentConfig
+    for part in path:
+        field = model.model_fields.get(str(part))
+        if field is None:
+            return None
+        ann = field.annotation
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            model = ann
+        else:
+            return None
+    return model
+
+
+def _valid_keys(path: Sequence[Any]) -> list[str]:
+    model = _submodel(path)
+    return list(model.model_fields) if model is not None else []
+
+
+def _unknown_key_message(dotted: str, parent: Sequence[Any]) -> str:
+    where = f" in '{'.'.join(map(str, parent))}'" if parent else ""
+    return f"unknown key '{dotted}'; valid keys{where}: {', '.join(_valid_keys(parent))}"
+
+
+def _format_errors(exc: ValidationError, origin: str) -> ConfigError:
+    lines = []
+    for err in exc.errors():
+        loc = [p for p in err["loc"]]
+        dotted = ".".join(map(str, loc))
+        msg = str(err["msg"])
+        if msg.startswith("Value error, "):
+            msg = msg[len("Value error, ") :]
+        if err["type"] == "extra_forbidden":
+            lines.append(_unknown_key_message(dotted, loc[:-1]))
+        elif not loc:
+            lines.append(msg)
+        else:
+            given = err.get("input")
+            shown = "" if isinstance(given, dict) or repr(given) in msg else f" (got {given!r})"
+            lines.append(f"{dotted}: {msg}{shown}")
+    head = f"invalid configuration ({origin})" if origin else "invalid configuration"
+    return ConfigError(head + ":\n  " + "\n  ".join(lines))
+
+
+# =========================================================================== YAML
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that rejects duplicate keys and reads ``1e-4`` as a float (YAML 1.2 style)."""
+
+
+def _construct_mapping(loader: _Loader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    loader.flatten_mapping(node)
+    mapping: dict[Any, Any] = {}
+    for key_node, value_node in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        if key in mapping:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"duplicate key {key!r}", key_node.start_mark
+            )
+        mapping[key] = loader.construct_object(value_node, deep=deep)
+    return mapping
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
+def _parse_yaml(text: str, origin: str) -> Any:
+    try:
+        # _Loader derives from SafeLoader: no arbitrary Python objects are constructed.
+        return yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{origin}: invalid YAML: {exc}") from exc
+
+
+# =========================================================================== presets
+def _preset_dir() -> Any:
+    return importlib.resources.files("tactile_compliance") / "configs"
+
+
+def list_presets() -> list[str]:
+    """Names of the packaged presets (``tactile_compliance/configs/*.yaml``)."""
+    directory = _preset_dir()
+    if not directory.is_dir():
+        return []
+    return sorted(p.name[: -len(".yaml")] for p in directory.iterdir() if p.name.endswith(".yaml"))
+
+
+def preset_path(name: str) -> Any:
+    """The packaged preset file ``name`` (a Traversable); ConfigError if there is none."""
+    stem = name[: -len(".yaml")] if name.endswith(".yaml") else name
+    candidate = _preset_dir() / f"{stem}.yaml"
+    if not candidate.is_file():
+        raise ConfigError(
+            f"no config file or preset named {name!r}; presets: {', '.join(list_presets())}"
+        )
+    return candidate
+
+
+def _read_source(
+    ref: str | Path, relative_to: Path | None
+) -> tuple[dict[str, Any], str, Path | None]:
+    """Raw mapping of a config file or preset, its display name and its directory."""
+    path = Path(ref)
+    if relative_to is not None and not path.is_absolute():
+        path = relative_to / path
+    text = str(ref)
+    stem = text[: -len(".yaml")] if text.endswith(".yaml") else text
+    is_bare_name = isinstance(ref, str) and "/" not in text and "\\" not in text
+    if path.is_file():
+        body, origin, directory = path.read_text(encoding="utf-8"), str(path), path.parent
+    elif is_bare_name and (_preset_dir() / f"{stem}.yaml").is_file():
+        body = preset_path(stem).read_text(encoding="utf-8")
+        origin, directory = f"preset {stem}", None
+    elif not is_bare_name or text.endswith((".yaml", ".yml")):
+        raise ConfigError(
+            f"config file {path} does not exist (presets: {', '.join(list_presets())})"
+        )
+    else:
+        preset_path(text)  # raises: names the presets
+        raise AssertionError("unreachable")
+    data = _parse_yaml(body, origin)
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{origin}: the top level must be a mapping, got {type(data).__name__}")
+    return data, origin, directory
+
+
+def _deep_merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(dict(base))
+    for key, value in update.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _resolve_raw(
+    ref: str | Path, relative_to: Path | None = None, stack: tuple[str, ...] = ()
+) -> tuple[dict[str, Any], str]:
+    data, origin, directory = _read_source(ref, relative_to)
+    if origin in stack:
+        raise ConfigError(f"circular 'base' chain: {' -> '.join((*stack, origin))}")
+    base_ref = data.pop("base", None)
+    if base_ref is None:
+        return data, origin
+    if not isinstance(base_ref, str):
+        raise ConfigError(f"{origin}: 'base' must be a preset name or a path, got {base_ref!r}")
+    base, _ = _resolve_raw(base_ref, directory, (*stack, origin))
+    return _deep_merge(base, data), origin
+
+
+# =========================================================================== overrides
+def _annotation_is_mapping(ann: Any) -> bool:
+    return (
+        ann is dict
+        or get_origin(ann) is dict
+        or (get_origin(ann) is not None and any(_annotation_is_mapping(a) for a in get_args(ann)))
+    )
+
+
+def _check_override_key(dotted: str) -> None:
+    """Raise ConfigError unless ``dotted`` names a field (or lies inside a free mapping)."""
+    parts = dotted.split(".")
+    model: type[BaseModel] = ExperimentConfig
+    for i, part in enumerate(parts):
+        field = model.model_fields.get(part)
+        if field is None:
+            raise ConfigError(_unknown_key_message(dotted, parts[:i]))
+        ann = field.annotation
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            model = ann
+            continue
+        if i == len(parts) - 1 or _annotation_is_mapping(ann):
+            return  # a value, or a key inside a free mapping such as model.hparams
+        raise ConfigError(
+            f"'{'.'.join(parts[: i + 1])}' is a value, not a section; cannot set '{dotted}'"
+        )
+
+
+def _parse_override(item: str) -> tuple[str, Any]:
+    if "=" not in item:
+        raise ConfigError(f"override {item!r} must look like section.key=value")
+    key, _, text = item.partition("=")
+    key = key.strip()
+    if not re.fullmatch(r"[A-Za-z_][\w-]*(\.[\w-]+)*", key):
+        raise ConfigError(f"override {item!r}: {key!r} is not a dotted key")
+    value = _parse_yaml(text, f"override {item!r}") if text.strip() else None
+    return key, value
+
+
+def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
+    parts = dotted.split(".")
+    node = data
+    for part in parts[:-1]:
+        child = node.get(part)
+        if not isinstance(child, dict):
+            child = {}
+            node[part] = child
+        node = child
+    node[parts[-1]] = value
+
+
+def _apply_overrides_raw(data: dict[str, Any], overrides: Iterable[str]) -> dict[str, Any]:
+    data = copy.deepcopy(data)
+    for item in overrides:
+        key, value = _parse_override(item)
+        try:
+            _check_override_key(key)
+        except ConfigError as exc:
+            raise ConfigError(f"override {item!r}: {exc}") from None
+        _set_dotted(data, key, value)
+    return data
+
+
+# =========================================================================== public API
+def config_from_dict(
+    data: Mapping[str, Any], overrides: Iterable[str] = (), origin: str = ""
+) -> ExperimentConfig:
+    """Validate a raw mapping (+ overrides) into an :class:`ExperimentConfig`."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"configuration must be a mapping, got {type(data).__name__}")
+    overrides = list(overrides)
+    raw = _apply_overrides_raw(dict(data), overrides)
+    if overrides:
+        origin = f"{origin} + overrides" if origin else "overrides"
+    if "base" in raw:
+        raise ConfigError("'base' is only allowed at the top of a YAML file")
+    try:
+        return ExperimentConfig.model_validate(raw)
+    except ValidationError as exc:
+        raise _format_errors(exc, origin) from None
+
+
+def load_config(
+    path_or_preset_name: str | Path = "default", overrides: Iterable[str] = ()
+) -> ExperimentConfig:
+    """Load a YAML file or packaged preset, apply ``key.sub=value`` overrides, validate.
+
+    Args:
+        path_or_preset_name: a path to a YAML file, or the name of a packaged preset
+            (``list_presets()``), e.g. ``"default"``.
+        overrides: ``dotted.key=value`` strings; the value is parsed as YAML.
+
+    Raises:
+        ConfigError: (a ``ValueError``) for missing files, invalid YAML, unknown keys, wrong
+            types or impossible combinations; the message names the dotted key(s).
+    """
+    raw, origin = _resolve_raw(path_or_preset_name)
+    return config_from_dict(raw, overrides, origin)
+
+
+def apply_overrides(cfg: ExperimentConfig, overrides: Iterable[str]) -> ExperimentConfig:
+    """A new config equal to ``cfg`` with ``dotted.key=value`` overrides applied."""
+    return config_from_dict(config_to_dict(cfg), overrides, "overrides")
+
+
+def config_to_dict(cfg: ExperimentConfig) -> dict[str, Any]:
+    """Plain JSON/YAML-serialisable dict (tuples become lists); round-trips through YAML."""
+    return cfg.model_dump(mode="json")
+
+
+def save_config(cfg: ExperimentConfig, path: str | Path) -> Path:
+    """Write the fully resolved configuration as YAML (atomically). Returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = "# tactile-compliance experiment configuration (fully resolved)\n" + yaml.safe_dump(
+        config_to_dict(cfg), sort_keys=False, default_flow_style=None
+    )
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+    return path
+
+
+def check_config_against_samples(
+    cfg: ExperimentConfig, samples: Any, source: str | None = None
+) -> None:
+    """Raise ConfigError when the data cannot feed the configured inputs.
+
+    Checks, at run time, what the config alone cannot know: that the columns the input
+    strategy needs (force, width, estimates) hold data, and that ``data.source`` (when not
+    ``auto``) matches the store's ``source`` header.
+    """
+    if source is not None and cfg.data.source not in ("auto", source):
+        raise ConfigError(f"data.source={cfg.data.source} but the store's source is {source!r}")
+    columns = {
+        "force": ("force_n_0", "force_n_1", "force_n_2"),
+        "width": ("width_m_0", "width_m_1", "width_m_2"),
+        "estimates": ("elastic_estimate_pa", "hertz_estimate_pa"),
+    }
+    for need in _NEEDS[cfg.inputs]:
+        empty = [c for c in columns[need] if c not in samples.columns or samples[c].isna().all()]
+        if empty:
+            raise ConfigError(
+                f"inputs={cfg.inputs} needs {need}, but column(s) {empty} are missing or all "
+                f"NaN in this data (source {source or 'unknown'}); use inputs: Image"
+            )

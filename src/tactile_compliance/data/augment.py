@@ -1,0 +1,141 @@
+"""Batched training augmentation with the same random parameters for the three frames.
+
+Pipeline (paper, applied to a whole sample with probability 0.9):
+
+1. random horizontal flip (p 0.5) and random vertical flip (p 0.5),
+2. ``ColorJitter(brightness 0.4, contrast 0.4, saturation 0.5, hue 0.3)``,
+3. additive Gaussian noise, sigma 15/255, clipped to [0, 1];
+
+then (outside this module) per-channel normalisation with
+:func:`tactile_compliance.data.normalisation.normalise_images`.
+
+The three frames of a grasp show one contact developing over time; flipping or re-colouring
+them differently would create a physically impossible sequence. The flips and the colour
+jitter therefore draw one set of parameters per *sample* and apply it to all frames
+(``kornia.augmentation.VideoSequential(same_on_frame=True)``). The noise is sensor noise and
+is drawn independently for every pixel of every frame (its sigma is the shared parameter).
+
+Training only: in ``eval()`` mode the module is the identity, so a model that owns one can
+never augment validation or test data by accident, and the validation loss is comparable
+between epochs. Frozen-backbone runs train on cached image features, which cannot be
+augmented (the config warns when both are enabled).
+
+Randomness: with ``seed`` given, the module owns a ``torch.Generator``; each call draws a
+seed from it and runs kornia inside ``torch.random.fork_rng`` so the global RNG is neither
+used nor disturbed (same seed -> same augmented batches). Without a seed the global torch
+RNG is used (seed it with ``torch.manual_seed``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from typing import Any
+
+import kornia.augmentation as kaug
+import torch
+from torch import nn
+
+__all__ = ["GraspAugmentation"]
+
+
+class GraspAugmentation(nn.Module):
+    """Augment a batch of grasps ``(B, T frames, 3, H, W)`` with values in [0, 1].
+
+    Args:
+        probability: per-sample probability of applying the whole pipeline (paper 0.9).
+        hflip: probability of a horizontal flip (given the pipeline is applied).
+        vflip: probability of a vertical flip.
+        brightness, contrast, saturation, hue: ``ColorJitter`` ranges (torchvision semantics).
+        noise_std: standard deviation of the additive Gaussian noise, image units
+            (15/255 = 15 grey levels).
+        seed: seed of the module's own generator; None uses the global torch RNG.
+    """
+
+    def __init__(
+        self,
+        probability: float = 0.9,
+        hflip: float = 0.5,
+        vflip: float = 0.5,
+        brightness: float = 0.4,
+        contrast: float = 0.4,
+        saturation: float = 0.5,
+        hue: float = 0.3,
+        noise_std: float = 15 / 255,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__()
+        if not 0.0 <= probability <= 1.0:
+            raise ValueError(f"probability must be in [0, 1], got {probability}")
+        if noise_std < 0:
+            raise ValueError(f"noise_std must be >= 0, got {noise_std}")
+        self.probability = float(probability)
+        self.noise_std = float(noise_std)
+        augmentations: list[nn.Module] = []
+        if hflip > 0:
+            augmentations.append(kaug.RandomHorizontalFlip(p=hflip))
+        if vflip > 0:
+            augmentations.append(kaug.RandomVerticalFlip(p=vflip))
+        if max(brightness, contrast, saturation, hue) > 0:
+            augmentations.append(
+                kaug.ColorJitter(
+                    brightness=brightness, contrast=contrast, saturation=saturation, hue=hue, p=1.0
+                )
+            )
+        # same_on_frame=True: one parameter set per sample, shared by its frames.
+        self.frames_pipeline = (
+            kaug.VideoSequential(*augmentations, data_format="BTCHW", same_on_frame=True)
+            if augmentations
+            else None
+        )
+        self._generator: torch.Generator | None = None
+        if seed is not None:
+            self._generator = torch.Generator().manual_seed(int(seed))
+
+    @classmethod
+    def from_config(cls, cfg: Any, seed: int | None = None) -> GraspAugmentation:
+        """Build from an ``AugmentationConfig`` (probability forced to 0 when disabled)."""
+        return cls(
+            probability=cfg.probability if cfg.enabled else 0.0,
+            hflip=cfg.hflip,
+            vflip=cfg.vflip,
+            brightness=cfg.brightness,
+            contrast=cfg.contrast,
+            saturation=cfg.saturation,
+            hue=cfg.hue,
+            noise_std=cfg.noise_std,
+            seed=seed,
+        )
+
+    @contextlib.contextmanager
+    def _rng(self, device: torch.device) -> Iterator[None]:
+        if self._generator is None:
+            yield
+            return
+        call_seed = int(torch.randint(0, 2**62, (1,), generator=self._generator))
+        devices = [device.index or 0] if device.type == "cuda" else []
+        with torch.random.fork_rng(devices=devices):
+            torch.manual_seed(call_seed)
+            yield
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        """Augmented copy of ``frames`` (B, T, 3, H, W); the identity in eval mode."""
+        if frames.ndim != 5 or frames.shape[2] != 3:
+            raise ValueError(f"expected frames of shape (B, T, 3, H, W), got {tuple(frames.shape)}")
+        if not self.training or self.probability == 0.0 or frames.shape[0] == 0:
+            return frames
+        with self._rng(frames.device):
+            apply = torch.rand(frames.shape[0], device=frames.device) < self.probability
+            if not bool(apply.any()):
+                return frames
+            chosen = frames[apply]
+            if self.frames_pipeline is not None:
+                chosen = self.frames_pipeline(chosen)
+            if self.noise_std > 0:
+                chosen = (chosen + torch.randn_like(chosen) * self.noise_std).clamp_(0.0, 1.0)
+            out = frames.clone()
+            out[apply] = chosen.to(out.dtype)
+        return out
+
+    def extra_repr(self) -> str:
+        return f"probability={self.probability}, noise_std={self.noise_std:.4f}"

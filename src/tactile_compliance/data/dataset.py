@@ -1,0 +1,147 @@
+"""From a GraspStore to model-ready tensors: the one preprocessing path.
+
+``model_inputs`` turns store columns into normalised scalar inputs and labels;
+``prepare_frames`` turns uint8 store frames into normalised float frames at the model's
+resolution. Training, the feature cache, evaluation and the inference API all call these
+two functions, so a model always sees data prepared exactly as it was trained on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+import torch
+import torch.nn.functional as F
+from torch.utils.data import Dataset
+
+from tactile_compliance.data.normalisation import (
+    NormalisationConstants,
+    normalise_estimates,
+    normalise_force,
+    normalise_images,
+    normalise_modulus,
+    normalise_width,
+)
+from tactile_compliance.data.store import (
+    ESTIMATE_COLUMNS,
+    FORCE_COLUMNS,
+    WIDTH_COLUMNS,
+    GraspStore,
+)
+
+
+@dataclass(frozen=True)
+class ModelInputs:
+    """Normalised per-sample inputs (numpy float32), aligned with ``sample_ids``."""
+
+    sample_ids: np.ndarray  # (N,) int64 store rows (may repeat after balancing)
+    force: np.ndarray  # (N, 3) F / 60 N
+    width: np.ndarray  # (N, 3) W / 0.08 m
+    estimates: np.ndarray  # (N, 2) normalised log10 (elastic, Hertz)
+    label: np.ndarray  # (N,) normalised log10 modulus
+
+
+def model_inputs(
+    samples: pd.DataFrame, sample_ids: Sequence[int] | np.ndarray, constants: NormalisationConstants
+) -> ModelInputs:
+    """Normalised force, width, estimates and labels of ``sample_ids`` (store rows).
+
+    Missing values (NaN, e.g. no estimates in the Shore-hardness data) become 0 after
+    normalisation; the configuration forbids strategies that would use such inputs.
+    """
+    ids = np.asarray(sample_ids, dtype=np.int64)
+    rows = samples.iloc[ids]
+
+    def block(columns: Sequence[str]) -> np.ndarray:
+        return rows[list(columns)].to_numpy(dtype=np.float64)
+
+    def clean(values: np.ndarray) -> np.ndarray:
+        return np.nan_to_num(np.asarray(values, dtype=np.float32), nan=0.0)
+
+    return ModelInputs(
+        sample_ids=ids,
+        force=clean(normalise_force(block(FORCE_COLUMNS), constants)),
+        width=clean(normalise_width(block(WIDTH_COLUMNS), constants)),
+        estimates=clean(normalise_estimates(block(ESTIMATE_COLUMNS), constants)),
+        label=np.asarray(
+            normalise_modulus(rows["modulus_pa"].to_numpy(dtype=np.float64), constants),
+            dtype=np.float32,
+        ),
+    )
+
+
+def prepare_frames(
+    frames: torch.Tensor,
+    constants: NormalisationConstants,
+    image_size: tuple[int, int] | None = None,
+    augmentation: torch.nn.Module | None = None,
+) -> torch.Tensor:
+    """Store frames -> model frames.
+
+    Args:
+        frames: (B, 3 frames, H, W, 3 channels), uint8 (store encoding) or float in [0, 1].
+        constants: image mean/std (per RGB channel).
+        image_size: (height, width) in pixels the model expects; None keeps the size.
+        augmentation: applied to [0, 1] frames before normalisation (training only).
+
+    Returns:
+        (B, 3 frames, 3 channels, h, w) float32, per-channel normalised.
+    """
+    if frames.dim() != 5 or frames.shape[1] != 3 or frames.shape[-1] != 3:
+        raise ValueError(f"frames must have shape (B, 3, H, W, 3), got {tuple(frames.shape)}")
+    x = frames.float()
+    if frames.dtype == torch.uint8:
+        x = x / 255.0
+    batch, n_frames, height, width, channels = x.shape
+    x = x.permute(0, 1, 4, 2, 3)  # (B, T, C, H, W)
+    if image_size is not None and (height, width) != tuple(image_size):
+        x = F.interpolate(
+            x.reshape(batch * n_frames, channels, height, width),
+            size=tuple(image_size),
+            mode="bilinear",
+            align_corners=False,
+            antialias=True,
+        ).reshape(batch, n_frames, channels, *image_size)
+    if augmentation is not None:
+        x = augmentation(x)
+    return normalise_images(x.contiguous(), constants, channel_axis=2)
+
+
+class GraspDataset(Dataset):
+    """Samples of a store as dicts of tensors; frames stay uint8 until the batch transform.
+
+    With ``features`` (a cached (N_store, 3, D) array of frozen-backbone features) the
+    items carry ``features`` instead of ``frames``, and no image is read at all.
+    """
+
+    def __init__(
+        self,
+        store: GraspStore,
+        sample_ids: Sequence[int] | np.ndarray,
+        constants: NormalisationConstants,
+        features: np.ndarray | None = None,
+    ) -> None:
+        self.store = store
+        self.inputs = model_inputs(store.samples, sample_ids, constants)
+        self.features = features
+
+    def __len__(self) -> int:
+        return len(self.inputs.sample_ids)
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        sample_id = int(self.inputs.sample_ids[index])
+        item = {
+            "sample_id": torch.tensor(sample_id),
+            "force": torch.from_numpy(self.inputs.force[index]),
+            "width": torch.from_numpy(self.inputs.width[index]),
+            "estimates": torch.from_numpy(self.inputs.estimates[index]),
+            "label": torch.tensor(self.inputs.label[index]),
+        }
+        if self.features is not None:
+            item["features"] = torch.from_numpy(np.asarray(self.features[sample_id], np.float32))
+        else:
+            item["frames"] = torch.from_numpy(np.array(self.store.frames[sample_id]))
+        return item

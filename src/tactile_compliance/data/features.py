@@ -1,0 +1,131 @@
+"""Frozen-backbone feature cache: image features computed once per store and backbone.
+
+With a frozen backbone, a model's image path is a fixed function of the frames, so
+its output can be computed once and reused by every run, seed and tuning trial. That is
+what makes seed grids and SMAC feasible on a CPU: the heads train in seconds on
+(N, 3, feature_dim) arrays instead of pushing 3 frames per sample through VGG16 each epoch.
+
+Cache layout, next to the store (``STORE/features/KEY/``)::
+
+    features.f16     float16 array (N_store, 3, feature_dim), C order
+    meta.json        backbone class, weights fingerprint, image size, normalisation, shape
+
+``KEY`` = backbone class + sha256 of the backbone's weights + image size + the image
+normalisation: a different backbone initialisation can never reuse stale features.
+Computation is resumable: progress is recorded after every chunk in ``progress.json`` and
+the finished array is renamed into place atomically.
+
+Augmentation cannot be applied to cached features (it acts on images); training warns
+when both are requested.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from typing import Any
+
+import numpy as np
+import torch
+
+from tactile_compliance.data.dataset import prepare_frames
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.data.store import GraspStore
+from tactile_compliance.progress import progress_bar
+
+FEATURES_DIR = "features"
+FEATURES_FILE = "features.f16"
+META_FILE = "meta.json"
+PROGRESS_FILE = "progress.json"
+
+
+def weights_fingerprint(module: torch.nn.Module) -> str:
+    """sha256 over a module's parameters and buffers (names, shapes, float32 bytes)."""
+    digest = hashlib.sha256()
+    for name, tensor in sorted(module.state_dict().items()):
+        digest.update(name.encode())
+        digest.update(str(tuple(tensor.shape)).encode())
+        digest.update(tensor.detach().to(torch.float32).cpu().contiguous().numpy().tobytes())
+    return digest.hexdigest()
+
+
+def cache_key(
+    backbone: torch.nn.Module, image_size: tuple[int, int], constants: NormalisationConstants
+) -> str:
+    """Directory name identifying (backbone, weights, resolution, image normalisation)."""
+    norm = hashlib.sha256(
+        json.dumps([constants.image_mean, constants.image_std]).encode()
+    ).hexdigest()[:8]
+    height, width = image_size
+    name = type(backbone).__name__.lower()
+    return f"{name}-{weights_fingerprint(backbone)[:16]}-{height}x{width}-{norm}"
+
+
+@torch.no_grad()
+def cached_features(
+    store: GraspStore,
+    backbone: torch.nn.Module,
+    image_size: tuple[int, int] | None,
+    constants: NormalisationConstants,
+    *,
+    batch_size: int = 32,
+    device: str | torch.device = "cpu",
+    progress: bool = True,
+) -> np.ndarray:
+    """Features (N_store, 3, feature_dim) of every store sample, computed once and cached.
+
+    Returns a read-only float16 memmap; callers convert batches to float32.
+    ``image_size`` (height, width) px is what frames are resized to (None = store size).
+    """
+    size = tuple(image_size) if image_size is not None else store.image_size
+    directory = store.path / FEATURES_DIR / cache_key(backbone, size, constants)
+    final, meta_path = directory / FEATURES_FILE, directory / META_FILE
+    feature_dim = int(backbone.feature_dim)
+    shape = (len(store), 3, feature_dim)
+    if final.exists() and meta_path.exists():
+        return np.memmap(final, dtype=np.float16, mode="r", shape=shape)
+
+    directory.mkdir(parents=True, exist_ok=True)
+    partial, progress_path = directory / (FEATURES_FILE + ".partial"), directory / PROGRESS_FILE
+    # Resume only when both the partial array and its progress record survived.
+    resumable = (
+        partial.exists()
+        and partial.stat().st_size == int(np.prod(shape)) * 2
+        and progress_path.exists()
+    )
+    done = int(json.loads(progress_path.read_text())["done"]) if resumable else 0
+    array = np.memmap(partial, dtype=np.float16, mode="r+" if resumable else "w+", shape=shape)
+    was_training = backbone.training
+    backbone.eval().to(device)
+    try:
+        with progress_bar("Caching features", total=len(store), enabled=progress) as advance:
+            advance(done)
+            for start in range(done, len(store), batch_size):
+                stop = min(start + batch_size, len(store))
+                frames = torch.from_numpy(np.array(store.frames[start:stop])).to(device)
+                x = prepare_frames(frames, constants, size)  # (B, 3, 3, h, w)
+                batch = x.shape[0]
+                out = backbone(x.reshape(batch * 3, *x.shape[2:])).reshape(batch, 3, -1)
+                array[start:stop] = out.float().cpu().numpy().astype(np.float16)
+                array.flush()
+                progress_path.write_text(json.dumps({"done": stop}))
+                advance(stop - start)
+    finally:
+        backbone.train(was_training)
+    del array
+    meta: dict[str, Any] = {
+        "backbone": type(backbone).__name__,
+        "weights_sha256": weights_fingerprint(backbone),
+        "image_size": list(size),
+        "shape": list(shape),
+        "dtype": "float16",
+        "image_mean": list(constants.image_mean),
+        "image_std": list(constants.image_std),
+        "store": str(store.path),
+        "store_created": store.header.created,
+    }
+    os.replace(partial, final)
+    meta_path.write_text(json.dumps(meta, indent=2) + "\n")
+    progress_path.unlink(missing_ok=True)
+    return np.memmap(final, dtype=np.float16, mode="r", shape=shape)

@@ -1,0 +1,264 @@
+"""Normalisation of labels, analytical estimates, force, width and images.
+
+One function normalises each quantity and (where a model output has to be read back) one
+function inverts it. Every constant lives in :class:`NormalisationConstants`, which travels
+with the experiment configuration (``ExperimentConfig.normalisation_constants()``) and is
+stored in every checkpoint (``to_dict`` / ``from_dict``), so a trained model can always be
+read back on the scale it was trained on.
+
+Conventions (both prior codebases, see ``DATA_FORMATS.md``):
+
+* label ``y = (log10 E - log10 E_min) / (log10 E_max - log10 E_min)``, default range
+  [1e3, 1e12] Pa; [1e3, 1e7] Pa for the Shore-hardness (Yuan) data trained alone.
+  Labels outside the range are *not* clipped: they map outside [0, 1], which keeps the
+  function invertible and makes out-of-range data visible in the metrics.
+* analytical estimates: clamp to [1e2, 1e14] Pa, then ``(log10 E_hat - 2) / 12``.
+  Clamping (instead of failing) matters because fits on stiff objects can return tiny or
+  even non-positive moduli; NaN stays NaN.
+* force / 60 N (the grasp's force threshold), width / 0.08 m (the gripper's opening).
+* images: per-channel ``(x - mean) / std`` with difference-image statistics, channel order
+  as stored in the GraspStore (RGB).
+
+All functions accept numpy arrays (or scalars / sequences) and torch tensors, and return
+the same kind they were given. Torch inputs are never validated element-wise (no host
+synchronisation inside training loops); numpy inputs are.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from typing import Any, TypeVar
+
+import numpy as np
+import torch
+
+ArrayT = TypeVar("ArrayT", np.ndarray, torch.Tensor)
+
+__all__ = [
+    "NormalisationConstants",
+    "denormalise_images",
+    "denormalise_modulus",
+    "normalise_estimates",
+    "normalise_force",
+    "normalise_images",
+    "normalise_modulus",
+    "normalise_width",
+]
+
+
+@dataclass(frozen=True)
+class NormalisationConstants:
+    """All normalisation constants of one dataset (units in the field names).
+
+    Attributes:
+        label_log10_min: log10 of the lower end of the label range (Pa), default 3 (1e3 Pa).
+        label_log10_max: log10 of the upper end of the label range (Pa), default 12 (1e12 Pa).
+        estimate_clamp_pa: analytical estimates are clamped to this range (Pa) before log10.
+        estimate_log10_min: offset of the estimate normalisation (log10 Pa).
+        estimate_log10_span: span of the estimate normalisation (decades).
+        force_scale_n: force divisor (N); 60 N is the grasp's force threshold.
+        width_scale_m: width divisor (m); 0.08 m is the gripper's maximum opening.
+        image_mean: per-channel mean of the difference images (store channel order, [0, 1]).
+        image_std: per-channel standard deviation of the difference images.
+    """
+
+    label_log10_min: float = 3.0
+    label_log10_max: float = 12.0
+    estimate_clamp_pa: tuple[float, float] = (1e2, 1e14)
+    estimate_log10_min: float = 2.0
+    estimate_log10_span: float = 12.0
+    force_scale_n: float = 60.0
+    width_scale_m: float = 0.08
+    image_mean: tuple[float, float, float] = (0.49638, 0.49770, 0.49386)
+    image_std: tuple[float, float, float] = (0.04635, 0.06182, 0.07153)
+
+    def __post_init__(self) -> None:
+        # Coerce lists (from JSON/YAML) to tuples so instances stay hashable and comparable.
+        for name in ("estimate_clamp_pa", "image_mean", "image_std"):
+            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
+        if not self.label_log10_max > self.label_log10_min:
+            raise ValueError(
+                f"label_log10_max ({self.label_log10_max}) must exceed "
+                f"label_log10_min ({self.label_log10_min})"
+            )
+        lo, hi = self.estimate_clamp_pa
+        if len(self.estimate_clamp_pa) != 2 or not 0 < lo < hi:
+            raise ValueError(f"estimate_clamp_pa must be (lo, hi) with 0 < lo < hi, got {lo, hi}")
+        if self.estimate_log10_span <= 0:
+            raise ValueError("estimate_log10_span must be positive")
+        if self.force_scale_n <= 0 or self.width_scale_m <= 0:
+            raise ValueError("force_scale_n and width_scale_m must be positive")
+        if len(self.image_mean) != 3 or len(self.image_std) != 3:
+            raise ValueError("image_mean and image_std need one value per channel (3)")
+        if min(self.image_std) <= 0:
+            raise ValueError("image_std values must be positive")
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_label_range(
+        cls, label_range_pa: tuple[float, float], **kwargs: Any
+    ) -> NormalisationConstants:
+        """Constants whose label range is ``label_range_pa = (E_min, E_max)`` in Pa."""
+        lo, hi = (float(v) for v in label_range_pa)
+        if not 0 < lo < hi:
+            raise ValueError(f"label range must satisfy 0 < min < max (Pa), got {lo, hi}")
+        return cls(label_log10_min=math.log10(lo), label_log10_max=math.log10(hi), **kwargs)
+
+    @classmethod
+    def for_shore_data(cls) -> NormalisationConstants:
+        """Constants for the Shore-hardness (Yuan) data trained alone: labels in [1e3, 1e7] Pa."""
+        return cls(label_log10_min=3.0, label_log10_max=7.0)
+
+    @property
+    def label_range_pa(self) -> tuple[float, float]:
+        """The label range (E_min, E_max) in Pa."""
+        return (10.0**self.label_log10_min, 10.0**self.label_log10_max)
+
+    @property
+    def label_log10_span(self) -> float:
+        """Width of the label range in decades."""
+        return self.label_log10_max - self.label_log10_min
+
+    # ------------------------------------------------------------------ (de)serialisation
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-JSON dict (tuples become lists); inverse of :meth:`from_dict`."""
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> NormalisationConstants:
+        """Rebuild from :meth:`to_dict` output; unknown keys are an error (not ignored)."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(
+                f"unknown normalisation constant(s) {unknown}; valid keys: {sorted(known)}"
+            )
+        return cls(**dict(data))
+
+
+# ---------------------------------------------------------------------- helpers
+def _as_array(x: Any) -> np.ndarray | torch.Tensor:
+    if isinstance(x, torch.Tensor):
+        return x
+    return np.asarray(x, dtype=np.float64)
+
+
+def _log10(x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    return torch.log10(x) if isinstance(x, torch.Tensor) else np.log10(x)
+
+
+def _pow10(x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    return torch.pow(10.0, x) if isinstance(x, torch.Tensor) else np.power(10.0, x)
+
+
+def _unwrap_scalar(x: Any, original: Any) -> Any:
+    # Scalars in, scalars out: keeps call sites like `normalise_modulus(2e5)` readable.
+    if isinstance(original, (int, float, np.floating, np.integer)) and isinstance(x, np.ndarray):
+        return float(x)
+    return x
+
+
+# ---------------------------------------------------------------------- labels
+def normalise_modulus(modulus_pa: Any, c: NormalisationConstants | None = None) -> Any:
+    """Young's modulus (Pa) -> normalised label ``y`` (log10 min-max; [0, 1] inside the range).
+
+    Raises ``ValueError`` for non-positive numpy values (log10 undefined); NaN passes through.
+    """
+    c = c or NormalisationConstants()
+    x = _as_array(modulus_pa)
+    if isinstance(x, np.ndarray) and np.any(x <= 0):
+        raise ValueError("Young's modulus must be positive (Pa) to take log10")
+    y = (_log10(x) - c.label_log10_min) / c.label_log10_span
+    return _unwrap_scalar(y, modulus_pa)
+
+
+def denormalise_modulus(y: Any, c: NormalisationConstants | None = None) -> Any:
+    """Normalised label ``y`` -> Young's modulus (Pa); inverse of :func:`normalise_modulus`."""
+    c = c or NormalisationConstants()
+    x = _as_array(y)
+    return _unwrap_scalar(_pow10(x * c.label_log10_span + c.label_log10_min), y)
+
+
+# ---------------------------------------------------------------------- scalar inputs
+def normalise_estimates(estimate_pa: Any, c: NormalisationConstants | None = None) -> Any:
+    """Analytical estimate(s) (Pa) -> clamp to ``estimate_clamp_pa`` -> log10 -> affine.
+
+    Works element-wise on any shape (e.g. ``(n, 2)`` for elastic + Hertz). NaN stays NaN so
+    missing estimates are never silently turned into a valid-looking value.
+    """
+    c = c or NormalisationConstants()
+    lo, hi = c.estimate_clamp_pa
+    x = _as_array(estimate_pa)
+    # np.clip / torch.clamp keep NaN, so a missing estimate stays visibly missing.
+    clamped = torch.clamp(x, lo, hi) if isinstance(x, torch.Tensor) else np.clip(x, lo, hi)
+    y = (_log10(clamped) - c.estimate_log10_min) / c.estimate_log10_span
+    return _unwrap_scalar(y, estimate_pa)
+
+
+def normalise_force(force_n: Any, c: NormalisationConstants | None = None) -> Any:
+    """Normal force (N) -> ``F / force_scale_n`` (60 N by default)."""
+    c = c or NormalisationConstants()
+    return _unwrap_scalar(_as_array(force_n) / c.force_scale_n, force_n)
+
+
+def normalise_width(width_m: Any, c: NormalisationConstants | None = None) -> Any:
+    """Gripper width (m) -> ``W / width_scale_m`` (0.08 m by default)."""
+    c = c or NormalisationConstants()
+    return _unwrap_scalar(_as_array(width_m) / c.width_scale_m, width_m)
+
+
+# ---------------------------------------------------------------------- images
+def _channel_stats(
+    x: np.ndarray | torch.Tensor, c: NormalisationConstants, channel_axis: int
+) -> tuple[Any, Any]:
+    ndim = x.ndim
+    axis = channel_axis % ndim if ndim else 0
+    if ndim == 0 or x.shape[axis] != 3:
+        raise ValueError(
+            f"images need 3 channels on axis {channel_axis}, got shape {tuple(x.shape)}"
+        )
+    shape = [1] * ndim
+    shape[axis] = 3
+    if isinstance(x, torch.Tensor):
+        dtype = x.dtype if x.is_floating_point() else torch.float32
+        mean = torch.tensor(c.image_mean, dtype=dtype, device=x.device).reshape(shape)
+        std = torch.tensor(c.image_std, dtype=dtype, device=x.device).reshape(shape)
+    else:
+        dtype = x.dtype if np.issubdtype(x.dtype, np.floating) else np.float32
+        mean = np.asarray(c.image_mean, dtype=dtype).reshape(shape)
+        std = np.asarray(c.image_std, dtype=dtype).reshape(shape)
+    return mean, std
+
+
+def normalise_images(
+    images: ArrayT, c: NormalisationConstants | None = None, channel_axis: int = -1
+) -> ArrayT:
+    """Images in [0, 1] -> ``(x - mean) / std`` per channel.
+
+    Args:
+        images: numpy array or torch tensor, any layout; values in [0, 1] (not uint8).
+        c: constants (mean/std in the store's channel order).
+        channel_axis: axis holding the 3 colour channels: ``-1`` for the store's
+            channels-last ``(n, 3 frames, H, W, 3)``, ``-3`` for the model's ``(B, T, C, H, W)``.
+    """
+    c = c or NormalisationConstants()
+    x = images if isinstance(images, torch.Tensor) else np.asarray(images)
+    if isinstance(x, np.ndarray) and x.dtype == np.uint8:
+        # uint8 would be normalised as if 0..255 were in [0, 1]: a silent 255x error.
+        raise ValueError("normalise_images expects float images in [0, 1], got uint8")
+    if isinstance(x, torch.Tensor) and x.dtype == torch.uint8:
+        raise ValueError("normalise_images expects float images in [0, 1], got uint8")
+    mean, std = _channel_stats(x, c, channel_axis)
+    return (x - mean) / std
+
+
+def denormalise_images(
+    images: ArrayT, c: NormalisationConstants | None = None, channel_axis: int = -1
+) -> ArrayT:
+    """Inverse of :func:`normalise_images` (for visualisation): ``x * std + mean``."""
+    c = c or NormalisationConstants()
+    x = images if isinstance(images, torch.Tensor) else np.asarray(images)
+    mean, std = _channel_stats(x, c, channel_axis)
+    return x * std + mean

@@ -1,0 +1,252 @@
+"""The sample filter: which samples of a GraspStore an experiment may use, and why not the rest.
+
+Rules, applied in this order (each switchable in ``FilterConfig``; see ``docs/protocol.md``):
+
+1. ``fingers``               keep only the configured sensor fingers (``data.fingers``);
+2. ``exclude_objects``       objects with unknown ground truth (13 by default);
+3. ``exclude_materials``     materials the paper drops (``Paper``);
+4. ``missing_estimates``     a non-finite elastic or Hertz estimate;
+5. ``no_force_increase``     ``F[2] <= F[0]`` (the grasp never squeezed);
+6. ``no_width_decrease``     ``W[2] >= W[0]`` (the gripper never closed);
+7. ``no_depth_increase``     ``max depth[2] <= max depth[1]`` (no deeper imprint at the end);
+8. ``single_sample_objects`` objects left with a single sample (cannot be split or validated).
+
+Rules 4-7 come from the paper ("removing all samples with missing values for estimation,
+recorded force change, width change"), rule 8 too. A missing value (NaN) fails rules 5-7:
+an unverifiable increase is treated like no increase. A rule whose columns are entirely NaN
+(or absent) in the input, e.g. the Shore-hardness videos have no force, width, estimates or
+depth, is *not applicable*: it is skipped and reported as such instead of removing everything.
+Exclusion lists match case-insensitively, and the report says how many listed names were
+actually present, so a typo does not silently exclude nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "DEFAULT_EXCLUDED_MATERIALS",
+    "UNKNOWN_GROUND_TRUTH_OBJECTS",
+    "FilterReport",
+    "RuleResult",
+    "filter_samples",
+    "require_columns",
+]
+
+#: Objects whose ground-truth modulus is unknown; excluded by both prior codebases.
+UNKNOWN_GROUND_TRUTH_OBJECTS: tuple[str, ...] = (
+    "playdoh",
+    "silly_puty",
+    "blue_sponge_dry",
+    "blue_sponge_wet",
+    "apple",
+    "orange",
+    "strawberry",
+    "ripe_banana",
+    "unripe_banana",
+    "lacrosse_ball",
+    "baseball",
+    "racquet_ball",
+    "tennis_ball",
+)
+
+#: The paper drops the single Paper object (8 materials remain).
+DEFAULT_EXCLUDED_MATERIALS: tuple[str, ...] = ("Paper",)
+
+ESTIMATE_COLUMNS = ("elastic_estimate_pa", "hertz_estimate_pa")
+FORCE_COLUMNS = ("force_n_0", "force_n_2")
+WIDTH_COLUMNS = ("width_m_0", "width_m_2")
+DEPTH_COLUMNS = ("depth_max_mm_1", "depth_max_mm_2")
+
+RULE_DESCRIPTIONS: dict[str, str] = {
+    "fingers": "finger not in data.fingers",
+    "exclude_objects": "object with unknown ground truth (exclusion list)",
+    "exclude_materials": "excluded material",
+    "missing_estimates": "missing / non-finite analytical estimate",
+    "no_force_increase": "force did not increase (F[2] <= F[0])",
+    "no_width_decrease": "width did not decrease (W[2] >= W[0])",
+    "no_depth_increase": "gel depth did not increase (max depth[2] <= max depth[1])",
+    "single_sample_objects": "object left with a single sample",
+}
+
+
+@dataclass
+class RuleResult:
+    """Outcome of one filter rule.
+
+    ``removed`` is None when the rule was disabled or not applicable.
+    """
+
+    name: str
+    description: str
+    enabled: bool
+    applicable: bool
+    removed: int | None
+    remaining: int
+    note: str = ""
+
+    @property
+    def status(self) -> str:
+        """``applied`` | ``disabled`` | ``not applicable``."""
+        if not self.enabled:
+            return "disabled"
+        return "applied" if self.applicable else "not applicable"
+
+
+@dataclass
+class FilterReport:
+    """What the filter did: per rule, how many samples it removed (printable)."""
+
+    n_input: int
+    n_output: int
+    rules: list[RuleResult] = field(default_factory=list)
+
+    def removed_by(self, name: str) -> int:
+        """Samples removed by rule ``name`` (0 when disabled or not applicable)."""
+        for rule in self.rules:
+            if rule.name == name:
+                return rule.removed or 0
+        raise KeyError(f"unknown rule {name!r}; rules: {[r.name for r in self.rules]}")
+
+    def rule(self, name: str) -> RuleResult:
+        """The :class:`RuleResult` of rule ``name``."""
+        for rule in self.rules:
+            if rule.name == name:
+                return rule
+        raise KeyError(f"unknown rule {name!r}; rules: {[r.name for r in self.rules]}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly dict (for run directories and reports)."""
+        return {
+            "n_input": self.n_input,
+            "n_output": self.n_output,
+            "rules": [asdict(r) | {"status": r.status} for r in self.rules],
+        }
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per rule."""
+        return pd.DataFrame([asdict(r) | {"status": r.status} for r in self.rules])
+
+    def __str__(self) -> str:
+        lines = [f"Sample filter: {self.n_input} -> {self.n_output} samples"]
+        lines.append(f"  {'rule':<22} {'removed':>8} {'remaining':>10}  status / note")
+        for r in self.rules:
+            removed = str(r.removed) if r.removed is not None else "-"
+            note = r.status + (f"; {r.note}" if r.note else "")
+            lines.append(f"  {r.name:<22} {removed:>8} {r.remaining:>10}  {note}")
+        return "\n".join(lines)
+
+
+def require_columns(samples: pd.DataFrame, columns: Iterable[str], what: str = "") -> None:
+    """Raise ``ValueError`` naming every column of ``columns`` missing from ``samples``."""
+    missing = [c for c in columns if c not in samples.columns]
+    if missing:
+        purpose = f" for {what}" if what else ""
+        raise ValueError(
+            f"samples table lacks column(s) {missing}{purpose}; has {list(samples.columns)}"
+        )
+
+
+def _usable_columns(samples: pd.DataFrame, columns: Sequence[str]) -> list[str]:
+    """Columns that exist and hold at least one non-NaN value (the rule is applicable)."""
+    return [c for c in columns if c in samples.columns and samples[c].notna().any()]
+
+
+def _resolve_cfg(cfg: Any) -> tuple[Any, list[str] | None]:
+    """Accept a FilterConfig, an ExperimentConfig (uses .filters and .data.fingers) or None."""
+    if cfg is None:
+        from tactile_compliance.config import FilterConfig  # lazy: config imports this module
+
+        return FilterConfig(), None
+    if hasattr(cfg, "filters"):
+        fingers = getattr(getattr(cfg, "data", None), "fingers", None)
+        return cfg.filters, (list(fingers) if fingers is not None else None)
+    return cfg, None
+
+
+def filter_samples(
+    samples: pd.DataFrame, cfg: Any = None, fingers: Sequence[str] | None = None
+) -> tuple[pd.DataFrame, FilterReport]:
+    """Apply the sample filter and report what each rule removed.
+
+    Args:
+        samples: the GraspStore's ``samples`` table (or any subset of it).
+        cfg: a ``FilterConfig``, an ``ExperimentConfig`` (its ``filters`` and
+            ``data.fingers`` are used) or None for the defaults.
+        fingers: fingers to keep (overrides ``cfg.data.fingers``); None keeps all.
+
+    Returns:
+        The kept rows (original index and ``sample_id`` preserved) and a :class:`FilterReport`.
+    """
+    fcfg, cfg_fingers = _resolve_cfg(cfg)
+    if fingers is None:
+        fingers = cfg_fingers
+    require_columns(samples, ("sample_id", "object", "material"), "the sample filter")
+
+    df = samples
+    report = FilterReport(n_input=len(samples), n_output=len(samples))
+
+    def record(name: str, enabled: bool, applicable: bool, keep: Any, note: str = "") -> None:
+        nonlocal df
+        if enabled and applicable:
+            keep_arr = np.asarray(keep, dtype=bool)
+            removed = int((~keep_arr).sum())
+            df = df.loc[keep_arr]
+        else:
+            removed = None
+        report.rules.append(
+            RuleResult(name, RULE_DESCRIPTIONS[name], enabled, applicable, removed, len(df), note)
+        )
+
+    # 1. fingers ----------------------------------------------------------------------
+    if fingers is not None and "finger" in df.columns:
+        wanted = set(fingers)
+        record("fingers", True, True, df["finger"].isin(wanted), f"kept {sorted(wanted)}")
+    else:
+        note = "all fingers kept" if fingers is None else "no finger column"
+        record("fingers", fingers is not None, False, None, note)
+
+    # 2./3. exclusion lists (case-insensitive) ----------------------------------------------
+    for name, column, listed, enabled in (
+        ("exclude_objects", "object", fcfg.exclude_objects, True),
+        ("exclude_materials", "material", fcfg.exclude_materials, True),
+    ):
+        listed_lower = {str(v).lower() for v in listed}
+        values = df[column].astype(str).str.lower()
+        present = listed_lower & set(samples[column].astype(str).str.lower())
+        note = f"{len(listed_lower)} listed, {len(present)} present in the data"
+        record(name, enabled and bool(listed_lower), True, ~values.isin(listed_lower), note)
+
+    # 4. missing estimates ------------------------------------------------------------------
+    usable = _usable_columns(samples, ESTIMATE_COLUMNS)
+    if usable:
+        keep = np.isfinite(df[usable].to_numpy(dtype=float)).all(axis=1)
+        record("missing_estimates", fcfg.drop_missing_estimates, True, keep, ", ".join(usable))
+    else:
+        record("missing_estimates", fcfg.drop_missing_estimates, False, None, "no estimates")
+
+    # 5.-7. monotonicity rules (NaN fails the comparison: an unverifiable change is dropped)
+    for name, enabled, columns, direction in (
+        ("no_force_increase", fcfg.drop_no_force_increase, FORCE_COLUMNS, "increase"),
+        ("no_width_decrease", fcfg.drop_no_width_decrease, WIDTH_COLUMNS, "decrease"),
+        ("no_depth_increase", fcfg.drop_no_depth_increase, DEPTH_COLUMNS, "increase"),
+    ):
+        if len(_usable_columns(samples, columns)) == len(columns):
+            first = df[columns[0]].to_numpy(dtype=float)
+            last = df[columns[1]].to_numpy(dtype=float)
+            keep = last > first if direction == "increase" else last < first
+            record(name, enabled, True, keep)
+        else:
+            record(name, enabled, False, None, f"columns {list(columns)} missing or all NaN")
+
+    # 8. objects left with a single sample (after every other rule) --------------------------
+    counts = df.groupby("object", sort=False)["sample_id"].transform("size")
+    record("single_sample_objects", fcfg.drop_single_sample_objects, True, counts > 1)
+
+    report.n_output = len(df)
+    return df.copy(), report

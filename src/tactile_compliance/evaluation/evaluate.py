@@ -1,0 +1,62 @@
+"""Re-evaluate a trained run from its checkpoint, on its own test split or another store."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from tactile_compliance.config import config_from_dict
+from tactile_compliance.data.dataset import GraspDataset
+from tactile_compliance.data.normalisation import denormalise_modulus
+from tactile_compliance.data.preprocess import filter_samples
+from tactile_compliance.data.splits import Split
+from tactile_compliance.data.store import GraspStore
+from tactile_compliance.evaluation.metrics import compute_metrics, grouped_metrics
+from tactile_compliance.training.checkpoint import load_checkpoint
+from tactile_compliance.training.forward import predict_dataset
+from tactile_compliance.training.train import BEST_FILE, PREDICTION_COLUMNS
+
+
+@dataclass
+class Evaluation:
+    """Predictions (one row per sample), overall metrics and per-group metrics."""
+
+    predictions: pd.DataFrame
+    metrics: dict[str, Any]
+    groups: pd.DataFrame
+
+
+def evaluate_run(
+    run_dir: str | Path, store: str | Path | None = None, *, batch_size: int = 64
+) -> Evaluation:
+    """Metrics of a run's best checkpoint.
+
+    Without ``store``: on the run's own test split (``split.json``), which reproduces the
+    numbers in ``metrics.json``. With ``store``: on every sample of that store that passes
+    the run's sample filter (e.g. a model trained on one dataset tested on another).
+    """
+    run_dir = Path(run_dir)
+    loaded = load_checkpoint(run_dir / BEST_FILE)
+    cfg = config_from_dict(loaded.meta["config"])
+    if store is None:
+        if cfg.data.store is None:
+            raise ValueError(f"{run_dir}: the run's config names no store; pass one")
+        grasp_store = GraspStore.open(cfg.data.store)
+        ids = Split.load(run_dir / "split.json").test_ids
+    else:
+        grasp_store = GraspStore.open(store)
+        kept, _ = filter_samples(grasp_store.samples, cfg)
+        ids = kept["sample_id"].to_numpy(dtype=np.int64)
+    dataset = GraspDataset(grasp_store, ids, loaded.constants)
+    predicted = predict_dataset(
+        loaded.model, dataset, loaded.constants, loaded.image_size, batch_size=batch_size
+    )
+    predictions = grasp_store.samples.iloc[ids][list(PREDICTION_COLUMNS)].reset_index(drop=True)
+    predictions["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), loaded.constants)
+    metrics = compute_metrics(predictions["modulus_pa"], predictions["pred_pa"], loaded.constants)
+    groups = grouped_metrics(predictions, c=loaded.constants)
+    return Evaluation(predictions=predictions, metrics=metrics, groups=groups)

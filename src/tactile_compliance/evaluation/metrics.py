@@ -1,0 +1,200 @@
+"""Metrics of the paper and cheap extras, overall and per group, plus reference predictors.
+
+With ``E`` the true and ``E_hat`` the predicted Young's modulus (Pa),
+``d = log10 E_hat - log10 E`` (decades) and ``y = (log10 E - a) / (b - a)`` the normalised label
+(``[a, b]`` = log10 of the label range, [3, 12] by default):
+
+* ``log10_accuracy``     = mean(|d| <= 1)                (paper; "within one decade")
+* ``nmse``               = mean((y_hat - y)^2)            (paper; on normalised labels, so it
+  depends on the label range: one decade of error is (1/9)^2 = 0.0123 on [1e3, 1e12])
+* ``r2``                 = 1 - sum((y_hat - y)^2) / sum((y - mean y)^2)   (sklearn convention:
+  1 for a perfect fit of constant labels, else 0 when the labels are constant; R^2 on ``y``
+  equals R^2 on log10 E because the normalisation is affine)
+* ``mae_decades``        = mean(|d|)
+* ``within_half_decade`` = mean(|d| <= 0.5)
+
+Comparisons at exactly 1 (or 0.5) decade count as inside; a 1e-9 decade tolerance absorbs
+floating-point error in log10.
+
+Reference predictors, computed on the same split so a model's numbers have a floor to beat:
+``median`` (the training set's median modulus for every test sample) and ``analytical``
+(the sample's own analytical estimate: the elastic (Hooke) estimate, falling back to the
+Hertz estimate when the elastic one is missing, and to the training median when both are;
+estimates are clamped to the estimate range [1e2, 1e14] Pa like the model input). The Hertz
+value is E* (gel and object in series) and is used as is: converting it to E needs the
+object's Poisson ratio, which a baseline should not know.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from tactile_compliance.data.normalisation import NormalisationConstants, normalise_modulus
+from tactile_compliance.data.splits import SENSOR_MODULUS_PA
+
+__all__ = [
+    "METRIC_NAMES",
+    "compute_metrics",
+    "grouped_metrics",
+    "log10_accuracy",
+    "mae_decades",
+    "nmse",
+    "r2",
+    "reference_predictions",
+    "soft_hard_labels",
+    "within_half_decade",
+]
+
+#: Keys of :func:`compute_metrics` (besides ``n``), in report order.
+METRIC_NAMES: tuple[str, ...] = (
+    "log10_accuracy",
+    "nmse",
+    "r2",
+    "mae_decades",
+    "within_half_decade",
+)
+_TOL_DECADES = 1e-9
+
+
+def _pair(true_pa: Any, pred_pa: Any) -> tuple[np.ndarray, np.ndarray]:
+    t = np.asarray(true_pa, dtype=np.float64).reshape(-1)
+    p = np.asarray(pred_pa, dtype=np.float64).reshape(-1)
+    if t.shape != p.shape:
+        raise ValueError(f"true and predicted moduli differ in length: {t.size} vs {p.size}")
+    if t.size == 0:
+        raise ValueError("no samples to evaluate")
+    for name, v in (("true", t), ("predicted", p)):
+        if not np.all(np.isfinite(v)) or np.any(v <= 0):
+            raise ValueError(f"{name} moduli must be finite and positive (Pa)")
+    return t, p
+
+
+def _log_error(true_pa: Any, pred_pa: Any) -> np.ndarray:
+    t, p = _pair(true_pa, pred_pa)
+    return np.log10(p) - np.log10(t)
+
+
+def log10_accuracy(true_pa: Any, pred_pa: Any, tolerance_decades: float = 1.0) -> float:
+    """Share of predictions within ``tolerance_decades`` of the truth (|d| <= 1 by default)."""
+    d = np.abs(_log_error(true_pa, pred_pa))
+    return float(np.mean(d <= tolerance_decades + _TOL_DECADES))
+
+
+def within_half_decade(true_pa: Any, pred_pa: Any) -> float:
+    """Share of predictions within half a decade (a factor of about 3.16)."""
+    return log10_accuracy(true_pa, pred_pa, 0.5)
+
+
+def mae_decades(true_pa: Any, pred_pa: Any) -> float:
+    """Mean absolute error in decades: mean |log10 E_hat - log10 E|."""
+    return float(np.mean(np.abs(_log_error(true_pa, pred_pa))))
+
+
+def nmse(true_pa: Any, pred_pa: Any, c: NormalisationConstants | None = None) -> float:
+    """Mean squared error of the *normalised* labels (the paper's N-MSE)."""
+    t, p = _pair(true_pa, pred_pa)
+    return float(np.mean((normalise_modulus(p, c) - normalise_modulus(t, c)) ** 2))
+
+
+def r2(true_pa: Any, pred_pa: Any, c: NormalisationConstants | None = None) -> float:
+    """Coefficient of determination on the normalised labels (sklearn convention)."""
+    t, p = _pair(true_pa, pred_pa)
+    y, y_hat = normalise_modulus(t, c), normalise_modulus(p, c)
+    ss_res = float(np.sum((y_hat - y) ** 2))
+    ss_tot = float(np.sum((y - y.mean()) ** 2))
+    if ss_tot == 0.0:
+        return 1.0 if ss_res == 0.0 else 0.0
+    return 1.0 - ss_res / ss_tot
+
+
+def compute_metrics(
+    true_pa: Any, pred_pa: Any, c: NormalisationConstants | None = None
+) -> dict[str, float]:
+    """All metrics for one set of predictions: ``n`` plus :data:`METRIC_NAMES`."""
+    t, p = _pair(true_pa, pred_pa)
+    return {
+        "n": int(t.size),
+        "log10_accuracy": log10_accuracy(t, p),
+        "nmse": nmse(t, p, c),
+        "r2": r2(t, p, c),
+        "mae_decades": mae_decades(t, p),
+        "within_half_decade": within_half_decade(t, p),
+    }
+
+
+def soft_hard_labels(modulus_pa: Any, threshold_pa: float = SENSOR_MODULUS_PA) -> np.ndarray:
+    """``"soft"`` below ``threshold_pa`` (the gel's 0.275 MPa by default), else ``"hard"``."""
+    e = np.asarray(modulus_pa, dtype=float)
+    return np.where(e < threshold_pa, "soft", "hard")
+
+
+def grouped_metrics(
+    df: pd.DataFrame,
+    by: str | Sequence[str] = ("material", "shape", "soft_hard"),
+    c: NormalisationConstants | None = None,
+    true_col: str = "modulus_pa",
+    pred_col: str = "pred_pa",
+    threshold_pa: float = SENSOR_MODULUS_PA,
+) -> pd.DataFrame:
+    """Metrics overall and per group, one row per (grouping, group).
+
+    Args:
+        df: one row per prediction with ``true_col`` and ``pred_col`` (Pa) and the grouping
+            columns; ``soft_hard`` is derived from the true modulus when absent.
+        by: grouping column(s), e.g. ``"material"``, ``"shape"``, ``"soft_hard"``.
+        c: normalisation constants for N-MSE / R^2.
+        threshold_pa: soft/hard boundary (Pa).
+
+    Returns:
+        Columns ``grouping, group, n`` and :data:`METRIC_NAMES`; the first row is
+        ``("all", "all")``. Within a grouping, groups are sorted by name.
+    """
+    groupings = [by] if isinstance(by, str) else list(by)
+    missing = [col for col in (true_col, pred_col) if col not in df.columns]
+    if missing:
+        raise ValueError(f"grouped_metrics needs column(s) {missing}; has {list(df.columns)}")
+    data = df
+    if "soft_hard" in groupings and "soft_hard" not in df.columns:
+        data = df.assign(soft_hard=soft_hard_labels(df[true_col].to_numpy(), threshold_pa))
+    overall = compute_metrics(data[true_col], data[pred_col], c)
+    rows = [{"grouping": "all", "group": "all", **overall}]
+    for grouping in groupings:
+        if grouping not in data.columns:
+            raise ValueError(f"cannot group by {grouping!r}: no such column")
+        for group, part in data.groupby(grouping, sort=True):
+            metrics = compute_metrics(part[true_col], part[pred_col], c)
+            rows.append({"grouping": grouping, "group": str(group), **metrics})
+    return pd.DataFrame(rows)
+
+
+def reference_predictions(
+    train_samples: pd.DataFrame,
+    test_samples: pd.DataFrame,
+    c: NormalisationConstants | None = None,
+) -> dict[str, np.ndarray]:
+    """Predictions (Pa) of the two reference predictors for ``test_samples``, in row order.
+
+    * ``median``: the median ``modulus_pa`` of ``train_samples`` for every test sample
+      (the median of log10 E equals the log of the median, so it is also the best constant
+      in decades for the absolute error).
+    * ``analytical``: the elastic estimate, else the Hertz estimate (E*, not converted),
+      else the training median; clamped to ``c.estimate_clamp_pa``.
+    """
+    c = c or NormalisationConstants()
+    if len(train_samples) == 0:
+        raise ValueError("the training set is empty; no median to predict")
+    median = float(np.median(train_samples["modulus_pa"].to_numpy(dtype=float)))
+    n = len(test_samples)
+    analytical = np.full(n, np.nan)
+    for column in ("hertz_estimate_pa", "elastic_estimate_pa"):  # later wins: elastic first
+        if column in test_samples.columns:
+            values = test_samples[column].to_numpy(dtype=float)
+            ok = np.isfinite(values)
+            analytical[ok] = values[ok]
+    analytical[~np.isfinite(analytical)] = median
+    lo, hi = c.estimate_clamp_pa
+    return {"median": np.full(n, median), "analytical": np.clip(analytical, lo, hi)}

@@ -1,0 +1,435 @@
+"""Image backbones (VGG16, ResNet18/34/50) defined in the project, torchvision-compatible.
+
+torchvision cannot be installed next to the CPU torch used here, so the backbones are
+written out with exactly torchvision's parameter names. A state dict saved by torchvision
+(for example the official ImageNet files) therefore loads into them unchanged; only the
+final classification layer (``classifier.6`` of VGG16, ``fc`` of the ResNets) is ignored,
+because the models here use the backbones as feature extractors.
+
+Every backbone maps ``(N, 3, H, W)`` float images to ``(N, feature_dim)`` features and
+exposes ``feature_dim`` and ``min_input_size`` (the smallest H and W it accepts).
+
+Weights (``create_backbone(name, weights=...)``):
+
+* ``"none"``: random initialisation (torchvision's initialisation scheme). Never touches
+  the network.
+* ``"imagenet"``: the official torchvision ImageNet file, through
+  ``torch.hub.load_state_dict_from_url`` (cached under ``torch.hub.get_dir()``,
+  sha256-checked). Without internet access this fails within seconds with a message that
+  names the local-file alternative.
+* a filesystem path: a local state dict, loaded with ``torch.load(weights_only=True)``;
+  a file named like torchvision's ``<name>-<hash>.pth`` must have a sha256 that starts
+  with ``<hash>``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import socket
+import urllib.error
+import urllib.parse
+import urllib.request
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import torch
+from torch import nn
+
+__all__ = [
+    "BACKBONE_WEIGHTS_URLS",
+    "VGG16",
+    "BasicBlock",
+    "Bottleneck",
+    "ResNet",
+    "create_backbone",
+    "list_backbones",
+    "load_backbone_weights",
+]
+
+#: Official torchvision ImageNet weights (the IMAGENET1K_V1 files). The 8 hex digits in
+#: each file name are the start of the file's sha256, which torch.hub checks.
+BACKBONE_WEIGHTS_URLS: dict[str, str] = {
+    "vgg16": "https://download.pytorch.org/models/vgg16-397923af.pth",
+    "resnet18": "https://download.pytorch.org/models/resnet18-f37072fd.pth",
+    "resnet34": "https://download.pytorch.org/models/resnet34-b627a593.pth",
+    "resnet50": "https://download.pytorch.org/models/resnet50-0676ba61.pth",
+}
+
+# Keys of the torchvision classification layer, which our feature extractors do not have.
+_IGNORED_PREFIXES: dict[str, tuple[str, ...]] = {
+    "vgg16": ("classifier.6.",),
+    "resnet18": ("fc.",),
+    "resnet34": ("fc.",),
+    "resnet50": ("fc.",),
+}
+
+# torchvision's file naming convention: "<name>-<first hex digits of the sha256>.pth".
+# Only names of our backbones count, so a user's "run-100000.pth" is not mistaken for one.
+_HASH_IN_NAME = re.compile(
+    r"^(?P<stem>vgg16|resnet18|resnet34|resnet50)-(?P<hash>[0-9a-f]{8,64})\.pth$"
+)
+
+# Seconds allowed for the connectivity probe before an ImageNet download; kept short so
+# an offline machine gets an answer at once instead of a hanging download.
+_PROBE_TIMEOUT_S = 3.0
+
+
+# --------------------------------------------------------------------------- VGG16
+
+_VGG16_CONFIG: list[int | str] = [
+    64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M",
+]  # fmt: skip
+
+
+class VGG16(nn.Module):
+    """VGG16 up to fc7: conv features, 7x7 adaptive pool, Linear-ReLU-Dropout-Linear.
+
+    Output: ``(N, 4096)``. The module indices match torchvision's ``vgg16`` (``features.0``
+    ... ``features.28``, ``classifier.0``, ``classifier.3``), so its weights load directly.
+    """
+
+    feature_dim: int = 4096
+    # Five 2x2 max-pools without padding: anything smaller than 32 pixels pools to nothing.
+    min_input_size: int = 32
+
+    def __init__(self, dropout: float = 0.5) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        in_channels = 3
+        for item in _VGG16_CONFIG:
+            if item == "M":
+                layers.append(nn.MaxPool2d(kernel_size=2, stride=2))
+            else:
+                assert isinstance(item, int)
+                layers.append(nn.Conv2d(in_channels, item, kernel_size=3, padding=1))
+                layers.append(nn.ReLU(inplace=True))
+                in_channels = item
+        self.features = nn.Sequential(*layers)
+        self.avgpool = nn.AdaptiveAvgPool2d((7, 7))
+        # fc6 -> ReLU -> Dropout -> fc7; indices 0 and 3 as in torchvision (fc8 = index 6
+        # is left out on purpose: the models consume the 4096-d fc7 features).
+        self.classifier = nn.Sequential(
+            nn.Linear(512 * 7 * 7, 4096),
+            nn.ReLU(inplace=True),
+            nn.Dropout(p=dropout),
+            nn.Linear(4096, 4096),
+        )
+        self._init_weights()
+
+    def _init_weights(self) -> None:
+        # torchvision's scheme, so "none" weights behave like an untrained torchvision model.
+        for module in self.modules():
+            if isinstance(module, nn.Conv2d):
+                nn.init.kaiming_normal_(module.weight, mode="fan_out", nonlinearity="relu")
+                if module.bias is not None:
+                    nn.init.zeros_(module.bias)
+            elif isinstance(module, nn.Linear):
+                nn.init.normal_(module.weight, 0.0, 0.01)
+                nn.init.zeros_(module.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Map ``(N, 3, H, W)`` images to ``(N, 4096)`` fc7 features."""
+        x = self.features(x)
+        x = self.avgpool(x)
+        return self.classifier(torch.flatten(x, 1))
+
+
+# -------------------------------------------------------------------------- ResNets
+
+
+def _conv3x3(in_planes: int, out_planes: int, stride: int = 1) -> nn.Conv2d:
+    return nn.Conv2d(in_planes, out_planes, kernel_size=3, stride=stride, padding=1, bias=False)
+
+
+def _conv1x1(in_planes: int, out_planes: int, stride: int = 1) -> nn.Conv2d:
+    return nn.Conv2d(in_planes, out_planes, kernel_size=1, stride=stride, bias=False)
+
+
+class BasicBlock(nn.Module):
+    """Two 3x3 convolutions with a residual connection (ResNet18/34)."""
+
+    expansion: int = 1
+
+    def __init__(
+        self, inplanes: int, planes: int, stride: int = 1, downsample: nn.Module | None = None
+    ) -> None:
+        super().__init__()
+        self.conv1 = _conv3x3(inplanes, planes, stride)
+        self.bn1 = nn.BatchNorm2d(planes)
+        self.relu = nn.ReLU(inplace=True)
+        self.conv2 = _conv3x3(planes, planes)
+        self.bn2 = nn.BatchNorm2d(planes)
+        self.downsample = downsample
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Residual block forward pass."""
+        identity = x if self.downsample is None else self.downsample(x)
+        out = self.relu(self.bn1(self.conv1(x)))
+        out = self.bn2(self.conv2(out))
+        return self.relu(out + identity)
+
+
+class Bottleneck(nn.Module):
+    """1x1-3x3-1x1 bottleneck with a residual connection (ResNet50); stride on the 3x3."""
+
+    expansion: int = 4
+
+    def __init__(
+        self, inplanes: int, planes: int, stride: int = 1, downsample: nn.Module | None = None
+    ) -> None:
+        super().__init__()
+        self.conv1 = _conv1x1(inplanes, planes)
+        self.bn1 = nn.BatchNorm2d(planes)
+        self.conv2 = _conv3x3(planes, planes, stride)
+        self.bn2 = nn.BatchNorm2d(planes)
+        self.conv3 = _conv1x1(planes, planes * self.expansion)
+        self.bn3 = nn.BatchNorm2d(planes * self.expansion)
+        self.relu = nn.ReLU(inplace=True)
+        self.downsample = downsample
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Residual block forward pass."""
+        identity = x if self.downsample is None else self.downsample(x)
+        out = self.relu(self.bn1(self.conv1(x)))
+        out = self.relu(self.bn2(self.conv2(out)))
+        out = self.bn3(self.conv3(out))
+        return self.relu(out + identity)
+
+
+class ResNet(nn.Module):
+    """ResNet trunk without ``avgpool``/``fc``; output = spatial mean of ``layer4``.
+
+    Parameter names are torchvision's (``conv1``, ``bn1``, ``layer1``..``layer4``,
+    ``downsample.0``/``downsample.1``). Output: ``(N, 512 * block.expansion)``.
+    """
+
+    # The stem and every stage pad their inputs, so even a 1x1 image yields features.
+    min_input_size: int = 1
+
+    def __init__(self, block: type[BasicBlock | Bottleneck], layers: list[int]) -> None:
+        super().__init__()
+        self.inplanes = 64
+        self.conv1 = nn.Conv2d(3, 64, kernel_size=7, stride=2, padding=3, bias=False)
+        self.bn1 = nn.BatchNorm2d(64)
+        self.relu = nn.ReLU(inplace=True)
+        self.maxpool = nn.MaxPool2d(kernel_size=3, stride=2, padding=1)
+        self.layer1 = self._make_layer(block, 64, layers[0])
+        self.layer2 = self._make_layer(block, 128, layers[1], stride=2)
+        self.layer3 = self._make_layer(block, 256, layers[2], stride=2)
+        self.layer4 = self._make_layer(block, 512, layers[3], stride=2)
+        self.feature_dim: int = 512 * block.expansion
+        for module in self.modules():
+            if isinstance(module, nn.Conv2d):
+                nn.init.kaiming_normal_(module.weight, mode="fan_out", nonlinearity="relu")
+            elif isinstance(module, nn.BatchNorm2d):
+                nn.init.ones_(module.weight)
+                nn.init.zeros_(module.bias)
+
+    def _make_layer(
+        self, block: type[BasicBlock | Bottleneck], planes: int, blocks: int, stride: int = 1
+    ) -> nn.Sequential:
+        downsample: nn.Module | None = None
+        if stride != 1 or self.inplanes != planes * block.expansion:
+            downsample = nn.Sequential(
+                _conv1x1(self.inplanes, planes * block.expansion, stride),
+                nn.BatchNorm2d(planes * block.expansion),
+            )
+        layers: list[nn.Module] = [block(self.inplanes, planes, stride, downsample)]
+        self.inplanes = planes * block.expansion
+        layers.extend(block(self.inplanes, planes) for _ in range(1, blocks))
+        return nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Map ``(N, 3, H, W)`` images to ``(N, feature_dim)`` features."""
+        x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
+        x = self.layer4(self.layer3(self.layer2(self.layer1(x))))
+        return x.mean(dim=(2, 3))
+
+
+_BACKBONE_FACTORIES: dict[str, Callable[[], nn.Module]] = {
+    "vgg16": VGG16,
+    "resnet18": lambda: ResNet(BasicBlock, [2, 2, 2, 2]),
+    "resnet34": lambda: ResNet(BasicBlock, [3, 4, 6, 3]),
+    "resnet50": lambda: ResNet(Bottleneck, [3, 4, 6, 3]),
+}
+
+
+def list_backbones() -> list[str]:
+    """Names accepted by :func:`create_backbone`, sorted."""
+    return sorted(_BACKBONE_FACTORIES)
+
+
+# -------------------------------------------------------------------------- weights
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _offline_message(name: str, url: str, reason: str) -> str:
+    filename = url.rsplit("/", 1)[-1]
+    return (
+        f"cannot download the ImageNet weights for {name!r} ({reason}). "
+        f"Download {url} on a machine with internet access, copy it here and pass the file "
+        f"instead of 'imagenet', e.g. `--weights /path/to/{filename}` "
+        f"(in Python: weights='/path/to/{filename}'), or put it into "
+        f"{Path(torch.hub.get_dir()) / 'checkpoints'} where torch.hub finds it; "
+        f"or use weights='none' for random initialisation."
+    )
+
+
+def _probe(url: str, timeout: float = _PROBE_TIMEOUT_S) -> None:
+    """Open (and close) a TCP connection to the host that would serve ``url``.
+
+    Raises OSError quickly when there is no route, so an offline machine fails in seconds
+    rather than waiting on urllib's long default timeouts. Honours an HTTPS proxy from the
+    environment by probing the proxy instead of the origin.
+    """
+    proxy = urllib.request.getproxies().get("https")
+    parsed = urllib.parse.urlsplit(proxy if proxy else url)
+    host = parsed.hostname
+    if host is None:
+        raise OSError(f"cannot parse a host name from {proxy or url!r}")
+    port = parsed.port or (443 if parsed.scheme == "https" else 80)
+    with socket.create_connection((host, port), timeout=timeout):
+        pass
+
+
+def _load_imagenet_state_dict(name: str) -> dict[str, torch.Tensor]:
+    url = BACKBONE_WEIGHTS_URLS[name]
+    cached = Path(torch.hub.get_dir()) / "checkpoints" / url.rsplit("/", 1)[-1]
+    if not cached.is_file():
+        # Only probe when a download is really needed: a cached file must load offline.
+        try:
+            _probe(url)
+        except OSError as exc:
+            raise RuntimeError(_offline_message(name, url, f"no connection: {exc}")) from exc
+    try:
+        return torch.hub.load_state_dict_from_url(
+            url, map_location="cpu", progress=True, check_hash=True, weights_only=True
+        )
+    except (urllib.error.URLError, OSError, TimeoutError) as exc:
+        raise RuntimeError(_offline_message(name, url, f"download failed: {exc}")) from exc
+
+
+def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"backbone weights file {path} does not exist; pass 'none', 'imagenet' or the "
+            f"path of a state dict (.pth)"
+        )
+    match = _HASH_IN_NAME.match(path.name)
+    if match is not None:
+        # torchvision convention: the name carries the sha256 prefix. Checking it catches
+        # truncated downloads and files renamed to the wrong backbone.
+        expected = match.group("hash")
+        actual = _sha256(path)
+        if not actual.startswith(expected):
+            raise RuntimeError(
+                f"sha256 mismatch for {path}: the file name promises a hash starting with "
+                f"{expected}, the file's sha256 is {actual}. The file is corrupted or "
+                f"incomplete; download it again (or rename it if it is a different file)."
+            )
+    try:
+        loaded = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for unreadable/unsafe files
+        raise RuntimeError(
+            f"cannot read backbone weights from {path}: {exc}. Expected a state dict saved "
+            f"with torch.save (tensors only)."
+        ) from exc
+    # Accept checkpoints that wrap the state dict (Lightning and many training scripts).
+    if (
+        isinstance(loaded, Mapping)
+        and "state_dict" in loaded
+        and isinstance(loaded["state_dict"], Mapping)
+    ):
+        loaded = loaded["state_dict"]
+    if not isinstance(loaded, Mapping) or not all(
+        isinstance(v, torch.Tensor) for v in loaded.values()
+    ):
+        raise RuntimeError(
+            f"{path} does not contain a state dict (a mapping of parameter names to tensors)"
+        )
+    return dict(loaded)
+
+
+def load_backbone_weights(
+    backbone: nn.Module, name: str, state_dict: Mapping[str, torch.Tensor], source: str
+) -> None:
+    """Copy ``state_dict`` into ``backbone``, ignoring only the torchvision classifier keys.
+
+    Raises:
+        RuntimeError: listing missing and unexpected keys, or shape mismatches, with
+            ``source`` (a path or URL) named so the user knows which file is wrong.
+    """
+    ignored = _IGNORED_PREFIXES.get(name, ())
+    filtered = {k: v for k, v in state_dict.items() if not k.startswith(ignored)}
+    own = backbone.state_dict()
+    missing = sorted(set(own) - set(filtered))
+    unexpected = sorted(set(filtered) - set(own))
+    mismatched = sorted(
+        f"{k}: file {tuple(filtered[k].shape)} vs model {tuple(own[k].shape)}"
+        for k in set(own) & set(filtered)
+        if filtered[k].shape != own[k].shape
+    )
+    if missing or unexpected or mismatched:
+
+        def _preview(keys: list[str]) -> str:
+            shown = ", ".join(keys[:8])
+            return shown + (f", ... ({len(keys)} in total)" if len(keys) > 8 else "")
+
+        problems = []
+        if missing:
+            problems.append(f"missing keys: {_preview(missing)}")
+        if unexpected:
+            problems.append(f"unexpected keys: {_preview(unexpected)}")
+        if mismatched:
+            problems.append(f"shape mismatches: {_preview(mismatched)}")
+        raise RuntimeError(
+            f"weights from {source} do not fit backbone {name!r} "
+            f"(is it a torchvision {name} state dict?): " + "; ".join(problems)
+        )
+    backbone.load_state_dict(filtered, strict=True)
+
+
+def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.Module:
+    """Build a per-frame image encoder ``(N, 3, H, W) -> (N, feature_dim)``.
+
+    Args:
+        name: one of :func:`list_backbones` (``vgg16``, ``resnet18``, ``resnet34``,
+            ``resnet50``), case-insensitive.
+        weights: ``"none"`` (random init, no network), ``"imagenet"`` (official torchvision
+            file via torch.hub, needs internet unless cached) or the path of a local
+            state dict.
+
+    Returns:
+        The backbone, with attributes ``feature_dim`` and ``min_input_size``.
+
+    Raises:
+        ValueError: unknown backbone name.
+        RuntimeError: "imagenet" without internet (fast, names the local-file
+            alternative), or a weights file that is corrupted or does not fit.
+        FileNotFoundError: a weights path that does not exist.
+    """
+    key = name.strip().lower()
+    if key not in _BACKBONE_FACTORIES:
+        raise ValueError(f"unknown backbone {name!r}; available: {', '.join(list_backbones())}")
+    backbone = _BACKBONE_FACTORIES[key]()
+    weights_str = os.fspath(weights)
+    if weights_str.lower() == "none":
+        return backbone
+    if weights_str.lower() == "imagenet":
+        state_dict = _load_imagenet_state_dict(key)
+        source = BACKBONE_WEIGHTS_URLS[key]
+    else:
+        path = Path(weights_str).expanduser()
+        state_dict = _load_local_state_dict(path)
+        source = str(path)
+    load_backbone_weights(backbone, key, state_dict, source)
+    return backbone

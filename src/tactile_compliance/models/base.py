@@ -1,0 +1,237 @@
+"""Shared interface of the compliance models: backbone + head, input checks, metadata.
+
+Every model is split into ``self.backbone`` (a per-frame image encoder,
+``(N, 3, H, W) -> (N, feature_dim)``) and a head that consumes the three frames' features
+plus the enabled scalar inputs. The split exists so that, with a frozen backbone, the
+image features can be computed once and cached: ``forward(frames, ...)`` is exactly
+``forward_features(encode_frames(frames), ...)``.
+
+Input conventions (all already normalised by the data pipeline):
+
+* ``frames``: ``(B, 3, 3, H, W)`` float; three frames of three channels.
+* ``force``: ``(B, 3)``, F / 60 N, one value per frame.
+* ``width``: ``(B, 3)``, W / 0.08 m, one value per frame.
+* ``estimates``: ``(B, 2)``, normalised log10 of the (elastic, Hertz) analytical estimates.
+
+Output: ``(B,)`` in (0, 1), the normalised log10 Young's modulus (sigmoid).
+
+An input that the strategy enables must be given (``ValueError`` naming it otherwise).
+An input the strategy disables is *ignored* when passed, so one data loader can feed
+models of every strategy; it never reaches the computation.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
+
+from tactile_compliance.models.inputs import InputStrategy
+
+__all__ = ["NUM_FRAMES", "TactileModel", "make_mlp"]
+
+#: Frames per sample (start, middle, end of the grasp).
+NUM_FRAMES = 3
+
+_SCALAR_INPUTS: dict[str, tuple[int, str]] = {
+    "force": (NUM_FRAMES, "normal force F, normalised F / 60 N"),
+    "width": (NUM_FRAMES, "gripper width W, normalised W / 0.08 m"),
+    "estimates": (2, "analytical estimates E (elastic, Hertz), normalised log10"),
+}
+
+
+def make_mlp(
+    in_features: int, hidden_sizes: Sequence[int], out_features: int, dropout: float
+) -> nn.Sequential:
+    """Linear -> ELU -> Dropout for every hidden size, then a plain Linear to the output.
+
+    The last layer has no activation: its outputs are either logits for the final sigmoid
+    or the "raw" values that the estimation decoder combines with the estimates.
+    """
+    layers: list[nn.Module] = []
+    previous = in_features
+    for size in hidden_sizes:
+        layers += [nn.Linear(previous, size), nn.ELU(), nn.Dropout(dropout)]
+        previous = size
+    layers.append(nn.Linear(previous, out_features))
+    return nn.Sequential(*layers)
+
+
+def check_positive_int(name: str, value: Any) -> int:
+    """Validate a size hyperparameter (clear message instead of a deep torch error)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"hyperparameter {name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def check_sizes(name: str, value: Any, allow_empty: bool = True) -> list[int]:
+    """Validate a list of layer sizes; returned as a list so hparams stay JSON-friendly."""
+    if isinstance(value, (int, str)) or not isinstance(value, Sequence):
+        raise ValueError(f"hyperparameter {name} must be a list of integers, got {value!r}")
+    sizes = [check_positive_int(f"{name}[{i}]", v) for i, v in enumerate(value)]
+    if not sizes and not allow_empty:
+        raise ValueError(f"hyperparameter {name} must not be empty")
+    return sizes
+
+
+def check_dropout(name: str, value: Any) -> float:
+    """Validate a dropout probability in [0, 1)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
+        raise ValueError(f"hyperparameter {name} must be a probability in [0, 1), got {value!r}")
+    return float(value)
+
+
+class TactileModel(nn.Module):
+    """Base class: input checks, the backbone/head split and self-describing metadata.
+
+    Subclasses set ``self.backbone`` and implement :meth:`_head`. Class attributes:
+
+    * ``model_name``: the registry name (set by ``register_model``).
+    * ``default_training``: the paper's training settings for this model
+      (``lr``, ``batch_size``, ``gamma``; ``gamma=None`` = no learning-rate decay).
+    * ``tuned_configs``: per input strategy, tuned ``model`` and ``training`` overrides
+      from the paper where it reports them.
+    * ``recommended_image_size``: ``(H, W)`` the frames should be resized to, or None.
+    * ``pretrained_backbone``: whether the constructor takes ``backbone_weights``.
+    """
+
+    model_name: ClassVar[str] = ""
+    default_training: ClassVar[dict[str, Any]] = {}
+    tuned_configs: ClassVar[dict[str, dict[str, dict[str, Any]]]] = {}
+    recommended_image_size: ClassVar[tuple[int, int] | None] = None
+    pretrained_backbone: ClassVar[bool] = False
+
+    backbone: nn.Module
+
+    def __init__(self, inputs: InputStrategy | str, hparams: dict[str, Any]) -> None:
+        super().__init__()
+        self.inputs: InputStrategy = InputStrategy.parse(inputs)
+        try:
+            # Round-trip so the stored dict is exactly what a checkpoint will give back.
+            self.hparams: dict[str, Any] = json.loads(json.dumps(hparams))
+        except TypeError as exc:
+            raise ValueError(f"hyperparameters must be JSON-serialisable: {exc}") from exc
+        # What the backbone was initialised from, for reports; not part of hparams because
+        # a checkpoint must rebuild the architecture without downloading anything.
+        self.backbone_weights: str = "none"
+
+    # ------------------------------------------------------------------ metadata
+    @property
+    def feature_dim(self) -> int:
+        """Size of one frame's backbone feature vector."""
+        return int(self.backbone.feature_dim)
+
+    @property
+    def min_image_size(self) -> int:
+        """Smallest frame height/width the backbone accepts."""
+        return int(getattr(self.backbone, "min_input_size", 1))
+
+    # ------------------------------------------------------------------ forward
+    def encode_frames(self, frames: torch.Tensor) -> torch.Tensor:
+        """Run the backbone on every frame: ``(B, 3, 3, H, W) -> (B, 3, feature_dim)``.
+
+        This is what a feature cache stores (with the backbone frozen and in eval mode).
+        """
+        if not isinstance(frames, torch.Tensor) or frames.dim() != 5:
+            shape = tuple(frames.shape) if isinstance(frames, torch.Tensor) else type(frames)
+            raise ValueError(
+                f"frames must be a tensor of shape (B, {NUM_FRAMES}, 3, H, W), got {shape}"
+            )
+        batch, n_frames, channels, height, width = frames.shape
+        if n_frames != NUM_FRAMES or channels != 3:
+            raise ValueError(
+                f"frames must have shape (B, {NUM_FRAMES}, 3, H, W) "
+                f"({NUM_FRAMES} RGB frames), got {tuple(frames.shape)}"
+            )
+        if min(height, width) < self.min_image_size:
+            raise ValueError(
+                f"{type(self).__name__} needs frames of at least "
+                f"{self.min_image_size}x{self.min_image_size} pixels, got {height}x{width}"
+            )
+        if not frames.is_floating_point():
+            raise ValueError(
+                f"frames must be float (normalised), got dtype {frames.dtype}; convert and "
+                f"normalise uint8 frames in the data pipeline"
+            )
+        features = self.backbone(frames.reshape(batch * n_frames, channels, height, width))
+        return features.reshape(batch, n_frames, -1)
+
+    def forward(
+        self,
+        frames: torch.Tensor,
+        force: torch.Tensor | None = None,
+        width: torch.Tensor | None = None,
+        estimates: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Predict the normalised log10 modulus ``(B,)`` from frames and scalar inputs.
+
+        Inputs disabled by ``self.inputs`` are ignored even when passed.
+        """
+        return self.forward_features(self.encode_frames(frames), force, width, estimates)
+
+    def forward_features(
+        self,
+        features: torch.Tensor,
+        force: torch.Tensor | None = None,
+        width: torch.Tensor | None = None,
+        estimates: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Same as :meth:`forward` but from cached features ``(B, 3, feature_dim)``."""
+        if (
+            not isinstance(features, torch.Tensor)
+            or features.dim() != 3
+            or features.shape[1] != NUM_FRAMES
+            or features.shape[2] != self.feature_dim
+        ):
+            shape = tuple(features.shape) if isinstance(features, torch.Tensor) else features
+            raise ValueError(
+                f"features must have shape (B, {NUM_FRAMES}, {self.feature_dim}), got {shape}"
+            )
+        batch = features.shape[0]
+        scalars = {
+            "force": force if self.inputs.uses_force else None,
+            "width": width if self.inputs.uses_width else None,
+            "estimates": estimates if self.inputs.uses_estimates else None,
+        }
+        enabled = {
+            "force": self.inputs.uses_force,
+            "width": self.inputs.uses_width,
+            "estimates": self.inputs.uses_estimates,
+        }
+        for name, tensor in scalars.items():
+            if enabled[name]:
+                scalars[name] = self._check_scalar(name, tensor, batch, features.dtype)
+        logits = self._head(features, scalars["force"], scalars["width"], scalars["estimates"])
+        return torch.sigmoid(logits.reshape(batch))
+
+    def _check_scalar(
+        self, name: str, tensor: torch.Tensor | None, batch: int, dtype: torch.dtype
+    ) -> torch.Tensor:
+        size, meaning = _SCALAR_INPUTS[name]
+        if tensor is None:
+            raise ValueError(
+                f"{type(self).__name__} with inputs={self.inputs.value} needs `{name}` "
+                f"({meaning}, shape (B, {size})), got None"
+            )
+        if not isinstance(tensor, torch.Tensor) or tuple(tensor.shape) != (batch, size):
+            shape = tuple(tensor.shape) if isinstance(tensor, torch.Tensor) else type(tensor)
+            raise ValueError(f"`{name}` ({meaning}) must have shape ({batch}, {size}), got {shape}")
+        # Data pipelines often hand over float64 (numpy); match the features instead of
+        # failing inside a Linear layer.
+        return tensor.to(dtype=dtype)
+
+    def _head(
+        self,
+        features: torch.Tensor,
+        force: torch.Tensor | None,
+        width: torch.Tensor | None,
+        estimates: torch.Tensor | None,
+    ) -> torch.Tensor:
+        """Map features and the enabled inputs (others are None) to ``(B,)`` logits."""
+        raise NotImplementedError
+
+    def extra_repr(self) -> str:
+        return f"inputs={self.inputs.value}"

@@ -1,0 +1,116 @@
+"""Model registry: ``register_model`` / ``create_model`` / ``list_models`` (timm style).
+
+Training, tuning and inference code only ever call :func:`create_model` with a name, an
+input strategy and hyperparameters, so a new model becomes usable everywhere by decorating
+its class with ``@register_model("my_model")`` and importing its module once.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from torch import nn
+
+from tactile_compliance.models.inputs import InputStrategy
+
+__all__ = [
+    "create_model",
+    "get_model_class",
+    "list_models",
+    "model_hyperparameters",
+    "register_model",
+]
+
+_REGISTRY: dict[str, type[nn.Module]] = {}
+
+ModelT = TypeVar("ModelT", bound=type[nn.Module])
+
+
+def register_model(name: str) -> Callable[[ModelT], ModelT]:
+    """Class decorator that makes a model available to :func:`create_model` as ``name``.
+
+    The class must accept ``inputs`` as its first argument and its hyperparameters as
+    keyword arguments; the decorator sets ``cls.model_name = name`` so a checkpoint can
+    record which model it holds.
+
+    Raises:
+        ValueError: when ``name`` is already taken by a different class.
+    """
+    key = name.strip().lower()
+    if not key:
+        raise ValueError("model name must not be empty")
+
+    def decorator(cls: ModelT) -> ModelT:
+        existing = _REGISTRY.get(key)
+        # Re-registering the same class (module reload) is fine; shadowing another is not.
+        if existing is not None and existing.__qualname__ != cls.__qualname__:
+            raise ValueError(
+                f"model name {key!r} is already registered by {existing.__module__}."
+                f"{existing.__qualname__}"
+            )
+        cls.model_name = key  # type: ignore[attr-defined]
+        _REGISTRY[key] = cls
+        return cls
+
+    return decorator
+
+
+def list_models() -> list[str]:
+    """Registered model names, sorted."""
+    return sorted(_REGISTRY)
+
+
+def get_model_class(name: str) -> type[nn.Module]:
+    """The class registered as ``name`` (case-insensitive).
+
+    Raises:
+        ValueError: unknown name; the message lists the available models.
+    """
+    key = name.strip().lower() if isinstance(name, str) else name
+    if key not in _REGISTRY:
+        raise ValueError(
+            f"unknown model {name!r}; available models: {', '.join(list_models()) or '(none)'}"
+        )
+    return _REGISTRY[key]
+
+
+def model_hyperparameters(name: str) -> dict[str, Any]:
+    """The constructor keyword arguments of model ``name`` and their defaults.
+
+    ``inputs`` is left out (it is passed separately). Useful for configs and HPO spaces.
+    """
+    signature = inspect.signature(get_model_class(name).__init__)
+    return {
+        p.name: p.default
+        for p in signature.parameters.values()
+        if p.name not in ("self", "inputs") and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+    }
+
+
+def create_model(name: str, inputs: InputStrategy | str = "ALL", **hparams: Any) -> nn.Module:
+    """Build registered model ``name`` for input strategy ``inputs``.
+
+    Args:
+        name: a name from :func:`list_models` (case-insensitive).
+        inputs: an :class:`InputStrategy` or its name ("Image", "imagefw", "all", ...).
+        **hparams: constructor hyperparameters; anything not given uses the paper's default.
+
+    Raises:
+        ValueError: unknown model name, unknown input strategy or unknown
+            hyperparameter (the message names it and lists the valid ones).
+    """
+    cls = get_model_class(name)
+    strategy = InputStrategy.parse(inputs)
+    signature = inspect.signature(cls.__init__)
+    takes_var_kwargs = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
+    if not takes_var_kwargs:
+        valid = model_hyperparameters(name)
+        unknown = sorted(set(hparams) - set(valid))
+        if unknown:
+            raise ValueError(
+                f"unknown hyperparameter(s) {', '.join(unknown)} for model {name!r}; "
+                f"valid: {', '.join(sorted(valid))}"
+            )
+    return cls(strategy, **hparams)

@@ -1,0 +1,212 @@
+"""Res-Tf: ResNet features per frame, a Transformer encoder over the three frames.
+
+Image path: ResNet18 (or 34/50) spatial-mean features -> Linear(feature_dim, embedding_dim)
++ fixed sinusoidal positional encoding of the 3 positions -> TransformerEncoder (layers,
+heads, feed-forward 2048, dropout 0.1) -> mean over the 3 tokens -> dropout ->
+Linear(embedding_dim, output_dim).
+
+Head: concat(image output, Linear(3, fwe)(F), Linear(3, fwe)(W)) -> decoder MLP (ELU,
+dropout) -> 1 logit; with estimates the decoder emits ``decoder_output_size`` raw values,
+concatenated with the two estimates -> estimation MLP -> 1 logit. Sigmoid at the end.
+
+The positional encoding is *added* to the token embedding, as in the published code
+(the paper's text speaks of concatenation).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
+
+from tactile_compliance.models.backbones import create_backbone
+from tactile_compliance.models.base import (
+    NUM_FRAMES,
+    TactileModel,
+    check_dropout,
+    check_positive_int,
+    check_sizes,
+    make_mlp,
+)
+from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.models.registry import register_model
+
+__all__ = ["ResTf", "sinusoidal_positional_encoding"]
+
+_RESNETS = ("resnet18", "resnet34", "resnet50")
+
+
+def sinusoidal_positional_encoding(length: int, dim: int) -> torch.Tensor:
+    """The fixed encoding of Vaswani et al.: sin on even, cos on odd channels, ``(length, dim)``."""
+    position = torch.arange(length, dtype=torch.float32).unsqueeze(1)
+    frequencies = torch.exp(
+        torch.arange(0, dim, 2, dtype=torch.float32) * (-math.log(10000.0) / dim)
+    )
+    encoding = torch.zeros(length, dim)
+    encoding[:, 0::2] = torch.sin(position * frequencies)
+    # For odd dim there is one cosine channel fewer than sine channels.
+    encoding[:, 1::2] = torch.cos(position * frequencies)[:, : dim // 2]
+    return encoding
+
+
+@register_model("res_tf")
+class ResTf(TactileModel):
+    """Res-Tf, the ResNet + Transformer model of the paper (defaults: tuned ALL config).
+
+    Args:
+        inputs: input strategy (Image, ImageF, ImageFW, ALL).
+        backbone: "resnet18" (paper), "resnet34" or "resnet50".
+        num_layers: Transformer encoder layers (tuned ALL: 4).
+        num_heads: attention heads; must divide ``embedding_dim`` (tuned ALL: 2).
+        embedding_dim: token size (tuned ALL: 256).
+        output_dim: size of the image output after the Transformer (tuned ALL: 512).
+        video_dropout: dropout before the image output layer (tuned ALL: 0.1).
+        transformer_dropout: dropout inside the Transformer layers (0.1).
+        dim_feedforward: Transformer feed-forward size (2048).
+        fwe_size: output size of the force and width towers Linear(3, fwe_size).
+        decoder_sizes: decoder hidden sizes (tuned ALL: [512]).
+        decoder_dropout: decoder dropout (tuned ALL: 0.3).
+        decoder_output_size: raw decoder outputs combined with the estimates (with E only).
+        estimation_sizes: estimation decoder hidden sizes (tuned ALL: [64]).
+        estimation_dropout: estimation decoder dropout (tuned ALL: 0.1).
+        backbone_weights: "none", "imagenet" or a path to a torchvision ResNet state dict.
+            Recorded in ``self.backbone_weights``, not in ``hparams``.
+    """
+
+    default_training: ClassVar[dict[str, Any]] = {"lr": 1.1e-4, "batch_size": 24, "gamma": 0.977}
+    # The paper's tuned configurations; the constructor defaults are the ALL one.
+    tuned_configs: ClassVar[dict[str, dict[str, dict[str, Any]]]] = {
+        "ALL": {
+            "model": {
+                "num_layers": 4,
+                "num_heads": 2,
+                "embedding_dim": 256,
+                "output_dim": 512,
+                "decoder_sizes": [512],
+                "estimation_sizes": [64],
+                "video_dropout": 0.1,
+                "decoder_dropout": 0.3,
+                "estimation_dropout": 0.1,
+            },
+            "training": {"lr": 1.1e-4, "batch_size": 24, "gamma": 0.977},
+        },
+        "Image": {
+            "model": {
+                "num_layers": 5,
+                "num_heads": 4,
+                "embedding_dim": 256,
+                "output_dim": 1024,
+                "decoder_sizes": [256],
+            },
+            "training": {"lr": 8e-5, "batch_size": 40, "gamma": 0.962},
+        },
+    }
+    pretrained_backbone: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        inputs: InputStrategy | str = "ALL",
+        backbone: str = "resnet18",
+        num_layers: int = 4,
+        num_heads: int = 2,
+        embedding_dim: int = 256,
+        output_dim: int = 512,
+        video_dropout: float = 0.1,
+        transformer_dropout: float = 0.1,
+        dim_feedforward: int = 2048,
+        fwe_size: int = 32,
+        decoder_sizes: Sequence[int] = (512,),
+        decoder_dropout: float = 0.3,
+        decoder_output_size: int = 3,
+        estimation_sizes: Sequence[int] = (64,),
+        estimation_dropout: float = 0.1,
+        backbone_weights: str | os.PathLike[str] = "none",
+    ) -> None:
+        backbone_name = str(backbone).strip().lower()
+        if backbone_name not in _RESNETS:
+            raise ValueError(
+                f"hyperparameter backbone must be one of {', '.join(_RESNETS)}, got {backbone!r}"
+            )
+        hparams = {
+            "backbone": backbone_name,
+            "num_layers": check_positive_int("num_layers", num_layers),
+            "num_heads": check_positive_int("num_heads", num_heads),
+            "embedding_dim": check_positive_int("embedding_dim", embedding_dim),
+            "output_dim": check_positive_int("output_dim", output_dim),
+            "video_dropout": check_dropout("video_dropout", video_dropout),
+            "transformer_dropout": check_dropout("transformer_dropout", transformer_dropout),
+            "dim_feedforward": check_positive_int("dim_feedforward", dim_feedforward),
+            "fwe_size": check_positive_int("fwe_size", fwe_size),
+            "decoder_sizes": check_sizes("decoder_sizes", decoder_sizes),
+            "decoder_dropout": check_dropout("decoder_dropout", decoder_dropout),
+            "decoder_output_size": check_positive_int("decoder_output_size", decoder_output_size),
+            "estimation_sizes": check_sizes("estimation_sizes", estimation_sizes),
+            "estimation_dropout": check_dropout("estimation_dropout", estimation_dropout),
+        }
+        if hparams["embedding_dim"] % hparams["num_heads"]:
+            raise ValueError(
+                f"embedding_dim ({embedding_dim}) must be divisible by num_heads ({num_heads})"
+            )
+        super().__init__(inputs, hparams)
+        hp = self.hparams
+        self.backbone = create_backbone(backbone_name, backbone_weights)
+        self.backbone_weights = os.fspath(backbone_weights)
+
+        self.token_projection = nn.Linear(self.backbone.feature_dim, hp["embedding_dim"])
+        # Fixed, not learned, and not saved: it is a function of the shape only.
+        self.register_buffer(
+            "positional_encoding",
+            sinusoidal_positional_encoding(NUM_FRAMES, hp["embedding_dim"]),
+            persistent=False,
+        )
+        layer = nn.TransformerEncoderLayer(
+            d_model=hp["embedding_dim"],
+            nhead=hp["num_heads"],
+            dim_feedforward=hp["dim_feedforward"],
+            dropout=hp["transformer_dropout"],
+            batch_first=True,
+        )
+        # Nested tensors only matter for padded sequences; three tokens never are.
+        self.transformer = nn.TransformerEncoder(
+            layer, num_layers=hp["num_layers"], enable_nested_tensor=False
+        )
+        self.video_dropout = nn.Dropout(hp["video_dropout"])
+        self.image_output = nn.Linear(hp["embedding_dim"], hp["output_dim"])
+
+        decoder_in = hp["output_dim"]
+        # Towers exist only for enabled inputs, so a disabled input has no weights at all.
+        if self.inputs.uses_force:
+            self.force_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
+            decoder_in += hp["fwe_size"]
+        if self.inputs.uses_width:
+            self.width_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
+            decoder_in += hp["fwe_size"]
+        decoder_out = hp["decoder_output_size"] if self.inputs.uses_estimates else 1
+        self.decoder = make_mlp(decoder_in, hp["decoder_sizes"], decoder_out, hp["decoder_dropout"])
+        if self.inputs.uses_estimates:
+            self.estimation_decoder = make_mlp(
+                decoder_out + 2, hp["estimation_sizes"], 1, hp["estimation_dropout"]
+            )
+
+    def _head(
+        self,
+        features: torch.Tensor,
+        force: torch.Tensor | None,
+        width: torch.Tensor | None,
+        estimates: torch.Tensor | None,
+    ) -> torch.Tensor:
+        tokens = self.token_projection(features) + self.positional_encoding.to(features.dtype)
+        video = self.transformer(tokens).mean(dim=1)
+        parts = [self.image_output(self.video_dropout(video))]
+        if force is not None:
+            parts.append(self.force_encoder(force))
+        if width is not None:
+            parts.append(self.width_encoder(width))
+        out = self.decoder(torch.cat(parts, dim=1))
+        if estimates is not None:
+            out = self.estimation_decoder(torch.cat([out, estimates], dim=1))
+        return out.squeeze(1)

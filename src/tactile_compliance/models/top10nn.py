@@ -1,0 +1,158 @@
+"""Top10NN: the baseline of Burgess et al., a small CNN trained from scratch.
+
+Backbone (shared by the three frames): 5 x (Conv -> BatchNorm -> ReLU) with 32..512
+channels, kernels 5, 3, 3, 3, 3, stride 2, no padding; global average pool -> dropout ->
+Linear(512, 1024) -> ELU -> dropout -> Linear(1024, img_feature_size).
+
+Head: concat(3 frame features, Linear(3, fwe)(F), Linear(3, fwe)(W)) -> decoder MLP
+[512, 512, 128] (ELU, dropout) -> 1 logit; with estimates the decoder emits
+``decoder_output_size`` raw values that are concatenated with the two estimates and
+passed through the estimation decoder [64, 64, 32] -> 1 logit. Sigmoid at the end.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
+
+from tactile_compliance.models.base import (
+    NUM_FRAMES,
+    TactileModel,
+    check_dropout,
+    check_positive_int,
+    check_sizes,
+    make_mlp,
+)
+from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.models.registry import register_model
+
+__all__ = ["Top10Encoder", "Top10NN"]
+
+_CHANNELS = (32, 64, 128, 256, 512)
+_KERNELS = (5, 3, 3, 3, 3)
+_STRIDE = 2
+
+
+def _min_input_size() -> int:
+    # Smallest size for which every unpadded stride-2 convolution still has >= 1 output:
+    # walk backwards from one output pixel, n_in = (n_out - 1) * stride + kernel.
+    size = 1
+    for kernel in reversed(_KERNELS):
+        size = (size - 1) * _STRIDE + kernel
+    return size
+
+
+class Top10Encoder(nn.Module):
+    """The per-frame CNN of Top10NN: ``(N, 3, H, W) -> (N, img_feature_size)``.
+
+    Needs frames of at least 65x65 pixels (five unpadded stride-2 convolutions).
+    """
+
+    min_input_size: int = _min_input_size()
+
+    def __init__(self, img_feature_size: int = 128, dropout: float = 0.3) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        in_channels = 3
+        for channels, kernel in zip(_CHANNELS, _KERNELS, strict=True):
+            # No conv bias: the following BatchNorm removes any constant offset anyway.
+            layers += [
+                nn.Conv2d(in_channels, channels, kernel, stride=_STRIDE, padding=0, bias=False),
+                nn.BatchNorm2d(channels),
+                nn.ReLU(inplace=True),
+            ]
+            in_channels = channels
+        self.conv = nn.Sequential(*layers)
+        self.fc = nn.Sequential(
+            nn.Dropout(dropout),
+            nn.Linear(_CHANNELS[-1], 1024),
+            nn.ELU(),
+            nn.Dropout(dropout),
+            nn.Linear(1024, img_feature_size),
+        )
+        self.feature_dim: int = img_feature_size
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Encode ``(N, 3, H, W)`` frames into ``(N, img_feature_size)`` features."""
+        return self.fc(self.conv(x).mean(dim=(2, 3)))
+
+
+@register_model("top10nn")
+class Top10NN(TactileModel):
+    """Top10NN baseline (Burgess et al.), trained from scratch.
+
+    Args:
+        inputs: input strategy (Image, ImageF, ImageFW, ALL).
+        img_feature_size: per-frame image feature size (paper: 128).
+        image_dropout: dropout inside the image encoder (paper: 0.3).
+        fwe_size: output size of the force and width towers, Linear(3, fwe_size) each.
+        decoder_sizes: hidden sizes of the decoder (paper: [512, 512, 128]).
+        decoder_dropout: dropout after each decoder hidden layer (paper: 0.3).
+        decoder_output_size: raw decoder outputs fed to the estimation decoder with E
+            (paper: 3); unused without E (the decoder then emits one logit).
+        estimation_sizes: hidden sizes of the estimation decoder (paper: [64, 64, 32]).
+        estimation_dropout: dropout in the estimation decoder (paper: 0.3).
+    """
+
+    default_training: ClassVar[dict[str, Any]] = {"lr": 3e-6, "batch_size": 32, "gamma": None}
+
+    def __init__(
+        self,
+        inputs: InputStrategy | str = "ALL",
+        img_feature_size: int = 128,
+        image_dropout: float = 0.3,
+        fwe_size: int = 32,
+        decoder_sizes: Sequence[int] = (512, 512, 128),
+        decoder_dropout: float = 0.3,
+        decoder_output_size: int = 3,
+        estimation_sizes: Sequence[int] = (64, 64, 32),
+        estimation_dropout: float = 0.3,
+    ) -> None:
+        hparams = {
+            "img_feature_size": check_positive_int("img_feature_size", img_feature_size),
+            "image_dropout": check_dropout("image_dropout", image_dropout),
+            "fwe_size": check_positive_int("fwe_size", fwe_size),
+            "decoder_sizes": check_sizes("decoder_sizes", decoder_sizes),
+            "decoder_dropout": check_dropout("decoder_dropout", decoder_dropout),
+            "decoder_output_size": check_positive_int("decoder_output_size", decoder_output_size),
+            "estimation_sizes": check_sizes("estimation_sizes", estimation_sizes),
+            "estimation_dropout": check_dropout("estimation_dropout", estimation_dropout),
+        }
+        super().__init__(inputs, hparams)
+        hp = self.hparams
+        self.backbone = Top10Encoder(hp["img_feature_size"], hp["image_dropout"])
+
+        decoder_in = NUM_FRAMES * hp["img_feature_size"]
+        # Towers exist only for enabled inputs, so a disabled input has no weights at all.
+        if self.inputs.uses_force:
+            self.force_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
+            decoder_in += hp["fwe_size"]
+        if self.inputs.uses_width:
+            self.width_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
+            decoder_in += hp["fwe_size"]
+        decoder_out = hp["decoder_output_size"] if self.inputs.uses_estimates else 1
+        self.decoder = make_mlp(decoder_in, hp["decoder_sizes"], decoder_out, hp["decoder_dropout"])
+        if self.inputs.uses_estimates:
+            self.estimation_decoder = make_mlp(
+                decoder_out + 2, hp["estimation_sizes"], 1, hp["estimation_dropout"]
+            )
+
+    def _head(
+        self,
+        features: torch.Tensor,
+        force: torch.Tensor | None,
+        width: torch.Tensor | None,
+        estimates: torch.Tensor | None,
+    ) -> torch.Tensor:
+        parts = [features.flatten(1)]
+        if force is not None:
+            parts.append(self.force_encoder(force))
+        if width is not None:
+            parts.append(self.width_encoder(width))
+        out = self.decoder(torch.cat(parts, dim=1))
+        if estimates is not None:
+            out = self.estimation_decoder(torch.cat([out, estimates], dim=1))
+        return out.squeeze(1)

@@ -1,0 +1,128 @@
+"""VGG-LSTM (LRCN): VGG16 fc7 features per frame, an LSTM cell over the three frames.
+
+Per time step t: concat(fc7_t, Linear(1, d_F)(F_t), Linear(1, d_W)(W_t),
+Linear(1, d_el)(E_elastic), Linear(1, d_hz)(E_hertz)) -> LSTMCell -> dropout ->
+Linear(hidden, 1) = y_t (only enabled scalars are concatenated; the two estimates are the
+same at every step). Output: sigmoid(softmax(w) . (y_1, y_2, y_3)) with a learnable
+3-vector w initialised to ones (equal weights at the start).
+
+The paper resizes frames to 224x224 for the ImageNet-pretrained VGG16
+(``recommended_image_size``); the model itself accepts any size >= 32.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
+
+from tactile_compliance.models.backbones import create_backbone
+from tactile_compliance.models.base import (
+    NUM_FRAMES,
+    TactileModel,
+    check_dropout,
+    check_positive_int,
+)
+from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.models.registry import register_model
+
+__all__ = ["VggLstm"]
+
+
+@register_model("vgg_lstm")
+class VggLstm(TactileModel):
+    """VGG-LSTM, the LRCN model of the paper.
+
+    Args:
+        inputs: input strategy (Image, ImageF, ImageFW, ALL).
+        hidden_size: LSTM hidden size (tuned: 256).
+        lstm_dropout: dropout between the LSTM output and the per-step linear (tuned: 0.2).
+        force_dim, width_dim, elastic_dim, hertz_dim: sizes of the Linear(1, d)
+            embeddings of F_t, W_t, E_elastic and E_hertz (tuned: 32 each).
+        backbone_weights: "none" (random init), "imagenet" (official torchvision VGG16,
+            needs internet or the torch.hub cache) or a path to a VGG16 state dict.
+            Recorded in ``self.backbone_weights``, not in ``hparams``.
+    """
+
+    default_training: ClassVar[dict[str, Any]] = {
+        "lr": 3e-4,
+        "batch_size": 16,
+        "gamma": 0.97974,
+    }
+    recommended_image_size: ClassVar[tuple[int, int] | None] = (224, 224)
+    pretrained_backbone: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        inputs: InputStrategy | str = "ALL",
+        hidden_size: int = 256,
+        lstm_dropout: float = 0.2,
+        force_dim: int = 32,
+        width_dim: int = 32,
+        elastic_dim: int = 32,
+        hertz_dim: int = 32,
+        backbone_weights: str | os.PathLike[str] = "none",
+    ) -> None:
+        hparams = {
+            "hidden_size": check_positive_int("hidden_size", hidden_size),
+            "lstm_dropout": check_dropout("lstm_dropout", lstm_dropout),
+            "force_dim": check_positive_int("force_dim", force_dim),
+            "width_dim": check_positive_int("width_dim", width_dim),
+            "elastic_dim": check_positive_int("elastic_dim", elastic_dim),
+            "hertz_dim": check_positive_int("hertz_dim", hertz_dim),
+        }
+        super().__init__(inputs, hparams)
+        hp = self.hparams
+        self.backbone = create_backbone("vgg16", backbone_weights)
+        self.backbone_weights = os.fspath(backbone_weights)
+
+        step_in = self.backbone.feature_dim
+        # Embeddings exist only for enabled inputs: a disabled input has no weights.
+        if self.inputs.uses_force:
+            self.force_encoder = nn.Linear(1, hp["force_dim"])
+            step_in += hp["force_dim"]
+        if self.inputs.uses_width:
+            self.width_encoder = nn.Linear(1, hp["width_dim"])
+            step_in += hp["width_dim"]
+        if self.inputs.uses_estimates:
+            self.estimate_encoder = nn.ModuleDict(
+                {
+                    "elastic": nn.Linear(1, hp["elastic_dim"]),
+                    "hertz": nn.Linear(1, hp["hertz_dim"]),
+                }
+            )
+            step_in += hp["elastic_dim"] + hp["hertz_dim"]
+        self.lstm = nn.LSTMCell(step_in, hp["hidden_size"])
+        self.dropout = nn.Dropout(hp["lstm_dropout"])
+        self.output = nn.Linear(hp["hidden_size"], 1)
+        # Learnable weights of the three steps' outputs; ones -> a plain mean at init.
+        self.step_weights = nn.Parameter(torch.ones(NUM_FRAMES))
+
+    def _head(
+        self,
+        features: torch.Tensor,
+        force: torch.Tensor | None,
+        width: torch.Tensor | None,
+        estimates: torch.Tensor | None,
+    ) -> torch.Tensor:
+        batch = features.shape[0]
+        constant: list[torch.Tensor] = []
+        if estimates is not None:
+            # The estimates describe the whole grasp, so every step sees the same embedding.
+            constant.append(self.estimate_encoder["elastic"](estimates[:, 0:1]))
+            constant.append(self.estimate_encoder["hertz"](estimates[:, 1:2]))
+        hidden = features.new_zeros(batch, self.lstm.hidden_size)
+        cell = features.new_zeros(batch, self.lstm.hidden_size)
+        step_outputs = []
+        for t in range(NUM_FRAMES):
+            parts = [features[:, t]]
+            if force is not None:
+                parts.append(self.force_encoder(force[:, t : t + 1]))
+            if width is not None:
+                parts.append(self.width_encoder(width[:, t : t + 1]))
+            hidden, cell = self.lstm(torch.cat(parts + constant, dim=1), (hidden, cell))
+            step_outputs.append(self.output(self.dropout(hidden)))
+        outputs = torch.cat(step_outputs, dim=1)  # (B, 3)
+        return outputs @ torch.softmax(self.step_weights, dim=0)

@@ -1,0 +1,104 @@
+"""The LightningModule: loss, optimiser, learning-rate schedule, validation N-MSE.
+
+Loss = MSE(sigmoid output, normalised label) + ``l2_weight * sum_i ||theta_i||_2`` over the
+trainable parameter tensors. The l2 term is the published code's form (a sum of
+*unsquared* L2 norms per tensor, weight 5e-5), not PyTorch's ``weight_decay``; its weight
+is a hyperparameter (``training.l2_weight``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import lightning as L
+import torch
+
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.training.forward import forward_batch
+
+
+class ComplianceModule(L.LightningModule):
+    """Wraps a compliance model for training; validation logs ``val_nmse`` per epoch."""
+
+    def __init__(
+        self,
+        model: torch.nn.Module,
+        constants: NormalisationConstants,
+        image_size: tuple[int, int] | None,
+        *,
+        lr: float,
+        gamma: float | None,
+        l2_weight: float,
+        augmentation: torch.nn.Module | None = None,
+        freeze_backbone: bool = False,
+        compile_model: bool = False,
+    ) -> None:
+        super().__init__()
+        self.model = model
+        self.constants = constants
+        self.image_size = image_size
+        self.lr = lr
+        self.gamma = gamma
+        self.l2_weight = l2_weight
+        self.augmentation = augmentation
+        self.freeze_backbone = freeze_backbone
+        if freeze_backbone:
+            for parameter in model.backbone.parameters():
+                parameter.requires_grad_(False)
+        # Compile the forward only; the state dict keeps the plain model's key names.
+        self._forward_model: Callable[..., Any] = (
+            torch.compile(model) if compile_model else model  # type: ignore[assignment]
+        )
+        self._val_squared_errors: list[torch.Tensor] = []
+
+    def trainable_parameters(self) -> list[torch.nn.Parameter]:
+        return [p for p in self.model.parameters() if p.requires_grad]
+
+    def on_train_epoch_start(self) -> None:
+        # A frozen backbone keeps its BatchNorm statistics: eval mode inside train mode.
+        if self.freeze_backbone:
+            self.model.backbone.eval()
+
+    def _predict(self, batch: dict[str, torch.Tensor], augment: bool) -> torch.Tensor:
+        return forward_batch(
+            self._forward_model,  # type: ignore[arg-type]
+            batch,
+            self.constants,
+            self.image_size,
+            self.augmentation if augment else None,
+        )
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        prediction = self._predict(batch, augment=True).float()
+        mse = torch.mean((prediction - batch["label"]) ** 2)
+        loss = mse
+        if self.l2_weight > 0:
+            l2 = torch.stack([p.norm(2) for p in self.trainable_parameters()]).sum()
+            loss = mse + self.l2_weight * l2
+        size = len(prediction)
+        self.log("train_mse", mse, on_step=False, on_epoch=True, batch_size=size)
+        self.log("train_loss", loss, on_step=False, on_epoch=True, batch_size=size, prog_bar=True)
+        return loss
+
+    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
+        prediction = self._predict(batch, augment=False).float()
+        self._val_squared_errors.append(((prediction - batch["label"]) ** 2).detach())
+
+    def on_validation_epoch_end(self) -> None:
+        if not self._val_squared_errors:
+            return
+        # Epoch-level N-MSE over all validation samples (not a mean of batch means).
+        nmse = torch.cat(self._val_squared_errors).mean()
+        self._val_squared_errors.clear()
+        self.log("val_nmse", nmse, prog_bar=True)
+
+    def configure_optimizers(self) -> Any:
+        optimizer = torch.optim.Adam(self.trainable_parameters(), lr=self.lr)
+        if self.gamma is None:
+            return optimizer
+        scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=1, gamma=self.gamma)
+        return {
+            "optimizer": optimizer,
+            "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"},
+        }

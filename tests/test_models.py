@@ -1,0 +1,463 @@
+"""Tests of the three compliance models, the input strategies and the model registry.
+
+Every registered model is checked under every input strategy: output shape and range,
+gradients, which inputs reach the output, that disabled inputs have no parameters, and
+that ``forward`` equals ``forward_features`` on the backbone's features. Models are built
+once per (model, strategy) and shared, because VGG16 alone has 134 M parameters.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from collections.abc import Callable, Iterator
+
+import pytest
+import torch
+from torch import nn
+
+from tactile_compliance.models import (
+    InputStrategy,
+    ResTf,
+    TactileModel,
+    create_backbone,
+    create_model,
+    get_model_class,
+    list_models,
+    model_hyperparameters,
+    register_model,
+)
+from tactile_compliance.models import registry as registry_module
+from tactile_compliance.models.res_tf import sinusoidal_positional_encoding
+
+MODELS = list_models()
+STRATEGIES = list(InputStrategy)
+BATCH = 2
+
+# Substrings that every parameter of an input's tower carries (the models' naming
+# convention: force_encoder, width_encoder, estimation_decoder / estimate_encoder).
+TOWER_MARKERS = {"force": "force", "width": "width", "estimates": "estimat"}
+
+
+def _uses(strategy: InputStrategy, input_name: str) -> bool:
+    return {
+        "force": strategy.uses_force,
+        "width": strategy.uses_width,
+        "estimates": strategy.uses_estimates,
+    }[input_name]
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread() -> Iterator[None]:
+    """Run single-threaded: the tensors here are tiny, and on shared cores several torch
+    thread pools spin-waiting against each other slow small ops down by orders of magnitude."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.fixture(scope="module")
+def get_model() -> Iterator[Callable[[str, InputStrategy], TactileModel]]:
+    """Build each (model, strategy) once with a fixed seed; tests that mutate use copies."""
+    cache: dict[tuple[str, InputStrategy], TactileModel] = {}
+
+    def build(name: str, strategy: InputStrategy) -> TactileModel:
+        key = (name, strategy)
+        if key not in cache:
+            torch.manual_seed(0)
+            cache[key] = create_model(name, strategy)
+        model = cache[key]
+        model.zero_grad(set_to_none=True)
+        return model
+
+    yield build
+    cache.clear()  # release the VGG copies (~0.5 GB each) before other test modules run
+
+
+@pytest.fixture(scope="module")
+def get_features(get_model) -> Iterator[Callable[[str, InputStrategy], torch.Tensor]]:
+    """Eval-mode backbone features of ``make_batch(model)``, computed once per model."""
+    cache: dict[tuple[str, InputStrategy], torch.Tensor] = {}
+
+    def features(name: str, strategy: InputStrategy) -> torch.Tensor:
+        key = (name, strategy)
+        if key not in cache:
+            model = get_model(name, strategy).eval()
+            with torch.no_grad():
+                cache[key] = model.encode_frames(make_batch(model)["frames"])
+        return cache[key]
+
+    yield features
+    cache.clear()
+
+
+def make_batch(model: TactileModel, seed: int = 0) -> dict[str, torch.Tensor]:
+    """A small random batch at the smallest frame size the model accepts (>= 32 px)."""
+    generator = torch.Generator().manual_seed(seed)
+    size = max(32, model.min_image_size)
+    return {
+        "frames": torch.randn(BATCH, 3, 3, size, size, generator=generator),
+        "force": torch.rand(BATCH, 3, generator=generator),
+        "width": torch.rand(BATCH, 3, generator=generator),
+        "estimates": torch.rand(BATCH, 2, generator=generator),
+    }
+
+
+def perturbed(batch: dict[str, torch.Tensor], input_name: str, column: int | None = None):
+    """Copy of ``batch`` with one scalar input (or one column of it) shifted by 0.5."""
+    changed = dict(batch)
+    tensor = batch[input_name].clone()
+    if column is None:
+        tensor += 0.5
+    else:
+        tensor[:, column] += 0.5
+    changed[input_name] = tensor
+    return changed
+
+
+# ----------------------------------------------------------------- InputStrategy
+
+
+def test_input_strategy_flags() -> None:
+    table = {
+        InputStrategy.IMAGE: (False, False, False),
+        InputStrategy.IMAGE_F: (True, False, False),
+        InputStrategy.IMAGE_FW: (True, True, False),
+        InputStrategy.ALL: (True, True, True),
+    }
+    for strategy, flags in table.items():
+        assert (strategy.uses_force, strategy.uses_width, strategy.uses_estimates) == flags
+    assert [s.value for s in InputStrategy] == ["Image", "ImageF", "ImageFW", "ALL"]
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("image", InputStrategy.IMAGE),
+        ("Image", InputStrategy.IMAGE),
+        ("IMAGEF", InputStrategy.IMAGE_F),
+        ("imagefw", InputStrategy.IMAGE_FW),
+        ("image_fw", InputStrategy.IMAGE_FW),
+        ("all", InputStrategy.ALL),
+        (" ALL ", InputStrategy.ALL),
+        (InputStrategy.IMAGE_F, InputStrategy.IMAGE_F),
+    ],
+)
+def test_input_strategy_parse(text: str | InputStrategy, expected: InputStrategy) -> None:
+    assert InputStrategy.parse(text) is expected
+
+
+def test_input_strategy_parse_error_lists_names() -> None:
+    with pytest.raises(ValueError, match=r"imagewf.*Image, ImageF, ImageFW, ALL"):
+        InputStrategy.parse("imagewf")
+
+
+# --------------------------------------------------------------- per model x strategy
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES, ids=str)
+@pytest.mark.parametrize("name", MODELS)
+def test_output_shape_and_range(get_model, name: str, strategy: InputStrategy) -> None:
+    model = get_model(name, strategy)
+    batch = make_batch(model)
+    for training in (True, False):
+        model.train(training)
+        with torch.no_grad():
+            out = model(**batch)
+        assert out.shape == (BATCH,)
+        assert torch.isfinite(out).all()
+        assert ((out > 0) & (out < 1)).all(), out
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES, ids=str)
+@pytest.mark.parametrize("name", MODELS)
+def test_every_parameter_gets_a_gradient(get_model, name: str, strategy: InputStrategy) -> None:
+    model = get_model(name, strategy)
+    model.train()
+    torch.manual_seed(1)  # dropout masks
+    model(**make_batch(model)).sum().backward()
+    backbone_ids = {id(p) for p in model.backbone.parameters()}
+    backbone_norm = 0.0
+    try:
+        for param_name, param in model.named_parameters():
+            if not param.requires_grad:
+                continue
+            assert param.grad is not None, f"{param_name} got no gradient"
+            # One pass over the (up to 100 M) values: a NaN or inf anywhere makes the
+            # sum of absolute values non-finite.
+            magnitude = float(param.grad.abs().sum())
+            assert torch.isfinite(torch.tensor(magnitude)), f"{param_name}: non-finite gradient"
+            if id(param) in backbone_ids:
+                backbone_norm += magnitude
+            else:
+                assert magnitude > 0, f"head parameter {param_name} has zero gradient"
+        assert backbone_norm > 0, "no gradient reaches the backbone"
+    finally:
+        model.zero_grad(set_to_none=True)
+
+
+@pytest.mark.parametrize("input_name", ["force", "width", "estimates"])
+@pytest.mark.parametrize("strategy", STRATEGIES, ids=str)
+@pytest.mark.parametrize("name", MODELS)
+def test_input_reaches_output_only_when_enabled(
+    get_model, get_features, name: str, strategy: InputStrategy, input_name: str
+) -> None:
+    model = get_model(name, strategy).eval()
+    batch = make_batch(model)
+    features = get_features(name, strategy)
+    scalars = {k: v for k, v in batch.items() if k != "frames"}
+    with torch.no_grad():
+        base = model.forward_features(features, **scalars)
+        # Each column separately, so e.g. the Hertz estimate cannot silently be dropped.
+        columns = range(scalars[input_name].shape[1])
+        for column in columns:
+            changed = perturbed(scalars, input_name, column)
+            out = model.forward_features(features, **changed)
+            if _uses(strategy, input_name):
+                assert (out - base).abs().max() > 1e-7, f"{input_name}[{column}] has no effect"
+            else:
+                assert torch.equal(out, base), f"disabled {input_name} changed the output"
+        if not _uses(strategy, input_name):
+            # Passing None for a disabled input is the same as passing a tensor.
+            without = {**scalars, input_name: None}
+            assert torch.equal(model.forward_features(features, **without), base)
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES, ids=str)
+@pytest.mark.parametrize("name", MODELS)
+def test_disabled_inputs_have_no_parameters(get_model, name: str, strategy: InputStrategy) -> None:
+    model = get_model(name, strategy)
+    names = [n for n, _ in model.named_parameters()]
+    for input_name, marker in TOWER_MARKERS.items():
+        has_tower = any(marker in n for n in names)
+        assert has_tower == _uses(strategy, input_name), (input_name, names)
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_parameter_count_grows_with_inputs(get_model, name: str) -> None:
+    counts = [sum(p.numel() for p in get_model(name, s).parameters()) for s in STRATEGIES]
+    assert counts == sorted(counts) and len(set(counts)) == len(counts), counts
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES, ids=str)
+@pytest.mark.parametrize("name", MODELS)
+def test_forward_equals_forward_features(get_model, name: str, strategy: InputStrategy) -> None:
+    model = get_model(name, strategy).eval()
+    batch = make_batch(model, seed=3)
+    frames = batch["frames"]
+    with torch.no_grad():
+        direct = model(**batch)
+        # What a feature cache would store: the backbone applied frame by frame.
+        per_frame = torch.stack([model.backbone(frames[:, t]) for t in range(3)], dim=1)
+        assert per_frame.shape == (BATCH, 3, model.feature_dim)
+        cached = model.forward_features(
+            per_frame, batch["force"], batch["width"], batch["estimates"]
+        )
+    torch.testing.assert_close(direct, cached, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES, ids=str)
+@pytest.mark.parametrize("name", MODELS)
+def test_enabled_input_missing_raises(get_model, name: str, strategy: InputStrategy) -> None:
+    model = get_model(name, strategy).eval()
+    batch = make_batch(model)
+    features = torch.zeros(BATCH, 3, model.feature_dim)
+    scalars = {k: v for k, v in batch.items() if k != "frames"}
+    enabled = [n for n in TOWER_MARKERS if _uses(strategy, n)]
+    for input_name in enabled:
+        with pytest.raises(ValueError, match=rf"`{input_name}`"):
+            model.forward_features(features, **{**scalars, input_name: None})
+    if not enabled:
+        # An Image model runs on the frames alone.
+        with torch.no_grad():
+            assert model(batch["frames"]).shape == (BATCH,)
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_bad_shapes_raise_clear_errors(get_model, name: str) -> None:
+    model = get_model(name, InputStrategy.ALL).eval()
+    batch = make_batch(model)
+    with pytest.raises(ValueError, match="frames"):
+        model(batch["frames"][:, 0], batch["force"], batch["width"], batch["estimates"])
+    with pytest.raises(ValueError, match="frames"):
+        model(batch["frames"][:, :2], batch["force"], batch["width"], batch["estimates"])
+    if model.min_image_size > 1:
+        too_small = torch.zeros(BATCH, 3, 3, model.min_image_size - 1, 80)
+        with pytest.raises(ValueError, match="at least"):
+            model(too_small, batch["force"], batch["width"], batch["estimates"])
+    with pytest.raises(ValueError, match="`force`"):
+        model(batch["frames"], batch["force"][:, :2], batch["width"], batch["estimates"])
+    with pytest.raises(ValueError, match="features"):
+        model.forward_features(torch.zeros(BATCH, 3, model.feature_dim + 1))
+    # float64 scalars (straight from numpy) are accepted.
+    with torch.no_grad():
+        out = model(
+            batch["frames"],
+            batch["force"].double(),
+            batch["width"].double(),
+            batch["estimates"].double(),
+        )
+    assert out.dtype == torch.float32
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_force_and_width_reach_their_own_towers(get_model, get_features, name: str) -> None:
+    """Regression test for the published bug (force and width swapped in the call)."""
+    base_model = get_model(name, InputStrategy.IMAGE_FW)
+    for silenced, live in (("force", "width"), ("width", "force")):
+        model = copy.deepcopy(base_model).eval()
+        tower = getattr(model, f"{silenced}_encoder")
+        with torch.no_grad():
+            for param in tower.parameters():
+                param.zero_()
+        batch = make_batch(model)
+        # Only a tower changes, never the backbone, so the cached features still apply.
+        features = get_features(name, InputStrategy.IMAGE_FW)
+        scalars = {k: v for k, v in batch.items() if k != "frames"}
+        with torch.no_grad():
+            base = model.forward_features(features, **scalars)
+            via_silenced = model.forward_features(features, **perturbed(scalars, silenced))
+            via_live = model.forward_features(features, **perturbed(scalars, live))
+        # With its own tower zeroed, an input can no longer matter; the other one still does.
+        assert torch.equal(via_silenced, base), f"{silenced} bypasses {silenced}_encoder"
+        assert (via_live - base).abs().max() > 1e-7, f"{live} does not reach the output"
+        del model
+
+
+def test_vgg_lstm_estimates_reach_their_own_embeddings(get_model, get_features) -> None:
+    model = copy.deepcopy(get_model("vgg_lstm", InputStrategy.ALL)).eval()
+    with torch.no_grad():
+        for param in model.estimate_encoder["elastic"].parameters():
+            param.zero_()
+    batch = make_batch(model)
+    features = get_features("vgg_lstm", InputStrategy.ALL)
+    scalars = {k: v for k, v in batch.items() if k != "frames"}
+    with torch.no_grad():
+        base = model.forward_features(features, **scalars)
+        elastic = model.forward_features(features, **perturbed(scalars, "estimates", 0))
+        hertz = model.forward_features(features, **perturbed(scalars, "estimates", 1))
+    assert torch.equal(elastic, base)
+    assert (hertz - base).abs().max() > 1e-7
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_hparams_rebuild_the_same_model(get_model, name: str) -> None:
+    model = get_model(name, InputStrategy.ALL).eval()
+    # What a checkpoint stores must survive JSON and rebuild an identical architecture.
+    restored_hparams = json.loads(json.dumps(model.hparams))
+    assert set(restored_hparams) <= set(model_hyperparameters(name))
+    rebuilt = create_model(model.model_name, model.inputs.value, **restored_hparams).eval()
+    rebuilt.load_state_dict(model.state_dict(), strict=True)
+    assert rebuilt.hparams == model.hparams
+    batch = make_batch(model)
+    with torch.no_grad():
+        torch.testing.assert_close(rebuilt(**batch), model(**batch), rtol=0, atol=0)
+    assert model.backbone_weights == "none"
+
+
+def test_model_metadata(get_model) -> None:
+    expected_dims = {"top10nn": 128, "vgg_lstm": 4096, "res_tf": 512}
+    for name in MODELS:
+        model = get_model(name, InputStrategy.IMAGE)
+        assert model.model_name == name
+        assert model.inputs is InputStrategy.IMAGE
+        assert model.feature_dim == expected_dims[name]
+        assert model.feature_dim == model.backbone.feature_dim
+        assert set(model.default_training) == {"lr", "batch_size", "gamma"}
+        assert model.recommended_image_size == ((224, 224) if name == "vgg_lstm" else None)
+        assert ("backbone_weights" in model_hyperparameters(name)) == model.pretrained_backbone
+
+
+# ------------------------------------------------------------------ model specifics
+
+
+def test_top10nn_needs_65_pixels(get_model) -> None:
+    model = get_model("top10nn", InputStrategy.IMAGE).eval()
+    assert model.min_image_size == 65
+    with torch.no_grad():
+        assert model(torch.zeros(1, 3, 3, 65, 65)).shape == (1,)
+    with pytest.raises(ValueError, match="65x65"):
+        model(torch.zeros(1, 3, 3, 64, 64))
+
+
+def test_res_tf_options() -> None:
+    with pytest.raises(ValueError, match="divisible"):
+        ResTf("Image", embedding_dim=30, num_heads=4)
+    with pytest.raises(ValueError, match="backbone"):
+        ResTf("Image", backbone="vgg16")
+    with pytest.raises(ValueError, match="decoder_sizes"):
+        ResTf("Image", decoder_sizes=[0])
+    torch.manual_seed(0)
+    tuned_image = ResTf("Image", **ResTf.tuned_configs["Image"]["model"])
+    assert len(tuned_image.transformer.layers) == 5
+    assert tuned_image.image_output.out_features == 1024
+    big = ResTf("Image", backbone="resnet50", num_layers=1)
+    assert big.feature_dim == 2048
+    with torch.no_grad():
+        assert big.eval()(torch.randn(1, 3, 3, 32, 32)).shape == (1,)
+
+
+def test_sinusoidal_positional_encoding() -> None:
+    encoding = sinusoidal_positional_encoding(3, 6)
+    assert encoding.shape == (3, 6)
+    torch.testing.assert_close(encoding[0], torch.tensor([0.0, 1.0, 0.0, 1.0, 0.0, 1.0]))
+    assert encoding[1, 0] == pytest.approx(torch.sin(torch.tensor(1.0)).item())
+    assert encoding[1, 1] == pytest.approx(torch.cos(torch.tensor(1.0)).item())
+    assert encoding[2, 2] == pytest.approx(torch.sin(torch.tensor(2.0 / 10000 ** (2 / 6))).item())
+    assert sinusoidal_positional_encoding(3, 5).shape == (3, 5)
+
+
+# ----------------------------------------------------------------------- registry
+
+
+def test_list_models() -> None:
+    assert list_models() == ["res_tf", "top10nn", "vgg_lstm"]
+
+
+def test_create_model_unknown_name_lists_models() -> None:
+    with pytest.raises(ValueError, match=r"unknown model 'resnet'.*res_tf, top10nn, vgg_lstm"):
+        create_model("resnet")
+
+
+def test_create_model_unknown_hyperparameter_is_named() -> None:
+    with pytest.raises(ValueError, match=r"hidden_sise.*top10nn"):
+        create_model("top10nn", "Image", hidden_sise=3)
+
+
+def test_create_model_bad_inputs() -> None:
+    with pytest.raises(ValueError, match="input strategy"):
+        create_model("top10nn", "pictures")
+
+
+def test_create_model_passes_hyperparameters() -> None:
+    model = create_model("TOP10NN", "imagef", img_feature_size=64, fwe_size=8)
+    assert model.inputs is InputStrategy.IMAGE_F
+    assert model.feature_dim == 64
+    assert model.force_encoder.out_features == 8
+    assert model.hparams["img_feature_size"] == 64
+
+
+def test_register_a_new_model() -> None:
+    class TinyModel(TactileModel):
+        def __init__(self, inputs: InputStrategy | str = "ALL", channels: int = 4) -> None:
+            super().__init__(inputs, {"channels": channels})
+            self.backbone = create_backbone("resnet18")
+            self.out = nn.Linear(3 * self.backbone.feature_dim, 1)
+
+        def _head(self, features, force, width, estimates):
+            return self.out(features.flatten(1)).squeeze(1)
+
+    try:
+        register_model("tiny_test_model")(TinyModel)
+        assert "tiny_test_model" in list_models()
+        assert get_model_class("tiny_test_model") is TinyModel
+        model = create_model("tiny_test_model", "Image", channels=2)
+        assert model.model_name == "tiny_test_model" and model.hparams == {"channels": 2}
+        with pytest.raises(ValueError, match="already registered"):
+            register_model("tiny_test_model")(type("Other", (TinyModel,), {}))
+        with pytest.raises(ValueError, match="colour"):
+            create_model("tiny_test_model", colour=1)
+    finally:
+        registry_module._REGISTRY.pop("tiny_test_model", None)
+    assert "tiny_test_model" not in list_models()

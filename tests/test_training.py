@@ -1,0 +1,146 @@
+"""The training path end to end on a tiny learnable store (seconds per model)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from tactile_compliance.cli import app
+from tactile_compliance.config import load_config
+from tactile_compliance.data.normalisation import normalise_modulus
+from tactile_compliance.data.splits import Split
+from tactile_compliance.evaluation.evaluate import evaluate_run
+from tactile_compliance.models import list_models
+from tactile_compliance.training.checkpoint import load_checkpoint
+from tactile_compliance.training.train import train
+from toy_store import make_toy_store
+
+# Per model: settings that learn the toy task in a few CPU seconds. Top10NN trains its
+# CNN end to end (it needs >= 65 px frames); the pretrained-backbone models use a frozen
+# random backbone with cached features, as the CPU presets do.
+FAST = {
+    "top10nn": ["data.image_size=[72,72]", "training.lr=1e-3", "training.max_epochs=12"],
+    "vgg_lstm": ["data.image_size=[32,32]", "model.freeze_backbone=true", "training.lr=1e-3",
+                 "training.max_epochs=25", "model.hparams={hidden_size: 64}"],
+    "res_tf": ["data.image_size=[32,32]", "model.freeze_backbone=true", "training.lr=3e-4",
+               "training.max_epochs=25",
+               "model.hparams={num_layers: 1, embedding_dim: 64, output_dim: 64}"],
+}
+
+
+@pytest.fixture(scope="module")
+def toy_store(tmp_path_factory):
+    return make_toy_store(tmp_path_factory.mktemp("toy") / "store")
+
+
+def _config(store, out, model, extra=()):
+    return load_config(
+        "default",
+        [
+            f"data.store={store.path}",
+            f"output_dir={out}",
+            f"model.name={model}",
+            "augmentation.enabled=false",
+            "training.batch_size=16",
+            "training.patience=100",
+            *FAST[model],
+            *extra,
+        ],
+    )
+
+
+def _median_val_nmse(run_dir, store, constants) -> float:
+    split = Split.load(run_dir / "split.json")
+    moduli = store.samples["modulus_pa"].to_numpy()
+    median = np.median(moduli[split.train_ids])
+    y_val = normalise_modulus(moduli[split.val_ids], constants)
+    return float(np.mean((y_val - normalise_modulus(median, constants)) ** 2))
+
+
+def test_every_model_is_covered():
+    assert sorted(FAST) == list_models()
+
+
+@pytest.mark.parametrize("model", sorted(FAST))
+def test_tiny_run_beats_the_median_predictor(toy_store, tmp_path, model):
+    cfg = _config(toy_store, tmp_path, model)
+    result = train(cfg, progress=False)
+    run_dir = tmp_path / result["run_name"]
+    median_val = _median_val_nmse(run_dir, toy_store, cfg.normalisation_constants())
+    assert result["best_val_nmse"] < 0.6 * median_val, (result["best_val_nmse"], median_val)
+    assert result["test"]["nmse"] < result["reference"]["median"]["nmse"]
+    for name in ("config.yaml", "split.json", "best.pt", "predictions.csv", "groups.csv",
+                 "logs/metrics.csv", "checkpoints/last.ckpt", "filter_report.json"):
+        assert (run_dir / name).exists(), name
+    # The checkpoint describes itself.
+    loaded = load_checkpoint(run_dir / "best.pt")
+    assert loaded.meta["model_name"] == model and loaded.inputs == "ALL"
+    assert loaded.meta["seed"] == cfg.seed and loaded.meta["backbone_weights"] == "none"
+    assert loaded.meta["config"]["data"]["store"] == str(toy_store.path)
+    assert loaded.image_size == tuple(cfg.data.image_size)
+    # Re-running a finished configuration returns the stored result without training.
+    assert train(cfg, progress=False) == result
+
+
+def test_evaluate_reproduces_the_test_metrics(toy_store, tmp_path):
+    cfg = _config(toy_store, tmp_path, "top10nn", ["training.max_epochs=3"])
+    result = train(cfg, progress=False)
+    evaluation = evaluate_run(result["run_dir"])
+    for key in ("log10_accuracy", "nmse", "r2"):
+        assert evaluation.metrics[key] == pytest.approx(result["test"][key], abs=1e-5)
+    stored = pd.read_csv(f"{result['run_dir']}/predictions.csv").query("split == 'test'")
+    assert np.allclose(stored["pred_pa"].to_numpy(), evaluation.predictions["pred_pa"], rtol=1e-4)
+    assert set(evaluation.groups["grouping"]) == {"all", "material", "shape", "soft_hard"}
+
+
+def test_test_split_uses_the_best_epoch_not_the_last(toy_store, tmp_path):
+    cfg = _config(toy_store, tmp_path, "top10nn", ["training.max_epochs=6", "training.lr=3e-2"])
+    result = train(cfg, progress=False)
+    log = pd.read_csv(f"{result['run_dir']}/logs/metrics.csv").dropna(subset=["val_nmse"])
+    assert result["best_val_nmse"] == pytest.approx(log["val_nmse"].min(), rel=1e-5)
+    assert result["best_epoch"] == int(log.loc[log["val_nmse"].idxmin(), "epoch"])
+    meta = load_checkpoint(f"{result['run_dir']}/best.pt").meta
+    assert meta["metrics"]["best_epoch"] == result["best_epoch"]
+
+
+def test_interrupted_run_resumes_from_its_checkpoint(toy_store, tmp_path):
+    run_dir = tmp_path / "run"
+    first = train(_config(toy_store, tmp_path, "top10nn", ["training.max_epochs=2"]),
+                  run_dir=run_dir, progress=False)
+    assert first["epochs_trained"] == 2
+    (run_dir / "metrics.json").unlink()  # as if the process died after epoch 2
+    resumed = train(_config(toy_store, tmp_path, "top10nn", ["training.max_epochs=4"]),
+                    run_dir=run_dir, progress=False)
+    assert resumed["epochs_trained"] == 4
+    log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
+    # Epochs 0-1 from the first process, 2-3 from the resumed one: none repeated.
+    assert sorted(log["epoch"].astype(int).tolist()) == [0, 1, 2, 3]
+
+
+def test_feature_cache_is_shared_across_seeds(toy_store, tmp_path):
+    for seed in (0, 1):
+        train(_config(toy_store, tmp_path, "res_tf", ["training.max_epochs=1", f"seed={seed}"]),
+              progress=False)
+    caches = list((toy_store.path / "features").iterdir())
+    assert len([c for c in caches if c.name.startswith("resnet")]) == 1
+    meta = json.loads((caches[0] / "meta.json").read_text())
+    assert meta["shape"][0] == len(toy_store)
+
+
+def test_cli_train_and_evaluate(toy_store, tmp_path):
+    runner = CliRunner()
+    args = ["train", "--set", f"data.store={toy_store.path}", "--set", f"output_dir={tmp_path}",
+            "--set", "data.image_size=[72,72]", "--set", "training.max_epochs=1",
+            "--run-dir", str(tmp_path / "cli-run")]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "test log10 accuracy" in result.output
+    result = runner.invoke(app, ["evaluate", str(tmp_path / "cli-run"), "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["metrics"]["n"] > 0
+    bad = runner.invoke(app, ["train", "--set", "training.lrr=1"])
+    assert bad.exit_code == 1 and "lrr" in bad.output

@@ -1,0 +1,66 @@
+"""A tiny, learnable GraspStore for training tests (seconds on a CPU).
+
+The log modulus is encoded weakly in the frames (the radius and depth of a pressed blob),
+in the width change and in the estimates, so a model that learns anything beats the
+median predictor. It passes every filter rule (F rises, W falls, depth rises).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from tactile_compliance.data.store import GraspStore, GraspStoreWriter
+
+MATERIALS = ("Foam", "Rubber", "Plastic", "Metal")
+SHAPES = ("Sphere", "Cylinder")
+
+
+def make_toy_store(
+    path: Path,
+    n_objects: int = 16,
+    grasps: int = 4,
+    size: tuple[int, int] = (32, 32),
+    seed: int = 0,
+) -> GraspStore:
+    rng = np.random.default_rng(seed)
+    height, width = size
+    yy, xx = np.mgrid[0:height, 0:width]
+    radius_sq = (yy - height / 2) ** 2 + (xx - width / 2) ** 2
+    with GraspStoreWriter(path, size, "toy") as writer:
+        for index in range(n_objects):
+            log_e = 4.0 + 7.0 * index / max(1, n_objects - 1)  # 1e4 .. 1e11 Pa
+            softness = (11.0 - log_e) / 7.0  # 1 for soft, 0 for hard
+            for grasp in range(grasps):
+                for finger in ("markerless", "markers"):
+                    frames = np.empty((3, height, width, 3), np.float32)
+                    for t in range(3):
+                        blob_radius = 3 + 8 * softness * (t + 1) / 3
+                        blob = np.exp(-radius_sq / (2 * blob_radius**2))
+                        for c in range(3):
+                            frames[t, ..., c] = 0.5 + (0.05 + 0.1 * softness) * blob * (c + 1) / 3
+                    frames += rng.normal(0, 0.01, frames.shape).astype(np.float32)
+                    force = np.array([8.0, 30.0, 58.0]) + rng.normal(0, 0.5, 3)
+                    squeeze = 0.002 + 0.01 * softness
+                    widths = 0.05 - np.array([0.0, 0.5, 1.0]) * squeeze
+                    estimate = 10 ** (log_e * 0.4 + 3.0 + rng.normal(0, 0.2))
+                    writer.append(
+                        np.clip(frames, 0, 1),
+                        {
+                            "object": f"toy_{index:02d}",
+                            "grasp": grasp,
+                            "augmentation": 0,
+                            "finger": finger,
+                            "material": MATERIALS[index * len(MATERIALS) // n_objects],
+                            "shape": SHAPES[index % 2],
+                            "modulus_pa": 10**log_e,
+                            **{f"force_n_{i}": force[i] for i in range(3)},
+                            **{f"width_m_{i}": widths[i] for i in range(3)},
+                            "elastic_estimate_pa": estimate,
+                            "hertz_estimate_pa": estimate * 2,
+                            **{f"depth_max_mm_{i}": 0.3 * (i + 1) for i in range(3)},
+                            "source_path": f"toy/{index}/{grasp}",
+                        },
+                    )
+    return GraspStore.open(path)
