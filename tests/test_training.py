@@ -72,6 +72,8 @@ def test_tiny_run_beats_the_median_predictor(toy_store, tmp_path, model):
     run_dir = tmp_path / result["run_name"]
     median_val = _median_val_nmse(run_dir, toy_store, cfg.normalisation_constants())
     assert result["best_val_nmse"] < 0.6 * median_val, (result["best_val_nmse"], median_val)
+    # The restored best weights reproduce the best epoch's validation score.
+    assert result["val"]["nmse"] == pytest.approx(result["best_val_nmse"], rel=2e-3, abs=1e-5)
     assert result["test"]["nmse"] < result["reference"]["median"]["nmse"]
     for name in ("config.yaml", "split.json", "best.pt", "predictions.csv", "groups.csv",
                  "logs/metrics.csv", "checkpoints/last.ckpt", "filter_report.json"):

@@ -1,0 +1,160 @@
+"""The results store: one row per run of a grid, kept as one JSON file per run.
+
+Layout: ``RESULTS/rows/{key}.json``. One file per run means concurrent workers never
+write the same file, each write is atomic (temp file + rename), and a crashed writer can
+never corrupt other rows. :meth:`ResultsStore.table` flattens all rows into a pandas
+DataFrame for reports.
+
+Row schema (flat; metrics prefixed by where they come from):
+
+- identity: ``key`` (the run's config hash, seed included), ``run_name``, ``run_dir``,
+  ``preset``, ``store``;
+- axes: ``model``, ``inputs``, ``condition``, ``sampling``, ``seed``, ``subset``
+  (None, a rolling-window index 0-6, a shape name, ``soft``/``hard``), ``t_balance``;
+- outcome: ``status`` (``complete`` | ``failed``), ``error``, ``attempts``,
+  ``wall_time_s``, ``finished`` (UTC ISO time);
+- metrics: ``test_*`` and ``val_*`` (``n``, ``log10_accuracy``, ``nmse``, ``r2``,
+  ``mae_decades``, ``within_half_decade``), ``ref_median_*`` and ``ref_analytical_*``
+  (the reference predictors on the same test split), ``best_epoch``, ``best_val_nmse``,
+  ``epochs_trained``, ``n_train``, ``n_val``, ``n_test``, ``backbone_weights``,
+  ``freeze_backbone``, ``image_size``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from tactile_compliance.config import ExperimentConfig
+from tactile_compliance.training.train import config_hash, run_name
+
+ROWS_DIR = "rows"
+STATUS_COMPLETE = "complete"
+STATUS_FAILED = "failed"
+AXES = ("model", "inputs", "condition", "sampling", "seed", "subset", "t_balance")
+
+
+def run_key(cfg: ExperimentConfig) -> str:
+    """Identity of a grid cell: the config hash (covers model, inputs, seed, data, ...)."""
+    return config_hash(cfg)
+
+
+def _axes(cfg: ExperimentConfig) -> dict[str, Any]:
+    return {
+        "model": cfg.model.name,
+        "inputs": cfg.inputs,
+        "condition": cfg.split.condition,
+        "sampling": cfg.sampling.strategy,
+        "seed": cfg.seed,
+        "subset": cfg.split.subset,
+        "t_balance": cfg.sampling.t_balance if cfg.sampling.strategy == "balanced" else None,
+    }
+
+
+def _flatten(prefix: str, metrics: Mapping[str, Any]) -> dict[str, Any]:
+    return {f"{prefix}_{name}": value for name, value in metrics.items()}
+
+
+def result_row(
+    cfg: ExperimentConfig,
+    result: Mapping[str, Any] | None = None,
+    *,
+    preset: str = "",
+    error: str | None = None,
+    attempts: int = 1,
+    wall_time_s: float | None = None,
+) -> dict[str, Any]:
+    """A results-store row for a finished (``result`` from ``train``) or failed run."""
+    row: dict[str, Any] = {
+        "key": run_key(cfg),
+        "run_name": run_name(cfg),
+        "preset": preset,
+        "store": cfg.data.store,
+        **_axes(cfg),
+        "status": STATUS_FAILED if error is not None else STATUS_COMPLETE,
+        "error": error,
+        "attempts": attempts,
+        "finished": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    }
+    if result is not None:
+        row.update(
+            {
+                "run_dir": result.get("run_dir"),
+                "wall_time_s": result.get("wall_time_s", wall_time_s),
+                **_flatten("test", result.get("test", {})),
+                **_flatten("val", result.get("val", {})),
+                **{
+                    key: result.get(key)
+                    for key in (
+                        "best_epoch",
+                        "best_val_nmse",
+                        "epochs_trained",
+                        "n_train",
+                        "n_val",
+                        "n_test",
+                        "backbone_weights",
+                        "freeze_backbone",
+                        "image_size",
+                    )
+                },
+            }
+        )
+        for name, metrics in result.get("reference", {}).items():
+            row.update(_flatten(f"ref_{name}", metrics))
+    else:
+        row["wall_time_s"] = wall_time_s
+    return row
+
+
+class ResultsStore:
+    """A directory of per-run JSON rows (safe for concurrent writers)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        (self.path / ROWS_DIR).mkdir(parents=True, exist_ok=True)
+
+    def _row_path(self, key: str) -> Path:
+        return self.path / ROWS_DIR / f"{key}.json"
+
+    def get(self, key: str) -> dict[str, Any] | None:
+        """The stored row of ``key``, or None."""
+        path = self._row_path(key)
+        if not path.exists():
+            return None
+        return json.loads(path.read_text())
+
+    def is_complete(self, key: str) -> bool:
+        row = self.get(key)
+        return row is not None and row.get("status") == STATUS_COMPLETE
+
+    def record(self, row: Mapping[str, Any]) -> Path:
+        """Write (or replace) one row atomically."""
+        path = self._row_path(str(row["key"]))
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+        with os.fdopen(fd, "w") as handle:
+            json.dump(dict(row), handle, indent=2, default=str)
+            handle.write("\n")
+        os.replace(tmp, path)
+        return path
+
+    def rows(self) -> list[dict[str, Any]]:
+        return [json.loads(p.read_text()) for p in sorted((self.path / ROWS_DIR).glob("*.json"))]
+
+    def table(self) -> pd.DataFrame:
+        """All rows as a DataFrame (one row per run), sorted by the grid axes."""
+        rows = self.rows()
+        if not rows:
+            return pd.DataFrame(columns=["key", *AXES, "status"])
+        frame = pd.DataFrame(rows)
+        order = [c for c in ("preset", *AXES) if c in frame.columns]
+        return frame.sort_values(order, key=lambda s: s.astype(str)).reset_index(drop=True)
+
+    def __len__(self) -> int:
+        return len(list((self.path / ROWS_DIR).glob("*.json")))
