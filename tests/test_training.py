@@ -24,11 +24,20 @@ from toy_store import make_toy_store
 # random backbone with cached features, as the CPU presets do.
 FAST = {
     "top10nn": ["data.image_size=[72,72]", "training.lr=1e-3", "training.max_epochs=12"],
-    "vgg_lstm": ["data.image_size=[32,32]", "model.freeze_backbone=true", "training.lr=1e-3",
-                 "training.max_epochs=25", "model.hparams={hidden_size: 64}"],
-    "res_tf": ["data.image_size=[32,32]", "model.freeze_backbone=true", "training.lr=3e-4",
-               "training.max_epochs=25",
-               "model.hparams={num_layers: 1, embedding_dim: 64, output_dim: 64}"],
+    "vgg_lstm": [
+        "data.image_size=[32,32]",
+        "model.freeze_backbone=true",
+        "training.lr=1e-3",
+        "training.max_epochs=25",
+        "model.hparams={hidden_size: 64}",
+    ],
+    "res_tf": [
+        "data.image_size=[32,32]",
+        "model.freeze_backbone=true",
+        "training.lr=3e-4",
+        "training.max_epochs=25",
+        "model.hparams={num_layers: 1, embedding_dim: 64, output_dim: 64}",
+    ],
 }
 
 
@@ -75,8 +84,16 @@ def test_tiny_run_beats_the_median_predictor(toy_store, tmp_path, model):
     # The restored best weights reproduce the best epoch's validation score.
     assert result["val"]["nmse"] == pytest.approx(result["best_val_nmse"], rel=2e-3, abs=1e-5)
     assert result["test"]["nmse"] < result["reference"]["median"]["nmse"]
-    for name in ("config.yaml", "split.json", "best.pt", "predictions.csv", "groups.csv",
-                 "logs/metrics.csv", "checkpoints/last.ckpt", "filter_report.json"):
+    for name in (
+        "config.yaml",
+        "split.json",
+        "best.pt",
+        "predictions.csv",
+        "groups.csv",
+        "logs/metrics.csv",
+        "checkpoints/last.ckpt",
+        "filter_report.json",
+    ):
         assert (run_dir / name).exists(), name
     # The checkpoint describes itself.
     loaded = load_checkpoint(run_dir / "best.pt")
@@ -111,12 +128,18 @@ def test_test_split_uses_the_best_epoch_not_the_last(toy_store, tmp_path):
 
 def test_interrupted_run_resumes_from_its_checkpoint(toy_store, tmp_path):
     run_dir = tmp_path / "run"
-    first = train(_config(toy_store, tmp_path, "top10nn", ["training.max_epochs=2"]),
-                  run_dir=run_dir, progress=False)
+    first = train(
+        _config(toy_store, tmp_path, "top10nn", ["training.max_epochs=2"]),
+        run_dir=run_dir,
+        progress=False,
+    )
     assert first["epochs_trained"] == 2
     (run_dir / "metrics.json").unlink()  # as if the process died after epoch 2
-    resumed = train(_config(toy_store, tmp_path, "top10nn", ["training.max_epochs=4"]),
-                    run_dir=run_dir, progress=False)
+    resumed = train(
+        _config(toy_store, tmp_path, "top10nn", ["training.max_epochs=4"]),
+        run_dir=run_dir,
+        progress=False,
+    )
     assert resumed["epochs_trained"] == 4
     log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
     # Epochs 0-1 from the first process, 2-3 from the resumed one: none repeated.
@@ -125,8 +148,10 @@ def test_interrupted_run_resumes_from_its_checkpoint(toy_store, tmp_path):
 
 def test_feature_cache_is_shared_across_seeds(toy_store, tmp_path):
     for seed in (0, 1):
-        train(_config(toy_store, tmp_path, "res_tf", ["training.max_epochs=1", f"seed={seed}"]),
-              progress=False)
+        train(
+            _config(toy_store, tmp_path, "res_tf", ["training.max_epochs=1", f"seed={seed}"]),
+            progress=False,
+        )
     caches = list((toy_store.path / "features").iterdir())
     assert len([c for c in caches if c.name.startswith("resnet")]) == 1
     meta = json.loads((caches[0] / "meta.json").read_text())
@@ -135,9 +160,19 @@ def test_feature_cache_is_shared_across_seeds(toy_store, tmp_path):
 
 def test_cli_train_and_evaluate(toy_store, tmp_path):
     runner = CliRunner()
-    args = ["train", "--set", f"data.store={toy_store.path}", "--set", f"output_dir={tmp_path}",
-            "--set", "data.image_size=[72,72]", "--set", "training.max_epochs=1",
-            "--run-dir", str(tmp_path / "cli-run")]
+    args = [
+        "train",
+        "--set",
+        f"data.store={toy_store.path}",
+        "--set",
+        f"output_dir={tmp_path}",
+        "--set",
+        "data.image_size=[72,72]",
+        "--set",
+        "training.max_epochs=1",
+        "--run-dir",
+        str(tmp_path / "cli-run"),
+    ]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert "test log10 accuracy" in result.output
@@ -146,3 +181,47 @@ def test_cli_train_and_evaluate(toy_store, tmp_path):
     assert json.loads(result.output)["metrics"]["n"] > 0
     bad = runner.invoke(app, ["train", "--set", "training.lrr=1"])
     assert bad.exit_code == 1 and "lrr" in bad.output
+
+
+@pytest.mark.parametrize(
+    "model_name, block", [("res_tf", "layer4"), ("vgg_lstm", "classifier"), ("top10nn", "fc")]
+)
+def test_finetune_last_block_trains_only_that_block(model_name, block):
+    from tactile_compliance.data.normalisation import NormalisationConstants
+    from tactile_compliance.models import create_model
+    from tactile_compliance.training.module import ComplianceModule
+
+    model = create_model(model_name)
+    module = ComplianceModule(
+        model,
+        NormalisationConstants(),
+        None,
+        lr=1e-3,
+        gamma=None,
+        l2_weight=0.0,
+        finetune="last_block",
+    )
+    trainable = {n for n, p in model.backbone.named_parameters() if p.requires_grad}
+    assert trainable and all(n.startswith(f"{block}.") for n in trainable)
+    assert {
+        n for n, _ in model.backbone.named_parameters() if n.startswith(f"{block}.")
+    } == trainable
+    # The head always trains.
+    head = [p for n, p in model.named_parameters() if not n.startswith("backbone.")]
+    assert all(p.requires_grad for p in head)
+    assert len(module.trainable_parameters()) == len(head) + len(trainable)
+
+
+def test_tensorboard_without_package_is_a_clear_error(toy_store, tmp_path):
+    pytest.importorskip("lightning")
+    try:
+        import tensorboard  # noqa: F401
+
+        pytest.skip("tensorboard is installed")
+    except ModuleNotFoundError:
+        pass
+    cfg = _config(
+        toy_store, tmp_path, "top10nn", ["training.max_epochs=1", "training.tensorboard=true"]
+    )
+    with pytest.raises(ValueError, match="pip install tensorboard"):
+        train(cfg, progress=False)

@@ -230,6 +230,11 @@ class ModelConfig(_Section):
         "none", description="none | imagenet | path to a state dict (sha256-checked)"
     )
     freeze_backbone: bool = False
+    finetune: Literal["all", "last_block"] = Field(
+        "all",
+        description="without freeze_backbone: train the whole backbone (paper) or only its "
+        "last block (e.g. ResNet layer4, VGG fc6/fc7)",
+    )
 
     @field_validator("name")
     @classmethod
@@ -252,6 +257,7 @@ class TrainingConfig(_Section):
     compile: bool = False
     num_workers: int = Field(0, ge=0)
     device: str = "auto"
+    tensorboard: bool = Field(False, description="also log to TensorBoard (needs tensorboard)")
 
     @field_validator("precision", mode="before")
     @classmethod

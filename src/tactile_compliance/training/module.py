@@ -18,6 +18,15 @@ from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.training.forward import forward_batch
 
 
+def last_block(backbone: torch.nn.Module) -> torch.nn.Module:
+    """The backbone's last child module that has parameters (ResNet ``layer4``, VGG's
+    ``classifier`` (fc6/fc7), Top10NN's ``fc``): what ``finetune: last_block`` trains."""
+    with_parameters = [m for m in backbone.children() if any(True for _ in m.parameters())]
+    if not with_parameters:
+        raise ValueError(f"{type(backbone).__name__} has no trainable block")
+    return with_parameters[-1]
+
+
 class ComplianceModule(L.LightningModule):
     """Wraps a compliance model for training; validation logs ``val_nmse`` per epoch."""
 
@@ -32,6 +41,7 @@ class ComplianceModule(L.LightningModule):
         l2_weight: float,
         augmentation: torch.nn.Module | None = None,
         freeze_backbone: bool = False,
+        finetune: str = "all",
         compile_model: bool = False,
     ) -> None:
         super().__init__()
@@ -46,6 +56,10 @@ class ComplianceModule(L.LightningModule):
         if freeze_backbone:
             for parameter in model.backbone.parameters():
                 parameter.requires_grad_(False)
+        elif finetune == "last_block":
+            trainable = {id(p) for p in last_block(model.backbone).parameters()}
+            for parameter in model.backbone.parameters():
+                parameter.requires_grad_(id(parameter) in trainable)
         # Compile the forward only; the state dict keeps the plain model's key names.
         self._forward_model: Callable[..., Any] = (
             torch.compile(model) if compile_model else model  # type: ignore[assignment]

@@ -195,6 +195,21 @@ def _accelerator(device: str) -> str:
     return "gpu" if device.startswith("cuda") else device
 
 
+def _loggers(run_dir: Path, tensorboard: bool) -> list[Any]:
+    """CSV always (logs/metrics.csv); TensorBoard on request, with a clear error if absent."""
+    loggers: list[Any] = [CSVLogger(save_dir=run_dir, name="", version="logs")]
+    if tensorboard:
+        try:
+            from lightning.pytorch.loggers import TensorBoardLogger
+
+            loggers.append(TensorBoardLogger(save_dir=run_dir, name="", version="tensorboard"))
+        except ModuleNotFoundError as err:
+            raise ValueError(
+                "training.tensorboard=true needs the tensorboard package: pip install tensorboard"
+            ) from err
+    return loggers
+
+
 def _predictions_frame(
     data: RunData, ids: np.ndarray, predicted: np.ndarray, split_name: str
 ) -> pd.DataFrame:
@@ -312,6 +327,7 @@ def train(
         l2_weight=cfg.training.l2_weight,
         augmentation=augmentation,
         freeze_backbone=cfg.model.freeze_backbone,
+        finetune=cfg.model.finetune,
         compile_model=cfg.training.compile,
     )
     config_dict = config_to_dict(cfg)
@@ -340,7 +356,7 @@ def train(
         precision=cfg.training.precision,
         deterministic=accelerator == "cpu",
         callbacks=callbacks,
-        logger=CSVLogger(save_dir=run_dir, name="", version="logs"),
+        logger=_loggers(run_dir, cfg.training.tensorboard),
         enable_progress_bar=progress,
         enable_model_summary=False,
         num_sanity_val_steps=0,
