@@ -117,3 +117,22 @@ def test_header_records_format(tmp_path):
     assert header["image_size"] == [4, 5]
     assert header["creation_parameters"] == {"seed": 3}
     assert header["format_version"] == 1
+
+
+def test_read_sample_matches_memmap_and_survives_pickling(tmp_path):
+    import pickle
+
+    rng = np.random.default_rng(1)
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "test") as writer:
+        for i in range(3):
+            writer.append(rng.integers(0, 256, (3, 4, 5, 3), dtype=np.uint8), _row(i))
+    store = GraspStore.open(tmp_path / "s")
+    for i in range(3):
+        assert np.array_equal(store.read_sample(i), store.frames[i])
+    payload = pickle.dumps(store)  # what a spawned DataLoader worker receives
+    assert np.asarray(store.frames).tobytes() not in payload  # reopened, not copied
+    clone = pickle.loads(payload)
+    assert np.array_equal(clone.frames[1], store.frames[1])
+    assert np.array_equal(clone.read_sample(2), store.frames[2])
+    with pytest.raises(IndexError):
+        store.read_sample(3)

@@ -309,5 +309,34 @@ def evaluate(
     typer.echo(evaluation.groups.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
 
 
+@app.command()
+def report(
+    results: Annotated[Path, typer.Argument(help="Results store directory (holds rows/*.json).")],
+    out: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option("--out", "-o", help="Output directory (default: RESULTS/report)."),
+    ] = None,
+    formats: Annotated[
+        str, typer.Option("--format", "-f", help="Comma-separated formats: md, html, tex.")
+    ] = "md,html",
+    stores: Annotated[
+        Optional[list[Path]],  # noqa: UP045
+        typer.Option("--store", help="Extra GraspStore to draw in Fig. 1 (repeatable)."),
+    ] = None,
+) -> None:
+    """Build the paper's tables and figures from a results store (Markdown, HTML, LaTeX).
+
+    Parts whose runs are missing are skipped with a note naming the preset that produces
+    them; only complete runs count; failed runs are listed.
+    """
+    from tactile_compliance.evaluation.report import build_report
+
+    try:
+        summary = build_report(results, out, formats=formats, stores=stores or ())
+    except (FileNotFoundError, ValueError) as err:
+        _fail(str(err))
+    typer.echo(str(summary))
+
+
 if __name__ == "__main__":  # pragma: no cover
     app()

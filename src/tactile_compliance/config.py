@@ -258,6 +258,9 @@ class TrainingConfig(_Section):
     num_workers: int = Field(0, ge=0)
     device: str = "auto"
     tensorboard: bool = Field(False, description="also log to TensorBoard (needs tensorboard)")
+    limit_batches: int | None = Field(
+        None, ge=1, description="at most this many train/val batches per epoch (smoke runs)"
+    )
 
     @field_validator("precision", mode="before")
     @classmethod

@@ -143,5 +143,5 @@ class GraspDataset(Dataset):
         if self.features is not None:
             item["features"] = torch.from_numpy(np.asarray(self.features[sample_id], np.float32))
         else:
-            item["frames"] = torch.from_numpy(np.array(self.store.frames[sample_id]))
+            item["frames"] = torch.from_numpy(self.store.read_sample(sample_id).copy())
         return item

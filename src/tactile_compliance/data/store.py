@@ -154,6 +154,10 @@ class GraspStore:
             self.frames = np.zeros(shape, dtype=np.uint8)
         else:
             self.frames = np.memmap(frames_path, dtype=np.uint8, mode="r", shape=shape)
+        self._frames_path = frames_path
+        self._sample_bytes = int(np.prod(shape[1:]))
+        self._fd: int | None = None
+        self._fd_pid = -1
 
     @classmethod
     def open(cls, path: str | Path) -> GraspStore:
@@ -208,6 +212,37 @@ class GraspStore:
         out[order] = self.frames[idx[order]]
         out *= np.float32(1.0 / 255.0)
         return out
+
+    def read_sample(self, sample_id: int) -> np.ndarray:
+        """One sample's frames, uint8 (3, H, W, 3), read with ``os.pread``.
+
+        Unlike indexing the memmap, this keeps no file pages mapped into the process, so
+        a training epoch over a 6 GB store does not grow the process's resident memory
+        (the OS page cache still speeds up repeated reads). Safe in DataLoader workers:
+        each process opens its own descriptor.
+        """
+        if not 0 <= sample_id < len(self):
+            raise IndexError(f"sample {sample_id} out of range (store has {len(self)})")
+        if self._fd is None or self._fd_pid != os.getpid():
+            self._fd = os.open(self._frames_path, os.O_RDONLY)
+            self._fd_pid = os.getpid()
+        data = os.pread(self._fd, self._sample_bytes, sample_id * self._sample_bytes)
+        return np.frombuffer(data, dtype=np.uint8).reshape(self.frames.shape[1:])
+
+    def __getstate__(self) -> dict[str, Any]:
+        # Pickling a memmap would copy the whole frame array; worker processes reopen it.
+        state = self.__dict__.copy()
+        state["_fd"] = None
+        state["frames"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        shape = (self.header.num_samples, FRAMES_PER_SAMPLE, *self.header.image_size, 3)
+        if self._sample_bytes * self.header.num_samples == 0:
+            self.frames = np.zeros(shape, dtype=np.uint8)
+        else:
+            self.frames = np.memmap(self._frames_path, dtype=np.uint8, mode="r", shape=shape)
 
     def forces_n(self) -> np.ndarray:
         """Normal force at the three frames, (N, 3) in N."""

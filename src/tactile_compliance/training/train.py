@@ -361,6 +361,8 @@ def train(
         enable_model_summary=False,
         num_sanity_val_steps=0,
         log_every_n_steps=1,
+        limit_train_batches=cfg.training.limit_batches or 1.0,
+        limit_val_batches=cfg.training.limit_batches or 1.0,
     )
     resume_from = run_dir / "checkpoints" / "last.ckpt"
     epoch_log = run_dir / "logs" / "metrics.csv"

@@ -1,0 +1,206 @@
+"""Training-side benchmarks (issue 5): feature caching, head epochs, fine-tuning, memory.
+
+    python benchmarks/bench_training.py [--samples 7800] [--size 250x350]
+        [--cache-samples 128] [--cache-size 224x224] [--finetune-batches 4] [--keep-store]
+
+1. Feature caching: `cached_features` (store read + resize + normalise + backbone) vs the
+   backbone's raw forward on in-memory tensors of the same size, in the same run; the
+   pipeline should keep >= 90 % of the raw throughput.
+2. Seconds per epoch of each model head on cached features over ``--samples`` samples
+   (through the real Lightning module; goal <= 10 s on 2 cores).
+3. End-to-end fine-tuning seconds per epoch, extrapolated from ``--finetune-batches``
+   batches of each model at its CPU size.
+4. Peak resident memory of `train()` on a ``--samples``-sample full-size store
+   (Top10NN end to end, a few batches; goal <= 3 GB).
+
+The store is random frames written to a temporary directory and deleted afterwards.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from tactile_compliance.data.dataset import GraspDataset
+from tactile_compliance.data.features import cached_features
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.data.store import GraspStore, GraspStoreWriter
+from tactile_compliance.models import create_model
+from tactile_compliance.training.forward import forward_batch
+from tactile_compliance.training.module import ComplianceModule
+
+MEMORY_CHILD = """
+import json, resource, sys
+from tactile_compliance.config import load_config
+from tactile_compliance.training.train import train
+cfg = load_config("default", sys.argv[2:])
+result = train(cfg, run_dir=sys.argv[1], progress=False)
+print(json.dumps({"peak_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+                  "n_train": result["n_train"]}))
+"""
+
+
+def write_random_store(path: Path, n: int, size: tuple[int, int], seed: int = 0) -> GraspStore:
+    """A store of ``n`` samples with random frames and plausible F/W/E (passes the filter)."""
+    rng = np.random.default_rng(seed)
+    height, width = size
+    block = rng.integers(100, 156, (8, 3, height, width, 3), dtype=np.uint8)
+    with GraspStoreWriter(path, size, "benchmark") as writer:
+        for i in range(n):
+            obj = i // 20
+            writer.append(
+                block[i % 8],
+                {
+                    "object": f"obj_{obj:04d}",
+                    "grasp": (i // 10) % 2,
+                    "augmentation": i % 5,
+                    "finger": "markerless" if i % 2 == 0 else "markers",
+                    "material": "Rubber",
+                    "shape": "Sphere",
+                    "modulus_pa": 10 ** (4 + (obj % 8)),
+                    "force_n_0": 6.0, "force_n_1": 30.0, "force_n_2": 58.0,
+                    "width_m_0": 0.05, "width_m_1": 0.049, "width_m_2": 0.048,
+                    "elastic_estimate_pa": 1e5, "hertz_estimate_pa": 2e5,
+                    "depth_max_mm_0": 0.5, "depth_max_mm_1": 1.0, "depth_max_mm_2": 1.5,
+                },
+            )
+    return GraspStore.open(path)
+
+
+def bench_cache(store: GraspStore, size: tuple[int, int], n: int) -> None:
+    """Caching pipeline throughput vs raw backbone forward, frames/s, per backbone."""
+    subset_dir = store.path.parent / "cache-subset"
+    shutil.rmtree(subset_dir, ignore_errors=True)
+    subset = write_random_store(subset_dir, n, store.image_size)
+    constants = NormalisationConstants()
+    torch.manual_seed(0)
+    for model_name in ("res_tf", "vgg_lstm"):
+        backbone = create_model(model_name).backbone.eval()
+        batch = 16
+        x = torch.randn(batch * 3, 3, *size)
+        with torch.no_grad():
+            backbone(x[:3])  # warm-up
+            start = time.perf_counter()
+            for _ in range(max(1, n // batch)):
+                backbone(x)
+            raw = max(1, n // batch) * batch * 3 / (time.perf_counter() - start)
+        start = time.perf_counter()
+        cached_features(subset, backbone, size, constants, batch_size=batch, progress=False)
+        pipeline = n * 3 / (time.perf_counter() - start)
+        print(f"cache  {model_name:9s} {type(backbone).__name__:8s} {size[0]}x{size[1]}: "
+              f"raw forward {raw:7.1f} frames/s, caching pipeline {pipeline:7.1f} frames/s "
+              f"({100 * pipeline / raw:.0f} %)")
+    shutil.rmtree(subset_dir, ignore_errors=True)
+
+
+def _epoch_seconds(module: ComplianceModule, dataset: GraspDataset, batch_size: int) -> float:
+    import lightning as L
+    from torch.utils.data import DataLoader
+
+    trainer = L.Trainer(max_epochs=1, accelerator="cpu", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False,
+                        num_sanity_val_steps=0, limit_val_batches=0)
+    start = time.perf_counter()
+    trainer.fit(module, DataLoader(dataset, batch_size=batch_size, shuffle=True))
+    return time.perf_counter() - start
+
+
+def bench_heads(store: GraspStore, n: int) -> None:
+    """Seconds per training epoch of each head on cached (here random) features."""
+    constants = NormalisationConstants()
+    ids = np.arange(n) % len(store)
+    for model_name in ("top10nn", "vgg_lstm", "res_tf"):
+        model = create_model(model_name)
+        batch_size = int(model.default_training.get("batch_size", 32))
+        features = np.random.default_rng(0).standard_normal(
+            (len(store), 3, model.feature_dim)).astype(np.float16)
+        module = ComplianceModule(model, constants, None, lr=1e-4, gamma=0.98, l2_weight=5e-5,
+                                  freeze_backbone=True)
+        seconds = _epoch_seconds(module, GraspDataset(store, ids, constants, features), batch_size)
+        print(f"head   {model_name:9s} on cached features: {seconds:6.1f} s/epoch "
+              f"({n} samples, batch {batch_size})")
+
+
+def bench_finetune(store: GraspStore, n_batches: int, n_epoch: int) -> None:
+    """End-to-end (backbone trained) seconds per epoch, extrapolated from a few batches."""
+    constants = NormalisationConstants()
+    sizes = {"top10nn": store.image_size, "res_tf": (224, 224), "vgg_lstm": (224, 224)}
+    for model_name, size in sizes.items():
+        model = create_model(model_name)
+        batch_size = int(model.default_training.get("batch_size", 32))
+        module = ComplianceModule(model, constants, size, lr=1e-4, gamma=None, l2_weight=5e-5)
+        optimiser = module.configure_optimizers()
+        optimiser = optimiser["optimizer"] if isinstance(optimiser, dict) else optimiser
+        dataset = GraspDataset(store, np.arange(batch_size * (n_batches + 1)), constants)
+        loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size)
+        timings = []
+        for index, batch in enumerate(loader):
+            start = time.perf_counter()
+            prediction = forward_batch(model, batch, constants, size)
+            loss = torch.mean((prediction - batch["label"]) ** 2)
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            if index > 0:  # the first batch pays for allocation warm-up
+                timings.append(time.perf_counter() - start)
+        per_sample = float(np.mean(timings)) / batch_size
+        print(f"tune   {model_name:9s} end to end at {size[0]}x{size[1]}: "
+              f"{per_sample * 1000:6.1f} ms/sample -> {per_sample * n_epoch / 60:6.1f} min/epoch "
+              f"for {n_epoch} samples")
+
+
+def bench_memory(store: GraspStore, work: Path) -> None:
+    height, width = store.image_size
+    overrides = [f"data.store={store.path}", "model.name=top10nn", "training.max_epochs=1",
+                 "training.limit_batches=30", "training.batch_size=32",
+                 f"data.image_size=[{height},{width}]", "augmentation.enabled=true"]
+    result = subprocess.run(
+        [sys.executable, "-c", MEMORY_CHILD, str(work / "memory-run"), *overrides],
+        check=True, capture_output=True, text=True,
+    )
+    measured = json.loads(result.stdout.strip().splitlines()[-1])
+    store_gb = store.frames.nbytes / 1e9
+    print(f"memory train() Top10NN end to end, {len(store)}-sample {height}x{width} store "
+          f"({store_gb:.2f} GB): peak RSS {measured['peak_kib'] / 1e6:.2f} GB")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=7800)
+    parser.add_argument("--size", default="250x350")
+    parser.add_argument("--cache-samples", type=int, default=128)
+    parser.add_argument("--cache-size", default="224x224")
+    parser.add_argument("--finetune-batches", type=int, default=3)
+    parser.add_argument("--workdir", default=tempfile.gettempdir())
+    args = parser.parse_args()
+    size = tuple(int(v) for v in args.size.split("x"))
+    cache_size = tuple(int(v) for v in args.cache_size.split("x"))
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
+          f"{torch.get_num_threads()} threads")
+    work = Path(tempfile.mkdtemp(prefix="bench_training_", dir=args.workdir))
+    try:
+        start = time.perf_counter()
+        store = write_random_store(work / "store", args.samples, size)
+        print(f"store  {len(store)} samples at {size[0]}x{size[1]} written in "
+              f"{time.perf_counter() - start:.0f} s")
+        bench_cache(store, cache_size, args.cache_samples)
+        bench_heads(store, args.samples)
+        bench_finetune(store, args.finetune_batches, args.samples)
+        bench_memory(store, work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

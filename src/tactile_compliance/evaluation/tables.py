@@ -1,0 +1,937 @@
+"""Tables of the report, computed from the results store (one row per run).
+
+Which rows feed which table (only ``status == "complete"`` rows ever count):
+
+* Table I   — sampling ``random``,   subset none, not Shore-hardness data;
+* Table II  — sampling ``balanced``, subset none, not Shore-hardness data;
+* Table III — Shore-hardness data (store header source ``yuan``, or a preset whose name
+  starts with ``new-dataset``, for when the store is not reachable from here);
+* Fig. 6 / Fig. 7 companion tables — subset 0-6 (rolling window) / a shape name;
+* extras — per-material / per-shape / soft-hard errors from each run's ``groups.csv``, and
+  runs trained on the ``soft`` / ``hard`` subsets.
+
+Cells are ``mean ± std`` over the runs of a cell (one run per seed): the sample standard
+deviation (``ddof=1``) by default, blank for a single run. Runs of different presets or
+stores are never pooled into one cell: each (preset, store) pair gets its own table, so a
+quick preset can never silently mix with the full one.
+
+Every aggregate also comes back as a tidy DataFrame (``cells``) so tests and scripts can
+check numbers without parsing Markdown.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from tactile_compliance.config import INPUT_STRATEGIES
+from tactile_compliance.data.splits import N_ROLLING_WINDOWS, rolling_windows
+from tactile_compliance.evaluation.render import Cell, Table
+from tactile_compliance.training.results import (
+    ROWS_DIR,
+    STATUS_COMPLETE,
+    STATUS_FAILED,
+    ResultsStore,
+)
+
+__all__ = [
+    "CONDITION_LABELS",
+    "MODEL_LABELS",
+    "MODEL_ORDER",
+    "PRESET_HINTS",
+    "SETTING_PREFERENCE",
+    "STD_DDOF",
+    "PaperTable",
+    "describe_runs",
+    "describe_weights",
+    "failed_table",
+    "group_metric_tables",
+    "load_results",
+    "main_grid",
+    "model_label",
+    "ordered",
+    "paper_tables",
+    "resolve_run_dir",
+    "shore_table",
+    "softhard_subset_table",
+    "store_header",
+    "subset_summary_table",
+    "summarise",
+    "window_label",
+]
+
+#: Paper order and spelling of the models (registry names -> display names).
+MODEL_ORDER: tuple[str, ...] = ("top10nn", "vgg_lstm", "res_tf")
+MODEL_LABELS: dict[str, str] = {"top10nn": "Top10NN", "vgg_lstm": "VGG-LSTM", "res_tf": "Res-Tf"}
+CONDITION_LABELS: dict[str, str] = {"seen": "Seen-Object", "unseen": "UnSeen-Object"}
+#: The setting Fig. 5 and the extras prefer: the paper's Fig. 5 is balanced + seen.
+SETTING_PREFERENCE: tuple[tuple[str, str], ...] = (
+    ("balanced", "seen"),
+    ("random", "seen"),
+    ("balanced", "unseen"),
+    ("random", "unseen"),
+)
+#: Sample standard deviation over seeds (pandas' convention); numpy's default would be 0.
+STD_DDOF = 1
+#: Which grid preset produces which part (named in the "skipped" notes).
+PRESET_HINTS: dict[str, str] = {
+    "table1": "table1",
+    "table2": "table2",
+    "table3": "new-dataset",
+    "fig1": "any preset (it reads the store of the recorded runs)",
+    "fig5": "table2 (balanced, seen; falls back to table1)",
+    "fig6": "rolling-window",
+    "fig7": "shape-test",
+    "fig8": "new-dataset",
+}
+METRIC_LABELS: dict[str, str] = {
+    "log10_accuracy": "log₁₀ accuracy",
+    "nmse": "N-MSE",
+    "r2": "R²",
+    "mae_decades": "MAE (decades)",
+    "within_half_decade": "within ½ decade",
+}
+_LATEX_METRIC = {
+    "log10_accuracy": r"$\log_{10}$ accuracy",
+    "nmse": "N-MSE",
+    "r2": "$R^2$",
+}
+#: Metrics where larger is better (for bolding); the rest are errors.
+HIGHER_IS_BETTER = frozenset({"log10_accuracy", "r2", "within_half_decade"})
+SHORE_SOURCES = frozenset({"yuan"})
+SHORE_PRESETS = frozenset({"new-dataset"})
+
+
+# ============================================================================ loading
+@lru_cache(maxsize=64)
+def _header_cached(path: str) -> dict[str, Any] | None:
+    header = Path(path) / "header.json"
+    try:
+        return json.loads(header.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def store_header(path: Any) -> dict[str, Any] | None:
+    """A store's ``header.json`` as a dict, or None when the store is not reachable here."""
+    if path is None or (isinstance(path, float) and math.isnan(path)) or str(path) == "":
+        return None
+    return _header_cached(str(Path(str(path)).expanduser().resolve()))
+
+
+def _subset_kind(value: Any) -> tuple[str, Any]:
+    """Classify a row's ``subset``: ``none`` | ``window`` (0-6) | ``softhard`` | ``shape``."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "none", None
+    if isinstance(value, (bool, np.bool_)):
+        return "shape", str(value)
+    if isinstance(value, (int, np.integer)) or (
+        isinstance(value, (float, np.floating)) and float(value).is_integer()
+    ):
+        return "window", int(value)
+    text = str(value).strip()
+    if text.lower() in ("", "none", "null"):
+        return "none", None
+    if text.isdigit():
+        return "window", int(text)
+    if text.lower() in ("soft", "hard"):
+        return "softhard", text.lower()
+    return "shape", text
+
+
+def load_results(results_dir: str | Path) -> pd.DataFrame:
+    """All rows of the results store plus derived columns used for selection.
+
+    Added columns: ``subset_kind`` / ``subset_value`` (see :func:`_subset_kind`),
+    ``store_source`` (the store header's ``source``, None when the store is not reachable)
+    and ``is_shore`` (Shore-hardness data: Table III material).
+
+    Raises:
+        FileNotFoundError: ``results_dir`` does not exist (a typo should not yield an
+            empty report that looks like "no results").
+    """
+    path = Path(results_dir)
+    if not path.is_dir():
+        raise FileNotFoundError(f"{path}: no such results directory")
+    if not (path / ROWS_DIR).is_dir():
+        frame = pd.DataFrame(columns=["key", "preset", "status", "store"])
+    else:
+        frame = ResultsStore(path).table()
+    for column, default in (
+        ("preset", ""),
+        ("store", None),
+        ("status", None),
+        ("model", None),
+        ("inputs", None),
+        ("condition", None),
+        ("sampling", None),
+        ("seed", None),
+        ("subset", None),
+        ("run_dir", None),
+        ("error", None),
+    ):
+        if column not in frame.columns:
+            frame[column] = default
+    frame["preset"] = frame["preset"].fillna("").astype(str)
+    kinds = [_subset_kind(v) for v in frame["subset"].tolist()]
+    frame["subset_kind"] = [k for k, _ in kinds]
+    frame["subset_value"] = pd.Series([v for _, v in kinds], index=frame.index, dtype=object)
+    sources = []
+    for store in frame["store"].tolist():
+        header = store_header(store)
+        sources.append(None if header is None else str(header.get("source")))
+    frame["store_source"] = sources
+    frame["is_shore"] = [
+        (src in SHORE_SOURCES) or any(preset.startswith(p) for p in SHORE_PRESETS)
+        for src, preset in zip(frame["store_source"], frame["preset"], strict=True)
+    ]
+    return frame
+
+
+def complete_rows(frame: pd.DataFrame) -> pd.DataFrame:
+    """Rows whose run finished (the only ones any table or figure uses)."""
+    return frame[frame["status"] == STATUS_COMPLETE]
+
+
+def main_grid(frame: pd.DataFrame) -> pd.DataFrame:
+    """Complete rows of the main grid: whole dataset (no subset), not Shore data."""
+    done = complete_rows(frame)
+    return done[(done["subset_kind"] == "none") & ~done["is_shore"].astype(bool)]
+
+
+def resolve_run_dir(value: Any, results_dir: str | Path) -> Path | None:
+    """Find a run directory recorded as ``value`` (absolute, or relative to where the grid ran).
+
+    Grids usually write ``runs/NAME`` relative to their working directory, which need not
+    be the report's: try the path as is, then relative to the results directory and its
+    parent, then by name under the results directory.
+    """
+    if value is None or (isinstance(value, float) and math.isnan(value)) or str(value) == "":
+        return None
+    path = Path(str(value)).expanduser()
+    root = Path(results_dir)
+    candidates = [path] if path.is_absolute() else [path, root / path, root.parent / path]
+    candidates += [root / path.name, root / "runs" / path.name]
+    for candidate in candidates:
+        if candidate.is_dir():
+            return candidate
+    return None
+
+
+# ============================================================================ helpers
+def model_label(name: Any) -> str:
+    return MODEL_LABELS.get(str(name), str(name))
+
+
+def ordered(values: Iterable[Any], order: Sequence[Any]) -> list[Any]:
+    """Distinct ``values``: those in ``order`` first (in that order), the rest sorted."""
+    distinct = list(dict.fromkeys(v for v in values if v is not None))
+    known = [v for v in order if v in distinct]
+    return known + sorted((v for v in distinct if v not in order), key=str)
+
+
+def _stats(values: Sequence[float], ddof: int) -> tuple[float, float, int]:
+    arr = pd.to_numeric(pd.Series(list(values), dtype=object), errors="coerce").dropna()
+    arr = arr.to_numpy(dtype=float)
+    n = int(arr.size)
+    if n == 0:
+        return math.nan, math.nan, 0
+    mean = float(arr.mean())
+    std = float(arr.std(ddof=ddof)) if n > ddof else math.nan
+    return mean, std, n
+
+
+def summarise(
+    frame: pd.DataFrame, by: Sequence[str], metrics: Sequence[str], ddof: int = STD_DDOF
+) -> pd.DataFrame:
+    """Tidy mean/std/n per group of ``by`` and metric column; ``seeds`` lists the seeds used."""
+    out: list[dict[str, Any]] = []
+    if frame.empty:
+        return pd.DataFrame(columns=[*by, "metric", "mean", "std", "n", "seeds"])
+    for keys, part in frame.groupby(list(by), sort=False, dropna=False):
+        keys = keys if isinstance(keys, tuple) else (keys,)
+        for metric in metrics:
+            if metric not in part.columns:
+                continue
+            values = pd.to_numeric(part[metric], errors="coerce")
+            used = part.loc[values.notna()]
+            mean, std, n = _stats(values.dropna().tolist(), ddof)
+            out.append(
+                {
+                    **dict(zip(by, keys, strict=True)),
+                    "metric": metric.removeprefix("test_"),
+                    "mean": mean,
+                    "std": std,
+                    "n": n,
+                    "seeds": sorted(int(s) for s in used["seed"].dropna().tolist()),
+                }
+            )
+    return pd.DataFrame(out)
+
+
+def _seed_text(seeds: Sequence[int]) -> str:
+    seeds = sorted(set(seeds))
+    if not seeds:
+        return "none"
+    if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 2:
+        return f"{seeds[0]}–{seeds[-1]}"
+    return ", ".join(str(s) for s in seeds)
+
+
+def describe_weights(frame: pd.DataFrame) -> str:
+    """Backbone weights per model, e.g. "VGG-LSTM: random init (no ImageNet weights)"."""
+    if "backbone_weights" not in frame.columns or frame.empty:
+        return "not recorded"
+    parts = []
+    for model in ordered(frame["model"], MODEL_ORDER):
+        rows = frame[frame["model"] == model]
+        weights = sorted({str(w) for w in rows["backbone_weights"].dropna()}) or ["not recorded"]
+        text = "/".join(
+            "random init (no ImageNet weights)" if w.lower() in ("none", "random") else w
+            for w in weights
+        )
+        if (
+            "freeze_backbone" in rows.columns
+            and rows["freeze_backbone"].fillna(False).astype(bool).any()
+        ):
+            text += ", frozen backbone"
+        parts.append(f"{model_label(model)}: {text}")
+    return "; ".join(parts)
+
+
+def describe_runs(frame: pd.DataFrame, extra: str = "") -> str:
+    """One sentence of provenance for a set of runs: preset(s), store(s), seeds, weights."""
+    if frame.empty:
+        return "no runs"
+    presets = ", ".join(f"`{p}`" for p in sorted(set(frame["preset"])) if p) or "(no preset)"
+    stores = []
+    for store in dict.fromkeys(frame["store"].tolist()):
+        header = store_header(store)
+        source = header.get("source") if header else "header not reachable"
+        stores.append(f"`{store}` (source {source})")
+    seeds = sorted(int(s) for s in frame["seed"].dropna().tolist())
+    sizes = ""
+    if "image_size" in frame.columns:
+        values = {
+            "x".join(str(int(v)) for v in s)
+            for s in frame["image_size"].dropna().tolist()
+            if isinstance(s, (list, tuple))
+        }
+        if values:
+            sizes = f"; image size {', '.join(sorted(values))} px"
+    text = (
+        f"preset {presets}; store {', '.join(stores) or 'unknown'}; {len(frame)} complete runs, "
+        f"seeds {_seed_text(seeds)}; backbone weights: {describe_weights(frame)}{sizes}"
+    )
+    return text + (f"; {extra}" if extra else "")
+
+
+def _ddof_text(ddof: int) -> str:
+    return (
+        f"mean ± std over seeds (std with ddof={ddof}; one run shows the mean alone); "
+        "metrics on each run's test split, best checkpoint"
+    )
+
+
+def _best_mask(values: Sequence[float], metric: str, digits: int) -> list[bool]:
+    """Bold every value tied (at the printed precision) with the best one."""
+    rounded = [None if math.isnan(v) else round(v, digits) for v in values]
+    present = [v for v in rounded if v is not None]
+    if not present:
+        return [False] * len(values)
+    best = max(present) if metric in HIGHER_IS_BETTER else min(present)
+    return [v is not None and v == best for v in rounded]
+
+
+def _label_for(text: str) -> str:
+    return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-").lower()
+
+
+# ============================================================================ Tables I / II
+@dataclass
+class PaperTable:
+    """A rendered table plus the tidy numbers behind it."""
+
+    table: Table
+    cells: pd.DataFrame
+
+
+_PAPER_METRICS = ("test_log10_accuracy", "test_nmse")
+
+
+def _reference_stats(
+    rows: pd.DataFrame, name: str, metric: str, ddof: int
+) -> tuple[float, float, int, list[int]]:
+    """Reference predictor over seeds: one value per seed (the mean over that seed's runs).
+
+    Every run of a seed carries the reference on its own test split; runs of one seed and
+    condition share the split, so averaging per seed first keeps the std an over-seeds std
+    instead of counting each split once per model and input.
+    """
+    column = f"ref_{name}_{metric}"
+    if column not in rows.columns:
+        return math.nan, math.nan, 0, []
+    values = pd.to_numeric(rows[column], errors="coerce")
+    part = rows.assign(_v=values).dropna(subset=["_v"])
+    per_seed = part.groupby("seed")["_v"].mean()
+    mean, std, n = _stats(per_seed.tolist(), ddof)
+    return mean, std, n, sorted(int(s) for s in per_seed.index)
+
+
+def paper_tables(
+    frame: pd.DataFrame, sampling: str, number: str, ddof: int = STD_DDOF, digits: int = 4
+) -> list[PaperTable]:
+    """Table I (``sampling="random"``) or II (``"balanced"``): one table per (preset, store).
+
+    Rows: model x input strategy, then the two reference predictors (median, analytical).
+    Columns: log10 accuracy and N-MSE for Seen-Object and UnSeen-Object; best model cell
+    per column in bold (references are never bolded: they are floors, not contenders).
+    """
+    rows = main_grid(frame)
+    rows = rows[rows["sampling"] == sampling]
+    out: list[PaperTable] = []
+    if rows.empty:
+        return out
+    groups = list(rows.groupby(["preset", "store"], sort=True, dropna=False))
+    for (preset, store), part in groups:
+        stats = summarise(part, ["model", "inputs", "condition"], _PAPER_METRICS, ddof)
+        conditions = ordered(part["condition"], ("seen", "unseen"))
+        models = ordered(part["model"], MODEL_ORDER)
+        inputs = ordered(part["inputs"], INPUT_STRATEGIES)
+        body_keys = [(m, i) for m in models for i in inputs]
+        columns = ["Model", "Input"]
+        group_header: list[tuple[str, int]] = [("", 2)]
+        latex_columns = ["Model", "Input"]
+        for condition in conditions:
+            group_header.append((CONDITION_LABELS.get(condition, str(condition)), 2))
+            for metric in _PAPER_METRICS:
+                name = metric.removeprefix("test_")
+                columns.append(METRIC_LABELS[name])
+                latex_columns.append(_LATEX_METRIC[name])
+        columns.append("runs")
+        latex_columns.append("runs")
+        group_header.append(("", 1))
+
+        lookup = {
+            (r.model, r.inputs, r.condition, r.metric): r for r in stats.itertuples(index=False)
+        }
+        tidy: list[dict[str, Any]] = []
+        # Bold per column over the model rows.
+        bold: dict[tuple[str, str], list[bool]] = {}
+        for condition in conditions:
+            for metric in _PAPER_METRICS:
+                name = metric.removeprefix("test_")
+                means = [
+                    lookup[(m, i, condition, name)].mean
+                    if (m, i, condition, name) in lookup
+                    else math.nan
+                    for m, i in body_keys
+                ]
+                bold[(condition, name)] = _best_mask(means, name, digits)
+
+        body: list[list[Cell]] = []
+        rules: set[int] = set()
+        for index, (model, inp) in enumerate(body_keys):
+            line = [Cell(text=model_label(model)), Cell(text=str(inp))]
+            runs: list[int] = []
+            for condition in conditions:
+                for metric in _PAPER_METRICS:
+                    name = metric.removeprefix("test_")
+                    rec = lookup.get((model, inp, condition, name))
+                    if rec is None:
+                        line.append(Cell(text="–"))
+                        continue
+                    is_bold = bold[(condition, name)][index]
+                    line.append(Cell(rec.mean, rec.std, bold=is_bold, digits=digits))
+                    runs.append(rec.n)
+                    tidy.append(
+                        {
+                            "table": number,
+                            "preset": preset,
+                            "store": store,
+                            "model": model,
+                            "inputs": inp,
+                            "condition": condition,
+                            "metric": name,
+                            "mean": rec.mean,
+                            "std": rec.std,
+                            "n": rec.n,
+                            "seeds": rec.seeds,
+                            "bold": is_bold,
+                        }
+                    )
+            line.append(Cell(text=_runs_text(runs)))
+            body.append(line)
+            if index + 1 < len(body_keys) and body_keys[index + 1][0] != model:
+                rules.add(index)
+        rules.add(len(body) - 1)  # a rule between the models and the references (if any)
+        n_models = len(body)
+        for ref_name, ref_label in (("median", "Median"), ("analytical", "Analytical")):
+            if not any(c.startswith(f"ref_{ref_name}_") for c in part.columns) or part[
+                [c for c in part.columns if c.startswith(f"ref_{ref_name}_")]
+            ].isna().all(axis=None):
+                continue  # runs recorded without reference metrics: no empty row
+            line = [Cell(text=f"{ref_label} (reference)"), Cell(text="–")]
+            runs = []
+            for condition in conditions:
+                cond_rows = part[part["condition"] == condition]
+                for metric in _PAPER_METRICS:
+                    name = metric.removeprefix("test_")
+                    mean, std, n, seeds = _reference_stats(cond_rows, ref_name, name, ddof)
+                    line.append(Cell(mean, std, digits=digits) if n else Cell(text="–"))
+                    if n:
+                        runs.append(n)
+                        tidy.append(
+                            {
+                                "table": number,
+                                "preset": preset,
+                                "store": store,
+                                "model": f"ref_{ref_name}",
+                                "inputs": None,
+                                "condition": condition,
+                                "metric": name,
+                                "mean": mean,
+                                "std": std,
+                                "n": n,
+                                "seeds": seeds,
+                                "bold": False,
+                            }
+                        )
+            line.append(Cell(text=_runs_text(runs)))
+            body.append(line)
+        title = f"Table {number} — preset {preset or '(none)'}"
+        if len(groups) > 1 and len({p for (p, _), _ in groups}) < len(groups):
+            title += f", store {Path(str(store)).name}"
+        has_refs = len(body) > n_models
+        caption = (
+            f"Overall performance of all models with {sampling} sampling"
+            f"{' and the Balanced strategy' if sampling == 'balanced' else ''}: "
+            "log₁₀ accuracy (higher is better) and N-MSE (lower is better) per input strategy; "
+            "best model per column in **bold**"
+            + (
+                "; the reference predictors (training median; analytical estimate) are "
+                "computed on the same test splits."
+                if has_refs
+                else "."
+            )
+        )
+        provenance = describe_runs(
+            part, _ddof_text(ddof) + ("; references: one value per seed" if has_refs else "")
+        )
+        table = Table(
+            title=title,
+            columns=columns,
+            rows=body,
+            groups=group_header,
+            rules_after=rules,
+            caption=caption,
+            provenance=provenance,
+            label=_label_for(f"table{number}-{preset}-{Path(str(store)).name}"),
+            latex_columns=latex_columns,
+        )
+        out.append(PaperTable(table, pd.DataFrame(tidy)))
+    return out
+
+
+def _runs_text(runs: Sequence[int]) -> str:
+    if not runs:
+        return "0"
+    lo, hi = min(runs), max(runs)
+    return str(lo) if lo == hi else f"{lo}–{hi}"
+
+
+# ============================================================================ Table III
+def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> PaperTable | None:
+    """Table III: N-MSE and R² per model on the Shore-hardness data (mean ± std over seeds)."""
+    done = complete_rows(frame)
+    rows = done[done["is_shore"].astype(bool) & (done["subset_kind"] == "none")]
+    if rows.empty:
+        return None
+    metrics = ("test_nmse", "test_r2")
+    keys = ["preset", "store", "model", "inputs", "condition", "sampling"]
+    stats = summarise(rows, keys, metrics, ddof)
+    settings = stats[keys].drop_duplicates()
+    settings = settings.assign(
+        _m=[ordered(rows["model"], MODEL_ORDER).index(m) for m in settings["model"]]
+    ).sort_values(["preset", "_m", "inputs", "condition", "sampling"])
+    lookup = {(*(getattr(r, k) for k in keys), r.metric): r for r in stats.itertuples(index=False)}
+    show_preset = settings["preset"].nunique() > 1 or settings["store"].nunique() > 1
+    columns = (["Preset"] if show_preset else []) + [
+        "Model",
+        "Input",
+        "Split",
+        "N-MSE",
+        "R²",
+        "runs",
+    ]
+    latex_columns = (["Preset"] if show_preset else []) + [
+        "Model",
+        "Input",
+        "Split",
+        "N-MSE",
+        "$R^2$",
+        "runs",
+    ]
+    setting_keys = [tuple(s) for s in settings[keys].itertuples(index=False)]
+    bold = {
+        name: _best_mask(
+            [lookup[(*s, name)].mean if (*s, name) in lookup else math.nan for s in setting_keys],
+            name,
+            digits,
+        )
+        for name in ("nmse", "r2")
+    }
+    body: list[list[Cell]] = []
+    tidy: list[dict[str, Any]] = []
+    for index, setting in enumerate(setting_keys):
+        preset, store, model, inp, condition, sampling = setting
+        line = [Cell(text=str(preset))] if show_preset else []
+        line += [
+            Cell(text=model_label(model)),
+            Cell(text=str(inp)),
+            Cell(text=f"{condition}, {sampling}"),
+        ]
+        runs = []
+        for name in ("nmse", "r2"):
+            rec = lookup.get((*setting, name))
+            if rec is None:
+                line.append(Cell(text="–"))
+                continue
+            line.append(Cell(rec.mean, rec.std, bold=bold[name][index], digits=digits))
+            runs.append(rec.n)
+            tidy.append(
+                {
+                    "table": "III",
+                    "preset": preset,
+                    "store": store,
+                    "model": model,
+                    "inputs": inp,
+                    "condition": condition,
+                    "sampling": sampling,
+                    "metric": name,
+                    "mean": rec.mean,
+                    "std": rec.std,
+                    "n": rec.n,
+                    "seeds": rec.seeds,
+                    "bold": bold[name][index],
+                }
+            )
+        line.append(Cell(text=_runs_text(runs)))
+        body.append(line)
+    table = Table(
+        title="Table III — Shore-hardness data",
+        columns=columns,
+        rows=body,
+        caption="N-MSE and R² of all models on the Shore-hardness (new) dataset; best in **bold**.",
+        provenance=describe_runs(
+            rows, _ddof_text(ddof) + "; N-MSE on this data's own label range (config)"
+        ),
+        label="table3",
+        latex_columns=latex_columns,
+    )
+    return PaperTable(table, pd.DataFrame(tidy))
+
+
+# ============================================================================ subsets
+def window_label(k: int) -> str:
+    """``1e3–1e6`` for rolling window 0 (the decades it spans, in Pa)."""
+    lo, hi = rolling_windows()[int(k)]
+    return f"1e{round(math.log10(lo))}–1e{round(math.log10(hi))}"
+
+
+def _subset_label(kind: str, value: Any) -> str:
+    return f"{window_label(int(value))} Pa" if kind == "window" else str(value)
+
+
+def subset_summary_table(
+    rows: pd.DataFrame,
+    kind: str,
+    title: str,
+    caption: str,
+    label: str,
+    ddof: int = STD_DDOF,
+    digits: int = 4,
+) -> PaperTable | None:
+    """N-MSE per subset (columns) and model x inputs (rows): the numbers behind Fig. 6 / 7."""
+    rows = rows[rows["subset_kind"] == kind]
+    if rows.empty:
+        return None
+    rows = rows.assign(subset_key=rows["subset_value"].astype(object))
+    stats = summarise(rows, ["model", "inputs", "subset_key"], ["test_nmse"], ddof)
+    if kind == "window":
+        subsets = [k for k in range(N_ROLLING_WINDOWS) if k in set(rows["subset_key"])]
+    else:
+        subsets = ordered(rows["subset_key"], ("Sphere", "Cylinder", "Rectangular", "Irregular"))
+    keys = [
+        (m, i)
+        for m in ordered(rows["model"], MODEL_ORDER)
+        for i in ordered(rows["inputs"], INPUT_STRATEGIES)
+        if ((rows["model"] == m) & (rows["inputs"] == i)).any()
+    ]
+    lookup = {(r.model, r.inputs, r.subset_key): r for r in stats.itertuples(index=False)}
+    body: list[list[Cell]] = []
+    tidy: list[dict[str, Any]] = []
+    bold = {
+        s: _best_mask(
+            [lookup[(m, i, s)].mean if (m, i, s) in lookup else math.nan for m, i in keys],
+            "nmse",
+            digits,
+        )
+        for s in subsets
+    }
+    for index, (model, inp) in enumerate(keys):
+        line = [Cell(text=model_label(model)), Cell(text=str(inp))]
+        for subset in subsets:
+            rec = lookup.get((model, inp, subset))
+            if rec is None:
+                line.append(Cell(text="–"))
+                continue
+            line.append(Cell(rec.mean, rec.std, bold=bold[subset][index], digits=digits))
+            tidy.append(
+                {
+                    "table": label,
+                    "model": model,
+                    "inputs": inp,
+                    "subset": subset,
+                    "metric": "nmse",
+                    "mean": rec.mean,
+                    "std": rec.std,
+                    "n": rec.n,
+                    "seeds": rec.seeds,
+                }
+            )
+        body.append(line)
+    columns = ["Model", "Input"] + [_subset_label(kind, s) for s in subsets]
+    table = Table(
+        title=title,
+        columns=columns,
+        rows=body,
+        caption=caption,
+        provenance=describe_runs(rows, _ddof_text(ddof)),
+        label=label,
+    )
+    return PaperTable(table, pd.DataFrame(tidy))
+
+
+def softhard_subset_table(
+    frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4
+) -> PaperTable | None:
+    """Runs trained and tested on the soft (< 0.275 MPa) or hard subset only."""
+    done = complete_rows(frame)
+    rows = done[(done["subset_kind"] == "softhard") & ~done["is_shore"].astype(bool)]
+    if rows.empty:
+        return None
+    rows = rows.assign(subset_key=rows["subset_value"].astype(object))
+    metrics = ("test_log10_accuracy", "test_nmse")
+    stats = summarise(
+        rows, ["model", "inputs", "condition", "sampling", "subset_key"], metrics, ddof
+    )
+    body: list[list[Cell]] = []
+    tidy: list[dict[str, Any]] = []
+    settings = stats[["model", "inputs", "condition", "sampling"]].drop_duplicates()
+    order = ordered(rows["model"], MODEL_ORDER)
+    settings = settings.assign(_m=[order.index(m) for m in settings["model"]]).sort_values(
+        ["_m", "inputs", "condition", "sampling"]
+    )
+    lookup = {
+        (r.model, r.inputs, r.condition, r.sampling, r.subset_key, r.metric): r
+        for r in stats.itertuples(index=False)
+    }
+    for setting in settings[["model", "inputs", "condition", "sampling"]].itertuples(index=False):
+        line = [
+            Cell(text=model_label(setting.model)),
+            Cell(text=str(setting.inputs)),
+            Cell(text=f"{setting.condition}, {setting.sampling}"),
+        ]
+        for subset in ("soft", "hard"):
+            for metric in ("log10_accuracy", "nmse"):
+                rec = lookup.get((*setting, subset, metric))
+                if rec is None:
+                    line.append(Cell(text="–"))
+                    continue
+                line.append(Cell(rec.mean, rec.std, digits=digits))
+                tidy.append(
+                    {
+                        "table": "softhard-subsets",
+                        "model": setting.model,
+                        "inputs": setting.inputs,
+                        "condition": setting.condition,
+                        "sampling": setting.sampling,
+                        "subset": subset,
+                        "metric": metric,
+                        "mean": rec.mean,
+                        "std": rec.std,
+                        "n": rec.n,
+                        "seeds": rec.seeds,
+                    }
+                )
+        body.append(line)
+    table = Table(
+        title="Soft / hard training subsets",
+        columns=["Model", "Input", "Split", "log₁₀ accuracy", "N-MSE", "log₁₀ accuracy", "N-MSE"],
+        groups=[("", 3), ("soft (< 0.275 MPa)", 2), ("hard (≥ 0.275 MPa)", 2)],
+        rows=body,
+        caption="Models trained and tested only on objects softer / harder than the gel.",
+        provenance=describe_runs(rows, _ddof_text(ddof)),
+        label="softhard-subsets",
+    )
+    return PaperTable(table, pd.DataFrame(tidy))
+
+
+# ============================================================================ per-group
+def _read_groups(run_dir: Path | None) -> pd.DataFrame | None:
+    if run_dir is None:
+        return None
+    path = run_dir / "groups.csv"
+    try:
+        return pd.read_csv(path, dtype={"group": str})
+    except (OSError, ValueError):
+        return None
+
+
+def group_metric_tables(
+    rows: pd.DataFrame,
+    results_dir: str | Path,
+    setting_text: str,
+    ddof: int = STD_DDOF,
+    digits: int = 4,
+) -> list[PaperTable]:
+    """Per-material / per-shape / soft-hard test errors from each run's ``groups.csv``.
+
+    ``rows`` are the runs of one setting (one preset, sampling and condition); columns are
+    model x input strategy (Image and ALL when both exist, as in Fig. 5, else all inputs);
+    one table per metric (N-MSE, log10 accuracy), mean ± std over seeds.
+    """
+    frames = []
+    for row in rows.itertuples(index=False):
+        groups = _read_groups(resolve_run_dir(row.run_dir, results_dir))
+        if groups is None or groups.empty:
+            continue
+        frames.append(groups.assign(model=row.model, inputs=row.inputs, seed=row.seed))
+    if not frames:
+        return []
+    data = pd.concat(frames, ignore_index=True)
+    data = data[data["grouping"].isin(["material", "shape", "soft_hard"])]
+    inputs = ordered(data["inputs"], INPUT_STRATEGIES)
+    if {"Image", "ALL"} <= set(inputs):
+        inputs = ["Image", "ALL"]
+    keys = [
+        (m, i)
+        for m in ordered(data["model"], MODEL_ORDER)
+        for i in inputs
+        if ((data["model"] == m) & (data["inputs"] == i)).any()
+    ]
+    group_order = []
+    for grouping in ("soft_hard", "material", "shape"):
+        names = data.loc[data["grouping"] == grouping, "group"].astype(str)
+        preferred = ("soft", "hard") if grouping == "soft_hard" else ()
+        group_order += [(grouping, g) for g in ordered(names, preferred)]
+    used_rows = rows[rows["run_dir"].notna() & rows.set_index(["model", "inputs"]).index.isin(keys)]
+    out: list[PaperTable] = []
+    for metric in ("nmse", "log10_accuracy"):
+        if metric not in data.columns:
+            continue
+        stats = summarise(data, ["grouping", "group", "model", "inputs"], [metric], ddof)
+        lookup = {(r.grouping, str(r.group), r.model, r.inputs): r for r in stats.itertuples()}
+        n_test = data.groupby(["grouping", "group"])["n"].mean()
+        body: list[list[Cell]] = []
+        tidy: list[dict[str, Any]] = []
+        rules: set[int] = set()
+        for index, (grouping, group) in enumerate(group_order):
+            label = {"soft_hard": "stiffness"}.get(grouping, grouping)
+            line = [Cell(text=f"{label}: {group}"), Cell(text=f"{n_test[(grouping, group)]:.0f}")]
+            for model, inp in keys:
+                rec = lookup.get((grouping, group, model, inp))
+                if rec is None:
+                    line.append(Cell(text="–"))
+                    continue
+                line.append(Cell(rec.mean, rec.std, digits=digits))
+                tidy.append(
+                    {
+                        "table": f"groups-{metric}",
+                        "grouping": grouping,
+                        "group": group,
+                        "model": model,
+                        "inputs": inp,
+                        "metric": metric,
+                        "mean": rec.mean,
+                        "std": rec.std,
+                        "n": rec.n,
+                        "seeds": rec.seeds,
+                    }
+                )
+            body.append(line)
+            if index + 1 < len(group_order) and group_order[index + 1][0] != grouping:
+                rules.add(index)
+        name = METRIC_LABELS[metric]
+        table = Table(
+            title=f"{name} per material, shape and stiffness",
+            columns=["Group", "test samples / run"] + [f"{model_label(m)} {i}" for m, i in keys],
+            rows=body,
+            rules_after=rules,
+            caption=(
+                f"Test {name} broken down by the true object's material, shape and stiffness "
+                f"(soft: E < 0.275 MPa, the gel's modulus); {setting_text}."
+            ),
+            provenance=describe_runs(used_rows, _ddof_text(ddof) + "; from each run's groups.csv"),
+            label=f"groups-{_label_for(metric)}",
+        )
+        out.append(PaperTable(table, pd.DataFrame(tidy)))
+    return out
+
+
+# ============================================================================ failures
+def failed_table(frame: pd.DataFrame, max_error_chars: int = 160) -> Table | None:
+    """Every row that did not complete (failed, or any other status), with its error."""
+    bad = frame[frame["status"] != STATUS_COMPLETE]
+    if bad.empty:
+        return None
+    body = []
+    for row in bad.itertuples(index=False):
+        error = str(getattr(row, "error", "") or "").strip().splitlines()
+        message = error[-1] if error else ""
+        if len(message) > max_error_chars:
+            message = message[: max_error_chars - 1] + "…"
+        subset = "" if row.subset_kind == "none" else str(row.subset_value)
+        body.append(
+            [
+                Cell(text=str(row.preset or "")),
+                Cell(text=model_label(row.model)),
+                Cell(text=str(row.inputs)),
+                Cell(text=f"{row.condition}, {row.sampling}"),
+                Cell(text=str(row.seed)),
+                Cell(text=subset),
+                Cell(text=str(row.status)),
+                Cell(text=str(getattr(row, "attempts", "") or "")),
+                Cell(text=message),
+            ]
+        )
+    n_failed = int((bad["status"] == STATUS_FAILED).sum())
+    return Table(
+        title="Runs that did not complete",
+        columns=[
+            "Preset",
+            "Model",
+            "Input",
+            "Split",
+            "Seed",
+            "Subset",
+            "Status",
+            "Attempts",
+            "Error",
+        ],
+        rows=body,
+        caption=(
+            f"{len(bad)} row(s) ({n_failed} failed) are excluded from every table and figure; "
+            "re-running the grid retries them."
+        ),
+        label="failed-runs",
+    )
