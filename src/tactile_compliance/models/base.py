@@ -233,5 +233,46 @@ class TactileModel(nn.Module):
         """Map features and the enabled inputs (others are None) to ``(B,)`` logits."""
         raise NotImplementedError
 
+    # ------------------------------------------------------------------ fusion head
+    def _build_fusion_head(self, image_dim: int, hp: dict[str, Any]) -> None:
+        """The Burgess-style fusion head shared by Top10NN and Res-Tf.
+
+        concat(image vector, Linear(3->fwe)(F), Linear(3->fwe)(W)) -> decoder MLP; with
+        estimates the decoder emits ``decoder_output_size`` raw values that an estimation
+        MLP combines with the 2 normalised estimates. Towers exist only for enabled
+        inputs, so a disabled input has no weights at all.
+        """
+        decoder_in = image_dim
+        if self.inputs.uses_force:
+            self.force_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
+            decoder_in += hp["fwe_size"]
+        if self.inputs.uses_width:
+            self.width_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
+            decoder_in += hp["fwe_size"]
+        decoder_out = hp["decoder_output_size"] if self.inputs.uses_estimates else 1
+        self.decoder = make_mlp(decoder_in, hp["decoder_sizes"], decoder_out, hp["decoder_dropout"])
+        if self.inputs.uses_estimates:
+            self.estimation_decoder = make_mlp(
+                decoder_out + 2, hp["estimation_sizes"], 1, hp["estimation_dropout"]
+            )
+
+    def _fuse(
+        self,
+        image_vector: torch.Tensor,
+        force: torch.Tensor | None,
+        width: torch.Tensor | None,
+        estimates: torch.Tensor | None,
+    ) -> torch.Tensor:
+        """Logits (B,) of the fusion head built by :meth:`_build_fusion_head`."""
+        parts = [image_vector]
+        if force is not None:
+            parts.append(self.force_encoder(force))
+        if width is not None:
+            parts.append(self.width_encoder(width))
+        out = self.decoder(torch.cat(parts, dim=1))
+        if estimates is not None:
+            out = self.estimation_decoder(torch.cat([out, estimates], dim=1))
+        return out.squeeze(1)
+
     def extra_repr(self) -> str:
         return f"inputs={self.inputs.value}"

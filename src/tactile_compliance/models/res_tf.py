@@ -30,7 +30,6 @@ from tactile_compliance.models.base import (
     check_dropout,
     check_positive_int,
     check_sizes,
-    make_mlp,
 )
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
@@ -177,20 +176,7 @@ class ResTf(TactileModel):
         self.video_dropout = nn.Dropout(hp["video_dropout"])
         self.image_output = nn.Linear(hp["embedding_dim"], hp["output_dim"])
 
-        decoder_in = hp["output_dim"]
-        # Towers exist only for enabled inputs, so a disabled input has no weights at all.
-        if self.inputs.uses_force:
-            self.force_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
-            decoder_in += hp["fwe_size"]
-        if self.inputs.uses_width:
-            self.width_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
-            decoder_in += hp["fwe_size"]
-        decoder_out = hp["decoder_output_size"] if self.inputs.uses_estimates else 1
-        self.decoder = make_mlp(decoder_in, hp["decoder_sizes"], decoder_out, hp["decoder_dropout"])
-        if self.inputs.uses_estimates:
-            self.estimation_decoder = make_mlp(
-                decoder_out + 2, hp["estimation_sizes"], 1, hp["estimation_dropout"]
-            )
+        self._build_fusion_head(hp["output_dim"], hp)
 
     def _head(
         self,
@@ -201,12 +187,4 @@ class ResTf(TactileModel):
     ) -> torch.Tensor:
         tokens = self.token_projection(features) + self.positional_encoding.to(features.dtype)
         video = self.transformer(tokens).mean(dim=1)
-        parts = [self.image_output(self.video_dropout(video))]
-        if force is not None:
-            parts.append(self.force_encoder(force))
-        if width is not None:
-            parts.append(self.width_encoder(width))
-        out = self.decoder(torch.cat(parts, dim=1))
-        if estimates is not None:
-            out = self.estimation_decoder(torch.cat([out, estimates], dim=1))
-        return out.squeeze(1)
+        return self._fuse(self.image_output(self.video_dropout(video)), force, width, estimates)

@@ -24,7 +24,6 @@ from tactile_compliance.models.base import (
     check_dropout,
     check_positive_int,
     check_sizes,
-    make_mlp,
 )
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
@@ -125,20 +124,7 @@ class Top10NN(TactileModel):
         hp = self.hparams
         self.backbone = Top10Encoder(hp["img_feature_size"], hp["image_dropout"])
 
-        decoder_in = NUM_FRAMES * hp["img_feature_size"]
-        # Towers exist only for enabled inputs, so a disabled input has no weights at all.
-        if self.inputs.uses_force:
-            self.force_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
-            decoder_in += hp["fwe_size"]
-        if self.inputs.uses_width:
-            self.width_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
-            decoder_in += hp["fwe_size"]
-        decoder_out = hp["decoder_output_size"] if self.inputs.uses_estimates else 1
-        self.decoder = make_mlp(decoder_in, hp["decoder_sizes"], decoder_out, hp["decoder_dropout"])
-        if self.inputs.uses_estimates:
-            self.estimation_decoder = make_mlp(
-                decoder_out + 2, hp["estimation_sizes"], 1, hp["estimation_dropout"]
-            )
+        self._build_fusion_head(NUM_FRAMES * hp["img_feature_size"], hp)
 
     def _head(
         self,
@@ -147,12 +133,4 @@ class Top10NN(TactileModel):
         width: torch.Tensor | None,
         estimates: torch.Tensor | None,
     ) -> torch.Tensor:
-        parts = [features.flatten(1)]
-        if force is not None:
-            parts.append(self.force_encoder(force))
-        if width is not None:
-            parts.append(self.width_encoder(width))
-        out = self.decoder(torch.cat(parts, dim=1))
-        if estimates is not None:
-            out = self.estimation_decoder(torch.cat([out, estimates], dim=1))
-        return out.squeeze(1)
+        return self._fuse(features.flatten(1), force, width, estimates)
