@@ -109,12 +109,25 @@ def _run_import(run: object, report_json: Path | None) -> None:
         report_json.write_text(json.dumps(report.to_dict(), indent=2) + "\n")
 
 
+SizeOption = Annotated[
+    Optional[str],  # noqa: UP045 (typer needs Optional on 3.10)
+    typer.Option("--size", help="Resize frames to HxW pixels, e.g. 224x224."),
+]
+StrictOption = Annotated[bool, typer.Option(help="Stop at the first problem.")]
+OverwriteOption = Annotated[bool, typer.Option(help="Replace an existing store.")]
+ReportOption = Annotated[
+    Optional[Path],  # noqa: UP045
+    typer.Option("--report", help="Also write the import report as JSON."),
+]
+OutOption = Annotated[Path, typer.Option("--out", help="Store directory to create.")]
+
+
 @import_app.command("burgess")
 def import_burgess_command(
     src: Annotated[
         Path, typer.Argument(help="The unpacked gelsight_youngs_modulus_dataset/ directory.")
     ],
-    out: Annotated[Path, typer.Option("--out", help="Store directory to create.")],
+    out: OutOption,
     objects: Annotated[
         Optional[Path],  # noqa: UP045 (typer needs Optional on 3.10)
         typer.Option(
@@ -126,14 +139,10 @@ def import_burgess_command(
     fingers: Annotated[
         str, typer.Option(help="markerless (RGB.pkl), markers (RGB_markers.pkl) or both.")
     ] = "both",
-    size: Annotated[
-        Optional[str], typer.Option("--size", help="Resize frames to HxW pixels, e.g. 224x224.")  # noqa: UP045
-    ] = None,
-    strict: Annotated[bool, typer.Option(help="Stop at the first problem.")] = False,
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing store.")] = False,
-    report_json: Annotated[
-        Optional[Path], typer.Option("--report", help="Also write the import report as JSON.")  # noqa: UP045
-    ] = None,
+    size: SizeOption = None,
+    strict: StrictOption = False,
+    overwrite: OverwriteOption = False,
+    report_json: ReportOption = None,
 ) -> None:
     """Import the GelSight Young's-modulus dataset layout (real or simulated)."""
     from tactile_compliance.data.burgess import import_burgess
@@ -158,15 +167,11 @@ def import_burgess_command(
 @import_app.command("yuan")
 def import_yuan_command(
     src: Annotated[Path, typer.Argument(help="Directory of {SHAPE}_{hardness}_{n}.avi videos.")],
-    out: Annotated[Path, typer.Option("--out", help="Store directory to create.")],
-    size: Annotated[
-        Optional[str], typer.Option("--size", help="Resize frames to HxW pixels, e.g. 224x224.")  # noqa: UP045
-    ] = None,
-    strict: Annotated[bool, typer.Option(help="Stop at the first problem.")] = False,
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing store.")] = False,
-    report_json: Annotated[
-        Optional[Path], typer.Option("--report", help="Also write the import report as JSON.")  # noqa: UP045
-    ] = None,
+    out: OutOption,
+    size: SizeOption = None,
+    strict: StrictOption = False,
+    overwrite: OverwriteOption = False,
+    report_json: ReportOption = None,
 ) -> None:
     """Import the Shore-hardness press videos (Yuan et al. 2017)."""
     from tactile_compliance.data.yuan import import_yuan
