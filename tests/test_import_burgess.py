@@ -185,3 +185,12 @@ def test_missing_estimate_is_kept_as_nan(tmp_path):
     samples = GraspStore.open(tmp_path / "store").samples.set_index("object")
     assert samples.loc["foam_block", "hertz_estimate_pa"].isna().all()
     assert samples.loc["steel_rod", "hertz_estimate_pa"].notna().all()
+
+
+def test_source_is_synthetic_for_generated_trees(tmp_path):
+    write_tree(tmp_path / "src", grasps=1, augmentations=1)
+    _import(tmp_path / "src", tmp_path / "real")
+    assert GraspStore.open(tmp_path / "real").header.source == "burgess"
+    (tmp_path / "src" / "generation.json").write_text("{}")
+    _import(tmp_path / "src", tmp_path / "generated")
+    assert GraspStore.open(tmp_path / "generated").header.source == "synthetic"

@@ -41,6 +41,8 @@ FINGER_FILES: dict[str, tuple[str, str]] = {
     "markerless": ("RGB.pkl", "depth.pkl"),
     "markers": ("RGB_markers.pkl", "depth_markers.pkl"),
 }
+# Written by tactile_compliance.data.synthetic at the root of a generated tree.
+SYNTHETIC_MANIFEST = "generation.json"
 _GRASP_DIR = re.compile(r"^grasp=(\d+)$")
 _AUGMENTATION_DIR = re.compile(r"^augmentation=(\d+)$")
 
@@ -186,7 +188,7 @@ def import_burgess(
     strict: bool = False,
     overwrite: bool = False,
     progress: bool = True,
-    source_name: str = "burgess",
+    source_name: str | None = None,
 ) -> ImportReport:
     """Import a GelSight Young's-modulus dataset tree into a GraspStore at ``out_dir``.
 
@@ -200,7 +202,8 @@ def import_burgess(
         strict: stop at the first problem instead of skipping and reporting.
         overwrite: replace an existing store (atomically, only once the new one is complete).
         progress: show a progress bar.
-        source_name: recorded in the store header (``synthetic`` for generated trees).
+        source_name: recorded in the store header; default ``synthetic`` for trees written
+            by the generator (they hold ``generation.json``), else ``burgess``.
     """
     start = time.perf_counter()
     src, out = Path(src_dir), Path(out_dir)
@@ -208,6 +211,8 @@ def import_burgess(
         raise DataImportError(f"{src}: source directory not found")
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
+    if source_name is None:
+        source_name = "synthetic" if (src / SYNTHETIC_MANIFEST).is_file() else "burgess"
     if fingers not in ("markerless", "markers", "both"):
         raise ValueError(f"fingers must be markerless, markers or both, got {fingers!r}")
     finger_names = list(FINGER_FILES) if fingers == "both" else [fingers]
