@@ -13,6 +13,7 @@ from tactile_compliance.data.store import (
     GraspStore,
     GraspStoreWriter,
     StoreError,
+    frames_from_uint8,
     frames_to_uint8,
 )
 
@@ -58,9 +59,20 @@ def test_round_trip_values_and_memmap(tmp_path):
     assert summary["modulus_pa_min"] == 1e5 and summary["modulus_pa_max"] == 3e5
 
 
-def test_frames_to_uint8_rounds_and_clips():
-    x = np.array([-0.1, 0.0, 0.5, 1.0, 1.2, 0.25 / 255])
-    assert frames_to_uint8(x).tolist() == [0, 0, 128, 255, 255, 0]
+def test_frames_to_uint8_floors_and_clips():
+    x = np.array([-0.1, 0.0, 0.5, 1.0, 1.2, 0.25 / 255, 0.999 / 255])
+    assert frames_to_uint8(x).tolist() == [0, 0, 127, 255, 255, 0, 0]
+
+
+def test_recording_pipeline_values_survive_exactly():
+    # Real difference images are k / 255 + 0.5 (uint8 frame - uint8 blurred reference):
+    # every level must survive the store, none may merge with its neighbour.
+    k = np.arange(-127, 128)
+    for dtype in (np.float64, np.float32, np.float16):
+        x = (k / 255 + 0.5).astype(dtype)
+        encoded = frames_to_uint8(x)
+        assert len(np.unique(encoded)) == len(k), dtype
+        assert np.abs(frames_from_uint8(encoded) - (k / 255 + 0.5)).max() < 1e-6
 
 
 def test_failed_write_leaves_nothing(tmp_path):

@@ -60,6 +60,83 @@ def main(
 
 
 @app.command()
+def simulate(
+    out: Annotated[Path, typer.Option("--out", help="Directory to write the raw dataset to.")],
+    kind: Annotated[
+        str,
+        typer.Option(help="gelsight (the Young's-modulus dataset layout) or shore-videos."),
+    ] = "gelsight",
+    objects: Annotated[
+        Optional[int],  # noqa: UP045
+        typer.Option(
+            "--objects",
+            help="Number of objects (default: 286 like the real table; "
+            "40 silicone samples for shore-videos).",
+        ),
+    ] = None,
+    object_table: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option(
+            "--object-table",
+            help="Simulate exactly the objects of a table in the "
+            "real CSV format (dataset_objects_and_compliance.csv).",
+        ),
+    ] = None,
+    grasps_per_object: Annotated[
+        Optional[int],  # noqa: UP045
+        typer.Option("--grasps-per-object", help="Grasps (presses for videos) per object."),
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Base seed; same seed, byte-identical output.")] = 0,
+    size: Annotated[str, typer.Option("--size", help="Frame size HxW in pixels.")] = "250x350",
+    dtype: Annotated[
+        str, typer.Option(help="Pickle dtype of images/depths: float16, float32 or float64.")
+    ] = "float16",
+    workers: Annotated[
+        Optional[int], typer.Option(help="Processes (default: all CPUs).")  # noqa: UP045
+    ] = None,
+) -> None:
+    """Generate a physically grounded synthetic dataset in the real raw layout.
+
+    The output is what `import burgess` (or, with --kind shore-videos, `import yuan`)
+    reads. Interrupted runs resume: finished objects are kept.
+    """
+    from tactile_compliance.data.synthetic import generate_burgess_tree, generate_shore_videos
+    from tactile_compliance.data.synthetic.generate import GenerationError
+
+    image_size = _size_option(size)
+    assert image_size is not None
+    try:
+        if kind == "gelsight":
+            options = {"dtype": dtype} | ({"workers": workers} if workers else {})
+            report = generate_burgess_tree(
+                out,
+                n_objects=objects,
+                object_table=object_table,
+                grasps_per_object=grasps_per_object,
+                seed=seed,
+                image_size=image_size,
+                **options,
+            )
+        elif kind == "shore-videos":
+            if object_table is not None:
+                raise typer.BadParameter("--object-table applies to --kind gelsight only")
+            report = generate_shore_videos(
+                out,
+                n_objects=objects or 40,
+                presses_per_object=grasps_per_object or 3,
+                seed=seed,
+                image_size=image_size,
+            )
+        else:
+            raise typer.BadParameter("--kind must be gelsight or shore-videos")
+    except GenerationError as err:
+        _fail(str(err))
+    typer.echo(report.format())
+    importer = "burgess" if kind == "gelsight" else "yuan"
+    typer.echo(f"Next: tactile-compliance import {importer} {out} --out STORE")
+
+
+@app.command()
 def info(
     store: Annotated[Path, typer.Argument(help="GraspStore directory.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")] = False,

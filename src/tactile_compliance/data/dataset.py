@@ -27,6 +27,7 @@ from tactile_compliance.data.normalisation import (
 )
 from tactile_compliance.data.store import (
     ESTIMATE_COLUMNS,
+    FRAME_DECODE_OFFSET,
     FORCE_COLUMNS,
     WIDTH_COLUMNS,
     GraspStore,
@@ -82,7 +83,8 @@ def prepare_frames(
     """Store frames -> model frames.
 
     Args:
-        frames: (B, 3 frames, H, W, 3 channels), uint8 (store encoding) or float in [0, 1].
+        frames: (B, 3 frames, H, W, 3 channels), uint8 (store encoding, decoded as
+            ``(u + 0.5) / 255``) or float in [0, 1].
         constants: image mean/std (per RGB channel).
         image_size: (height, width) in pixels the model expects; None keeps the size.
         augmentation: applied to [0, 1] frames before normalisation (training only).
@@ -94,7 +96,7 @@ def prepare_frames(
         raise ValueError(f"frames must have shape (B, 3, H, W, 3), got {tuple(frames.shape)}")
     x = frames.float()
     if frames.dtype == torch.uint8:
-        x = x / 255.0
+        x = (x + FRAME_DECODE_OFFSET) / 255.0  # the store's decoding (frames_from_uint8)
     batch, n_frames, height, width, channels = x.shape
     x = x.permute(0, 1, 4, 2, 3)  # (B, T, C, H, W)
     if image_size is not None and (height, width) != tuple(image_size):

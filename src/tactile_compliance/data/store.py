@@ -8,7 +8,8 @@ A store is a directory::
       frames.u8         raw uint8 array (N, 3 frames, H, W, 3 channels), RGB, memory-mapped
 
 Frames are difference images (values centred near 0.5) quantised to uint8 as
-``round(x * 255)``; that is the camera's own quantisation step, and it makes a
+``floor(x * 255)`` and decoded as ``(u + 0.5) / 255`` (see :func:`frames_to_uint8`); that
+is the camera's own quantisation step, and it makes a
 7,840-sample full-resolution store 6.2 GB on disk instead of 25 GB of float32, read
 lazily through ``np.memmap`` so nothing is loaded into RAM until a sample is asked for.
 
@@ -79,12 +80,32 @@ class StoreError(Exception):
     """A store is missing, incomplete or inconsistent."""
 
 
+#: Decoding is ``(u + FRAME_DECODE_OFFSET) / 255``; see :func:`frames_to_uint8`.
+FRAME_DECODE_OFFSET = 0.5
+
+
 def frames_to_uint8(frames: np.ndarray) -> np.ndarray:
-    """Quantise float difference images in [0, 1] (any shape) to uint8 ``round(x * 255)``."""
+    """Quantise float difference images in [0, 1] (any shape) to uint8 ``floor(x * 255)``.
+
+    The recording pipeline's values are ``k / 255 + 0.5`` with an integer k (uint8 frame
+    minus uint8 blurred reference), so ``x * 255`` always ends in .5: rounding would merge
+    neighbouring grey levels, while ``floor`` keeps every level and the decoder
+    (:func:`frames_from_uint8`, ``(u + 0.5) / 255``) recovers the value exactly. Arbitrary
+    floats are reproduced within half a grey level, without bias. uint8 input (raw camera
+    frames) is stored unchanged.
+    """
     frames = np.asarray(frames)
     if frames.dtype == np.uint8:
         return frames
-    return np.clip(np.rint(frames.astype(np.float32) * 255.0), 0, 255).astype(np.uint8)
+    # float64 keeps k/255 + 0.5 exact enough that floor never drops a level.
+    return np.clip(np.floor(frames.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+
+
+def frames_from_uint8(frames: np.ndarray) -> np.ndarray:
+    """Decode stored uint8 frames to float32 ``(u + 0.5) / 255`` (inverse of the encoding)."""
+    return (np.asarray(frames, dtype=np.float32) + np.float32(FRAME_DECODE_OFFSET)) / np.float32(
+        255.0
+    )
 
 
 @dataclass(frozen=True)
@@ -108,7 +129,7 @@ class StoreHeader:
             "frames_per_sample": FRAMES_PER_SAMPLE,
             "frames_dtype": "uint8",
             "frames_file": FRAMES_FILE,
-            "frames_encoding": "difference image x 255, rounded",
+            "frames_encoding": "u = floor(x * 255); x = (u + 0.5) / 255",
             "channel_order": self.channel_order,
             "source": self.source,
             "created": self.created,
@@ -204,14 +225,13 @@ class GraspStore:
         return self.header.image_size
 
     def load_frames(self, indices: int | Sequence[int] | np.ndarray) -> np.ndarray:
-        """Frames of the given sample ids as float32 in [0, 1], shape (n, 3, H, W, 3), RGB."""
+        """Frames of the given sample ids as float32 in (0, 1), shape (n, 3, H, W, 3), RGB."""
         idx = np.atleast_1d(np.asarray(indices, dtype=np.int64))
         # Sorted reads are sequential on disk; restore the requested order afterwards.
         order = np.argsort(idx, kind="stable")
-        out = np.empty((len(idx), *self.frames.shape[1:]), dtype=np.float32)
+        out = np.empty((len(idx), *self.frames.shape[1:]), dtype=np.uint8)
         out[order] = self.frames[idx[order]]
-        out *= np.float32(1.0 / 255.0)
-        return out
+        return frames_from_uint8(out)
 
     def read_sample(self, sample_id: int) -> np.ndarray:
         """One sample's frames, uint8 (3, H, W, 3), read with ``os.pread``.

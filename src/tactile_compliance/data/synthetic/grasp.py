@@ -1,0 +1,377 @@
+"""Simulate one grasp end to end: mechanics -> time series -> frames -> depth -> estimates.
+
+Per grasp (both fingers):
+
+1. pose the object on each pad and build its sag maps (``geometry``);
+2. force-approach curves of the gel/object foundations (``mechanics``);
+3. the grasp's time series (``timeseries.simulate_timeline``);
+4. a *low-resolution* photometric sequence of every frame the selection and the
+   estimators look at (rendered and reconstructed exactly like the stored frames, at
+   ``estimator_scale`` of the full size - a quarter by default - because the
+   estimators need ~40 depth maps per finger and only 3 x up to 5 are stored);
+5. the published frame selection (three frames, up to five time shifts);
+6. the two analytical estimates with the project's own estimators
+   (``tactile_compliance.physics.contact.analytical_estimates_pa``) on the clipped
+   low-resolution sequence (pixel size and Hertz patch scaled accordingly);
+7. full-resolution rendering + photometric depth of only the stored frames.
+
+Sensors (gel thickness/modulus, lighting, background, finger stiffness) belong to a
+*session* shared by several objects, like the real recording days.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+
+import numpy as np
+
+from tactile_compliance.data.synthetic.depth import reconstruct_depth
+from tactile_compliance.data.synthetic.geometry import PadGrid, sag_map, sample_pose
+from tactile_compliance.data.synthetic.mechanics import (
+    GelModel,
+    ObjectMechanics,
+    contact_curve,
+    force_curve,
+)
+from tactile_compliance.data.synthetic.objects import ObjectSpec
+from tactile_compliance.data.synthetic.render import (
+    FULL_SIZE,
+    SensorLook,
+    difference_images,
+    gel_height_maps,
+    pixel_size_mm,
+    render_frames,
+    sample_sensor_look,
+)
+from tactile_compliance.data.synthetic.rng import stream
+from tactile_compliance.data.synthetic.textures import texture_canvas, texture_window
+from tactile_compliance.data.synthetic.timeseries import (
+    FrameSelection,
+    GraspTimeline,
+    clip_to_press,
+    interpolate_stair_widths,
+    select_frames,
+    selection_window,
+    simulate_timeline,
+)
+
+__all__ = [
+    "GraspSample",
+    "ObjectContext",
+    "SimulationOptions",
+    "make_context",
+    "simulate_grasp",
+]
+
+
+@dataclass(frozen=True)
+class SimulationOptions:
+    """Numerical options of the generator (physics parameters live in their modules).
+
+    Attributes:
+        image_size: stored image size (H, W) [px]; the field of view is always the
+            real crop (30.6 x 21.9 mm), so smaller images have larger pixels.
+        curve_cell_mm: pad-grid spacing of the force-approach curves [mm].
+        render_cell_mm: pad-grid spacing of the gel fields that are rendered [mm].
+        estimator_scale: resolution of the estimator/selection sequence relative to
+            250 x 350 [-].
+        n_sessions: number of recording sessions (sensor set-ups) objects are spread over.
+        max_aug: maximum number of time-shift augmentations.
+        depth_solve_scale: resolution of the Poisson solve of the stored depth maps
+            relative to the image [-] (see ``depth.reconstruct_depth``).
+    """
+
+    image_size: tuple[int, int] = FULL_SIZE
+    curve_cell_mm: float = 0.5
+    render_cell_mm: float = 0.25
+    estimator_scale: float = 0.25
+    n_sessions: int = 16
+    max_aug: int = 5
+    depth_solve_scale: float = 0.5
+
+    @property
+    def estimator_size(self) -> tuple[int, int]:
+        """Image size of the estimator sequence (H, W) [px]."""
+        return (
+            max(round(FULL_SIZE[0] * self.estimator_scale), 16),
+            max(round(FULL_SIZE[1] * self.estimator_scale), 16),
+        )
+
+
+@dataclass
+class Session:
+    """Sensor set-up of one recording session: per finger gel and appearance."""
+
+    gels: tuple[GelModel, GelModel]
+    looks: tuple[SensorLook, SensorLook]
+    finger_stiffness_n_per_m: float
+
+
+@lru_cache(maxsize=64)
+def _session(seed: int, session_id: int) -> Session:
+    rng = stream(seed, "session", session_id)
+    gels = tuple(
+        GelModel(
+            modulus_pa=2.75e5 * 10 ** rng.normal(0.0, 0.05),
+            thickness_mm=float(rng.uniform(3.5, 5.5)),
+        )
+        for _ in range(2)
+    )
+    looks = (sample_sensor_look(rng, markers=False), sample_sensor_look(rng, markers=True))
+    stiffness = float(10 ** rng.uniform(5.0, np.log10(6e5)))
+    return Session(gels, looks, stiffness)  # type: ignore[arg-type]
+
+
+@dataclass
+class ObjectContext:
+    """Everything fixed for an object's grasps (built once per object)."""
+
+    spec: ObjectSpec
+    seed: int
+    options: SimulationOptions
+    session: Session
+    textures: tuple[np.ndarray, np.ndarray] = field(repr=False)
+
+
+def make_context(spec: ObjectSpec, seed: int, options: SimulationOptions) -> ObjectContext:
+    """Session assignment and texture canvases of an object."""
+    sid = int(stream(seed, spec.name, "session").integers(0, max(options.n_sessions, 1)))
+    session = _session(seed, sid)
+    size = options.image_size
+    px = pixel_size_mm(size)
+    tex_rng = stream(seed, spec.name, "texture-canvas")
+    textures = (
+        texture_canvas(spec.texture, size, px, tex_rng),
+        texture_canvas(spec.texture, size, px, tex_rng),
+    )
+    return ObjectContext(spec, seed, options, session, textures)
+
+
+@dataclass
+class GraspSample:
+    """One ``grasp=g/augmentation=k`` directory.
+
+    Attributes:
+        rgb, rgb_markers: difference images (3, H, W, 3), BGR, float32.
+        depth, depth_markers: reconstructed depth (3, H, W) [mm], float32.
+        forces: measured force at the three frames [N].
+        widths: measured gripper width at the three frames [m].
+        elastic_estimate: Hooke estimate [Pa] (NaN if not estimable).
+        hertz_estimate: Hertz/MDR estimate of E* [Pa] (NaN if not estimable).
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    rgb_markers: np.ndarray
+    depth_markers: np.ndarray
+    forces: np.ndarray
+    widths: np.ndarray
+    elastic_estimate: float
+    hertz_estimate: float
+
+
+@dataclass
+class GraspResult:
+    """A simulated grasp: its samples (empty if the selection skipped it) and internals."""
+
+    samples: list[GraspSample]
+    timeline: GraspTimeline
+    selection: FrameSelection | None
+    skipped_reason: str = ""
+
+
+def _object_mechanics(spec: ObjectSpec) -> ObjectMechanics:
+    size = spec.geometry.thickness_mm
+    if spec.hollow:
+        # A thin wall is all the material there is to compress.
+        size = min(size, 4.0 * spec.shell_thickness_mm)
+    return ObjectMechanics(
+        modulus_pa=spec.physics_modulus_pa,
+        poisson=spec.poisson,
+        size_mm=size,
+        max_strain=spec.max_strain,
+        shell_stiffness_n_per_m=spec.shell_stiffness_n_per_m,
+    )
+
+
+def _render_sequence(
+    approaches_mm: np.ndarray,
+    sag: np.ndarray,
+    grid: PadGrid,
+    gel: GelModel,
+    obj: ObjectMechanics,
+    look: SensorLook,
+    size: tuple[int, int],
+    rng: np.random.Generator,
+    texture: np.ndarray | None = None,
+    texture_share: float = 1.0,
+    solve_scale: float = 1.0,
+    jpeg: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Difference images (n, H, W, 3) and reconstructed depth (n, H, W) for approaches."""
+    n = approaches_mm.size
+    fields = np.zeros((n, *grid.shape), dtype=np.float32)
+    touching = approaches_mm > 0
+    if touching.any():
+        curve = contact_curve(sag, gel, obj, grid, approaches_mm[touching], fields=True)
+        assert curve.gel_depth_mm is not None
+        fields[touching] = curve.gel_depth_mm
+    height, contact = gel_height_maps(fields, grid, size, gel.thickness_mm)
+    if texture is not None:
+        height += np.float32(texture_share) * texture[None] * contact
+        np.maximum(height, 0.0, out=height)
+    if not jpeg and look.jpeg_quality:
+        look = replace(look, jpeg_quality=0)
+    reference = render_frames(np.zeros((1, *size), dtype=np.float32), look, rng)[0]
+    frames = render_frames(height, look, rng)
+    diff = difference_images(frames, reference)
+    depth = reconstruct_depth(diff, markers=look.markers, solve_scale=solve_scale)
+    return diff, depth
+
+
+@lru_cache(maxsize=8)
+def _estimator_constants(width_px: int) -> object:
+    from tactile_compliance.physics.contact import SensorConstants
+
+    base = SensorConstants()
+    factor = FULL_SIZE[1] / width_px
+    patch = max(round(base.hertz_patch_px / factor) | 1, 1)
+    return replace(base, pixel_size_m=base.pixel_size_m * factor, hertz_patch_px=patch)
+
+
+def _estimates(
+    timeline: GraspTimeline,
+    depth_seq: tuple[np.ndarray, np.ndarray],
+    frames: np.ndarray,
+    width_px: int,
+) -> tuple[float, float]:
+    """Both analytical estimates on the clipped sequence, like the published code."""
+    from tactile_compliance.physics.contact import analytical_estimates_pa
+
+    window = clip_to_press(timeline.force_n)
+    if window is None:
+        return math.nan, math.nan
+    a, b = window
+    pos = np.searchsorted(frames, np.arange(a, b))
+    d0 = depth_seq[0][pos].reshape(b - a, -1).max(axis=1)
+    d1 = depth_seq[1][pos].reshape(b - a, -1).max(axis=1)
+    # Clip to the first frame where either finger sees 7.5 % of its peak depth.
+    starts = [int(np.argmax(d >= 0.075 * d.max())) for d in (d0, d1) if d.max() > 0]
+    first = min(starts) if starts else 0
+    forces = timeline.force_n[a:b][first:]
+    widths = interpolate_stair_widths(timeline.width_m[a:b])[first:]
+    depths = depth_seq[0][pos][first:]
+    try:
+        elastic, hertz = analytical_estimates_pa(
+            forces, widths, depths, _estimator_constants(width_px)
+        )
+    except ValueError:
+        return math.nan, math.nan
+    return float(elastic), float(hertz)
+
+
+def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
+    """Simulate grasp ``grasp`` of an object (deterministic for (seed, object, grasp))."""
+    spec, seed, opt = ctx.spec, ctx.seed, ctx.options
+    key = (seed, spec.name, "grasp", grasp)
+    pose_rng = stream(*key, "pose")
+    first = sample_pose(pose_rng, spec.geometry.kind)
+    poses = (first, sample_pose(pose_rng, spec.geometry.kind, mirror_of=first))
+    curve_grid, render_grid = PadGrid(opt.curve_cell_mm), PadGrid(opt.render_cell_mm)
+    obj = _object_mechanics(spec)
+    gels = ctx.session.gels
+    curves = tuple(
+        force_curve(sag_map(spec.geometry, curve_grid, poses[f], side=f), gels[f], obj, curve_grid)
+        for f in range(2)
+    )
+    # Where along the finger the object sits changes the lever: +-25 % per grasp.
+    stiffness = ctx.session.finger_stiffness_n_per_m * 10 ** pose_rng.normal(0.0, 0.1)
+    timeline = simulate_timeline(
+        curves,  # type: ignore[arg-type]
+        spec.geometry.thickness_mm * 1e-3,
+        stiffness,
+        spec.shell_stiffness_n_per_m,
+        stream(*key, "timeline"),
+        # A sphere cannot rotate into a more stable pose.
+        settle_probability=0.1 if spec.geometry.kind == "Sphere" else 0.35,
+    )
+    window = selection_window(timeline.force_n, opt.max_aug)
+    if window is None:
+        return GraspResult([], timeline, None, "peak force < 10 N or too few frames")
+    press = clip_to_press(timeline.force_n)
+    lo, hi = window[0], window[2]
+    if press is not None:
+        lo, hi = min(lo, press[0]), max(hi, press[1])
+    seq_frames = np.arange(lo, hi)
+    render_sags = [sag_map(spec.geometry, render_grid, poses[f], side=f) for f in range(2)]
+    est_size = opt.estimator_size
+    seq = []
+    for f in range(2):
+        _, depth = _render_sequence(
+            timeline.approach_mm[f, seq_frames],
+            render_sags[f],
+            render_grid,
+            gels[f],
+            obj,
+            ctx.session.looks[f],
+            est_size,
+            stream(*key, "render-sequence", f),
+            # JPEG blocks are below this resolution; skipping the codec saves time.
+            jpeg=False,
+        )
+        seq.append(depth)
+    max_depth = np.zeros((2, timeline.force_n.size))
+    for f in range(2):
+        max_depth[f, seq_frames] = seq[f].reshape(seq_frames.size, -1).max(axis=1)
+    selection = select_frames(
+        timeline.force_n, max_depth[0], max_depth[1], spec.modulus_pa, max_aug=opt.max_aug
+    )
+    if selection is None:
+        return GraspResult([], timeline, None, "frame selection failed")
+    elastic, hertz = _estimates(timeline, (seq[0], seq[1]), seq_frames, est_size[1])
+
+    # Full resolution, stored frames only.
+    gel_share = obj.plane_strain_modulus_pa / (
+        obj.plane_strain_modulus_pa + gels[0].plane_strain_modulus_pa
+    )
+    tex_rng = stream(*key, "texture")
+    rendered = []
+    for f, video in enumerate((selection.video, selection.video_markers)):
+        idx = np.unique((video[:, None] + np.arange(selection.num_aug)).ravel())
+        diff, depth = _render_sequence(
+            timeline.approach_mm[f, idx],
+            render_sags[f],
+            render_grid,
+            gels[f],
+            obj,
+            ctx.session.looks[f],
+            opt.image_size,
+            stream(*key, "render-full", f),
+            texture=texture_window(ctx.textures[f], opt.image_size, tex_rng),
+            texture_share=gel_share,
+            solve_scale=opt.depth_solve_scale,
+        )
+        rendered.append((idx, diff, depth))
+    samples = []
+    for k in range(selection.num_aug):
+        parts = []
+        for f, video in enumerate((selection.video, selection.video_markers)):
+            idx, diff, depth = rendered[f]
+            pos = np.searchsorted(idx, video + k)
+            parts.append((diff[pos], depth[pos]))
+        fi = selection.force + k
+        samples.append(
+            GraspSample(
+                rgb=parts[0][0],
+                depth=parts[0][1],
+                rgb_markers=parts[1][0],
+                depth_markers=parts[1][1],
+                forces=timeline.force_n[fi].astype(np.float64),
+                widths=timeline.width_m[fi].astype(np.float64),
+                elastic_estimate=elastic,
+                hertz_estimate=hertz,
+            )
+        )
+    return GraspResult(samples, timeline, selection)

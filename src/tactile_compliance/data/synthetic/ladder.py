@@ -1,0 +1,204 @@
+"""The baseline ladder: is a (synthetic) dataset hard in the way the real one is?
+
+Cheap baselines, each a k-nearest-neighbour regressor of ``log10 E`` (the median of
+the neighbours' labels, so uninformative inputs fall back to the constant) on one input set,
+scored by within-one-decade accuracy with *object-level* cross-validation (no object
+is ever in both training and test folds):
+
+=================  ============================================================
+median             the training median label
+constant           the same kNN on a random feature (no information: what the learner
+                   does knowing nothing; with bimodal labels it beats the median, which
+                   falls between the modes)
+one_pixel          the RGB value of one pixel of the first frame, a quarter of the way
+                   in from the top-left corner (a leakage check: sensor session,
+                   background and noise must not carry the label)
+force_width        the width change W0 - W2, W1 - W2 and the final width W2
+estimates          log10 of the two analytical estimates
+image_stats_fw     texture statistics inside the contact of the last frame (fine/coarse
+                   energy ratio, orientation coherence); plus the force/width features
+oracle_material    the training median label of the sample's material
+=================  ============================================================
+
+The design targets (SYNTHETIC_DATA.md): one pixel within ~5 points of the constant;
+estimates alone below 0.5; image statistics + F/W above F/W alone; the material
+oracle far above everything. Run ``python -m tactile_compliance.data.synthetic.ladder
+STORE`` on an imported store to print the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+
+__all__ = ["baseline_ladder", "image_statistics", "knn_predict", "object_folds"]
+
+
+def object_folds(objects: np.ndarray, folds: int, seed: int) -> np.ndarray:
+    """Fold index per sample; all samples of an object share a fold."""
+    names = np.unique(objects)
+    order = np.random.default_rng(seed).permutation(names.size)
+    fold_of = dict(zip(names[order], np.arange(names.size) % folds, strict=True))
+    return np.array([fold_of[o] for o in objects])
+
+
+def knn_predict(
+    train_x: np.ndarray, train_y: np.ndarray, test_x: np.ndarray, k: int = 25
+) -> np.ndarray:
+    """Median label of the k nearest training samples in z-scored feature space."""
+    mu = train_x.mean(axis=0)
+    sd = train_x.std(axis=0)
+    sd[sd == 0] = 1.0
+    a = (train_x - mu) / sd
+    b = (test_x - mu) / sd
+    k = max(1, min(k, a.shape[0]))
+    out = np.empty(b.shape[0])
+    for start in range(0, b.shape[0], 512):
+        chunk = b[start : start + 512]
+        d2 = (chunk**2).sum(1)[:, None] - 2 * chunk @ a.T + (a**2).sum(1)[None, :]
+        idx = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        out[start : start + 512] = np.median(train_y[idx], axis=1)
+    return out
+
+
+def image_statistics(frames: np.ndarray, threshold: float = 0.03) -> np.ndarray:
+    """Texture statistics inside the contact of the last frame: (n, 3, H, W, 3) -> (n, 2).
+
+    The contact is where the largest channel deviation of the difference image exceeds
+    ``threshold``. Features: the log ratio of fine-scale to coarse-scale (sigma 2 px)
+    Laplacian energy - how much surface texture is printed next to the imprint's own
+    shape - and the coherence of the structure tensor (oriented textures: grain,
+    machining marks). Both are zero without contact.
+    """
+    out = np.zeros((frames.shape[0], 2))
+    for i in range(frames.shape[0]):
+        x = frames[i, 2].astype(np.float32) / 255.0 - 0.5
+        contact = np.abs(x).max(axis=-1) > threshold
+        if contact.sum() < 10:
+            continue
+        grey = np.ascontiguousarray(x.mean(axis=-1))
+        fine = np.abs(cv2.Laplacian(grey, cv2.CV_32F))[contact].mean()
+        coarse_img = cv2.GaussianBlur(grey, (0, 0), 2.0)
+        coarse = np.abs(cv2.Laplacian(coarse_img, cv2.CV_32F))[contact].mean()
+        gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0)[contact]
+        gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1)[contact]
+        jxx, jyy, jxy = (gx * gx).mean(), (gy * gy).mean(), (gx * gy).mean()
+        coherence = np.sqrt((jxx - jyy) ** 2 + 4 * jxy**2) / (jxx + jyy + 1e-9)
+        out[i] = (np.log(fine + 1e-5) - np.log(coarse + 1e-5), coherence)
+    return out
+
+
+def _force_width(samples: pd.DataFrame) -> np.ndarray:
+    w = samples[["width_m_0", "width_m_1", "width_m_2"]].to_numpy(float) * 1e3
+    return np.column_stack([w[:, 0] - w[:, 2], w[:, 1] - w[:, 2], w[:, 2]])
+
+
+def _estimates(samples: pd.DataFrame) -> np.ndarray:
+    e = samples[["elastic_estimate_pa", "hertz_estimate_pa"]].to_numpy(float)
+    e = np.log10(np.clip(np.where(np.isfinite(e) & (e > 0), e, np.nan), 1e2, 1e14))
+    return e
+
+
+def baseline_ladder(
+    samples: pd.DataFrame,
+    frames: np.ndarray,
+    *,
+    folds: int = 5,
+    seed: int = 0,
+    k: int = 25,
+) -> dict[str, float]:
+    """Within-one-decade accuracy of each baseline (object-level cross-validation).
+
+    Args:
+        samples: a store's sample table (``GraspStore.samples``).
+        frames: its uint8 frames (N, 3, H, W, 3) (a memmap is fine).
+        folds: cross-validation folds over objects.
+        seed: fold assignment seed.
+        k: neighbours of the kNN regressors.
+    """
+    y = np.log10(samples["modulus_pa"].to_numpy(float))
+    objects = samples["object"].to_numpy()
+    fold = object_folds(objects, folds, seed)
+    h, w = frames.shape[2], frames.shape[3]
+    pixel = np.asarray(frames[:, 0, h // 4, w // 4, :], dtype=np.float64)
+    noise = np.random.default_rng(seed + 1).normal(size=(len(y), 1))
+    images = np.concatenate(
+        [image_statistics(np.asarray(frames[i : i + 256])) for i in range(0, len(y), 256)]
+    )
+    fw = _force_width(samples)
+    est = _estimates(samples)
+    materials = samples["material"].to_numpy()
+
+    def knn(features: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        def predict(train: np.ndarray, test: np.ndarray) -> np.ndarray:
+            x = features.copy()
+            # Missing values (NaN estimates) become the training median.
+            med = np.nanmedian(x[train], axis=0)
+            x = np.where(np.isnan(x), np.nan_to_num(med)[None, :], x)
+            return knn_predict(x[train], y[train], x[test], k)
+
+        return predict
+
+    def median(train: np.ndarray, test: np.ndarray) -> np.ndarray:
+        return np.full(test.sum(), np.median(y[train]))
+
+    def oracle(train: np.ndarray, test: np.ndarray) -> np.ndarray:
+        medians = pd.Series(y[train]).groupby(materials[train]).median()
+        fallback = float(np.median(y[train]))
+        return np.array([medians.get(m, fallback) for m in materials[test]])
+
+    baselines: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
+        "median": median,
+        "constant": knn(noise),
+        "one_pixel": knn(pixel),
+        "force_width": knn(fw),
+        "estimates": knn(est),
+        "image_stats_fw": knn(np.column_stack([images, fw])),
+        "oracle_material": oracle,
+    }
+    result = {}
+    for name, predict in baselines.items():
+        hits = np.zeros(len(y), dtype=bool)
+        for f in range(folds):
+            test = fold == f
+            if not test.any() or test.all():
+                continue
+            pred = predict(~test, test)
+            hits[test] = np.abs(pred - y[test]) <= 1.0
+        result[name] = float(hits.mean())
+    return result
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m tactile_compliance.data.synthetic.ladder STORE [--folds 5]``."""
+    from tactile_compliance.data.store import GraspStore
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("store", type=Path)
+    parser.add_argument("--folds", type=int, default=5)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--finger", default="markerless", choices=["markerless", "markers", "all"])
+    args = parser.parse_args(argv)
+    store = GraspStore.open(args.store)
+    samples = store.samples
+    index = np.arange(len(samples))
+    if args.finger != "all":
+        index = index[(samples["finger"] == args.finger).to_numpy()]
+    result = baseline_ladder(
+        samples.iloc[index].reset_index(drop=True),
+        np.asarray(store.frames[index]),
+        folds=args.folds,
+        seed=args.seed,
+    )
+    rounded = {k: round(v, 3) for k, v in result.items()}
+    print(json.dumps({"samples": int(index.size), **rounded}, indent=2))
+
+
+if __name__ == "__main__":
+    main()

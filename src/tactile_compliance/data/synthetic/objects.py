@@ -1,0 +1,288 @@
+"""Synthetic objects: the default mix that follows the real object table, or a user table.
+
+An :class:`ObjectSpec` holds everything that is fixed for an object across its grasps:
+its label (ground-truth Young's modulus, a handbook value), the modulus that actually
+drives the physics (label x mismatch), Poisson ratio, hollowness, geometry and surface
+texture. Every block comes from its own random stream (``rng.stream``), so the
+geometry, texture and sensor session never see the label.
+
+Default objects are named neutrally (``obj_0000``, ``obj_0001``, ...): nothing in a name
+gives the label away. With an object table (the real CSV format) the table's labels,
+materials, shapes, names, radii and trial counts are used, one simulated object per row
+with a valid modulus.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tactile_compliance.data.synthetic.geometry import ShapeSpec, sample_shape
+from tactile_compliance.data.synthetic.materials import (
+    MATERIALS,
+    TEXTURE_KINDS,
+    material_model,
+)
+from tactile_compliance.data.synthetic.mechanics import shell_stiffness_n_per_m
+from tactile_compliance.data.synthetic.rng import stream
+
+__all__ = [
+    "UNKNOWN_GROUND_TRUTH",
+    "ObjectSpec",
+    "TextureSpec",
+    "default_objects",
+    "objects_from_table",
+]
+
+UNKNOWN_GROUND_TRUTH = frozenset(
+    {
+        "playdoh", "silly_puty", "blue_sponge_dry", "blue_sponge_wet", "apple", "orange",
+        "strawberry", "ripe_banana", "unripe_banana", "lacrosse_ball", "baseball",
+        "racquet_ball", "tennis_ball",
+    }
+)
+"""Objects of the real table whose label is unreliable (``used_in_training`` false)."""
+
+_HOLLOW_NAME_HINTS = ("bottle", "cup", "mug", "can", "tube", "pipe", "jar", "bowl", "vial",
+                      "bushing", "fitting", "junction", "extrusion", "channel", "case")
+
+
+@dataclass(frozen=True)
+class TextureSpec:
+    """Surface texture of an object (imprinted on the gel where it touches).
+
+    Attributes:
+        kind: one of :data:`~tactile_compliance.data.synthetic.materials.TEXTURE_KINDS`.
+        amplitude_mm: standard deviation of the surface height [mm].
+        scale_mm: characteristic length (correlation length or period) [mm].
+        angle_rad: orientation of anisotropic textures (grain, machining) [rad].
+    """
+
+    kind: str
+    amplitude_mm: float
+    scale_mm: float
+    angle_rad: float
+
+
+@dataclass
+class ObjectSpec:
+    """One synthetic object (fixed across its grasps).
+
+    Attributes:
+        name: directory name (neutral ``obj_NNNN`` in the default mix).
+        index: position in the generated list.
+        material: material class (real table names).
+        shape: shape class (real table names).
+        modulus_pa: ground-truth label [Pa] (what ``metadata.json`` stores).
+        physics_modulus_pa: the modulus that drives the mechanics [Pa].
+        poisson: the object's Poisson ratio [-].
+        max_strain: saturating compressive strain of the object [-].
+        hollow: thin-walled object.
+        shell_thickness_mm: wall thickness of a hollow object [mm].
+        shell_stiffness_n_per_m: series stiffness of the shell per contact [N/m] (inf if solid).
+        geometry: sag-map geometry.
+        texture: surface texture.
+        n_grasps: number of grasps to simulate.
+        shore_00, shore_a, shore_d: hardness values for ``metadata.json`` (None if n/a).
+        used_in_training: ``metadata.json`` flag (False for unknown ground truth).
+    """
+
+    name: str
+    index: int
+    material: str
+    shape: str
+    modulus_pa: float
+    physics_modulus_pa: float
+    poisson: float
+    max_strain: float
+    hollow: bool
+    shell_thickness_mm: float
+    shell_stiffness_n_per_m: float
+    geometry: ShapeSpec = field(repr=False)
+    texture: TextureSpec
+    n_grasps: int
+    shore_00: float | None = None
+    shore_a: float | None = None
+    shore_d: float | None = None
+    used_in_training: bool = True
+
+
+def _texture(rng: np.random.Generator, weights: dict[str, float]) -> TextureSpec:
+    kinds = [k for k in TEXTURE_KINDS if weights.get(k, 0.0) > 0]
+    p = np.array([weights[k] for k in kinds], dtype=float)
+    # A third of objects are painted, coated or otherwise atypical: any texture.
+    if rng.random() < 0.3:
+        kind = str(rng.choice(TEXTURE_KINDS))
+    else:
+        kind = str(kinds[int(rng.choice(len(kinds), p=p / p.sum()))])
+    amplitude_um, scale_mm = {
+        "smooth": (rng.uniform(1.0, 3.0), rng.uniform(0.05, 0.15)),
+        "machined": (rng.uniform(3.0, 8.0), rng.uniform(0.12, 0.35)),
+        "knurled": (rng.uniform(15.0, 45.0), rng.uniform(0.6, 1.2)),
+        "matte": (rng.uniform(3.0, 10.0), rng.uniform(0.06, 0.15)),
+        "grain": (rng.uniform(8.0, 25.0), rng.uniform(0.15, 0.4)),
+        "rubbery": (rng.uniform(5.0, 18.0), rng.uniform(0.1, 0.25)),
+        "cellular": (rng.uniform(40.0, 120.0), rng.uniform(0.25, 0.8)),
+        "organic": (rng.uniform(15.0, 50.0), rng.uniform(0.4, 1.0)),
+    }[kind]
+    return TextureSpec(kind, amplitude_um * 1e-3, float(scale_mm), float(rng.uniform(0, np.pi)))
+
+
+def _shore_values(material: str, modulus_pa: float) -> tuple[float | None, ...]:
+    """Hardness values a durometer would give, where its scale applies (metadata only)."""
+    from tactile_compliance.physics.shore import modulus_pa_to_shore00
+
+    if material not in {"Rubber", "Foam", "Food"}:
+        return (None, None, None)
+    shore_00 = None
+    try:
+        shore_00 = round(float(modulus_pa_to_shore00(modulus_pa)) * 2) / 2
+    except ValueError:
+        shore_00 = None
+    # Inverse of the exponential Shore A fit E[MPa] = exp(0.0235 S - 0.6403).
+    shore_a_value = (math.log(modulus_pa / 1e6) + 0.6403) / 0.0235
+    shore_a = round(shore_a_value * 2) / 2 if 10.0 <= shore_a_value <= 95.0 else None
+    return (shore_00, shore_a, None)
+
+
+def _build(
+    name: str,
+    index: int,
+    seed: int,
+    material: str,
+    shape: str,
+    label_pa: float,
+    n_grasps: int,
+    radius_mm: float | None = None,
+    shore: tuple[float | None, float | None, float | None] | None = None,
+    used_in_training: bool = True,
+) -> ObjectSpec:
+    model = material_model(material)
+    physics_rng = stream(seed, name, "physics")
+    physics_modulus = model.physics_modulus_pa(label_pa, physics_rng)
+    poisson = model.sample_poisson(physics_rng)
+    geometry = sample_shape(shape, stream(seed, name, "geometry"), radius_mm)
+    hollow_rng = stream(seed, name, "hollow")
+    hollow_p = model.hollow_probability
+    if any(h in name.lower() for h in _HOLLOW_NAME_HINTS):
+        hollow_p = max(hollow_p, 0.8)
+    hollow = bool(hollow_rng.random() < hollow_p) and geometry.kind != "Hex"
+    shell_t = float(hollow_rng.uniform(*model.shell_thickness_mm)) if hollow else 0.0
+    radius_for_shell = 0.5 * geometry.thickness_mm
+    shell_k = (
+        shell_stiffness_n_per_m(physics_modulus, poisson, shell_t, radius_for_shell)
+        if hollow
+        else math.inf
+    )
+    texture = _texture(stream(seed, name, "texture"), model.texture_weights)
+    if shore is None:
+        shore = _shore_values(model.name, label_pa)
+    return ObjectSpec(
+        name=name,
+        index=index,
+        material=material,
+        shape=shape,
+        modulus_pa=float(label_pa),
+        physics_modulus_pa=physics_modulus,
+        poisson=poisson,
+        max_strain=model.max_strain,
+        hollow=hollow,
+        shell_thickness_mm=shell_t,
+        shell_stiffness_n_per_m=shell_k,
+        geometry=geometry,
+        texture=texture,
+        n_grasps=n_grasps,
+        shore_00=shore[0],
+        shore_a=shore[1],
+        shore_d=shore[2],
+        used_in_training=used_in_training,
+    )
+
+
+def default_objects(
+    n_objects: int, seed: int = 0, grasps_per_object: int | None = None
+) -> list[ObjectSpec]:
+    """The default object mix (materials and shapes as in the real table).
+
+    Args:
+        n_objects: number of objects.
+        seed: base seed; object i depends only on (seed, i).
+        grasps_per_object: fixed number of grasps; default 5-8 per object like the
+            real data (mostly 5, ~30 % with 8).
+    """
+    names = list(MATERIALS)
+    weights = np.array([MATERIALS[m].weight for m in names])
+    weights /= weights.sum()
+    objects = []
+    for i in range(n_objects):
+        name = f"obj_{i:04d}"
+        rng = stream(seed, name, "identity")
+        material = names[int(rng.choice(len(names), p=weights))]
+        model = MATERIALS[material]
+        shapes = list(model.shape_weights)
+        p = np.array([model.shape_weights[s] for s in shapes], dtype=float)
+        shape = shapes[int(rng.choice(len(shapes), p=p / p.sum()))]
+        label = model.sample_label_pa(stream(seed, name, "label"))
+        if grasps_per_object is None:
+            n_grasps = int(rng.choice([5, 6, 7, 8], p=[0.62, 0.05, 0.04, 0.29]))
+        else:
+            n_grasps = int(grasps_per_object)
+        objects.append(_build(name, i, seed, material, shape, label, n_grasps))
+    return objects
+
+
+def objects_from_table(
+    path: str | Path, seed: int = 0, grasps_per_object: int | None = None
+) -> tuple[list[ObjectSpec], list[str]]:
+    """One object per row of a table in the real CSV format.
+
+    Uses ``Label`` (directory name), ``Material``, ``Shape``, ``Modulus [Pa]`` (label),
+    ``Radius [m]`` (sphere/cylinder radius when given), ``Trials Recorded?`` (number of
+    grasps unless ``grasps_per_object`` is given) and the Shore columns (metadata).
+
+    Returns:
+        ``(objects, skipped)`` with a reason string per skipped row.
+    """
+    from tactile_compliance.data.object_table import read_object_table, valid_modulus
+
+    table = read_object_table(path)
+    objects: list[ObjectSpec] = []
+    skipped: list[str] = []
+
+    def number(row: object, key: str) -> float | None:
+        value = getattr(row, key, None)
+        try:
+            value = float(value)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            return None
+        return value if math.isfinite(value) else None
+
+    for index, (name, row) in enumerate(table.iterrows()):
+        if not valid_modulus(row["modulus_pa"]):
+            skipped.append(f"{name}: no valid 'Modulus [Pa]'")
+            continue
+        if grasps_per_object is not None:
+            n_grasps = int(grasps_per_object)
+        else:
+            trials = number(row, "trials_recorded")
+            n_grasps = int(trials) if trials and trials > 0 else 5
+        radius_m = number(row, "radius_m")
+        shore = (number(row, "shore_00"), number(row, "shore_a"), number(row, "shore_d"))
+        objects.append(
+            _build(
+                str(name),
+                index,
+                seed,
+                str(row["material"]) or "Other",
+                str(row["shape"]) or "Irregular",
+                float(row["modulus_pa"]),
+                n_grasps,
+                radius_mm=radius_m * 1e3 if radius_m else None,
+                shore=shore,
+                used_in_training=str(name) not in UNKNOWN_GROUND_TRUTH,
+            )
+        )
+    return objects, skipped

@@ -1,0 +1,397 @@
+"""GelSight-like rendering of gel indentation fields into camera frames and difference images.
+
+Pipeline for one frame (all intensities in grey levels, 0-255, BGR channel order as
+OpenCV reads the real camera):
+
+1. *Gel height map* (imprint depth ``D`` [mm], positive into the gel): the gel
+   compression field of the mechanics, plus a *skirt* around the contact - the
+   membrane cannot step, it drapes - made with the Taxim-style trick: successive
+   Gaussian blurs with ``sigma = h x (1, .5, .25, .12)`` (h the gel thickness),
+   re-imposing the core ``{D > 0.4 max D}`` after each; then resampled from the pad
+   grid onto the visible crop (30.6 x 21.9 mm at 0.0875 mm/px for 250 x 350) and
+   the object's surface texture added where it touches (weak material cue).
+2. *Shading*: normals from the height gradient; three coloured lights laid out like
+   the GelSight Wedge - green from the left edge, red from the top, blue from the
+   bottom - at elevations of 25-40 deg; Lambertian, each light's strength falling off
+   away from its edge, soft saturation near 255. The gains are such that the real
+   pipeline's photometric inversion (``G - (R+B)/2`` ~ x-slope, ``B - R`` ~ y-slope,
+   ``depth.py``) recovers the imprint within ~+-25 %, with cross-talk and spatial bias.
+3. *Background*: a parametric model of a Wedge no-contact frame (lavender-grey
+   centre, blue band at the bottom, red tint at the top, green at the left edge,
+   smooth blotches, bright specks; markers on the marker finger).
+4. *Noise*: per-frame gain/offset drift, read noise sigma 2-3 grey levels, optional
+   JPEG compression (the real frames came through an MJPEG stream), uint8 quantisation.
+
+The difference image is ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5`` with the
+reference the first (contact-free) frame, exactly like the real pipeline; both are
+uint8 before the subtraction, so values are multiples of 1/255 offset by 0.5.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from tactile_compliance.data.synthetic.geometry import PAD_SIZE_MM, PadGrid
+
+__all__ = [
+    "PIXEL_SIZE_MM_FULL",
+    "VISIBLE_SIZE_MM",
+    "SensorLook",
+    "difference_images",
+    "gel_height_maps",
+    "reference_frame",
+    "render_frames",
+    "sample_sensor_look",
+]
+
+FULL_SIZE = (250, 350)
+"""Image size (H, W) of the real dataset [px]."""
+
+PIXEL_SIZE_MM_FULL = 35.0 / 400.0
+"""Pixel size at full resolution [mm] (400 px over the 35 mm pad, cropped 25 px/side)."""
+
+VISIBLE_SIZE_MM = (FULL_SIZE[1] * PIXEL_SIZE_MM_FULL, FULL_SIZE[0] * PIXEL_SIZE_MM_FULL)
+"""Visible crop (x, y) = (30.625, 21.875) mm, centred on the pad."""
+
+# Slope -> grey-level gain that the real inversion assumes: depth = 21.5 * poisson(t)/128
+# with t ~ (diff channel combination); one unit of slope over one 0.0875 mm pixel
+# corresponds to t = 0.0875 * 128 / 21.5 = 0.521 (difference-image units).
+INVERSION_GAIN = PIXEL_SIZE_MM_FULL * 128.0 / 21.5
+
+
+def pixel_size_mm(size: tuple[int, int]) -> float:
+    """Pixel size [mm] of an output image of ``size`` = (H, W) over the visible crop."""
+    return VISIBLE_SIZE_MM[0] / size[1]
+
+
+@dataclass
+class SensorLook:
+    """Appearance of one finger's sensor in one recording session.
+
+    Attributes:
+        markers: whether the gel has printed markers (the ``*_markers`` finger).
+        light_gain: gel slope -> grey-level gain per light (G, R, B) [grey levels per
+            unit slope, divided by 255].
+        elevation_rad: light elevations (G, R, B) [rad].
+        falloff: decay length of each light's strength away from its edge, as a fraction
+            of the image size [-].
+        background: parameters of the parametric background (grey levels / fractions).
+        read_noise: read-noise sigma [grey levels].
+        drift: per-frame gain sigma [-] and offset sigma [grey levels].
+        jpeg_quality: JPEG quality of the stream (0 disables compression).
+        darkening: grey levels lost per mm of imprint (the membrane thins) [1/mm].
+        seed_words: 32-bit words seeding the background's fine structure.
+    """
+
+    markers: bool
+    light_gain: tuple[float, float, float]
+    elevation_rad: tuple[float, float, float]
+    falloff: tuple[float, float, float]
+    background: dict[str, float]
+    read_noise: float
+    drift: tuple[float, float]
+    jpeg_quality: int
+    darkening: tuple[float, float, float]
+    seed_words: tuple[int, ...]
+    marker_spacing_mm: float = 1.8
+    marker_radius_mm: float = 0.3
+    _cache: dict[tuple[int, int], tuple[np.ndarray, ...]] = field(
+        default_factory=dict, repr=False, compare=False
+    )
+
+
+def sample_sensor_look(rng: np.random.Generator, markers: bool) -> SensorLook:
+    """Draw a sensor appearance (independent of the object's label)."""
+    jitter = lambda: float(rng.normal(1.0, 0.08))  # noqa: E731 - tiny local helper
+    # Where the membrane is pressed it thins and darkens, about equally in every channel
+    # (so the photometric inversion, which works on channel differences, is unaffected).
+    dark_all = float(rng.uniform(5.0, 12.0))
+    background = {
+        "centre_b": rng.normal(140.0, 6.0),
+        "centre_g": rng.normal(122.0, 5.0),
+        "centre_r": rng.normal(106.0, 5.0),
+        "blue_band": rng.uniform(55.0, 85.0),
+        "blue_width": rng.uniform(0.10, 0.18),
+        "red_band": rng.uniform(18.0, 35.0),
+        "red_width": rng.uniform(0.12, 0.25),
+        "green_band": rng.uniform(10.0, 30.0),
+        "green_width": rng.uniform(0.04, 0.10),
+        "vignette": rng.uniform(8.0, 18.0),
+        "blotch": rng.uniform(2.0, 5.0),
+        "specks": float(rng.integers(10, 45)),
+    }
+    return SensorLook(
+        markers=markers,
+        light_gain=(0.80 * jitter(), 0.55 * jitter(), 0.35 * jitter()),
+        elevation_rad=tuple(np.deg2rad(rng.uniform(25.0, 40.0, size=3)).tolist()),
+        falloff=tuple(rng.uniform(0.35, 0.7, size=3).tolist()),
+        background=background,
+        read_noise=float(rng.uniform(2.0, 3.0)),
+        drift=(float(rng.uniform(0.001, 0.004)), float(rng.uniform(0.3, 1.0))),
+        jpeg_quality=int(rng.integers(85, 96)) if rng.random() < 0.7 else 0,
+        darkening=(
+            dark_all,
+            dark_all,
+            dark_all + float(rng.uniform(0.0, 3.0)),
+        ),
+        seed_words=tuple(int(x) for x in rng.integers(0, 2**31, size=4)),
+    )
+
+
+def _base_images(look: SensorLook, size: tuple[int, int]) -> tuple[np.ndarray, ...]:
+    """(background BGR, light strength maps (3,H,W), marker darkening (H,W)) for a size."""
+    cached = look._cache.get(size)
+    if cached is not None:
+        return cached
+    h, w = size
+    p = look.background
+    y = ((np.arange(h, dtype=np.float32) + 0.5) / h)[:, None]
+    x = ((np.arange(w, dtype=np.float32) + 0.5) / w)[None, :]
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(list(look.seed_words))))
+    # Smooth blotches: a low-resolution random field, upsampled (size independent).
+    blotch = rng.standard_normal((3, 6, 8)).astype(np.float32) * np.float32(p["blotch"])
+    blotches = np.stack(
+        [cv2.resize(b, (w, h), interpolation=cv2.INTER_CUBIC) for b in blotch], axis=-1
+    )
+    radial = (x - 0.5) ** 2 + (y - 0.45) ** 2
+    vignette = -np.float32(p["vignette"]) * radial * 4.0
+    blue = np.float32(p["blue_band"]) * np.exp(-(1.0 - y) / np.float32(p["blue_width"]))
+    red = np.float32(p["red_band"]) * np.exp(-y / np.float32(p["red_width"]))
+    green = np.float32(p["green_band"]) * np.exp(-x / np.float32(p["green_width"]))
+    bg = np.empty((h, w, 3), dtype=np.float32)
+    bg[..., 0] = p["centre_b"] + blue + 0.25 * red + vignette
+    bg[..., 1] = p["centre_g"] + green - 0.15 * blue + vignette
+    bg[..., 2] = p["centre_r"] + red + 0.1 * blue + vignette
+    bg += blotches
+    # Bright specks (dust, bubbles in the gel): placed in normalised coordinates so a
+    # small render shows the same sensor.
+    n_specks = int(p["specks"])
+    sx, sy = rng.uniform(0, 1, n_specks), rng.uniform(0, 1, n_specks)
+    amp = rng.uniform(15.0, 60.0, n_specks)
+    speck_sigma_mm = rng.uniform(0.04, 0.12, n_specks)
+    px = pixel_size_mm(size)
+    specks = np.zeros((h, w), dtype=np.float32)
+    for cx, cy, a, s in zip(sx, sy, amp, speck_sigma_mm, strict=True):
+        sig = max(s / px, 0.5)
+        r = int(np.ceil(3 * sig))
+        ci, cj = int(cy * h), int(cx * w)
+        i0, i1, j0, j1 = max(ci - r, 0), min(ci + r + 1, h), max(cj - r, 0), min(cj + r + 1, w)
+        if i0 >= i1 or j0 >= j1:
+            continue
+        ii = np.arange(i0, i1, dtype=np.float32)[:, None] - cy * h
+        jj = np.arange(j0, j1, dtype=np.float32)[None, :] - cx * w
+        specks[i0:i1, j0:j1] += a * np.exp(-(ii**2 + jj**2) / (2 * sig * sig))
+    bg += specks[..., None]
+    # Light strength: strongest at its own edge (green left, red top, blue bottom).
+    fg, fr, fb = look.falloff
+    strength = np.empty((3, h, w), dtype=np.float32)
+    strength[0] = 0.75 + 0.5 * np.exp(-x / np.float32(fg))  # green
+    strength[1] = 0.75 + 0.5 * np.exp(-y / np.float32(fr))  # red
+    strength[2] = 0.75 + 0.5 * np.exp(-(1.0 - y) / np.float32(fb))  # blue
+    strength /= strength.mean(axis=(1, 2), keepdims=True)
+    markers = np.zeros((h, w), dtype=np.float32)
+    if look.markers:
+        spacing = look.marker_spacing_mm / px
+        radius = look.marker_radius_mm / px
+        yy = np.arange(h, dtype=np.float32)[:, None]
+        xx = np.arange(w, dtype=np.float32)[None, :]
+        phase = rng.uniform(0, spacing, size=2)
+        dx = np.mod(xx - phase[0] + spacing / 2, spacing) - spacing / 2
+        dy = np.mod(yy - phase[1] + spacing / 2, spacing) - spacing / 2
+        dist = np.sqrt(dx * dx + dy * dy)
+        markers = np.clip(radius + 0.5 - dist, 0.0, 1.0).astype(np.float32) * 0.75
+    result = (bg, strength, markers)
+    look._cache[size] = result
+    return result
+
+
+@lru_cache(maxsize=8)
+def _noise_bank(size: tuple[int, int]) -> np.ndarray:
+    """Unit-normal read-noise bank for an image size (fixed content, process-local).
+
+    Drawing 3 x H x W normals per frame costs more than rendering it; frames take
+    randomly offset, randomly flipped windows of this bank instead. The bank is the
+    same in every process, so outputs stay deterministic.
+    """
+    h, w = size
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([0x5EED, h, w])))
+    return rng.standard_normal((3, 2 * h, 2 * w), dtype=np.float32)
+
+
+def _noise(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    h, w = size
+    bank = _noise_bank(size)
+    i, j = int(rng.integers(0, h)), int(rng.integers(0, w))
+    window = bank[:, i : i + h, j : j + w]
+    flip = int(rng.integers(0, 4))
+    if flip & 1:
+        window = window[:, ::-1]
+    if flip & 2:
+        window = window[:, :, ::-1]
+    return window
+
+
+def _pad_pixels(size: tuple[int, int]) -> tuple[int, int, int, int]:
+    """Pad size in output pixels and the crop offsets: (pad_h, pad_w, off_y, off_x)."""
+    px = pixel_size_mm(size)
+    pad_w, pad_h = round(PAD_SIZE_MM[0] / px), round(PAD_SIZE_MM[1] / px)
+    return pad_h, pad_w, (pad_h - size[0]) // 2, (pad_w - size[1]) // 2
+
+
+def gel_height_maps(
+    fields_mm: np.ndarray,
+    grid: PadGrid,
+    size: tuple[int, int],
+    gel_thickness_mm: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Imprint depth on the visible crop (with skirt) and the contact weight.
+
+    Frames are processed as the channels of one image (OpenCV takes up to 128),
+    and the skirt's wide blurs run on a 2x coarser copy of the pad grid.
+
+    Args:
+        fields_mm: gel compression fields on the pad grid, (n, rows, cols) [mm].
+        grid: the pad grid of the fields.
+        size: output size (H, W) [px].
+        gel_thickness_mm: gel thickness h [mm] (sets the skirt width).
+
+    Returns:
+        ``(depth (n, H, W) [mm], contact (n, H, W) in [0, 1])``, float32.
+    """
+    n = fields_mm.shape[0]
+    h, w = size
+    out_depth = np.zeros((n, h, w), dtype=np.float32)
+    out_contact = np.zeros((n, h, w), dtype=np.float32)
+    active = np.flatnonzero(fields_mm.reshape(n, -1).max(axis=1) > 0)
+    pad_h, pad_w, off_y, off_x = _pad_pixels(size)
+    # OpenCV handles up to 128 channels per image.
+    for start in range(0, active.size, 128):
+        chunk = active[start : start + 128]
+        stack = np.asarray(fields_mm[chunk], dtype=np.float32).transpose(1, 2, 0)
+        stack = np.ascontiguousarray(stack)
+        rows, cols = stack.shape[:2]
+        r2, c2 = rows // 2, cols // 2
+        even = stack[: 2 * r2, : 2 * c2]
+        coarse = 0.25 * (even[0::2, 0::2] + even[1::2, 0::2] + even[0::2, 1::2] + even[1::2, 1::2])
+        coarse = np.ascontiguousarray(coarse, dtype=np.float32)
+        core = coarse > 0.4 * coarse.max(axis=(0, 1), keepdims=True)
+        core_values = coarse[core]
+        skirt = coarse
+        for factor in (1.0, 0.5, 0.25, 0.12):
+            sigma = gel_thickness_mm * factor / (2 * grid.cell_mm)
+            skirt = cv2.GaussianBlur(skirt, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
+            skirt = skirt.reshape(coarse.shape)
+            skirt[core] = core_values
+        fine = cv2.resize(stack, (pad_w, pad_h), interpolation=cv2.INTER_CUBIC)
+        smooth = cv2.resize(skirt, (pad_w, pad_h), interpolation=cv2.INTER_LINEAR)
+        touching = cv2.resize(
+            (stack > 0).astype(np.float32), (pad_w, pad_h), interpolation=cv2.INTER_LINEAR
+        )
+        crop = (slice(off_y, off_y + h), slice(off_x, off_x + w))
+        fine = fine.reshape(pad_h, pad_w, -1)[crop]
+        smooth = smooth.reshape(pad_h, pad_w, -1)[crop]
+        touching = touching.reshape(pad_h, pad_w, -1)[crop]
+        out_depth[chunk] = np.maximum(np.maximum(fine, smooth), 0.0).transpose(2, 0, 1)
+        out_contact[chunk] = np.clip(touching, 0.0, 1.0).transpose(2, 0, 1)
+    return out_depth, out_contact
+
+
+def _soft_clip(image: np.ndarray) -> np.ndarray:
+    """Soft saturation of the camera near 0 and 255 (grey levels, in place)."""
+    hi = image > 225.0
+    if hi.any():
+        image[hi] = 225.0 + 30.0 * np.tanh((image[hi] - 225.0) / 30.0)
+    lo = image < 15.0
+    if lo.any():
+        image[lo] = 15.0 * np.exp((image[lo] - 15.0) / 15.0)
+    return image
+
+
+def render_frames(
+    depth_mm: np.ndarray,
+    look: SensorLook,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Camera frames (n, H, W, 3) uint8 BGR for imprint depth maps (n, H, W) [mm].
+
+    Computed on planar (channel, frame, H, W) arrays - interleaved channels would
+    make every operation strided - and interleaved once, as uint8, at the end.
+    """
+    depth = np.asarray(depth_mm, dtype=np.float32)
+    n, h, w = depth.shape
+    size = (h, w)
+    bg, strength, markers = _base_images(look, size)
+    gain_maps = strength * (np.asarray(look.light_gain, dtype=np.float32) * 255.0)[:, None, None]
+    px = pixel_size_mm(size)
+    planes = np.empty((3, n, h, w), dtype=np.float32)
+    planes[:] = bg.transpose(2, 0, 1)[:, None]
+    if depth.max() > 0:
+        # Central differences (edges replicated): slope = dD/dx [mm/mm].
+        sx = np.empty_like(depth)
+        sy = np.empty_like(depth)
+        np.subtract(depth[:, :, 2:], depth[:, :, :-2], out=sx[:, :, 1:-1])
+        sx[:, :, 0], sx[:, :, -1] = sx[:, :, 1], sx[:, :, -2]
+        np.subtract(depth[:, 2:, :], depth[:, :-2, :], out=sy[:, 1:-1, :])
+        sy[:, 0, :], sy[:, -1, :] = sy[:, 1, :], sy[:, -2, :]
+        sx *= np.float32(0.5 / px)
+        sy *= np.float32(0.5 / px)
+        nz = sx * sx
+        nz += sy * sy
+        nz += 1.0
+        np.sqrt(nz, out=nz)
+        np.reciprocal(nz, out=nz)
+        nz_minus_1 = nz - 1.0
+        # (n.L - sin e) / cos e = s_L nz + tan(e) (nz - 1): ~ the slope towards the
+        # light for small slopes, darker on steep walls. Planes are B, G, R.
+        for plane, (light, slope, sign, dark) in enumerate(
+            ((2, sy, 1.0, 0), (0, sx, 1.0, 1), (1, sy, -1.0, 2))
+        ):
+            shade = slope * nz
+            if sign < 0:
+                np.negative(shade, out=shade)
+            shade += np.float32(np.tan(look.elevation_rad[light])) * nz_minus_1
+            shade *= gain_maps[light]
+            shade -= np.float32(look.darkening[dark]) * depth
+            planes[plane] += shade
+    if look.markers:
+        planes *= 1.0 - markers
+    drift_gain, drift_offset = look.drift
+    gains = (1.0 + rng.normal(0.0, drift_gain, n)).astype(np.float32)
+    offsets = rng.normal(0.0, drift_offset, (3, n)).astype(np.float32)
+    planes *= gains[None, :, None, None]
+    planes += offsets[:, :, None, None]
+    sigma = np.float32(look.read_noise)
+    for k in range(n):
+        planes[:, k] += sigma * _noise(size, rng)
+    _soft_clip(planes)
+    # Round and saturate to uint8 in one OpenCV pass (values are >= 0 after the clip).
+    quantised = cv2.convertScaleAbs(planes.reshape(-1, w)).reshape(3, n, h, w)
+    frames = np.ascontiguousarray(quantised.transpose(1, 2, 3, 0))
+    if look.jpeg_quality:
+        params = [cv2.IMWRITE_JPEG_QUALITY, look.jpeg_quality]
+        for k in range(n):
+            ok, buf = cv2.imencode(".jpg", frames[k], params)
+            if ok:
+                frames[k] = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    return frames
+
+
+def reference_frame(
+    look: SensorLook, size: tuple[int, int], rng: np.random.Generator
+) -> np.ndarray:
+    """The contact-free first frame (H, W, 3) uint8, and nothing else."""
+    return render_frames(np.zeros((1, *size), dtype=np.float32), look, rng)[0]
+
+
+def difference_images(frames: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``(frame - GaussianBlur11x11(reference)) / 255 + 0.5`` as float32 (BGR kept).
+
+    The blur runs on the uint8 reference, as in the real pipeline (OpenCV returns
+    uint8), so every value is a multiple of 1/255 offset by 0.5.
+    """
+    blurred = cv2.GaussianBlur(reference, (11, 11), 0).astype(np.float32)
+    return (frames.astype(np.float32) - blurred) / np.float32(255.0) + np.float32(0.5)

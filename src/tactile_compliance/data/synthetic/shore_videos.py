@@ -1,0 +1,200 @@
+"""Synthetic Shore-hardness press videos, named like the Yuan et al. (2017) dataset.
+
+Each object is a silicone sample of Shore 00 hardness 8-87 (Young's modulus from the
+Larson fit, ``tactile_compliance.physics.shore``) with one of the dataset's shape
+families; each press is a video ``{SHAPE}_{hardness:02d}_{n}.avi`` (MJPG, 30 fps) of a
+GelSight pressed into the sample by hand: a force rising to a 5-25 N peak, a short hold
+and the release. The frames are raw camera images (BGR in the file, as OpenCV writes
+them), rendered with the same mechanics and optics as the grasp generator. The gel of
+this older sensor is marked, and pressing brightens the membrane, so the deepest press
+is the brightest frame - the rule the importer uses to pick it.
+
+Shape families (file prefix -> geometry): ``BASIC`` hemispheres, ``CYLINDER``,
+``FLAT`` (box faces), ``EDGE`` (prism edges), ``CORNER`` and ``MOULD`` (irregular
+relief, like chocolate moulds).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from tactile_compliance.data.synthetic.generate import GenerationError, GenerationReport
+from tactile_compliance.data.synthetic.geometry import (
+    PadGrid,
+    ShapeSpec,
+    sag_map,
+    sample_pose,
+    sample_shape,
+)
+from tactile_compliance.data.synthetic.mechanics import (
+    GelModel,
+    ObjectMechanics,
+    contact_curve,
+    force_curve,
+)
+from tactile_compliance.data.synthetic.render import (
+    gel_height_maps,
+    render_frames,
+    sample_sensor_look,
+)
+from tactile_compliance.data.synthetic.rng import stream
+
+__all__ = ["SHAPE_FAMILIES", "generate_shore_videos", "shore_video_name"]
+
+SHAPE_FAMILIES = ("BASIC", "CYLINDER", "FLAT", "EDGE", "CORNER", "MOULD")
+HARDNESS_RANGE = (8, 87)
+"""Shore 00 hardness range of the samples [-]."""
+
+_FPS = 30.0
+
+
+def shore_video_name(shape: str, hardness: int, press: int) -> str:
+    """``{SHAPE}_{hardness:02d}_{n}.avi``."""
+    return f"{shape}_{hardness:02d}_{press}.avi"
+
+
+def _geometry(family: str, rng: np.random.Generator) -> ShapeSpec:
+    if family == "BASIC":
+        return sample_shape("Sphere", rng, radius_mm=float(rng.uniform(8.0, 25.0)))
+    if family == "CYLINDER":
+        return sample_shape("Cylinder", rng, radius_mm=float(rng.uniform(4.0, 20.0)))
+    if family == "FLAT":
+        return sample_shape("Rectangular", rng)
+    if family == "EDGE":
+        spec = sample_shape("Hex", rng)
+        spec.params["hex_mode"] = "corners"
+        return spec
+    return sample_shape("Irregular", rng)
+
+
+def _press_video(
+    spec: ShapeSpec,
+    modulus_pa: float,
+    seed: int,
+    key: tuple[object, ...],
+    size: tuple[int, int],
+) -> np.ndarray:
+    """Raw BGR frames (T, H, W, 3) of one press."""
+    rng = stream(seed, *key, "press")
+    gel = GelModel(thickness_mm=float(rng.uniform(1.5, 3.0)))
+    obj = ObjectMechanics(modulus_pa=modulus_pa, poisson=0.49, size_mm=20.0, max_strain=0.5)
+    grid = PadGrid(0.5)
+    pose = sample_pose(rng, spec.kind)
+    sag = sag_map(spec, grid, pose)
+    curve = force_curve(sag, gel, obj, grid, max_force_n=30.0)
+    peak = float(rng.uniform(5.0, 25.0))
+    n_pre, n_up, n_hold, n_down, n_post = (
+        int(rng.integers(3, 7)), int(rng.integers(8, 20)), int(rng.integers(2, 6)),
+        int(rng.integers(6, 14)), int(rng.integers(2, 5)),
+    )
+    up = np.sin(0.5 * np.pi * (np.arange(1, n_up + 1) / n_up)) ** 2
+    down = np.cos(0.5 * np.pi * (np.arange(1, n_down + 1) / n_down)) ** 2
+    hold = np.ones(n_hold) * (1 + rng.normal(0, 0.01, n_hold))
+    profile = np.concatenate([np.zeros(n_pre), up, hold, down, np.zeros(n_post)])
+    force = peak * profile
+    approach = np.where(force > 0, curve.approach_at(np.maximum(force, 1e-9)), 0.0)
+    fields = np.zeros((force.size, *grid.shape), dtype=np.float32)
+    touching = approach > 0
+    if touching.any():
+        evaluated = contact_curve(sag, gel, obj, grid, approach[touching], fields=True)
+        assert evaluated.gel_depth_mm is not None
+        fields[touching] = evaluated.gel_depth_mm
+    height, _ = gel_height_maps(fields, grid, size, gel.thickness_mm)
+    look = sample_sensor_look(stream(seed, *key, "look"), markers=True)
+    # Pressed membrane brightens on this sensor (so the deepest press is the brightest).
+    # Its lighting is steadier than the Wedge's (small frame-to-frame drift).
+    brighten = -float(rng.uniform(40.0, 70.0))
+    look = replace(
+        look,
+        darkening=(brighten, brighten, brighten),
+        drift=(0.0005, 0.1),
+        jpeg_quality=0,
+        _cache={},
+    )
+    return render_frames(height, look, stream(seed, *key, "noise"))
+
+
+def generate_shore_videos(
+    out_dir: str | Path,
+    *,
+    n_objects: int = 40,
+    presses_per_object: int = 3,
+    seed: int = 0,
+    image_size: tuple[int, int] = (250, 350),
+    progress: bool = True,
+) -> GenerationReport:
+    """Write press videos named like the Shore-hardness dataset.
+
+    Args:
+        out_dir: output directory (created). Existing videos are kept (resume).
+        n_objects: silicone samples; each gets a unique (shape family, hardness) pair.
+        presses_per_object: videos per sample.
+        seed: base seed (>= 0).
+        image_size: frame size (H, W) [px].
+        progress: show a progress bar.
+
+    Returns:
+        A :class:`GenerationReport` (``grasps`` and ``samples`` count presses/videos).
+    """
+    from tactile_compliance.physics.shore import shore00_to_modulus_pa
+    from tactile_compliance.progress import progress_bar
+
+    start = time.perf_counter()
+    n_pairs = len(SHAPE_FAMILIES) * (HARDNESS_RANGE[1] - HARDNESS_RANGE[0] + 1)
+    if not 1 <= n_objects <= n_pairs:
+        raise GenerationError(f"n_objects must be in [1, {n_pairs}], got {n_objects}")
+    if presses_per_object < 1:
+        raise GenerationError(f"presses_per_object must be >= 1, got {presses_per_object}")
+    if seed < 0:
+        raise GenerationError(f"seed must be >= 0, got {seed}")
+    height, width = (int(v) for v in image_size)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for partial in out.glob(".partial-*"):  # leftovers of an interrupted run
+        partial.unlink()
+    # Unique (family, hardness) pairs: object i takes the i-th of a seeded permutation
+    # whose order depends on the seed only (a subset gives the same first objects).
+    order = stream(seed, "shore-objects").permutation(n_pairs)
+    report = GenerationReport(out_dir=out, objects_total=n_objects, workers=1)
+    total = n_objects * presses_per_object
+    with progress_bar("rendering press videos", total, progress) as advance:
+        for i in range(n_objects):
+            pair = int(order[i])
+            family = SHAPE_FAMILIES[pair % len(SHAPE_FAMILIES)]
+            hardness = HARDNESS_RANGE[0] + pair // len(SHAPE_FAMILIES)
+            modulus = float(shore00_to_modulus_pa(hardness))
+            spec = _geometry(family, stream(seed, "shore", family, hardness, "geometry"))
+            written = 0
+            for n in range(1, presses_per_object + 1):
+                path = out / shore_video_name(family, hardness, n)
+                if path.exists():
+                    advance(1)
+                    continue
+                key = ("shore", family, hardness, n)
+                frames = _press_video(spec, modulus, seed, key, (height, width))
+                partial = path.with_name(f".partial-{path.name}")
+                writer = cv2.VideoWriter(
+                    str(partial), cv2.VideoWriter_fourcc(*"MJPG"), _FPS, (width, height)
+                )
+                if not writer.isOpened():
+                    raise GenerationError(f"cannot open a video writer for {partial}")
+                for frame in frames:
+                    writer.write(frame)
+                writer.release()
+                os.replace(partial, path)
+                written += 1
+                report.samples += 1
+                report.grasps += 1
+                advance(1)
+            if written:
+                report.objects_written += 1
+            else:
+                report.objects_existing += 1
+    report.seconds = time.perf_counter() - start
+    return report

@@ -1,0 +1,363 @@
+"""Grasp time series (force, width, approach per frame) and the real frame-selection rules.
+
+Timeline of one grasp, recorded at 30 fps (frame times jittered by ~2 ms):
+
+* *approach*: the gripper closes at 0.0375 m/s from 0.08 m; the recording starts
+  0.2-0.6 s before contact. Before contact ``W = 0.08 - 0.0375 t``.
+* *loading*: ``F(t) = F_t [1 - (1 - u)^q]``, ``u`` = time since contact / loading time,
+  ``q ~ U(1.5, 3)``, target ``F_t ~ N(60, 2)`` N; loading time = controller time
+  ``U(0.3, 0.7)`` s + closure / 0.0375 m/s, so soft objects (large closure) load longer.
+* *hold*: 0.45-0.7 s at ``F_t`` with ~1 % ripple; then *release* (0.1-0.25 s) and a
+  few frames after.
+
+Each finger's approach follows its force-approach curve, ``Delta_i(F)``; the true
+width is ``W = W_contact - Delta_1 - Delta_2 - F / K_f - 2 F / k_shell`` (finger/mount
+compliance ``K_f ~ logU(1e5, 6e5)`` N/m), plus, in a third of the grasps, 0.2-1.5 mm of
+*seating* (the object rotates or beds in while the force rises). Measured width:
+``W - 0.5 mm + N(0, 15 um)`` in 50 um encoder steps, 0-50 ms late, updated every 2-4
+frames (stair steps). Measured force: ``F x N(1, 0.02) + N(0, 0.15) N offset +
+N(0, 0.05) N noise``, 0-40 ms late.
+
+Frame selection and the estimator's sequence follow the published preprocessing
+(DATA_FORMATS.md section 1): ``i_start`` = first F >= 5 N, ``i_peak`` = first
+F >= 0.975 F_max (+1), three indices by ``linspace``, contact shifts from the 7.5 %
+depth rule, augmentations while ``F >= 0.95 F_max``; for the estimates the sequence is
+clipped to the press (2.5 N, 90 % of peak), to the first frame with 7.5 % of the peak
+depth, and stair-stepped widths are linearly interpolated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactile_compliance.data.synthetic.mechanics import ContactCurve
+
+__all__ = [
+    "FPS",
+    "FrameSelection",
+    "GraspTimeline",
+    "clip_to_press",
+    "interpolate_stair_widths",
+    "select_frames",
+    "simulate_timeline",
+]
+
+FPS = 30.0
+"""Camera frame rate [1/s]."""
+
+CLOSING_SPEED_M_S = 0.0375
+"""Gripper closing speed [m/s]."""
+
+OPEN_WIDTH_M = 0.08
+"""Gripper width when the grasp starts [m]."""
+
+SELECTION_FORCE_N = 5.0
+"""First-frame force threshold of the frame selection [N]."""
+
+ESTIMATOR_FORCE_N = 2.5
+"""Press-clipping force threshold of the estimators [N] (half of the selection's)."""
+
+
+@dataclass
+class GraspTimeline:
+    """One simulated grasp, frame by frame (all arrays shape (T,)).
+
+    Attributes:
+        times_s: frame timestamps [s].
+        force_true_n: true normal force [N].
+        approach_mm: approach of each finger, shape (2, T) [mm] (<= 0: no contact).
+        width_true_m: true gripper width [m].
+        force_n: measured force [N] (what forces.pkl stores).
+        width_m: measured width [m], stair-stepped (what widths.pkl stores).
+        contact_frame: index of the first frame in contact.
+    """
+
+    times_s: np.ndarray
+    force_true_n: np.ndarray
+    approach_mm: np.ndarray
+    width_true_m: np.ndarray
+    force_n: np.ndarray
+    width_m: np.ndarray
+    contact_frame: int
+
+
+def simulate_timeline(
+    curves: tuple[ContactCurve, ContactCurve],
+    contact_width_m: float,
+    finger_stiffness_n_per_m: float,
+    shell_stiffness_n_per_m: float,
+    rng: np.random.Generator,
+    settle_probability: float = 0.35,
+) -> GraspTimeline:
+    """Simulate the force/width/approach time series of one grasp.
+
+    Args:
+        curves: force-approach curves of the two fingers.
+        contact_width_m: gripper width at first contact (object size) [m].
+        finger_stiffness_n_per_m: finger/mount stiffness K_f [N/m].
+        shell_stiffness_n_per_m: shell stiffness per contact [N/m] (inf if solid).
+        rng: the grasp's time-series stream.
+        settle_probability: probability that the object seats by 0.2-1.5 mm while
+            loading (0 for a perfectly stable grasp, e.g. a sphere).
+    """
+    target_n = float(rng.normal(60.0, 2.0))
+    q = float(rng.uniform(1.5, 3.0))
+    shell_c = 0.0 if not np.isfinite(shell_stiffness_n_per_m) else 1.0 / shell_stiffness_n_per_m
+    finger_c = 1.0 / finger_stiffness_n_per_m
+    # A shell flattens until its walls meet: cap its deflection per contact smoothly at
+    # 15 % of the object's size.
+    shell_max_m = 0.15 * contact_width_m
+
+    def closure_m(force: np.ndarray) -> np.ndarray:
+        approach = curves[0].approach_at(force) + curves[1].approach_at(force)
+        linear = force * shell_c
+        shell = linear / (1.0 + linear / shell_max_m)
+        return approach * 1e-3 + force * finger_c + 2.0 * shell
+
+    # Seating: many grasps settle while loading (the object rotates or slides into a
+    # stable pose, rough contacts bed in), an extra closure that grows with the force
+    # and has nothing to do with the modulus.
+    settle_m = float(rng.uniform(0.2e-3, 1.5e-3)) if rng.random() < settle_probability else 0.0
+    settle_force = float(rng.uniform(10.0, 40.0))
+
+    def seating_m(force: np.ndarray) -> np.ndarray:
+        return settle_m * (1.0 - np.exp(-np.asarray(force) / settle_force))
+
+    at_target = np.array([target_n])
+    closure_target = float(closure_m(at_target)[0] + seating_m(at_target)[0])
+    # Controller time U(0.3, 0.7) s (the design notes say 0.15-0.5 s; the longer range
+    # reproduces the real ~4.6 augmentations per grasp, see docs/synthetic.md).
+    t_load = float(rng.uniform(0.3, 0.7)) + closure_target / CLOSING_SPEED_M_S
+    t_hold = float(rng.uniform(0.45, 0.7))
+    t_release = float(rng.uniform(0.1, 0.25))
+    t_pre = float(rng.uniform(0.2, 0.6))
+    t_post = float(rng.uniform(0.05, 0.12))
+    total = t_pre + t_load + t_hold + t_release + t_post
+    n_frames = int(np.ceil(total * FPS))
+    times = np.arange(n_frames) / FPS + rng.normal(0.0, 0.002, n_frames)
+    # Ripple during the hold: a few slow sinusoids, ~1 % of the force.
+    freqs = rng.uniform(1.5, 8.0, 3)
+    phases = rng.uniform(0, 2 * np.pi, 3)
+    ripple_amp = float(rng.uniform(0.005, 0.012))
+
+    def force_at(t: np.ndarray) -> np.ndarray:
+        u = (t - t_pre) / t_load
+        f = np.where(u > 0, target_n * (1.0 - (1.0 - np.clip(u, 0.0, 1.0)) ** q), 0.0)
+        t_h0, t_h1 = t_pre + t_load, t_pre + t_load + t_hold
+        ripple = np.sum(
+            np.sin(2 * np.pi * freqs[:, None] * (t - t_h0)[None, :] + phases[:, None]), axis=0
+        )
+        ramp_in = np.clip((t - t_h0) / 0.1, 0.0, 1.0)  # ripple fades in with the hold
+        f = np.where(t >= t_h0, target_n * (1.0 + ripple_amp * ripple / 1.7 * ramp_in), f)
+        v = np.clip((t - t_h1) / t_release, 0.0, 1.0)
+        f = np.where(t >= t_h1, f * (1.0 - v) ** 1.5, f)
+        return np.maximum(f, 0.0)
+
+    force_true = force_at(times)
+    in_contact = force_true > 0
+    approach = np.stack([c.approach_at(np.maximum(force_true, 1e-9)) for c in curves])
+    # Before contact (and after release) the finger is still short of the object.
+    gap_mm = np.where(
+        times < t_pre,
+        (t_pre - times) * CLOSING_SPEED_M_S * 1e3,
+        (times - (total - t_post)) * CLOSING_SPEED_M_S * 1e3,
+    )
+    approach = np.where(in_contact[None, :], approach, -np.maximum(gap_mm, 1e-3)[None, :] / 2)
+    positive = np.maximum(force_true, 1e-9)
+    squeeze_m = np.where(in_contact, closure_m(positive) + seating_m(positive), 0.0)
+    width_true = np.where(
+        in_contact,
+        contact_width_m - squeeze_m,
+        np.minimum(contact_width_m + np.maximum(gap_mm, 0.0) * 1e-3, OPEN_WIDTH_M),
+    )
+    # A thin object ends up embedded in both gels: the gel surfaces cannot pass each other.
+    width_true = np.maximum(width_true, 0.2e-3)
+    # Measured force: gain/offset error, latency, noise.
+    gain = float(rng.normal(1.0, 0.02))
+    offset = float(rng.normal(0.0, 0.15))
+    latency = float(rng.uniform(0.0, 0.04))
+    force_meas = force_at(times - latency) * gain + offset + rng.normal(0.0, 0.05, n_frames)
+    # Measured width: reported asynchronously (latency), calibration offset, noise,
+    # 50 um encoder steps, updated every 2-4 frames.
+    width_latency = float(rng.uniform(0.0, 0.05))
+    lagged = np.interp(times - width_latency, times, width_true)
+    hold_frames = int(rng.integers(2, 5))
+    phase = int(rng.integers(0, hold_frames))
+    readings = lagged - 0.5e-3 + rng.normal(0.0, 15e-6, n_frames)
+    readings = np.round(readings / 50e-6) * 50e-6
+    update = (np.arange(n_frames) + phase) // hold_frames
+    first_of_block = np.searchsorted(update, update)
+    width_meas = readings[first_of_block]
+    contact_frame = int(np.argmax(in_contact)) if in_contact.any() else n_frames
+    return GraspTimeline(
+        times_s=times,
+        force_true_n=force_true,
+        approach_mm=approach,
+        width_true_m=width_true,
+        force_n=force_meas,
+        width_m=width_meas,
+        contact_frame=contact_frame,
+    )
+
+
+@dataclass(frozen=True)
+class FrameSelection:
+    """Frames stored for a grasp (indices into the whole recording).
+
+    Attributes:
+        video: three frame indices of the markerless finger (augmentation 0).
+        video_markers: three frame indices of the marker finger.
+        force: three indices for forces / widths.
+        num_aug: number of augmentations (shift k = 0 .. num_aug - 1).
+    """
+
+    video: np.ndarray
+    video_markers: np.ndarray
+    force: np.ndarray
+    num_aug: int
+
+    def frames_needed(self) -> np.ndarray:
+        """All frame indices that some augmentation stores (either finger)."""
+        shifts = np.arange(self.num_aug)
+        idx = np.concatenate(
+            [(self.video[:, None] + shifts).ravel(), (self.video_markers[:, None] + shifts).ravel()]
+        )
+        return np.unique(idx)
+
+
+def selection_window(forces_n: np.ndarray, max_aug: int = 5) -> tuple[int, int, int] | None:
+    """``(i_start, i_peak, i_end)`` of the published selection, or None if skipped.
+
+    ``i_peak`` is the first frame with F >= 0.975 F_max, plus one; the clip keeps
+    ``[i_start, i_peak + max_aug)``. Grasps with a peak below 10 N or fewer than three
+    frames between start and peak are skipped, as in the original preprocessing.
+    """
+    f = np.asarray(forces_n, dtype=np.float64)
+    if f.max() < 10.0:
+        return None
+    i_start = int(np.argmax(f >= SELECTION_FORCE_N))
+    i_peak = int(np.argmax(f >= 0.975 * f.max())) + 1
+    if i_peak - i_start + 1 < 3:
+        return None
+    return i_start, i_peak, min(i_peak + max_aug, f.size)
+
+
+def select_frames(
+    forces_n: np.ndarray,
+    max_depth_mm: np.ndarray,
+    max_depth_markers_mm: np.ndarray,
+    label_pa: float,
+    n_frames: int = 3,
+    max_aug: int = 5,
+) -> FrameSelection | None:
+    """The published three-frame selection and time-shift augmentations.
+
+    Args:
+        forces_n: measured force of the whole recording [N].
+        max_depth_mm: per-frame maximum reconstructed depth, markerless finger [mm]
+            (only the frames of the selection window are read).
+        max_depth_markers_mm: the same for the marker finger [mm].
+        label_pa: the object's label; the original code stops augmenting objects of
+            >= 5e5 Pa whose first frame is already >= 80 % as deep as the last.
+        n_frames: frames per sample.
+        max_aug: maximum number of augmentations.
+    """
+    window = selection_window(forces_n, max_aug)
+    if window is None:
+        return None
+    i_start, i_peak, i_end = window
+    f = np.asarray(forces_n, dtype=np.float64)[i_start:i_end]
+    d = np.asarray(max_depth_mm, dtype=np.float64)[i_start:i_end]
+    dm = np.asarray(max_depth_markers_mm, dtype=np.float64)[i_start:i_end]
+    base = np.linspace(0, i_peak - i_start - 1, n_frames, endpoint=True).astype(int)
+    video, video_m, force_idx = base.copy(), base.copy(), base.copy()
+    num_aug = 1
+    for i in range(1, max_aug):
+        j = force_idx[-1] + i
+        if j < f.size and f[j] >= 0.95 * f.max():
+            num_aug += 1
+        else:
+            break
+
+    def contact_shift(depths: np.ndarray) -> int:
+        peak = depths.max() if depths.size else 0.0
+        for i in range(min(max_aug, depths.size)):
+            if depths[i] >= 0.075 * peak:
+                return i
+        return 0
+
+    shift, shift_m = contact_shift(d), contact_shift(dm)
+    force_idx[0] += min(shift, shift_m)
+    video[0] += shift
+    video_m[0] += shift_m
+    num_aug = min(num_aug, max(video[1] - video[0], video_m[1] - video_m[0], 2))
+    if min(video[-1] - video[0], video_m[-1] - video_m[0]) < n_frames:
+        num_aug = 1
+    # Original rule: stop when the first frame is nearly as deep as the last (hard objects).
+    last_valid = f.size - 1
+    for i in range(1, num_aug):
+        if max(video[-1], video_m[-1], force_idx[-1]) + i > last_valid:
+            num_aug = i
+            break
+        if (
+            label_pa >= 5e5
+            and d[video[0] + i] >= 0.8 * d[video[-1] + i]
+            and dm[video_m[0] + i] >= 0.8 * dm[video_m[-1] + i]
+        ):
+            num_aug = i
+            break
+    return FrameSelection(
+        video=video + i_start,
+        video_markers=video_m + i_start,
+        force=force_idx + i_start,
+        num_aug=int(num_aug),
+    )
+
+
+def clip_to_press(
+    forces_n: np.ndarray, threshold_n: float = ESTIMATOR_FORCE_N, pct_peak: float = 0.9
+) -> tuple[int, int] | None:
+    """The estimators' press clip ``[start, end)`` of the published code, or None.
+
+    Start one frame before the force first reaches ``threshold_n``; end at the last
+    frame before the force drops below ``pct_peak`` of its peak after the peak.
+    """
+    f = np.asarray(forces_n, dtype=np.float64)
+    i_start = max(int(np.argmax(f >= threshold_n)) - 1, 0)
+    i_peak = int(np.argmax(f))
+    i_end = i_peak
+    after = np.flatnonzero((np.arange(f.size) > i_peak) & (f < pct_peak * f[i_peak]))
+    if after.size:
+        i_end = int(after[0]) - 1
+    if i_start >= i_end:
+        return None
+    return i_start, i_end + 1
+
+
+def interpolate_stair_widths(widths_m: np.ndarray) -> np.ndarray:
+    """Linearly interpolate runs of repeated width readings (the published algorithm).
+
+    A run of equal readings starting at ``i`` is replaced by a line from ``W[i]`` to the
+    next different reading ``W[k]``; the scan stops when the reading equals the last one.
+    """
+    w = np.asarray(widths_m, dtype=np.float64)
+    out = w.copy()
+    n = w.size
+    i = 0
+    while i < n - 1:
+        if w[i] == w[-1]:
+            break
+        if w[i] == w[i + 1]:
+            k = i
+            for k in range(i, n):
+                if w[i] != w[k]:
+                    break
+            slope = (w[k] - w[i]) / (k - i)
+            for j in range(i + 1, k):
+                out[j] = w[i] + slope * (j - i)
+            i = k
+        else:
+            i += 1
+    return out

@@ -1,0 +1,181 @@
+"""The synthetic generator end to end: layout fidelity, determinism, resume, importers."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tactile_compliance.data.safe_pickle import load_numpy_pickle
+from tactile_compliance.data.synthetic import (
+    GenerationError,
+    generate_burgess_tree,
+    generate_shore_videos,
+)
+
+SMALL = (60, 80)
+PKL_FILES = {
+    "RGB.pkl", "RGB_markers.pkl", "depth.pkl", "depth_markers.pkl", "forces.pkl",
+    "widths.pkl", "elastic_estimate.pkl", "hertz_estimate.pkl",
+}
+
+
+def _tree_digest(root: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file() and p.name != "generation.json"
+    }
+
+
+def _generate(out: Path, **kwargs: object):  # type: ignore[no-untyped-def]
+    params = {"n_objects": 2, "grasps_per_object": 2, "seed": 3, "image_size": SMALL,
+              "progress": False, "workers": 1}
+    params.update(kwargs)
+    return generate_burgess_tree(out, **params)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def small_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("synthetic") / "tree"
+    report = _generate(out, n_objects=3)
+    assert report.objects_written == 3 and report.samples > 0
+    return out
+
+
+def test_layout_matches_the_real_dataset(small_tree: Path) -> None:
+    objects = sorted(p for p in small_tree.iterdir() if p.is_dir())
+    assert [p.name for p in objects] == ["obj_0000", "obj_0001", "obj_0002"]
+    for obj in objects:
+        meta = json.loads((obj / "metadata.json").read_text())
+        assert set(meta) == {
+            "object_name", "youngs_modulus", "material", "shape", "shore_00_hardness",
+            "shore_A_hardness", "shore_D_hardness", "used_in_training",
+        }
+        assert meta["object_name"] == obj.name and meta["youngs_modulus"] > 0
+        for aug in obj.glob("grasp=*/augmentation=*"):
+            assert re.fullmatch(r"grasp=\d+", aug.parent.name)
+            assert {p.name for p in aug.iterdir()} == PKL_FILES
+            rgb = load_numpy_pickle(aug / "RGB.pkl")
+            depth = load_numpy_pickle(aug / "depth_markers.pkl")
+            assert rgb.shape == (3, *SMALL, 3) and rgb.dtype == np.float16
+            assert depth.shape == (3, *SMALL)
+            forces = load_numpy_pickle(aug / "forces.pkl")
+            widths = load_numpy_pickle(aug / "widths.pkl")
+            assert forces.shape == widths.shape == (3,)
+            assert forces[0] >= 4.0 and forces[-1] > forces[0]  # first frame at ~5 N
+            assert 0 < widths[-1] <= widths[0] < 0.08
+            assert load_numpy_pickle(aug / "hertz_estimate.pkl").shape == ()
+    # No label in the names; no leftovers.
+    assert not list(small_tree.glob(".partial-*"))
+
+
+def test_importer_reads_the_tree(small_tree: Path, tmp_path: Path) -> None:
+    from tactile_compliance.data.burgess import import_burgess
+    from tactile_compliance.data.store import GraspStore
+
+    import_burgess(small_tree, tmp_path / "store", progress=False)
+    store = GraspStore.open(tmp_path / "store")
+    n_dirs = len(list(small_tree.glob("*/grasp=*/augmentation=*")))
+    assert len(store) == 2 * n_dirs  # both fingers
+    samples = store.samples
+    for name, group in samples.groupby("object"):
+        meta = json.loads((small_tree / name / "metadata.json").read_text())
+        assert (group["modulus_pa"] == meta["youngs_modulus"]).all()
+        assert (group["material"] == meta["material"]).all()
+    frames = store.load_frames(np.arange(len(store)))
+    assert frames.shape[1:] == (3, *SMALL, 3)
+    assert 0.45 < float(frames.mean()) < 0.52
+    assert np.isfinite(samples["hertz_estimate_pa"]).mean() > 0.5
+
+
+def test_same_seed_is_byte_identical_across_runs_and_workers(tmp_path: Path) -> None:
+    _generate(tmp_path / "a")
+    _generate(tmp_path / "b", workers=2)
+    digest_a = _tree_digest(tmp_path / "a")
+    assert digest_a == _tree_digest(tmp_path / "b")
+    assert len(digest_a) > 10
+    _generate(tmp_path / "c", seed=4)
+    assert _tree_digest(tmp_path / "c") != digest_a
+
+
+def test_a_subset_gives_the_same_objects(tmp_path: Path) -> None:
+    _generate(tmp_path / "one", n_objects=1)
+    _generate(tmp_path / "two", n_objects=2)
+    one = _tree_digest(tmp_path / "one")
+    two = {k: v for k, v in _tree_digest(tmp_path / "two").items() if k.startswith("obj_0000")}
+    assert one == two
+
+
+def test_resume_keeps_finished_objects(tmp_path: Path) -> None:
+    out = tmp_path / "tree"
+    _generate(out)
+    reference = _tree_digest(out)
+    shutil.rmtree(out / "obj_0001")
+    (out / ".partial-obj_0001" / "grasp=0").mkdir(parents=True)  # an interrupted object
+    report = _generate(out)
+    assert report.objects_existing == 1 and report.objects_written == 1
+    assert _tree_digest(out) == reference
+    assert not list(out.glob(".partial-*"))
+    with pytest.raises(GenerationError, match="different parameters"):
+        _generate(out, seed=9)
+
+
+def test_bad_arguments_are_rejected(tmp_path: Path) -> None:
+    with pytest.raises(GenerationError):
+        _generate(tmp_path / "x", dtype="int8")
+    with pytest.raises(GenerationError):
+        _generate(tmp_path / "y", no_such_option=1)
+    with pytest.raises(GenerationError):
+        generate_burgess_tree(tmp_path / "z", n_objects=2, object_table="t.csv", progress=False)
+
+
+def test_object_table_mode(object_table_csv: Path, tmp_path: Path) -> None:
+    table = pd.read_csv(object_table_csv)
+    rows = table[table["Label"].isin(["steel_ball_small", "tennis_ball", "pillow"])]
+    subset = tmp_path / "objects.csv"
+    rows.to_csv(subset, index=False)
+    out = tmp_path / "tree"
+    report = generate_burgess_tree(
+        out, object_table=subset, grasps_per_object=1, seed=0, image_size=SMALL,
+        progress=False, workers=1,
+    )
+    assert report.objects_total == 3
+    for _, row in rows.iterrows():
+        meta = json.loads((out / row["Label"] / "metadata.json").read_text())
+        assert meta["youngs_modulus"] == pytest.approx(float(row["Modulus [Pa]"]))
+        assert meta["material"] == row["Material"] and meta["shape"] == row["Shape"]
+        assert meta["used_in_training"] == (row["Label"] != "tennis_ball")
+
+
+def test_shore_videos_round_trip(tmp_path: Path) -> None:
+    from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.data.yuan import VIDEO_NAME, import_yuan
+    from tactile_compliance.physics.shore import shore00_to_modulus_pa
+
+    out = tmp_path / "videos"
+    report = generate_shore_videos(out, n_objects=3, presses_per_object=2, image_size=SMALL,
+                                   progress=False)
+    videos = sorted(out.glob("*.avi"))
+    assert len(videos) == report.samples == 6
+    hardness = set()
+    for video in videos:
+        match = VIDEO_NAME.match(video.name)
+        assert match is not None
+        hardness.add(int(match["hardness"]))
+        assert 8 <= int(match["hardness"]) <= 87
+    first = {v.name: v.read_bytes() for v in videos}
+    shutil.rmtree(out)
+    generate_shore_videos(out, n_objects=3, presses_per_object=2, image_size=SMALL, progress=False)
+    assert {v.name: v.read_bytes() for v in sorted(out.glob("*.avi"))} == first
+    import_yuan(out, tmp_path / "store", progress=False)
+    store = GraspStore.open(tmp_path / "store")
+    assert len(store) == 6
+    expected = {float(shore00_to_modulus_pa(h)) for h in hardness}
+    assert set(np.round(store.samples["modulus_pa"], 3)) == set(np.round(list(expected), 3))

@@ -1,0 +1,151 @@
+"""Physics limits of the synthetic generator's contact mechanics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactile_compliance.data.synthetic.geometry import (
+    NO_SURFACE,
+    PadGrid,
+    Pose,
+    ShapeSpec,
+    sag_map,
+    sample_pose,
+    sample_shape,
+)
+from tactile_compliance.data.synthetic.mechanics import (
+    GelModel,
+    ObjectMechanics,
+    contact_curve,
+    force_curve,
+    hertz_force_n,
+    shell_stiffness_n_per_m,
+)
+from tactile_compliance.data.synthetic.rng import stream
+
+CENTRED = Pose((0.0, 0.0), 0.0, (0.0, 0.0))
+# Linear-elastic limit: no thin-layer effect, no saturation.
+HALF_SPACE_GEL = GelModel(thickness_mm=1e6, max_strain=1e6)
+
+
+def _effective_modulus(e_obj: float, nu_obj: float, gel: GelModel) -> float:
+    return 1.0 / ((1 - gel.poisson**2) / gel.modulus_pa + (1 - nu_obj**2) / e_obj)
+
+
+@pytest.mark.parametrize("depth_mm", [0.05, 0.1, 0.2])
+def test_small_sphere_matches_hertz_within_ten_percent(depth_mm: float) -> None:
+    grid = PadGrid(0.05)
+    radius_mm = 5.0
+    sag = sag_map(ShapeSpec("Sphere", {"radius_mm": radius_mm}, 10.0), grid, CENTRED)
+    obj = ObjectMechanics(1e6, 0.45, size_mm=1e7, max_strain=1e6)
+    curve = contact_curve(sag, HALF_SPACE_GEL, obj, grid, np.array([depth_mm]))
+    expected = hertz_force_n(
+        depth_mm * 1e-3, radius_mm * 1e-3, _effective_modulus(1e6, 0.45, HALF_SPACE_GEL)
+    )
+    assert curve.forces_n[0] == pytest.approx(expected, rel=0.10)
+
+
+def test_flat_punch_matches_boussinesq() -> None:
+    grid = PadGrid(0.05)
+    xx, yy = grid.coords()
+    radius_mm = 2.0
+    sag = np.where(xx**2 + yy**2 < radius_mm**2, 0.0, NO_SURFACE).astype(np.float32)
+    obj = ObjectMechanics(1e6, 0.45, size_mm=1e7, max_strain=1e6)
+    curve = contact_curve(sag, HALF_SPACE_GEL, obj, grid, np.array([0.01]))
+    e_star = _effective_modulus(1e6, 0.45, HALF_SPACE_GEL)
+    assert curve.forces_n[0] == pytest.approx(2 * radius_mm * 1e-3 * e_star * 0.01e-3, rel=0.06)
+
+
+def test_calibration_rigid_sphere_and_flat() -> None:
+    grid = PadGrid(0.5)
+    gel = GelModel(thickness_mm=5.0)
+    rigid = ObjectMechanics(1e12, 0.3, size_mm=50.0)
+    sphere = sag_map(ShapeSpec("Sphere", {"radius_mm": 25.0}, 50.0), grid, CENTRED)
+    flat = sag_map(
+        ShapeSpec("Rectangular", {"face_u_mm": 60, "face_v_mm": 60, "edge_radius_mm": 1}, 30.0),
+        grid,
+        CENTRED,
+    )
+    sphere_depth = float(force_curve(sphere, gel, rigid, grid).approach_at(60.0))
+    flat_depth = float(force_curve(flat, gel, rigid, grid).approach_at(60.0))
+    assert 1.1 <= sphere_depth <= 2.5
+    assert flat_depth <= 0.2
+    assert flat_depth < sphere_depth
+
+
+REGULAR = ("Sphere", "Cylinder", "Rectangular", "Hex")
+
+
+@pytest.mark.parametrize("modulus_pa", [1e4, 1e6, 1e8, 2e11])
+@pytest.mark.parametrize("kind", REGULAR)
+def test_force_approach_curves_are_monotone(kind: str, modulus_pa: float) -> None:
+    grid = PadGrid(0.5)
+    for i in range(3):
+        rng = stream(7, kind, i)
+        spec = sample_shape(kind, rng)
+        sag = sag_map(spec, grid, sample_pose(rng, kind))
+        obj = ObjectMechanics(modulus_pa, 0.45, spec.thickness_mm, 0.5)
+        curve = force_curve(sag, GelModel(), obj, grid)
+        forces = curve.forces_n
+        # Above the pixel scale (a few cells in contact) the raw curve increases strictly.
+        relevant = forces[:-1] > 0.05
+        assert np.all(np.diff(forces)[relevant] > 0), (kind, modulus_pa, forces)
+        assert forces[-1] >= 90.0
+        # The inversion is consistent with the curve.
+        probe = np.array([5.0, 30.0, 60.0])
+        back = np.exp(
+            np.interp(np.log(curve.approach_at(probe)), np.log(curve.approaches_mm), np.log(forces))
+        )
+        np.testing.assert_allclose(back, probe, rtol=0.02)
+
+
+def _state_at_60n(modulus_pa: float, spec: ShapeSpec, grid: PadGrid) -> tuple[float, float, float]:
+    """(approach per side [mm], max gel depth [mm], contact area [mm^2]) at 60 N."""
+    gel = GelModel(thickness_mm=5.0)
+    obj = ObjectMechanics(modulus_pa, 0.45, spec.thickness_mm, max_strain=0.75)
+    sag = sag_map(spec, grid, CENTRED)
+    approach = float(force_curve(sag, gel, obj, grid).approach_at(60.0))
+    state = contact_curve(sag, gel, obj, grid, np.array([approach]), fields=True)
+    assert state.gel_depth_mm is not None
+    gel_depth = float(state.gel_depth_mm.max())
+    area = float((state.gel_depth_mm[0] > 0.1).sum() * grid.cell_mm**2)
+    return approach, gel_depth, area
+
+
+SATURATION_SHAPES = [
+    ShapeSpec("Sphere", {"radius_mm": 25.0}, 50.0),
+    ShapeSpec("Cylinder", {"radius_mm": 8.0, "length_mm": 60.0}, 16.0),
+]
+
+
+@pytest.mark.parametrize("spec", SATURATION_SHAPES, ids=lambda s: s.kind)
+def test_hard_objects_saturate(spec: ShapeSpec) -> None:
+    grid = PadGrid(0.5)
+    states = np.array([_state_at_60n(e, spec, grid) for e in (1e8, 1e9, 1e10, 2e11)])
+    spread = (states.max(axis=0) - states.min(axis=0)) / states.max(axis=0)
+    assert np.all(spread < 0.05), states
+
+
+@pytest.mark.parametrize("spec", SATURATION_SHAPES, ids=lambda s: s.kind)
+def test_soft_objects_are_monotone_in_modulus(spec: ShapeSpec) -> None:
+    grid = PadGrid(0.5)
+    moduli = [1e4, 3e4, 1e5, 3e5, 1e6, 3e6, 1e7]
+    states = np.array([_state_at_60n(e, spec, grid) for e in moduli])
+    approach, gel_depth, area = states.T
+    # The width change falls with E over the whole soft range ...
+    assert np.all(np.diff(approach) < 0), approach
+    assert approach[0] > 2.0 * approach[-1]
+    # ... while the gel's share (depth) rises and the thresholded contact area shrinks
+    # from 1e5 Pa up. Softer still, the object densifies and the gel barely reaches the
+    # 0.1 mm contact threshold, so those two turn over (docs/synthetic.md).
+    upper = np.asarray(moduli) >= 1e5
+    assert np.all(np.diff(gel_depth[upper]) > 0), gel_depth
+    assert np.all(np.diff(area[upper]) < 0), area
+    assert gel_depth[-1] > 1.2 * gel_depth[upper][0]
+
+
+def test_shell_stiffness_formula() -> None:
+    # k = 4 E t^2 / (R sqrt(3 (1 - nu^2))), t = 1 mm, R = 20 mm, E = 2 GPa, nu = 0.4
+    expected = 4 * 2e9 * 1e-6 / (0.02 * np.sqrt(3 * (1 - 0.16)))
+    assert shell_stiffness_n_per_m(2e9, 0.4, 1.0, 20.0) == pytest.approx(expected)

@@ -1,0 +1,92 @@
+"""Rendering and photometric depth reconstruction of the synthetic generator."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactile_compliance.data.synthetic.depth import reconstruct_depth
+from tactile_compliance.data.synthetic.geometry import PadGrid
+from tactile_compliance.data.synthetic.render import (
+    difference_images,
+    gel_height_maps,
+    pixel_size_mm,
+    reference_frame,
+    render_frames,
+    sample_sensor_look,
+)
+from tactile_compliance.data.synthetic.rng import stream
+
+SIZE = (120, 168)
+
+
+def _bowl(size: tuple[int, int], depth_mm: float, radius_mm: float = 5.0) -> np.ndarray:
+    """A spherical-cap imprint (paraboloid) centred in the image [mm]."""
+    h, w = size
+    px = pixel_size_mm(size)
+    yy, xx = np.mgrid[0:h, 0:w]
+    r2 = ((xx - w / 2) * px) ** 2 + ((yy - h / 2) * px) ** 2
+    return (depth_mm * np.clip(1.0 - r2 / radius_mm**2, 0.0, None)).astype(np.float32)
+
+
+def _render_diff(depth: np.ndarray, markers: bool, seed: int = 0) -> np.ndarray:
+    look = sample_sensor_look(stream(seed, "look", markers), markers=markers)
+    look.jpeg_quality = 0
+    rng = stream(seed, "noise")
+    reference = reference_frame(look, depth.shape[1:], rng)  # type: ignore[arg-type]
+    return difference_images(render_frames(depth, look, rng), reference)
+
+
+def test_difference_images_are_quantised_like_the_real_pipeline() -> None:
+    diff = _render_diff(_bowl(SIZE, 1.0)[None], markers=False)
+    assert diff.dtype == np.float32
+    levels = (diff.astype(np.float64) - 0.5) * 255.0
+    np.testing.assert_allclose(levels, np.round(levels), atol=1e-3)
+    # Contact-free areas stay near 0.5; the imprint moves every channel.
+    assert abs(float(np.median(diff)) - 0.5) < 3 / 255
+    assert np.abs(diff - 0.5).max() > 20 / 255
+
+
+@pytest.mark.parametrize("markers", [False, True])
+def test_photometric_depth_recovers_the_imprint(markers: bool) -> None:
+    true = np.stack([_bowl(SIZE, d) for d in (0.3, 0.8, 1.5)])
+    depth = reconstruct_depth(_render_diff(true, markers), markers=markers)
+    for k in range(3):
+        corr = np.corrcoef(depth[k].ravel(), true[k].ravel())[0, 1]
+        assert corr > 0.9, (k, corr)
+        # Right sign and order of magnitude; the optics' gains and saturation make the
+        # real inversion over- or under-shoot (docs/synthetic.md).
+        assert 0.6 * true[k].max() < depth[k].max() < 2.5 * true[k].max()
+    assert depth[0].max() < depth[1].max() < depth[2].max()
+
+
+def test_half_resolution_solve_matches_full_solve() -> None:
+    diff = _render_diff(_bowl(SIZE, 1.0)[None], markers=False)
+    full = reconstruct_depth(diff)
+    half = reconstruct_depth(diff, solve_scale=0.5)
+    assert abs(float(half.max()) - float(full.max())) < 0.1 * float(full.max())
+
+
+def test_skirt_keeps_the_core_and_drapes_around_it() -> None:
+    grid = PadGrid(0.25)
+    xx, yy = grid.coords()
+    field = np.where(xx**2 + yy**2 < 9.0, 1.0, 0.0).astype(np.float32)[None]  # 3 mm flat punch
+    depth, contact = gel_height_maps(field, grid, SIZE, gel_thickness_mm=5.0)
+    h, w = SIZE
+    assert depth[0, h // 2, w // 2] == pytest.approx(1.0, abs=0.02)
+    px = pixel_size_mm(SIZE)
+    ring = depth[0, h // 2, int(w / 2 + 4.5 / px)]  # 1.5 mm outside the punch edge
+    assert 0.05 < ring < 0.9
+    assert contact[0, h // 2, w // 2] == pytest.approx(1.0)
+    assert contact[0, 2, 2] == 0.0
+
+
+def test_parametric_background_has_the_wedge_layout() -> None:
+    look = sample_sensor_look(stream(3, "bg"), markers=False)
+    look.jpeg_quality = 0
+    frame = reference_frame(look, (150, 210), stream(3, "n")).astype(float)
+    blue, green, red = frame[..., 0], frame[..., 1], frame[..., 2]
+    assert blue[-10:].mean() > blue[60:90].mean() + 20  # blue band at the bottom
+    assert red[:10].mean() > red[60:90].mean() + 5  # red tint at the top
+    chroma = green - (blue + red) / 2  # green tint at the left edge
+    assert chroma[:, :5].mean() > chroma[:, 100:110].mean() + 3
