@@ -27,8 +27,8 @@ from tactile_compliance.data.normalisation import (
 )
 from tactile_compliance.data.store import (
     ESTIMATE_COLUMNS,
-    FRAME_DECODE_OFFSET,
     FORCE_COLUMNS,
+    FRAME_DECODE_OFFSET,
     WIDTH_COLUMNS,
     GraspStore,
 )
