@@ -283,11 +283,16 @@ SetOption = Annotated[
 
 @app.command()
 def presets() -> None:
-    """List the packaged configuration presets (usable wherever a config file is)."""
+    """List the packaged presets: experiment grids and training configurations."""
     from tactile_compliance.config import list_presets
+    from tactile_compliance.training.grid import experiment_preset_descriptions
 
+    typer.echo("Experiment presets (tactile-compliance experiment NAME [--quick]):")
+    for name, description in experiment_preset_descriptions().items():
+        typer.echo(f"  {name:<16} {description}")
+    typer.echo("Configuration presets (--config NAME):")
     for name in list_presets():
-        typer.echo(name)
+        typer.echo(f"  {name}")
 
 
 @app.command()
@@ -391,6 +396,214 @@ def evaluate(
     typer.echo(evaluation.groups.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
 
 
+WorkersOption = Annotated[int, typer.Option("--workers", "-w", help="Local Dask worker processes.")]
+SchedulerOption = Annotated[
+    Optional[str],  # noqa: UP045
+    typer.Option(
+        "--scheduler",
+        help="Address (tcp://host:8786) or scheduler file of a "
+        "running Dask scheduler, e.g. one started by dask-jobqueue on SLURM/PBS.",
+    ),
+]
+StoreOption = Annotated[
+    Optional[Path],  # noqa: UP045
+    typer.Option("--store", help="GraspStore for every run (default: the preset's)."),
+]
+OutputDirOption = Annotated[
+    Optional[Path],  # noqa: UP045
+    typer.Option("--output-dir", help="Where run directories go."),
+]
+QuickOption = Annotated[
+    bool, typer.Option("--quick", help="The preset's small variant for a 2-core CPU.")
+]
+
+
+@app.command()
+def experiment(
+    preset: Annotated[str, typer.Argument(help="Experiment preset (see `presets`) or YAML file.")],
+    quick: QuickOption = False,
+    seeds: Annotated[
+        Optional[int], typer.Option(help="Number of seeds (0..N-1); default: the preset's.")  # noqa: UP045
+    ] = None,
+    store: StoreOption = None,
+    overrides: SetOption = None,
+    where: Annotated[
+        Optional[list[str]],  # noqa: UP045
+        typer.Option("--where", help="Run only matching cells: --where model.name=res_tf."),
+    ] = None,
+    workers: WorkersOption = 1,
+    scheduler: SchedulerOption = None,
+    output_dir: OutputDirOption = None,
+    results: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option("--results", help="Results store directory (default: OUTPUT/results)."),
+    ] = None,
+) -> None:
+    """Run an experiment grid (models x inputs x conditions x sampling x seeds) on Dask.
+
+    Every cell goes through `train`; each result is a row of the results store.
+    Re-running skips finished cells and retries failed or interrupted ones.
+    """
+    from tactile_compliance.config import ConfigError
+    from tactile_compliance.training.experiment import ExperimentError, run_experiment
+
+    try:
+        summary = run_experiment(
+            preset,
+            quick=quick,
+            seeds=seeds,
+            store=store,
+            overrides=overrides or [],
+            where=where or [],
+            workers=workers,
+            scheduler=scheduler,
+            output_dir=output_dir,
+            results=results,
+        )
+    except (ConfigError, ExperimentError) as err:
+        _fail(str(err))
+    typer.echo(summary.format())
+
+
+@app.command()
+def tune(
+    model: Annotated[str, typer.Argument(help="top10nn, vgg_lstm or res_tf.")],
+    inputs: Annotated[str, typer.Option(help="Input strategy whose search space is used.")] = "ALL",
+    config: Annotated[
+        str, typer.Option("--config", "-c", help="Base config or experiment preset.")
+    ] = "default",
+    quick: QuickOption = False,
+    store: StoreOption = None,
+    overrides: SetOption = None,
+    trials: Annotated[int, typer.Option(help="SMAC trials.")] = 132,
+    min_epochs: Annotated[int, typer.Option(help="Smallest Hyperband budget (epochs).")] = 5,
+    max_epochs: Annotated[int, typer.Option(help="Largest Hyperband budget (epochs).")] = 50,
+    seed: Annotated[int, typer.Option(help="SMAC seed.")] = 0,
+    workers: WorkersOption = 1,
+    scheduler: SchedulerOption = None,
+    output_dir: OutputDirOption = None,
+    overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
+) -> None:
+    """Tune a model's hyperparameters with SMAC3 (Hyperband over epochs, val N-MSE).
+
+    Resumes from SMAC's run history; writes best.yaml, usable by `train` and `experiment`.
+    """
+    from tactile_compliance.config import ConfigError
+    from tactile_compliance.training.hpo import TuneError
+    from tactile_compliance.training.hpo import tune as run_tune
+
+    try:
+        result = run_tune(
+            model,
+            inputs,
+            config=config,
+            quick=quick,
+            store=store,
+            overrides=overrides or [],
+            trials=trials,
+            min_epochs=min_epochs,
+            max_epochs=max_epochs,
+            seed=seed,
+            workers=workers,
+            scheduler=scheduler,
+            output_dir=output_dir,
+            overwrite=overwrite,
+        )
+    except (ConfigError, TuneError) as err:
+        _fail(str(err))
+    typer.echo(result.format())
+
+
+@app.command("tune-balance")
+def tune_balance(
+    config: Annotated[
+        str, typer.Option("--config", "-c", help="Experiment preset or config to tune.")
+    ] = "table2",
+    quick: QuickOption = False,
+    store: StoreOption = None,
+    overrides: SetOption = None,
+    epochs: Annotated[int, typer.Option(help="Epochs per model and trial.")] = 10,
+    trials: Annotated[int, typer.Option(help="SMAC trials.")] = 30,
+    seed: Annotated[int, typer.Option(help="SMAC seed.")] = 0,
+    workers: WorkersOption = 1,
+    scheduler: SchedulerOption = None,
+    output_dir: OutputDirOption = None,
+    overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
+) -> None:
+    """Tune the balance threshold t_balance in [0, 1] with SMAC3.
+
+    Cost of a value: the mean validation N-MSE of the three models after a fixed number
+    of epochs. Writes a config with the best t_balance.
+    """
+    from tactile_compliance.config import ConfigError
+    from tactile_compliance.training.hpo import TuneError
+    from tactile_compliance.training.hpo import tune_balance as run_tune_balance
+
+    try:
+        result = run_tune_balance(
+            config,
+            quick=quick,
+            store=store,
+            overrides=overrides or [],
+            epochs=epochs,
+            trials=trials,
+            seed=seed,
+            workers=workers,
+            scheduler=scheduler,
+            output_dir=output_dir,
+            overwrite=overwrite,
+        )
+    except (ConfigError, TuneError) as err:
+        _fail(str(err))
+    typer.echo(result.format())
+
+
+@app.command()
+def predict(
+    checkpoint: Annotated[Path, typer.Argument(help="best.pt of a run, or the run directory.")],
+    source: Annotated[
+        Path, typer.Argument(help="A GraspStore, a raw grasp/object directory, or a video.")
+    ],
+    as_json: Annotated[bool, typer.Option("--json", help="Print the full JSON report.")] = False,
+    fingers: Annotated[
+        str, typer.Option(help="Raw directories: markerless, markers or both.")
+    ] = "both",
+    device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
+) -> None:
+    """Estimate Young's modulus for every grasp of a store, raw directory or video."""
+    from tactile_compliance.inference.sources import format_predictions, predict_path
+
+    try:
+        result = predict_path(checkpoint, source, device=device, fingers=fingers)  # type: ignore[arg-type]
+    except (ValueError, FileNotFoundError) as err:
+        _fail(str(err))
+    typer.echo(json.dumps(result, indent=2, default=str) if as_json else format_predictions(result))
+
+
+@app.command()
+def export(
+    checkpoint: Annotated[Path, typer.Argument(help="best.pt of a run, or the run directory.")],
+    onnx: Annotated[Path, typer.Option("--onnx", help="The .onnx file to write.")],
+    size: Annotated[
+        Optional[str],  # noqa: UP045
+        typer.Option(
+            "--size", help="Frame size HxW baked into the graph (default: the checkpoint's)."
+        ),
+    ] = None,
+) -> None:
+    """Export a checkpoint to ONNX with a dynamic batch size.
+
+    The graph is checked against PyTorch with onnxruntime; the max abs difference is printed.
+    """
+    from tactile_compliance.inference.export import export_onnx, format_export_report
+
+    try:
+        result = export_onnx(checkpoint, onnx, image_size=_size_option(size))
+    except (ValueError, FileNotFoundError, RuntimeError) as err:
+        _fail(str(err))
+    typer.echo(format_export_report(result))
+
+
 @app.command()
 def report(
     results: Annotated[Path, typer.Argument(help="Results store directory (holds rows/*.json).")],
@@ -418,6 +631,29 @@ def report(
     except (FileNotFoundError, ValueError) as err:
         _fail(str(err))
     typer.echo(str(summary))
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option("--out", help="Where everything is written.")] = Path(
+        "demo-output"
+    ),
+    mode: Annotated[
+        str, typer.Option(help="full (a few minutes on 2 CPU cores) or ci (seconds, tiny).")
+    ] = "full",
+    workers: Annotated[int, typer.Option(help="Dask worker processes for the grids.")] = 1,
+) -> None:
+    """Run the whole system on built-in synthetic data (the main job).
+
+    Generates a synthetic dataset, imports it, trains the quick experiment grids and
+    writes the report. Re-running continues where it stopped.
+    """
+    from tactile_compliance.demo import PLANS, run_demo
+
+    if mode not in PLANS:
+        raise typer.BadParameter(f"--mode must be one of {', '.join(PLANS)}")
+    summary = run_demo(out, mode=mode, workers=workers)  # type: ignore[arg-type]
+    typer.echo(summary.format())
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,1 +1,49 @@
+"""Inference: load a checkpoint, predict Young's modulus (Pa), stream, ensemble, export.
 
+* :class:`ComplianceEstimator` - ``from_checkpoint(path)`` + ``predict(frames, force,
+  width, estimates)`` for one grasp or a batch (``estimator.py``).
+* :class:`StreamingEstimator` - frames with force/width one at a time from a live sensor
+  (``streaming.py``).
+* :class:`EnsembleEstimator` - several checkpoints, mean and interval in decades
+  (``ensemble.py``).
+* :func:`export_onnx`, :class:`OnnxEstimator` - ONNX export with a parity check
+  (``export.py``).
+* :func:`predict_path` - a store, raw grasp directory or video -> predictions
+  (``sources.py``; the ``predict`` command).
+
+See ``docs/inference.md``.
+"""
+
+from tactile_compliance.inference.ensemble import EnsembleEstimator, EnsemblePrediction
+from tactile_compliance.inference.estimator import ComplianceEstimator, Prediction
+from tactile_compliance.inference.export import OnnxEstimator, export_onnx, format_export_report
+from tactile_compliance.inference.sources import (
+    GraspBatch,
+    format_predictions,
+    predict_path,
+    read_source,
+)
+from tactile_compliance.inference.streaming import (
+    StreamEstimate,
+    StreamingEstimator,
+    predict_trajectory,
+    select_frame_indices,
+)
+
+__all__ = [
+    "ComplianceEstimator",
+    "EnsembleEstimator",
+    "EnsemblePrediction",
+    "GraspBatch",
+    "OnnxEstimator",
+    "Prediction",
+    "StreamEstimate",
+    "StreamingEstimator",
+    "export_onnx",
+    "format_export_report",
+    "format_predictions",
+    "predict_path",
+    "predict_trajectory",
+    "read_source",
+    "select_frame_indices",
+]

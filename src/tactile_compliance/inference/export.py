@@ -1,0 +1,403 @@
+"""ONNX export of a checkpoint's full forward pass, checked against PyTorch with onnxruntime.
+
+The graph takes *already normalised* inputs, exactly what the PyTorch model takes, with a
+dynamic batch axis:
+
+| name | shape | present for |
+|---|---|---|
+| ``frames`` | (batch, 3, 3, H, W) float32, per-channel normalised | every strategy |
+| ``force`` | (batch, 3) float32, F / 60 N | ImageF, ImageFW, ALL |
+| ``width`` | (batch, 3) float32, W / 0.08 m | ImageFW, ALL |
+| ``estimates`` | (batch, 2) float32, normalised log10 (elastic, Hertz) | ALL |
+| output ``modulus_normalised`` | (batch,) float32 in (0, 1) | |
+
+Models have no tower for a disabled input, so the graph has no input for it either.
+H and W are fixed to the checkpoint's frame size. The checkpoint's description
+(normalisation constants, frame size, strategy, model) is stored in the ONNX metadata
+(key ``tactile_compliance``), so :class:`OnnxEstimator` applies the same preprocessing as
+:class:`~tactile_compliance.inference.estimator.ComplianceEstimator` and has the same
+``predict`` API.
+
+Exporter: the TorchScript-based exporter (``torch.onnx.export(..., dynamo=False)``). The
+default dynamo exporter of torch 2.13 needs ``onnxscript``, which is not a dependency of
+this project; the TorchScript exporter is deprecated but works offline for all three
+models. It cannot export ``AdaptiveAvgPool2d`` when the batch axis is dynamic (VGG16's
+7 x 7 pool: the traced input size is symbolic), so the export replaces each such pool by
+the same averaging written as two fixed matrix products for the checkpoint's frame size
+(exact, checked by the parity test).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from tactile_compliance.data.dataset import prepare_frames
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.inference.estimator import ComplianceEstimator, Prediction
+from tactile_compliance.inference.inputs import PreparedInputs, prepare_inputs, required_inputs
+from tactile_compliance.models import InputStrategy
+
+__all__ = [
+    "ONNX_METADATA_KEY",
+    "OUTPUT_NAME",
+    "OnnxEstimator",
+    "export_onnx",
+    "format_export_report",
+    "onnx_input_names",
+]
+
+ONNX_METADATA_KEY = "tactile_compliance"
+OUTPUT_NAME = "modulus_normalised"
+DEFAULT_OPSET = 17
+
+
+def onnx_input_names(inputs: InputStrategy | str) -> list[str]:
+    """Graph input names for a strategy: ``frames`` plus the enabled scalar inputs."""
+    return ["frames", *required_inputs(inputs)]
+
+
+class _ExportWrapper(nn.Module):
+    """Positional inputs in ``onnx_input_names`` order -> the model's keyword call."""
+
+    def __init__(self, model: nn.Module, names: list[str]) -> None:
+        super().__init__()
+        self.model = model
+        self.names = names
+
+    def forward(self, *args: torch.Tensor) -> torch.Tensor:
+        kwargs = dict(zip(self.names[1:], args[1:], strict=True))
+        return self.model(args[0], **kwargs)
+
+
+def _pool_matrix(size_in: int, size_out: int) -> torch.Tensor:
+    """(size_out, size_in) averaging matrix of PyTorch's adaptive pooling along one axis."""
+    matrix = torch.zeros(size_out, size_in)
+    for i in range(size_out):
+        start = (i * size_in) // size_out
+        end = -((-(i + 1) * size_in) // size_out)  # ceil((i + 1) * size_in / size_out)
+        matrix[i, start:end] = 1.0 / (end - start)
+    return matrix
+
+
+class _FixedAdaptiveAvgPool2d(nn.Module):
+    """``AdaptiveAvgPool2d`` for one known input size, as ``P_h @ x @ P_w^T`` (exportable)."""
+
+    def __init__(self, size_in: tuple[int, int], size_out: tuple[int, int]) -> None:
+        super().__init__()
+        self.register_buffer("rows", _pool_matrix(size_in[0], size_out[0]))
+        self.register_buffer("cols", _pool_matrix(size_in[1], size_out[1]).t().contiguous())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.matmul(torch.matmul(self.rows, x), self.cols)
+
+
+def _exportable(
+    model: nn.Module, names: list[str], example: tuple[torch.Tensor, ...]
+) -> nn.Module:
+    """A copy of ``model`` whose adaptive average pools have fixed, exportable sizes."""
+    model = copy.deepcopy(model).eval()
+    pools = {
+        name: module
+        for name, module in model.named_modules()
+        if isinstance(module, nn.AdaptiveAvgPool2d)
+    }
+    if not pools:
+        return model
+    seen: dict[str, tuple[int, int]] = {}
+    hooks = [
+        module.register_forward_hook(
+            lambda mod, inp, out, name=name: seen.__setitem__(name, tuple(inp[0].shape[-2:]))
+        )
+        for name, module in pools.items()
+    ]
+    try:
+        with torch.no_grad():
+            _ExportWrapper(model, names)(*example)
+    finally:
+        for hook in hooks:
+            hook.remove()
+    for name, module in pools.items():
+        out = module.output_size
+        out_hw = (out, out) if isinstance(out, int) else tuple(out)
+        if name not in seen or None in out_hw:
+            continue
+        parent_name, _, attr = name.rpartition(".")
+        parent = model.get_submodule(parent_name) if parent_name else model
+        setattr(parent, attr, _FixedAdaptiveAvgPool2d(seen[name], out_hw))  # type: ignore[arg-type]
+    return model
+
+
+def _example_inputs(
+    names: list[str], batch: int, image_size: tuple[int, int], seed: int = 0
+) -> tuple[torch.Tensor, ...]:
+    """Normalised-looking random inputs (frames ~ N(0, 1), scalars in [0, 1])."""
+    gen = torch.Generator().manual_seed(seed)
+    sizes = {"force": 3, "width": 3, "estimates": 2}
+    tensors = [torch.randn(batch, 3, 3, *image_size, generator=gen)]
+    tensors += [torch.rand(batch, sizes[n], generator=gen) for n in names[1:]]
+    return tuple(tensors)
+
+
+def _ort_session(path: str | Path, threads: int | None = None) -> Any:
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    if threads is not None:
+        options.intra_op_num_threads = int(threads)
+        options.inter_op_num_threads = 1
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
+def export_onnx(
+    checkpoint: str | Path,
+    out: str | Path,
+    *,
+    image_size: tuple[int, int] | None = None,
+    opset: int = DEFAULT_OPSET,
+    check: bool = True,
+    atol: float = 1e-4,
+    check_batch_sizes: tuple[int, ...] = (1, 3),
+) -> dict[str, Any]:
+    """Export a checkpoint to ONNX (dynamic batch) and check it against PyTorch.
+
+    Args:
+        checkpoint: ``best.pt`` or a run directory.
+        out: the ``.onnx`` file to write (replaced atomically).
+        image_size: (H, W) px; only needed when the checkpoint does not record its frame
+            size and its training store is gone.
+        opset: ONNX opset version.
+        check: run onnxruntime on random inputs at ``check_batch_sizes`` and compare.
+        atol: largest acceptable absolute difference of the normalised output.
+
+    Returns:
+        A report: ``onnx_path``, ``inputs`` (name -> shape), ``output``, ``image_size``,
+        ``opset``, ``exporter``, ``max_abs_diff``, ``parity_ok``, versions, file size.
+
+    Raises:
+        ValueError: no frame size known; RuntimeError: parity worse than ``atol``.
+    """
+    estimator = ComplianceEstimator.from_checkpoint(checkpoint)
+    size = tuple(image_size) if image_size is not None else estimator.image_size
+    if size is None:
+        raise ValueError(
+            f"{estimator.source}: the checkpoint does not record its frame size and its "
+            f"training store is not available; pass image_size=(H, W)"
+        )
+    height, width = int(size[0]), int(size[1])
+    names = onnx_input_names(estimator.inputs)
+    model = estimator.model.cpu().eval()
+    example = _example_inputs(names, 2, (height, width))
+    wrapper = _ExportWrapper(_exportable(model, names, example), names).eval()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        with warnings.catch_warnings():
+            # The TorchScript exporter is deprecated (see the module docstring) and warns
+            # about shape-dependent Python code that is constant for a fixed frame size.
+            warnings.simplefilter("ignore")
+            torch.onnx.export(
+                wrapper,
+                example,
+                str(tmp),
+                dynamo=False,
+                input_names=names,
+                output_names=[OUTPUT_NAME],
+                dynamic_axes={name: {0: "batch"} for name in [*names, OUTPUT_NAME]},
+                opset_version=opset,
+                do_constant_folding=True,
+            )
+        _write_metadata(tmp, estimator, (height, width), names)
+        tmp.replace(out)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+    import onnxruntime
+
+    report: dict[str, Any] = {
+        "onnx_path": str(out),
+        "checkpoint": estimator.source,
+        "model": estimator.model_name,
+        "strategy": estimator.inputs.value,
+        "inputs": {
+            name: ["batch", 3, 3, height, width] if name == "frames"
+            else ["batch", 2 if name == "estimates" else 3]
+            for name in names
+        },
+        "output": {OUTPUT_NAME: ["batch"]},
+        "image_size": [height, width],
+        "opset": opset,
+        "exporter": "torch.onnx.export(dynamo=False) (TorchScript-based)",
+        "torch_version": torch.__version__,
+        "onnxruntime_version": onnxruntime.__version__,
+        "file_size_bytes": out.stat().st_size,
+        "atol": atol,
+    }
+    if check:
+        diff = onnx_parity(out, model, names, (height, width), check_batch_sizes)
+        report.update(
+            max_abs_diff=diff, parity_ok=diff <= atol, batch_sizes_checked=list(check_batch_sizes)
+        )
+        if diff > atol:
+            raise RuntimeError(
+                f"ONNX output differs from PyTorch by {diff:.3g} (> {atol:g}); {out} kept "
+                f"for inspection"
+            )
+    return report
+
+
+def onnx_parity(
+    path: str | Path,
+    model: nn.Module,
+    names: list[str],
+    image_size: tuple[int, int],
+    batch_sizes: tuple[int, ...] = (1, 3),
+) -> float:
+    """Largest |ONNX - PyTorch| of the normalised output over random inputs."""
+    session = _ort_session(path)
+    worst = 0.0
+    for i, batch in enumerate(batch_sizes):
+        inputs = _example_inputs(names, batch, image_size, seed=100 + i)
+        with torch.no_grad():
+            expected = model(inputs[0], **dict(zip(names[1:], inputs[1:], strict=True)))
+        got = session.run([OUTPUT_NAME], {n: t.numpy() for n, t in zip(names, inputs, strict=True)})
+        worst = max(worst, float(np.max(np.abs(got[0] - expected.numpy()))))
+    return worst
+
+
+def _write_metadata(
+    path: Path, estimator: ComplianceEstimator, size: tuple[int, int], names: list[str]
+) -> None:
+    import onnx
+
+    proto = onnx.load(str(path))
+    description = {
+        "model": estimator.model_name,
+        "inputs": estimator.inputs.value,
+        "input_names": names,
+        "output_name": OUTPUT_NAME,
+        "image_size": list(size),
+        "normalisation": estimator.constants.to_dict(),
+        "checkpoint": estimator.source,
+        "seed": estimator.meta.get("seed"),
+        "package_version": estimator.meta.get("package_version"),
+    }
+    entry = proto.metadata_props.add()
+    entry.key = ONNX_METADATA_KEY
+    entry.value = json.dumps(description)
+    proto.doc_string = (
+        f"tactile-compliance {estimator.model_name} ({estimator.inputs.value}): normalised "
+        f"inputs {names} -> {OUTPUT_NAME} = (log10 E - lo) / (hi - lo)"
+    )
+    onnx.save(proto, str(path))
+
+
+class OnnxEstimator:
+    """The ``predict`` API of :class:`ComplianceEstimator` on an exported ONNX file.
+
+    Preprocessing is the project's own (``prepare_inputs`` + ``prepare_frames``) with the
+    constants stored in the file, so both estimators agree to the export's parity.
+
+    Args:
+        path: an ``.onnx`` file written by :func:`export_onnx`.
+        threads: onnxruntime intra-op threads (None = onnxruntime's default).
+    """
+
+    def __init__(self, path: str | Path, *, threads: int | None = None) -> None:
+        self.source = str(path)
+        self.session = _ort_session(path, threads)
+        meta = self.session.get_modelmeta().custom_metadata_map
+        if ONNX_METADATA_KEY not in meta:
+            raise ValueError(f"{path}: not exported by tactile-compliance (no metadata)")
+        self.meta: dict[str, Any] = json.loads(meta[ONNX_METADATA_KEY])
+        self.constants = NormalisationConstants.from_dict(self.meta["normalisation"])
+        self.image_size: tuple[int, int] = tuple(self.meta["image_size"])  # type: ignore[assignment]
+        self.inputs = InputStrategy.parse(self.meta["inputs"])
+        self.model_name = str(self.meta["model"])
+        self.input_names: list[str] = list(self.meta["input_names"])
+
+    @property
+    def required_inputs(self) -> tuple[str, ...]:
+        """Scalar inputs ``predict`` needs besides the frames."""
+        return required_inputs(self.inputs)
+
+    def prepare(
+        self,
+        frames: Any,
+        force: Any = None,
+        width: Any = None,
+        estimates: Any = None,
+        *,
+        channel_order: str = "RGB",
+    ) -> PreparedInputs:
+        """Validate and normalise inputs (same checks as ``ComplianceEstimator``)."""
+        return prepare_inputs(
+            frames,
+            {"force": force, "width": width, "estimates": estimates},
+            inputs=self.inputs,
+            constants=self.constants,
+            min_size=1,
+            channel_order=channel_order,
+            describe=f"ONNX model {self.source} ({self.model_name})",
+        )
+
+    def predict_prepared(self, prepared: PreparedInputs, batch_size: int = 64) -> np.ndarray:
+        """Normalised outputs y (B,) of a prepared batch."""
+        outputs = []
+        for chunk in prepared.chunks(batch_size):
+            frames = prepare_frames(chunk["frames"], self.constants, self.image_size)
+            feed = {"frames": frames.numpy()}
+            feed.update({name: chunk[name].numpy() for name in self.input_names[1:]})
+            outputs.append(self.session.run([OUTPUT_NAME], feed)[0])
+        return np.concatenate(outputs)
+
+    def predict(
+        self,
+        frames: Any,
+        force: Any = None,
+        width: Any = None,
+        estimates: Any = None,
+        *,
+        channel_order: str = "RGB",
+        batch_size: int = 64,
+    ) -> Prediction:
+        """Young's modulus of one grasp or a batch; see ``ComplianceEstimator.predict``."""
+        prepared = self.prepare(frames, force, width, estimates, channel_order=channel_order)
+        y = self.predict_prepared(prepared, batch_size=batch_size)
+        return Prediction.from_normalised(y, self.constants, prepared.single)
+
+
+def format_export_report(report: dict[str, Any]) -> str:
+    """Human-readable text of an :func:`export_onnx` report (what the CLI prints)."""
+    inputs = ", ".join(
+        f"{name} {tuple(shape)}".replace("'", "") for name, shape in report["inputs"].items()
+    )
+    lines = [
+        f"Wrote {report['onnx_path']} ({report['file_size_bytes'] / 1e6:.1f} MB, opset "
+        f"{report['opset']}, {report['exporter']})",
+        f"Model     {report['model']} inputs={report['strategy']}, frames "
+        f"{report['image_size'][0]}x{report['image_size'][1]}",
+        f"Inputs    {inputs} (normalised; see docs/inference.md)",
+        f"Output    {OUTPUT_NAME} (batch,) = (log10 E - lo) / (hi - lo)",
+    ]
+    if "max_abs_diff" in report:
+        sizes = ", ".join(map(str, report["batch_sizes_checked"]))
+        verdict = "OK" if report["parity_ok"] else "FAILED"
+        lines.append(
+            f"Parity    max |ONNX - PyTorch| = {report['max_abs_diff']:.2e} at batch sizes "
+            f"{sizes} (onnxruntime {report['onnxruntime_version']}; tolerance "
+            f"{report['atol']:g}): {verdict}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,629 @@
+"""Streaming estimation from a live sensor: frames with force/width readings one at a time.
+
+The dataset's three frames were chosen after the grasp, from the whole recording
+(``DATA_FORMATS.md``, "How the three frames were chosen"):
+
+* ``i_start`` = first frame with F >= 5 N (contact onset);
+* ``i_peak`` = first frame with F >= 0.975 F_max;
+* the three frames = ``i_start + floor(linspace(0, i_peak - i_start, 3))``.
+
+A live stream does not know F_max yet. :class:`StreamingEstimator` applies the same rule to
+the frames received so far (F_max = the largest force *so far*). While the gripper
+loads, ``i_peak`` is the newest frame, so every new frame gives a new selection and a
+refined provisional estimate; once the force levels off the selection stops changing.
+The estimate becomes final when the grasp is released (force below
+``release_fraction`` x F_max) or when :meth:`StreamingEstimator.finish` is called. At
+that point the selection is the whole-trajectory selection, so the final estimate equals
+:func:`predict_trajectory` on the same recording (the batch estimate).
+
+``window=n`` is the paper's future-work variant "estimate from the last n frames instead
+of the whole trajectory": the three frames are spread over the last ``n`` frames up to
+``i_peak`` (``[max(i_start, i_peak - n + 1), i_peak]``) instead of over
+``[i_start, i_peak]``. It needs only a bounded buffer and no reliable contact onset;
+``docs/inference.md`` documents its accuracy against the full-trajectory estimate.
+
+Frames are either difference images (``frame_kind="difference"``, as stored in the
+dataset: uint8 or float in [0, 1]) or raw uint8 camera frames (``frame_kind="raw"``);
+raw frames are turned into difference images ``(frame - GaussianBlur11x11(reference)) /
+255 + 0.5`` with the no-contact ``reference`` frame (default: the first frame received),
+then quantised like the store (``data.store.frames_to_uint8``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any, Literal
+
+import cv2
+import numpy as np
+
+from tactile_compliance.data.store import frames_to_uint8
+from tactile_compliance.models import NUM_FRAMES
+
+if TYPE_CHECKING:
+    from tactile_compliance.inference.estimator import ComplianceEstimator, Prediction
+
+__all__ = [
+    "ONSET_FORCE_N",
+    "PEAK_FRACTION",
+    "FrameSelection",
+    "StreamEstimate",
+    "StreamingEstimator",
+    "difference_image",
+    "predict_trajectory",
+    "select_frame_indices",
+]
+
+ONSET_FORCE_N = 5.0
+"""Contact onset: first frame with F >= 5 N (the dataset's rule)."""
+
+PEAK_FRACTION = 0.975
+"""End of the selection: first frame with F >= 0.975 F_max (the dataset's rule)."""
+
+MIN_PEAK_FORCE_N = 10.0
+"""Grasps whose peak force stays below 10 N were skipped in the dataset."""
+
+FrameKind = Literal["difference", "raw"]
+
+
+def difference_image(frame: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Raw camera frame -> difference image in the store's uint8 encoding.
+
+    ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5``, as in the recording pipeline
+    (blurring the reference suppresses its pixel noise), then quantised with the store's
+    own ``frames_to_uint8`` exactly like the importer stores frames, so a streamed frame
+    reaches the model in the same encoding as the training frames.
+
+    Args:
+        frame: raw uint8 frame (H, W, 3).
+        reference: raw uint8 no-contact frame (H, W, 3) of the same sensor.
+    """
+    frame = np.asarray(frame)
+    reference = np.asarray(reference)
+    if frame.shape != reference.shape or frame.ndim != 3 or frame.shape[-1] != 3:
+        raise ValueError(
+            f"raw frame {frame.shape} and reference {reference.shape} must both be (H, W, 3)"
+        )
+    if frame.dtype != np.uint8 or reference.dtype != np.uint8:
+        raise ValueError(
+            f"raw frames and the reference must be uint8 camera images, got "
+            f"{frame.dtype} and {reference.dtype}"
+        )
+    blurred = cv2.GaussianBlur(reference, (11, 11), 0).astype(np.float32)
+    diff = (frame.astype(np.float32) - blurred) / np.float32(255.0) + np.float32(0.5)
+    return frames_to_uint8(diff)
+
+
+@dataclass(frozen=True)
+class FrameSelection:
+    """The three frames chosen by the force rule (indices into the force sequence).
+
+    Attributes:
+        indices: the three frame indices, in time order.
+        onset: ``i_start``, first frame with F >= the onset force.
+        peak: ``i_peak``, first frame with F >= peak_fraction x F_max.
+        window_start: first frame the three frames are spread over (``onset`` unless a
+            window cuts it).
+    """
+
+    indices: tuple[int, int, int]
+    onset: int
+    peak: int
+    window_start: int
+
+
+def select_frame_indices(
+    forces_n: Any,
+    *,
+    window: int | None = None,
+    onset_force_n: float = ONSET_FORCE_N,
+    peak_fraction: float = PEAK_FRACTION,
+    min_peak_force_n: float = MIN_PEAK_FORCE_N,
+) -> FrameSelection | None:
+    """The dataset's three-frame selection on a force sequence (N), or None if not yet possible.
+
+    None when no frame reaches ``onset_force_n``, the peak is below ``min_peak_force_n``,
+    or fewer than three distinct frames lie between the window start and the peak.
+    With ``window=n`` the frames are spread over the last ``n`` frames up to the peak.
+    """
+    f = np.asarray(forces_n, dtype=np.float64).reshape(-1)
+    if window is not None and (isinstance(window, bool) or int(window) < NUM_FRAMES):
+        raise ValueError(f"window must be None or an integer >= {NUM_FRAMES}, got {window!r}")
+    above = np.flatnonzero(f >= onset_force_n)
+    if above.size == 0:
+        return None
+    onset = int(above[0])
+    f_max = float(f[onset:].max())
+    if f_max < min_peak_force_n:
+        return None
+    # Searching from the onset keeps i_peak >= i_start even for peaks just above 5 N.
+    peak = onset + int(np.argmax(f[onset:] >= peak_fraction * f_max))
+    start = onset if window is None else max(onset, peak - int(window) + 1)
+    if peak - start < NUM_FRAMES - 1:
+        return None
+    # Same arithmetic as the published selection: offset + truncated linspace.
+    offsets = np.linspace(0, peak - start, NUM_FRAMES, endpoint=True).astype(int)
+    indices = tuple(int(start + o) for o in offsets)
+    return FrameSelection(indices=indices, onset=onset, peak=peak, window_start=start)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class StreamEstimate:
+    """One estimate emitted by a stream.
+
+    Attributes:
+        modulus_pa: Young's modulus E in Pa.
+        log10_modulus_pa: log10 E.
+        frame_indices: the three frames used (indices since the stream started or was reset).
+        onset_frame: contact onset (first frame with F >= the onset force).
+        peak_frame: first frame with F >= peak_fraction x F_max so far.
+        frames_seen: frames received when the estimate was made.
+        final: True for the last estimate of the grasp (released or ``finish()``).
+        force_n: force at the three frames (N).
+        width_m: width at the three frames (m), None if not streamed.
+        window: the window length in frames, None for the whole trajectory.
+    """
+
+    modulus_pa: float
+    log10_modulus_pa: float
+    frame_indices: tuple[int, int, int]
+    onset_frame: int
+    peak_frame: int
+    frames_seen: int
+    final: bool
+    force_n: tuple[float, float, float]
+    width_m: tuple[float, float, float] | None
+    window: int | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly dict."""
+        return {
+            "modulus_pa": self.modulus_pa,
+            "log10_modulus_pa": self.log10_modulus_pa,
+            "frame_indices": list(self.frame_indices),
+            "onset_frame": self.onset_frame,
+            "peak_frame": self.peak_frame,
+            "frames_seen": self.frames_seen,
+            "final": self.final,
+            "force_n": list(self.force_n),
+            "width_m": list(self.width_m) if self.width_m is not None else None,
+            "window": self.window,
+        }
+
+
+def _check_reading(name: str, value: Any, unit: str) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name} must be a number in {unit}, got {value!r}") from err
+    if not np.isfinite(number):
+        raise ValueError(f"{name} must be finite ({unit}), got {number}")
+    return number
+
+
+@dataclass
+class _Buffer:
+    """Frames and readings since the stream started; old frames are dropped by offset."""
+
+    offset: int = 0  # global index of frames[0]
+    frames: list[np.ndarray] = field(default_factory=list)
+    depths: list[np.ndarray | None] = field(default_factory=list)
+    forces: list[float] = field(default_factory=list)  # every frame (cheap), global index
+    widths: list[float] = field(default_factory=list)
+
+
+class StreamingEstimator:
+    """Feed frames + force/width one at a time; get an estimate as soon as possible.
+
+    ```python
+    stream = estimator.stream()                         # or StreamingEstimator(estimator)
+    for frame, force_n, width_m in sensor:
+        estimate = stream.update(frame, force_n, width_m)
+        if estimate is not None:                        # provisional, then refinements
+            print(estimate.modulus_pa, estimate.final)
+    final = stream.finish()                             # or: emitted on release
+    ```
+
+    What the stream needs: a frame and the normal force (N) with every update (the frame
+    selection is by force, so even Image models need force); the gripper width (m) when
+    the checkpoint uses width; for ALL checkpoints the analytical estimates (elastic E,
+    Hertz E*) in Pa, either given once (``estimates_pa=``, at construction or with any
+    update) or computed on the fly from per-frame depth maps (``depth_mm=`` with each
+    update, via ``physics.contact.analytical_estimates_pa`` over ``[onset, peak]``; these
+    on-the-fly values need not equal the dataset's, whose estimators clip the press
+    differently).
+
+    Args:
+        estimator: a :class:`ComplianceEstimator` (or anything with the same ``predict``).
+        window: None (whole trajectory, the dataset's rule) or n >= 3 (last n frames).
+        frame_kind: ``"difference"`` (difference images, uint8 or float [0, 1]) or
+            ``"raw"`` (uint8 camera frames, differenced against ``reference``).
+        reference: raw no-contact frame for ``frame_kind="raw"``; default the first frame.
+        channel_order: ``"RGB"`` or ``"BGR"`` (OpenCV cameras) of the frames.
+        estimates_pa: (elastic, Hertz) in Pa, for ALL checkpoints.
+        onset_force_n, peak_fraction, min_peak_force_n: the selection rule (dataset values).
+        release_fraction: the grasp ends (final estimate) when, after reaching the minimum
+            peak force, the force falls below this fraction of F_max.
+        max_frames: buffer bound; a grasp still running after this many frames since
+            onset is finalised (whole-trajectory mode keeps every frame since onset).
+    """
+
+    def __init__(
+        self,
+        estimator: ComplianceEstimator,
+        *,
+        window: int | None = None,
+        frame_kind: FrameKind = "difference",
+        reference: np.ndarray | None = None,
+        channel_order: str = "RGB",
+        estimates_pa: Any = None,
+        onset_force_n: float = ONSET_FORCE_N,
+        peak_fraction: float = PEAK_FRACTION,
+        min_peak_force_n: float = MIN_PEAK_FORCE_N,
+        release_fraction: float = 0.5,
+        max_frames: int = 900,
+    ) -> None:
+        if window is not None and (isinstance(window, bool) or int(window) < NUM_FRAMES):
+            raise ValueError(f"window must be None or an integer >= {NUM_FRAMES}, got {window!r}")
+        if frame_kind not in ("difference", "raw"):
+            raise ValueError(f"frame_kind must be 'difference' or 'raw', got {frame_kind!r}")
+        if not 0 < peak_fraction <= 1:
+            raise ValueError(f"peak_fraction must be in (0, 1], got {peak_fraction}")
+        if not 0 <= release_fraction < peak_fraction:
+            raise ValueError(
+                f"release_fraction must be in [0, peak_fraction), got {release_fraction}"
+            )
+        if onset_force_n <= 0 or min_peak_force_n < onset_force_n:
+            raise ValueError("need 0 < onset_force_n <= min_peak_force_n (N)")
+        if max_frames < NUM_FRAMES:
+            raise ValueError(f"max_frames must be >= {NUM_FRAMES}, got {max_frames}")
+        self.estimator = estimator
+        self.window = int(window) if window is not None else None
+        self.frame_kind: FrameKind = frame_kind
+        self.channel_order = channel_order
+        self.onset_force_n = float(onset_force_n)
+        self.peak_fraction = float(peak_fraction)
+        self.min_peak_force_n = float(min_peak_force_n)
+        self.release_fraction = float(release_fraction)
+        self.max_frames = int(max_frames)
+        self._initial_reference = None if reference is None else self._check_raw(reference)
+        self._initial_estimates = estimates_pa
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget the current grasp (keeps the options and an explicit reference frame)."""
+        self._buffer = _Buffer()
+        self._reference = self._initial_reference
+        self._estimates_pa = (
+            None if self._initial_estimates is None
+            else self._check_estimates(self._initial_estimates)
+        )
+        self._frame_shape: tuple[int, ...] | None = None
+        self._last: StreamEstimate | None = None
+        self._last_key: tuple[Any, ...] | None = None
+        self._done = False
+        self._has_depth: bool | None = None
+        self.history: list[StreamEstimate] = []
+
+    @property
+    def state(self) -> str:
+        """``"waiting"`` (no contact yet), ``"pressing"`` or ``"done"`` (final emitted)."""
+        if self._done:
+            return "done"
+        forces = self._buffer.forces
+        return "pressing" if any(f >= self.onset_force_n for f in forces) else "waiting"
+
+    @property
+    def latest(self) -> StreamEstimate | None:
+        """The most recent estimate (None before the first one)."""
+        return self._last
+
+    @property
+    def frames_seen(self) -> int:
+        """Frames received since the stream started or was reset."""
+        return len(self._buffer.forces)
+
+    # ------------------------------------------------------------------ input checks
+    @staticmethod
+    def _check_raw(frame: Any) -> np.ndarray:
+        array = np.asarray(frame)
+        if array.ndim != 3 or array.shape[-1] != 3 or array.dtype != np.uint8:
+            raise ValueError(
+                f"raw frames must be uint8 camera images (H, W, 3), got {array.dtype} "
+                f"{tuple(array.shape)}"
+            )
+        return array
+
+    def _check_frame(self, frame: Any) -> np.ndarray:
+        if self.frame_kind == "raw":
+            array = self._check_raw(frame)
+        else:
+            array = np.asarray(frame)
+            if array.ndim != 3 or array.shape[-1] != 3:
+                raise ValueError(
+                    f"a streamed frame must be one difference image (H, W, 3), got "
+                    f"{tuple(array.shape)}"
+                )
+            if array.dtype != np.uint8:
+                if not np.issubdtype(array.dtype, np.floating):
+                    raise ValueError(
+                        f"difference frames must be uint8 or float in [0, 1], got {array.dtype}"
+                    )
+                if not np.all(np.isfinite(array)):
+                    raise ValueError("frame contains NaN/inf values")
+        if self._frame_shape is None:
+            self._frame_shape = array.shape
+        elif array.shape != self._frame_shape:
+            raise ValueError(
+                f"frame shape changed from {self._frame_shape} to {array.shape} within a grasp"
+            )
+        return array
+
+    @staticmethod
+    def _check_estimates(value: Any) -> np.ndarray:
+        array = np.asarray(value, dtype=np.float64).reshape(-1)
+        if array.shape != (2,) or not np.all(np.isfinite(array)):
+            raise ValueError(
+                f"estimates_pa must be two finite values (elastic E, Hertz E*) in Pa, "
+                f"got {value!r}"
+            )
+        return array
+
+    # ------------------------------------------------------------------ feeding
+    def update(
+        self,
+        frame: Any,
+        force_n: float,
+        width_m: float | None = None,
+        *,
+        estimates_pa: Any = None,
+        depth_mm: Any = None,
+    ) -> StreamEstimate | None:
+        """Add one frame and its readings; returns a new estimate or None.
+
+        An estimate is returned when the three selected frames change (a refinement) and
+        when the grasp ends (``final=True``). After the final estimate the stream ignores
+        further frames until :meth:`reset`.
+
+        Args:
+            frame: (H, W, 3) difference image or raw frame (see ``frame_kind``).
+            force_n: normal force in N at this frame.
+            width_m: gripper width in m at this frame (needed when the model uses width).
+            estimates_pa: (elastic E, Hertz E*) in Pa, replaces earlier values.
+            depth_mm: (H', W') gel depth map in mm of this frame, to compute the estimates
+                on the fly (give it with every frame or never).
+        """
+        if self._done:
+            return None
+        array = self._check_frame(frame)
+        force = _check_reading("force_n", force_n, "N")
+        needs_width = "width" in self.estimator.required_inputs
+        if width_m is None:
+            if needs_width:
+                raise ValueError(
+                    f"this checkpoint uses inputs={self.estimator.inputs.value}: every "
+                    f"update needs width_m (gripper width in m)"
+                )
+            width = float("nan")
+        else:
+            width = _check_reading("width_m", width_m, "m")
+        if estimates_pa is not None:
+            self._estimates_pa = self._check_estimates(estimates_pa)
+        has_depth = depth_mm is not None
+        if self._has_depth is None:
+            self._has_depth = has_depth
+        elif has_depth != self._has_depth:
+            raise ValueError("depth_mm must be given with every frame of a grasp or never")
+        if self.frame_kind == "raw" and self._reference is None:
+            # The first frame of a grasp recording shows the gel without contact.
+            self._reference = array.copy()
+
+        buf = self._buffer
+        buf.forces.append(force)
+        buf.widths.append(width)
+        buf.frames.append(array.copy())
+        buf.depths.append(np.asarray(depth_mm, dtype=np.float64) if has_depth else None)
+        self._trim()
+
+        forces = np.asarray(buf.forces)
+        f_max = float(forces.max())
+        # Reaching the minimum peak force implies contact, so this is a release after a press.
+        released = f_max >= self.min_peak_force_n and force < self.release_fraction * f_max
+        onset = np.flatnonzero(forces >= self.onset_force_n)
+        overflow = onset.size > 0 and len(forces) - int(onset[0]) >= self.max_frames
+        if released or overflow:
+            return self.finish()
+        return self._estimate(final=False)
+
+    def _trim(self) -> None:
+        """Drop frames that no future selection can use (bounded memory)."""
+        buf = self._buffer
+        forces = np.asarray(buf.forces)
+        onset = np.flatnonzero(forces >= self.onset_force_n)
+        if onset.size == 0:
+            keep_from = len(forces) - 1  # before contact only the newest frame matters
+        elif self.window is None:
+            keep_from = int(onset[0])
+        else:
+            # i_peak never moves backwards (F_max only grows), so frames before the
+            # current window start are never selected again.
+            selection = select_frame_indices(
+                forces, window=self.window, onset_force_n=self.onset_force_n,
+                peak_fraction=self.peak_fraction, min_peak_force_n=0.0,
+            )
+            keep_from = selection.window_start if selection is not None else int(onset[0])
+        drop = keep_from - buf.offset
+        if drop > 0:
+            del buf.frames[:drop]
+            del buf.depths[:drop]
+            buf.offset += drop
+
+    def finish(self) -> StreamEstimate | None:
+        """End the grasp now: the final estimate (None if the grasp never had enough data)."""
+        if self._done:
+            return self._last if self._last is not None and self._last.final else None
+        estimate = self._estimate(final=True)
+        self._done = True
+        return estimate
+
+    # ------------------------------------------------------------------ estimation
+    def _select(self) -> FrameSelection | None:
+        return select_frame_indices(
+            self._buffer.forces,
+            window=self.window,
+            onset_force_n=self.onset_force_n,
+            peak_fraction=self.peak_fraction,
+            min_peak_force_n=self.min_peak_force_n,
+        )
+
+    def _frames_at(self, indices: tuple[int, ...]) -> np.ndarray:
+        buf = self._buffer
+        frames = [buf.frames[i - buf.offset] for i in indices]
+        if self.frame_kind == "raw":
+            assert self._reference is not None
+            frames = [difference_image(f, self._reference) for f in frames]
+        return np.stack(frames)
+
+    def _current_estimates(self, selection: FrameSelection) -> np.ndarray | None:
+        if self._estimates_pa is not None or not self._has_depth:
+            return self._estimates_pa
+        from tactile_compliance.physics.contact import analytical_estimates_pa
+
+        buf = self._buffer
+        lo = max(selection.window_start, buf.offset)
+        span = range(lo, selection.peak + 1)
+        depths = np.stack([buf.depths[i - buf.offset] for i in span])  # type: ignore[misc]
+        forces = np.asarray(buf.forces)[lo : selection.peak + 1]
+        widths = np.asarray(buf.widths)[lo : selection.peak + 1]
+        values = np.asarray(analytical_estimates_pa(forces, widths, depths), dtype=np.float64)
+        return values if np.all(np.isfinite(values)) else None
+
+    def _estimate(self, *, final: bool) -> StreamEstimate | None:
+        selection = self._select()
+        if selection is None:
+            return None
+        needs_estimates = "estimates" in self.estimator.required_inputs
+        estimates = self._current_estimates(selection) if needs_estimates else None
+        if needs_estimates and estimates is None:
+            if self._has_depth:
+                return None  # not estimable yet from the depth maps; wait for more frames
+            raise ValueError(
+                f"this checkpoint uses inputs={self.estimator.inputs.value}: give the "
+                f"analytical estimates (elastic E, Hertz E*) in Pa as estimates_pa=, or "
+                f"depth_mm= with every frame"
+            )
+        key = (selection.indices, None if estimates is None else tuple(estimates))
+        if key == self._last_key and self._last is not None:
+            if not final:
+                return None
+            # Same frames as the last refinement: the final estimate is that one.
+            estimate = _replace_final(self._last, self.frames_seen)
+        else:
+            estimate = self._predict(selection, estimates, final)
+        self._last, self._last_key = estimate, key
+        self.history.append(estimate)
+        return estimate
+
+    def _predict(
+        self, selection: FrameSelection, estimates: np.ndarray | None, final: bool
+    ) -> StreamEstimate:
+        idx = selection.indices
+        forces = tuple(float(self._buffer.forces[i]) for i in idx)
+        widths_all = np.asarray(self._buffer.widths)[list(idx)]
+        widths = None if np.isnan(widths_all).any() else tuple(float(w) for w in widths_all)
+        prediction: Prediction = self.estimator.predict(
+            self._frames_at(idx),
+            force=np.asarray(forces),
+            width=None if widths is None else np.asarray(widths),
+            estimates=estimates,
+            channel_order=self.channel_order,
+        )
+        return StreamEstimate(
+            modulus_pa=float(prediction.modulus_pa),
+            log10_modulus_pa=float(prediction.log10_modulus_pa),
+            frame_indices=idx,
+            onset_frame=selection.onset,
+            peak_frame=selection.peak,
+            frames_seen=self.frames_seen,
+            final=final,
+            force_n=forces,  # type: ignore[arg-type]
+            width_m=widths,  # type: ignore[arg-type]
+            window=self.window,
+        )
+
+
+def _replace_final(estimate: StreamEstimate, frames_seen: int) -> StreamEstimate:
+    return replace(estimate, final=True, frames_seen=frames_seen)
+
+
+def predict_trajectory(
+    estimator: ComplianceEstimator,
+    frames: Any,
+    force_n: Any,
+    width_m: Any = None,
+    estimates_pa: Any = None,
+    *,
+    window: int | None = None,
+    frame_kind: FrameKind = "difference",
+    reference: np.ndarray | None = None,
+    channel_order: str = "RGB",
+    onset_force_n: float = ONSET_FORCE_N,
+    peak_fraction: float = PEAK_FRACTION,
+    min_peak_force_n: float = MIN_PEAK_FORCE_N,
+) -> tuple[Prediction, FrameSelection]:
+    """Batch estimate of a whole recorded grasp: select three frames by force, predict.
+
+    Args:
+        frames: (T, H, W, 3) difference images (or raw frames with ``frame_kind="raw"``).
+        force_n: (T,) normal force in N.
+        width_m: (T,) gripper width in m (when the model uses width).
+        estimates_pa: (elastic E, Hertz E*) in Pa (ALL models).
+        window: None (dataset rule) or the last ``n`` frames up to the peak.
+
+    Returns:
+        (prediction for the grasp, the frame selection used).
+
+    Raises:
+        ValueError: inconsistent lengths, or the grasp never reaches the selection
+            thresholds (no contact, peak below ``min_peak_force_n``, too few frames).
+    """
+    frames = np.asarray(frames)
+    forces = np.asarray(force_n, dtype=np.float64).reshape(-1)
+    if frames.ndim != 4 or frames.shape[-1] != 3:
+        raise ValueError(f"frames must be a (T, H, W, 3) sequence, got {tuple(frames.shape)}")
+    if len(frames) != len(forces):
+        raise ValueError(f"{len(frames)} frames but {len(forces)} force readings")
+    widths = None
+    if width_m is not None:
+        widths = np.asarray(width_m, dtype=np.float64).reshape(-1)
+        if len(widths) != len(forces):
+            raise ValueError(f"{len(frames)} frames but {len(widths)} width readings")
+    selection = select_frame_indices(
+        forces,
+        window=window,
+        onset_force_n=onset_force_n,
+        peak_fraction=peak_fraction,
+        min_peak_force_n=min_peak_force_n,
+    )
+    if selection is None:
+        raise ValueError(
+            f"no frame selection possible: the force never reaches {onset_force_n:g} N, "
+            f"peaks below {min_peak_force_n:g} N, or rises in fewer than "
+            f"{NUM_FRAMES} frames"
+        )
+    idx = list(selection.indices)
+    chosen = frames[idx]
+    if frame_kind == "raw":
+        ref = frames[0] if reference is None else np.asarray(reference)
+        chosen = np.stack([difference_image(f, ref) for f in chosen])
+    elif frame_kind != "difference":
+        raise ValueError(f"frame_kind must be 'difference' or 'raw', got {frame_kind!r}")
+    prediction = estimator.predict(
+        chosen,
+        force=forces[idx],
+        width=None if widths is None else widths[idx],
+        estimates=estimates_pa,
+        channel_order=channel_order,
+    )
+    return prediction, selection

@@ -1,0 +1,342 @@
+"""Two inference studies on synthetic data: the streaming window and ensemble calibration.
+
+1. **Window study** (the paper's future work "estimate from the last n frames instead of
+   the whole trajectory"): for held-out grasps, the whole recording is rendered frame by
+   frame with the synthetic generator, fed to :class:`StreamingEstimator` with
+   ``window=None`` (the dataset's rule) and with ``window=n``, and the final and the
+   first (earliest) estimates are compared with the truth and with the full-trajectory
+   estimate.
+2. **Ensemble calibration**: the seeds of one configuration, trained on one shared split,
+   form an ensemble; the coverage of its 80 % interval is measured on the test split
+   (:func:`~tactile_compliance.inference.ensemble.ensemble_calibration`).
+
+Run everything (generation, import, K training runs, both studies; about 10-20 minutes
+on 2 CPU cores with the defaults)::
+
+    python -m tactile_compliance.inference.studies --workdir study --json study.json
+
+The full-trajectory rendering reuses the generator's internals
+(``data.synthetic.grasp``): the generator stores only the three selected frames per
+grasp, so there is no public API for a whole recording yet. Grasps are re-simulated from
+their (seed, object, grasp) key, which gives exactly the stored grasps' time series;
+the rendered frames are new draws of the same sensor noise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from tactile_compliance.inference.ensemble import ensemble_calibration
+from tactile_compliance.inference.estimator import ComplianceEstimator
+from tactile_compliance.inference.streaming import StreamingEstimator
+
+__all__ = [
+    "GraspTrajectory",
+    "run_studies",
+    "summarise_window_study",
+    "synthetic_trajectories",
+    "window_study",
+]
+
+
+@dataclass
+class GraspTrajectory:
+    """One whole grasp recording (markerless finger).
+
+    Attributes:
+        object: object name; grasp: grasp number.
+        modulus_pa: ground truth (Pa).
+        frames: (T, H, W, 3) uint8 RGB difference images (store encoding).
+        force_n: (T,) measured normal force (N); width_m: (T,) measured width (m).
+        estimates_pa: (elastic E, Hertz E*) of the grasp (Pa), NaN if not estimable.
+    """
+
+    object: str
+    grasp: int
+    modulus_pa: float
+    frames: np.ndarray
+    force_n: np.ndarray
+    width_m: np.ndarray
+    estimates_pa: np.ndarray
+
+
+def synthetic_trajectories(
+    grasps: Sequence[tuple[str, int]],
+    *,
+    n_objects: int,
+    seed: int,
+    image_size: tuple[int, int],
+    **options: Any,
+) -> Iterator[GraspTrajectory]:
+    """Re-simulate grasps of a ``generate_burgess_tree`` dataset and render every frame.
+
+    Args:
+        grasps: (object name, grasp number) pairs, e.g. a run's test split.
+        n_objects, seed, image_size, options: the generation's parameters (the default
+            object mix; ``options`` are ``SimulationOptions`` fields).
+    """
+    from tactile_compliance.data.store import frames_to_uint8
+    from tactile_compliance.data.synthetic.geometry import PadGrid, sag_map, sample_pose
+    from tactile_compliance.data.synthetic.grasp import (
+        SimulationOptions,
+        _object_mechanics,
+        _render_sequence,
+        make_context,
+        simulate_grasp,
+    )
+    from tactile_compliance.data.synthetic.objects import default_objects
+    from tactile_compliance.data.synthetic.rng import stream
+    from tactile_compliance.data.synthetic.textures import texture_window
+
+    opt = SimulationOptions(image_size=tuple(image_size), **options)  # type: ignore[arg-type]
+    specs = {s.name: s for s in default_objects(n_objects, seed)}
+    contexts: dict[str, Any] = {}
+    for name, grasp in grasps:
+        if name not in specs:
+            raise ValueError(f"object {name!r} is not in the default mix of {n_objects} objects")
+        spec = specs[name]
+        ctx = contexts.setdefault(name, make_context(spec, seed, opt))
+        result = simulate_grasp(ctx, int(grasp))
+        if not result.samples:
+            continue  # the generator rejected this grasp too
+        timeline = result.timeline
+        # Same keys as simulate_grasp: identical poses, texture window and render stream.
+        key = (seed, spec.name, "grasp", int(grasp))
+        pose = sample_pose(stream(*key, "pose"), spec.geometry.kind)
+        grid = PadGrid(opt.render_cell_mm)
+        obj = _object_mechanics(spec)
+        gel = ctx.session.gels[0]
+        share = obj.plane_strain_modulus_pa / (
+            obj.plane_strain_modulus_pa + gel.plane_strain_modulus_pa
+        )
+        diff_bgr, _ = _render_sequence(
+            timeline.approach_mm[0],
+            sag_map(spec.geometry, grid, pose, side=0),
+            grid,
+            gel,
+            obj,
+            ctx.session.looks[0],
+            opt.image_size,
+            stream(*key, "render-full", 0),
+            texture=texture_window(ctx.textures[0], opt.image_size, stream(*key, "texture")),
+            texture_share=share,
+            solve_scale=opt.depth_solve_scale,
+        )
+        sample = result.samples[0]
+        yield GraspTrajectory(
+            object=name,
+            grasp=int(grasp),
+            modulus_pa=float(spec.modulus_pa),
+            frames=frames_to_uint8(diff_bgr[..., ::-1]),  # BGR (OpenCV) -> RGB like the store
+            force_n=np.asarray(timeline.force_n, dtype=np.float64),
+            width_m=np.asarray(timeline.width_m, dtype=np.float64),
+            estimates_pa=np.array([sample.elastic_estimate, sample.hertz_estimate]),
+        )
+
+
+def window_study(
+    estimator: ComplianceEstimator,
+    trajectories: Sequence[GraspTrajectory],
+    windows: Sequence[int | None] = (None, 3, 5, 8, 12),
+) -> pd.DataFrame:
+    """Stream every trajectory with every window; one row per (grasp, window).
+
+    Columns: object, grasp, window (0 = whole trajectory), true_log10, final_log10 and
+    first_log10 (the final and the earliest estimate), first_frames_after_onset (how many
+    frames after contact the first estimate came), final_frames_after_onset, span
+    (frames between the first and last selected frame).
+    """
+    rows = []
+    needs_estimates = "estimates" in estimator.required_inputs
+    for trajectory in trajectories:
+        if needs_estimates and not np.all(np.isfinite(trajectory.estimates_pa)):
+            continue
+        for window in windows:
+            stream = StreamingEstimator(
+                estimator,
+                window=window,
+                estimates_pa=trajectory.estimates_pa if needs_estimates else None,
+            )
+            emitted = []
+            for frame, force, width in zip(
+                trajectory.frames, trajectory.force_n, trajectory.width_m, strict=True
+            ):
+                estimate = stream.update(frame, force, width)
+                if estimate is not None:
+                    emitted.append(estimate)
+            final = stream.finish() if not (emitted and emitted[-1].final) else emitted[-1]
+            if final is None:
+                continue
+            first = emitted[0]
+            rows.append(
+                {
+                    "object": trajectory.object,
+                    "grasp": trajectory.grasp,
+                    "window": 0 if window is None else int(window),
+                    "true_log10": float(np.log10(trajectory.modulus_pa)),
+                    "final_log10": final.log10_modulus_pa,
+                    "first_log10": first.log10_modulus_pa,
+                    "first_frames_after_onset": first.frames_seen - 1 - first.onset_frame,
+                    "final_frames_after_onset": final.peak_frame - final.onset_frame,
+                    "span": final.frame_indices[2] - final.frame_indices[0],
+                    "refinements": len(emitted),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def summarise_window_study(table: pd.DataFrame) -> pd.DataFrame:
+    """Per window: errors vs truth (final and first estimate) and vs the full trajectory."""
+    full = table[table["window"] == 0].set_index(["object", "grasp"])["final_log10"]
+    out = []
+    for window, group in table.groupby("window", sort=True):
+        g = group.set_index(["object", "grasp"])
+        err = g["final_log10"] - g["true_log10"]
+        first_err = g["first_log10"] - g["true_log10"]
+        vs_full = g["final_log10"] - full.reindex(g.index)
+        out.append(
+            {
+                "window": "full" if window == 0 else int(window),
+                "grasps": len(g),
+                "final_mae_decades": float(err.abs().mean()),
+                "final_log10_accuracy": float((err.abs() <= 1).mean()),
+                "final_vs_full_mean_abs_decades": float(vs_full.abs().mean()),
+                "final_vs_full_max_abs_decades": float(vs_full.abs().max()),
+                "first_mae_decades": float(first_err.abs().mean()),
+                "first_frames_after_onset": float(g["first_frames_after_onset"].mean()),
+                "mean_span_frames": float(g["span"].mean()),
+            }
+        )
+    return pd.DataFrame(out)
+
+
+# ---------------------------------------------------------------------- end to end
+def run_studies(
+    workdir: str | Path,
+    *,
+    n_objects: int = 48,
+    seed: int = 0,
+    image_size: tuple[int, int] = (100, 140),
+    model_size: tuple[int, int] = (72, 72),
+    n_seeds: int = 5,
+    max_epochs: int = 15,
+    windows: Sequence[int | None] = (None, 3, 5, 8, 12),
+    max_grasps: int = 60,
+    level: float = 0.8,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Generate a synthetic dataset, train ``n_seeds`` Top10NN ImageFW runs on one split,
+    and run both studies on the test split. Everything lands in ``workdir``."""
+    from tactile_compliance.config import load_config
+    from tactile_compliance.data.burgess import import_burgess
+    from tactile_compliance.data.splits import Split
+    from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.data.synthetic import generate_burgess_tree
+    from tactile_compliance.training.train import train
+
+    started = time.perf_counter()
+    workdir = Path(workdir)
+    tree, store_dir = workdir / "tree", workdir / "store"
+    generate_burgess_tree(
+        tree, n_objects=n_objects, seed=seed, image_size=image_size, progress=progress
+    )
+    if not store_dir.exists():
+        import_burgess(tree, store_dir, source_name="synthetic", progress=progress)
+    store = GraspStore.open(store_dir)
+    run_dirs = []
+    for run_seed in range(n_seeds):
+        cfg = load_config(
+            "default",
+            [
+                f"data.store={store_dir}",
+                f"output_dir={workdir / 'runs'}",
+                "model.name=top10nn",
+                "inputs=ImageFW",
+                f"data.image_size=[{model_size[0]}, {model_size[1]}]",
+                "augmentation.enabled=false",
+                f"training.max_epochs={max_epochs}",
+                "training.lr=1e-3",
+                "training.batch_size=32",
+                "split.seed=0",
+                f"seed={run_seed}",
+            ],
+        )
+        result = train(cfg, progress=progress)
+        run_dirs.append(Path(result["run_dir"]))
+
+    calibration = ensemble_calibration(run_dirs, level=level)
+
+    split = Split.load(run_dirs[0] / "split.json")
+    test_rows = store.samples.iloc[split.test_ids]
+    grasps = sorted({(str(o), int(g)) for o, g in zip(test_rows["object"], test_rows["grasp"],
+                                                      strict=True)})[:max_grasps]
+    trajectories = list(
+        synthetic_trajectories(grasps, n_objects=n_objects, seed=seed, image_size=image_size)
+    )
+    estimator = ComplianceEstimator.from_checkpoint(run_dirs[0])
+    table = window_study(estimator, trajectories, windows)
+    summary = summarise_window_study(table)
+    return {
+        "data": {
+            "source": "synthetic (generate_burgess_tree, default mix)",
+            "n_objects": n_objects,
+            "seed": seed,
+            "image_size": list(image_size),
+            "store_samples": len(store),
+        },
+        "model": {
+            "name": "top10nn",
+            "inputs": "ImageFW",
+            "image_size": list(model_size),
+            "max_epochs": max_epochs,
+            "seeds": n_seeds,
+            "backbone_weights": "none (random init)",
+        },
+        "ensemble_calibration": calibration,
+        "window_study": {
+            "grasps": len(trajectories),
+            "mean_frames_per_recording": float(np.mean([len(t.frames) for t in trajectories]))
+            if trajectories
+            else 0.0,
+            "summary": summary.to_dict(orient="records"),
+        },
+        "seconds": round(time.perf_counter() - started, 1),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Streaming-window and ensemble studies.")
+    parser.add_argument("--workdir", type=Path, required=True)
+    parser.add_argument("--objects", type=int, default=48)
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--epochs", type=int, default=15)
+    parser.add_argument("--max-grasps", type=int, default=60)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args(argv)
+    report = run_studies(
+        args.workdir,
+        n_objects=args.objects,
+        n_seeds=args.seeds,
+        max_epochs=args.epochs,
+        max_grasps=args.max_grasps,
+        progress=False,
+    )
+    text = json.dumps(report, indent=2, default=float)
+    if args.json is not None:
+        args.json.write_text(text + "\n")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,101 @@
+"""Dask clients for grids and tuning: a local cluster by default, or an existing scheduler.
+
+* ``workers=N`` starts a ``LocalCluster`` of N single-threaded worker *processes* (torch
+  releases the GIL, but Lightning, the data pipeline and the feature cache do not, and a
+  crashed run must not take the driver down). Each task runs torch single-threaded unless
+  told otherwise (``threads``): N workers then use N cores, and a run never fights its
+  neighbours for cores (multi-threaded torch slows down many times over on a busy CPU,
+  while independent runs scale almost linearly).
+* ``scheduler=ADDRESS`` connects to a running scheduler (``tcp://host:8786``) or reads a
+  scheduler file (``dask scheduler --scheduler-file FILE``); the workers of that cluster
+  (started by hand, by ``dask-jobqueue`` on SLURM/PBS, ...) must have this package
+  installed and see the same file system paths (store, output directory).
+* ``client=`` passes an existing ``distributed.Client`` (Python API only); it is not closed.
+
+Every cluster this module starts is closed again on exit, also after an exception or
+Ctrl-C, so no worker processes are left behind.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+__all__ = ["available_cpus", "dask_client"]
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on (affinity-aware where the OS tells)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _require_distributed() -> Any:
+    try:
+        import distributed
+    except ImportError as exc:  # pragma: no cover - dask is a dependency of the package
+        raise ImportError(
+            "experiments and tuning run on Dask: pip install 'dask[distributed]'"
+        ) from exc
+    return distributed
+
+
+@contextmanager
+def dask_client(
+    workers: int = 1,
+    scheduler: str | None = None,
+    client: Any = None,
+    *,
+    local_directory: str | Path | None = None,
+    memory_limit: str | float | None = "auto",
+) -> Iterator[Any]:
+    """Yield a ``distributed.Client``: ``client`` as is, a scheduler's, or a local cluster's.
+
+    Args:
+        workers: local worker processes (ignored with ``scheduler`` or ``client``).
+        scheduler: address ``tcp://host:port`` or path of a scheduler JSON file.
+        client: an existing client (not closed on exit).
+        local_directory: scratch space of local workers (default: the system temp dir).
+        memory_limit: per local worker; ``"auto"`` shares the machine's memory out.
+    """
+    if client is not None:
+        yield client
+        return
+    distributed = _require_distributed()
+    if scheduler:
+        if Path(scheduler).is_file():
+            remote = distributed.Client(scheduler_file=str(scheduler), timeout="30s")
+        else:
+            remote = distributed.Client(scheduler, timeout="30s")
+        try:
+            yield remote
+        finally:
+            remote.close()
+        return
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    import dask
+
+    # Non-daemonic workers may start DataLoader worker processes (training.num_workers > 0).
+    with dask.config.set({"distributed.worker.daemon": False}):
+        cluster = distributed.LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+            local_directory=str(local_directory) if local_directory else None,
+            memory_limit=memory_limit,
+        )
+    local = distributed.Client(cluster)
+    try:
+        yield local
+    finally:
+        local.close()
+        cluster.close()

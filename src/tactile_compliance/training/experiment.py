@@ -1,0 +1,726 @@
+"""Experiment grids on Dask: expand a grid, run every cell through ``train``, record it.
+
+``run_experiment("table1", quick=True, workers=2)`` expands the experiment (see
+``training/grid.py`` for the YAML format), skips the cells whose row in the results store is
+``complete``, and runs the others on a Dask cluster (local by default, or an existing
+scheduler), one task per cell. Each task calls the one training path,
+:func:`tactile_compliance.training.train.train`, and writes its row to the results store
+(``training/results.py``: one atomic JSON file per cell, so concurrent workers never clash).
+
+Reliability:
+
+* **Idempotent.** A cell is identified by its config hash. Re-running the same command
+  skips complete cells, retries failed ones and resumes interrupted ones from
+  ``checkpoints/last.ckpt`` (``train`` does that), so no cell ever runs twice to completion
+  and none is silently lost.
+* **Failures stay local.** An exception in a cell is caught in the worker and recorded as a
+  ``failed`` row with the error and traceback; the grid goes on. A worker process that dies
+  (killed, out of memory) is restarted by Dask and the cell is re-run on a healthy worker,
+  resuming from its checkpoint; after Dask gives up (``distributed.scheduler.allowed-failures``,
+  3 by default) the cell is recorded as failed. ``attempts`` counts every start of a cell.
+* **A truncated checkpoint** (the process died while writing it) is moved aside to
+  ``last.ckpt.corrupt`` and the run starts over instead of failing forever.
+* **Feature caches** (frozen backbones) are computed before the cells that need them, one
+  task per model, so two workers never compute the same cache at the same time.
+* **One driver per experiment.** A lock file stops a second ``experiment`` process from
+  running the same output directory concurrently.
+
+Layout (defaults: ``runs/NAME`` or ``runs/NAME-quick``, and one results store next to them,
+shared by every experiment under ``runs/``, which is what ``report`` reads)::
+
+    runs/
+      results/rows/KEY.json  one row per cell of every experiment (training/results.py)
+      table1-quick/
+        experiment.json      the resolved experiment (spec + the cells' keys and labels)
+        RUN_NAME/            one run directory per cell (training/train.py)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import socket
+import sys
+import time
+import traceback
+import warnings
+import zipfile
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from tactile_compliance.config import (
+    ConfigError,
+    ExperimentConfig,
+    config_from_dict,
+    config_to_dict,
+)
+from tactile_compliance.training.cluster import dask_client
+from tactile_compliance.training.grid import (
+    Cell,
+    ExperimentSpec,
+    expand_experiment,
+    experiment_preset_descriptions,
+    list_experiment_presets,
+    load_experiment,
+)
+from tactile_compliance.training.results import (
+    STATUS_COMPLETE,
+    STATUS_FAILED,
+    ResultsStore,
+    result_row,
+)
+
+__all__ = [
+    "ExperimentError",
+    "ExperimentPlan",
+    "ExperimentSummary",
+    "aggregate_results",
+    "experiment_preset_descriptions",
+    "list_experiment_presets",
+    "plan_experiment",
+    "precompute_features",
+    "run_cell",
+    "run_experiment",
+]
+
+RESULTS_DIR = "results"
+LOCK_FILE = ".lock"
+ATTEMPTS_FILE = "attempts.json"
+EXPERIMENT_FILE = "experiment.json"
+#: Metrics shown in the summary (mean +- std over seeds).
+SUMMARY_METRICS = ("test_log10_accuracy", "test_nmse")
+
+
+class ExperimentError(RuntimeError):
+    """The experiment cannot run (missing store, locked results store, ...)."""
+
+
+# =========================================================================== worker side
+def _limit_threads(threads: int | None) -> None:
+    if threads:
+        import torch
+
+        torch.set_num_threads(int(threads))
+
+
+def _quiet_training_warnings() -> None:
+    # Every cell would repeat Lightning's start-up banner and its advice about loader
+    # workers and logging intervals; it says nothing about the results, so keep worker
+    # logs readable (errors and real warnings still show).
+    import logging
+
+    for name in ("lightning.pytorch", "lightning.fabric"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", category=DeprecationWarning, module="lightning.*")
+    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
+    warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
+    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+    warnings.filterwarnings("ignore", message=".*number of training batches.*")
+    warnings.filterwarnings("ignore", message=".*cached image features.*")
+    warnings.filterwarnings("ignore", message=".*augmentation is ignored with freeze_backbone.*")
+
+
+def _backbone_signature(cfg: ExperimentConfig) -> str:
+    """Everything the feature cache of a frozen backbone depends on (but the weights' bytes)."""
+    image_size = list(cfg.data.image_size) if cfg.data.image_size else None
+    return json.dumps(
+        [
+            cfg.data.store,
+            cfg.model.name,
+            cfg.model.hparams,
+            cfg.model.backbone_weights,
+            image_size,
+            list(cfg.data.image_mean),
+            list(cfg.data.image_std),
+        ],
+        sort_keys=True,
+        default=str,
+    )
+
+
+def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None = None) -> int:
+    """Compute (or find) the frozen-backbone feature cache of each config, one after another.
+
+    Run as one Dask task per model before the cells that need the caches: computing a cache
+    in two processes at once is not safe (``data/features.py`` writes one partial file).
+    Returns the number of caches checked.
+    """
+    from tactile_compliance.data.features import cached_features
+    from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.training.train import build_model
+
+    _limit_threads(threads)
+    _quiet_training_warnings()
+    import torch
+
+    done = 0
+    for data in cfg_dicts:
+        cfg = config_from_dict(data)
+        model = build_model(cfg)
+        size = cfg.data.image_size or getattr(model, "recommended_image_size", None)
+        device = cfg.training.device
+        if device == "auto":
+            device = "cuda" if torch.cuda.is_available() else "cpu"
+        cached_features(
+            GraspStore.open(cfg.data.store),
+            model.backbone,
+            tuple(size) if size is not None else None,
+            cfg.normalisation_constants(),
+            batch_size=max(8, cfg.training.batch_size),
+            device="cuda" if device.startswith("cuda") else "cpu",
+            progress=False,
+        )
+        done += 1
+    return done
+
+
+def _count_attempt(run_dir: Path) -> int:
+    """Record one more start of this cell in ``RUN_DIR/attempts.json``; return the count."""
+    path = run_dir / ATTEMPTS_FILE
+    history: list[dict[str, Any]] = []
+    if path.exists():
+        with contextlib.suppress(ValueError, OSError):
+            history = list(json.loads(path.read_text()).get("history", []))
+    history.append(
+        {
+            "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "host": socket.gethostname(),
+            "pid": os.getpid(),
+        }
+    )
+    run_dir.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({"attempts": len(history), "history": history}, indent=2) + "\n")
+    tmp.replace(path)
+    return len(history)
+
+
+def _attempts(run_dir: Path) -> int:
+    try:
+        return int(json.loads((run_dir / ATTEMPTS_FILE).read_text())["attempts"])
+    except (OSError, ValueError, KeyError):
+        return 1
+
+
+def _set_aside_truncated_checkpoint(run_dir: Path) -> bool:
+    """Move an unreadable ``last.ckpt`` (process killed while writing it) out of the way."""
+    last = run_dir / "checkpoints" / "last.ckpt"
+    if not last.exists():
+        return False
+    try:
+        with zipfile.ZipFile(last) as archive:  # torch.save writes a zip archive
+            healthy = archive.testzip() is None
+    except (zipfile.BadZipFile, OSError, EOFError):
+        healthy = False
+    if healthy:
+        return False
+    last.replace(last.with_name("last.ckpt.corrupt"))
+    return True
+
+
+def _prune(run_dir: Path, keep_checkpoints: str) -> None:
+    """Delete the checkpoints of a finished run that ``keep_checkpoints`` does not keep.
+
+    ``last.ckpt`` only serves to resume an interrupted run, and with a VGG16 backbone it
+    weighs over half a gigabyte (more with optimizer state): a finished run does not need
+    it. ``best.pt`` is what ``evaluate`` and inference load.
+    """
+    if keep_checkpoints == "all":
+        return
+    import shutil
+
+    shutil.rmtree(run_dir / "checkpoints", ignore_errors=True)
+    if keep_checkpoints == "none":
+        (run_dir / "best.pt").unlink(missing_ok=True)
+
+
+def run_cell(
+    cfg_dict: dict[str, Any],
+    key: str,
+    preset: str,
+    results_path: str,
+    threads: int | None = None,
+    after: Any = None,
+    keep_checkpoints: str = "best",
+) -> dict[str, Any]:
+    """Dask task: train one cell and record its row (``complete`` or ``failed``).
+
+    Never raises for a failing run: the error and traceback go into the row. ``after`` is
+    only a dependency (the feature-cache task), so Dask starts the cell once it is done.
+    ``keep_checkpoints``: ``best`` (delete ``checkpoints/last.ckpt`` once the run is
+    complete), ``all`` or ``none`` (also ``best.pt``; metrics and predictions stay).
+    """
+    del after
+    from tactile_compliance.training.train import run_name, train
+
+    _limit_threads(threads)
+    _quiet_training_warnings()
+    results = ResultsStore(results_path)
+    if results.is_complete(key):  # a retried task whose first attempt got that far
+        row = results.get(key)
+        assert row is not None
+        return row
+    cfg = config_from_dict(cfg_dict)
+    run_dir = Path(cfg.output_dir) / run_name(cfg)
+    attempts = _count_attempt(run_dir)
+    started = time.perf_counter()
+    extra: dict[str, Any] = {"host": socket.gethostname()}
+    try:
+        if _set_aside_truncated_checkpoint(run_dir):
+            extra["note"] = "a truncated checkpoint was set aside; the run restarted"
+        result = train(cfg, run_dir=run_dir, progress=False)
+        _prune(run_dir, keep_checkpoints)
+        row = result_row(
+            cfg,
+            result,
+            preset=preset,
+            attempts=attempts,
+            wall_time_s=round(time.perf_counter() - started, 2),
+        )
+    except Exception as exc:  # recorded, never lost: the grid goes on
+        row = result_row(
+            cfg,
+            None,
+            preset=preset,
+            error=f"{type(exc).__name__}: {exc}",
+            attempts=attempts,
+            wall_time_s=round(time.perf_counter() - started, 2),
+        )
+        extra["traceback"] = traceback.format_exc()
+    row.update(extra)
+    row["run_dir"] = row.get("run_dir") or str(run_dir)
+    results.record(row)
+    return row
+
+
+# =========================================================================== driver side
+@dataclass
+class ExperimentPlan:
+    """What an experiment would run: the spec, its cells and where results go."""
+
+    spec: ExperimentSpec
+    cells: list[Cell]
+    output_dir: Path
+    results_path: Path
+
+    @property
+    def preset(self) -> str:
+        """The name recorded in each row's ``preset`` column."""
+        return f"{self.spec.name}-quick" if self.spec.quick else self.spec.name
+
+    def status(self) -> dict[str, str]:
+        """``{key: complete | failed | todo}`` from the results store."""
+        store = ResultsStore(self.results_path)
+        out = {}
+        for cell in self.cells:
+            row = store.get(cell.key)
+            out[cell.key] = row.get("status", "todo") if row else "todo"
+        return out
+
+    def format(self) -> str:
+        """One line per cell with its status (for ``--dry-run``)."""
+        status = self.status()
+        lines = [
+            f"{self.preset}: {self.spec.description}",
+            f"{len(self.cells)} cells, output {self.output_dir}, results {self.results_path}",
+        ]
+        for cell in self.cells:
+            lines.append(f"  {status[cell.key]:<9} {cell.key}  {cell.label}")
+        return "\n".join(lines)
+
+
+def plan_experiment(
+    preset_or_path: str | Path,
+    *,
+    quick: bool = False,
+    seeds: Sequence[int] | int | None = None,
+    store: str | Path | None = None,
+    overrides: Iterable[str] = (),
+    where: Iterable[str] = (),
+    output_dir: str | Path | None = None,
+    results: str | Path | None = None,
+) -> ExperimentPlan:
+    """Load and expand an experiment without running anything (see :func:`run_experiment`)."""
+    spec = load_experiment(preset_or_path, quick=quick)
+    out = Path(output_dir) if output_dir is not None else spec.default_output_dir
+    cells = expand_experiment(
+        spec, seeds=seeds, store=store, overrides=overrides, where=where, output_dir=out
+    )
+    out = out.expanduser().resolve()
+    results_path = Path(results).expanduser() if results is not None else out.parent / RESULTS_DIR
+    return ExperimentPlan(spec, cells, out, results_path.resolve())
+
+
+@dataclass
+class ExperimentSummary:
+    """What one ``run_experiment`` call did, and where to find the results."""
+
+    name: str
+    output_dir: Path
+    results_path: Path
+    cells: int
+    skipped: int = 0
+    completed: int = 0
+    failed: int = 0
+    wall_time_s: float = 0.0
+    workers: int | str = 1
+    interrupted: bool = False
+    failures: list[tuple[str, str]] = field(default_factory=list)
+    keys: list[str] = field(default_factory=list)
+
+    @property
+    def results(self) -> ResultsStore:
+        return ResultsStore(self.results_path)
+
+    def table(self) -> pd.DataFrame:
+        """The rows of this experiment's cells (one per cell that has a row)."""
+        table = self.results.table()
+        if table.empty:
+            return table
+        return table[table["key"].isin(self.keys)].reset_index(drop=True)
+
+    def format(self) -> str:
+        """A printable summary: counts, failures and mean +- std of the main metrics."""
+        lines = [
+            f"Experiment {self.name}: {self.cells} cells: {self.skipped} already complete, "
+            f"{self.completed} completed now, {self.failed} failed"
+            + (" (interrupted: re-run the same command to continue)" if self.interrupted else "")
+            + f"; {self.wall_time_s:.1f} s on {self.workers} worker(s)",
+            f"Runs in {self.output_dir}; results in {self.results_path}",
+        ]
+        for label, error in self.failures[:20]:
+            first = error.strip().splitlines()[0] if error.strip() else "?"
+            lines.append(f"  FAILED {label}: {first}")
+        if len(self.failures) > 20:
+            lines.append(f"  ... and {len(self.failures) - 20} more failures")
+        summary = aggregate_results(self.table())
+        if not summary.empty:
+            with pd.option_context("display.width", 200, "display.max_rows", 200):
+                lines.append(summary.to_string(index=False))
+        return "\n".join(lines)
+
+
+def aggregate_results(table: pd.DataFrame) -> pd.DataFrame:
+    """Mean +- std over seeds of the test metrics of complete rows, one row per configuration."""
+    if table.empty or "status" not in table.columns:
+        return pd.DataFrame()
+    done = table[table["status"] == STATUS_COMPLETE]
+    metrics = [m for m in SUMMARY_METRICS if m in done.columns]
+    if done.empty or not metrics:
+        return pd.DataFrame()
+    by = [c for c in ("model", "inputs", "condition", "sampling", "subset") if c in done.columns]
+    if "subset" in by:  # None (whole store) would otherwise drop out of the groups
+        frame = done.assign(subset=[("-" if pd.isna(v) else str(v)) for v in done["subset"]])
+    else:
+        frame = done
+    grouped = frame.groupby(by, dropna=False, sort=True)
+    out = grouped.size().rename("seeds").reset_index()
+    for metric in metrics:
+        stats = grouped[metric].agg(["mean", "std"]).reset_index(drop=True)
+        short = metric.removeprefix("test_")
+        out[short] = [
+            f"{m:.4f} +- {s:.4f}" if pd.notna(s) else f"{m:.4f}"
+            for m, s in zip(stats["mean"], stats["std"], strict=True)
+        ]
+    return out
+
+
+@contextlib.contextmanager
+def _locked(output_dir: Path) -> Iterator[None]:
+    """Hold an exclusive lock on an experiment's output directory for one driver's lifetime."""
+    output_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: no advisory locks, run one driver
+        yield
+        return
+    handle = open(output_dir / LOCK_FILE, "a+")  # noqa: SIM115 (held for the whole run)
+    try:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.seek(0)
+            holder = handle.read().strip() or "another process"
+            raise ExperimentError(
+                f"{output_dir} is in use by {holder}; wait for it to finish "
+                "(or give this experiment another --out)"
+            ) from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
+        handle.flush()
+        yield
+    finally:
+        handle.close()
+
+
+def _check_stores(cells: Sequence[Cell]) -> None:
+    missing = sorted({c.cfg.data.store or "" for c in cells if not _store_exists(c.cfg)})
+    if missing:
+        shown = ", ".join(m or "(data.store not set)" for m in missing)
+        raise ExperimentError(
+            f"store not found: {shown}. Create one (tactile-compliance import ... --out PATH, "
+            "see docs/data.md) and pass it with --store PATH"
+        )
+
+
+def _store_exists(cfg: ExperimentConfig) -> bool:
+    return bool(cfg.data.store) and Path(cfg.data.store).is_dir()
+
+
+def _write_plan(plan: ExperimentPlan) -> None:
+    plan.output_dir.mkdir(parents=True, exist_ok=True)
+    data = {
+        **plan.spec.to_dict(),
+        "preset": plan.preset,
+        "results": str(plan.results_path),
+        "cells": [
+            {"key": c.key, "label": c.label, "axes": c.axes, "run_dir": str(c.run_dir)}
+            for c in plan.cells
+        ],
+    }
+    path = plan.output_dir / EXPERIMENT_FILE
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
+    tmp.replace(path)
+
+
+class _Progress:
+    """A rich bar of cells done / failed on stderr (a no-op when disabled)."""
+
+    def __init__(self, enabled: bool, total: int, name: str) -> None:
+        self.enabled = enabled
+        self.done = 0
+        self.failed = 0
+        self._bar: Any = None
+        if enabled:
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+
+            self._bar = Progress(
+                TextColumn("[bold]{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("[green]{task.fields[done]} done[/] [red]{task.fields[failed]} failed"),
+                TimeElapsedColumn(),
+                TextColumn("eta"),
+                TimeRemainingColumn(),
+                console=Console(file=sys.stderr),
+            )
+            self._task = self._bar.add_task(name, total=total, done=0, failed=0)
+
+    def __enter__(self) -> _Progress:
+        if self._bar is not None:
+            self._bar.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+
+    def advance(self, ok: bool) -> None:
+        if ok:
+            self.done += 1
+        else:
+            self.failed += 1
+        if self._bar is not None:
+            self._bar.update(self._task, advance=1, done=self.done, failed=self.failed)
+
+
+def run_experiment(
+    preset_or_path: str | Path,
+    *,
+    quick: bool = False,
+    seeds: Sequence[int] | int | None = None,
+    store: str | Path | None = None,
+    overrides: Iterable[str] = (),
+    where: Iterable[str] = (),
+    workers: int = 1,
+    scheduler: str | None = None,
+    client: Any = None,
+    output_dir: str | Path | None = None,
+    results: str | Path | None = None,
+    retry_failed: bool = True,
+    threads: int | None = None,
+    keep_checkpoints: str = "best",
+    progress: bool = True,
+) -> ExperimentSummary:
+    """Run every cell of an experiment grid on Dask and record it in the results store.
+
+    Args:
+        preset_or_path: experiment preset (``list_experiment_presets()``), experiment YAML,
+            or a plain config (preset or file, e.g. ``tune``'s ``best.yaml``: one cell).
+        quick: use the experiment's ``quick`` variant (small, for a 2-core CPU).
+        seeds: seed count (0..n-1) or list; default: the experiment's.
+        store: GraspStore for every cell (default: the experiment's ``data.store``).
+        overrides: ``dotted.key=value`` for every cell (applied last).
+        where: ``key=value`` filters: run only the matching cells.
+        workers: local Dask worker processes (ignored with ``scheduler``/``client``).
+        scheduler: address or scheduler-file of a running Dask scheduler.
+        client: an existing ``distributed.Client`` (Python API).
+        output_dir: run directories (default ``runs/NAME`` / ``runs/NAME-quick``).
+        results: results store directory (default ``OUTPUT/../results``, i.e.
+            ``runs/results``: one store for all experiments, as ``report`` expects).
+        retry_failed: re-run cells recorded as failed (else skip them like complete ones).
+        threads: torch threads per cell (default 1: one single-threaded cell per worker;
+            several threads per cell are slower than several workers on a busy CPU).
+        keep_checkpoints: what a finished run keeps: ``best`` (``best.pt``, default),
+            ``all`` (also ``checkpoints/last.ckpt``) or ``none`` (metrics, predictions and
+            logs only; for huge grids, since a VGG16 checkpoint is over 0.5 GB).
+        progress: show a progress bar of cells done / failed.
+
+    Returns:
+        An :class:`ExperimentSummary` (``.format()`` prints it, ``.table()`` has the rows).
+
+    Raises:
+        ConfigError: the experiment or one of its cells is invalid (nothing has run).
+        ExperimentError: a store is missing, or another driver holds the results store.
+        KeyboardInterrupt: after cancelling the pending cells (finished rows are kept).
+    """
+    if keep_checkpoints not in ("best", "all", "none"):
+        raise ConfigError(f"keep_checkpoints must be best, all or none, got {keep_checkpoints!r}")
+    started = time.perf_counter()
+    plan = plan_experiment(
+        preset_or_path,
+        quick=quick,
+        seeds=seeds,
+        store=store,
+        overrides=overrides,
+        where=where,
+        output_dir=output_dir,
+        results=results,
+    )
+    if not plan.cells:
+        raise ConfigError(f"{plan.preset}: no cells to run (check the filters)")
+    remote = scheduler is not None or client is not None
+    summary = ExperimentSummary(
+        name=plan.preset,
+        output_dir=plan.output_dir,
+        results_path=plan.results_path,
+        cells=len(plan.cells),
+        workers=scheduler or ("client" if client is not None else workers),
+        keys=[c.key for c in plan.cells],
+    )
+    with _locked(plan.output_dir):
+        store_rows = ResultsStore(plan.results_path)
+        skip = {STATUS_COMPLETE} if retry_failed else {STATUS_COMPLETE, STATUS_FAILED}
+        todo = []
+        for cell in plan.cells:
+            row = store_rows.get(cell.key)
+            if row is not None and row.get("status") in skip:
+                summary.skipped += 1
+            else:
+                todo.append(cell)
+        if not remote:
+            _check_stores(todo)
+        _write_plan(plan)
+        if todo:
+            if threads is None:
+                threads = 1
+            _dispatch(
+                plan, todo, summary, workers, scheduler, client, threads, keep_checkpoints, progress
+            )
+    summary.wall_time_s = round(time.perf_counter() - started, 2)
+    if progress:
+        print(summary.format(), file=sys.stderr)
+    return summary
+
+
+def _dispatch(
+    plan: ExperimentPlan,
+    todo: list[Cell],
+    summary: ExperimentSummary,
+    workers: int,
+    scheduler: str | None,
+    client: Any,
+    threads: int | None,
+    keep_checkpoints: str,
+    progress: bool,
+) -> None:
+    from distributed import as_completed
+
+    results_path = str(plan.results_path)
+    store_rows = ResultsStore(plan.results_path)
+    with (
+        dask_client(workers, scheduler, client) as dask,
+        _Progress(progress, len(todo), plan.preset) as bar,
+    ):
+        # One feature-cache task per model, before that model's frozen-backbone cells.
+        by_model: dict[str, dict[str, dict[str, Any]]] = {}
+        for cell in todo:
+            if cell.cfg.model.freeze_backbone:
+                signature = _backbone_signature(cell.cfg)
+                by_model.setdefault(cell.cfg.model.name, {})[signature] = config_to_dict(cell.cfg)
+        caches = {
+            model: dask.submit(precompute_features, list(cfgs.values()), threads, pure=False)
+            for model, cfgs in by_model.items()
+        }
+        futures: dict[Any, Cell] = {}
+        for cell in todo:
+            after = caches.get(cell.cfg.model.name) if cell.cfg.model.freeze_backbone else None
+            future = dask.submit(
+                run_cell,
+                config_to_dict(cell.cfg),
+                cell.key,
+                plan.preset,
+                results_path,
+                threads,
+                after,
+                keep_checkpoints,
+                pure=False,
+            )
+            futures[future] = cell
+        try:
+            for future in as_completed(list(futures)):
+                cell = futures[future]
+                try:
+                    row = future.result()
+                except Exception as exc:  # the worker died repeatedly, or its cache failed
+                    row = _record_lost_cell(store_rows, cell, plan.preset, exc)
+                ok = row.get("status") == STATUS_COMPLETE
+                if ok:
+                    summary.completed += 1
+                else:
+                    summary.failed += 1
+                    summary.failures.append((cell.label, str(row.get("error") or "")))
+                bar.advance(ok)
+        except KeyboardInterrupt:
+            summary.interrupted = True
+            for future in futures:
+                future.cancel()
+            for future in caches.values():
+                future.cancel()
+            if progress:
+                print(summary.format(), file=sys.stderr)
+            raise
+
+
+def _record_lost_cell(
+    store_rows: ResultsStore, cell: Cell, preset: str, exc: BaseException
+) -> dict[str, Any]:
+    """Record a cell whose task never returned (worker killed too often, cache failure)."""
+    existing = store_rows.get(cell.key)
+    if existing is not None and existing.get("status") == STATUS_COMPLETE:
+        return existing
+    name = type(exc).__name__
+    message = f"{name}: {exc}"
+    if name == "KilledWorker":
+        message += " (the worker process died while running this cell: out of memory?)"
+    row = result_row(cell.cfg, None, preset=preset, error=message, attempts=_attempts(cell.run_dir))
+    row["run_dir"] = str(cell.run_dir)
+    row["traceback"] = "".join(traceback.format_exception(exc))
+    store_rows.record(row)
+    return row

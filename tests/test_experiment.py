@@ -1,0 +1,293 @@
+"""Experiment grids: the YAML format, the packaged presets, and runs on a local Dask cluster
+that lose a worker (or the whole driver) midway and still end with every cell done once."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from tactile_compliance.config import ConfigError, load_config, save_config
+from tactile_compliance.training.experiment import (
+    ExperimentError,
+    plan_experiment,
+    run_experiment,
+)
+from tactile_compliance.training.grid import (
+    expand_experiment,
+    list_experiment_presets,
+    load_experiment,
+)
+from tactile_compliance.training.results import ResultsStore
+from toy_store import make_toy_store
+
+TESTS_DIR = Path(__file__).resolve().parent
+
+# A tiny grid: Top10NN (a few CPU seconds per run) and a frozen-backbone Res-Tf (cached
+# features), two seeds. One cell is broken on purpose: the toy store has no Hex objects.
+TINY = """
+description: tiny test grid
+config: default
+set:
+  augmentation.enabled: false
+  training.batch_size: 16
+  training.lr: 1.0e-3
+  training.patience: 100
+grid:
+  model.name: [top10nn, res_tf]
+  inputs: [Image, ALL]
+seeds: 2
+rules:
+  - when: {model.name: top10nn}
+    set: {data.image_size: [72, 72], training.max_epochs: 4}
+  - when: {model.name: res_tf}
+    set: {data.image_size: [32, 32], model.freeze_backbone: true, training.max_epochs: 3,
+          model.hparams: {num_layers: 1, num_heads: 2, embedding_dim: 32, output_dim: 32,
+                          dim_feedforward: 64, decoder_sizes: [32]}}
+  - when: {model.name: res_tf, inputs: ALL}
+    set: {split.subset: Hex}
+quick:
+  seeds: 1
+  set: {training.batch_size: 8}
+"""
+
+
+@pytest.fixture(scope="module")
+def toy_store(tmp_path_factory):
+    return make_toy_store(tmp_path_factory.mktemp("toy") / "store")
+
+
+@pytest.fixture()
+def tiny(tmp_path):
+    path = tmp_path / "tiny.yaml"
+    path.write_text(TINY)
+    return path
+
+
+# ---------------------------------------------------------------------------- format
+def test_packaged_presets_expand_to_valid_cells():
+    assert set(list_experiment_presets()) >= {
+        "table1", "table2", "rolling-window", "shape-test", "new-dataset"
+    }
+    sizes = {"table1": 240, "table2": 240, "rolling-window": 210, "shape-test": 240,
+             "new-dataset": 30}
+    for name, size in sizes.items():
+        full = expand_experiment(load_experiment(name))
+        quick = expand_experiment(load_experiment(name, quick=True))
+        assert len(full) == size, name
+        assert len(quick) == size // 5, name  # 2 seeds instead of 10
+        assert len({c.key for c in full}) == len(full)
+        for cell in quick:
+            cfg = cell.cfg
+            assert cfg.training.max_epochs <= 10
+            if cfg.model.name == "top10nn":
+                assert min(cfg.data.image_size) >= 65  # the Top10 CNN needs >= 65 px
+            else:
+                assert cfg.model.freeze_backbone and max(cfg.data.image_size) <= 64
+    cells = {(c.cfg.model.name, c.cfg.inputs, c.cfg.split.condition): c.cfg
+             for c in expand_experiment(load_experiment("table1"))}
+    assert cells["vgg_lstm", "ALL", "seen"].training.lr == pytest.approx(3e-4)
+    assert cells["res_tf", "Image", "unseen"].model.hparams["num_layers"] == 5
+    assert cells["res_tf", "ALL", "seen"].model.hparams == {}
+    assert cells["top10nn", "ImageF", "seen"].training.lr == pytest.approx(3e-6)
+    assert Path(cells["top10nn", "ALL", "seen"].data.store).name == "ym"
+    assert {c.cfg.sampling.strategy for c in expand_experiment(load_experiment("table2"))} == {
+        "balanced"
+    }
+    shore = expand_experiment(load_experiment("new-dataset", quick=True))
+    assert {c.cfg.inputs for c in shore} == {"Image"}
+    assert shore[0].cfg.data.label_range_pa == (1e3, 1e7)
+    windows = expand_experiment(load_experiment("rolling-window", quick=True))
+    assert sorted({c.cfg.split.subset for c in windows}) == list(range(7))
+
+
+def test_grid_rules_overrides_filters_and_plain_configs(tiny, tmp_path, toy_store):
+    spec = load_experiment(tiny)
+    cells = expand_experiment(spec, store=toy_store.path, output_dir=tmp_path / "out")
+    assert len(cells) == 8 and [c.axes["seed"] for c in cells[:2]] == [0, 1]
+    by_label = {c.label: c.cfg for c in cells}
+    assert by_label["res_tf ALL seen random subset Hex seed 0"].model.freeze_backbone
+    assert by_label["top10nn Image seen random seed 1"].data.image_size == (72, 72)
+    assert all(c.cfg.data.store == str(toy_store.path.resolve()) for c in cells)
+    # Command-line overrides come last; filters keep matching cells only.
+    cells = expand_experiment(spec, seeds=3, overrides=["training.lr=0.5"],
+                              where=["model.name=top10nn", "inputs=[ALL]"])
+    assert [(c.cfg.inputs, c.cfg.seed, c.cfg.training.lr) for c in cells] == [
+        ("ALL", 0, 0.5), ("ALL", 1, 0.5), ("ALL", 2, 0.5)]
+    # The quick section merges over the file.
+    quick = expand_experiment(load_experiment(tiny, quick=True))
+    assert len(quick) == 4 and {c.cfg.training.batch_size for c in quick} == {8}
+    # A plain config file (what `tune` writes) is a one-cell experiment crossed with seeds.
+    best = save_config(load_config("default", ["model.name=res_tf"]), tmp_path / "best.yaml")
+    plain = expand_experiment(load_experiment(best), seeds=3)
+    assert [(c.cfg.model.name, c.cfg.seed) for c in plain] == [("res_tf", s) for s in range(3)]
+    # `extends` + `include`: a tuned-overrides file applied to one model only.
+    (tmp_path / "tuned.yaml").write_text("training.lr: 0.25\nmodel.hparams: {num_layers: 2}\n")
+    (tmp_path / "child.yaml").write_text(textwrap.dedent("""
+        extends: tiny.yaml
+        grid: {inputs: [Image]}
+        rules:
+          - when: {model.name: res_tf}
+            include: tuned.yaml
+    """))
+    child = {c.label: c.cfg for c in expand_experiment(load_experiment(tmp_path / "child.yaml"))}
+    assert len(child) == 4
+    assert child["res_tf Image seen random seed 0"].training.lr == 0.25
+    assert child["res_tf Image seen random seed 0"].model.hparams == {"num_layers": 2}
+    assert child["top10nn Image seen random seed 0"].training.lr == pytest.approx(1e-3)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("grid: {model.name: [top10nn]}\nsets: {}\n", "unknown key"),
+        ("set: {training.lrr: 1}\n", "training.lrr"),
+        ("grid: {split.condition: [seen, sideways]}\n", "split.condition"),
+        ("grid: {seed: [1, 2]}\n", "seeds"),
+        ("seeds: 0\n", "seeds must be"),
+        ("rules:\n  - when: {model.name: top10nn}\n", "changes nothing"),
+        ("rules:\n  - when: {model.nam: x}\n    set: {seed: 1}\n", "model.nam"),
+    ],
+)
+def test_bad_experiment_files_fail_before_running(tmp_path, text, message):
+    path = tmp_path / "bad.yaml"
+    path.write_text("description: bad\n" + text)
+    with pytest.raises(ConfigError, match=message):
+        expand_experiment(load_experiment(path))
+
+
+def test_unknown_preset_missing_quick_and_missing_store(tmp_path, tiny):
+    with pytest.raises(ConfigError, match="table1"):
+        load_experiment("tabel1")
+    (tmp_path / "noquick.yaml").write_text("description: x\nseeds: 1\n")
+    with pytest.raises(ConfigError, match="no 'quick'"):
+        load_experiment(tmp_path / "noquick.yaml", quick=True)
+    with pytest.raises(ExperimentError, match="store not found"):
+        run_experiment(tiny, store=tmp_path / "nowhere", output_dir=tmp_path / "o",
+                       progress=False)
+
+
+# ---------------------------------------------------------------------------- on Dask
+def _kill_first_run_midway(out: Path, stop: threading.Event, killed: dict) -> None:
+    """Kill the worker process of the first cell seen between two epochs (SIGKILL)."""
+    while not stop.is_set():
+        for attempts in out.glob("*/attempts.json"):
+            run_dir = attempts.parent
+            if (run_dir / "checkpoints" / "last.ckpt").exists() and not (
+                run_dir / "metrics.json"
+            ).exists():
+                pid = json.loads(attempts.read_text())["history"][-1]["pid"]
+                os.kill(pid, signal.SIGKILL)
+                killed.update(run_dir=run_dir, pid=pid)
+                return
+        time.sleep(0.02)
+
+
+def _rows(results: Path) -> dict[str, dict]:
+    return {row["key"]: row for row in ResultsStore(results).rows()}
+
+
+def test_grid_survives_a_killed_worker_and_reruns_idempotently(tiny, tmp_path, toy_store):
+    out = tmp_path / "out"
+    stop, killed = threading.Event(), {}
+    watcher = threading.Thread(target=_kill_first_run_midway, args=(out, stop, killed))
+    watcher.start()
+    try:
+        summary = run_experiment(tiny, store=toy_store.path, output_dir=out, workers=2,
+                                 progress=False)
+    finally:
+        stop.set()
+        watcher.join()
+    assert killed, "no run was caught between two epochs; the test did not kill anything"
+    plan = plan_experiment(tiny, store=toy_store.path, output_dir=out)
+    rows = _rows(summary.results_path)
+    # Every cell has exactly one row (rows are keyed by cell); the broken ones say why.
+    assert sorted(rows) == sorted(c.key for c in plan.cells)
+    broken = {c.key for c in plan.cells if c.cfg.split.subset == "Hex"}
+    assert len(broken) == 2
+    assert summary.completed == 6 and summary.failed == 2 and summary.skipped == 0
+    for key, row in rows.items():
+        if key in broken:
+            assert row["status"] == "failed" and "Hex" in row["error"] and row["traceback"]
+        else:
+            assert row["status"] == "complete" and row["test_n"] > 0, row
+    # The killed run was restarted by Dask (resuming from its checkpoint) and finished.
+    killed_row = next(r for r in rows.values() if Path(r["run_dir"]) == killed["run_dir"])
+    assert killed_row["status"] == "complete" and killed_row["attempts"] == 2
+    max_epochs = load_config(killed["run_dir"] / "config.yaml").training.max_epochs
+    assert killed_row["epochs_trained"] == max_epochs
+    log = killed["run_dir"] / "logs" / "metrics.csv"
+    if log.exists():  # epochs logged before the kill may be lost, but none is repeated
+        epochs = pd.read_csv(log).dropna(subset=["val_nmse"])["epoch"].astype(int).tolist()
+        assert len(epochs) == len(set(epochs))
+    # One run directory per cell, nothing else trained.
+    assert len(list(out.glob("*/config.yaml"))) == 8
+
+    # Re-run: complete cells are skipped untouched, failed ones are retried (and recorded).
+    again = run_experiment(tiny, store=toy_store.path, output_dir=out, workers=1, progress=False)
+    assert (again.skipped, again.completed, again.failed) == (6, 0, 2)
+    after = _rows(summary.results_path)
+    for key, row in rows.items():
+        if key in broken:
+            assert after[key]["attempts"] == row["attempts"] + 1
+        else:
+            assert after[key] == row
+    assert len(again.table()) == 8
+    assert "2 failed" in again.format() and "FAILED res_tf ALL" in again.format()
+
+
+@pytest.mark.slow
+def test_killed_driver_loses_nothing(tiny, tmp_path, toy_store):
+    """SIGKILL the whole `experiment` process tree midway; the re-run completes every cell once."""
+    out = tmp_path / "out"
+    script = textwrap.dedent(f"""
+        from tactile_compliance.training.experiment import run_experiment
+        if __name__ == "__main__":
+            run_experiment({str(tiny)!r}, store={str(toy_store.path)!r}, output_dir={str(out)!r},
+                           workers=2, where=["split.subset=null"], progress=False)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    results = tmp_path / "results"  # next to the output directory, shared by experiments
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and proc.poll() is None:
+            done = len(list((results / "rows").glob("*.json"))) if results.exists() else 0
+            midway = [d for d in out.glob("*/checkpoints/last.ckpt")
+                      if not (d.parents[1] / "metrics.json").exists()]
+            if done >= 1 and midway:
+                break
+            time.sleep(0.02)
+        assert proc.poll() is None, "the grid finished before it could be killed"
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the driver and its Dask workers: one group
+        proc.wait()
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:  # no worker process survives its driver
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        pytest.fail("processes of the killed experiment are still alive")
+    before = _rows(results)
+    assert 1 <= len(before) < 6
+    summary = run_experiment(tiny, store=toy_store.path, output_dir=out, workers=2,
+                             where=["split.subset=null"], progress=False)
+    rows = _rows(results)
+    assert len(rows) == 6 and all(r["status"] == "complete" for r in rows.values())
+    assert summary.skipped == len(before) and summary.completed == 6 - len(before)
+    for key, row in before.items():
+        assert rows[key] == row  # finished before the kill: never retrained
+    resumed = [r for r in rows.values() if r["attempts"] == 2]
+    assert resumed, "the run that was killed midway should have been resumed"

@@ -1,0 +1,178 @@
+"""SMAC3 tuning: the paper's search spaces, a handful of trials on a tiny store, resuming."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+pytest.importorskip("smac")
+
+from tactile_compliance.config import config_to_dict, load_config
+from tactile_compliance.models import create_model
+from tactile_compliance.training import hpo
+from tactile_compliance.training.grid import expand_experiment, load_experiment
+from toy_store import make_toy_store
+
+TOP10 = ["data.image_size=[72,72]", "augmentation.enabled=false"]
+REAL_TRAIN_TRIAL = hpo._train_trial
+
+
+@pytest.fixture(scope="module")
+def toy_store(tmp_path_factory):
+    return make_toy_store(tmp_path_factory.mktemp("toy") / "store")
+
+
+# ---------------------------------------------------------------------------- spaces
+@pytest.mark.parametrize("model", ["top10nn", "vgg_lstm", "res_tf"])
+@pytest.mark.parametrize("inputs", ["Image", "ImageF", "ImageFW", "ALL"])
+def test_search_space_matches_the_paper_and_builds_models(model, inputs):
+    space = hpo.search_space(model, inputs, seed=1)
+    names = set(space.keys())
+    choices = {name: list(space[name].choices) for name in names}
+    assert len(choices["training.lr"]) == 45 and 1e-2 in choices["training.lr"]
+    assert 9e-6 in choices["training.lr"] and 1e-6 in choices["training.lr"]
+    assert choices["training.gamma"][0] == "none" and len(choices["training.gamma"]) == 11
+    assert choices["training.batch_size"] == [8, 16, 32, 64, 128]
+    hparams = {n.removeprefix("model.hparams.") for n in names if n.startswith("model.")}
+    # Towers of disabled inputs are not searched.
+    assert ("estimation_sizes" in hparams or "elastic_dim" in hparams) == (inputs == "ALL")
+    assert ("fwe_size" in hparams or "force_dim" in hparams) == (inputs != "Image")
+    if model == "res_tf":
+        assert choices["model.hparams.num_heads"] == [1, 2, 4, 8, 16]
+        assert choices["model.hparams.num_layers"] == [2, 3, 4, 5, 6]
+    # Every sampled configuration is a valid config, and (but VGG16, too big to build
+    # 16 times in a test) a model that builds.
+    for config in [space.get_default_configuration(), *space.sample_configuration(4)]:
+        cfg = load_config("default", [f"model.name={model}", f"inputs={inputs}",
+                                      *hpo.trial_overrides(config)])
+        if model != "vgg_lstm":
+            create_model(model, inputs=inputs, **cfg.model.hparams)
+
+
+# ---------------------------------------------------------------------------- tune
+def _count_trainings(monkeypatch, fail_after: int | None = None) -> list[str]:
+    """Record every trial that trains; raise KeyboardInterrupt after ``fail_after`` trials."""
+    trained: list[str] = []
+
+    def counting(cfg, trials_dir):
+        run_dir = Path(trials_dir) / hpo.config_hash(cfg)
+        if fail_after is not None and len(trained) >= fail_after:
+            raise KeyboardInterrupt  # as if the user pressed Ctrl-C during this trial
+        if not (run_dir / "metrics.json").exists():
+            trained.append(run_dir.name)
+        return REAL_TRAIN_TRIAL(cfg, trials_dir)
+
+    monkeypatch.setattr(hpo, "_train_trial", counting)
+    return trained
+
+
+def test_tune_runs_a_few_trials_and_resumes(toy_store, tmp_path, monkeypatch):
+    out = tmp_path / "tune"
+    kwargs = dict(store=toy_store.path, overrides=TOP10, min_epochs=1, max_epochs=3,
+                  output_dir=out, progress=False)
+    # 1. Interrupted after 2 trials.
+    trained = _count_trainings(monkeypatch, fail_after=2)
+    with pytest.raises(KeyboardInterrupt):
+        hpo.tune("top10nn", "Image", trials=4, **kwargs)
+    assert len(trained) == 2
+    # 2. Resumed: SMAC's run history is reloaded, finished trials are not trained again.
+    trained = _count_trainings(monkeypatch)
+    result = hpo.tune("top10nn", "Image", trials=4, **kwargs)
+    table = pd.read_csv(result.trials_path)
+    assert len(table) == 4 and result.trials == 4
+    assert not table.duplicated(["config_id", "budget"]).any()
+    assert set(table["status"]) == {"SUCCESS"} and set(table["budget"]) <= {1.0, 3.0}
+    assert len(trained) == 2  # only the two trials that had not run
+    at_best_budget = table[table["budget"] == result.best_budget]
+    assert result.best_cost == pytest.approx(at_best_budget["cost"].min())
+    # 3. The same command again is a no-op; more trials extend the same search.
+    trained = _count_trainings(monkeypatch)
+    assert hpo.tune("top10nn", "Image", trials=4, **kwargs).best == result.best
+    assert trained == []
+    extended = hpo.tune("top10nn", "Image", trials=6, **kwargs)
+    assert extended.trials == 6 and len(trained) == 2
+    assert len(list((out / "smac").iterdir())) == 1  # one search, continued
+    # 4. What it wrote is accepted by train/experiment directly.
+    best = load_config(extended.config_path)
+    assert best.model.name == "top10nn" and best.inputs == "Image"
+    assert best.training.max_epochs == 200  # the base config's epochs, not the budget
+    resolved = config_to_dict(best)
+    for key, value in extended.best.items():
+        node = resolved
+        for part in key.split("."):
+            node = node[part]
+        assert node == value, key
+    cells = expand_experiment(load_experiment(extended.config_path), seeds=3)
+    assert len(cells) == 3 and {c.cfg.training.lr for c in cells} == {best.training.lr}
+    # tuned.yaml plugs the tuned values into one model of a grid.
+    (tmp_path / "grid.yaml").write_text(
+        "description: uses tuned values\n"
+        "grid: {model.name: [top10nn, res_tf]}\n"
+        f"rules:\n  - when: {{model.name: top10nn}}\n    include: {extended.tuned_path}\n"
+    )
+    by_model = {c.cfg.model.name: c.cfg for c in
+                expand_experiment(load_experiment(tmp_path / "grid.yaml"))}
+    assert by_model["top10nn"].training.lr == best.training.lr
+    assert by_model["top10nn"].model.hparams == best.model.hparams
+    assert by_model["res_tf"].model.hparams == {}
+    # Trials keep their results but not their weights.
+    trial_dirs = list((out / "trials").iterdir())
+    assert len(trial_dirs) == 6
+    assert all((d / "metrics.json").exists() and not (d / "best.pt").exists()
+               for d in trial_dirs)
+
+
+def test_tune_balance_writes_an_experiment_with_the_tuned_value(toy_store, tmp_path):
+    grid = tmp_path / "grid.yaml"
+    grid.write_text(
+        "description: balanced toy grid\n"
+        "set: {sampling.strategy: balanced, augmentation.enabled: false,"
+        " training.lr: 1.0e-3, training.batch_size: 16}\n"
+        "grid: {model.name: [top10nn, res_tf], inputs: [Image]}\n"
+        "seeds: 2\n"
+        "rules:\n"
+        "  - when: {model.name: top10nn}\n"
+        "    set: {data.image_size: [72, 72]}\n"
+        "  - when: {model.name: res_tf}\n"
+        "    set: {data.image_size: [32, 32], model.freeze_backbone: true,\n"
+        "          model.hparams: {num_layers: 1, embedding_dim: 32, output_dim: 32}}\n"
+    )
+    result = hpo.tune_balance(grid, models=["top10nn", "res_tf"], inputs="Image", epochs=1,
+                              trials=2, store=toy_store.path, output_dir=tmp_path / "bal",
+                              progress=False)
+    t = result.best["sampling.t_balance"]
+    assert 0.0 <= t <= 1.0 and result.trials == 2
+    trials = pd.read_csv(result.trials_path)
+    assert trials["cost"].min() == pytest.approx(result.best_cost)
+    # Each trial trained both models for one epoch, balanced at its t_balance.
+    configs = [json.loads((d / "metrics.json").read_text())
+               for d in (tmp_path / "bal" / "trials").iterdir()]
+    assert {c["model"] for c in configs} == {"top10nn", "res_tf"}
+    assert {c["sampling"] for c in configs} == {"balanced"} and len(configs) == 4
+    assert {c["epochs_trained"] for c in configs} == {1}
+    # The experiment file it wrote runs the whole grid with the tuned value.
+    cells = expand_experiment(load_experiment(result.config_path), store=toy_store.path)
+    assert len(cells) == 4
+    assert {(c.cfg.sampling.strategy, c.cfg.sampling.t_balance) for c in cells} == {
+        ("balanced", t)}
+    for path in result.extra_paths:
+        assert load_config(path).sampling.t_balance == t
+
+
+@pytest.mark.slow
+def test_tune_parallel_trials_on_dask(toy_store, tmp_path):
+    result = hpo.tune("top10nn", "Image", store=toy_store.path, overrides=TOP10, trials=6,
+                      min_epochs=1, max_epochs=3, workers=2, output_dir=tmp_path / "t",
+                      progress=False)
+    table = pd.read_csv(result.trials_path)
+    assert len(table) == 6 and set(table["status"]) == {"SUCCESS"}
+
+
+def test_tune_fails_fast_without_a_store(tmp_path):
+    with pytest.raises(hpo.ConfigError, match="store not found"):
+        hpo.tune("top10nn", store=tmp_path / "nowhere", output_dir=tmp_path / "t", progress=False)
+    with pytest.raises(hpo.ConfigError, match="tunable"):
+        hpo.search_space("resnet")
