@@ -8,7 +8,7 @@ sized for: --objects objects at 72 x 96 px, imported with both fingers) and dele
 afterwards. Every measurement starts from an empty output directory and an empty feature
 cache, so each worker count pays for the same work: worker start-up (importing torch and
 Lightning), the frozen-backbone feature caches, and every cell of the grid. The speed-up is
-relative to the first worker count. The load average is printed next to each time because
+relative to the smallest worker count. The load average is printed next to each time because
 a busy machine (other jobs on the same cores) slows multi-worker runs most.
 """
 
@@ -106,8 +106,9 @@ def main() -> None:
             result = _measure(args.preset, not args.full, store, workers, work / f"w{workers}")
             runs.append(result)
             print(json.dumps(result), flush=True)
+        reference = min(runs, key=lambda r: r["workers"])  # speed-up relative to the fewest
         for run in runs:
-            run["speedup"] = round(runs[0]["wall_s"] / run["wall_s"], 2)
+            run["speedup"] = round(reference["wall_s"] / run["wall_s"], 2)
         info["runs"] = runs
         print(f"{info['preset']} on {info['store']} ({info['samples']} samples), {info['machine']}")
         print(

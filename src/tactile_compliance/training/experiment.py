@@ -109,12 +109,19 @@ def _limit_threads(threads: int | None) -> None:
         torch.set_num_threads(int(threads))
 
 
+_QUIETED = False
+
+
 def _quiet_training_warnings() -> None:
     # Every cell would repeat Lightning's start-up banner and its advice about loader
     # workers and logging intervals; it says nothing about the results, so keep worker
     # logs readable (errors and real warnings still show).
     import logging
 
+    global _QUIETED
+    if _QUIETED:  # once per worker process, not once per cell
+        return
+    _QUIETED = True
     for name in ("lightning.pytorch", "lightning.fabric"):
         logging.getLogger(name).setLevel(logging.WARNING)
     warnings.filterwarnings("ignore", category=DeprecationWarning, module="lightning.*")
@@ -630,9 +637,24 @@ def run_experiment(
         if todo:
             if threads is None:
                 threads = 1
-            _dispatch(
-                plan, todo, summary, workers, scheduler, client, threads, keep_checkpoints, progress
-            )
+            try:
+                _dispatch(
+                    plan,
+                    todo,
+                    summary,
+                    workers,
+                    scheduler,
+                    client,
+                    threads,
+                    keep_checkpoints,
+                    progress,
+                )
+            except KeyboardInterrupt:
+                summary.interrupted = True
+                summary.wall_time_s = round(time.perf_counter() - started, 2)
+                if progress:
+                    print(summary.format(), file=sys.stderr)
+                raise
     summary.wall_time_s = round(time.perf_counter() - started, 2)
     if progress:
         print(summary.format(), file=sys.stderr)
@@ -698,13 +720,9 @@ def _dispatch(
                     summary.failures.append((cell.label, str(row.get("error") or "")))
                 bar.advance(ok)
         except KeyboardInterrupt:
-            summary.interrupted = True
-            for future in futures:
+            # Finished rows are on disk already; drop the rest so the cluster closes fast.
+            for future in [*futures, *caches.values()]:
                 future.cancel()
-            for future in caches.values():
-                future.cancel()
-            if progress:
-                print(summary.format(), file=sys.stderr)
             raise
 
 
