@@ -10,8 +10,8 @@
    form an ensemble; the coverage of its 80 % interval is measured on the test split
    (:func:`~tactile_compliance.inference.ensemble.ensemble_calibration`).
 
-Run everything (generation, import, K training runs, both studies; about 10-20 minutes
-on 2 CPU cores with the defaults)::
+Run everything (generation, import, 5 training runs, both studies; 40-55 minutes on 2
+shared CPU cores with the defaults, mostly training)::
 
     python -m tactile_compliance.inference.studies --workdir study --json study.json
 
@@ -224,7 +224,7 @@ def summarise_window_study(table: pd.DataFrame) -> pd.DataFrame:
 def run_studies(
     workdir: str | Path,
     *,
-    n_objects: int = 48,
+    n_objects: int = 40,
     seed: int = 0,
     image_size: tuple[int, int] = (100, 140),
     model_size: tuple[int, int] = (72, 72),
@@ -317,7 +317,7 @@ def run_studies(
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Streaming-window and ensemble studies.")
     parser.add_argument("--workdir", type=Path, required=True)
-    parser.add_argument("--objects", type=int, default=48)
+    parser.add_argument("--objects", type=int, default=40)
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--epochs", type=int, default=15)
     parser.add_argument("--max-grasps", type=int, default=60)
