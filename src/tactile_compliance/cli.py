@@ -436,7 +436,7 @@ def experiment(
     output_dir: OutputDirOption = None,
     results: Annotated[
         Optional[Path],  # noqa: UP045
-        typer.Option("--results", help="Results store directory (default: OUTPUT/results)."),
+        typer.Option("--results", help="Results store directory (default: runs/results)."),
     ] = None,
 ) -> None:
     """Run an experiment grid (models x inputs x conditions x sampling x seeds) on Dask.

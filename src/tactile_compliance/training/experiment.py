@@ -590,7 +590,8 @@ def run_experiment(
         progress: show a progress bar of cells done / failed.
 
     Returns:
-        An :class:`ExperimentSummary` (``.format()`` prints it, ``.table()`` has the rows).
+        An :class:`ExperimentSummary` (``.format()`` is the printable summary, ``.table()``
+        the rows). Only an interrupted run prints its summary itself (to stderr).
 
     Raises:
         ConfigError: the experiment or one of its cells is invalid (nothing has run).
@@ -656,9 +657,7 @@ def run_experiment(
                     print(summary.format(), file=sys.stderr)
                 raise
     summary.wall_time_s = round(time.perf_counter() - started, 2)
-    if progress:
-        print(summary.format(), file=sys.stderr)
-    return summary
+    return summary  # the caller prints summary.format() (the CLI does)
 
 
 def _dispatch(

@@ -767,9 +767,7 @@ def tune(
         trials_path=trials_path,
         wall_time_s=round(time.perf_counter() - started, 2),
     )
-    if progress:
-        print(result.format(), file=sys.stderr)
-    return result
+    return result  # the caller prints result.format() (the CLI does)
 
 
 def tune_balance(
@@ -914,6 +912,4 @@ def tune_balance(
         wall_time_s=round(time.perf_counter() - started, 2),
         extra_paths=[p for p in extra_paths if p != config_path],
     )
-    if progress:
-        print(result.format(), file=sys.stderr)
-    return result
+    return result  # the caller prints result.format() (the CLI does)
