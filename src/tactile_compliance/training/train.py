@@ -197,7 +197,10 @@ def _accelerator(device: str) -> str:
 
 def _loggers(run_dir: Path, tensorboard: bool) -> list[Any]:
     """CSV always (logs/metrics.csv); TensorBoard on request, with a clear error if absent."""
-    loggers: list[Any] = [CSVLogger(save_dir=run_dir, name="", version="logs")]
+    # Flush every step: a killed run keeps the epochs it finished.
+    loggers: list[Any] = [
+        CSVLogger(save_dir=run_dir, name="", version="logs", flush_logs_every_n_steps=1)
+    ]
     if tensorboard:
         try:
             from lightning.pytorch.loggers import TensorBoardLogger
@@ -374,6 +377,8 @@ def _train(
     callbacks: list[Callback] = [best, last]
     if cfg.training.patience > 0:
         callbacks.append(EarlyStopping("val_nmse", patience=cfg.training.patience, mode="min"))
+    # Before the Trainer exists: it prints its start-up messages when created.
+    logging.getLogger("lightning.pytorch").setLevel(logging.INFO if progress else logging.WARNING)
     accelerator = _accelerator(cfg.training.device)
     trainer = L.Trainer(
         max_epochs=cfg.training.max_epochs,
@@ -394,7 +399,6 @@ def _train(
     epoch_log = run_dir / "logs" / "metrics.csv"
     # Lightning's CSV logger starts a new file in a new process: keep the earlier epochs.
     earlier_log = pd.read_csv(epoch_log) if resume_from.exists() and epoch_log.exists() else None
-    logging.getLogger("lightning.pytorch").setLevel(logging.INFO if progress else logging.WARNING)
     trainer.fit(
         module,
         train_dataloaders=loader(data.train_ids, shuffle=True),
