@@ -38,6 +38,9 @@ DEPTH_TO_MM = 21.5
 
 _MARKER_THRESHOLD = 0.07  # difference-image darkness that flags a marker pixel [-]
 
+# Rows: gx = G - (B + R) / 2, gy = B - R, and B + G + R, from BGR pixels.
+_CHANNEL_MIX = np.array([[-0.5, 1.0, -0.5], [1.0, 0.0, -1.0], [1.0, 1.0, 1.0]], dtype=np.float32)
+
 
 def _fast_length(n: int) -> int:
     """Smallest m >= n with m + 1 a product of 2, 3, 5 (a fast DST-I length)."""
@@ -97,15 +100,14 @@ def _poisson(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
 
 
 def _resize_stack(stack: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray:
-    """Resize (n, H, W) frames to ``size`` = (H', W') through OpenCV channels."""
+    """Resize (n, H, W) frames to ``size`` = (H', W'), frame by frame.
+
+    Single-channel calls on contiguous frames take OpenCV's SIMD paths (INTER_AREA at an
+    integer factor included); stacking frames as channels would need strided transposes.
+    """
     out = np.empty((stack.shape[0], *size), dtype=np.float32)
-    # OpenCV: up to 128 channels, but area averaging at a non-integer scale takes 4.
-    chunk_size = 4 if interpolation == cv2.INTER_AREA else 128
-    for start in range(0, stack.shape[0], chunk_size):
-        sl = slice(start, start + chunk_size)
-        chunk = np.ascontiguousarray(stack[sl].transpose(1, 2, 0))
-        resized = cv2.resize(chunk, (size[1], size[0]), interpolation=interpolation)
-        out[sl] = resized.reshape(size[0], size[1], -1).transpose(2, 0, 1)
+    for k in range(stack.shape[0]):
+        cv2.resize(stack[k], (size[1], size[0]), dst=out[k], interpolation=interpolation)
     return out
 
 
@@ -124,17 +126,19 @@ def reconstruct_depth(
     diff = np.asarray(diff_bgr, dtype=np.float32)
     if diff.ndim == 3:
         diff = diff[None]
-    _, h, w, _ = diff.shape
-    blue, green, red = diff[..., 0], diff[..., 1], diff[..., 2]
-    gx = green - 0.5 * (blue + red)
-    gy = blue - red
+    n, h, w, _ = diff.shape
+    # gx = G - (B + R) / 2, gy = B - R and the channel sum B + G + R, in one SIMD pass
+    # per frame (the channel-interleaved layout makes per-channel numpy ops strided).
+    mixed = np.empty((3, n, h, w), dtype=np.float32)
+    for k in range(n):
+        cv2.split(cv2.transform(diff[k], _CHANNEL_MIX), list(mixed[:, k]))
+    gx, gy, channel_sum = mixed
     # The real pipeline's linearisation (a slope from a sine-like intensity change).
     gx = gx / np.sqrt(np.maximum(1.0 - gx * gx, 1e-3)) / 128.0
     gy = gy / np.sqrt(np.maximum(1.0 - gy * gy, 1e-3)) / 128.0
     marker_mask = None
     if markers:
-        # (a channel sum, not .mean(axis=-1): reductions over a last axis of 3 are slow)
-        dark = (blue + green + red) < 3.0 * (0.5 - _MARKER_THRESHOLD)
+        dark = channel_sum < 3.0 * (0.5 - _MARKER_THRESHOLD)
         # Grow each marker blob by one pixel (its soft rim) before filling.
         marker_mask = dark.copy()
         marker_mask[:, 1:, :] |= dark[:, :-1, :]

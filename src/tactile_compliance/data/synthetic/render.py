@@ -250,8 +250,10 @@ def gel_height_maps(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Imprint depth on the visible crop (with skirt) and the contact weight.
 
-    Frames are processed as the channels of one image (OpenCV takes up to 128),
-    and the skirt's wide blurs run on a 2x coarser copy of the pad grid.
+    The skirt's wide blurs run on a 2x coarser copy of the pad grid with the frames as
+    the channels of one image (OpenCV takes up to 128; one call for all frames); the
+    full-size resampling runs frame by frame, because stacked full-size outputs would
+    need a strided transpose that costs more than the resampling itself.
 
     Args:
         fields_mm: gel compression fields on the pad grid, (n, rows, cols) [mm].
@@ -268,16 +270,16 @@ def gel_height_maps(
     out_contact = np.zeros((n, h, w), dtype=np.float32)
     active = np.flatnonzero(fields_mm.reshape(n, -1).max(axis=1) > 0)
     pad_h, pad_w, off_y, off_x = _pad_pixels(size)
-    # OpenCV handles up to 128 channels per image.
+    crop = (slice(off_y, off_y + h), slice(off_x, off_x + w))
     for start in range(0, active.size, 128):
         chunk = active[start : start + 128]
-        stack = np.asarray(fields_mm[chunk], dtype=np.float32).transpose(1, 2, 0)
-        stack = np.ascontiguousarray(stack)
-        rows, cols = stack.shape[:2]
-        r2, c2 = rows // 2, cols // 2
-        even = stack[: 2 * r2, : 2 * c2]
-        coarse = 0.25 * (even[0::2, 0::2] + even[1::2, 0::2] + even[0::2, 1::2] + even[1::2, 1::2])
-        coarse = np.ascontiguousarray(coarse, dtype=np.float32)
+        stack = np.asarray(fields_mm[chunk], dtype=np.float32)
+        rows, cols = stack.shape[1:]
+        even = stack[:, : 2 * (rows // 2), : 2 * (cols // 2)]
+        coarse = 0.25 * (
+            even[:, 0::2, 0::2] + even[:, 1::2, 0::2] + even[:, 0::2, 1::2] + even[:, 1::2, 1::2]
+        )
+        coarse = np.ascontiguousarray(coarse.transpose(1, 2, 0))  # frames as channels
         core = coarse > 0.4 * coarse.max(axis=(0, 1), keepdims=True)
         core_values = coarse[core]
         skirt = coarse
@@ -286,29 +288,88 @@ def gel_height_maps(
             skirt = cv2.GaussianBlur(skirt, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
             skirt = skirt.reshape(coarse.shape)
             skirt[core] = core_values
-        fine = cv2.resize(stack, (pad_w, pad_h), interpolation=cv2.INTER_CUBIC)
-        smooth = cv2.resize(skirt, (pad_w, pad_h), interpolation=cv2.INTER_LINEAR)
-        touching = cv2.resize(
-            (stack > 0).astype(np.float32), (pad_w, pad_h), interpolation=cv2.INTER_LINEAR
-        )
-        crop = (slice(off_y, off_y + h), slice(off_x, off_x + w))
-        fine = fine.reshape(pad_h, pad_w, -1)[crop]
-        smooth = smooth.reshape(pad_h, pad_w, -1)[crop]
-        touching = touching.reshape(pad_h, pad_w, -1)[crop]
-        out_depth[chunk] = np.maximum(np.maximum(fine, smooth), 0.0).transpose(2, 0, 1)
-        out_contact[chunk] = np.clip(touching, 0.0, 1.0).transpose(2, 0, 1)
+        skirt = skirt.transpose(2, 0, 1)
+        for i, k in enumerate(chunk):
+            field = stack[i]
+            fine = cv2.resize(field, (pad_w, pad_h), interpolation=cv2.INTER_CUBIC)[crop]
+            smooth = cv2.resize(
+                np.ascontiguousarray(skirt[i]), (pad_w, pad_h), interpolation=cv2.INTER_LINEAR
+            )[crop]
+            np.maximum(fine, smooth, out=out_depth[k])
+            np.maximum(out_depth[k], 0.0, out=out_depth[k])
+            touching = cv2.resize(
+                (field > 0).astype(np.float32), (pad_w, pad_h), interpolation=cv2.INTER_LINEAR
+            )[crop]
+            np.clip(touching, 0.0, 1.0, out=out_contact[k])
     return out_depth, out_contact
 
 
 def _soft_clip(image: np.ndarray) -> np.ndarray:
     """Soft saturation of the camera near 0 and 255 (grey levels, in place)."""
-    hi = image > 225.0
-    if hi.any():
+    # One SIMD min/max pass decides whether the masked (slow) paths are needed at all.
+    low, high, _, _ = cv2.minMaxLoc(image.reshape(-1, image.shape[-1]))
+    if high > 225.0:
+        hi = image > 225.0
         image[hi] = 225.0 + 30.0 * np.tanh((image[hi] - 225.0) / 30.0)
-    lo = image < 15.0
-    if lo.any():
+    if low < 15.0:
+        lo = image < 15.0
         image[lo] = 15.0 * np.exp((image[lo] - 15.0) / 15.0)
     return image
+
+
+def _contact_box(depth: np.ndarray, margin: int = 3) -> tuple[slice, slice] | None:
+    """Rows and columns holding every non-zero imprint pixel, grown by ``margin``.
+
+    Outside this box the imprint and its central-difference slopes are exactly zero,
+    so shading there adds nothing. A margin of 3 px keeps the box's edge-replicated
+    slopes zero too (the slope next to the edge only sees zero depth).
+    """
+    touched = depth.max(axis=0) > 0
+    rows = np.flatnonzero(touched.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(touched.any(axis=0))
+    h, w = touched.shape
+    return (
+        slice(max(int(rows[0]) - margin, 0), min(int(rows[-1]) + margin + 1, h)),
+        slice(max(int(cols[0]) - margin, 0), min(int(cols[-1]) + margin + 1, w)),
+    )
+
+
+def _shading(depth: np.ndarray, look: SensorLook, gain_maps: np.ndarray, px: float) -> np.ndarray:
+    """Grey-level change (3, n, h, w) of planes B, G, R caused by the imprint ``depth`` [mm].
+
+    ``gain_maps`` (3, h, w) are the lights' (G, R, B) slope gains over the same pixels.
+    """
+    # Central differences (edges replicated): slope = dD/dx [mm/mm].
+    sx = np.empty_like(depth)
+    sy = np.empty_like(depth)
+    np.subtract(depth[:, :, 2:], depth[:, :, :-2], out=sx[:, :, 1:-1])
+    sx[:, :, 0], sx[:, :, -1] = sx[:, :, 1], sx[:, :, -2]
+    np.subtract(depth[:, 2:, :], depth[:, :-2, :], out=sy[:, 1:-1, :])
+    sy[:, 0, :], sy[:, -1, :] = sy[:, 1, :], sy[:, -2, :]
+    sx *= np.float32(0.5 / px)
+    sy *= np.float32(0.5 / px)
+    nz = sx * sx
+    nz += sy * sy
+    nz += 1.0
+    np.sqrt(nz, out=nz)
+    np.reciprocal(nz, out=nz)
+    nz_minus_1 = nz - 1.0
+    shades = np.empty((3, *depth.shape), dtype=np.float32)
+    # (n.L - sin e) / cos e = s_L nz + tan(e) (nz - 1): ~ the slope towards the light
+    # for small slopes, darker on steep walls. Planes are B, G, R.
+    for plane, (light, slope, sign, dark) in enumerate(
+        ((2, sy, 1.0, 0), (0, sx, 1.0, 1), (1, sy, -1.0, 2))
+    ):
+        shade = shades[plane]
+        np.multiply(slope, nz, out=shade)
+        if sign < 0:
+            np.negative(shade, out=shade)
+        shade += np.float32(np.tan(look.elevation_rad[light])) * nz_minus_1
+        shade *= gain_maps[light]
+        shade -= np.float32(look.darkening[dark]) * depth
+    return shades
 
 
 def render_frames(
@@ -319,44 +380,22 @@ def render_frames(
     """Camera frames (n, H, W, 3) uint8 BGR for imprint depth maps (n, H, W) [mm].
 
     Computed on planar (channel, frame, H, W) arrays - interleaved channels would
-    make every operation strided - and interleaved once, as uint8, at the end.
+    make every operation strided - and interleaved once, as uint8, at the end. The
+    shading is computed only inside the box that the imprint touches.
     """
     depth = np.asarray(depth_mm, dtype=np.float32)
     n, h, w = depth.shape
     size = (h, w)
     bg, strength, markers = _base_images(look, size)
-    gain_maps = strength * (np.asarray(look.light_gain, dtype=np.float32) * 255.0)[:, None, None]
-    px = pixel_size_mm(size)
     planes = np.empty((3, n, h, w), dtype=np.float32)
     planes[:] = bg.transpose(2, 0, 1)[:, None]
-    if depth.max() > 0:
-        # Central differences (edges replicated): slope = dD/dx [mm/mm].
-        sx = np.empty_like(depth)
-        sy = np.empty_like(depth)
-        np.subtract(depth[:, :, 2:], depth[:, :, :-2], out=sx[:, :, 1:-1])
-        sx[:, :, 0], sx[:, :, -1] = sx[:, :, 1], sx[:, :, -2]
-        np.subtract(depth[:, 2:, :], depth[:, :-2, :], out=sy[:, 1:-1, :])
-        sy[:, 0, :], sy[:, -1, :] = sy[:, 1, :], sy[:, -2, :]
-        sx *= np.float32(0.5 / px)
-        sy *= np.float32(0.5 / px)
-        nz = sx * sx
-        nz += sy * sy
-        nz += 1.0
-        np.sqrt(nz, out=nz)
-        np.reciprocal(nz, out=nz)
-        nz_minus_1 = nz - 1.0
-        # (n.L - sin e) / cos e = s_L nz + tan(e) (nz - 1): ~ the slope towards the
-        # light for small slopes, darker on steep walls. Planes are B, G, R.
-        for plane, (light, slope, sign, dark) in enumerate(
-            ((2, sy, 1.0, 0), (0, sx, 1.0, 1), (1, sy, -1.0, 2))
-        ):
-            shade = slope * nz
-            if sign < 0:
-                np.negative(shade, out=shade)
-            shade += np.float32(np.tan(look.elevation_rad[light])) * nz_minus_1
-            shade *= gain_maps[light]
-            shade -= np.float32(look.darkening[dark]) * depth
-            planes[plane] += shade
+    box = _contact_box(depth)
+    if box is not None:
+        gain_maps = strength[(slice(None), *box)] * (
+            np.asarray(look.light_gain, dtype=np.float32) * 255.0
+        )[:, None, None]
+        region = (slice(None), slice(None), *box)
+        planes[region] += _shading(depth[region[1:]], look, gain_maps, pixel_size_mm(size))
     if look.markers:
         planes *= 1.0 - markers
     drift_gain, drift_offset = look.drift
@@ -368,9 +407,12 @@ def render_frames(
     for k in range(n):
         planes[:, k] += sigma * _noise(size, rng)
     _soft_clip(planes)
-    # Round and saturate to uint8 in one OpenCV pass (values are >= 0 after the clip).
+    # Round and saturate to uint8 in one OpenCV pass (values are >= 0 after the clip),
+    # then interleave each frame's planes with cv2.merge (SIMD, no strided copy).
     quantised = cv2.convertScaleAbs(planes.reshape(-1, w)).reshape(3, n, h, w)
-    frames = np.ascontiguousarray(quantised.transpose(1, 2, 3, 0))
+    frames = np.empty((n, h, w, 3), dtype=np.uint8)
+    for k in range(n):
+        cv2.merge([quantised[0, k], quantised[1, k], quantised[2, k]], dst=frames[k])
     if look.jpeg_quality:
         params = [cv2.IMWRITE_JPEG_QUALITY, look.jpeg_quality]
         for k in range(n):
@@ -391,7 +433,11 @@ def difference_images(frames: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """``(frame - GaussianBlur11x11(reference)) / 255 + 0.5`` as float32 (BGR kept).
 
     The blur runs on the uint8 reference, as in the real pipeline (OpenCV returns
-    uint8), so every value is a multiple of 1/255 offset by 0.5.
+    uint8), so every value is a multiple of 1/255 offset by 0.5 (to float32 rounding).
     """
-    blurred = cv2.GaussianBlur(reference, (11, 11), 0).astype(np.float32)
-    return (frames.astype(np.float32) - blurred) / np.float32(255.0) + np.float32(0.5)
+    blurred = cv2.GaussianBlur(reference, (11, 11), 0)
+    out = np.empty(frames.shape, dtype=np.float32)
+    scale = 1.0 / 255.0
+    for k in range(frames.shape[0]):  # one fused SIMD pass per frame
+        cv2.addWeighted(frames[k], scale, blurred, -scale, 0.5, dst=out[k], dtype=cv2.CV_32F)
+    return out
