@@ -9,11 +9,20 @@ Cache layout, next to the store (``STORE/features/KEY/``)::
 
     features.f16     float16 array (N_store, 3, feature_dim), C order
     meta.json        backbone class, weights fingerprint, image size, normalisation, shape
+    lock             empty; ``flock``-ed by the one process computing the cache
 
 ``KEY`` = backbone class + sha256 of the backbone's weights + image size + the image
 normalisation: a different backbone initialisation can never reuse stale features.
 Computation is resumable: progress is recorded after every chunk in ``progress.json`` and
 the finished array is renamed into place atomically.
+
+Several processes may ask for the same cache at once (Dask grid workers, parallel SMAC
+trials): the first takes an exclusive ``fcntl.flock`` on ``KEY/lock`` and computes, the
+others wait on the lock and then find the finished array. The kernel releases the lock
+when its holder dies, so a killed computation is resumed by the next process. Reading a
+finished cache takes no lock. On NFS, Linux implements ``flock`` with the server's record
+locks, so the lock holds across hosts. Where no lock is available (Windows, a file system
+that refuses ``flock``: a warning says so) compute each cache in one process first.
 
 Augmentation cannot be applied to cached features (it acts on images); training warns
 when both are requested.
@@ -21,9 +30,14 @@ when both are requested.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import json
 import os
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,6 +52,41 @@ FEATURES_DIR = "features"
 FEATURES_FILE = "features.f16"
 META_FILE = "meta.json"
 PROGRESS_FILE = "progress.json"
+LOCK_FILE = "lock"
+
+try:
+    import fcntl
+except ImportError:  # Windows: no flock
+    fcntl = None  # type: ignore[assignment]
+
+
+@contextlib.contextmanager
+def _exclusive_lock(path: Path) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on ``path`` (created if needed), blocking until free."""
+    if fcntl is None:
+        yield
+        return
+    # The lock file is never deleted: unlinking it while another process waits on the
+    # old inode would let a third process lock a new file and compute concurrently.
+    with open(path, "a+b") as handle:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+        except OSError as err:
+            if err.errno not in (errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOLCK):
+                raise
+            # Some cluster file systems (Lustre mounted without -o flock) refuse locks:
+            # computing unlocked is what happened before the lock existed, not an error.
+            warnings.warn(
+                f"{path.parent}: the file system does not support flock ({err}); computing "
+                f"the feature cache without a lock (do not compute it in two processes)",
+                stacklevel=4,
+            )
+            yield
+            return
+        try:
+            yield
+        finally:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
 
 
 def weights_fingerprint(module: torch.nn.Module) -> str:
@@ -87,6 +136,29 @@ def cached_features(
         return np.memmap(final, dtype=np.float16, mode="r", shape=shape)
 
     directory.mkdir(parents=True, exist_ok=True)
+    with _exclusive_lock(directory / LOCK_FILE):
+        # Another process may have finished the cache while this one waited for the lock.
+        if not (final.exists() and meta_path.exists()):
+            _compute(
+                store, backbone, size, constants, directory, shape, batch_size, device, progress
+            )
+    return np.memmap(final, dtype=np.float16, mode="r", shape=shape)
+
+
+@torch.no_grad()
+def _compute(
+    store: GraspStore,
+    backbone: torch.nn.Module,
+    size: tuple[int, int],
+    constants: NormalisationConstants,
+    directory: Path,
+    shape: tuple[int, int, int],
+    batch_size: int,
+    device: str | torch.device,
+    progress: bool,
+) -> None:
+    """Fill ``directory`` with the features; the caller holds the cache's lock."""
+    final, meta_path = directory / FEATURES_FILE, directory / META_FILE
     partial, progress_path = directory / (FEATURES_FILE + ".partial"), directory / PROGRESS_FILE
     # Resume only when both the partial array and its progress record survived.
     resumable = (
@@ -126,6 +198,8 @@ def cached_features(
         "store_created": store.header.created,
     }
     os.replace(partial, final)
-    meta_path.write_text(json.dumps(meta, indent=2) + "\n")
+    # Readers check for meta.json without the lock: it must appear complete or not at all.
+    tmp = meta_path.with_name(META_FILE + ".tmp")
+    tmp.write_text(json.dumps(meta, indent=2) + "\n")
+    os.replace(tmp, meta_path)
     progress_path.unlink(missing_ok=True)
-    return np.memmap(final, dtype=np.float16, mode="r", shape=shape)
