@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 from typer.testing import CliRunner
 
 from tactile_compliance.cli import app
@@ -144,6 +145,31 @@ def test_interrupted_run_resumes_from_its_checkpoint(toy_store, tmp_path):
     log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
     # Epochs 0-1 from the first process, 2-3 from the resumed one: none repeated.
     assert sorted(log["epoch"].astype(int).tolist()) == [0, 1, 2, 3]
+
+
+def test_interrupted_frozen_run_resumes_without_the_backbone_in_last_ckpt(toy_store, tmp_path):
+    run_dir = tmp_path / "run"
+    first = train(
+        _config(toy_store, tmp_path, "vgg_lstm", ["training.max_epochs=2"]),
+        run_dir=run_dir,
+        progress=False,
+    )
+    assert first["epochs_trained"] == 2
+    last = run_dir / "checkpoints" / "last.ckpt"
+    state = torch.load(last, map_location="cpu", weights_only=False)["state_dict"]
+    # The frozen VGG16 is rebuilt on resume, so last.ckpt carries the head only.
+    assert state and not any(k.startswith("model.backbone.") for k in state)
+    (run_dir / "metrics.json").unlink()  # as if the process died after epoch 2
+    resumed = train(
+        _config(toy_store, tmp_path, "vgg_lstm", ["training.max_epochs=4"]),
+        run_dir=run_dir,
+        progress=False,
+    )
+    assert resumed["epochs_trained"] == 4
+    log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
+    assert sorted(log["epoch"].astype(int).tolist()) == [0, 1, 2, 3]
+    # The head continued from epoch 2's weights: its best score can only improve on it.
+    assert resumed["best_val_nmse"] <= first["best_val_nmse"]
 
 
 def test_feature_cache_is_shared_across_seeds(toy_store, tmp_path):

@@ -371,6 +371,16 @@ def train(
     )
 
 
+BackboneWeightsOption = Annotated[
+    Optional[Path],  # noqa: UP045
+    typer.Option(
+        "--weights",
+        help="Frozen-backbone checkpoints store the head only: a local copy of the "
+        "backbone's weights file (e.g. the ImageNet .pth on an offline machine).",
+    ),
+]
+
+
 @app.command()
 def evaluate(
     run_dir: Annotated[Path, typer.Argument(help="A finished run directory.")],
@@ -378,12 +388,13 @@ def evaluate(
         Optional[Path], typer.Option("--store", help="Evaluate on this store instead.")  # noqa: UP045
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    weights: BackboneWeightsOption = None,
 ) -> None:
     """Recompute metrics (overall, per material, shape, soft/hard) from a run's checkpoint."""
     from tactile_compliance.evaluation.evaluate import evaluate_run
 
     try:
-        evaluation = evaluate_run(run_dir, store)
+        evaluation = evaluate_run(run_dir, store, backbone_weights=weights)
     except (ValueError, FileNotFoundError) as err:
         _fail(str(err))
     if as_json:
@@ -569,12 +580,19 @@ def predict(
         str, typer.Option(help="Raw directories: markerless, markers or both.")
     ] = "both",
     device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
+    weights: BackboneWeightsOption = None,
 ) -> None:
     """Estimate Young's modulus for every grasp of a store, raw directory or video."""
     from tactile_compliance.inference.sources import format_predictions, predict_path
 
     try:
-        result = predict_path(checkpoint, source, device=device, fingers=fingers)  # type: ignore[arg-type]
+        result = predict_path(
+            checkpoint,
+            source,
+            device=device,
+            fingers=fingers,  # type: ignore[arg-type]
+            backbone_weights=weights,
+        )
     except (ValueError, FileNotFoundError) as err:
         _fail(str(err))
     typer.echo(json.dumps(result, indent=2, default=str) if as_json else format_predictions(result))
@@ -590,6 +608,7 @@ def export(
             "--size", help="Frame size HxW baked into the graph (default: the checkpoint's)."
         ),
     ] = None,
+    weights: BackboneWeightsOption = None,
 ) -> None:
     """Export a checkpoint to ONNX with a dynamic batch size.
 
@@ -598,7 +617,9 @@ def export(
     from tactile_compliance.inference.export import export_onnx, format_export_report
 
     try:
-        result = export_onnx(checkpoint, onnx, image_size=_size_option(size))
+        result = export_onnx(
+            checkpoint, onnx, image_size=_size_option(size), backbone_weights=weights
+        )
     except (ValueError, FileNotFoundError, RuntimeError) as err:
         _fail(str(err))
     typer.echo(format_export_report(result))
@@ -641,7 +662,10 @@ def demo(
     mode: Annotated[
         str, typer.Option(help="full (a few minutes on 2 CPU cores) or ci (seconds, tiny).")
     ] = "full",
-    workers: Annotated[int, typer.Option(help="Dask worker processes for the grids.")] = 1,
+    workers: Annotated[
+        Optional[int],  # noqa: UP045
+        typer.Option(help="Dask worker processes for the grids (default: CPUs, at most 4)."),
+    ] = None,
 ) -> None:
     """Run the whole system on built-in synthetic data (the main job).
 

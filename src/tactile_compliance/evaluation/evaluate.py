@@ -31,16 +31,22 @@ class Evaluation:
 
 
 def evaluate_run(
-    run_dir: str | Path, store: str | Path | None = None, *, batch_size: int = 64
+    run_dir: str | Path,
+    store: str | Path | None = None,
+    *,
+    batch_size: int = 64,
+    backbone_weights: str | Path | None = None,
 ) -> Evaluation:
     """Metrics of a run's best checkpoint.
 
     Without ``store``: on the run's own test split (``split.json``), which reproduces the
     numbers in ``metrics.json``. With ``store``: on every sample of that store that passes
     the run's sample filter (e.g. a model trained on one dataset tested on another).
+    ``backbone_weights``: a local copy of a frozen backbone's weights file (see
+    ``training.checkpoint.load_checkpoint``).
     """
     run_dir = Path(run_dir)
-    loaded = load_checkpoint(run_dir / BEST_FILE)
+    loaded = load_checkpoint(run_dir / BEST_FILE, backbone_weights=backbone_weights)
     cfg = config_from_dict(loaded.meta["config"])
     if store is None:
         if cfg.data.store is None:

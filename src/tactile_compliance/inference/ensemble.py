@@ -170,10 +170,15 @@ class EnsembleEstimator:
         device: str = "cpu",
         level: float = 0.8,
         scale: float = 1.0,
+        backbone_weights: str | Path | None = None,
     ) -> EnsembleEstimator:
         """Members from checkpoint files or run directories (a glob pattern works too,
-        e.g. ``"runs/res_tf-ALL-*-seed*/"``)."""
-        members = [ComplianceEstimator.from_checkpoint(p, device=device) for p in _expand(paths)]
+        e.g. ``"runs/res_tf-ALL-*-seed*/"``); ``backbone_weights`` as in
+        :meth:`ComplianceEstimator.from_checkpoint`."""
+        members = [
+            ComplianceEstimator.from_checkpoint(p, device=device, backbone_weights=backbone_weights)
+            for p in _expand(paths)
+        ]
         return cls(members, level=level, scale=scale)
 
     @property

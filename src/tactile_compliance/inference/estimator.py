@@ -150,15 +150,21 @@ class ComplianceEstimator:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_checkpoint(
-        cls, path: str | Path, device: str | torch.device = "cpu"
+        cls,
+        path: str | Path,
+        device: str | torch.device = "cpu",
+        *,
+        backbone_weights: str | Path | None = None,
     ) -> ComplianceEstimator:
         """Load a ``best.pt`` checkpoint (or a run directory holding one).
 
         Loading never executes pickled code (``weights_only=True``) and never downloads
-        backbone weights: everything comes from the checkpoint.
+        backbone weights. A checkpoint of a frozen-backbone run stores the head only and
+        rebuilds the backbone from its recorded seed or weights file (``imagenet``: the
+        torch.hub cache); ``backbone_weights`` names a local copy of that file instead.
         """
         file = resolve_checkpoint(path)
-        loaded = load_checkpoint(file, device=device)
+        loaded = load_checkpoint(file, device=device, backbone_weights=backbone_weights)
         store_size = _training_store_size(loaded.meta)
         estimator = cls(
             loaded.model,

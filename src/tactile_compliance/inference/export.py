@@ -167,6 +167,7 @@ def export_onnx(
     check: bool = True,
     atol: float = 1e-4,
     check_batch_sizes: tuple[int, ...] = (1, 3),
+    backbone_weights: str | Path | None = None,
 ) -> dict[str, Any]:
     """Export a checkpoint to ONNX (dynamic batch) and check it against PyTorch.
 
@@ -178,6 +179,8 @@ def export_onnx(
         opset: ONNX opset version.
         check: run onnxruntime on random inputs at ``check_batch_sizes`` and compare.
         atol: largest acceptable absolute difference of the normalised output.
+        backbone_weights: a local copy of a frozen backbone's weights file (see
+            ``ComplianceEstimator.from_checkpoint``).
 
     Returns:
         A report: ``onnx_path``, ``inputs`` (name -> shape), ``output``, ``image_size``,
@@ -186,7 +189,7 @@ def export_onnx(
     Raises:
         ValueError: no frame size known; RuntimeError: parity worse than ``atol``.
     """
-    estimator = ComplianceEstimator.from_checkpoint(checkpoint)
+    estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
     size = tuple(image_size) if image_size is not None else estimator.image_size
     if size is None:
         raise ValueError(

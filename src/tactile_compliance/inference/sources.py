@@ -336,8 +336,12 @@ def predict_path(
     device: str = "cpu",
     fingers: FingerChoice = "both",
     batch_size: int = 64,
+    backbone_weights: str | Path | None = None,
 ) -> dict[str, Any]:
     """Predict every grasp under ``path`` with ``checkpoint``: the ``predict`` command.
+
+    ``backbone_weights``: a local copy of a frozen backbone's weights file (see
+    ``ComplianceEstimator.from_checkpoint``).
 
     Samples missing an input the checkpoint needs (e.g. NaN estimates in a store) are
     skipped and listed with the reason; everything else is predicted in batches.
@@ -351,7 +355,9 @@ def predict_path(
     """
     from tactile_compliance.inference.estimator import ComplianceEstimator
 
-    estimator = ComplianceEstimator.from_checkpoint(checkpoint, device=device)
+    estimator = ComplianceEstimator.from_checkpoint(
+        checkpoint, device=device, backbone_weights=backbone_weights
+    )
     source = read_source(path, fingers=fingers, image_size=estimator.store_image_size)
     needed = estimator.required_inputs
     if source.kind == "video" and needed:

@@ -16,7 +16,8 @@ Weights (``create_backbone(name, weights=...)``):
 * ``"imagenet"``: the official torchvision ImageNet file, through
   ``torch.hub.load_state_dict_from_url`` (cached under ``torch.hub.get_dir()``,
   sha256-checked). Without internet access this fails within seconds with a message that
-  names the local-file alternative.
+  names the local-file alternative. Inside :func:`no_downloads` (checkpoint loading) only
+  the cached file is used.
 * a filesystem path: a local state dict, loaded with ``torch.load(weights_only=True)``;
   a file named like torchvision's ``<name>-<hash>.pth`` must have a sha256 that starts
   with ``<hash>``.
@@ -24,6 +25,7 @@ Weights (``create_backbone(name, weights=...)``):
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import re
@@ -31,7 +33,8 @@ import socket
 import urllib.error
 import urllib.parse
 import urllib.request
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextvars import ContextVar
 from pathlib import Path
 
 import torch
@@ -46,6 +49,7 @@ __all__ = [
     "create_backbone",
     "list_backbones",
     "load_backbone_weights",
+    "no_downloads",
 ]
 
 #: Official torchvision ImageNet weights (the IMAGENET1K_V1 files). The 8 hex digits in
@@ -70,6 +74,9 @@ _IGNORED_PREFIXES: dict[str, tuple[str, ...]] = {
 _HASH_IN_NAME = re.compile(
     r"^(?P<stem>vgg16|resnet18|resnet34|resnet50)-(?P<hash>[0-9a-f]{8,64})\.pth$"
 )
+
+# False inside no_downloads(): "imagenet" then means "the torch.hub cache or nothing".
+_DOWNLOADS_ALLOWED: ContextVar[bool] = ContextVar("backbone_downloads_allowed", default=True)
 
 # Seconds allowed for the connectivity probe before an ImageNet download; kept short so
 # an offline machine gets an answer at once instead of a hanging download.
@@ -301,9 +308,32 @@ def _probe(url: str, timeout: float = _PROBE_TIMEOUT_S) -> None:
         pass
 
 
+@contextlib.contextmanager
+def no_downloads() -> Iterator[None]:
+    """Within this block, ``"imagenet"`` weights come from the torch.hub cache only.
+
+    A missing file raises ``FileNotFoundError`` (naming the ``--weights PATH``
+    alternative) instead of downloading: loading a checkpoint must work offline and
+    must not fetch half a gigabyte behind the user's back.
+    """
+    token = _DOWNLOADS_ALLOWED.set(False)
+    try:
+        yield
+    finally:
+        _DOWNLOADS_ALLOWED.reset(token)
+
+
 def _load_imagenet_state_dict(name: str) -> dict[str, torch.Tensor]:
     url = BACKBONE_WEIGHTS_URLS[name]
-    cached = Path(torch.hub.get_dir()) / "checkpoints" / url.rsplit("/", 1)[-1]
+    filename = url.rsplit("/", 1)[-1]
+    cached = Path(torch.hub.get_dir()) / "checkpoints" / filename
+    if not cached.is_file() and not _DOWNLOADS_ALLOWED.get():
+        raise FileNotFoundError(
+            f"the ImageNet weights of {name!r} are not in the torch.hub cache ({cached}) and "
+            f"loading a checkpoint never downloads. Pass a local copy of {url} with "
+            f"`--weights /path/to/{filename}` (in Python: backbone_weights='/path/to/"
+            f"{filename}'), or copy it to {cached}."
+        )
     if not cached.is_file():
         # Only probe when a download is really needed: a cached file must load offline.
         try:

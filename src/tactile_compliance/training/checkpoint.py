@@ -1,4 +1,4 @@
-"""Self-describing model checkpoints (``model.pt``).
+"""Self-describing model checkpoints (``best.pt``).
 
 A checkpoint holds everything needed to use the model without the run directory or
 the config file: weights, model name, hyperparameters, input strategy, normalisation
@@ -6,10 +6,22 @@ constants, the frame size the model was trained at, the data/split/training
 configuration, the seed, which backbone weights were used and the package version.
 It contains only tensors and plain Python values, so it loads with
 ``torch.load(weights_only=True)``: no pickled code is ever executed.
+
+A frozen backbone is a fixed function (random initialisation from
+:data:`FROZEN_BACKBONE_SEED`, the ImageNet file or a local file), so storing it in every
+run's checkpoint only costs disk: 0.53 GB for VGG16, against a few MB for the head. With
+``frozen_backbone=`` :func:`save_checkpoint` stores the head only plus a ``backbone``
+record, ``{"weights": "none" | "imagenet" | PATH, "seed": int | None, "sha256": ...,
+"summary": ...}``, and :func:`load_checkpoint` rebuilds the backbone from it (never
+downloading) and checks its sha256 before loading the head. Fine-tuned backbones are
+stored whole. Format 1 checkpoints (always whole) still load.
 """
 
 from __future__ import annotations
 
+import math
+import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,11 +29,29 @@ from typing import Any
 import torch
 
 from tactile_compliance import __version__
+from tactile_compliance.data.features import weights_fingerprint
 from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.models import create_model
+from tactile_compliance.models import create_model, get_model_class
+from tactile_compliance.models.backbones import no_downloads
 
 CHECKPOINT_FORMAT = "tactile-compliance-model"
-CHECKPOINT_VERSION = 1
+#: 2: a frozen backbone is stored as a ``backbone`` record instead of its tensors.
+CHECKPOINT_VERSION = 2
+
+#: Seed of a randomly initialised frozen backbone. Independent of the run seed so that
+#: every seed and trial shares one backbone and therefore one feature cache; recorded in
+#: head-only checkpoints, which rebuild the backbone from it.
+FROZEN_BACKBONE_SEED = 0
+
+BACKBONE_PREFIX = "backbone."
+
+# Per backbone tensor, the summary keeps its L2 norm and this many evenly spaced values.
+_SUMMARY_VALUES = 8
+# torch's CPU random initialisation differs between instruction sets (AVX2 vs the
+# default kernel used e.g. on ARM) by a few float32 ulps, i.e. ~5e-7 of a value: the
+# sha256 then differs although the backbone is the same function. This tolerance
+# (relative to the tensor's RMS) accepts that and nothing coarser.
+_SUMMARY_RTOL = 1e-5
 
 
 @dataclass
@@ -35,6 +65,83 @@ class LoadedModel:
     meta: dict[str, Any]
 
 
+def create_seeded_model(name: str, seed: int, **kwargs: Any) -> torch.nn.Module:
+    """``create_model(name, **kwargs)`` under ``torch.manual_seed(seed)``.
+
+    This is what a frozen random backbone *is*: training takes its backbone from such a
+    model and :func:`load_checkpoint` rebuilds it the same way. The caller's random
+    state is left as it was.
+    """
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)
+        return create_model(name, **kwargs)
+
+
+def _backbone_summary(backbone: torch.nn.Module) -> dict[str, list[float]]:
+    """Per tensor: [L2 norm, then ``_SUMMARY_VALUES`` evenly spaced values] (float64)."""
+    summary = {}
+    for name, tensor in backbone.state_dict().items():
+        flat = tensor.detach().reshape(-1).to(torch.float64).cpu()
+        last, count = flat.numel() - 1, min(_SUMMARY_VALUES, flat.numel())
+        # Integer positions: a float32 linspace rounds past the end of 100M-element tensors.
+        index = torch.tensor([i * last // max(1, count - 1) for i in range(count)])
+        summary[name] = [float(flat.norm()), *flat[index].tolist()]
+    return summary
+
+
+def _same_up_to_rounding(
+    backbone: torch.nn.Module, recorded: dict[str, list[float]] | None
+) -> bool:
+    """Whether ``backbone`` matches a recorded summary within float32 rounding."""
+    actual = _backbone_summary(backbone)
+    if not recorded or set(recorded) != set(actual):
+        return False
+    sizes = {name: tensor.numel() for name, tensor in backbone.state_dict().items()}
+    for name, values in actual.items():
+        expected = recorded[name]
+        if len(expected) != len(values):
+            return False
+        norm = values[0]
+        rms = norm / math.sqrt(max(1, sizes[name]))
+        if abs(norm - expected[0]) > _SUMMARY_RTOL * norm:
+            return False
+        pairs = zip(values[1:], expected[1:], strict=True)
+        if any(abs(a - b) > _SUMMARY_RTOL * rms for a, b in pairs):
+            return False
+    return True
+
+
+def frozen_backbone_record(model: torch.nn.Module, *, seed: int | None) -> dict[str, Any]:
+    """How to rebuild ``model``'s frozen backbone, for a head-only checkpoint.
+
+    Args:
+        model: a model whose ``backbone`` is frozen; ``model.backbone_weights`` says where
+            its weights came from (``"none"``, ``"imagenet"`` or a file).
+        seed: the seed the random backbone was created under (see
+            :func:`create_seeded_model`); ignored for ImageNet or file weights.
+
+    Returns:
+        ``{"weights", "seed", "sha256", "summary"}``: the weights source (a file as an
+        absolute path), the seed (None unless random), the sha256 of the backbone's
+        tensors (:func:`~tactile_compliance.data.features.weights_fingerprint`) and a
+        small per-tensor summary used to tell float rounding from other weights.
+    """
+    weights = str(getattr(model, "backbone_weights", "none")).strip()
+    if weights.lower() in ("none", "imagenet"):
+        weights = weights.lower()
+    else:
+        # A path relative to the training process's directory means nothing to a reader.
+        weights = str(Path(weights).expanduser().resolve())
+    if weights == "none" and seed is None:
+        raise ValueError("a randomly initialised frozen backbone needs the seed it was made with")
+    return {
+        "weights": weights,
+        "seed": int(seed) if weights == "none" and seed is not None else None,
+        "sha256": weights_fingerprint(model.backbone),
+        "summary": _backbone_summary(model.backbone),
+    }
+
+
 def save_checkpoint(
     path: str | Path,
     model: torch.nn.Module,
@@ -44,9 +151,22 @@ def save_checkpoint(
     config: dict[str, Any],
     seed: int,
     metrics: dict[str, Any] | None = None,
+    frozen_backbone: dict[str, Any] | None = None,
 ) -> Path:
-    """Write ``model`` and its description to ``path`` (atomically)."""
+    """Write ``model`` and its description to ``path`` (atomically).
+
+    ``frozen_backbone``: the :func:`frozen_backbone_record` of a model trained with a
+    frozen backbone; the backbone's tensors are then left out and rebuilt on loading.
+    Compute the record once, before training: it describes the backbone the head was
+    trained on (and the feature cache was computed with), and hashing VGG16 takes ~0.6 s.
+    """
     path = Path(path)
+    state = {
+        k: v.detach().cpu()
+        for k, v in model.state_dict().items()
+        # Filter before .cpu(): a frozen VGG16 on a GPU is 0.5 GB not worth copying.
+        if frozen_backbone is None or not k.startswith(BACKBONE_PREFIX)
+    }
     payload = {
         "format": CHECKPOINT_FORMAT,
         "format_version": CHECKPOINT_VERSION,
@@ -60,7 +180,8 @@ def save_checkpoint(
         "config": config,
         "seed": int(seed),
         "metrics": metrics or {},
-        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "backbone": frozen_backbone,
+        "state_dict": state,
     }
     tmp = path.with_name(path.name + ".tmp")
     torch.save(payload, tmp)
@@ -68,8 +189,85 @@ def save_checkpoint(
     return path
 
 
-def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> LoadedModel:
-    """Rebuild a model from a checkpoint written by :func:`save_checkpoint` (eval mode)."""
+def _rebuild_with_frozen_backbone(
+    path: Path, payload: dict[str, Any], weights: str | os.PathLike[str] | None
+) -> torch.nn.Module:
+    """The model of a head-only checkpoint with its backbone rebuilt and verified."""
+    record = payload["backbone"]
+    name = payload["model_name"]
+    kwargs: dict[str, Any] = {"inputs": payload["inputs"], **payload["hparams"]}
+    takes_weights = getattr(get_model_class(name), "pretrained_backbone", False)
+    source = os.fspath(weights) if weights is not None else str(record["weights"])
+    if source.lower() == "none":
+        if record.get("seed") is None:
+            raise ValueError(f"{path}: the frozen random backbone has no recorded seed")
+        if takes_weights:
+            kwargs["backbone_weights"] = "none"
+        model = create_seeded_model(name, int(record["seed"]), **kwargs)
+        described = f"random initialisation with seed {record['seed']}"
+    else:
+        if not takes_weights:
+            raise ValueError(f"{path}: model {name!r} takes no backbone weights ({source!r})")
+        if source.lower() != "imagenet" and not Path(source).expanduser().is_file():
+            raise FileNotFoundError(
+                f"{path}: the frozen backbone's weights file {source} does not exist here "
+                f"(head-only checkpoint). Pass a copy of it with `--weights PATH` "
+                f"(in Python: backbone_weights=PATH)."
+            )
+        try:
+            with no_downloads():
+                model = create_model(name, **kwargs, backbone_weights=source)
+        except RuntimeError as err:  # a corrupted file or one of another architecture
+            raise ValueError(f"{path}: cannot rebuild the frozen backbone: {err}") from err
+        described = f"weights {source!r}"
+    actual = weights_fingerprint(model.backbone)
+    if actual != record["sha256"]:
+        if not _same_up_to_rounding(model.backbone, record.get("summary")):
+            hint = (
+                "torch's random initialisation changed (another torch version?)"
+                if source.lower() == "none"
+                else "pass the weights file the run was trained with (`--weights PATH`)"
+            )
+            raise ValueError(
+                f"{path}: the rebuilt frozen backbone ({described}) is not the one the head "
+                f"was trained with: its sha256 is {actual[:16]}..., the checkpoint records "
+                f"{str(record['sha256'])[:16]}...; {hint}"
+            )
+        warnings.warn(
+            f"{path}: the rebuilt frozen backbone ({described}) matches the recorded one "
+            f"only up to float32 rounding (torch's CPU random initialisation differs "
+            f"between instruction sets, e.g. AVX2 vs ARM); predictions can differ in the "
+            f"sixth significant digit",
+            stacklevel=3,
+        )
+    missing, unexpected = model.load_state_dict(payload["state_dict"], strict=False)
+    missing_head = [k for k in missing if not k.startswith(BACKBONE_PREFIX)]
+    if missing_head or unexpected:
+        raise ValueError(
+            f"{path}: the stored head does not fit {name!r}: missing {missing_head}, "
+            f"unexpected {unexpected}"
+        )
+    return model
+
+
+def load_checkpoint(
+    path: str | Path,
+    device: str | torch.device = "cpu",
+    *,
+    backbone_weights: str | os.PathLike[str] | None = None,
+) -> LoadedModel:
+    """Rebuild a model from a checkpoint written by :func:`save_checkpoint` (eval mode).
+
+    Nothing is downloaded. A head-only checkpoint (frozen backbone) rebuilds its backbone
+    from the recorded seed, the torch.hub cache (``imagenet``) or the recorded file;
+    ``backbone_weights`` (a file) replaces that source, e.g. a copy of the ImageNet file
+    on an offline machine. Either way the backbone must have the recorded sha256.
+
+    Raises:
+        FileNotFoundError: no checkpoint, or the backbone's weights file is not available.
+        ValueError: not a checkpoint, a newer format, or a rebuilt backbone whose
+            fingerprint differs from the recorded one.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
@@ -81,9 +279,12 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Loa
         raise ValueError(f"{path}: not a tactile-compliance model checkpoint")
     if int(payload.get("format_version", 0)) > CHECKPOINT_VERSION:
         raise ValueError(f"{path}: checkpoint format is newer than this package; upgrade it")
-    # Backbone weights come from the state dict: never download while loading.
-    model = create_model(payload["model_name"], inputs=payload["inputs"], **payload["hparams"])
-    model.load_state_dict(payload["state_dict"])
+    if payload.get("backbone") is not None:
+        model = _rebuild_with_frozen_backbone(path, payload, backbone_weights)
+    else:
+        # The whole state dict is stored: backbone weights come from it, not the network.
+        model = create_model(payload["model_name"], inputs=payload["inputs"], **payload["hparams"])
+        model.load_state_dict(payload["state_dict"])
     model.backbone_weights = payload.get("backbone_weights", "none")
     model.to(device).eval()
     image_size = payload.get("image_size")

@@ -154,8 +154,9 @@ def _backbone_signature(cfg: ExperimentConfig) -> str:
 def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None = None) -> int:
     """Compute (or find) the frozen-backbone feature cache of each config, one after another.
 
-    Run as one Dask task per model before the cells that need the caches: computing a cache
-    in two processes at once is not safe (``data/features.py`` writes one partial file).
+    Run as one Dask task per model before the cells that need the caches, so cells start
+    with their cache ready. (Two processes asking for one cache at once would also be
+    safe: ``cached_features`` locks it and the second waits for the first's result.)
     Returns the number of caches checked.
     """
     from tactile_compliance.data.features import cached_features
@@ -234,9 +235,10 @@ def _set_aside_truncated_checkpoint(run_dir: Path) -> bool:
 def _prune(run_dir: Path, keep_checkpoints: str) -> None:
     """Delete the checkpoints of a finished run that ``keep_checkpoints`` does not keep.
 
-    ``last.ckpt`` only serves to resume an interrupted run, and with a VGG16 backbone it
-    weighs over half a gigabyte (more with optimizer state): a finished run does not need
-    it. ``best.pt`` is what ``evaluate`` and inference load.
+    ``last.ckpt`` only serves to resume an interrupted run, and with a fine-tuned VGG16
+    backbone it weighs over half a gigabyte (more with optimizer state; a frozen one is
+    left out): a finished run does not need it. ``best.pt`` is what ``evaluate`` and
+    inference load.
     """
     if keep_checkpoints == "all":
         return

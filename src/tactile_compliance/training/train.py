@@ -58,13 +58,16 @@ from tactile_compliance.evaluation.metrics import (
     reference_predictions,
 )
 from tactile_compliance.models import create_model, get_model_class
-from tactile_compliance.training.checkpoint import load_checkpoint, save_checkpoint
+from tactile_compliance.training.checkpoint import (
+    FROZEN_BACKBONE_SEED,
+    create_seeded_model,
+    frozen_backbone_record,
+    load_checkpoint,
+    save_checkpoint,
+)
 from tactile_compliance.training.forward import predict_dataset
 from tactile_compliance.training.module import ComplianceModule
 
-#: Seed of a randomly initialised frozen backbone. Independent of the run seed so that
-#: every seed and trial shares one backbone and therefore one feature cache.
-FROZEN_BACKBONE_SEED = 0
 RESULT_FILE = "metrics.json"
 BEST_FILE = "best.pt"
 PREDICTION_COLUMNS = (
@@ -151,12 +154,11 @@ def build_model(cfg: ExperimentConfig) -> torch.nn.Module:
     model_kwargs: dict[str, Any] = {"inputs": cfg.inputs, **cfg.model.hparams}
     if getattr(get_model_class(cfg.model.name), "pretrained_backbone", False):
         model_kwargs["backbone_weights"] = cfg.model.backbone_weights
-    if cfg.model.freeze_backbone and cfg.model.backbone_weights == "none":
+    if cfg.model.freeze_backbone and cfg.model.backbone_weights.strip().lower() == "none":
         # The backbone comes from the fixed seed (shared by every run, so one feature
-        # cache serves them all); the head keeps the run seed's initialisation.
-        with torch.random.fork_rng():
-            torch.manual_seed(FROZEN_BACKBONE_SEED)
-            reference = create_model(cfg.model.name, **model_kwargs)
+        # cache serves them all, and a head-only checkpoint can rebuild it); the head
+        # keeps the run seed's initialisation.
+        reference = create_seeded_model(cfg.model.name, FROZEN_BACKBONE_SEED, **model_kwargs)
         model = create_model(cfg.model.name, **model_kwargs)
         model.backbone.load_state_dict(reference.backbone.state_dict())
         return model
@@ -319,6 +321,13 @@ def _train(
     device = "cuda" if _accelerator(cfg.training.device) == "gpu" else "cpu"
     features = None
     augmentation = None
+    # A frozen backbone is recorded (how to rebuild it + its sha256), not saved: best.pt
+    # then holds the head only. Recorded now, as the backbone the features come from.
+    frozen_backbone = (
+        frozen_backbone_record(model, seed=FROZEN_BACKBONE_SEED)
+        if cfg.model.freeze_backbone
+        else None
+    )
     if cfg.model.freeze_backbone:
         if cfg.augmentation.enabled:
             warnings.warn(
@@ -370,6 +379,7 @@ def _train(
             config=config_dict,
             seed=cfg.seed,
             metrics=extra,
+            frozen_backbone=frozen_backbone,
         )
 
     best = _BestCheckpoint(save_best)

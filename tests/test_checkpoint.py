@@ -1,0 +1,248 @@
+"""best.pt: head-only for frozen backbones, whole for fine-tuned ones, old files still load."""
+
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+
+from tactile_compliance.config import load_config
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.models import backbones, create_model
+from tactile_compliance.training.checkpoint import (
+    CHECKPOINT_VERSION,
+    FROZEN_BACKBONE_SEED,
+    frozen_backbone_record,
+    load_checkpoint,
+    save_checkpoint,
+)
+from tactile_compliance.training.train import build_model, train
+from toy_store import make_toy_store
+
+SMALL = {
+    "vgg_lstm": "{hidden_size: 64}",
+    "res_tf": "{num_layers: 1, embedding_dim: 64, output_dim: 64}",
+    "top10nn": "{}",
+}
+
+
+@pytest.fixture(scope="module")
+def toy_store(tmp_path_factory):
+    return make_toy_store(tmp_path_factory.mktemp("toy") / "store")
+
+
+def _config(store_path, out, model, extra=()):
+    return load_config(
+        "default",
+        [
+            f"data.store={store_path}",
+            f"output_dir={out}",
+            f"model.name={model}",
+            f"model.hparams={SMALL[model]}",
+            "data.image_size=[72,72]" if model == "top10nn" else "data.image_size=[32,32]",
+            "augmentation.enabled=false",
+            "training.batch_size=16",
+            "training.lr=1e-3",
+            *extra,
+        ],
+    )
+
+
+def _inputs(size, batch=2):
+    generator = torch.Generator().manual_seed(1)
+    frames = torch.rand(batch, 3, 3, *size, generator=generator)
+    scalars = [torch.rand(batch, n, generator=generator) for n in (3, 3, 2)]
+    return frames, *scalars
+
+
+def _save(path, model, frozen_backbone=None):
+    return save_checkpoint(
+        path,
+        model,
+        constants=NormalisationConstants(),
+        image_size=(32, 32),
+        config={},
+        seed=0,
+        frozen_backbone=frozen_backbone,
+    )
+
+
+def _perturb_head(model):
+    """Make the head differ from any initialisation, as training would."""
+    generator = torch.Generator().manual_seed(2)
+    with torch.no_grad():
+        for name, parameter in model.named_parameters():
+            if not name.startswith("backbone."):
+                parameter.add_(0.01 * torch.randn(parameter.shape, generator=generator))
+
+
+@pytest.mark.parametrize("name", sorted(SMALL))
+def test_head_only_checkpoint_reproduces_the_in_memory_model(tmp_path, name):
+    cfg = _config(tmp_path / "no-store", tmp_path, name, ["model.freeze_backbone=true"])
+    model = build_model(cfg).eval()
+    _perturb_head(model)
+    record = frozen_backbone_record(model, seed=FROZEN_BACKBONE_SEED)
+    path = _save(tmp_path / "head.pt", model, frozen_backbone=record)
+
+    payload = torch.load(path, weights_only=True)
+    assert payload["format_version"] == CHECKPOINT_VERSION == 2
+    assert not any(k.startswith("backbone.") for k in payload["state_dict"])
+    assert payload["backbone"]["weights"] == "none"
+    assert payload["backbone"]["seed"] == FROZEN_BACKBONE_SEED
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # same machine: the exact sha256 must match
+        loaded = load_checkpoint(path).model
+    reference = model.state_dict()
+    assert set(loaded.state_dict()) == set(reference)
+    assert all(torch.equal(v, reference[k]) for k, v in loaded.state_dict().items())
+    size = tuple(cfg.data.image_size)
+    with torch.no_grad():
+        assert torch.equal(loaded(*_inputs(size)), model(*_inputs(size)))
+
+
+@pytest.fixture(scope="module")
+def frozen_run(toy_store, tmp_path_factory):
+    """A frozen VGG-LSTM trained for two epochs through train()."""
+    out = tmp_path_factory.mktemp("frozen-run")
+    cfg = _config(
+        toy_store.path, out, "vgg_lstm", ["model.freeze_backbone=true", "training.max_epochs=2"]
+    )
+    result = train(cfg, progress=False)
+    return cfg, out / result["run_name"]
+
+
+def test_frozen_run_checkpoints_leave_the_backbone_out(frozen_run):
+    cfg, run_dir = frozen_run
+    full = build_model(cfg).state_dict()
+    full_bytes = sum(t.numel() * t.element_size() for t in full.values())
+    backbone_bytes = sum(
+        t.numel() * t.element_size() for k, t in full.items() if k.startswith("backbone.")
+    )
+    assert backbone_bytes > 0.9 * full_bytes  # VGG16 is almost all of the model
+    best, last = run_dir / "best.pt", run_dir / "checkpoints" / "last.ckpt"
+    assert best.stat().st_size < 0.05 * full_bytes, (best.stat().st_size, full_bytes)
+    # last.ckpt also holds Adam's two moments of every head tensor.
+    assert last.stat().st_size < 0.15 * full_bytes, (last.stat().st_size, full_bytes)
+    state = torch.load(last, map_location="cpu", weights_only=False)["state_dict"]
+    assert not any(".backbone." in k for k in state)
+    assert any(k.startswith("model.lstm.") for k in state)
+    # best.pt's backbone is the one the feature cache was computed with.
+    sha256 = load_checkpoint(best).meta["backbone"]["sha256"]
+    caches = [p.name for p in (Path(cfg.data.store) / "features").iterdir()]
+    assert any(f"-{sha256[:16]}-" in name for name in caches), (sha256, caches)
+
+
+def _tamper(path, out, **changes):
+    payload = torch.load(path, weights_only=True)
+    payload["backbone"].update(changes)
+    torch.save(payload, out)
+    return out
+
+
+def test_a_tampered_backbone_record_is_a_clear_error(tmp_path):
+    cfg = _config(tmp_path / "no-store", tmp_path, "res_tf", ["model.freeze_backbone=true"])
+    model = build_model(cfg).eval()
+    record = frozen_backbone_record(model, seed=FROZEN_BACKBONE_SEED)
+    path = _save(tmp_path / "head.pt", model, frozen_backbone=record)
+
+    # Another seed: other weights, found out before the head is used.
+    other_seed = _tamper(path, tmp_path / "seed.pt", seed=FROZEN_BACKBONE_SEED + 1)
+    with pytest.raises(ValueError, match="not the one the head was trained with"):
+        load_checkpoint(other_seed)
+    # A fingerprint that fits no rebuild: the sha256 and the summary both disagree.
+    summary = {k: [2 * v[0] + 1, *v[1:]] for k, v in record["summary"].items()}
+    forged = _tamper(path, tmp_path / "forged.pt", sha256="0" * 64, summary=summary)
+    with pytest.raises(ValueError, match=r"sha256 is [0-9a-f]+\.\.\., the checkpoint records 0+"):
+        load_checkpoint(forged)
+    # Only the sha256 differs while every value agrees to float32 rounding: what another
+    # CPU instruction set gives for torch's random initialisation. Loads, with a warning.
+    rounding = _tamper(path, tmp_path / "rounding.pt", sha256="0" * 64)
+    with pytest.warns(UserWarning, match="float32 rounding"):
+        loaded = load_checkpoint(rounding).model
+    assert all(torch.equal(v, model.state_dict()[k]) for k, v in loaded.state_dict().items())
+
+
+def test_imagenet_backbone_is_never_downloaded_on_load(tmp_path, monkeypatch):
+    model = create_model("res_tf", inputs="ALL", num_layers=1, embedding_dim=64, output_dim=64)
+    model.eval()
+    # Stand-in for ImageNet weights (none are reachable here): only the source differs.
+    model.backbone_weights = "imagenet"
+    path = _save(tmp_path / "head.pt", model, frozen_backbone_record(model, seed=None))
+    assert torch.load(path, weights_only=True)["backbone"]["seed"] is None
+
+    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "empty-hub"))
+
+    def no_network(*args, **kwargs):
+        raise AssertionError("loading a checkpoint must not touch the network")
+
+    monkeypatch.setattr(backbones, "_probe", no_network)
+    monkeypatch.setattr(torch.hub, "load_state_dict_from_url", no_network)
+    hint = re.escape("--weights /path/to/resnet18-f37072fd.pth")
+    with pytest.raises(FileNotFoundError, match=hint):
+        load_checkpoint(path)
+
+    # A local copy of the weights, passed explicitly, is loaded and verified.
+    local = tmp_path / "my-resnet18.pth"
+    torch.save(model.backbone.state_dict(), local)
+    loaded = load_checkpoint(path, backbone_weights=local).model
+    assert loaded.backbone_weights == "imagenet"  # provenance stays the recorded source
+    with torch.no_grad():
+        assert torch.equal(loaded(*_inputs((32, 32))), model(*_inputs((32, 32))))
+    wrong = tmp_path / "other-resnet18.pth"
+    torch.save(create_model("res_tf").backbone.state_dict(), wrong)
+    with pytest.raises(ValueError, match="not the one the head was trained with"):
+        load_checkpoint(path, backbone_weights=wrong)
+
+
+def test_local_weights_file_is_recorded_and_must_exist(tmp_path):
+    weights = tmp_path / "weights" / "my-resnet18.pth"
+    weights.parent.mkdir()
+    torch.save(create_model("res_tf").backbone.state_dict(), weights)
+    model = create_model("res_tf", inputs="ALL", backbone_weights=weights).eval()
+    path = _save(tmp_path / "head.pt", model, frozen_backbone_record(model, seed=None))
+    assert torch.load(path, weights_only=True)["backbone"]["weights"] == str(weights.resolve())
+    loaded = load_checkpoint(path).model
+    with torch.no_grad():
+        assert torch.equal(loaded(*_inputs((32, 32))), model(*_inputs((32, 32))))
+    weights.unlink()
+    with pytest.raises(FileNotFoundError, match="--weights PATH"):
+        load_checkpoint(path)
+
+
+def test_finetuned_run_keeps_the_backbone_in_its_checkpoint(toy_store, tmp_path):
+    cfg = _config(
+        toy_store.path,
+        tmp_path,
+        "res_tf",
+        [
+            "model.freeze_backbone=false",
+            "model.finetune=last_block",
+            "training.max_epochs=1",
+            "training.limit_batches=2",
+        ],
+    )
+    result = train(cfg, progress=False)
+    payload = torch.load(f"{result['run_dir']}/best.pt", weights_only=True)
+    assert payload["backbone"] is None
+    assert any(k.startswith("backbone.layer4.") for k in payload["state_dict"])
+    loaded = load_checkpoint(f"{result['run_dir']}/best.pt").model
+    assert torch.equal(
+        loaded.state_dict()["backbone.layer4.0.conv1.weight"],
+        payload["state_dict"]["backbone.layer4.0.conv1.weight"],
+    )
+
+
+def test_format_1_checkpoints_still_load(tmp_path):
+    model = create_model("res_tf", inputs="ALL", num_layers=1, embedding_dim=64, output_dim=64)
+    model.eval()
+    path = _save(tmp_path / "v2.pt", model)
+    payload = torch.load(path, weights_only=True)
+    payload["format_version"] = 1
+    del payload["backbone"]  # format 1 had no backbone record: always the whole model
+    torch.save(payload, tmp_path / "v1.pt")
+    loaded = load_checkpoint(tmp_path / "v1.pt").model
+    with torch.no_grad():
+        assert torch.equal(loaded(*_inputs((32, 32))), model(*_inputs((32, 32))))
