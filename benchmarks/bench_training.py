@@ -40,14 +40,17 @@ from tactile_compliance.models import create_model
 from tactile_compliance.training.forward import forward_batch
 from tactile_compliance.training.module import ComplianceModule
 
+# The peak is read from /proc/self/status (VmHWM, this process's own address space):
+# getrusage's ru_maxrss would also count the parent's resident size at fork time, which
+# Linux carries over exec (it reported 6.9 GB here for a 3.3 GB process).
 MEMORY_CHILD = """
-import json, resource, sys
+import json, sys
 from tactile_compliance.config import load_config
 from tactile_compliance.training.train import train
 cfg = load_config("default", sys.argv[2:])
 result = train(cfg, run_dir=sys.argv[1], progress=False)
-print(json.dumps({"peak_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
-                  "n_train": result["n_train"]}))
+status = dict(line.split(":", 1) for line in open("/proc/self/status") if ":" in line)
+print(json.dumps({"peak_kib": int(status["VmHWM"].split()[0]), "n_train": result["n_train"]}))
 """
 
 

@@ -55,5 +55,20 @@ def test_cli_predict_export_and_experiment_on_the_demo_output(tmp_path):
     )
     assert again.exit_code == 0, again.output
     assert "1 already complete" in again.output
+    grid = ["experiment", "table1", "--quick", "--seeds", "1", "--store", str(store),
+            "--where", "model.name=top10nn", "--where", "split.condition=seen",
+            "--set", "training.max_epochs=1",
+            "--output-dir", str(out / "runs"), "--results", str(out / "results")]
+    planned = runner.invoke(app, [*grid, "--dry-run"])
+    assert planned.exit_code == 0, planned.output
+    assert planned.output.count("complete") == 1 and planned.output.count("todo") == 3
+    assert len(ResultsStore(out / "results")) == 1  # a dry run trains nothing
+    # A cell that fails at run time (Top10NN cannot take 8x8 frames) is recorded, and
+    # the command says so with exit status 1.
+    failing = runner.invoke(
+        app, [*grid, "--where", "inputs=Image", "--set", "data.image_size=[8,8]"],
+    )
+    assert failing.exit_code == 1, failing.output
+    assert "1 failed" in failing.output and "cell(s) failed" in failing.output
     bad = runner.invoke(app, ["experiment", "no-such-preset"])
     assert bad.exit_code == 1 and "error" in bad.output

@@ -427,6 +427,14 @@ OutputDirOption = Annotated[
 QuickOption = Annotated[
     bool, typer.Option("--quick", help="The preset's small variant for a 2-core CPU.")
 ]
+ThreadsOption = Annotated[
+    Optional[int],  # noqa: UP045
+    typer.Option(help="Torch threads per run (default 1: one run per worker and core)."),
+]
+ConditionOption = Annotated[
+    Optional[str],  # noqa: UP045
+    typer.Option(help="Split condition: seen or unseen (default: the config's)."),
+]
 
 
 @app.command()
@@ -449,31 +457,62 @@ def experiment(
         Optional[Path],  # noqa: UP045
         typer.Option("--results", help="Results store directory (default: runs/results)."),
     ] = None,
+    threads: ThreadsOption = None,
+    keep_checkpoints: Annotated[
+        str,
+        typer.Option(help="What a finished run keeps: best (best.pt), all (+ last.ckpt), none."),
+    ] = "best",
+    retry_failed: Annotated[
+        bool, typer.Option(help="Re-run cells recorded as failed (--no-retry-failed skips them).")
+    ] = True,
+    dry_run: Annotated[
+        bool, typer.Option("--dry-run", help="List the cells and their status; run nothing.")
+    ] = False,
 ) -> None:
     """Run an experiment grid (models x inputs x conditions x sampling x seeds) on Dask.
 
     Every cell goes through `train`; each result is a row of the results store.
-    Re-running skips finished cells and retries failed or interrupted ones.
+    Re-running skips finished cells and retries failed or interrupted ones. Exits with
+    status 1 when a cell failed and 130 when interrupted (re-run to continue).
     """
     from tactile_compliance.config import ConfigError
-    from tactile_compliance.training.experiment import ExperimentError, run_experiment
+    from tactile_compliance.training.experiment import (
+        ExperimentError,
+        plan_experiment,
+        run_experiment,
+    )
 
+    if keep_checkpoints not in ("best", "all", "none"):
+        raise typer.BadParameter("--keep-checkpoints must be best, all or none")
+    common = dict(
+        quick=quick,
+        seeds=seeds,
+        store=store,
+        overrides=overrides or [],
+        where=where or [],
+        output_dir=output_dir,
+        results=results,
+    )
     try:
+        if dry_run:
+            typer.echo(plan_experiment(preset, **common).format())  # type: ignore[arg-type]
+            return
         summary = run_experiment(
             preset,
-            quick=quick,
-            seeds=seeds,
-            store=store,
-            overrides=overrides or [],
-            where=where or [],
             workers=workers,
             scheduler=scheduler,
-            output_dir=output_dir,
-            results=results,
+            threads=threads,
+            keep_checkpoints=keep_checkpoints,
+            retry_failed=retry_failed,
+            **common,  # type: ignore[arg-type]
         )
     except (ConfigError, ExperimentError) as err:
         _fail(str(err))
+    except KeyboardInterrupt:  # the summary is already on stderr
+        raise typer.Exit(130) from None
     typer.echo(summary.format())
+    if summary.failed:
+        _fail(f"{summary.failed} cell(s) failed (recorded with their errors); re-run to retry")
 
 
 @app.command()
@@ -489,9 +528,12 @@ def tune(
     trials: Annotated[int, typer.Option(help="SMAC trials.")] = 132,
     min_epochs: Annotated[int, typer.Option(help="Smallest Hyperband budget (epochs).")] = 5,
     max_epochs: Annotated[int, typer.Option(help="Largest Hyperband budget (epochs).")] = 50,
+    eta: Annotated[int, typer.Option(help="Hyperband's reduction factor.")] = 3,
+    condition: ConditionOption = None,
     seed: Annotated[int, typer.Option(help="SMAC seed.")] = 0,
     workers: WorkersOption = 1,
     scheduler: SchedulerOption = None,
+    threads: ThreadsOption = None,
     output_dir: OutputDirOption = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
 ) -> None:
@@ -514,9 +556,12 @@ def tune(
             trials=trials,
             min_epochs=min_epochs,
             max_epochs=max_epochs,
+            eta=eta,
+            condition=condition,
             seed=seed,
             workers=workers,
             scheduler=scheduler,
+            threads=threads,
             output_dir=output_dir,
             overwrite=overwrite,
         )
@@ -535,9 +580,15 @@ def tune_balance(
     overrides: SetOption = None,
     epochs: Annotated[int, typer.Option(help="Epochs per model and trial.")] = 10,
     trials: Annotated[int, typer.Option(help="SMAC trials.")] = 30,
+    models: Annotated[
+        str, typer.Option(help="Comma-separated models whose mean val N-MSE is the cost.")
+    ] = "top10nn,vgg_lstm,res_tf",
+    inputs: Annotated[str, typer.Option(help="Input strategy of every model.")] = "ALL",
+    condition: ConditionOption = "seen",
     seed: Annotated[int, typer.Option(help="SMAC seed.")] = 0,
     workers: WorkersOption = 1,
     scheduler: SchedulerOption = None,
+    threads: ThreadsOption = None,
     output_dir: OutputDirOption = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
 ) -> None:
@@ -558,9 +609,13 @@ def tune_balance(
             overrides=overrides or [],
             epochs=epochs,
             trials=trials,
+            models=[m.strip() for m in models.split(",") if m.strip()],
+            inputs=inputs,
+            condition=condition,
             seed=seed,
             workers=workers,
             scheduler=scheduler,
+            threads=threads,
             output_dir=output_dir,
             overwrite=overwrite,
         )

@@ -588,7 +588,7 @@ def run_experiment(
             several threads per cell are slower than several workers on a busy CPU).
         keep_checkpoints: what a finished run keeps: ``best`` (``best.pt``, default),
             ``all`` (also ``checkpoints/last.ckpt``) or ``none`` (metrics, predictions and
-            logs only; for huge grids, since a VGG16 checkpoint is over 0.5 GB).
+            logs only; frozen-backbone runs keep only their head, ~18 MB for VGG-LSTM).
         progress: show a progress bar of cells done / failed.
 
     Returns:
