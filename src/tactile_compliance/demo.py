@@ -34,7 +34,7 @@ PLANS: dict[str, DemoPlan] = {
     # Sized for <= 10 minutes on a 2-core CPU: Table I (quick) with one seed, 24 runs,
     # plus the Shore-hardness grid; add seeds or presets with `tactile-compliance experiment`.
     "full": DemoPlan(
-        n_objects=40,
+        n_objects=60,
         grasps_per_object=3,
         image_size=(96, 128),
         shore_objects=24,
