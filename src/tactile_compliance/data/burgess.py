@@ -57,8 +57,8 @@ class ObjectLabel:
     shape: str
 
 
-class _SampleError(Exception):
-    """One sample cannot be imported; the message is the reason."""
+class SampleError(Exception):
+    """One sample cannot be read; the message is the reason (importer and ``predict``)."""
 
 
 def _numbered_dirs(parent: Path, pattern: re.Pattern[str]) -> list[tuple[int, Path]]:
@@ -72,47 +72,48 @@ def _numbered_dirs(parent: Path, pattern: re.Pattern[str]) -> list[tuple[int, Pa
 
 def _load_array(path: Path, what: str) -> np.ndarray:
     if not path.is_file():
-        raise _SampleError(f"missing file: {path.name}")
+        raise SampleError(f"missing file: {path.name}")
     try:
         return load_numpy_pickle(path)
     except UnsafePickleError as err:
-        raise _SampleError(f"unsafe pickle rejected: {err}") from err
+        raise SampleError(f"unsafe pickle rejected: {err}") from err
     except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError) as err:
-        raise _SampleError(f"corrupt pickle: {path.name} ({type(err).__name__}: {err})") from err
+        raise SampleError(f"corrupt pickle: {path.name} ({type(err).__name__}: {err})") from err
     except OSError as err:
-        raise _SampleError(f"unreadable file: {path.name} ({err})") from err
+        raise SampleError(f"unreadable file: {path.name} ({err})") from err
 
 
-def _load_vector(directory: Path, name: str, length: int) -> np.ndarray:
+def load_vector(directory: Path, name: str, length: int) -> np.ndarray:
+    """A finite float64 vector of ``length`` values (forces [N], widths [m]) from a pickle."""
     array = _load_array(directory / name, name).astype(np.float64)
     if array.shape != (length,):
-        raise _SampleError(f"wrong array shape: {name} is {array.shape}, expected ({length},)")
+        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected ({length},)")
     if not np.all(np.isfinite(array)):
-        raise _SampleError(f"non-finite values: {name}")
+        raise SampleError(f"non-finite values: {name}")
     return array
 
 
-def _load_estimate(directory: Path, name: str) -> float:
+def load_estimate(directory: Path, name: str) -> float:
     """An analytical estimate in Pa, or NaN when absent (the filter decides what to drop)."""
     if not (directory / name).is_file():
         return float("nan")
     array = _load_array(directory / name, name)
     if array.size != 1:
-        raise _SampleError(f"wrong array shape: {name} is {array.shape}, expected a scalar")
+        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected a scalar")
     return float(array.reshape(()))
 
 
-def _load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None) -> np.ndarray:
+def load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None) -> np.ndarray:
     """Difference images as float32 RGB (3, H, W, 3); the files store BGR."""
     array = _load_array(directory / name, name)
     if array.ndim != 4 or array.shape[0] != FRAMES_PER_SAMPLE or array.shape[3] != 3:
-        raise _SampleError(f"wrong array shape: {name} is {array.shape}, expected (3, H, W, 3)")
+        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected (3, H, W, 3)")
     if expected_hw is not None and tuple(array.shape[1:3]) != expected_hw:
-        raise _SampleError(
+        raise SampleError(
             f"wrong array shape: {name} is {array.shape}, other samples are {expected_hw}"
         )
     if not np.all(np.isfinite(array)):
-        raise _SampleError(f"non-finite values: {name}")
+        raise SampleError(f"non-finite values: {name}")
     # Explicit channel flip: the dataset was written by OpenCV (BGR); the store is RGB.
     return np.ascontiguousarray(array[..., ::-1], dtype=np.float32)
 
@@ -123,9 +124,9 @@ def _depth_maxima_mm(directory: Path, name: str) -> np.ndarray:
         return np.full(FRAMES_PER_SAMPLE, np.nan)
     depth = _load_array(directory / name, name)
     if depth.ndim != 3 or depth.shape[0] != FRAMES_PER_SAMPLE:
-        raise _SampleError(f"wrong array shape: {name} is {depth.shape}, expected (3, H, W)")
+        raise SampleError(f"wrong array shape: {name} is {depth.shape}, expected (3, H, W)")
     if not np.all(np.isfinite(depth)):
-        raise _SampleError(f"non-finite values: {name}")
+        raise SampleError(f"non-finite values: {name}")
     return depth.reshape(FRAMES_PER_SAMPLE, -1).max(axis=1).astype(np.float64)
 
 
@@ -236,19 +237,19 @@ def import_burgess(
                 if label is not None:
                     for grasp, augmentation, aug_dir in _sample_dirs(object_dir):
                         try:
-                            forces_n = _load_vector(aug_dir, "forces.pkl", FRAMES_PER_SAMPLE)
-                            widths_m = _load_vector(aug_dir, "widths.pkl", FRAMES_PER_SAMPLE)
-                            elastic_pa = _load_estimate(aug_dir, "elastic_estimate.pkl")
-                            hertz_pa = _load_estimate(aug_dir, "hertz_estimate.pkl")
-                        except _SampleError as err:
+                            forces_n = load_vector(aug_dir, "forces.pkl", FRAMES_PER_SAMPLE)
+                            widths_m = load_vector(aug_dir, "widths.pkl", FRAMES_PER_SAMPLE)
+                            elastic_pa = load_estimate(aug_dir, "elastic_estimate.pkl")
+                            hertz_pa = load_estimate(aug_dir, "hertz_estimate.pkl")
+                        except SampleError as err:
                             report.problem(aug_dir, str(err))
                             continue
                         for finger in finger_names:
                             image_file, depth_file = FINGER_FILES[finger]
                             try:
-                                frames = _load_frames(aug_dir, image_file, source_hw)
+                                frames = load_frames(aug_dir, image_file, source_hw)
                                 depth_max_mm = _depth_maxima_mm(aug_dir, depth_file)
-                            except _SampleError as err:
+                            except SampleError as err:
                                 report.problem(aug_dir / image_file, str(err))
                                 continue
                             if source_hw is None:

@@ -29,10 +29,10 @@ import pandas as pd
 
 from tactile_compliance.data.burgess import (
     FINGER_FILES,
-    _load_estimate,
-    _load_frames,
-    _load_vector,
-    _SampleError,
+    SampleError,
+    load_estimate,
+    load_frames,
+    load_vector,
 )
 from tactile_compliance.data.image_ops import resize_frames
 from tactile_compliance.data.store import (
@@ -182,7 +182,7 @@ def _optional_vector(directory: Path, name: str) -> np.ndarray:
     # forces/widths are needed only by F/W strategies; their absence is reported there.
     if not (directory / name).is_file():
         return np.full(3, np.nan)
-    return _load_vector(directory, name, 3)
+    return load_vector(directory, name, 3)
 
 
 def read_grasp_dir(
@@ -224,8 +224,8 @@ def read_grasp_dir(
             force = _optional_vector(directory, "forces.pkl")
             width = _optional_vector(directory, "widths.pkl")
             estimate = [
-                _load_estimate(directory, "elastic_estimate.pkl"),
-                _load_estimate(directory, "hertz_estimate.pkl"),
+                load_estimate(directory, "elastic_estimate.pkl"),
+                load_estimate(directory, "hertz_estimate.pkl"),
             ]
             found = False
             for finger in names:
@@ -233,7 +233,7 @@ def read_grasp_dir(
                 if not (directory / image_file).is_file():
                     continue
                 # The importer's reader: allow-list unpickler, shape checks, BGR -> RGB.
-                rgb = _load_frames(directory, image_file, None)
+                rgb = load_frames(directory, image_file, None)
                 frames.append(frames_to_uint8(resize_frames(rgb, image_size)))
                 forces.append(force)
                 widths.append(width)
@@ -251,7 +251,7 @@ def read_grasp_dir(
                     }
                 )
                 found = True
-        except _SampleError as err:
+        except SampleError as err:
             raise ValueError(f"{directory}: {err}") from err
         if not found:
             wanted = ", ".join(FINGER_FILES[f][0] for f in names)

@@ -86,17 +86,12 @@ def synthetic_trajectories(
             object mix; ``options`` are ``SimulationOptions`` fields).
     """
     from tactile_compliance.data.store import frames_to_uint8
-    from tactile_compliance.data.synthetic.geometry import PadGrid, sag_map, sample_pose
     from tactile_compliance.data.synthetic.grasp import (
         SimulationOptions,
-        _object_mechanics,
-        _render_sequence,
         make_context,
-        simulate_grasp,
+        render_recording,
     )
     from tactile_compliance.data.synthetic.objects import default_objects
-    from tactile_compliance.data.synthetic.rng import stream
-    from tactile_compliance.data.synthetic.textures import texture_window
 
     opt = SimulationOptions(image_size=tuple(image_size), **options)  # type: ignore[arg-type]
     specs = {s.name: s for s in default_objects(n_objects, seed)}
@@ -104,39 +99,16 @@ def synthetic_trajectories(
     for name, grasp in grasps:
         if name not in specs:
             raise ValueError(f"object {name!r} is not in the default mix of {n_objects} objects")
-        spec = specs[name]
-        ctx = contexts.setdefault(name, make_context(spec, seed, opt))
-        result = simulate_grasp(ctx, int(grasp))
+        ctx = contexts.setdefault(name, make_context(specs[name], seed, opt))
+        result, diff_bgr = render_recording(ctx, int(grasp), finger=0)
         if not result.samples:
             continue  # the generator rejected this grasp too
         timeline = result.timeline
-        # Same keys as simulate_grasp: identical poses, texture window and render stream.
-        key = (seed, spec.name, "grasp", int(grasp))
-        pose = sample_pose(stream(*key, "pose"), spec.geometry.kind)
-        grid = PadGrid(opt.render_cell_mm)
-        obj = _object_mechanics(spec)
-        gel = ctx.session.gels[0]
-        share = obj.plane_strain_modulus_pa / (
-            obj.plane_strain_modulus_pa + gel.plane_strain_modulus_pa
-        )
-        diff_bgr, _ = _render_sequence(
-            timeline.approach_mm[0],
-            sag_map(spec.geometry, grid, pose, side=0),
-            grid,
-            gel,
-            obj,
-            ctx.session.looks[0],
-            opt.image_size,
-            stream(*key, "render-full", 0),
-            texture=texture_window(ctx.textures[0], opt.image_size, stream(*key, "texture")),
-            texture_share=share,
-            solve_scale=opt.depth_solve_scale,
-        )
         sample = result.samples[0]
         yield GraspTrajectory(
             object=name,
             grasp=int(grasp),
-            modulus_pa=float(spec.modulus_pa),
+            modulus_pa=float(ctx.spec.modulus_pa),
             frames=frames_to_uint8(diff_bgr[..., ::-1]),  # BGR (OpenCV) -> RGB like the store
             force_n=np.asarray(timeline.force_n, dtype=np.float64),
             width_m=np.asarray(timeline.width_m, dtype=np.float64),

@@ -62,6 +62,7 @@ __all__ = [
     "ObjectContext",
     "SimulationOptions",
     "make_context",
+    "render_recording",
     "simulate_grasp",
 ]
 
@@ -272,13 +273,54 @@ def _estimates(
     return float(elastic), float(hertz)
 
 
+def _grasp_key(ctx: ObjectContext, grasp: int) -> tuple[object, ...]:
+    """The random-stream key of a grasp: (seed, object, "grasp", number)."""
+    return (ctx.seed, ctx.spec.name, "grasp", int(grasp))
+
+
+def _poses(ctx: ObjectContext, grasp: int) -> tuple[np.random.Generator, tuple[object, object]]:
+    """The pose stream of a grasp and the object's pose on each finger (mirrored)."""
+    kind = ctx.spec.geometry.kind
+    pose_rng = stream(*_grasp_key(ctx, grasp), "pose")
+    first = sample_pose(pose_rng, kind)
+    return pose_rng, (first, sample_pose(pose_rng, kind, mirror_of=first))
+
+
+def _render_full_size(
+    ctx: ObjectContext,
+    grasp: int,
+    finger: int,
+    approaches_mm: np.ndarray,
+    render_sag: np.ndarray,
+    obj: ObjectMechanics,
+    texture_rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Full-size difference images and depth of one finger for the given approaches."""
+    opt, gels = ctx.options, ctx.session.gels
+    # How much of the object's texture shows through depends on its stiffness vs the gel.
+    gel_share = obj.plane_strain_modulus_pa / (
+        obj.plane_strain_modulus_pa + gels[0].plane_strain_modulus_pa
+    )
+    return _render_sequence(
+        approaches_mm,
+        render_sag,
+        PadGrid(opt.render_cell_mm),
+        gels[finger],
+        obj,
+        ctx.session.looks[finger],
+        opt.image_size,
+        stream(*_grasp_key(ctx, grasp), "render-full", finger),
+        texture=texture_window(ctx.textures[finger], opt.image_size, texture_rng),
+        texture_share=gel_share,
+        solve_scale=opt.depth_solve_scale,
+    )
+
+
 def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     """Simulate grasp ``grasp`` of an object (deterministic for (seed, object, grasp))."""
-    spec, seed, opt = ctx.spec, ctx.seed, ctx.options
-    key = (seed, spec.name, "grasp", grasp)
-    pose_rng = stream(*key, "pose")
-    first = sample_pose(pose_rng, spec.geometry.kind)
-    poses = (first, sample_pose(pose_rng, spec.geometry.kind, mirror_of=first))
+    spec, opt = ctx.spec, ctx.options
+    key = _grasp_key(ctx, grasp)
+    pose_rng, poses = _poses(ctx, grasp)
     curve_grid, render_grid = PadGrid(opt.curve_cell_mm), PadGrid(opt.render_cell_mm)
     obj = _object_mechanics(spec)
     gels = ctx.session.gels
@@ -333,25 +375,12 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     elastic, hertz = _estimates(timeline, (seq[0], seq[1]), seq_frames, est_size[1])
 
     # Full resolution, stored frames only.
-    gel_share = obj.plane_strain_modulus_pa / (
-        obj.plane_strain_modulus_pa + gels[0].plane_strain_modulus_pa
-    )
     tex_rng = stream(*key, "texture")
     rendered = []
     for f, video in enumerate((selection.video, selection.video_markers)):
         idx = np.unique((video[:, None] + np.arange(selection.num_aug)).ravel())
-        diff, depth = _render_sequence(
-            timeline.approach_mm[f, idx],
-            render_sags[f],
-            render_grid,
-            gels[f],
-            obj,
-            ctx.session.looks[f],
-            opt.image_size,
-            stream(*key, "render-full", f),
-            texture=texture_window(ctx.textures[f], opt.image_size, tex_rng),
-            texture_share=gel_share,
-            solve_scale=opt.depth_solve_scale,
+        diff, depth = _render_full_size(
+            ctx, grasp, f, timeline.approach_mm[f, idx], render_sags[f], obj, tex_rng
         )
         rendered.append((idx, diff, depth))
     samples = []
@@ -375,3 +404,34 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
             )
         )
     return GraspResult(samples, timeline, selection)
+
+
+def render_recording(
+    ctx: ObjectContext, grasp: int, finger: int = 0
+) -> tuple[GraspResult, np.ndarray]:
+    """A grasp and every frame of one finger's recording at full size.
+
+    Returns the simulated grasp (as :func:`simulate_grasp`) and difference images
+    (T, H, W, 3), BGR, for all T frames of its time line: the same pose, sensor and
+    texture window as the stored frames, and noise from the same stream (so a stored
+    frame and the same frame here differ only by read noise). For streaming studies.
+    """
+    if finger not in (0, 1):
+        raise ValueError(f"finger must be 0 (markerless) or 1 (markers), got {finger}")
+    result = simulate_grasp(ctx, grasp)
+    _, poses = _poses(ctx, grasp)
+    texture_rng = stream(*_grasp_key(ctx, grasp), "texture")
+    if finger == 1:  # the stored frames draw finger 0's texture window first
+        texture_window(ctx.textures[0], ctx.options.image_size, texture_rng)
+    render_sag = sag_map(ctx.spec.geometry, PadGrid(ctx.options.render_cell_mm), poses[finger],
+                         side=finger)
+    diff, _ = _render_full_size(
+        ctx,
+        grasp,
+        finger,
+        result.timeline.approach_mm[finger],
+        render_sag,
+        _object_mechanics(ctx.spec),
+        texture_rng,
+    )
+    return result, diff
