@@ -6,6 +6,7 @@ import re
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -246,3 +247,20 @@ def test_format_1_checkpoints_still_load(tmp_path):
     loaded = load_checkpoint(tmp_path / "v1.pt").model
     with torch.no_grad():
         assert torch.equal(loaded(*_inputs((32, 32))), model(*_inputs((32, 32))))
+
+
+def test_native_size_checkpoint_records_the_store_frame_size(tmp_path):
+    """A model trained at the store's native size resizes inputs to it, store gone or not."""
+    from tactile_compliance.inference.estimator import ComplianceEstimator
+
+    model = create_model("top10nn", inputs="Image")
+    path = save_checkpoint(
+        tmp_path / "best.pt", model, constants=NormalisationConstants(), image_size=None,
+        config={"data": {"store": str(tmp_path / "deleted-store")}}, seed=0,
+        store_image_size=(90, 120),
+    )
+    estimator = ComplianceEstimator.from_checkpoint(path)
+    assert estimator.image_size == (90, 120) and estimator.store_image_size == (90, 120)
+    # Frames of another size are resized to the training size, not fed as they are.
+    out = estimator.predict(np.full((3, 70, 80, 3), 128, np.uint8))
+    assert np.isfinite(out.modulus_pa)

@@ -102,10 +102,14 @@ class Prediction:
 def _training_store_size(meta: dict[str, Any]) -> tuple[int, int] | None:
     """Frame size of the store a checkpoint was trained on, when that store is still there.
 
-    A checkpoint without ``image_size`` was trained at its store's native resolution. If
-    the store can be found, inputs of another size are resized to it instead of silently
-    being fed at the wrong scale.
+    A checkpoint without ``image_size`` was trained at its store's native resolution;
+    inputs of another size are resized to it instead of silently being fed at the wrong
+    scale. Checkpoints record that size (``store_image_size``); older ones only name the
+    store, whose header is read when it is still there.
     """
+    recorded = meta.get("store_image_size")
+    if recorded:
+        return int(recorded[0]), int(recorded[1])
     store = (meta.get("config") or {}).get("data", {}).get("store")
     if not store:
         return None

@@ -152,8 +152,13 @@ def save_checkpoint(
     seed: int,
     metrics: dict[str, Any] | None = None,
     frozen_backbone: dict[str, Any] | None = None,
+    store_image_size: tuple[int, int] | None = None,
 ) -> Path:
     """Write ``model`` and its description to ``path`` (atomically).
+
+    ``store_image_size`` (H, W) px: the frame size of the training store, recorded so a
+    model trained at the store's native size (``image_size`` None) resizes other inputs
+    to it even where that store is gone.
 
     ``frozen_backbone``: the :func:`frozen_backbone_record` of a model trained with a
     frozen backbone; the backbone's tensors are then left out and rebuilt on loading.
@@ -177,6 +182,7 @@ def save_checkpoint(
         "backbone_weights": str(getattr(model, "backbone_weights", "none")),
         "normalisation": constants.to_dict(),
         "image_size": list(image_size) if image_size is not None else None,
+        "store_image_size": list(store_image_size) if store_image_size is not None else None,
         "config": config,
         "seed": int(seed),
         "metrics": metrics or {},

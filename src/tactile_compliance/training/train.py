@@ -380,6 +380,7 @@ def _train(
             seed=cfg.seed,
             metrics=extra,
             frozen_backbone=frozen_backbone,
+            store_image_size=data.store.image_size,
         )
 
     best = _BestCheckpoint(save_best)
