@@ -34,9 +34,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Literal
 
-import cv2
 import numpy as np
 
+from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.store import frames_to_uint8
 from tactile_compliance.models import NUM_FRAMES
 
@@ -89,9 +89,7 @@ def difference_image(frame: np.ndarray, reference: np.ndarray) -> np.ndarray:
             f"raw frames and the reference must be uint8 camera images, got "
             f"{frame.dtype} and {reference.dtype}"
         )
-    blurred = cv2.GaussianBlur(reference, (11, 11), 0).astype(np.float32)
-    diff = (frame.astype(np.float32) - blurred) / np.float32(255.0) + np.float32(0.5)
-    return frames_to_uint8(diff)
+    return frames_to_uint8(difference_images(frame[None], reference)[0])
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.synthetic.geometry import PAD_SIZE_MM, PadGrid
 
 __all__ = [
@@ -427,17 +428,3 @@ def reference_frame(
 ) -> np.ndarray:
     """The contact-free first frame (H, W, 3) uint8, and nothing else."""
     return render_frames(np.zeros((1, *size), dtype=np.float32), look, rng)[0]
-
-
-def difference_images(frames: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """``(frame - GaussianBlur11x11(reference)) / 255 + 0.5`` as float32 (BGR kept).
-
-    The blur runs on the uint8 reference, as in the real pipeline (OpenCV returns
-    uint8), so every value is a multiple of 1/255 offset by 0.5 (to float32 rounding).
-    """
-    blurred = cv2.GaussianBlur(reference, (11, 11), 0)
-    out = np.empty(frames.shape, dtype=np.float32)
-    scale = 1.0 / 255.0
-    for k in range(frames.shape[0]):  # one fused SIMD pass per frame
-        cv2.addWeighted(frames[k], scale, blurred, -scale, 0.5, dst=out[k], dtype=cv2.CV_32F)
-    return out
