@@ -635,6 +635,27 @@ def _run_smac(
     return facade, incumbent
 
 
+
+def _tuning_dir(output_dir: str | Path | None, label: str) -> Path:
+    """Where a search writes (default ``tuning/LABEL``), absolute."""
+    out = Path(output_dir) if output_dir is not None else Path("tuning") / label
+    return out.expanduser().resolve()
+
+
+@contextlib.contextmanager
+def _trial_cluster(
+    workers: int, scheduler: str | None, client: Any, threads: int | None
+) -> Iterator[tuple[Any, int | None]]:
+    """(Dask client or None for serial trials, torch threads per trial).
+
+    Parallel trials run single-threaded unless told otherwise (one trial per core).
+    """
+    if workers <= 1 and scheduler is None and client is None:
+        yield None, threads
+        return
+    with dask_client(workers, scheduler, client) as dask:
+        yield dask, 1 if threads is None else threads
+
 def tune(
     model: str,
     inputs: str = "ALL",
@@ -700,8 +721,7 @@ def tune(
     if scheduler is None and client is None:
         _check_store(base)
     label = f"{model}-{inputs}" + ("-quick" if quick else "")
-    out = Path(output_dir) if output_dir is not None else Path("tuning") / label
-    out = out.expanduser().resolve()
+    out = _tuning_dir(output_dir, label)
     base_dict = config_to_dict(base)
     base_dict["output_dir"] = str(out / "trials")
     configspace = search_space(model, inputs, seed)
@@ -719,11 +739,7 @@ def tune(
         seed=seed,
         crash_cost=CRASH_COST,
     )
-    parallel = workers > 1 or scheduler is not None or client is not None
-    with contextlib.ExitStack() as stack:
-        dask = stack.enter_context(dask_client(workers, scheduler, client)) if parallel else None
-        if threads is None and parallel:
-            threads = 1
+    with _trial_cluster(workers, scheduler, client, threads) as (dask, threads):
         _prepare_features(base, dask, threads)
         objective = TrialObjective(base_dict, str(out / "trials"), threads)
         facade, incumbent = _run_smac(
@@ -828,8 +844,7 @@ def tune_balance(
         for base in bases:
             _check_store(base)
     label = "balance" + ("-quick" if quick else "")
-    out = Path(output_dir) if output_dir is not None else Path("tuning") / label
-    out = out.expanduser().resolve()
+    out = _tuning_dir(output_dir, label)
     base_dicts = []
     for base in bases:
         data = config_to_dict(base)
@@ -847,11 +862,7 @@ def tune_balance(
         seed=seed,
         crash_cost=CRASH_COST,
     )
-    parallel = workers > 1 or scheduler is not None or client is not None
-    with contextlib.ExitStack() as stack:
-        dask = stack.enter_context(dask_client(workers, scheduler, client)) if parallel else None
-        if threads is None and parallel:
-            threads = 1
+    with _trial_cluster(workers, scheduler, client, threads) as (dask, threads):
         for base in bases:
             _prepare_features(base, dask, threads)
         objective = BalanceObjective(base_dicts, str(out / "trials"), epochs, threads)
