@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tactile_compliance.data.dataset import GraspDataset
+from tactile_compliance.data.dataset import GraspDataset, batch_loader
 from tactile_compliance.data.features import cached_features
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.store import GraspStore, GraspStoreWriter
@@ -109,13 +109,11 @@ def bench_cache(store: GraspStore, size: tuple[int, int], n: int) -> None:
 
 def _epoch_seconds(module: ComplianceModule, dataset: GraspDataset, batch_size: int) -> float:
     import lightning as L
-    from torch.utils.data import DataLoader
-
     trainer = L.Trainer(max_epochs=1, accelerator="cpu", logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False,
                         num_sanity_val_steps=0, limit_val_batches=0)
     start = time.perf_counter()
-    trainer.fit(module, DataLoader(dataset, batch_size=batch_size, shuffle=True))
+    trainer.fit(module, batch_loader(dataset, batch_size, shuffle=True))  # as train() does
     return time.perf_counter() - start
 
 

@@ -15,7 +15,13 @@ import numpy as np
 import pandas as pd
 import torch
 import torch.nn.functional as F
-from torch.utils.data import Dataset
+from torch.utils.data import (
+    BatchSampler,
+    DataLoader,
+    Dataset,
+    RandomSampler,
+    SequentialSampler,
+)
 
 from tactile_compliance.data.normalisation import (
     NormalisationConstants,
@@ -133,7 +139,9 @@ class GraspDataset(Dataset):
     def __len__(self) -> int:
         return len(self.inputs.sample_ids)
 
-    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+    def __getitem__(self, index: int | Sequence[int]) -> dict[str, torch.Tensor]:
+        if not isinstance(index, (int, np.integer)):
+            return self.batch(index)  # from batch_loader's sampler: a list of positions
         sample_id = int(self.inputs.sample_ids[index])
         item = {
             "sample_id": torch.tensor(sample_id),
@@ -147,3 +155,48 @@ class GraspDataset(Dataset):
         else:
             item["frames"] = torch.from_numpy(self.store.read_sample(sample_id).copy())
         return item
+
+    def batch(self, positions: Sequence[int] | np.ndarray) -> dict[str, torch.Tensor]:
+        """The items at ``positions`` already stacked, read in one go.
+
+        Equal to collating ``[self[i] for i in positions]``, without building a dict per
+        sample: on cached features the per-sample path spent ~0.2 ms per sample, about
+        as long as a head's training step on it.
+        """
+        pos = np.asarray(positions, dtype=np.int64)
+        ids = self.inputs.sample_ids[pos]
+        out = {
+            "sample_id": torch.from_numpy(ids.copy()),
+            "force": torch.from_numpy(self.inputs.force[pos]),
+            "width": torch.from_numpy(self.inputs.width[pos]),
+            "estimates": torch.from_numpy(self.inputs.estimates[pos]),
+            "label": torch.from_numpy(self.inputs.label[pos]),
+        }
+        if self.features is not None:
+            order = np.argsort(ids, kind="stable")  # sorted reads are sequential on disk
+            features = np.empty((len(ids), *self.features.shape[1:]), dtype=np.float32)
+            features[order] = self.features[ids[order]]
+            out["features"] = torch.from_numpy(features)
+        else:
+            frames = np.stack([self.store.read_sample(int(i)) for i in ids])
+            out["frames"] = torch.from_numpy(frames)
+        return out
+
+
+def batch_loader(
+    dataset: GraspDataset,
+    batch_size: int,
+    *,
+    shuffle: bool = False,
+    num_workers: int = 0,
+) -> DataLoader:
+    """A DataLoader yielding :meth:`GraspDataset.batch` batches (same order and batches
+    as ``DataLoader(dataset, batch_size, shuffle)``, without per-sample collation)."""
+    base = RandomSampler(dataset) if shuffle else SequentialSampler(dataset)
+    return DataLoader(
+        dataset,
+        sampler=BatchSampler(base, batch_size=batch_size, drop_last=False),
+        batch_size=None,  # the dataset returns whole batches
+        num_workers=num_workers,
+        persistent_workers=num_workers > 0,
+    )

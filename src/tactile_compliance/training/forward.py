@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from tactile_compliance.data.dataset import prepare_frames
+from tactile_compliance.data.dataset import GraspDataset, batch_loader, prepare_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
 
 
@@ -47,7 +47,12 @@ def predict_dataset(
     model.eval().to(device)
     outputs = []
     try:
-        for batch in DataLoader(dataset, batch_size=batch_size, shuffle=False):
+        batches = (
+            batch_loader(dataset, batch_size)
+            if isinstance(dataset, GraspDataset)
+            else DataLoader(dataset, batch_size=batch_size, shuffle=False)
+        )
+        for batch in batches:
             batch = {k: v.to(device) for k, v in batch.items()}
             outputs.append(forward_batch(model, batch, constants, image_size).float().cpu())
     finally:

@@ -46,7 +46,7 @@ from tactile_compliance.config import (
 )
 from tactile_compliance.data.augment import GraspAugmentation
 from tactile_compliance.data.balance import balance_split
-from tactile_compliance.data.dataset import GraspDataset
+from tactile_compliance.data.dataset import GraspDataset, batch_loader
 from tactile_compliance.data.features import cached_features
 from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
 from tactile_compliance.data.preprocess import filter_samples
@@ -348,12 +348,11 @@ def _train(
         augmentation = GraspAugmentation.from_config(cfg.augmentation, seed=cfg.seed)
 
     def loader(ids: np.ndarray, shuffle: bool) -> DataLoader:
-        return DataLoader(
+        return batch_loader(
             GraspDataset(data.store, ids, data.constants, features),
-            batch_size=cfg.training.batch_size,
+            cfg.training.batch_size,
             shuffle=shuffle,
             num_workers=cfg.training.num_workers,
-            persistent_workers=cfg.training.num_workers > 0,
         )
 
     module = ComplianceModule(
