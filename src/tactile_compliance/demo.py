@@ -84,7 +84,7 @@ def run_demo(
 
     ``workers`` are the grid's Dask worker processes (single-threaded each); ``None``
     uses every available CPU up to 4 in ``full`` mode (independent runs scale almost
-    linearly: 1.88x from 1 to 2 workers on 2 cores, docs/experiments.md) and one
+    linearly: 1.75x from 1 to 2 workers on 2 cores, docs/experiments.md) and one
     worker in ``ci`` mode. Re-running continues where a previous run stopped:
     generated objects, stores and finished grid cells are kept.
     """
