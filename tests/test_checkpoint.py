@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import torch
 
-from tactile_compliance.config import load_config
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.models import backbones, create_model
 from tactile_compliance.training.checkpoint import (
@@ -21,7 +20,7 @@ from tactile_compliance.training.checkpoint import (
     save_checkpoint,
 )
 from tactile_compliance.training.train import build_model, train
-from toy_store import make_toy_store
+from toy_store import make_toy_store, tiny_run_config
 
 SMALL = {
     "vgg_lstm": "{hidden_size: 64}",
@@ -36,19 +35,9 @@ def toy_store(tmp_path_factory):
 
 
 def _config(store_path, out, model, extra=()):
-    return load_config(
-        "default",
-        [
-            f"data.store={store_path}",
-            f"output_dir={out}",
-            f"model.name={model}",
-            f"model.hparams={SMALL[model]}",
-            "data.image_size=[72,72]" if model == "top10nn" else "data.image_size=[32,32]",
-            "augmentation.enabled=false",
-            "training.batch_size=16",
-            "training.lr=1e-3",
-            *extra,
-        ],
+    size = "data.image_size=[72,72]" if model == "top10nn" else "data.image_size=[32,32]"
+    return tiny_run_config(
+        store_path, out, model, [f"model.hparams={SMALL[model]}", size, "training.lr=1e-3", *extra]
     )
 
 

@@ -11,14 +11,13 @@ import torch
 from typer.testing import CliRunner
 
 from tactile_compliance.cli import app
-from tactile_compliance.config import load_config
 from tactile_compliance.data.normalisation import normalise_modulus
 from tactile_compliance.data.splits import Split
 from tactile_compliance.evaluation.evaluate import evaluate_run
 from tactile_compliance.models import list_models
 from tactile_compliance.training.checkpoint import load_checkpoint
 from tactile_compliance.training.train import train
-from toy_store import make_toy_store
+from toy_store import make_toy_store, tiny_run_config
 
 # Per model: settings that learn the toy task in a few CPU seconds. Top10NN trains its
 # CNN end to end (it needs >= 65 px frames); the pretrained-backbone models use a frozen
@@ -48,19 +47,7 @@ def toy_store(tmp_path_factory):
 
 
 def _config(store, out, model, extra=()):
-    return load_config(
-        "default",
-        [
-            f"data.store={store.path}",
-            f"output_dir={out}",
-            f"model.name={model}",
-            "augmentation.enabled=false",
-            "training.batch_size=16",
-            "training.patience=100",
-            *FAST[model],
-            *extra,
-        ],
-    )
+    return tiny_run_config(store.path, out, model, ["training.patience=100", *FAST[model], *extra])
 
 
 def _median_val_nmse(run_dir, store, constants) -> float:

@@ -64,3 +64,20 @@ def make_toy_store(
                         },
                     )
     return GraspStore.open(path)
+
+
+def tiny_run_config(store_path, out, model, extra=()):  # type: ignore[no-untyped-def]
+    """A config for a seconds-long training run on the toy store (``extra`` applied last)."""
+    from tactile_compliance.config import load_config
+
+    return load_config(
+        "default",
+        [
+            f"data.store={store_path}",
+            f"output_dir={out}",
+            f"model.name={model}",
+            "augmentation.enabled=false",
+            "training.batch_size=16",
+            *extra,
+        ],
+    )
