@@ -114,17 +114,23 @@ def test_test_split_uses_the_best_epoch_not_the_last(toy_store, tmp_path):
     assert meta["metrics"]["best_epoch"] == result["best_epoch"]
 
 
-def test_interrupted_run_resumes_from_its_checkpoint(toy_store, tmp_path):
+@pytest.mark.parametrize("model", ["top10nn", "vgg_lstm"])  # end to end; frozen + cached
+def test_interrupted_run_resumes_from_its_checkpoint(toy_store, tmp_path, model):
     run_dir = tmp_path / "run"
     first = train(
-        _config(toy_store, tmp_path, "top10nn", ["training.max_epochs=2"]),
+        _config(toy_store, tmp_path, model, ["training.max_epochs=2"]),
         run_dir=run_dir,
         progress=False,
     )
     assert first["epochs_trained"] == 2
+    if model == "vgg_lstm":
+        last = run_dir / "checkpoints" / "last.ckpt"
+        state = torch.load(last, map_location="cpu", weights_only=False)["state_dict"]
+        # The frozen VGG16 is rebuilt on resume, so last.ckpt carries the head only.
+        assert state and not any(k.startswith("model.backbone.") for k in state)
     (run_dir / "metrics.json").unlink()  # as if the process died after epoch 2
     resumed = train(
-        _config(toy_store, tmp_path, "top10nn", ["training.max_epochs=4"]),
+        _config(toy_store, tmp_path, model, ["training.max_epochs=4"]),
         run_dir=run_dir,
         progress=False,
     )
@@ -132,30 +138,7 @@ def test_interrupted_run_resumes_from_its_checkpoint(toy_store, tmp_path):
     log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
     # Epochs 0-1 from the first process, 2-3 from the resumed one: none repeated.
     assert sorted(log["epoch"].astype(int).tolist()) == [0, 1, 2, 3]
-
-
-def test_interrupted_frozen_run_resumes_without_the_backbone_in_last_ckpt(toy_store, tmp_path):
-    run_dir = tmp_path / "run"
-    first = train(
-        _config(toy_store, tmp_path, "vgg_lstm", ["training.max_epochs=2"]),
-        run_dir=run_dir,
-        progress=False,
-    )
-    assert first["epochs_trained"] == 2
-    last = run_dir / "checkpoints" / "last.ckpt"
-    state = torch.load(last, map_location="cpu", weights_only=False)["state_dict"]
-    # The frozen VGG16 is rebuilt on resume, so last.ckpt carries the head only.
-    assert state and not any(k.startswith("model.backbone.") for k in state)
-    (run_dir / "metrics.json").unlink()  # as if the process died after epoch 2
-    resumed = train(
-        _config(toy_store, tmp_path, "vgg_lstm", ["training.max_epochs=4"]),
-        run_dir=run_dir,
-        progress=False,
-    )
-    assert resumed["epochs_trained"] == 4
-    log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
-    assert sorted(log["epoch"].astype(int).tolist()) == [0, 1, 2, 3]
-    # The head continued from epoch 2's weights: its best score can only improve on it.
+    # The model continued from epoch 2's weights: its best score can only improve on it.
     assert resumed["best_val_nmse"] <= first["best_val_nmse"]
 
 
