@@ -148,3 +148,29 @@ def test_read_sample_matches_memmap_and_survives_pickling(tmp_path):
     assert np.array_equal(clone.read_sample(2), store.frames[2])
     with pytest.raises(IndexError):
         store.read_sample(3)
+
+
+def test_read_block_and_load_frames_match_the_memmap(tmp_path):
+    """pread-based readers return exactly the memmap's bytes, in the requested order."""
+    from toy_store import make_toy_store
+
+    store = make_toy_store(tmp_path / "store")
+    n = len(store)
+    assert np.array_equal(store.read_block(2, 7), np.asarray(store.frames[2:7]))
+    assert store.read_block(3, 3).shape == (0, *store.frames.shape[1:])
+    ids = [5, 1, 5, n - 1]
+    expected = (np.asarray(store.frames[ids]).astype(np.float32) + 0.5) / 255.0
+    assert np.array_equal(store.load_frames(ids), expected)
+    with pytest.raises(IndexError):
+        store.read_block(0, n + 1)
+
+
+def test_store_frames_reads_like_the_memmap(tmp_path):
+    from tactile_compliance.inference.sources import StoreFrames
+    from toy_store import make_toy_store
+
+    store = make_toy_store(tmp_path / "store")
+    frames = StoreFrames(store)
+    assert len(frames) == len(store) and frames.shape == store.frames.shape
+    assert np.array_equal(frames[[4, 0, 4]], np.asarray(store.frames[[4, 0, 4]]))
+    assert np.array_equal(frames[1:5], np.asarray(store.frames[1:5]))

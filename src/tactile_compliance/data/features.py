@@ -175,7 +175,7 @@ def _compute(
             advance(done)
             for start in range(done, len(store), batch_size):
                 stop = min(start + batch_size, len(store))
-                frames = torch.from_numpy(np.array(store.frames[start:stop])).to(device)
+                frames = torch.from_numpy(store.read_block(start, stop).copy()).to(device)
                 x = prepare_frames(frames, constants, size)  # (B, 3, 3, h, w)
                 batch = x.shape[0]
                 out = backbone(x.reshape(batch * 3, *x.shape[2:])).reshape(batch, 3, -1)

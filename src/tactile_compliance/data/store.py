@@ -227,11 +227,37 @@ class GraspStore:
     def load_frames(self, indices: int | Sequence[int] | np.ndarray) -> np.ndarray:
         """Frames of the given sample ids as float32 in (0, 1), shape (n, 3, H, W, 3), RGB."""
         idx = np.atleast_1d(np.asarray(indices, dtype=np.int64))
-        # Sorted reads are sequential on disk; restore the requested order afterwards.
-        order = np.argsort(idx, kind="stable")
         out = np.empty((len(idx), *self.frames.shape[1:]), dtype=np.uint8)
-        out[order] = self.frames[idx[order]]
+        for i, sample_id in enumerate(idx):
+            out[i] = self.read_sample(int(sample_id))
         return frames_from_uint8(out)
+
+    def read_block(self, start: int, stop: int) -> np.ndarray:
+        """Frames of samples ``start..stop-1``, uint8 (n, 3, H, W, 3), in one ``os.pread``.
+
+        Like :meth:`read_sample`, this maps no file pages into the process: slicing the
+        memmap instead made a pass over a 6 GB store (the feature cache) count all 6 GB
+        in the process's resident memory.
+        """
+        if not 0 <= start <= stop <= len(self):
+            raise IndexError(f"samples {start}..{stop} out of range (store has {len(self)})")
+        size, offset = (stop - start) * self._sample_bytes, start * self._sample_bytes
+        chunks, done = [], 0
+        while done < size:  # pread may return less than asked (e.g. above 2 GB on Linux)
+            chunk = os.pread(self._descriptor(), size - done, offset + done)
+            if not chunk:
+                raise StoreError(f"{self._frames_path}: file ends before sample {stop - 1}")
+            chunks.append(chunk)
+            done += len(chunk)
+        data = chunks[0] if len(chunks) == 1 else b"".join(chunks)
+        return np.frombuffer(data, dtype=np.uint8).reshape(stop - start, *self.frames.shape[1:])
+
+    def _descriptor(self) -> int:
+        """This process's read-only descriptor of the frames file (one per process)."""
+        if self._fd is None or self._fd_pid != os.getpid():
+            self._fd = os.open(self._frames_path, os.O_RDONLY)
+            self._fd_pid = os.getpid()
+        return self._fd
 
     def read_sample(self, sample_id: int) -> np.ndarray:
         """One sample's frames, uint8 (3, H, W, 3), read with ``os.pread``.
@@ -243,10 +269,7 @@ class GraspStore:
         """
         if not 0 <= sample_id < len(self):
             raise IndexError(f"sample {sample_id} out of range (store has {len(self)})")
-        if self._fd is None or self._fd_pid != os.getpid():
-            self._fd = os.open(self._frames_path, os.O_RDONLY)
-            self._fd_pid = os.getpid()
-        data = os.pread(self._fd, self._sample_bytes, sample_id * self._sample_bytes)
+        data = os.pread(self._descriptor(), self._sample_bytes, sample_id * self._sample_bytes)
         return np.frombuffer(data, dtype=np.uint8).reshape(self.frames.shape[1:])
 
     def __getstate__(self) -> dict[str, Any]:

@@ -72,8 +72,8 @@ class GraspBatch:
     """Grasps ready for ``ComplianceEstimator.predict`` plus what identifies them.
 
     Attributes:
-        frames: (B, 3, H, W, 3) uint8 RGB (store encoding); a read-only memmap for a
-            whole store, so index it in chunks.
+        frames: (B, 3, H, W, 3) uint8 RGB (store encoding); for a whole store a
+            :class:`StoreFrames` that reads on demand, so index it in chunks.
         force_n: (B, 3) N, NaN where unknown.
         width_m: (B, 3) m, NaN where unknown.
         estimates_pa: (B, 2) Pa (elastic E, Hertz E*), NaN where unknown.
@@ -82,7 +82,7 @@ class GraspBatch:
         frame_kind: ``difference`` or ``raw`` (videos and Shore-hardness stores).
     """
 
-    frames: np.ndarray
+    frames: np.ndarray | StoreFrames
     force_n: np.ndarray
     width_m: np.ndarray
     estimates_pa: np.ndarray
@@ -104,6 +104,33 @@ class GraspBatch:
 
 
 # ---------------------------------------------------------------------- store
+class StoreFrames:
+    """A store's frames, read on demand with ``os.pread`` (``GraspStore.read_sample``).
+
+    Indexing the store's memmap instead maps the pages it touches into the process, so a
+    prediction over a 6 GB store ended with 6 GB counted as resident memory.
+    """
+
+    def __init__(self, store: GraspStore) -> None:
+        self.store = store
+
+    def __len__(self) -> int:
+        return len(self.store)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return tuple(self.store.frames.shape)
+
+    def __getitem__(self, index: Any) -> np.ndarray:
+        """uint8 frames (n, 3, H, W, 3) of sample positions (an array, list or slice)."""
+        positions = np.arange(len(self))[index] if isinstance(index, slice) else index
+        positions = np.atleast_1d(np.asarray(positions, dtype=np.int64))
+        out = np.empty((positions.size, *self.shape[1:]), dtype=np.uint8)
+        for i, sample_id in enumerate(positions):
+            out[i] = self.store.read_sample(int(sample_id))
+        return out
+
+
 def read_store(
     path: str | Path, ids: np.ndarray | list[int] | None = None
 ) -> GraspBatch:
@@ -117,9 +144,9 @@ def read_store(
         raise ValueError(f"{path}: sample ids must be in [0, {len(store)}), got {idx.min()}..")
     samples = store.samples.iloc[idx]
     rows = samples[[*ROW_COLUMNS, "modulus_pa"]].reset_index(drop=True)
-    # The whole store stays a memmap (a full-size store is several GB); callers index
-    # it chunk by chunk. An explicit id list is read now.
-    frames = store.frames if ids is None else np.asarray(store.frames[idx])
+    # The whole store stays on disk (a full-size store is several GB); callers index it
+    # chunk by chunk. An explicit id list is read now.
+    frames = StoreFrames(store) if ids is None else StoreFrames(store)[idx]
     return GraspBatch(
         frames=frames,
         force_n=samples[list(FORCE_COLUMNS)].to_numpy(np.float64),
