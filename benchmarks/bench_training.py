@@ -10,8 +10,8 @@
    (through the real Lightning module; goal <= 10 s on 2 cores).
 3. End-to-end fine-tuning seconds per epoch, extrapolated from ``--finetune-batches``
    batches of each model at its CPU size.
-4. Peak resident memory of `train()` on a ``--samples``-sample full-size store
-   (Top10NN end to end, a few batches; goal <= 3 GB).
+4. Peak resident memory of `train()` on a ``--samples``-sample full-size store (a frozen
+   Res-Tf with its feature cache, and Top10NN end to end; a few batches; goal <= 3 GB).
 
 The store is random frames written to a temporary directory and deleted afterwards.
 """
@@ -162,18 +162,30 @@ def bench_finetune(store: GraspStore, n_batches: int, n_epoch: int) -> None:
 
 
 def bench_memory(store: GraspStore, work: Path) -> None:
+    """Peak resident memory of `train()` on the store: the frozen-backbone path (feature
+    cache computed in the run, then the head) and Top10NN end to end at full size."""
     height, width = store.image_size
-    overrides = [f"data.store={store.path}", "model.name=top10nn", "training.max_epochs=1",
-                 "training.limit_batches=30", "training.batch_size=32",
-                 f"data.image_size=[{height},{width}]", "augmentation.enabled=true"]
-    result = subprocess.run(
-        [sys.executable, "-c", MEMORY_CHILD, str(work / "memory-run"), *overrides],
-        check=True, capture_output=True, text=True,
-    )
-    measured = json.loads(result.stdout.strip().splitlines()[-1])
+    runs = {
+        "Res-Tf frozen backbone at 112x112 (cache + head)": [
+            "model.name=res_tf", "model.freeze_backbone=true", "data.image_size=[112,112]",
+            "augmentation.enabled=false",
+        ],
+        f"Top10NN end to end at {height}x{width}, augmentation": [
+            "model.name=top10nn", f"data.image_size=[{height},{width}]",
+            "augmentation.enabled=true",
+        ],
+    }
     store_gb = store.frames.nbytes / 1e9
-    print(f"memory train() Top10NN end to end, {len(store)}-sample {height}x{width} store "
-          f"({store_gb:.2f} GB): peak RSS {measured['peak_kib'] / 1e6:.2f} GB")
+    for index, (label, config) in enumerate(runs.items()):
+        overrides = [f"data.store={store.path}", "training.max_epochs=1",
+                     "training.limit_batches=30", "training.batch_size=32", *config]
+        result = subprocess.run(
+            [sys.executable, "-c", MEMORY_CHILD, str(work / f"memory-run-{index}"), *overrides],
+            check=True, capture_output=True, text=True,
+        )
+        measured = json.loads(result.stdout.strip().splitlines()[-1])
+        print(f"memory train() {label}, {len(store)}-sample {height}x{width} store "
+              f"({store_gb:.2f} GB): peak RSS {measured['peak_kib'] / 1e6:.2f} GB")
 
 
 def main() -> None:
