@@ -178,8 +178,7 @@ class GraspDataset(Dataset):
             features[order] = self.features[ids[order]]
             out["features"] = torch.from_numpy(features)
         else:
-            frames = np.stack([self.store.read_sample(int(i)) for i in ids])
-            out["frames"] = torch.from_numpy(frames)
+            out["frames"] = torch.from_numpy(self.store.read_samples(ids))
         return out
 
 

@@ -226,11 +226,16 @@ class GraspStore:
 
     def load_frames(self, indices: int | Sequence[int] | np.ndarray) -> np.ndarray:
         """Frames of the given sample ids as float32 in (0, 1), shape (n, 3, H, W, 3), RGB."""
+        return frames_from_uint8(self.read_samples(indices))
+
+    def read_samples(self, indices: int | Sequence[int] | np.ndarray) -> np.ndarray:
+        """Frames of the given sample ids (any order, repeats allowed), uint8
+        (n, 3, H, W, 3), read with ``os.pread`` like :meth:`read_sample`."""
         idx = np.atleast_1d(np.asarray(indices, dtype=np.int64))
         out = np.empty((len(idx), *self.frames.shape[1:]), dtype=np.uint8)
         for i, sample_id in enumerate(idx):
             out[i] = self.read_sample(int(sample_id))
-        return frames_from_uint8(out)
+        return out
 
     def read_block(self, start: int, stop: int) -> np.ndarray:
         """Frames of samples ``start..stop-1``, uint8 (n, 3, H, W, 3), in one ``os.pread``.

@@ -124,11 +124,7 @@ class StoreFrames:
     def __getitem__(self, index: Any) -> np.ndarray:
         """uint8 frames (n, 3, H, W, 3) of sample positions (an array, list or slice)."""
         positions = np.arange(len(self))[index] if isinstance(index, slice) else index
-        positions = np.atleast_1d(np.asarray(positions, dtype=np.int64))
-        out = np.empty((positions.size, *self.shape[1:]), dtype=np.uint8)
-        for i, sample_id in enumerate(positions):
-            out[i] = self.store.read_sample(int(sample_id))
-        return out
+        return self.store.read_samples(positions)
 
 
 def read_store(
