@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from tactile_compliance.config import AugmentationConfig
+from tactile_compliance.data import augment
 from tactile_compliance.data.augment import GraspAugmentation
 
 
@@ -96,6 +97,26 @@ def test_seeded_and_does_not_touch_the_global_rng():
     # Successive calls of one module draw new parameters.
     aug = GraspAugmentation(seed=5)
     assert not torch.equal(aug(x), aug(x))
+
+
+@pytest.mark.parametrize("chunk_pixels", [1, 3 * 12 * 16 * 3])
+def test_chunked_augmentation_keeps_per_sample_parameters(monkeypatch, chunk_pixels):
+    # Full-size frames are augmented a few samples at a time (1 and 3 per chunk here):
+    # frames of a sample still share their parameters, samples still differ, and the
+    # samples the probability skipped come back untouched.
+    monkeypatch.setattr(augment, "_CHUNK_PIXELS", chunk_pixels)
+    x = repeated_frames(batch=40, seed=4)
+    aug = GraspAugmentation(probability=0.5, noise_std=0.0, seed=4)
+    y = aug(x)
+    assert augment._chunk_samples(x) == max(1, chunk_pixels // (3 * 12 * 16))
+    torch.testing.assert_close(y[:, 0], y[:, 2], rtol=0, atol=0)
+    changed = (y != x).flatten(1).any(dim=1)
+    assert 8 <= int(changed.sum()) <= 32
+    assert torch.equal(y[~changed], x[~changed])
+    moved = (y - x)[changed].flatten(1)
+    assert len({tuple(row[:20].tolist()) for row in moved}) == len(moved)
+    # Same seed, same batches, whatever the chunking.
+    torch.testing.assert_close(GraspAugmentation(probability=0.5, noise_std=0.0, seed=4)(x), y)
 
 
 def test_rejects_wrong_layout():

@@ -251,7 +251,9 @@ def normalise_images(
     if isinstance(x, torch.Tensor) and x.dtype == torch.uint8:
         raise ValueError("normalise_images expects float images in [0, 1], got uint8")
     mean, std = _channel_stats(x, c, channel_axis)
-    return (x - mean) / std
+    out = x - mean
+    out /= std  # in place: one batch-sized temporary instead of two
+    return out
 
 
 def denormalise_images(
