@@ -31,6 +31,7 @@ from tactile_compliance.models.base import (
     check_positive_int,
     check_sizes,
 )
+from tactile_compliance.models.dropout import use_fast_dropout
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
 
@@ -177,6 +178,7 @@ class ResTf(TactileModel):
         self.image_output = nn.Linear(hp["embedding_dim"], hp["output_dim"])
 
         self._build_fusion_head(hp["output_dim"], hp)
+        use_fast_dropout(self)
 
     def _head(
         self,

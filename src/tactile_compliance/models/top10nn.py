@@ -25,6 +25,7 @@ from tactile_compliance.models.base import (
     check_positive_int,
     check_sizes,
 )
+from tactile_compliance.models.dropout import use_fast_dropout
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
 
@@ -125,6 +126,7 @@ class Top10NN(TactileModel):
         self.backbone = Top10Encoder(hp["img_feature_size"], hp["image_dropout"])
 
         self._build_fusion_head(NUM_FRAMES * hp["img_feature_size"], hp)
+        use_fast_dropout(self)
 
     def _head(
         self,
