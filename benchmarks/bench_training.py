@@ -1,13 +1,16 @@
 """Training-side benchmarks (issue 5): feature caching, head epochs, fine-tuning, memory.
 
     python benchmarks/bench_training.py [--samples 7800] [--size 250x350]
-        [--cache-samples 128] [--cache-size 224x224] [--finetune-batches 4] [--keep-store]
+        [--cache-samples 128] [--cache-size 224x224] [--finetune-batches 3]
+        [--only cache|heads|finetune|memory]
 
 1. Feature caching: `cached_features` (store read + resize + normalise + backbone) vs the
    backbone's raw forward on in-memory tensors of the same size, in the same run; the
    pipeline should keep >= 90 % of the raw throughput.
 2. Seconds per epoch of each model head on cached features over ``--samples`` samples
-   (through the real Lightning module; goal <= 10 s on 2 cores).
+   (through the real Lightning module, float32 and bf16-mixed; goal <= 10 s on 2 cores).
+   The features are random, so ``--only heads --size 16x16`` measures the same thing
+   without writing a 6 GB store.
 3. End-to-end fine-tuning seconds per epoch, extrapolated from ``--finetune-batches``
    batches of each model at its CPU size.
 4. Peak resident memory of `train()` on a ``--samples``-sample full-size store (a frozen
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import platform
 import shutil
@@ -27,6 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -107,18 +112,20 @@ def bench_cache(store: GraspStore, size: tuple[int, int], n: int) -> None:
     shutil.rmtree(subset_dir, ignore_errors=True)
 
 
-def _epoch_seconds(module: ComplianceModule, dataset: GraspDataset, batch_size: int) -> float:
+def _epoch_seconds(module: ComplianceModule, dataset: GraspDataset, batch_size: int,
+                   precision: str = "32") -> float:
     import lightning as L
     trainer = L.Trainer(max_epochs=1, accelerator="cpu", logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False,
-                        num_sanity_val_steps=0, limit_val_batches=0)
+                        num_sanity_val_steps=0, limit_val_batches=0, precision=precision)
     start = time.perf_counter()
     trainer.fit(module, batch_loader(dataset, batch_size, shuffle=True))  # as train() does
     return time.perf_counter() - start
 
 
-def bench_heads(store: GraspStore, n: int) -> None:
-    """Seconds per training epoch of each head on cached (here random) features."""
+def bench_heads(store: GraspStore, n: int, repeats: int = 2) -> None:
+    """Seconds per training epoch of each head on cached (here random) features, in float32
+    and bf16-mixed (``training.precision``); the best of ``repeats`` epochs."""
     constants = NormalisationConstants()
     ids = np.arange(n) % len(store)
     for model_name in ("top10nn", "vgg_lstm", "res_tf"):
@@ -126,11 +133,15 @@ def bench_heads(store: GraspStore, n: int) -> None:
         batch_size = int(model.default_training.get("batch_size", 32))
         features = np.random.default_rng(0).standard_normal(
             (len(store), 3, model.feature_dim)).astype(np.float16)
-        module = ComplianceModule(model, constants, None, lr=1e-4, gamma=0.98, l2_weight=5e-5,
-                                  freeze_backbone=True)
-        seconds = _epoch_seconds(module, GraspDataset(store, ids, constants, features), batch_size)
-        print(f"head   {model_name:9s} on cached features: {seconds:6.1f} s/epoch "
-              f"({n} samples, batch {batch_size})")
+        dataset = GraspDataset(store, ids, constants, features)
+        for precision in ("32", "bf16-mixed"):
+            module = ComplianceModule(model, constants, None, lr=1e-4, gamma=0.98,
+                                      l2_weight=5e-5, freeze_backbone=True)
+            seconds = [_epoch_seconds(module, dataset, batch_size, precision)
+                       for _ in range(repeats)]
+            print(f"head   {model_name:9s} on cached features, precision {precision:10s}: "
+                  f"{min(seconds):6.1f} s/epoch (best of {' / '.join(f'{v:.1f}' for v in seconds)};"
+                  f" {n} samples, batch {batch_size})")
 
 
 def bench_finetune(store: GraspStore, n_batches: int, n_epoch: int) -> None:
@@ -188,6 +199,16 @@ def bench_memory(store: GraspStore, work: Path) -> None:
               f"({store_gb:.2f} GB): peak RSS {measured['peak_kib'] / 1e6:.2f} GB")
 
 
+def _has_bf16_instructions() -> str:
+    """Whether the CPU has native bfloat16 dot products (what makes bf16-mixed fast)."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return "unknown"
+    found = [flag for flag in ("avx512_bf16", "amx_bf16") if flag in flags]
+    return ", ".join(found) if found else "none"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=7800)
@@ -196,21 +217,34 @@ def main() -> None:
     parser.add_argument("--cache-size", default="224x224")
     parser.add_argument("--finetune-batches", type=int, default=3)
     parser.add_argument("--workdir", default=tempfile.gettempdir())
+    parser.add_argument("--only", choices=("cache", "heads", "finetune", "memory"),
+                        help="run one part (heads only: a small store suffices, see --size)")
     args = parser.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
     cache_size = tuple(int(v) for v in args.cache_size.split("x"))
+    # Lightning's per-fit banners ("GPU available", tips) would bury the numbers.
+    for name in ("lightning.pytorch", "lightning.fabric"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    warnings.filterwarnings("ignore", module="lightning.*")
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
-          f"{torch.get_num_threads()} threads")
+          f"{torch.get_num_threads()} threads, CPU capability "
+          f"{torch.backends.cpu.get_cpu_capability()}, bf16 instructions: "
+          f"{_has_bf16_instructions()}")
     work = Path(tempfile.mkdtemp(prefix="bench_training_", dir=args.workdir))
     try:
         start = time.perf_counter()
         store = write_random_store(work / "store", args.samples, size)
         print(f"store  {len(store)} samples at {size[0]}x{size[1]} written in "
               f"{time.perf_counter() - start:.0f} s")
-        bench_cache(store, cache_size, args.cache_samples)
-        bench_heads(store, args.samples)
-        bench_finetune(store, args.finetune_batches, args.samples)
-        bench_memory(store, work)
+        parts = {
+            "cache": lambda: bench_cache(store, cache_size, args.cache_samples),
+            "heads": lambda: bench_heads(store, args.samples),
+            "finetune": lambda: bench_finetune(store, args.finetune_batches, args.samples),
+            "memory": lambda: bench_memory(store, work),
+        }
+        for name, run in parts.items():
+            if args.only in (None, name):
+                run()
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -83,6 +83,11 @@ def test_tiny_run_beats_the_median_predictor(toy_store, tmp_path, model):
         "filter_report.json",
     ):
         assert (run_dir / name).exists(), name
+    # Per-epoch training metrics: the loss is the MSE plus the (positive) l2 term.
+    metrics = pd.read_csv(run_dir / "logs" / "metrics.csv")
+    train_rows = metrics.dropna(subset=["train_loss"])
+    assert len(train_rows) == metrics["epoch"].nunique() == result["epochs_trained"]
+    assert (train_rows["train_loss"] > train_rows["train_mse"]).all()
     # The checkpoint describes itself.
     loaded = load_checkpoint(run_dir / "best.pt")
     assert loaded.meta["model_name"] == model and loaded.inputs == "ALL"
@@ -91,6 +96,22 @@ def test_tiny_run_beats_the_median_predictor(toy_store, tmp_path, model):
     assert loaded.image_size == tuple(cfg.data.image_size)
     # Re-running a finished configuration returns the stored result without training.
     assert train(cfg, progress=False) == result
+
+
+@pytest.mark.parametrize("model", ["vgg_lstm", "res_tf"])
+def test_bf16_mixed_head_learns_as_well_as_float32(toy_store, tmp_path, model):
+    # bf16-mixed is the fast CPU path for heads on cached features (docs/training.md).
+    results = {
+        precision: train(_config(toy_store, tmp_path / precision, model,
+                                 [f"training.precision={precision}"]), progress=False)
+        for precision in ("32", "bf16-mixed")
+    }
+    run_dir = tmp_path / "bf16-mixed" / results["bf16-mixed"]["run_name"]
+    median_val = _median_val_nmse(run_dir, toy_store, _config(toy_store, tmp_path, model)
+                                  .normalisation_constants())
+    half, full = results["bf16-mixed"]["best_val_nmse"], results["32"]["best_val_nmse"]
+    assert half < 0.6 * median_val, (half, median_val)
+    assert half < 1.5 * full + 0.002, (half, full)
 
 
 def test_evaluate_reproduces_the_test_metrics(toy_store, tmp_path):
