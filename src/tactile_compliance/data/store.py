@@ -274,8 +274,7 @@ class GraspStore:
         """
         if not 0 <= sample_id < len(self):
             raise IndexError(f"sample {sample_id} out of range (store has {len(self)})")
-        data = os.pread(self._descriptor(), self._sample_bytes, sample_id * self._sample_bytes)
-        return np.frombuffer(data, dtype=np.uint8).reshape(self.frames.shape[1:])
+        return self.read_block(sample_id, sample_id + 1)[0]
 
     def __getstate__(self) -> dict[str, Any]:
         # Pickling a memmap would copy the whole frame array; worker processes reopen it.

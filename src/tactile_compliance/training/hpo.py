@@ -635,7 +635,6 @@ def _run_smac(
     return facade, incumbent
 
 
-
 def _tuning_dir(output_dir: str | Path | None, label: str) -> Path:
     """Where a search writes (default ``tuning/LABEL``), absolute."""
     out = Path(output_dir) if output_dir is not None else Path("tuning") / label
@@ -655,6 +654,7 @@ def _trial_cluster(
         return
     with dask_client(workers, scheduler, client) as dask:
         yield dask, 1 if threads is None else threads
+
 
 def tune(
     model: str,
