@@ -134,8 +134,7 @@ def bench_model(
     estimator = ComplianceEstimator.from_checkpoint(checkpoint)
     rng = np.random.default_rng(0)
     frames = rng.integers(110, 146, size=(3, *size, 3), dtype=np.uint8)
-    scalars = {"force": [8.0, 30.0, 58.0], "width": [0.05, 0.048, 0.046],
-               "estimates": [2e5, 4e5]}
+    scalars = {"force": [8.0, 30.0, 58.0], "width": [0.05, 0.048, 0.046], "estimates": [2e5, 4e5]}
 
     def predict_call() -> None:
         estimator.predict(frames, **scalars)
@@ -176,8 +175,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=50, help="timed calls per measurement")
     parser.add_argument("--warmup", type=int, default=5)
     parser.add_argument("--threads", type=int, default=2, help="torch and onnxruntime threads")
-    parser.add_argument("--budget-s", type=float, default=240.0,
-                        help="stop a model's measurements after this long (at least 10 calls)")
+    parser.add_argument(
+        "--budget-s",
+        type=float,
+        default=240.0,
+        help="stop a model's measurements after this long (at least 10 calls)",
+    )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     args = parser.parse_args(argv)
 

@@ -67,8 +67,13 @@ def main(argv: list[str] | None = None) -> None:
     start = time.perf_counter()
     try:
         report = generate_burgess_tree(
-            out / "tree", n_objects=n_objects, seed=args.seed, image_size=(height, width),
-            progress=False, workers=args.workers, dtype=args.dtype,
+            out / "tree",
+            n_objects=n_objects,
+            seed=args.seed,
+            image_size=(height, width),
+            progress=False,
+            workers=args.workers,
+            dtype=args.dtype,
         )
         wall = time.perf_counter() - start
         cpu = os.times()

@@ -77,10 +77,17 @@ def write_random_store(path: Path, n: int, size: tuple[int, int], seed: int = 0)
                     "material": "Rubber",
                     "shape": "Sphere",
                     "modulus_pa": 10 ** (4 + (obj % 8)),
-                    "force_n_0": 6.0, "force_n_1": 30.0, "force_n_2": 58.0,
-                    "width_m_0": 0.05, "width_m_1": 0.049, "width_m_2": 0.048,
-                    "elastic_estimate_pa": 1e5, "hertz_estimate_pa": 2e5,
-                    "depth_max_mm_0": 0.5, "depth_max_mm_1": 1.0, "depth_max_mm_2": 1.5,
+                    "force_n_0": 6.0,
+                    "force_n_1": 30.0,
+                    "force_n_2": 58.0,
+                    "width_m_0": 0.05,
+                    "width_m_1": 0.049,
+                    "width_m_2": 0.048,
+                    "elastic_estimate_pa": 1e5,
+                    "hertz_estimate_pa": 2e5,
+                    "depth_max_mm_0": 0.5,
+                    "depth_max_mm_1": 1.0,
+                    "depth_max_mm_2": 1.5,
                 },
             )
     return GraspStore.open(path)
@@ -106,18 +113,30 @@ def bench_cache(store: GraspStore, size: tuple[int, int], n: int) -> None:
         start = time.perf_counter()
         cached_features(subset, backbone, size, constants, batch_size=batch, progress=False)
         pipeline = n * 3 / (time.perf_counter() - start)
-        print(f"cache  {model_name:9s} {type(backbone).__name__:8s} {size[0]}x{size[1]}: "
-              f"raw forward {raw:7.1f} frames/s, caching pipeline {pipeline:7.1f} frames/s "
-              f"({100 * pipeline / raw:.0f} %)")
+        print(
+            f"cache  {model_name:9s} {type(backbone).__name__:8s} {size[0]}x{size[1]}: "
+            f"raw forward {raw:7.1f} frames/s, caching pipeline {pipeline:7.1f} frames/s "
+            f"({100 * pipeline / raw:.0f} %)"
+        )
     shutil.rmtree(subset_dir, ignore_errors=True)
 
 
-def _epoch_seconds(module: ComplianceModule, dataset: GraspDataset, batch_size: int,
-                   precision: str = "32") -> float:
+def _epoch_seconds(
+    module: ComplianceModule, dataset: GraspDataset, batch_size: int, precision: str = "32"
+) -> float:
     import lightning as L
-    trainer = L.Trainer(max_epochs=1, accelerator="cpu", logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False,
-                        num_sanity_val_steps=0, limit_val_batches=0, precision=precision)
+
+    trainer = L.Trainer(
+        max_epochs=1,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        num_sanity_val_steps=0,
+        limit_val_batches=0,
+        precision=precision,
+    )
     start = time.perf_counter()
     trainer.fit(module, batch_loader(dataset, batch_size, shuffle=True))  # as train() does
     return time.perf_counter() - start
@@ -131,17 +150,24 @@ def bench_heads(store: GraspStore, n: int, repeats: int = 2) -> None:
     for model_name in ("top10nn", "vgg_lstm", "res_tf"):
         model = create_model(model_name)
         batch_size = int(model.default_training.get("batch_size", 32))
-        features = np.random.default_rng(0).standard_normal(
-            (len(store), 3, model.feature_dim)).astype(np.float16)
+        features = (
+            np.random.default_rng(0)
+            .standard_normal((len(store), 3, model.feature_dim))
+            .astype(np.float16)
+        )
         dataset = GraspDataset(store, ids, constants, features)
         for precision in ("32", "bf16-mixed"):
-            module = ComplianceModule(model, constants, None, lr=1e-4, gamma=0.98,
-                                      l2_weight=5e-5, freeze_backbone=True)
-            seconds = [_epoch_seconds(module, dataset, batch_size, precision)
-                       for _ in range(repeats)]
-            print(f"head   {model_name:9s} on cached features, precision {precision:10s}: "
-                  f"{min(seconds):6.1f} s/epoch (best of {' / '.join(f'{v:.1f}' for v in seconds)};"
-                  f" {n} samples, batch {batch_size})")
+            module = ComplianceModule(
+                model, constants, None, lr=1e-4, gamma=0.98, l2_weight=5e-5, freeze_backbone=True
+            )
+            seconds = [
+                _epoch_seconds(module, dataset, batch_size, precision) for _ in range(repeats)
+            ]
+            print(
+                f"head   {model_name:9s} on cached features, precision {precision:10s}: "
+                f"{min(seconds):6.1f} s/epoch (best of {' / '.join(f'{v:.1f}' for v in seconds)};"
+                f" {n} samples, batch {batch_size})"
+            )
 
 
 def bench_finetune(store: GraspStore, n_batches: int, n_epoch: int) -> None:
@@ -167,9 +193,11 @@ def bench_finetune(store: GraspStore, n_batches: int, n_epoch: int) -> None:
             if index > 0:  # the first batch pays for allocation warm-up
                 timings.append(time.perf_counter() - start)
         per_sample = float(np.mean(timings)) / batch_size
-        print(f"tune   {model_name:9s} end to end at {size[0]}x{size[1]}: "
-              f"{per_sample * 1000:6.1f} ms/sample -> {per_sample * n_epoch / 60:6.1f} min/epoch "
-              f"for {n_epoch} samples")
+        print(
+            f"tune   {model_name:9s} end to end at {size[0]}x{size[1]}: "
+            f"{per_sample * 1000:6.1f} ms/sample -> {per_sample * n_epoch / 60:6.1f} min/epoch "
+            f"for {n_epoch} samples"
+        )
 
 
 def bench_memory(store: GraspStore, work: Path) -> None:
@@ -178,25 +206,37 @@ def bench_memory(store: GraspStore, work: Path) -> None:
     height, width = store.image_size
     runs = {
         "Res-Tf frozen backbone at 112x112 (cache + head)": [
-            "model.name=res_tf", "model.freeze_backbone=true", "data.image_size=[112,112]",
+            "model.name=res_tf",
+            "model.freeze_backbone=true",
+            "data.image_size=[112,112]",
             "augmentation.enabled=false",
         ],
         f"Top10NN end to end at {height}x{width}, augmentation": [
-            "model.name=top10nn", f"data.image_size=[{height},{width}]",
+            "model.name=top10nn",
+            f"data.image_size=[{height},{width}]",
             "augmentation.enabled=true",
         ],
     }
     store_gb = store.frames.nbytes / 1e9
     for index, (label, config) in enumerate(runs.items()):
-        overrides = [f"data.store={store.path}", "training.max_epochs=1",
-                     "training.limit_batches=30", "training.batch_size=32", *config]
+        overrides = [
+            f"data.store={store.path}",
+            "training.max_epochs=1",
+            "training.limit_batches=30",
+            "training.batch_size=32",
+            *config,
+        ]
         result = subprocess.run(
             [sys.executable, "-c", MEMORY_CHILD, str(work / f"memory-run-{index}"), *overrides],
-            check=True, capture_output=True, text=True,
+            check=True,
+            capture_output=True,
+            text=True,
         )
         measured = json.loads(result.stdout.strip().splitlines()[-1])
-        print(f"memory train() {label}, {len(store)}-sample {height}x{width} store "
-              f"({store_gb:.2f} GB): peak RSS {measured['peak_kib'] / 1e6:.2f} GB")
+        print(
+            f"memory train() {label}, {len(store)}-sample {height}x{width} store "
+            f"({store_gb:.2f} GB): peak RSS {measured['peak_kib'] / 1e6:.2f} GB"
+        )
 
 
 def _has_bf16_instructions() -> str:
@@ -217,8 +257,11 @@ def main() -> None:
     parser.add_argument("--cache-size", default="224x224")
     parser.add_argument("--finetune-batches", type=int, default=3)
     parser.add_argument("--workdir", default=tempfile.gettempdir())
-    parser.add_argument("--only", choices=("cache", "heads", "finetune", "memory"),
-                        help="run one part (heads only: a small store suffices, see --size)")
+    parser.add_argument(
+        "--only",
+        choices=("cache", "heads", "finetune", "memory"),
+        help="run one part (heads only: a small store suffices, see --size)",
+    )
     args = parser.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
     cache_size = tuple(int(v) for v in args.cache_size.split("x"))
@@ -226,16 +269,20 @@ def main() -> None:
     for name in ("lightning.pytorch", "lightning.fabric"):
         logging.getLogger(name).setLevel(logging.ERROR)
     warnings.filterwarnings("ignore", module="lightning.*")
-    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
-          f"{torch.get_num_threads()} threads, CPU capability "
-          f"{torch.backends.cpu.get_cpu_capability()}, bf16 instructions: "
-          f"{_has_bf16_instructions()}")
+    print(
+        f"machine: {platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
+        f"{torch.get_num_threads()} threads, CPU capability "
+        f"{torch.backends.cpu.get_cpu_capability()}, bf16 instructions: "
+        f"{_has_bf16_instructions()}"
+    )
     work = Path(tempfile.mkdtemp(prefix="bench_training_", dir=args.workdir))
     try:
         start = time.perf_counter()
         store = write_random_store(work / "store", args.samples, size)
-        print(f"store  {len(store)} samples at {size[0]}x{size[1]} written in "
-              f"{time.perf_counter() - start:.0f} s")
+        print(
+            f"store  {len(store)} samples at {size[0]}x{size[1]} written in "
+            f"{time.perf_counter() - start:.0f} s"
+        )
         parts = {
             "cache": lambda: bench_cache(store, cache_size, args.cache_samples),
             "heads": lambda: bench_heads(store, args.samples),

@@ -244,8 +244,12 @@ def test_native_size_checkpoint_records_the_store_frame_size(tmp_path):
 
     model = create_model("top10nn", inputs="Image")
     path = save_checkpoint(
-        tmp_path / "best.pt", model, constants=NormalisationConstants(), image_size=None,
-        config={"data": {"store": str(tmp_path / "deleted-store")}}, seed=0,
+        tmp_path / "best.pt",
+        model,
+        constants=NormalisationConstants(),
+        image_size=None,
+        config={"data": {"store": str(tmp_path / "deleted-store")}},
+        seed=0,
         store_image_size=(90, 120),
     )
     estimator = ComplianceEstimator.from_checkpoint(path)

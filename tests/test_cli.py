@@ -67,8 +67,19 @@ def test_simulate_then_import(tmp_path):
     raw = tmp_path / "raw"
     result = runner.invoke(
         app,
-        ["simulate", "--out", str(raw), "--objects", "3", "--grasps-per-object", "1",
-         "--size", "40x56", "--workers", "1"],
+        [
+            "simulate",
+            "--out",
+            str(raw),
+            "--objects",
+            "3",
+            "--grasps-per-object",
+            "1",
+            "--size",
+            "40x56",
+            "--workers",
+            "1",
+        ],
     )
     assert result.exit_code == 0, result.output
     assert "import burgess" in result.output
@@ -77,9 +88,22 @@ def test_simulate_then_import(tmp_path):
     info = json.loads(runner.invoke(app, ["info", str(tmp_path / "s"), "--json"]).output)
     assert info["source"] == "synthetic" and info["num_objects"] == 3
     assert info["image_size"] == [40, 56]
-    videos = runner.invoke(app, ["simulate", "--kind", "shore-videos", "--out",
-                                 str(tmp_path / "v"), "--objects", "2",
-                                 "--grasps-per-object", "1", "--size", "40x56"])
+    videos = runner.invoke(
+        app,
+        [
+            "simulate",
+            "--kind",
+            "shore-videos",
+            "--out",
+            str(tmp_path / "v"),
+            "--objects",
+            "2",
+            "--grasps-per-object",
+            "1",
+            "--size",
+            "40x56",
+        ],
+    )
     assert videos.exit_code == 0, videos.output
     assert len(list((tmp_path / "v").glob("*.avi"))) == 2
     bad = runner.invoke(app, ["simulate", "--out", str(raw), "--kind", "lidar"])

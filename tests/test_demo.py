@@ -48,17 +48,49 @@ def test_cli_predict_export_and_experiment_on_the_demo_output(tmp_path):
     # The grid command: an already-complete cell is skipped, not retrained.
     again = runner.invoke(
         app,
-        ["experiment", "table1", "--quick", "--seeds", "1", "--store", str(store),
-         "--where", "model.name=top10nn", "--where", "inputs=ALL",
-         "--where", "split.condition=seen", "--set", "training.max_epochs=1",
-         "--output-dir", str(out / "runs"), "--results", str(out / "results")],
+        [
+            "experiment",
+            "table1",
+            "--quick",
+            "--seeds",
+            "1",
+            "--store",
+            str(store),
+            "--where",
+            "model.name=top10nn",
+            "--where",
+            "inputs=ALL",
+            "--where",
+            "split.condition=seen",
+            "--set",
+            "training.max_epochs=1",
+            "--output-dir",
+            str(out / "runs"),
+            "--results",
+            str(out / "results"),
+        ],
     )
     assert again.exit_code == 0, again.output
     assert "1 already complete" in again.output
-    grid = ["experiment", "table1", "--quick", "--seeds", "1", "--store", str(store),
-            "--where", "model.name=top10nn", "--where", "split.condition=seen",
-            "--set", "training.max_epochs=1",
-            "--output-dir", str(out / "runs"), "--results", str(out / "results")]
+    grid = [
+        "experiment",
+        "table1",
+        "--quick",
+        "--seeds",
+        "1",
+        "--store",
+        str(store),
+        "--where",
+        "model.name=top10nn",
+        "--where",
+        "split.condition=seen",
+        "--set",
+        "training.max_epochs=1",
+        "--output-dir",
+        str(out / "runs"),
+        "--results",
+        str(out / "results"),
+    ]
     planned = runner.invoke(app, [*grid, "--dry-run"])
     assert planned.exit_code == 0, planned.output
     assert planned.output.count("complete") == 1 and planned.output.count("todo") == 3
@@ -66,7 +98,8 @@ def test_cli_predict_export_and_experiment_on_the_demo_output(tmp_path):
     # A cell that fails at run time (Top10NN cannot take 8x8 frames) is recorded, and
     # the command says so with exit status 1.
     failing = runner.invoke(
-        app, [*grid, "--where", "inputs=Image", "--set", "data.image_size=[8,8]"],
+        app,
+        [*grid, "--where", "inputs=Image", "--set", "data.image_size=[8,8]"],
     )
     assert failing.exit_code == 1, failing.output
     assert "1 failed" in failing.output and "cell(s) failed" in failing.output

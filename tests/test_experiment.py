@@ -76,10 +76,19 @@ def tiny(tmp_path):
 # ---------------------------------------------------------------------------- format
 def test_packaged_presets_expand_to_valid_cells():
     assert set(list_experiment_presets()) >= {
-        "table1", "table2", "rolling-window", "shape-test", "new-dataset"
+        "table1",
+        "table2",
+        "rolling-window",
+        "shape-test",
+        "new-dataset",
     }
-    sizes = {"table1": 240, "table2": 240, "rolling-window": 210, "shape-test": 240,
-             "new-dataset": 30}
+    sizes = {
+        "table1": 240,
+        "table2": 240,
+        "rolling-window": 210,
+        "shape-test": 240,
+        "new-dataset": 30,
+    }
     for name, size in sizes.items():
         full = expand_experiment(load_experiment(name))
         quick = expand_experiment(load_experiment(name, quick=True))
@@ -93,8 +102,10 @@ def test_packaged_presets_expand_to_valid_cells():
                 assert min(cfg.data.image_size) >= 65  # the Top10 CNN needs >= 65 px
             else:
                 assert cfg.model.freeze_backbone and max(cfg.data.image_size) <= 64
-    cells = {(c.cfg.model.name, c.cfg.inputs, c.cfg.split.condition): c.cfg
-             for c in expand_experiment(load_experiment("table1"))}
+    cells = {
+        (c.cfg.model.name, c.cfg.inputs, c.cfg.split.condition): c.cfg
+        for c in expand_experiment(load_experiment("table1"))
+    }
     assert cells["vgg_lstm", "ALL", "seen"].training.lr == pytest.approx(3e-4)
     assert cells["res_tf", "Image", "unseen"].model.hparams["num_layers"] == 5
     assert cells["res_tf", "ALL", "seen"].model.hparams == {}
@@ -119,10 +130,14 @@ def test_grid_rules_overrides_filters_and_plain_configs(tiny, tmp_path, toy_stor
     assert by_label["top10nn Image seen random seed 1"].data.image_size == (72, 72)
     assert all(c.cfg.data.store == str(toy_store.path.resolve()) for c in cells)
     # Command-line overrides come last; filters keep matching cells only.
-    cells = expand_experiment(spec, seeds=3, overrides=["training.lr=0.5"],
-                              where=["model.name=top10nn", "inputs=[ALL]"])
+    cells = expand_experiment(
+        spec, seeds=3, overrides=["training.lr=0.5"], where=["model.name=top10nn", "inputs=[ALL]"]
+    )
     assert [(c.cfg.inputs, c.cfg.seed, c.cfg.training.lr) for c in cells] == [
-        ("ALL", 0, 0.5), ("ALL", 1, 0.5), ("ALL", 2, 0.5)]
+        ("ALL", 0, 0.5),
+        ("ALL", 1, 0.5),
+        ("ALL", 2, 0.5),
+    ]
     # The quick section merges over the file.
     quick = expand_experiment(load_experiment(tiny, quick=True))
     assert len(quick) == 4 and {c.cfg.training.batch_size for c in quick} == {8}
@@ -132,13 +147,15 @@ def test_grid_rules_overrides_filters_and_plain_configs(tiny, tmp_path, toy_stor
     assert [(c.cfg.model.name, c.cfg.seed) for c in plain] == [("res_tf", s) for s in range(3)]
     # `extends` + `include`: a tuned-overrides file applied to one model only.
     (tmp_path / "tuned.yaml").write_text("training.lr: 0.25\nmodel.hparams: {num_layers: 2}\n")
-    (tmp_path / "child.yaml").write_text(textwrap.dedent("""
+    (tmp_path / "child.yaml").write_text(
+        textwrap.dedent("""
         extends: tiny.yaml
         grid: {inputs: [Image]}
         rules:
           - when: {model.name: res_tf}
             include: tuned.yaml
-    """))
+    """)
+    )
     child = {c.label: c.cfg for c in expand_experiment(load_experiment(tmp_path / "child.yaml"))}
     assert len(child) == 4
     assert child["res_tf Image seen random seed 0"].training.lr == 0.25
@@ -172,8 +189,7 @@ def test_unknown_preset_missing_quick_and_missing_store(tmp_path, tiny):
     with pytest.raises(ConfigError, match="no 'quick'"):
         load_experiment(tmp_path / "noquick.yaml", quick=True)
     with pytest.raises(ExperimentError, match="store not found"):
-        run_experiment(tiny, store=tmp_path / "nowhere", output_dir=tmp_path / "o",
-                       progress=False)
+        run_experiment(tiny, store=tmp_path / "nowhere", output_dir=tmp_path / "o", progress=False)
 
 
 # ---------------------------------------------------------------------------- on Dask
@@ -202,8 +218,9 @@ def test_grid_survives_a_killed_worker_and_reruns_idempotently(tiny, tmp_path, t
     watcher = threading.Thread(target=_kill_first_run_midway, args=(out, stop, killed))
     watcher.start()
     try:
-        summary = run_experiment(tiny, store=toy_store.path, output_dir=out, workers=2,
-                                 progress=False)
+        summary = run_experiment(
+            tiny, store=toy_store.path, output_dir=out, workers=2, progress=False
+        )
     finally:
         stop.set()
         watcher.join()
@@ -255,15 +272,22 @@ def test_killed_driver_loses_nothing(tiny, tmp_path, toy_store):
             run_experiment({str(tiny)!r}, store={str(toy_store.path)!r}, output_dir={str(out)!r},
                            workers=2, where=["split.subset=null"], progress=False)
     """)
-    proc = subprocess.Popen([sys.executable, "-c", script], start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     results = tmp_path / "results"  # next to the output directory, shared by experiments
     try:
         deadline = time.monotonic() + 240
         while time.monotonic() < deadline and proc.poll() is None:
             done = len(list((results / "rows").glob("*.json"))) if results.exists() else 0
-            midway = [d for d in out.glob("*/checkpoints/last.ckpt")
-                      if not (d.parents[1] / "metrics.json").exists()]
+            midway = [
+                d
+                for d in out.glob("*/checkpoints/last.ckpt")
+                if not (d.parents[1] / "metrics.json").exists()
+            ]
             if done >= 1 and midway:
                 break
             time.sleep(0.02)
@@ -282,8 +306,14 @@ def test_killed_driver_loses_nothing(tiny, tmp_path, toy_store):
         pytest.fail("processes of the killed experiment are still alive")
     before = _rows(results)
     assert 1 <= len(before) < 6
-    summary = run_experiment(tiny, store=toy_store.path, output_dir=out, workers=2,
-                             where=["split.subset=null"], progress=False)
+    summary = run_experiment(
+        tiny,
+        store=toy_store.path,
+        output_dir=out,
+        workers=2,
+        where=["split.subset=null"],
+        progress=False,
+    )
     rows = _rows(results)
     assert len(rows) == 6 and all(r["status"] == "complete" for r in rows.values())
     assert summary.skipped == len(before) and summary.completed == 6 - len(before)

@@ -91,9 +91,10 @@ def test_export_needs_a_frame_size_and_onnx_estimator_needs_metadata(tmp_path):
         OnnxEstimator(tmp_path / "bare.onnx")
 
 
-@pytest.mark.parametrize(("size_in", "size_out"), [((1, 1), (7, 7)), ((2, 3), (7, 7)),
-                                                   ((14, 14), (7, 7)), ((13, 10), (7, 7)),
-                                                   ((9, 20), (4, 3))])
+@pytest.mark.parametrize(
+    ("size_in", "size_out"),
+    [((1, 1), (7, 7)), ((2, 3), (7, 7)), ((14, 14), (7, 7)), ((13, 10), (7, 7)), ((9, 20), (4, 3))],
+)
 def test_fixed_adaptive_pool_equals_torch(size_in, size_out):
     # VGG16's 7x7 pool is exported through this replacement.
     x = torch.randn(4, 5, *size_in)

@@ -46,8 +46,9 @@ def test_search_space_matches_the_paper_and_builds_models(model, inputs):
     # Every sampled configuration is a valid config, and (but VGG16, too big to build
     # 16 times in a test) a model that builds.
     for config in [space.get_default_configuration(), *space.sample_configuration(4)]:
-        cfg = load_config("default", [f"model.name={model}", f"inputs={inputs}",
-                                      *hpo.trial_overrides(config)])
+        cfg = load_config(
+            "default", [f"model.name={model}", f"inputs={inputs}", *hpo.trial_overrides(config)]
+        )
         if model != "vgg_lstm":
             create_model(model, inputs=inputs, **cfg.model.hparams)
 
@@ -71,8 +72,14 @@ def _count_trainings(monkeypatch, fail_after: int | None = None) -> list[str]:
 
 def test_tune_runs_a_few_trials_and_resumes(toy_store, tmp_path, monkeypatch):
     out = tmp_path / "tune"
-    kwargs = dict(store=toy_store.path, overrides=TOP10, min_epochs=1, max_epochs=3,
-                  output_dir=out, progress=False)
+    kwargs = dict(
+        store=toy_store.path,
+        overrides=TOP10,
+        min_epochs=1,
+        max_epochs=3,
+        output_dir=out,
+        progress=False,
+    )
     # 1. Interrupted after 2 trials.
     trained = _count_trainings(monkeypatch, fail_after=2)
     with pytest.raises(KeyboardInterrupt):
@@ -113,16 +120,16 @@ def test_tune_runs_a_few_trials_and_resumes(toy_store, tmp_path, monkeypatch):
         "grid: {model.name: [top10nn, res_tf]}\n"
         f"rules:\n  - when: {{model.name: top10nn}}\n    include: {extended.tuned_path}\n"
     )
-    by_model = {c.cfg.model.name: c.cfg for c in
-                expand_experiment(load_experiment(tmp_path / "grid.yaml"))}
+    by_model = {
+        c.cfg.model.name: c.cfg for c in expand_experiment(load_experiment(tmp_path / "grid.yaml"))
+    }
     assert by_model["top10nn"].training.lr == best.training.lr
     assert by_model["top10nn"].model.hparams == best.model.hparams
     assert by_model["res_tf"].model.hparams == {}
     # Trials keep their results but not their weights.
     trial_dirs = list((out / "trials").iterdir())
     assert len(trial_dirs) == 6
-    assert all((d / "metrics.json").exists() and not (d / "best.pt").exists()
-               for d in trial_dirs)
+    assert all((d / "metrics.json").exists() and not (d / "best.pt").exists() for d in trial_dirs)
 
 
 def test_tune_balance_writes_an_experiment_with_the_tuned_value(toy_store, tmp_path):
@@ -140,33 +147,50 @@ def test_tune_balance_writes_an_experiment_with_the_tuned_value(toy_store, tmp_p
         "    set: {data.image_size: [32, 32], model.freeze_backbone: true,\n"
         "          model.hparams: {num_layers: 1, embedding_dim: 32, output_dim: 32}}\n"
     )
-    result = hpo.tune_balance(grid, models=["top10nn", "res_tf"], inputs="Image", epochs=1,
-                              trials=2, store=toy_store.path, output_dir=tmp_path / "bal",
-                              progress=False)
+    result = hpo.tune_balance(
+        grid,
+        models=["top10nn", "res_tf"],
+        inputs="Image",
+        epochs=1,
+        trials=2,
+        store=toy_store.path,
+        output_dir=tmp_path / "bal",
+        progress=False,
+    )
     t = result.best["sampling.t_balance"]
     assert 0.0 <= t <= 1.0 and result.trials == 2
     trials = pd.read_csv(result.trials_path)
     assert trials["cost"].min() == pytest.approx(result.best_cost)
     # Each trial trained both models for one epoch, balanced at its t_balance.
-    configs = [json.loads((d / "metrics.json").read_text())
-               for d in (tmp_path / "bal" / "trials").iterdir()]
+    configs = [
+        json.loads((d / "metrics.json").read_text())
+        for d in (tmp_path / "bal" / "trials").iterdir()
+    ]
     assert {c["model"] for c in configs} == {"top10nn", "res_tf"}
     assert {c["sampling"] for c in configs} == {"balanced"} and len(configs) == 4
     assert {c["epochs_trained"] for c in configs} == {1}
     # The experiment file it wrote runs the whole grid with the tuned value.
     cells = expand_experiment(load_experiment(result.config_path), store=toy_store.path)
     assert len(cells) == 4
-    assert {(c.cfg.sampling.strategy, c.cfg.sampling.t_balance) for c in cells} == {
-        ("balanced", t)}
+    assert {(c.cfg.sampling.strategy, c.cfg.sampling.t_balance) for c in cells} == {("balanced", t)}
     for path in result.extra_paths:
         assert load_config(path).sampling.t_balance == t
 
 
 @pytest.mark.slow
 def test_tune_parallel_trials_on_dask(toy_store, tmp_path):
-    result = hpo.tune("top10nn", "Image", store=toy_store.path, overrides=TOP10, trials=6,
-                      min_epochs=1, max_epochs=3, workers=2, output_dir=tmp_path / "t",
-                      progress=False)
+    result = hpo.tune(
+        "top10nn",
+        "Image",
+        store=toy_store.path,
+        overrides=TOP10,
+        trials=6,
+        min_epochs=1,
+        max_epochs=3,
+        workers=2,
+        output_dir=tmp_path / "t",
+        progress=False,
+    )
     table = pd.read_csv(result.trials_path)
     assert len(table) == 6 and set(table["status"]) == {"SUCCESS"}
 

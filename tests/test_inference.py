@@ -43,14 +43,31 @@ from toy_store import make_toy_store
 RUNS = {
     # Top10NN end to end with every input; Res-Tf image-only on cached frozen features
     # (two seeds sharing one split, for the ensemble calibration).
-    "top10nn_all": ["model.name=top10nn", "inputs=ALL", "data.image_size=[72,72]",
-                    "training.max_epochs=1", "training.lr=1e-3"],
-    "res_tf_image_s0": ["model.name=res_tf", "inputs=Image", "data.image_size=[32,32]",
-                        "model.freeze_backbone=true", "training.max_epochs=1", "seed=0",
-                        "model.hparams={num_layers: 1, embedding_dim: 64, output_dim: 64}"],
-    "res_tf_image_s1": ["model.name=res_tf", "inputs=Image", "data.image_size=[32,32]",
-                        "model.freeze_backbone=true", "training.max_epochs=1", "seed=1",
-                        "model.hparams={num_layers: 1, embedding_dim: 64, output_dim: 64}"],
+    "top10nn_all": [
+        "model.name=top10nn",
+        "inputs=ALL",
+        "data.image_size=[72,72]",
+        "training.max_epochs=1",
+        "training.lr=1e-3",
+    ],
+    "res_tf_image_s0": [
+        "model.name=res_tf",
+        "inputs=Image",
+        "data.image_size=[32,32]",
+        "model.freeze_backbone=true",
+        "training.max_epochs=1",
+        "seed=0",
+        "model.hparams={num_layers: 1, embedding_dim: 64, output_dim: 64}",
+    ],
+    "res_tf_image_s1": [
+        "model.name=res_tf",
+        "inputs=Image",
+        "data.image_size=[32,32]",
+        "model.freeze_backbone=true",
+        "training.max_epochs=1",
+        "seed=1",
+        "model.hparams={num_layers: 1, embedding_dim: 64, output_dim: 64}",
+    ],
 }
 
 
@@ -96,8 +113,9 @@ def test_round_trip_matches_evaluation_path(runs, toy_store, key):
     ids = evaluation.predictions["sample_id"].to_numpy()
     estimator = ComplianceEstimator.from_checkpoint(run_dir / "best.pt")
     # An odd batch size: chunking must not change the result.
-    prediction = estimator.predict(toy_store.frames[ids], **_store_inputs(toy_store, ids),
-                                   batch_size=5)
+    prediction = estimator.predict(
+        toy_store.frames[ids], **_store_inputs(toy_store, ids), batch_size=5
+    )
     expected = np.log10(evaluation.predictions["pred_pa"].to_numpy())
     # Tolerances in decades; the spread of the predictions is far larger, so a wrong
     # preprocessing step (or sample order) cannot pass.
@@ -203,12 +221,17 @@ BAD_INPUTS = {
     "estimates three values": ({"estimates": [1e5, 2e5, 3e5]}, r"`estimates` .* \(2,\)"),
     "estimates NaN": ({"estimates": [np.nan, 2e5]}, r"`estimates` .*NaN"),
     "batch mismatch": (
-        {"frames": np.stack([GOOD["frames"]] * 2), "force": [[8.0, 30.0, 58.0]] * 3,
-         "width": [[0.05, 0.048, 0.046]] * 2, "estimates": [[2e5, 4e5]] * 2},
+        {
+            "frames": np.stack([GOOD["frames"]] * 2),
+            "force": [[8.0, 30.0, 58.0]] * 3,
+            "width": [[0.05, 0.048, 0.046]] * 2,
+            "estimates": [[2e5, 4e5]] * 2,
+        },
         r"`force` .* must have shape \(2, 3\)",
     ),
     "batch frames, single force": (
-        {"frames": np.stack([GOOD["frames"]] * 2)}, r"`force` .* must have shape \(2, 3\)"
+        {"frames": np.stack([GOOD["frames"]] * 2)},
+        r"`force` .* must have shape \(2, 3\)",
     ),
 }
 
@@ -353,8 +376,9 @@ def test_ensemble_of_runs_and_its_calibration(runs, toy_store, tmp_path):
 
 
 def test_predictions_type_is_exported():
-    assert Prediction.from_normalised(np.array([0.5]), NormalisationConstants(), True).modulus_pa \
-        == pytest.approx(10**7.5)
+    assert Prediction.from_normalised(
+        np.array([0.5]), NormalisationConstants(), True
+    ).modulus_pa == pytest.approx(10**7.5)
 
 
 # ---------------------------------------------------------------------- command line

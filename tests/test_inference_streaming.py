@@ -208,7 +208,8 @@ def test_stream_computes_estimates_from_depth_maps():
     batch = estimator.predict(frames[idx], force=force[idx], width=width[idx], estimates=estimates)
     stream = estimator.stream()
     final = [
-        e for i in range(len(frames))
+        e
+        for i in range(len(frames))
         if (e := stream.update(frames[i], force[i], width[i], depth_mm=depth[i])) is not None
     ][-1]
     assert final.final and final.modulus_pa == pytest.approx(batch.modulus_pa, rel=1e-6)
@@ -256,8 +257,9 @@ def test_ensemble_mean_and_interval_from_members():
     batch_force = np.stack([force[idx], force[[i + 1 for i in idx]]])
     batch_width = np.stack([width[idx], width[[i + 1 for i in idx]]])
     result = ensemble.predict(batch_frames, batch_force, batch_width)
-    logs = np.stack([m.predict(batch_frames, batch_force, batch_width).log10_modulus_pa
-                     for m in members])
+    logs = np.stack(
+        [m.predict(batch_frames, batch_force, batch_width).log10_modulus_pa for m in members]
+    )
     np.testing.assert_allclose(result.log10_modulus_pa, logs.mean(0), atol=1e-12)
     np.testing.assert_allclose(result.std_decades, logs.std(0, ddof=1), atol=1e-12)
     half = 1.2815515655446004 * logs.std(0, ddof=1)
@@ -267,8 +269,9 @@ def test_ensemble_mean_and_interval_from_members():
     single = ensemble.predict(frames[idx], force[idx], width[idx])
     assert isinstance(single.modulus_pa, float)
     assert single.log10_modulus_pa == pytest.approx(result.log10_modulus_pa[0])
-    wide = EnsembleEstimator(members, level=0.8, scale=2.0).predict(frames[idx], force[idx],
-                                                                     width[idx])
+    wide = EnsembleEstimator(members, level=0.8, scale=2.0).predict(
+        frames[idx], force[idx], width[idx]
+    )
     assert wide.half_width_decades == pytest.approx(2 * single.half_width_decades)
     assert ensemble.required_inputs == ("force", "width")
 

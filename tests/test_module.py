@@ -40,18 +40,31 @@ def test_training_step_gradient_is_mse_plus_l2(l2_weight: float) -> None:
     MSE + l2_weight * sum_i ||p_i|| over the trainable (head) parameters."""
     torch.manual_seed(2)
     model = create_model("res_tf", inputs="ALL", num_layers=1, dim_feedforward=32).eval()
-    module = ComplianceModule(model, NormalisationConstants(), None, lr=1e-3, gamma=None,
-                              l2_weight=l2_weight, freeze_backbone=True)
-    batch = {"features": torch.randn(6, 3, model.feature_dim), "force": torch.rand(6, 3),
-             "width": torch.rand(6, 3), "estimates": torch.rand(6, 2), "label": torch.rand(6)}
+    module = ComplianceModule(
+        model,
+        NormalisationConstants(),
+        None,
+        lr=1e-3,
+        gamma=None,
+        l2_weight=l2_weight,
+        freeze_backbone=True,
+    )
+    batch = {
+        "features": torch.randn(6, 3, model.feature_dim),
+        "force": torch.rand(6, 3),
+        "width": torch.rand(6, 3),
+        "estimates": torch.rand(6, 2),
+        "label": torch.rand(6),
+    }
     loss = module.training_step(batch, 0)
     loss.backward()
     module.on_after_backward()
     got = [p.grad.clone() for p in module.trainable_parameters()]
     assert all(p.grad is None for p in model.backbone.parameters())
     module.zero_grad(set_to_none=True)
-    prediction = model.forward_features(batch["features"], batch["force"], batch["width"],
-                                        batch["estimates"])
+    prediction = model.forward_features(
+        batch["features"], batch["force"], batch["width"], batch["estimates"]
+    )
     reference = torch.mean((prediction - batch["label"]) ** 2)
     reference = reference + l2_weight * sum(p.norm(2) for p in module.trainable_parameters())
     reference.backward()
@@ -66,14 +79,23 @@ def test_vgg_lstm_head_is_the_lstm_cell_recurrence() -> None:
     model = create_model("vgg_lstm", inputs="ALL").eval()
     features, force, width = torch.randn(4, 3, 4096), torch.rand(4, 3), torch.rand(4, 3)
     estimates = torch.rand(4, 2)
-    constant = [model.estimate_encoder["elastic"](estimates[:, 0:1]),
-                model.estimate_encoder["hertz"](estimates[:, 1:2])]
+    constant = [
+        model.estimate_encoder["elastic"](estimates[:, 0:1]),
+        model.estimate_encoder["hertz"](estimates[:, 1:2]),
+    ]
     hidden = torch.zeros(4, model.lstm.hidden_size)
     cell = torch.zeros_like(hidden)
     outputs = []
     for t in range(3):
-        step = torch.cat([features[:, t], model.force_encoder(force[:, t : t + 1]),
-                          model.width_encoder(width[:, t : t + 1]), *constant], dim=1)
+        step = torch.cat(
+            [
+                features[:, t],
+                model.force_encoder(force[:, t : t + 1]),
+                model.width_encoder(width[:, t : t + 1]),
+                *constant,
+            ],
+            dim=1,
+        )
         hidden, cell = model.lstm(step, (hidden, cell))
         outputs.append(model.output(hidden))
     expected = torch.cat(outputs, dim=1) @ torch.softmax(model.step_weights, dim=0)
@@ -92,11 +114,13 @@ def test_vgg_lstm_step_projection_gradients_match_autograd(image_needs_grad: boo
     bias = torch.randn(16, requires_grad=True)
     out = project_steps(image, scalars, weight, bias)
     upstream = torch.randn_like(out)
-    grads = torch.autograd.grad(out, [t for t in (image, scalars, weight, bias)
-                                      if t.requires_grad], upstream)
+    grads = torch.autograd.grad(
+        out, [t for t in (image, scalars, weight, bias) if t.requires_grad], upstream
+    )
     reference = torch.nn.functional.linear(torch.cat([image, scalars], -1), weight, bias)
-    expected = torch.autograd.grad(reference, [t for t in (image, scalars, weight, bias)
-                                               if t.requires_grad], upstream)
+    expected = torch.autograd.grad(
+        reference, [t for t in (image, scalars, weight, bias) if t.requires_grad], upstream
+    )
     assert torch.allclose(out, reference)
     for got, want in zip(grads, expected, strict=True):
         assert torch.allclose(got, want, atol=1e-5)

@@ -223,8 +223,7 @@ def test_hertz_round_trip_arrays() -> None:
     e_star = effective_modulus_pa(GEL_E_PA, GEL_NU, np.array([1e4, 1e5, 1e6, 1e9]), OBJ_NU)
     delta = hertz_indentation_m(forces, radii, e_star)
     assert isinstance(delta, np.ndarray) and delta.shape == (4,)
-    np.testing.assert_allclose(hertz_force_n(delta, radii, e_star), forces, rtol=1e-12,
-                               atol=1e-15)
+    np.testing.assert_allclose(hertz_force_n(delta, radii, e_star), forces, rtol=1e-12, atol=1e-15)
     # Broadcasting a scalar radius over forces.
     a = hertz_contact_radius_m(forces, 0.02, 1e5)
     np.testing.assert_allclose(a, np.cbrt(3 * forces * 0.02 / 4e5), rtol=1e-12)
@@ -256,8 +255,13 @@ def test_sensor_constants_defaults_and_validation() -> None:
     assert "1.5e5" in (SensorConstants.__doc__ or "")
     with pytest.raises(dataclasses.FrozenInstanceError):
         c.gel_modulus_pa = 1.0  # type: ignore[misc]
-    for bad in ({"hertz_patch_px": 10}, {"gel_modulus_pa": 0.0}, {"gel_poisson": 0.7},
-                {"min_depth_fraction": 1.5}, {"pixel_size_m": -1.0}):
+    for bad in (
+        {"hertz_patch_px": 10},
+        {"gel_modulus_pa": 0.0},
+        {"gel_poisson": 0.7},
+        {"min_depth_fraction": 1.5},
+        {"pixel_size_m": -1.0},
+    ):
         with pytest.raises(ValueError):
             SensorConstants(**bad)
 
@@ -281,8 +285,8 @@ def stepped_frame(side_px: int, base_mm: float, block_mm: float, peak_mm: float)
     frame = np.zeros((FRAME, FRAME))
     centre = FRAME // 2
     half = side_px // 2
-    frame[centre - half: centre + half + 1, centre - half: centre + half + 1] = base_mm
-    frame[centre - 5: centre + 6, centre - 5: centre + 6] = block_mm
+    frame[centre - half : centre + half + 1, centre - half : centre + half + 1] = base_mm
+    frame[centre - 5 : centre + 6, centre - 5 : centre + 6] = block_mm
     frame[centre, centre] = peak_mm
     return frame
 
@@ -369,8 +373,7 @@ def test_d97_is_the_97th_percentile_over_the_contact_mask() -> None:
     ramp[:10, :10] = (0.100 + 0.001 * np.arange(100)).reshape(10, 10)
     d97_mm = 0.100 + 0.001 * 96.03
     length_0 = 0.0506
-    forces, widths, depths = elastic_line_sequence(2.0e6, length_0_m=length_0,
-                                                   first_force_n=0.5)
+    forces, widths, depths = elastic_line_sequence(2.0e6, length_0_m=length_0, first_force_n=0.5)
     width = length_0 - 2 * d97_mm * 1e-3
     forces = np.concatenate([[0.0], forces])
     widths = np.concatenate([[width], widths])
@@ -418,8 +421,7 @@ def test_hertz_recovers_exact_line_and_elastic_by_hand() -> None:
     elastic, hertz = analytical_estimates_pa(forces, widths, depths)
     assert elastic == pytest.approx(sxy / sxx, rel=1e-9)
     assert hertz == pytest.approx(got, rel=1e-12)
-    assert estimate_elastic_modulus_pa(forces, widths, depths) == pytest.approx(elastic,
-                                                                                rel=1e-12)
+    assert estimate_elastic_modulus_pa(forces, widths, depths) == pytest.approx(elastic, rel=1e-12)
 
 
 def test_hertz_patch_size_is_a_constant() -> None:
@@ -525,8 +527,8 @@ VALID = (np.array([1.0, 2.0]), np.array([0.05, 0.049]), np.zeros((2, 20, 20)))
 
 
 @pytest.mark.parametrize(
-    "func", [estimate_elastic_modulus_pa, estimate_hertz_effective_modulus_pa,
-             analytical_estimates_pa]
+    "func",
+    [estimate_elastic_modulus_pa, estimate_hertz_effective_modulus_pa, analytical_estimates_pa],
 )
 @pytest.mark.parametrize(
     ("forces", "widths", "depths", "match"),
@@ -568,8 +570,9 @@ def hertz_theory_sequence(object_modulus_pa: float, n_frames: int = 15):
     a = (3 * forces * radius / (4 * e_star)) ** (1 / 3)
     delta = a**2 / radius
     inside = r2[None] <= (a**2)[:, None, None]
-    depths_mm = np.where(inside, gel_share * (delta[:, None, None] - r2[None] / (2 * radius)),
-                         0.0) * 1e3
+    depths_mm = (
+        np.where(inside, gel_share * (delta[:, None, None] - r2[None] / (2 * radius)), 0.0) * 1e3
+    )
     return forces, length - 2 * delta, depths_mm, e_star
 
 

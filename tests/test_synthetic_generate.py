@@ -21,8 +21,14 @@ from tactile_compliance.data.synthetic import (
 
 SMALL = (60, 80)
 PKL_FILES = {
-    "RGB.pkl", "RGB_markers.pkl", "depth.pkl", "depth_markers.pkl", "forces.pkl",
-    "widths.pkl", "elastic_estimate.pkl", "hertz_estimate.pkl",
+    "RGB.pkl",
+    "RGB_markers.pkl",
+    "depth.pkl",
+    "depth_markers.pkl",
+    "forces.pkl",
+    "widths.pkl",
+    "elastic_estimate.pkl",
+    "hertz_estimate.pkl",
 }
 
 
@@ -35,8 +41,14 @@ def _tree_digest(root: Path) -> dict[str, str]:
 
 
 def _generate(out: Path, **kwargs: object):  # type: ignore[no-untyped-def]
-    params = {"n_objects": 2, "grasps_per_object": 2, "seed": 3, "image_size": SMALL,
-              "progress": False, "workers": 1}
+    params = {
+        "n_objects": 2,
+        "grasps_per_object": 2,
+        "seed": 3,
+        "image_size": SMALL,
+        "progress": False,
+        "workers": 1,
+    }
     params.update(kwargs)
     return generate_burgess_tree(out, **params)  # type: ignore[arg-type]
 
@@ -55,8 +67,14 @@ def test_layout_matches_the_real_dataset(small_tree: Path) -> None:
     for obj in objects:
         meta = json.loads((obj / "metadata.json").read_text())
         assert set(meta) == {
-            "object_name", "youngs_modulus", "material", "shape", "shore_00_hardness",
-            "shore_A_hardness", "shore_D_hardness", "used_in_training",
+            "object_name",
+            "youngs_modulus",
+            "material",
+            "shape",
+            "shore_00_hardness",
+            "shore_A_hardness",
+            "shore_D_hardness",
+            "used_in_training",
         }
         assert meta["object_name"] == obj.name and meta["youngs_modulus"] > 0
         for aug in obj.glob("grasp=*/augmentation=*"):
@@ -143,8 +161,13 @@ def test_object_table_mode(object_table_csv: Path, tmp_path: Path) -> None:
     rows.to_csv(subset, index=False)
     out = tmp_path / "tree"
     report = generate_burgess_tree(
-        out, object_table=subset, grasps_per_object=1, seed=0, image_size=SMALL,
-        progress=False, workers=1,
+        out,
+        object_table=subset,
+        grasps_per_object=1,
+        seed=0,
+        image_size=SMALL,
+        progress=False,
+        workers=1,
     )
     assert report.objects_total == 3
     for _, row in rows.iterrows():
@@ -160,8 +183,9 @@ def test_shore_videos_round_trip(tmp_path: Path) -> None:
     from tactile_compliance.physics.shore import shore00_to_modulus_pa
 
     out = tmp_path / "videos"
-    report = generate_shore_videos(out, n_objects=3, presses_per_object=2, image_size=SMALL,
-                                   progress=False)
+    report = generate_shore_videos(
+        out, n_objects=3, presses_per_object=2, image_size=SMALL, progress=False
+    )
     videos = sorted(out.glob("*.avi"))
     assert len(videos) == report.samples == 6
     hardness = set()

@@ -59,9 +59,7 @@ def test_no_label_in_names_or_nuisance_parameters() -> None:
     nuisance = {
         "size": [s.geometry.thickness_mm for s in specs],
         "texture_angle": [s.texture.angle_rad for s in specs],
-        "session": [
-            make_context(s, 5, options).session.gels[0].thickness_mm for s in specs[:120]
-        ],
+        "session": [make_context(s, 5, options).session.gels[0].thickness_mm for s in specs[:120]],
     }
     for name, values in nuisance.items():
         values = np.asarray(values, dtype=float)
@@ -75,8 +73,9 @@ def test_baseline_ladder(tmp_path: Path) -> None:
     from tactile_compliance.data.store import GraspStore
     from tactile_compliance.data.synthetic.ladder import baseline_ladder
 
-    generate_burgess_tree(tmp_path / "tree", n_objects=150, seed=0, image_size=(60, 80),
-                          progress=False)
+    generate_burgess_tree(
+        tmp_path / "tree", n_objects=150, seed=0, image_size=(60, 80), progress=False
+    )
     import_burgess(tmp_path / "tree", tmp_path / "store", progress=False)
     store = GraspStore.open(tmp_path / "store")
     keep = np.flatnonzero((store.samples["finger"] == "markerless").to_numpy())

@@ -42,8 +42,7 @@ def test_recording_rejects_a_bad_finger() -> None:
 def test_synthetic_trajectories_carry_the_whole_time_line() -> None:
     names = [s.name for s in default_objects(3, seed=4)]
     trajectories = list(
-        synthetic_trajectories([(names[0], 0), (names[1], 1)], n_objects=3, seed=4,
-                               image_size=SIZE)
+        synthetic_trajectories([(names[0], 0), (names[1], 1)], n_objects=3, seed=4, image_size=SIZE)
     )
     assert trajectories
     for t in trajectories:

@@ -102,13 +102,16 @@ def test_tiny_run_beats_the_median_predictor(toy_store, tmp_path, model):
 def test_bf16_mixed_head_learns_as_well_as_float32(toy_store, tmp_path, model):
     # bf16-mixed is the fast CPU path for heads on cached features (docs/training.md).
     results = {
-        precision: train(_config(toy_store, tmp_path / precision, model,
-                                 [f"training.precision={precision}"]), progress=False)
+        precision: train(
+            _config(toy_store, tmp_path / precision, model, [f"training.precision={precision}"]),
+            progress=False,
+        )
         for precision in ("32", "bf16-mixed")
     }
     run_dir = tmp_path / "bf16-mixed" / results["bf16-mixed"]["run_name"]
-    median_val = _median_val_nmse(run_dir, toy_store, _config(toy_store, tmp_path, model)
-                                  .normalisation_constants())
+    median_val = _median_val_nmse(
+        run_dir, toy_store, _config(toy_store, tmp_path, model).normalisation_constants()
+    )
     half, full = results["bf16-mixed"]["best_val_nmse"], results["32"]["best_val_nmse"]
     assert half < 0.6 * median_val, (half, median_val)
     assert half < 1.5 * full + 0.002, (half, full)

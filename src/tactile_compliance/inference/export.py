@@ -101,9 +101,7 @@ class _FixedAdaptiveAvgPool2d(nn.Module):
         return torch.matmul(torch.matmul(self.rows, x), self.cols)
 
 
-def _exportable(
-    model: nn.Module, names: list[str], example: tuple[torch.Tensor, ...]
-) -> nn.Module:
+def _exportable(model: nn.Module, names: list[str], example: tuple[torch.Tensor, ...]) -> nn.Module:
     """A copy of ``model`` whose adaptive average pools have fixed, exportable sizes."""
     model = copy.deepcopy(model).eval()
     pools = {
@@ -235,7 +233,8 @@ def export_onnx(
         "model": estimator.model_name,
         "strategy": estimator.inputs.value,
         "inputs": {
-            name: ["batch", 3, 3, height, width] if name == "frames"
+            name: ["batch", 3, 3, height, width]
+            if name == "frames"
             else ["batch", 2 if name == "estimates" else 3]
             for name in names
         },

@@ -70,15 +70,30 @@ class ScalarSpec:
 #: gripper opens to 0.08 m.
 SCALAR_SPECS: dict[str, ScalarSpec] = {
     "force": ScalarSpec(
-        "force", NUM_FRAMES, "normal force at the three frames", "N", 0.0, 1000.0,
+        "force",
+        NUM_FRAMES,
+        "normal force at the three frames",
+        "N",
+        0.0,
+        1000.0,
         "pass the raw reading in newtons (the model divides by 60 N itself)",
     ),
     "width": ScalarSpec(
-        "width", NUM_FRAMES, "gripper width at the three frames", "m", 0.0, 0.2,
+        "width",
+        NUM_FRAMES,
+        "gripper width at the three frames",
+        "m",
+        0.0,
+        0.2,
         "pass metres, not millimetres (the gripper opens to 0.08 m)",
     ),
     "estimates": ScalarSpec(
-        "estimates", 2, "analytical estimates (elastic E, Hertz E*)", "Pa", None, None,
+        "estimates",
+        2,
+        "analytical estimates (elastic E, Hertz E*)",
+        "Pa",
+        None,
+        None,
         "values are clamped to [1e2, 1e14] Pa like in training; NaN means 'missing' and "
         "cannot be used by an ALL model",
     ),

@@ -127,9 +127,7 @@ class StoreFrames:
         return self.store.read_samples(positions)
 
 
-def read_store(
-    path: str | Path, ids: np.ndarray | list[int] | None = None
-) -> GraspBatch:
+def read_store(path: str | Path, ids: np.ndarray | list[int] | None = None) -> GraspBatch:
     """Samples ``ids`` (default all) of a GraspStore; frames are read from the memmap."""
     try:
         store = GraspStore.open(path)

@@ -294,7 +294,8 @@ class StreamingEstimator:
         self._buffer = _Buffer()
         self._reference = self._initial_reference
         self._estimates_pa = (
-            None if self._initial_estimates is None
+            None
+            if self._initial_estimates is None
             else self._check_estimates(self._initial_estimates)
         )
         self._frame_shape: tuple[int, ...] | None = None
@@ -363,8 +364,7 @@ class StreamingEstimator:
         array = np.asarray(value, dtype=np.float64).reshape(-1)
         if array.shape != (2,) or not np.all(np.isfinite(array)):
             raise ValueError(
-                f"estimates_pa must be two finite values (elastic E, Hertz E*) in Pa, "
-                f"got {value!r}"
+                f"estimates_pa must be two finite values (elastic E, Hertz E*) in Pa, got {value!r}"
             )
         return array
 
@@ -447,8 +447,11 @@ class StreamingEstimator:
             # i_peak never moves backwards (F_max only grows), so frames before the
             # current window start are never selected again.
             selection = select_frame_indices(
-                forces, window=self.window, onset_force_n=self.onset_force_n,
-                peak_fraction=self.peak_fraction, min_peak_force_n=0.0,
+                forces,
+                window=self.window,
+                onset_force_n=self.onset_force_n,
+                peak_fraction=self.peak_fraction,
+                min_peak_force_n=0.0,
             )
             keep_from = selection.window_start if selection is not None else int(onset[0])
         drop = keep_from - buf.offset

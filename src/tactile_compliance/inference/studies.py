@@ -250,8 +250,9 @@ def run_studies(
 
     split = Split.load(run_dirs[0] / "split.json")
     test_rows = store.samples.iloc[split.test_ids]
-    grasps = sorted({(str(o), int(g)) for o, g in zip(test_rows["object"], test_rows["grasp"],
-                                                      strict=True)})[:max_grasps]
+    grasps = sorted(
+        {(str(o), int(g)) for o, g in zip(test_rows["object"], test_rows["grasp"], strict=True)}
+    )[:max_grasps]
     trajectories = list(
         synthetic_trajectories(grasps, n_objects=n_objects, seed=seed, image_size=image_size)
     )

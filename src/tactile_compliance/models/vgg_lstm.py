@@ -86,7 +86,9 @@ class _ProjectSteps(torch.autograd.Function):
 
 
 def project_steps(
-    image: torch.Tensor, scalars: torch.Tensor | None, weight: torch.Tensor,
+    image: torch.Tensor,
+    scalars: torch.Tensor | None,
+    weight: torch.Tensor,
     bias: torch.Tensor | None,
 ) -> torch.Tensor:
     """``linear(cat([image, scalars], -1), weight, bias)`` over ``(..., features)`` inputs;

@@ -122,8 +122,10 @@ class SensorConstants:
         for name, value in non_negative.items():
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"SensorConstants.{name} must be finite and >= 0, got {value!r}")
-        for name, value in (("gel_poisson", self.gel_poisson),
-                            ("object_poisson", self.object_poisson)):
+        for name, value in (
+            ("gel_poisson", self.gel_poisson),
+            ("object_poisson", self.object_poisson),
+        ):
             if not (-1.0 < value <= 0.5):
                 raise ValueError(f"SensorConstants.{name} must be in (-1, 0.5], got {value!r}")
         if not (0.0 <= self.min_depth_fraction <= 1.0):
@@ -132,8 +134,12 @@ class SensorConstants:
                 f"got {self.min_depth_fraction!r}"
             )
         patch = self.hertz_patch_px
-        if isinstance(patch, bool) or not isinstance(patch, (int, np.integer)) or patch < 1 \
-                or patch % 2 == 0:
+        if (
+            isinstance(patch, bool)
+            or not isinstance(patch, (int, np.integer))
+            or patch < 1
+            or patch % 2 == 0
+        ):
             raise ValueError(
                 f"SensorConstants.hertz_patch_px must be a positive odd integer, got {patch!r}"
             )
@@ -175,8 +181,9 @@ def _as_array(value: object, name: str) -> FloatArray:
     return array
 
 
-def _check_positive(array: FloatArray, name: str, *, allow_zero: bool = False,
-                    allow_inf: bool = False) -> None:
+def _check_positive(
+    array: FloatArray, name: str, *, allow_zero: bool = False, allow_inf: bool = False
+) -> None:
     bad = array < 0 if allow_zero else array <= 0
     if not allow_inf:
         bad = bad | np.isinf(array)
@@ -225,8 +232,9 @@ def effective_modulus_pa(
     # Zero compliance (both rigid) is an infinitely stiff contact, not an error.
     with np.errstate(divide="ignore"):
         result = 1.0 / compliance_per_pa
-    return _like_inputs(np.asarray(result, dtype=np.float64), modulus_1_pa, poisson_1,
-                        modulus_2_pa, poisson_2)
+    return _like_inputs(
+        np.asarray(result, dtype=np.float64), modulus_1_pa, poisson_1, modulus_2_pa, poisson_2
+    )
 
 
 def object_modulus_from_effective_pa(
@@ -267,8 +275,13 @@ def object_modulus_from_effective_pa(
         )
     # np.where sends NaN (failed estimates) to the inf branch; keep them NaN.
     result = np.where(np.isnan(object_compliance_per_pa), np.nan, result)
-    return _like_inputs(np.asarray(result, dtype=np.float64), effective_modulus_pa,
-                        gel_modulus_pa, gel_poisson, object_poisson)
+    return _like_inputs(
+        np.asarray(result, dtype=np.float64),
+        effective_modulus_pa,
+        gel_modulus_pa,
+        gel_poisson,
+        object_poisson,
+    )
 
 
 # ---------------------------------------------------------------------------------------
@@ -411,7 +424,7 @@ def _patch_mean(frame: FloatArray, size_px: int) -> float:
     """
     row, col = np.unravel_index(int(np.argmax(frame)), frame.shape)
     half = size_px // 2
-    patch = frame[max(row - half, 0): row + half + 1, max(col - half, 0): col + half + 1]
+    patch = frame[max(row - half, 0) : row + half + 1, max(col - half, 0) : col + half + 1]
     return float(patch.mean())
 
 
@@ -461,8 +474,7 @@ def _grasp_contact(
         # Depth and force must agree on how far into the press a frame is; frames where
         # they disagree (slip, reconstruction glitches, the unloading tail) are dropped.
         consistent = (
-            np.abs(max_depth_mm / peak_depth_mm - forces / peak_force_n)
-            <= constants.fit_tolerance
+            np.abs(max_depth_mm / peak_depth_mm - forces / peak_force_n) <= constants.fit_tolerance
         )
         fit_mask = kept & consistent
     else:
@@ -577,9 +589,7 @@ def estimate_hertz_effective_modulus_pa(
     Raises:
         ValueError: malformed input (shapes, frame counts, NaN/inf values).
     """
-    return _hertz_from_contact(
-        _grasp_contact(forces_n, widths_m, depths_mm, constants), constants
-    )
+    return _hertz_from_contact(_grasp_contact(forces_n, widths_m, depths_mm, constants), constants)
 
 
 def analytical_estimates_pa(

@@ -114,9 +114,7 @@ def modulus_pa_to_shore00(modulus_pa: ArrayOrFloat) -> ArrayOrFloat:
     values = _as_float_array(modulus_pa, "modulus_pa")
     bad = ~np.isfinite(values) | (values <= 0.0)
     if np.any(bad):
-        raise ValueError(
-            f"modulus_pa must be finite and > 0 Pa, got {_describe_bad(values, bad)}"
-        )
+        raise ValueError(f"modulus_pa must be finite and > 0 Pa, got {_describe_bad(values, bad)}")
     shore = np.log(values / (_LARSON_A_MPA * _PA_PER_MPA)) / _LARSON_B_PER_SHORE
     outside = (shore < _HARDNESS_MIN - _SHORE_ROUNDING_SLACK) | (
         shore > _HARDNESS_MAX + _SHORE_ROUNDING_SLACK

@@ -221,9 +221,7 @@ def generate_burgess_tree(
     if height < 16 or width < 16:
         raise GenerationError(f"image_size must be at least 16 x 16 px, got {image_size}")
     sim_options, dtype, workers = _split_options(options)
-    sim_options = SimulationOptions(
-        **{**asdict(sim_options), "image_size": (height, width)}
-    )
+    sim_options = SimulationOptions(**{**asdict(sim_options), "image_size": (height, width)})
     skipped_rows: list[str] = []
     if object_table is not None:
         specs, skipped_rows = objects_from_table(object_table, seed, grasps_per_object)

@@ -177,9 +177,7 @@ def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
     return float(10 ** rng.uniform(np.log10(low), np.log10(high)))
 
 
-def sample_shape(
-    kind: str, rng: np.random.Generator, radius_mm: float | None = None
-) -> ShapeSpec:
+def sample_shape(kind: str, rng: np.random.Generator, radius_mm: float | None = None) -> ShapeSpec:
     """Draw the geometry of an object of shape class ``kind``.
 
     Args:

@@ -423,8 +423,9 @@ def render_recording(
     texture_rng = stream(*_grasp_key(ctx, grasp), "texture")
     if finger == 1:  # the stored frames draw finger 0's texture window first
         texture_window(ctx.textures[0], ctx.options.image_size, texture_rng)
-    render_sag = sag_map(ctx.spec.geometry, PadGrid(ctx.options.render_cell_mm), poses[finger],
-                         side=finger)
+    render_sag = sag_map(
+        ctx.spec.geometry, PadGrid(ctx.options.render_cell_mm), poses[finger], side=finger
+    )
     diff, _ = _render_full_size(
         ctx,
         grasp,

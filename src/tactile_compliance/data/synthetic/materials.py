@@ -110,9 +110,7 @@ def _rubber(rng: np.random.Generator) -> float:
 
 def _metal(rng: np.random.Generator) -> float:
     # aluminium, brass, bronze/iron, cast iron, steel, stainless/tool steel
-    return _grade(
-        rng, [7.0e10, 1.0e11, 1.5e11, 1.9e11, 2.0e11, 2.2e11], [27, 18, 3, 4, 42, 6]
-    )
+    return _grade(rng, [7.0e10, 1.0e11, 1.5e11, 1.9e11, 2.0e11, 2.2e11], [27, 18, 3, 4, 42, 6])
 
 
 def _plastic(rng: np.random.Generator) -> float:
@@ -185,59 +183,88 @@ MATERIALS: dict[str, MaterialModel] = {
     m.name: m
     for m in (
         MaterialModel(
-            "Rubber", 0.28, (0.47, 0.499), 0.15,
+            "Rubber",
+            0.28,
+            (0.47, 0.499),
+            0.15,
             {"Irregular": 56, "Sphere": 20, "Cylinder": 13, "Rectangular": 11},
             _tex(rubbery=55, matte=20, smooth=10, organic=8, cellular=7),
             max_strain=0.5,
         ),
         MaterialModel(
-            "Metal", 0.25, (0.28, 0.34), 0.05,
+            "Metal",
+            0.25,
+            (0.28, 0.34),
+            0.05,
             {"Irregular": 55, "Cylinder": 25, "Rectangular": 11, "Hex": 6, "Sphere": 3},
             _tex(machined=40, smooth=30, knurled=15, matte=15),
             hollow_probability=0.15,
         ),
         MaterialModel(
-            "Plastic", 0.24, (0.35, 0.42), 0.10,
+            "Plastic",
+            0.24,
+            (0.35, 0.42),
+            0.10,
             {"Irregular": 62, "Cylinder": 19, "Sphere": 10, "Rectangular": 7, "Hex": 2},
             _tex(matte=45, smooth=25, knurled=10, rubbery=10, machined=10),
             hollow_probability=0.30,
         ),
         MaterialModel(
-            "Wood", 0.08, (0.30, 0.40), 0.20,
+            "Wood",
+            0.08,
+            (0.30, 0.40),
+            0.20,
             {"Cylinder": 33, "Irregular": 29, "Rectangular": 29, "Sphere": 5, "Hex": 4},
             _tex(grain=60, matte=25, organic=15),
             across_grain=True,
         ),
         MaterialModel(
-            "Foam", 0.06, (0.05, 0.30), 0.20,
+            "Foam",
+            0.06,
+            (0.05, 0.30),
+            0.20,
             {"Rectangular": 75, "Cylinder": 10, "Irregular": 8, "Sphere": 7},
             _tex(cellular=65, rubbery=20, matte=15),
             max_strain=0.75,
         ),
         MaterialModel(
-            "Food", 0.03, (0.30, 0.49), 0.20,
+            "Food",
+            0.03,
+            (0.30, 0.49),
+            0.20,
             {"Irregular": 65, "Sphere": 23, "Cylinder": 12},
             _tex(organic=60, rubbery=20, smooth=20),
             max_strain=0.5,
         ),
         MaterialModel(
-            "Glass", 0.03, (0.21, 0.24), 0.05,
+            "Glass",
+            0.03,
+            (0.21, 0.24),
+            0.05,
             {"Cylinder": 38, "Sphere": 37, "Irregular": 25},
             _tex(smooth=80, matte=20),
-            hollow_probability=0.30, shell_thickness_mm=(1.5, 4.0),
+            hollow_probability=0.30,
+            shell_thickness_mm=(1.5, 4.0),
         ),
         MaterialModel(
-            "Ceramic", 0.015, (0.20, 0.25), 0.05,
+            "Ceramic",
+            0.015,
+            (0.20, 0.25),
+            0.05,
             {"Cylinder": 50, "Irregular": 25, "Sphere": 25},
             _tex(smooth=60, matte=40),
-            hollow_probability=0.50, shell_thickness_mm=(2.0, 5.0),
+            hollow_probability=0.50,
+            shell_thickness_mm=(2.0, 5.0),
         ),
     )
 }
 
 # Materials that appear in user tables but not in the default mix (e.g. Paper).
 _FALLBACK = MaterialModel(
-    "Other", 0.0, (0.25, 0.45), 0.15,
+    "Other",
+    0.0,
+    (0.25, 0.45),
+    0.15,
     {"Irregular": 50, "Cylinder": 20, "Rectangular": 15, "Sphere": 12, "Hex": 3},
     _tex(matte=40, rubbery=20, grain=20, smooth=20),
     max_strain=0.5,
@@ -251,7 +278,12 @@ def material_model(name: str) -> MaterialModel:
             return model
     if name.strip().lower() == "paper":
         return MaterialModel(
-            "Paper", 0.0, (0.2, 0.4), 0.2, {"Rectangular": 1.0},
-            _tex(matte=50, grain=50), max_strain=0.6,
+            "Paper",
+            0.0,
+            (0.2, 0.4),
+            0.2,
+            {"Rectangular": 1.0},
+            _tex(matte=50, grain=50),
+            max_strain=0.6,
         )
     return _FALLBACK

@@ -39,15 +39,40 @@ __all__ = [
 
 UNKNOWN_GROUND_TRUTH = frozenset(
     {
-        "playdoh", "silly_puty", "blue_sponge_dry", "blue_sponge_wet", "apple", "orange",
-        "strawberry", "ripe_banana", "unripe_banana", "lacrosse_ball", "baseball",
-        "racquet_ball", "tennis_ball",
+        "playdoh",
+        "silly_puty",
+        "blue_sponge_dry",
+        "blue_sponge_wet",
+        "apple",
+        "orange",
+        "strawberry",
+        "ripe_banana",
+        "unripe_banana",
+        "lacrosse_ball",
+        "baseball",
+        "racquet_ball",
+        "tennis_ball",
     }
 )
 """Objects of the real table whose label is unreliable (``used_in_training`` false)."""
 
-_HOLLOW_NAME_HINTS = ("bottle", "cup", "mug", "can", "tube", "pipe", "jar", "bowl", "vial",
-                      "bushing", "fitting", "junction", "extrusion", "channel", "case")
+_HOLLOW_NAME_HINTS = (
+    "bottle",
+    "cup",
+    "mug",
+    "can",
+    "tube",
+    "pipe",
+    "jar",
+    "bowl",
+    "vial",
+    "bushing",
+    "fitting",
+    "junction",
+    "extrusion",
+    "channel",
+    "case",
+)
 
 
 @dataclass(frozen=True)

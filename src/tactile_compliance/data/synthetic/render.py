@@ -392,9 +392,10 @@ def render_frames(
     planes[:] = bg.transpose(2, 0, 1)[:, None]
     box = _contact_box(depth)
     if box is not None:
-        gain_maps = strength[(slice(None), *box)] * (
-            np.asarray(look.light_gain, dtype=np.float32) * 255.0
-        )[:, None, None]
+        gain_maps = (
+            strength[(slice(None), *box)]
+            * (np.asarray(look.light_gain, dtype=np.float32) * 255.0)[:, None, None]
+        )
         region = (slice(None), slice(None), *box)
         planes[region] += _shading(depth[region[1:]], look, gain_maps, pixel_size_mm(size))
     if look.markers:

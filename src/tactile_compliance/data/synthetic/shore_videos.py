@@ -90,8 +90,11 @@ def _press_video(
     curve = force_curve(sag, gel, obj, grid, max_force_n=30.0)
     peak = float(rng.uniform(5.0, 25.0))
     n_pre, n_up, n_hold, n_down, n_post = (
-        int(rng.integers(3, 7)), int(rng.integers(8, 20)), int(rng.integers(2, 6)),
-        int(rng.integers(6, 14)), int(rng.integers(2, 5)),
+        int(rng.integers(3, 7)),
+        int(rng.integers(8, 20)),
+        int(rng.integers(2, 6)),
+        int(rng.integers(6, 14)),
+        int(rng.integers(2, 5)),
     )
     up = np.sin(0.5 * np.pi * (np.arange(1, n_up + 1) / n_up)) ** 2
     down = np.cos(0.5 * np.pi * (np.arange(1, n_down + 1) / n_down)) ** 2
