@@ -30,7 +30,7 @@ from tactile_compliance.training.experiment import run_experiment
 
 def _make_store(work: Path, objects: int) -> tuple[Path, float]:
     from tactile_compliance.data.burgess import import_burgess
-    from tactile_compliance.data.synthetic.generate import generate_burgess_tree
+    from tactile_compliance.synthetic.generate import generate_burgess_tree
 
     start = time.perf_counter()
     generate_burgess_tree(

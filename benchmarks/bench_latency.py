@@ -40,7 +40,7 @@ from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.inference import ComplianceEstimator, OnnxEstimator, export_onnx
 from tactile_compliance.inference.export import _example_inputs, _ort_session, onnx_input_names
 from tactile_compliance.models import create_model
-from tactile_compliance.training.checkpoint import save_checkpoint
+from tactile_compliance.runs.checkpoint import save_checkpoint
 
 #: Frame size (H, W) px per model, as the presets use them (see the module docstring).
 SIZES: dict[str, tuple[int, int]] = {

@@ -24,7 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tactile_compliance.data.synthetic import generate_burgess_tree
+from tactile_compliance.synthetic import generate_burgess_tree
 
 # The default mix gives ~20 sample directories per object (5-8 grasps x ~3.4
 # augmentations), so these object counts give ~1,000 and ~7,800 samples.

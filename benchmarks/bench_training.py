@@ -42,7 +42,7 @@ from tactile_compliance.data.features import cached_features
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.store import GraspStore, GraspStoreWriter
 from tactile_compliance.models import create_model
-from tactile_compliance.training.forward import forward_batch
+from tactile_compliance.runs.forward import forward_batch
 from tactile_compliance.training.module import ComplianceModule
 
 # The peak is read from /proc/self/status (VmHWM, this process's own address space):

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+# Research scripts in benchmarks/ (not part of the package) are importable by the tests.
+sys.path.insert(0, str(REPO_ROOT / "benchmarks"))
 # `shared/` lives next to the checkout (../shared); it is never copied into the repository.
 REFERENCE_DATA_DIR = REPO_ROOT.parent / "shared" / "reference-data"
 

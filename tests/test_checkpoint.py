@@ -12,7 +12,7 @@ import torch
 
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.models import backbones, create_model
-from tactile_compliance.training.checkpoint import (
+from tactile_compliance.runs.checkpoint import (
     CHECKPOINT_VERSION,
     FROZEN_BACKBONE_SEED,
     frozen_backbone_record,

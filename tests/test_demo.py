@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 
 from tactile_compliance.cli import app
 from tactile_compliance.data.store import GraspStore
-from tactile_compliance.training.results import ResultsStore
+from tactile_compliance.runs.results import ResultsStore
 
 
 def test_demo_ci_mode_runs_every_layer(tmp_path):

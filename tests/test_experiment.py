@@ -17,6 +17,7 @@ import pandas as pd
 import pytest
 
 from tactile_compliance.config import ConfigError, load_config, save_config
+from tactile_compliance.runs.results import ResultsStore
 from tactile_compliance.training.experiment import (
     ExperimentError,
     plan_experiment,
@@ -27,7 +28,6 @@ from tactile_compliance.training.grid import (
     list_experiment_presets,
     load_experiment,
 )
-from tactile_compliance.training.results import ResultsStore
 from toy_store import make_toy_store
 
 TESTS_DIR = Path(__file__).resolve().parent

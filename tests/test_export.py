@@ -17,7 +17,7 @@ from tactile_compliance.inference import (
 )
 from tactile_compliance.inference.export import _FixedAdaptiveAvgPool2d, onnx_input_names
 from tactile_compliance.models import create_model
-from tactile_compliance.training.checkpoint import save_checkpoint
+from tactile_compliance.runs.checkpoint import save_checkpoint
 
 SMALL_RES_TF = {"num_layers": 1, "embedding_dim": 64, "output_dim": 64}
 

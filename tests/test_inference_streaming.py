@@ -87,7 +87,7 @@ def test_selection_follows_the_dataset_rule():
 
 
 def test_selection_agrees_with_the_synthetic_generator():
-    timeseries = pytest.importorskip("tactile_compliance.data.synthetic.timeseries")
+    timeseries = pytest.importorskip("tactile_compliance.synthetic.timeseries")
     if not hasattr(timeseries, "selection_window"):
         pytest.skip("the synthetic generator no longer exposes selection_window")
     for seed in range(5):
@@ -293,11 +293,9 @@ def test_interval_scale_fit_reaches_the_level_and_no_more():
 
 
 def test_window_study_tables(estimator_fw):
-    from tactile_compliance.inference.studies import (
-        GraspTrajectory,
-        summarise_window_study,
-        window_study,
-    )
+    # The study is a research script in benchmarks/, not part of the package.
+    from inference_studies import summarise_window_study, window_study
+    from tactile_compliance.synthetic.recording import GraspTrajectory
 
     frames, force, width = make_grasp(seed=0, n_frames=32, release=26)
     trajectory = GraspTrajectory("obj", 0, 1e6, frames, force, width, np.array([np.nan] * 2))

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.evaluation import (
+from tactile_compliance.runs.metrics import (
     compute_metrics,
     grouped_metrics,
     log10_accuracy,

@@ -12,7 +12,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tactile_compliance.data.splits import (
-    SENSOR_MODULUS_PA,
     Split,
     grasp_keys,
     make_split,
@@ -21,6 +20,7 @@ from tactile_compliance.data.splits import (
     select_subset,
     summarise_split,
 )
+from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 MATERIALS = ("Rubber", "Metal", "Plastic", "Wood")
 SHAPES = ("Sphere", "Cylinder", "Irregular")
@@ -285,11 +285,11 @@ def test_soft_hard_and_shape_subsets():
     samples = pd.DataFrame(
         {
             "sample_id": [0, 1, 2, 3],
-            "modulus_pa": [1e4, SENSOR_MODULUS_PA, 1e9, 2e5],
+            "modulus_pa": [1e4, DEFAULT_GEL_MODULUS_PA, 1e9, 2e5],
             "shape": ["Sphere", "Cylinder", "sphere", "Hex"],
         }
     )
-    assert SENSOR_MODULUS_PA == 2.75e5
+    assert DEFAULT_GEL_MODULUS_PA == 2.75e5
     assert select_subset(samples, "soft")["sample_id"].tolist() == [0, 3]
     assert select_subset(samples, "hard")["sample_id"].tolist() == [1, 2]
     assert select_subset(samples, "Sphere")["sample_id"].tolist() == [0, 2]

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from tactile_compliance.data.safe_pickle import load_numpy_pickle
-from tactile_compliance.data.synthetic import (
+from tactile_compliance.synthetic import (
     GenerationError,
     generate_burgess_tree,
     generate_shore_videos,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactile_compliance.data.synthetic.geometry import (
+from tactile_compliance.synthetic.geometry import (
     NO_SURFACE,
     PadGrid,
     Pose,
@@ -14,7 +14,7 @@ from tactile_compliance.data.synthetic.geometry import (
     sample_pose,
     sample_shape,
 )
-from tactile_compliance.data.synthetic.mechanics import (
+from tactile_compliance.synthetic.mechanics import (
     GelModel,
     ObjectMechanics,
     contact_curve,
@@ -22,7 +22,7 @@ from tactile_compliance.data.synthetic.mechanics import (
     hertz_force_n,
     shell_stiffness_n_per_m,
 )
-from tactile_compliance.data.synthetic.rng import stream
+from tactile_compliance.synthetic.rng import stream
 
 CENTRED = Pose((0.0, 0.0), 0.0, (0.0, 0.0))
 # Linear-elastic limit: no thin-layer effect, no saturation.

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile_compliance.data.synthetic import generate_burgess_tree
-from tactile_compliance.data.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
-from tactile_compliance.data.synthetic.objects import default_objects
+from tactile_compliance.synthetic import generate_burgess_tree
+from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
+from tactile_compliance.synthetic.objects import default_objects
 
 TARGET_MEAN = 0.496  # per channel, real difference images (DATA_FORMATS.md)
 
@@ -71,7 +71,7 @@ def test_no_label_in_names_or_nuisance_parameters() -> None:
 def test_baseline_ladder(tmp_path: Path) -> None:
     from tactile_compliance.data.burgess import import_burgess
     from tactile_compliance.data.store import GraspStore
-    from tactile_compliance.data.synthetic.ladder import baseline_ladder
+    from tactile_compliance.synthetic.ladder import baseline_ladder
 
     generate_burgess_tree(
         tmp_path / "tree", n_objects=150, seed=0, image_size=(60, 80), progress=False

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from tactile_compliance.data.synthetic.grasp import (
+from tactile_compliance.synthetic.grasp import (
     SimulationOptions,
     make_context,
     render_recording,
 )
-from tactile_compliance.data.synthetic.objects import default_objects
-from tactile_compliance.inference.studies import synthetic_trajectories
+from tactile_compliance.synthetic.objects import default_objects
+from tactile_compliance.synthetic.recording import synthetic_trajectories
 
 SIZE = (60, 80)
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactile_compliance.data.synthetic.depth import reconstruct_depth
-from tactile_compliance.data.synthetic.geometry import PadGrid
-from tactile_compliance.data.synthetic.render import (
+from tactile_compliance.synthetic.depth import reconstruct_depth
+from tactile_compliance.synthetic.geometry import PadGrid
+from tactile_compliance.synthetic.render import (
     difference_images,
     gel_height_maps,
     pixel_size_mm,
@@ -15,7 +15,7 @@ from tactile_compliance.data.synthetic.render import (
     render_frames,
     sample_sensor_look,
 )
-from tactile_compliance.data.synthetic.rng import stream
+from tactile_compliance.synthetic.rng import stream
 
 SIZE = (120, 168)
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactile_compliance.data.synthetic.geometry import PadGrid, Pose, ShapeSpec, sag_map
-from tactile_compliance.data.synthetic.mechanics import GelModel, ObjectMechanics, force_curve
-from tactile_compliance.data.synthetic.rng import stream
-from tactile_compliance.data.synthetic.timeseries import (
+from tactile_compliance.synthetic.geometry import PadGrid, Pose, ShapeSpec, sag_map
+from tactile_compliance.synthetic.mechanics import GelModel, ObjectMechanics, force_curve
+from tactile_compliance.synthetic.rng import stream
+from tactile_compliance.synthetic.timeseries import (
     FPS,
     clip_to_press,
     interpolate_stair_widths,

@@ -15,7 +15,7 @@ from tactile_compliance.data.normalisation import normalise_modulus
 from tactile_compliance.data.splits import Split
 from tactile_compliance.evaluation.evaluate import evaluate_run
 from tactile_compliance.models import list_models
-from tactile_compliance.training.checkpoint import load_checkpoint
+from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.training.train import train
 from toy_store import make_toy_store, tiny_run_config
 

@@ -100,8 +100,8 @@ def simulate(
     The output is what `import burgess` (or, with --kind shore-videos, `import yuan`)
     reads. Interrupted runs resume: finished objects are kept.
     """
-    from tactile_compliance.data.synthetic import generate_burgess_tree, generate_shore_videos
-    from tactile_compliance.data.synthetic.generate import GenerationError
+    from tactile_compliance.synthetic import generate_burgess_tree, generate_shore_videos
+    from tactile_compliance.synthetic.generate import GenerationError
 
     image_size = _size_option(size)
     assert image_size is not None

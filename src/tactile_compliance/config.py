@@ -39,14 +39,12 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.data.preprocess import (
-    DEFAULT_EXCLUDED_MATERIALS,
-    UNKNOWN_GROUND_TRUTH_OBJECTS,
-)
+from tactile_compliance.data.preprocess import FilterRules
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS
+from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
+from tactile_compliance.models.inputs import InputStrategy
 
 __all__ = [
-    "INPUT_STRATEGIES",
     "AugmentationConfig",
     "ConfigError",
     "DataConfig",
@@ -66,14 +64,8 @@ __all__ = [
     "save_config",
 ]
 
-#: The paper's four input strategies (same spelling as ``models.inputs.InputStrategy``).
-INPUT_STRATEGIES: tuple[str, ...] = ("Image", "ImageF", "ImageFW", "ALL")
-_NEEDS = {
-    "Image": (),
-    "ImageF": ("force",),
-    "ImageFW": ("force", "width"),
-    "ALL": ("force", "width", "estimates"),
-}
+#: The store columns behind each scalar input of ``InputStrategy.needs``.
+_NEED_COLUMNS = {"force": FORCE_COLUMNS, "width": WIDTH_COLUMNS, "estimates": ESTIMATE_COLUMNS}
 _DEFAULT_NORM = NormalisationConstants()
 
 
@@ -143,16 +135,21 @@ class DataConfig(_Section):
         return v
 
 
-class FilterConfig(_Section):
-    """The sample filter (``data/preprocess.py``); each rule can be switched off."""
+_RULES = FilterRules()
 
-    drop_missing_estimates: bool = True
-    drop_no_force_increase: bool = True
-    drop_no_width_decrease: bool = True
-    drop_no_depth_increase: bool = True
-    drop_single_sample_objects: bool = True
-    exclude_objects: list[str] = Field(default_factory=lambda: list(UNKNOWN_GROUND_TRUTH_OBJECTS))
-    exclude_materials: list[str] = Field(default_factory=lambda: list(DEFAULT_EXCLUDED_MATERIALS))
+
+class FilterConfig(_Section):
+    """The sample filter (``data/preprocess.py``); each rule can be switched off.
+
+    The defaults are ``data.preprocess.FilterRules``'s, the rules' one home."""
+
+    drop_missing_estimates: bool = _RULES.drop_missing_estimates
+    drop_no_force_increase: bool = _RULES.drop_no_force_increase
+    drop_no_width_decrease: bool = _RULES.drop_no_width_decrease
+    drop_no_depth_increase: bool = _RULES.drop_no_depth_increase
+    drop_single_sample_objects: bool = _RULES.drop_single_sample_objects
+    exclude_objects: list[str] = Field(default_factory=lambda: list(_RULES.exclude_objects))
+    exclude_materials: list[str] = Field(default_factory=lambda: list(_RULES.exclude_materials))
 
 
 class SplitConfig(_Section):
@@ -284,7 +281,7 @@ class ExperimentConfig(_Section):
     filters: FilterConfig = Field(default_factory=FilterConfig)
     split: SplitConfig = Field(default_factory=SplitConfig)
     sampling: SamplingConfig = Field(default_factory=SamplingConfig)
-    inputs: Literal["Image", "ImageF", "ImageFW", "ALL"] = "ALL"
+    inputs: str = Field("ALL", description="input strategy: " + " | ".join(InputStrategy.names()))
     augmentation: AugmentationConfig = Field(default_factory=AugmentationConfig)
     model: ModelConfig = Field(default_factory=ModelConfig)
     training: TrainingConfig = Field(default_factory=TrainingConfig)
@@ -294,20 +291,14 @@ class ExperimentConfig(_Section):
     @field_validator("inputs", mode="before")
     @classmethod
     def _inputs(cls, v: Any) -> Any:
-        # Accept any capitalisation and _/- ("image_fw"), like models.inputs.InputStrategy.
-        if isinstance(v, str):
-            key = v.strip().replace("_", "").replace("-", "").lower()
-            for name in INPUT_STRATEGIES:
-                if key == name.lower():
-                    return name
-            raise ValueError(f"unknown input strategy {v!r}; valid: {', '.join(INPUT_STRATEGIES)}")
-        return v
+        # Any capitalisation and _/- ("image_fw"), stored as the paper's name ("ImageFW").
+        return InputStrategy.parse(v).value
 
     @model_validator(mode="after")
     def _combinations(self) -> ExperimentConfig:
         if self.data.source == "yuan" and self.inputs != "Image":
             raise ValueError(
-                f"inputs={self.inputs} needs {'/'.join(_NEEDS[self.inputs])}, but "
+                f"inputs={self.inputs} needs {'/'.join(self.strategy.needs)}, but "
                 "data.source=yuan (Shore-hardness videos) has no force, width or estimates; "
                 "use inputs: Image"
             )
@@ -334,19 +325,9 @@ class ExperimentConfig(_Section):
         )
 
     @property
-    def uses_force(self) -> bool:
-        """Whether the input strategy includes the normal force."""
-        return "force" in _NEEDS[self.inputs]
-
-    @property
-    def uses_width(self) -> bool:
-        """Whether the input strategy includes the gripper width."""
-        return "width" in _NEEDS[self.inputs]
-
-    @property
-    def uses_estimates(self) -> bool:
-        """Whether the input strategy includes the analytical estimates."""
-        return "estimates" in _NEEDS[self.inputs]
+    def strategy(self) -> InputStrategy:
+        """The input strategy (what it needs: ``.needs``, ``.uses_force``, ...)."""
+        return InputStrategy.parse(self.inputs)
 
 
 # =========================================================================== errors
@@ -642,13 +623,10 @@ def check_config_against_samples(
     """
     if source is not None and cfg.data.source not in ("auto", source):
         raise ConfigError(f"data.source={cfg.data.source} but the store's source is {source!r}")
-    columns = {
-        "force": ("force_n_0", "force_n_1", "force_n_2"),
-        "width": ("width_m_0", "width_m_1", "width_m_2"),
-        "estimates": ("elastic_estimate_pa", "hertz_estimate_pa"),
-    }
-    for need in _NEEDS[cfg.inputs]:
-        empty = [c for c in columns[need] if c not in samples.columns or samples[c].isna().all()]
+    for need in cfg.strategy.needs:
+        empty = [
+            c for c in _NEED_COLUMNS[need] if c not in samples.columns or samples[c].isna().all()
+        ]
         if empty:
             raise ConfigError(
                 f"inputs={cfg.inputs} needs {need}, but column(s) {empty} are missing or all "

@@ -89,9 +89,9 @@ def run_demo(
     generated objects, stores and finished grid cells are kept.
     """
     from tactile_compliance.data.burgess import import_burgess
-    from tactile_compliance.data.synthetic import generate_burgess_tree, generate_shore_videos
     from tactile_compliance.data.yuan import import_yuan
     from tactile_compliance.evaluation.report import build_report
+    from tactile_compliance.synthetic import generate_burgess_tree, generate_shore_videos
     from tactile_compliance.training.cluster import available_cpus
     from tactile_compliance.training.experiment import run_experiment
 

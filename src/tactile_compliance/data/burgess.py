@@ -41,7 +41,7 @@ FINGER_FILES: dict[str, tuple[str, str]] = {
     "markerless": ("RGB.pkl", "depth.pkl"),
     "markers": ("RGB_markers.pkl", "depth_markers.pkl"),
 }
-# Written by tactile_compliance.data.synthetic at the root of a generated tree.
+# Written by tactile_compliance.synthetic at the root of a generated tree.
 SYNTHETIC_MANIFEST = "generation.json"
 _GRASP_DIR = re.compile(r"^grasp=(\d+)$")
 _AUGMENTATION_DIR = re.compile(r"^augmentation=(\d+)$")

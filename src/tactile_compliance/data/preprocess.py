@@ -29,6 +29,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data.store import (
+    DEPTH_COLUMNS,
+    ESTIMATE_COLUMNS,
+    FORCE_COLUMNS,
+    WIDTH_COLUMNS,
+)
+
 __all__ = [
     "DEFAULT_EXCLUDED_MATERIALS",
     "UNKNOWN_GROUND_TRUTH_OBJECTS",
@@ -58,10 +65,30 @@ UNKNOWN_GROUND_TRUTH_OBJECTS: tuple[str, ...] = (
 #: The paper drops the single Paper object (8 materials remain).
 DEFAULT_EXCLUDED_MATERIALS: tuple[str, ...] = ("Paper",)
 
-ESTIMATE_COLUMNS = ("elastic_estimate_pa", "hertz_estimate_pa")
-FORCE_COLUMNS = ("force_n_0", "force_n_2")
-WIDTH_COLUMNS = ("width_m_0", "width_m_2")
-DEPTH_COLUMNS = ("depth_max_mm_1", "depth_max_mm_2")
+#: (first, last) columns of the per-frame signals whose trend the filter rules check. Not
+#: the store's FORCE_COLUMNS etc., which list all three frames.
+FORCE_TREND_COLUMNS = (FORCE_COLUMNS[0], FORCE_COLUMNS[-1])
+WIDTH_TREND_COLUMNS = (WIDTH_COLUMNS[0], WIDTH_COLUMNS[-1])
+#: Frame 0 has no contact, so its depth is 0: the depth trend starts at frame 1.
+DEPTH_TREND_COLUMNS = (DEPTH_COLUMNS[1], DEPTH_COLUMNS[-1])
+
+
+@dataclass(frozen=True)
+class FilterRules:
+    """The sample filter's rules and their defaults (the paper's); each can be switched off.
+
+    ``config.FilterConfig`` is the validated configuration section of the same fields and
+    takes its defaults from here; :func:`filter_samples` accepts either.
+    """
+
+    drop_missing_estimates: bool = True
+    drop_no_force_increase: bool = True
+    drop_no_width_decrease: bool = True
+    drop_no_depth_increase: bool = True
+    drop_single_sample_objects: bool = True
+    exclude_objects: tuple[str, ...] = UNKNOWN_GROUND_TRUTH_OBJECTS
+    exclude_materials: tuple[str, ...] = DEFAULT_EXCLUDED_MATERIALS
+
 
 RULE_DESCRIPTIONS: dict[str, str] = {
     "fingers": "finger not in data.fingers",
@@ -158,11 +185,10 @@ def _usable_columns(samples: pd.DataFrame, columns: Sequence[str]) -> list[str]:
 
 
 def _resolve_cfg(cfg: Any) -> tuple[Any, list[str] | None]:
-    """Accept a FilterConfig, an ExperimentConfig (uses .filters and .data.fingers) or None."""
+    """Accept FilterRules, a FilterConfig, an ExperimentConfig (its .filters and
+    .data.fingers) or None (the default rules)."""
     if cfg is None:
-        from tactile_compliance.config import FilterConfig  # lazy: config imports this module
-
-        return FilterConfig(), None
+        return FilterRules(), None
     if hasattr(cfg, "filters"):
         fingers = getattr(getattr(cfg, "data", None), "fingers", None)
         return cfg.filters, (list(fingers) if fingers is not None else None)
@@ -176,7 +202,7 @@ def filter_samples(
 
     Args:
         samples: the GraspStore's ``samples`` table (or any subset of it).
-        cfg: a ``FilterConfig``, an ``ExperimentConfig`` (its ``filters`` and
+        cfg: :class:`FilterRules`, a ``FilterConfig``, an ``ExperimentConfig`` (its ``filters`` and
             ``data.fingers`` are used) or None for the defaults.
         fingers: fingers to keep (overrides ``cfg.data.fingers``); None keeps all.
 
@@ -232,9 +258,9 @@ def filter_samples(
 
     # 5.-7. monotonicity rules (NaN fails the comparison: an unverifiable change is dropped)
     for name, enabled, columns, direction in (
-        ("no_force_increase", fcfg.drop_no_force_increase, FORCE_COLUMNS, "increase"),
-        ("no_width_decrease", fcfg.drop_no_width_decrease, WIDTH_COLUMNS, "decrease"),
-        ("no_depth_increase", fcfg.drop_no_depth_increase, DEPTH_COLUMNS, "increase"),
+        ("no_force_increase", fcfg.drop_no_force_increase, FORCE_TREND_COLUMNS, "increase"),
+        ("no_width_decrease", fcfg.drop_no_width_decrease, WIDTH_TREND_COLUMNS, "decrease"),
+        ("no_depth_increase", fcfg.drop_no_depth_increase, DEPTH_TREND_COLUMNS, "increase"),
     ):
         if len(_usable_columns(samples, columns)) == len(columns):
             first = df[columns[0]].to_numpy(dtype=float)

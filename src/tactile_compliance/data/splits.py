@@ -32,10 +32,10 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.preprocess import require_columns
+from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
     "N_ROLLING_WINDOWS",
-    "SENSOR_MODULUS_PA",
     "SPLIT_FORMAT",
     "Split",
     "SplitSummary",
@@ -46,9 +46,6 @@ __all__ = [
     "select_subset",
     "summarise_split",
 ]
-
-#: Young's modulus of the GelSight gel (Shore 00 60 -> 0.275 MPa): the soft/hard boundary.
-SENSOR_MODULUS_PA: float = 2.75e5
 
 #: Number of rolling windows (three decades each, from 1e3-1e6 to 1e9-1e12 Pa).
 N_ROLLING_WINDOWS: int = 7
@@ -74,7 +71,7 @@ def select_subset(
     samples: pd.DataFrame,
     subset: int | str | None,
     seed: int = 0,
-    sensor_modulus_pa: float = SENSOR_MODULUS_PA,
+    sensor_modulus_pa: float = DEFAULT_GEL_MODULUS_PA,
 ) -> pd.DataFrame:
     """Rows of ``samples`` belonging to an analysis subset (applied before splitting).
 

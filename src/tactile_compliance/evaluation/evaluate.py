@@ -15,10 +15,10 @@ from tactile_compliance.data.normalisation import denormalise_modulus
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split
 from tactile_compliance.data.store import GraspStore
-from tactile_compliance.evaluation.metrics import compute_metrics, grouped_metrics
-from tactile_compliance.training.checkpoint import load_checkpoint
-from tactile_compliance.training.forward import predict_dataset
-from tactile_compliance.training.train import BEST_FILE, PREDICTION_COLUMNS
+from tactile_compliance.runs.checkpoint import load_checkpoint
+from tactile_compliance.runs.forward import predict_dataset
+from tactile_compliance.runs.layout import BEST_FILE, PREDICTION_COLUMNS
+from tactile_compliance.runs.metrics import compute_metrics, grouped_metrics
 
 
 @dataclass

@@ -26,7 +26,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from tactile_compliance.data.normalisation import NormalisationConstants, normalise_modulus
-from tactile_compliance.data.splits import SENSOR_MODULUS_PA
+from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
     "ScatterPanel",
@@ -90,7 +90,7 @@ def plot_dataset_distribution(
         edgecolor="white",
         linewidth=0.4,
     )
-    sensor = normalise_modulus(SENSOR_MODULUS_PA, c)
+    sensor = normalise_modulus(DEFAULT_GEL_MODULUS_PA, c)
     ax.axvline(
         sensor, color="blue", linestyle="--", linewidth=1.2, label="GelSight gel (0.275 MPa)"
     )
@@ -202,7 +202,7 @@ def plot_prediction_panels(
         f = band_factor(panel.nmse, panel.span_decades)
         ax.fill_between(grid, grid / f, grid * f, color="0.6", alpha=0.35, linewidth=0)
         ax.plot(grid, grid, color="red", linewidth=1.2)
-        ax.axvline(SENSOR_MODULUS_PA, color="blue", linewidth=1.2)
+        ax.axvline(DEFAULT_GEL_MODULUS_PA, color="blue", linewidth=1.2)
         for material in materials:
             mask = panel.material.astype(str) == material
             if mask.any():

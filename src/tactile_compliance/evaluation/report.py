@@ -38,7 +38,6 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance import __version__
-from tactile_compliance.config import INPUT_STRATEGIES
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.store import GraspStore, StoreError
 from tactile_compliance.evaluation import plots
@@ -79,7 +78,8 @@ from tactile_compliance.evaluation.tables import (
     subset_summary_table,
     window_label,
 )
-from tactile_compliance.training.results import STATUS_COMPLETE, STATUS_FAILED
+from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.runs.results import STATUS_COMPLETE, STATUS_FAILED
 
 __all__ = ["FORMATS", "ReportSummary", "build_report"]
 
@@ -536,7 +536,7 @@ class _Builder:
         inputs = (
             ["Image"]
             if "Image" in set(rows["inputs"])
-            else ordered(rows["inputs"], INPUT_STRATEGIES)[:1]
+            else ordered(rows["inputs"], InputStrategy.names())[:1]
         )
         panels, body, tidy = self._best_panels(rows, inputs, None, shore=True)
         if tidy.empty:
@@ -645,7 +645,7 @@ class _Builder:
                 x_labels=shapes,
                 series_order=[model_label(m) for m in models],
                 panel="inputs",
-                panel_order=ordered(part["inputs"], INPUT_STRATEGIES),
+                panel_order=ordered(part["inputs"], InputStrategy.names()),
                 title=f"N-MSE per object shape ({_setting_text(part)})",
                 xlabel="Object shape",
             )
@@ -741,7 +741,7 @@ class _Builder:
             self.fig_dir / "learning_curves.png",
             panel_order=models,
             panel_labels=[model_label(m) for m in models],
-            series_order=ordered(curves["series"], INPUT_STRATEGIES),
+            series_order=ordered(curves["series"], InputStrategy.names()),
             title=f"Learning curves ({setting.replace('`', '')})",
         )
         self.figures["learning-curves"] = out
@@ -787,7 +787,7 @@ def _series_names(rows: pd.DataFrame) -> list[str]:
 
 def _setting_text(rows: pd.DataFrame) -> str:
     def values(column: str) -> str:
-        order = INPUT_STRATEGIES if column == "inputs" else ("seen", "unseen")
+        order = InputStrategy.names() if column == "inputs" else ("seen", "unseen")
         return "/".join(str(v) for v in ordered(rows[column], order))
 
     return f"{values('inputs')}, {values('condition')}, {values('sampling')} sampling"

@@ -32,10 +32,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tactile_compliance.config import INPUT_STRATEGIES
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS, rolling_windows
 from tactile_compliance.evaluation.render import Cell, Table
-from tactile_compliance.training.results import (
+from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.runs.results import (
     ROWS_DIR,
     STATUS_COMPLETE,
     STATUS_FAILED,
@@ -405,7 +405,7 @@ def paper_tables(
         stats = summarise(part, ["model", "inputs", "condition"], _PAPER_METRICS, ddof)
         conditions = ordered(part["condition"], ("seen", "unseen"))
         models = ordered(part["model"], MODEL_ORDER)
-        inputs = ordered(part["inputs"], INPUT_STRATEGIES)
+        inputs = ordered(part["inputs"], InputStrategy.names())
         body_keys = [(m, i) for m in models for i in inputs]
         columns = ["Model", "Input"]
         group_header: list[tuple[str, int]] = [("", 2)]
@@ -673,7 +673,7 @@ def subset_summary_table(
     keys = [
         (m, i)
         for m in ordered(rows["model"], MODEL_ORDER)
-        for i in ordered(rows["inputs"], INPUT_STRATEGIES)
+        for i in ordered(rows["inputs"], InputStrategy.names())
         if ((rows["model"] == m) & (rows["inputs"] == i)).any()
     ]
     lookup = {(r.model, r.inputs, r.subset_key): r for r in stats.itertuples(index=False)}
@@ -820,7 +820,7 @@ def group_metric_tables(
         return []
     data = pd.concat(frames, ignore_index=True)
     data = data[data["grouping"].isin(["material", "shape", "soft_hard"])]
-    inputs = ordered(data["inputs"], INPUT_STRATEGIES)
+    inputs = ordered(data["inputs"], InputStrategy.names())
     if {"Image", "ALL"} <= set(inputs):
         inputs = ["Image", "ALL"]
     keys = [

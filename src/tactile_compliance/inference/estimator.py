@@ -10,7 +10,7 @@ result.modulus_pa, result.log10_modulus_pa
 
 The estimator owns no preprocessing of its own: input checks and scalar normalisation are
 in :mod:`tactile_compliance.inference.inputs` (built on the normalisation functions used in
-training), and the forward pass is :func:`tactile_compliance.training.forward.forward_batch`,
+training), and the forward pass is :func:`tactile_compliance.runs.forward.forward_batch`,
 the function training, validation and ``evaluate`` call. A checkpoint therefore gives the
 same numbers here as on the evaluation path.
 """
@@ -28,8 +28,8 @@ import torch
 from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
 from tactile_compliance.inference.inputs import PreparedInputs, prepare_inputs, required_inputs
 from tactile_compliance.models import InputStrategy
-from tactile_compliance.training.checkpoint import load_checkpoint
-from tactile_compliance.training.forward import forward_batch
+from tactile_compliance.runs.checkpoint import load_checkpoint
+from tactile_compliance.runs.forward import forward_batch
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.streaming import StreamingEstimator

@@ -45,7 +45,7 @@ from tactile_compliance.data.store import (
     frames_to_uint8,
 )
 from tactile_compliance.data.yuan import read_video_frames, select_press_frames
-from tactile_compliance.evaluation.metrics import compute_metrics
+from tactile_compliance.runs.metrics import compute_metrics
 
 __all__ = [
     "VIDEO_SUFFIXES",

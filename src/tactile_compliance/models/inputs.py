@@ -38,6 +38,21 @@ class InputStrategy(str, Enum):
         """Whether the two analytical estimates E (elastic, Hertz) are an input."""
         return self is InputStrategy.ALL
 
+    @property
+    def needs(self) -> tuple[str, ...]:
+        """The scalar inputs this strategy uses: a subset of ("force", "width", "estimates")."""
+        flags = (
+            ("force", self.uses_force),
+            ("width", self.uses_width),
+            ("estimates", self.uses_estimates),
+        )
+        return tuple(name for name, used in flags if used)
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The paper's names in its table order: ("Image", "ImageF", "ImageFW", "ALL")."""
+        return tuple(member.value for member in cls)
+
     @classmethod
     def parse(cls, value: InputStrategy | str) -> InputStrategy:
         """Turn a user-supplied name into a strategy.

@@ -5,7 +5,7 @@
 ``complete``, and runs the others on a Dask cluster (local by default, or an existing
 scheduler), one task per cell. Each task calls the one training path,
 :func:`tactile_compliance.training.train.train`, and writes its row to the results store
-(``training/results.py``: one atomic JSON file per cell, so concurrent workers never clash).
+(``runs/results.py``: one atomic JSON file per cell, so concurrent workers never clash).
 
 Reliability:
 
@@ -29,7 +29,7 @@ Layout (defaults: ``runs/NAME`` or ``runs/NAME-quick``, and one results store ne
 shared by every experiment under ``runs/``, which is what ``report`` reads)::
 
     runs/
-      results/rows/KEY.json  one row per cell of every experiment (training/results.py)
+      results/rows/KEY.json  one row per cell of every experiment (runs/results.py)
       table1-quick/
         experiment.json      the resolved experiment (spec + the cells' keys and labels)
         RUN_NAME/            one run directory per cell (training/train.py)
@@ -60,6 +60,12 @@ from tactile_compliance.config import (
     config_from_dict,
     config_to_dict,
 )
+from tactile_compliance.runs.results import (
+    STATUS_COMPLETE,
+    STATUS_FAILED,
+    ResultsStore,
+    result_row,
+)
 from tactile_compliance.training.cluster import dask_client
 from tactile_compliance.training.grid import (
     Cell,
@@ -68,12 +74,6 @@ from tactile_compliance.training.grid import (
     experiment_preset_descriptions,
     list_experiment_presets,
     load_experiment,
-)
-from tactile_compliance.training.results import (
-    STATUS_COMPLETE,
-    STATUS_FAILED,
-    ResultsStore,
-    result_row,
 )
 
 __all__ = [
@@ -266,7 +266,8 @@ def run_cell(
     complete), ``all`` or ``none`` (also ``best.pt``; metrics and predictions stay).
     """
     del after
-    from tactile_compliance.training.train import run_name, train
+    from tactile_compliance.runs.layout import run_name
+    from tactile_compliance.training.train import train
 
     _limit_threads(threads)
     _quiet_training_warnings()

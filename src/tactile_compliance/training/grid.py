@@ -58,7 +58,7 @@ from tactile_compliance.config import (
     list_presets,
     load_config,
 )
-from tactile_compliance.training.train import config_hash, run_name
+from tactile_compliance.runs.layout import config_hash, run_name
 
 __all__ = [
     "Cell",

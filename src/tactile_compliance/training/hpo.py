@@ -62,7 +62,6 @@ import pandas as pd
 import yaml
 
 from tactile_compliance.config import (
-    INPUT_STRATEGIES,
     ConfigError,
     ExperimentConfig,
     config_from_dict,
@@ -70,10 +69,11 @@ from tactile_compliance.config import (
     load_config,
     save_config,
 )
+from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.runs.layout import config_hash
 from tactile_compliance.training.cluster import dask_client
 from tactile_compliance.training.experiment import precompute_features
 from tactile_compliance.training.grid import expand_experiment, load_experiment
-from tactile_compliance.training.train import config_hash
 
 __all__ = [
     "BalanceObjective",
@@ -129,10 +129,8 @@ def search_space(model: str, inputs: str = "ALL", seed: int = 0) -> Any:
     model = model.strip().lower()
     if model not in MODELS:
         raise ConfigError(f"unknown model {model!r}; tunable: {', '.join(MODELS)}")
-    inputs = _canonical_inputs(inputs)
-    uses_f = inputs in ("ImageF", "ImageFW", "ALL")
-    uses_w = inputs in ("ImageFW", "ALL")
-    uses_e = inputs == "ALL"
+    strategy = InputStrategy.parse(_canonical_inputs(inputs))
+    uses_f, uses_w, uses_e = strategy.uses_force, strategy.uses_width, strategy.uses_estimates
 
     def cat(name: str, items: Sequence[Any], default: Any = None) -> Any:
         return Categorical(name, list(items), default=default if default in items else items[0])
@@ -194,11 +192,11 @@ def search_space(model: str, inputs: str = "ALL", seed: int = 0) -> Any:
 
 
 def _canonical_inputs(inputs: str) -> str:
-    key = inputs.strip().replace("_", "").replace("-", "").lower()
-    for name in INPUT_STRATEGIES:
-        if key == name.lower():
-            return name
-    raise ConfigError(f"unknown input strategy {inputs!r}; valid: {', '.join(INPUT_STRATEGIES)}")
+    """The paper's name of an input strategy; an unknown name is a ConfigError."""
+    try:
+        return InputStrategy.parse(inputs).value
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc
 
 
 def _plain(value: Any) -> Any:

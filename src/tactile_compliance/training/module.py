@@ -15,7 +15,7 @@ import lightning as L
 import torch
 
 from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.training.forward import forward_batch
+from tactile_compliance.runs.forward import forward_batch
 
 
 @torch.no_grad()

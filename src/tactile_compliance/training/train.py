@@ -9,7 +9,7 @@ BEST epoch's weights, evaluate on the untouched test split, and write a run dire
       split.json           the sample ids of train / val / test (reloadable)
       filter_report.json   how many samples each filter rule removed
       checkpoints/last.ckpt  Lightning state for resuming an interrupted run
-      best.pt              self-describing best checkpoint (see training/checkpoint.py)
+      best.pt              self-describing best checkpoint (see runs/checkpoint.py)
       logs/metrics.csv     per-epoch train loss and validation N-MSE
       predictions.csv      val + test predictions, one row per sample
       groups.csv           test metrics per material, shape, soft/hard
@@ -21,7 +21,6 @@ A run whose ``metrics.json`` exists is complete and is returned as is; a run wit
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import time
@@ -52,51 +51,28 @@ from tactile_compliance.data.normalisation import NormalisationConstants, denorm
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split_from_config
 from tactile_compliance.data.store import GraspStore
-from tactile_compliance.evaluation.metrics import (
-    compute_metrics,
-    grouped_metrics,
-    reference_predictions,
-)
 from tactile_compliance.models import create_model, get_model_class
-from tactile_compliance.training.checkpoint import (
+from tactile_compliance.runs.checkpoint import (
     FROZEN_BACKBONE_SEED,
     create_seeded_model,
     frozen_backbone_record,
     load_checkpoint,
     save_checkpoint,
 )
-from tactile_compliance.training.forward import predict_dataset
-from tactile_compliance.training.module import ComplianceModule
-
-RESULT_FILE = "metrics.json"
-BEST_FILE = "best.pt"
-PREDICTION_COLUMNS = (
-    "sample_id",
-    "object",
-    "grasp",
-    "augmentation",
-    "finger",
-    "material",
-    "shape",
-    "modulus_pa",
+from tactile_compliance.runs.forward import predict_dataset
+from tactile_compliance.runs.layout import (
+    BEST_FILE,
+    PREDICTION_COLUMNS,
+    RESULT_FILE,
+    config_hash,
+    run_name,
 )
-
-
-def config_hash(cfg: ExperimentConfig) -> str:
-    """Short hash of everything that changes a run's result (not where it is written)."""
-    data = config_to_dict(cfg)
-    data.pop("output_dir", None)
-    for key in ("num_workers", "device"):
-        data.get("training", {}).pop(key, None)
-    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:10]
-
-
-def run_name(cfg: ExperimentConfig) -> str:
-    """Readable, unique run directory name: model-inputs-condition-sampling-seed-hash."""
-    return (
-        f"{cfg.model.name}-{cfg.inputs}-{cfg.split.condition}-{cfg.sampling.strategy}"
-        f"-seed{cfg.seed}-{config_hash(cfg)}"
-    )
+from tactile_compliance.runs.metrics import (
+    compute_metrics,
+    grouped_metrics,
+    reference_predictions,
+)
+from tactile_compliance.training.module import ComplianceModule
 
 
 @dataclass

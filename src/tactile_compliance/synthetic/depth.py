@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 import scipy.fft
 
-from tactile_compliance.data.synthetic.render import PIXEL_SIZE_MM_FULL, pixel_size_mm
+from tactile_compliance.synthetic.render import PIXEL_SIZE_MM_FULL, pixel_size_mm
 
 __all__ = ["DEPTH_TO_MM", "reconstruct_depth"]
 

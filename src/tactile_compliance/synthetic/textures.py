@@ -14,7 +14,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from tactile_compliance.data.synthetic.objects import TextureSpec
+from tactile_compliance.synthetic.objects import TextureSpec
 
 __all__ = ["texture_canvas", "texture_window"]
 

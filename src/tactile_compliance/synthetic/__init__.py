@@ -13,7 +13,7 @@ Physics and parameters: ``docs/synthetic.md`` and the module docstrings
 
 from typing import Any
 
-from tactile_compliance.data.synthetic.generate import (
+from tactile_compliance.synthetic.generate import (
     DEFAULT_N_OBJECTS,
     GenerationError,
     GenerationReport,
@@ -34,11 +34,11 @@ def __getattr__(name: str) -> Any:
     # Lazy: these modules are also run as scripts (``python -m ...montage``), which must
     # not find them already imported by the package.
     if name == "render_montage":
-        from tactile_compliance.data.synthetic.montage import render_montage
+        from tactile_compliance.synthetic.montage import render_montage
 
         return render_montage
     if name == "generate_shore_videos":
-        from tactile_compliance.data.synthetic.shore_videos import generate_shore_videos
+        from tactile_compliance.synthetic.shore_videos import generate_shore_videos
 
         return generate_shore_videos
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.normalisation import NormalisationConstants, normalise_modulus
-from tactile_compliance.data.splits import SENSOR_MODULUS_PA
+from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
     "METRIC_NAMES",
@@ -126,7 +126,7 @@ def compute_metrics(
     }
 
 
-def soft_hard_labels(modulus_pa: Any, threshold_pa: float = SENSOR_MODULUS_PA) -> np.ndarray:
+def soft_hard_labels(modulus_pa: Any, threshold_pa: float = DEFAULT_GEL_MODULUS_PA) -> np.ndarray:
     """``"soft"`` below ``threshold_pa`` (the gel's 0.275 MPa by default), else ``"hard"``."""
     e = np.asarray(modulus_pa, dtype=float)
     return np.where(e < threshold_pa, "soft", "hard")
@@ -138,7 +138,7 @@ def grouped_metrics(
     c: NormalisationConstants | None = None,
     true_col: str = "modulus_pa",
     pred_col: str = "pred_pa",
-    threshold_pa: float = SENSOR_MODULUS_PA,
+    threshold_pa: float = DEFAULT_GEL_MODULUS_PA,
 ) -> pd.DataFrame:
     """Metrics overall and per group, one row per (grouping, group).
 

@@ -20,14 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_compliance.data.synthetic.geometry import ShapeSpec, sample_shape
-from tactile_compliance.data.synthetic.materials import (
+from tactile_compliance.synthetic.geometry import ShapeSpec, sample_shape
+from tactile_compliance.synthetic.materials import (
     MATERIALS,
     TEXTURE_KINDS,
     material_model,
 )
-from tactile_compliance.data.synthetic.mechanics import shell_stiffness_n_per_m
-from tactile_compliance.data.synthetic.rng import stream
+from tactile_compliance.synthetic.mechanics import shell_stiffness_n_per_m
+from tactile_compliance.synthetic.rng import stream
 
 __all__ = [
     "UNKNOWN_GROUND_TRUTH",
@@ -80,7 +80,7 @@ class TextureSpec:
     """Surface texture of an object (imprinted on the gel where it touches).
 
     Attributes:
-        kind: one of :data:`~tactile_compliance.data.synthetic.materials.TEXTURE_KINDS`.
+        kind: one of :data:`~tactile_compliance.synthetic.materials.TEXTURE_KINDS`.
         amplitude_mm: standard deviation of the surface height [mm].
         scale_mm: characteristic length (correlation length or period) [mm].
         angle_rad: orientation of anisotropic textures (grain, machining) [rad].

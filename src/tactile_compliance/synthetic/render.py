@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from tactile_compliance.data.image_ops import difference_images
-from tactile_compliance.data.synthetic.geometry import PAD_SIZE_MM, PadGrid
+from tactile_compliance.synthetic.geometry import PAD_SIZE_MM, PadGrid
 
 __all__ = [
     "PIXEL_SIZE_MM_FULL",

@@ -27,16 +27,17 @@ from functools import lru_cache
 
 import numpy as np
 
-from tactile_compliance.data.synthetic.depth import reconstruct_depth
-from tactile_compliance.data.synthetic.geometry import PadGrid, sag_map, sample_pose
-from tactile_compliance.data.synthetic.mechanics import (
+from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
+from tactile_compliance.synthetic.depth import reconstruct_depth
+from tactile_compliance.synthetic.geometry import PadGrid, sag_map, sample_pose
+from tactile_compliance.synthetic.mechanics import (
     GelModel,
     ObjectMechanics,
     contact_curve,
     force_curve,
 )
-from tactile_compliance.data.synthetic.objects import ObjectSpec
-from tactile_compliance.data.synthetic.render import (
+from tactile_compliance.synthetic.objects import ObjectSpec
+from tactile_compliance.synthetic.render import (
     FULL_SIZE,
     SensorLook,
     difference_images,
@@ -45,9 +46,9 @@ from tactile_compliance.data.synthetic.render import (
     render_frames,
     sample_sensor_look,
 )
-from tactile_compliance.data.synthetic.rng import stream
-from tactile_compliance.data.synthetic.textures import texture_canvas, texture_window
-from tactile_compliance.data.synthetic.timeseries import (
+from tactile_compliance.synthetic.rng import stream
+from tactile_compliance.synthetic.textures import texture_canvas, texture_window
+from tactile_compliance.synthetic.timeseries import (
     FrameSelection,
     GraspTimeline,
     clip_to_press,
@@ -115,7 +116,7 @@ def _session(seed: int, session_id: int) -> Session:
     rng = stream(seed, "session", session_id)
     gels = tuple(
         GelModel(
-            modulus_pa=2.75e5 * 10 ** rng.normal(0.0, 0.05),
+            modulus_pa=DEFAULT_GEL_MODULUS_PA * 10 ** rng.normal(0.0, 0.05),
             thickness_mm=float(rng.uniform(3.5, 5.5)),
         )
         for _ in range(2)

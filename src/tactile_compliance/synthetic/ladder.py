@@ -22,7 +22,7 @@ oracle_material    the training median label of the sample's material
 
 The design targets (SYNTHETIC_DATA.md): one pixel within ~5 points of the constant;
 estimates alone below 0.5; image statistics + F/W above F/W alone; the material
-oracle far above everything. Run ``python -m tactile_compliance.data.synthetic.ladder
+oracle far above everything. Run ``python -m tactile_compliance.synthetic.ladder
 STORE`` on an imported store to print the table.
 """
 
@@ -176,7 +176,7 @@ def baseline_ladder(
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m tactile_compliance.data.synthetic.ladder STORE [--folds 5]``."""
+    """``python -m tactile_compliance.synthetic.ladder STORE [--folds 5]``."""
     from tactile_compliance.data.store import GraspStore
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_compliance.data.synthetic.grasp import GraspSample
-from tactile_compliance.data.synthetic.objects import ObjectSpec
+from tactile_compliance.synthetic.grasp import GraspSample
+from tactile_compliance.synthetic.objects import ObjectSpec
 
 __all__ = ["PARTIAL_PREFIX", "PICKLE_PROTOCOL", "ObjectWriter", "metadata_dict"]
 

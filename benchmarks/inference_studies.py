@@ -13,13 +13,10 @@
 Run everything (generation, import, 5 training runs, both studies; 40-55 minutes on 2
 shared CPU cores with the defaults, mostly training)::
 
-    python -m tactile_compliance.inference.studies --workdir study --json study.json
+    python benchmarks/inference_studies.py --workdir study --json study.json
 
-The full-trajectory rendering reuses the generator's internals
-(``data.synthetic.grasp``): the generator stores only the three selected frames per
-grasp, so there is no public API for a whole recording yet. Grasps are re-simulated from
-their (seed, object, grasp) key, which gives exactly the stored grasps' time series;
-the rendered frames are new draws of the same sensor noise.
+Whole recordings come from :func:`tactile_compliance.synthetic.recording.synthetic_trajectories`.
+This is a research script, not part of the installed package.
 """
 
 from __future__ import annotations
@@ -28,8 +25,7 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,81 +35,9 @@ import pandas as pd
 from tactile_compliance.inference.ensemble import ensemble_calibration
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.inference.streaming import StreamingEstimator
+from tactile_compliance.synthetic.recording import GraspTrajectory, synthetic_trajectories
 
-__all__ = [
-    "GraspTrajectory",
-    "run_studies",
-    "summarise_window_study",
-    "synthetic_trajectories",
-    "window_study",
-]
-
-
-@dataclass
-class GraspTrajectory:
-    """One whole grasp recording (markerless finger).
-
-    Attributes:
-        object: object name; grasp: grasp number.
-        modulus_pa: ground truth (Pa).
-        frames: (T, H, W, 3) uint8 RGB difference images (store encoding).
-        force_n: (T,) measured normal force (N); width_m: (T,) measured width (m).
-        estimates_pa: (elastic E, Hertz E*) of the grasp (Pa), NaN if not estimable.
-    """
-
-    object: str
-    grasp: int
-    modulus_pa: float
-    frames: np.ndarray
-    force_n: np.ndarray
-    width_m: np.ndarray
-    estimates_pa: np.ndarray
-
-
-def synthetic_trajectories(
-    grasps: Sequence[tuple[str, int]],
-    *,
-    n_objects: int,
-    seed: int,
-    image_size: tuple[int, int],
-    **options: Any,
-) -> Iterator[GraspTrajectory]:
-    """Re-simulate grasps of a ``generate_burgess_tree`` dataset and render every frame.
-
-    Args:
-        grasps: (object name, grasp number) pairs, e.g. a run's test split.
-        n_objects, seed, image_size, options: the generation's parameters (the default
-            object mix; ``options`` are ``SimulationOptions`` fields).
-    """
-    from tactile_compliance.data.store import frames_to_uint8
-    from tactile_compliance.data.synthetic.grasp import (
-        SimulationOptions,
-        make_context,
-        render_recording,
-    )
-    from tactile_compliance.data.synthetic.objects import default_objects
-
-    opt = SimulationOptions(image_size=tuple(image_size), **options)  # type: ignore[arg-type]
-    specs = {s.name: s for s in default_objects(n_objects, seed)}
-    contexts: dict[str, Any] = {}
-    for name, grasp in grasps:
-        if name not in specs:
-            raise ValueError(f"object {name!r} is not in the default mix of {n_objects} objects")
-        ctx = contexts.setdefault(name, make_context(specs[name], seed, opt))
-        result, diff_bgr = render_recording(ctx, int(grasp), finger=0)
-        if not result.samples:
-            continue  # the generator rejected this grasp too
-        timeline = result.timeline
-        sample = result.samples[0]
-        yield GraspTrajectory(
-            object=name,
-            grasp=int(grasp),
-            modulus_pa=float(ctx.spec.modulus_pa),
-            frames=frames_to_uint8(diff_bgr[..., ::-1]),  # BGR (OpenCV) -> RGB like the store
-            force_n=np.asarray(timeline.force_n, dtype=np.float64),
-            width_m=np.asarray(timeline.width_m, dtype=np.float64),
-            estimates_pa=np.array([sample.elastic_estimate, sample.hertz_estimate]),
-        )
+__all__ = ["run_studies", "summarise_window_study", "window_study"]
 
 
 def window_study(
@@ -213,7 +137,7 @@ def run_studies(
     from tactile_compliance.data.burgess import import_burgess
     from tactile_compliance.data.splits import Split
     from tactile_compliance.data.store import GraspStore
-    from tactile_compliance.data.synthetic import generate_burgess_tree
+    from tactile_compliance.synthetic import generate_burgess_tree
     from tactile_compliance.training.train import train
 
     started = time.perf_counter()

@@ -24,26 +24,26 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tactile_compliance.data.synthetic.generate import GenerationError, GenerationReport
-from tactile_compliance.data.synthetic.geometry import (
+from tactile_compliance.synthetic.generate import GenerationError, GenerationReport
+from tactile_compliance.synthetic.geometry import (
     PadGrid,
     ShapeSpec,
     sag_map,
     sample_pose,
     sample_shape,
 )
-from tactile_compliance.data.synthetic.mechanics import (
+from tactile_compliance.synthetic.mechanics import (
     GelModel,
     ObjectMechanics,
     contact_curve,
     force_curve,
 )
-from tactile_compliance.data.synthetic.render import (
+from tactile_compliance.synthetic.render import (
     gel_height_maps,
     render_frames,
     sample_sensor_look,
 )
-from tactile_compliance.data.synthetic.rng import stream
+from tactile_compliance.synthetic.rng import stream
 
 __all__ = ["SHAPE_FAMILIES", "generate_shore_videos", "shore_video_name"]
 

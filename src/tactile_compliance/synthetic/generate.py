@@ -22,17 +22,17 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from tactile_compliance.data.synthetic.grasp import (
+from tactile_compliance.synthetic.grasp import (
     SimulationOptions,
     make_context,
     simulate_grasp,
 )
-from tactile_compliance.data.synthetic.objects import (
+from tactile_compliance.synthetic.objects import (
     ObjectSpec,
     default_objects,
     objects_from_table,
 )
-from tactile_compliance.data.synthetic.writer import ALLOWED_DTYPES, PARTIAL_PREFIX, ObjectWriter
+from tactile_compliance.synthetic.writer import ALLOWED_DTYPES, PARTIAL_PREFIX, ObjectWriter
 
 __all__ = ["DEFAULT_N_OBJECTS", "GenerationError", "GenerationReport", "generate_burgess_tree"]
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactile_compliance.data.synthetic.mechanics import ContactCurve
+from tactile_compliance.synthetic.mechanics import ContactCurve
 
 __all__ = [
     "FPS",

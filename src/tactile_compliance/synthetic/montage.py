@@ -8,7 +8,7 @@ label and the force / width at the three frames.
 
 Regenerate the documentation image with::
 
-    python -m tactile_compliance.data.synthetic.montage docs/images/synthetic_montage.png
+    python -m tactile_compliance.synthetic.montage docs/images/synthetic_montage.png
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tactile_compliance.data.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
-from tactile_compliance.data.synthetic.objects import default_objects
+from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
+from tactile_compliance.synthetic.objects import default_objects
 
 __all__ = ["render_montage"]
 
@@ -112,7 +112,7 @@ def render_montage(out_png: str | Path, *, seed: int = 0, n_objects: int = 6) ->
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m tactile_compliance.data.synthetic.montage OUT.png [--seed S] [--objects N]``."""
+    """``python -m tactile_compliance.synthetic.montage OUT.png [--seed S] [--objects N]``."""
     parser = argparse.ArgumentParser(description="Render the synthetic-data montage.")
     parser.add_argument("out", nargs="?", default="docs/images/synthetic_montage.png")
     parser.add_argument("--seed", type=int, default=0)

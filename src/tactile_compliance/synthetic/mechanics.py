@@ -38,7 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactile_compliance.data.synthetic.geometry import NO_SURFACE, PadGrid
+from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
+from tactile_compliance.synthetic.geometry import NO_SURFACE, PadGrid
 
 __all__ = [
     "ContactCurve",
@@ -57,7 +58,8 @@ class GelModel:
     """The sensor's elastomer.
 
     Attributes:
-        modulus_pa: Young's modulus of the gel [Pa] (Shore 00 ~60: 2.75e5).
+        modulus_pa: Young's modulus of the gel [Pa] (Shore 00 ~60: 2.75e5,
+            ``physics.contact.DEFAULT_GEL_MODULUS_PA``).
         poisson: Poisson ratio of the gel [-].
         thickness_mm: gel thickness h [mm].
         max_strain: saturating compressive strain of the gel [-].
@@ -65,7 +67,7 @@ class GelModel:
             towards its confined modulus [-]; calibrated (see the module docstring).
     """
 
-    modulus_pa: float = 2.75e5
+    modulus_pa: float = DEFAULT_GEL_MODULUS_PA
     poisson: float = 0.485
     thickness_mm: float = 5.0
     max_strain: float = 0.55

@@ -1,0 +1,85 @@
+"""Whole grasp recordings from the synthetic generator, for streaming estimators.
+
+The generator stores only the three selected frames of each grasp. A streaming
+estimator needs the whole recording: :func:`synthetic_trajectories` re-simulates grasps
+of a ``generate_burgess_tree`` dataset from their (seed, object, grasp) key, which gives
+exactly the stored grasps' time series, and renders every frame (new draws of the same
+sensor noise).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["GraspTrajectory", "synthetic_trajectories"]
+
+
+@dataclass
+class GraspTrajectory:
+    """One whole grasp recording (markerless finger).
+
+    Attributes:
+        object: object name; grasp: grasp number.
+        modulus_pa: ground truth (Pa).
+        frames: (T, H, W, 3) uint8 RGB difference images (store encoding).
+        force_n: (T,) measured normal force (N); width_m: (T,) measured width (m).
+        estimates_pa: (elastic E, Hertz E*) of the grasp (Pa), NaN if not estimable.
+    """
+
+    object: str
+    grasp: int
+    modulus_pa: float
+    frames: np.ndarray
+    force_n: np.ndarray
+    width_m: np.ndarray
+    estimates_pa: np.ndarray
+
+
+def synthetic_trajectories(
+    grasps: Sequence[tuple[str, int]],
+    *,
+    n_objects: int,
+    seed: int,
+    image_size: tuple[int, int],
+    **options: Any,
+) -> Iterator[GraspTrajectory]:
+    """Re-simulate grasps of a ``generate_burgess_tree`` dataset and render every frame.
+
+    Args:
+        grasps: (object name, grasp number) pairs, e.g. a run's test split.
+        n_objects, seed, image_size, options: the generation's parameters (the default
+            object mix; ``options`` are ``SimulationOptions`` fields).
+    """
+    from tactile_compliance.data.store import frames_to_uint8
+    from tactile_compliance.synthetic.grasp import (
+        SimulationOptions,
+        make_context,
+        render_recording,
+    )
+    from tactile_compliance.synthetic.objects import default_objects
+
+    opt = SimulationOptions(image_size=tuple(image_size), **options)  # type: ignore[arg-type]
+    specs = {s.name: s for s in default_objects(n_objects, seed)}
+    contexts: dict[str, Any] = {}
+    for name, grasp in grasps:
+        if name not in specs:
+            raise ValueError(f"object {name!r} is not in the default mix of {n_objects} objects")
+        ctx = contexts.setdefault(name, make_context(specs[name], seed, opt))
+        result, diff_bgr = render_recording(ctx, int(grasp), finger=0)
+        if not result.samples:
+            continue  # the generator rejected this grasp too
+        timeline = result.timeline
+        sample = result.samples[0]
+        yield GraspTrajectory(
+            object=name,
+            grasp=int(grasp),
+            modulus_pa=float(ctx.spec.modulus_pa),
+            frames=frames_to_uint8(diff_bgr[..., ::-1]),  # BGR (OpenCV) -> RGB like the store
+            force_n=np.asarray(timeline.force_n, dtype=np.float64),
+            width_m=np.asarray(timeline.width_m, dtype=np.float64),
+            estimates_pa=np.array([sample.elastic_estimate, sample.hertz_estimate]),
+        )
