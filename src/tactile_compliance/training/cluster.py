@@ -25,7 +25,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["available_cpus", "dask_client"]
+__all__ = ["available_cpus", "dask_client", "limit_threads"]
 
 
 def available_cpus() -> int:
@@ -34,6 +34,17 @@ def available_cpus() -> int:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         return os.cpu_count() or 1
+
+
+def limit_threads(threads: int | None) -> None:
+    """Let torch use ``threads`` threads in this process (a worker); None or 0 leaves it.
+
+    Called at the start of every grid cell and tuning trial, because Dask workers are
+    separate processes and each starts with torch's default (all cores)."""
+    if threads:
+        import torch
+
+        torch.set_num_threads(int(threads))
 
 
 def _require_distributed() -> Any:

@@ -60,13 +60,14 @@ from tactile_compliance.config import (
     config_from_dict,
     config_to_dict,
 )
+from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.results import (
     STATUS_COMPLETE,
     STATUS_FAILED,
     ResultsStore,
     result_row,
 )
-from tactile_compliance.training.cluster import dask_client
+from tactile_compliance.training.cluster import dask_client, limit_threads
 from tactile_compliance.training.grid import (
     Cell,
     ExperimentSpec,
@@ -102,13 +103,6 @@ class ExperimentError(RuntimeError):
 
 
 # =========================================================================== worker side
-def _limit_threads(threads: int | None) -> None:
-    if threads:
-        import torch
-
-        torch.set_num_threads(int(threads))
-
-
 _QUIETED = False
 
 
@@ -163,7 +157,7 @@ def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None
     from tactile_compliance.data.store import GraspStore
     from tactile_compliance.training.train import build_model
 
-    _limit_threads(threads)
+    limit_threads(threads)
     _quiet_training_warnings()
     import torch
 
@@ -269,7 +263,7 @@ def run_cell(
     from tactile_compliance.runs.layout import run_name
     from tactile_compliance.training.train import train
 
-    _limit_threads(threads)
+    limit_threads(threads)
     _quiet_training_warnings()
     results = ResultsStore(results_path)
     if results.is_complete(key):  # a retried task whose first attempt got that far
@@ -501,55 +495,6 @@ def _write_plan(plan: ExperimentPlan) -> None:
     tmp.replace(path)
 
 
-class _Progress:
-    """A rich bar of cells done / failed on stderr (a no-op when disabled)."""
-
-    def __init__(self, enabled: bool, total: int, name: str) -> None:
-        self.enabled = enabled
-        self.done = 0
-        self.failed = 0
-        self._bar: Any = None
-        if enabled:
-            from rich.console import Console
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-                TimeRemainingColumn,
-            )
-
-            self._bar = Progress(
-                TextColumn("[bold]{task.description}"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("[green]{task.fields[done]} done[/] [red]{task.fields[failed]} failed"),
-                TimeElapsedColumn(),
-                TextColumn("eta"),
-                TimeRemainingColumn(),
-                console=Console(file=sys.stderr),
-            )
-            self._task = self._bar.add_task(name, total=total, done=0, failed=0)
-
-    def __enter__(self) -> _Progress:
-        if self._bar is not None:
-            self._bar.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._bar is not None:
-            self._bar.stop()
-
-    def advance(self, ok: bool) -> None:
-        if ok:
-            self.done += 1
-        else:
-            self.failed += 1
-        if self._bar is not None:
-            self._bar.update(self._task, advance=1, done=self.done, failed=self.failed)
-
-
 def run_experiment(
     preset_or_path: str | Path,
     *,
@@ -680,7 +625,13 @@ def _dispatch(
     store_rows = ResultsStore(plan.results_path)
     with (
         dask_client(workers, scheduler, client) as dask,
-        _Progress(progress, len(todo), plan.preset) as bar,
+        progress_bar(
+            plan.preset,
+            len(todo),
+            progress,
+            fields={"done": 0, "failed": 0},
+            fields_format="[green]{task.fields[done]} done[/] [red]{task.fields[failed]} failed",
+        ) as bar,
     ):
         # One feature-cache task per model, before that model's frozen-backbone cells.
         by_model: dict[str, dict[str, dict[str, Any]]] = {}
@@ -720,7 +671,7 @@ def _dispatch(
                 else:
                     summary.failed += 1
                     summary.failures.append((cell.label, str(row.get("error") or "")))
-                bar.advance(ok)
+                bar.update(advance=1, done=summary.completed, failed=summary.failed)
         except KeyboardInterrupt:
             # Finished rows are on disk already; drop the rest so the cluster closes fast.
             for future in [*futures, *caches.values()]:

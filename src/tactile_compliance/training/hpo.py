@@ -51,7 +51,6 @@ import hashlib
 import json
 import logging
 import shutil
-import sys
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -70,8 +69,9 @@ from tactile_compliance.config import (
     save_config,
 )
 from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.progress import ProgressBar, progress_bar
 from tactile_compliance.runs.layout import config_hash
-from tactile_compliance.training.cluster import dask_client
+from tactile_compliance.training.cluster import dask_client, limit_threads
 from tactile_compliance.training.experiment import precompute_features
 from tactile_compliance.training.grid import expand_experiment, load_experiment
 
@@ -286,13 +286,6 @@ def _train_trial(cfg: ExperimentConfig, trials_dir: str) -> dict[str, Any]:
     return result
 
 
-def _limit_threads(threads: int | None) -> None:
-    if threads:
-        import torch
-
-        torch.set_num_threads(int(threads))
-
-
 @dataclass
 class TrialObjective:
     """SMAC target function: validation N-MSE of ``base`` + a configuration, budget epochs.
@@ -320,7 +313,7 @@ class TrialObjective:
 
     def __call__(self, config: Any, seed: int = 0, budget: float | None = None) -> float:
         del seed  # deterministic: the base config's seed
-        _limit_threads(self.threads)
+        limit_threads(self.threads)
         result = _train_trial(self.config_for(config, budget), self.trials_dir)
         return float(result["best_val_nmse"])
 
@@ -349,7 +342,7 @@ class BalanceObjective:
 
     def __call__(self, config: Any, seed: int = 0) -> float:
         del seed
-        _limit_threads(self.threads)
+        limit_threads(self.threads)
         t_balance = int(_plain(config["t_balance_percent"])) / 100
         costs = [
             float(_train_trial(cfg, self.trials_dir)["best_val_nmse"])
@@ -484,46 +477,22 @@ def _no_interactive_prompt(directory: Path) -> Iterator[None]:
         builtins.input = original
 
 
-def _progress_callback(total: int, name: str, enabled: bool) -> tuple[Any, Any]:
-    """A SMAC callback driving a rich bar (trials done, best cost); and the bar itself."""
+def _progress_callback(bar: ProgressBar) -> Any:
+    """A SMAC callback that moves ``bar``: trials finished and the best cost so far."""
     from smac.callback import Callback
-
-    bar = None
-    task = None
-    if enabled:
-        from rich.console import Console
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-        )
-
-        bar = Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("best {task.fields[best]}"),
-            TimeElapsedColumn(),
-            console=Console(file=sys.stderr),
-        )
-        task = bar.add_task(name, total=total, best="-")
 
     class _Bar(Callback):
         best = float("inf")
 
         def on_start(self, smbo: Any) -> None:
-            if bar is not None:
-                bar.update(task, completed=smbo.runhistory.finished)
+            bar.update(completed=smbo.runhistory.finished)
 
         def on_tell_end(self, smbo: Any, info: Any, value: Any) -> bool | None:
             self.best = min(self.best, float(value.cost))
-            if bar is not None:
-                bar.update(task, completed=smbo.runhistory.finished, best=f"{self.best:.5f}")
+            bar.update(completed=smbo.runhistory.finished, best=f"{self.best:.5f}")
             return None
 
-    return _Bar(), bar
+    return _Bar()
 
 
 def _trials_table(facade: Any, decode: bool = True) -> pd.DataFrame:
@@ -602,30 +571,31 @@ def _run_smac(
 ) -> Any:
     logging.getLogger("smac").setLevel(logging.ERROR)
     _reconcile_previous_run(scenario)
-    callback, bar = _progress_callback(trials, label, progress)
     kwargs: dict[str, Any] = {"intensifier": intensifier} if intensifier is not None else {}
     # SMAC sizes its random initial design from n_trials; pin it to the first run's size
     # so that a search extended with more trials is still the same search.
     kwargs["initial_design"] = facade_cls.get_initial_design(
         scenario, n_configs=_initial_design_size(scenario), max_ratio=1.0
     )
-    with _no_interactive_prompt(Path(scenario.output_directory)):
-        facade = facade_cls(
-            scenario,
-            objective,
-            overwrite=overwrite,
-            dask_client=client,
-            logging_level=False,
-            callbacks=[callback],
-            **kwargs,
-        )
-    if bar is not None:
-        bar.start()
-    try:
+    with progress_bar(
+        label,
+        trials,
+        progress,
+        fields={"best": "-"},
+        fields_format="best {task.fields[best]}",
+        eta=False,
+    ) as bar:
+        with _no_interactive_prompt(Path(scenario.output_directory)):
+            facade = facade_cls(
+                scenario,
+                objective,
+                overwrite=overwrite,
+                dask_client=client,
+                logging_level=False,
+                callbacks=[_progress_callback(bar)],
+                **kwargs,
+            )
         incumbent = facade.optimize()
-    finally:
-        if bar is not None:
-            bar.stop()
     if isinstance(incumbent, list):  # several incumbents only with several objectives
         incumbent = incumbent[0]
     if incumbent is None:
