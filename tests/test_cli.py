@@ -108,3 +108,18 @@ def test_simulate_then_import(tmp_path):
     assert len(list((tmp_path / "v").glob("*.avi"))) == 2
     bad = runner.invoke(app, ["simulate", "--out", str(raw), "--kind", "lidar"])
     assert bad.exit_code != 0 and "gelsight or shore-videos" in bad.output
+
+
+def test_search_commands_pass_their_options_and_fail_in_one_line(tmp_path):
+    # tune and tune-balance hand their options to training.hpo by name: a renamed option
+    # or keyword would raise TypeError here instead of the store error.
+    missing = str(tmp_path / "no-store")
+    for args in (
+        ["tune", "top10nn", "--store", missing, "--trials", "2"],
+        ["tune-balance", "--store", missing, "--models", "top10nn,res_tf", "--epochs", "1"],
+    ):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 1, result.output
+        assert result.output.strip().splitlines() == [
+            f"error: store not found: {missing}; pass --store PATH"
+        ]

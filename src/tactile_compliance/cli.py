@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 
@@ -541,33 +541,7 @@ def tune(
 
     Resumes from SMAC's run history; writes best.yaml, usable by `train` and `experiment`.
     """
-    from tactile_compliance.config import ConfigError
-    from tactile_compliance.training.hpo import TuneError
-    from tactile_compliance.training.hpo import tune as run_tune
-
-    try:
-        result = run_tune(
-            model,
-            inputs,
-            config=config,
-            quick=quick,
-            store=store,
-            overrides=overrides or [],
-            trials=trials,
-            min_epochs=min_epochs,
-            max_epochs=max_epochs,
-            eta=eta,
-            condition=condition,
-            seed=seed,
-            workers=workers,
-            scheduler=scheduler,
-            threads=threads,
-            output_dir=output_dir,
-            overwrite=overwrite,
-        )
-    except (ConfigError, TuneError) as err:
-        _fail(str(err))
-    typer.echo(result.format())
+    _run_search("tune", dict(locals()))
 
 
 @app.command("tune-balance")
@@ -597,29 +571,24 @@ def tune_balance(
     Cost of a value: the mean validation N-MSE of the three models after a fixed number
     of epochs. Writes a config with the best t_balance.
     """
-    from tactile_compliance.config import ConfigError
-    from tactile_compliance.training.hpo import TuneError
-    from tactile_compliance.training.hpo import tune_balance as run_tune_balance
+    options = dict(locals())
+    options["models"] = [m.strip() for m in models.split(",") if m.strip()]
+    _run_search("tune_balance", options)
 
+
+def _run_search(name: str, options: dict[str, Any]) -> None:
+    """Run the SMAC search ``training.hpo.<name>`` and print its result.
+
+    ``options`` are the command's parameters, which are named like the search function's
+    keyword arguments. Expected errors become one line.
+    """
+    from tactile_compliance.config import ConfigError
+    from tactile_compliance.training import hpo
+
+    options["overrides"] = options["overrides"] or []
     try:
-        result = run_tune_balance(
-            config,
-            quick=quick,
-            store=store,
-            overrides=overrides or [],
-            epochs=epochs,
-            trials=trials,
-            models=[m.strip() for m in models.split(",") if m.strip()],
-            inputs=inputs,
-            condition=condition,
-            seed=seed,
-            workers=workers,
-            scheduler=scheduler,
-            threads=threads,
-            output_dir=output_dir,
-            overwrite=overwrite,
-        )
-    except (ConfigError, TuneError) as err:
+        result = getattr(hpo, name)(**options)
+    except (ConfigError, hpo.TuneError) as err:
         _fail(str(err))
     typer.echo(result.format())
 

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.image_ops import resize_frames
-from tactile_compliance.data.import_report import DataImportError, ImportReport
+from tactile_compliance.data.import_report import DataImportError, ImportReport, import_paths
 from tactile_compliance.data.object_table import read_object_table, valid_modulus
 from tactile_compliance.data.safe_pickle import UnsafePickleError, load_numpy_pickle
 from tactile_compliance.data.store import FRAMES_PER_SAMPLE, GraspStoreWriter
@@ -207,11 +207,7 @@ def import_burgess(
             by the generator (they hold ``generation.json``), else ``burgess``.
     """
     start = time.perf_counter()
-    src, out = Path(src_dir), Path(out_dir)
-    if not src.is_dir():
-        raise DataImportError(f"{src}: source directory not found")
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
+    src, out = import_paths(src_dir, out_dir, overwrite)
     if source_name is None:
         source_name = "synthetic" if (src / SYNTHETIC_MANIFEST).is_file() else "burgess"
     if fingers not in ("markerless", "markers", "both"):

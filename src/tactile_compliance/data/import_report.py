@@ -1,4 +1,4 @@
-"""What an importer skipped and why, shared by every importer.
+"""What an importer skipped and why, and the path checks, shared by every importer.
 
 Importers never stop at the first bad file (unless ``strict``): they record the problem
 against the file or object it concerns, skip that sample or object, and carry on. The
@@ -15,6 +15,21 @@ from typing import Any
 
 class DataImportError(Exception):
     """An import cannot proceed (strict mode, or nothing importable was found)."""
+
+
+def import_paths(src_dir: str | Path, out_dir: str | Path, overwrite: bool) -> tuple[Path, Path]:
+    """The source and store paths of an import, checked before any work starts.
+
+    Raises:
+        DataImportError: the source directory does not exist.
+        FileExistsError: the store path exists and ``overwrite`` is false.
+    """
+    src, out = Path(src_dir), Path(out_dir)
+    if not src.is_dir():
+        raise DataImportError(f"{src}: source directory not found")
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
+    return src, out
 
 
 @dataclass

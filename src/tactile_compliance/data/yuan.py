@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from tactile_compliance.data.image_ops import resize_frames
-from tactile_compliance.data.import_report import DataImportError, ImportReport
+from tactile_compliance.data.import_report import DataImportError, ImportReport, import_paths
 from tactile_compliance.data.store import GraspStoreWriter
 from tactile_compliance.physics.shore import shore00_to_modulus_pa
 from tactile_compliance.progress import progress_bar
@@ -67,11 +67,7 @@ def import_yuan(
     and other videos are resized to it.
     """
     start = time.perf_counter()
-    src, out = Path(src_dir), Path(out_dir)
-    if not src.is_dir():
-        raise DataImportError(f"{src}: source directory not found")
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
+    src, out = import_paths(src_dir, out_dir, overwrite)
     report = ImportReport(source="yuan", source_dir=str(src), store_dir=str(out), strict=strict)
     videos = sorted(p for p in src.rglob("*") if p.suffix.lower() == ".avi" and p.is_file())
     if not videos:

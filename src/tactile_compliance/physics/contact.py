@@ -289,6 +289,20 @@ def object_modulus_from_effective_pa(
 # ---------------------------------------------------------------------------------------
 
 
+def _hertz_arguments(
+    load: ArrayOrFloat, load_name: str, radius_m: ArrayOrFloat, effective_modulus_pa: ArrayOrFloat
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked arrays of a Hertz formula's arguments: the load (a force or an indentation,
+    >= 0), the radius of curvature R [m] and the effective modulus E* [Pa] (both > 0)."""
+    load_array = _as_array(load, load_name)
+    radius = _as_array(radius_m, "radius_m")
+    e_star = _as_array(effective_modulus_pa, "effective_modulus_pa")
+    _check_positive(load_array, load_name, allow_zero=True)
+    _check_positive(radius, "radius_m")
+    _check_positive(e_star, "effective_modulus_pa")
+    return load_array, radius, e_star
+
+
 def hertz_contact_radius_m(
     force_n: ArrayOrFloat, radius_m: ArrayOrFloat, effective_modulus_pa: ArrayOrFloat
 ) -> ArrayOrFloat:
@@ -299,12 +313,7 @@ def hertz_contact_radius_m(
         radius_m: effective radius of curvature R [m], > 0.
         effective_modulus_pa: effective modulus E* [Pa], > 0.
     """
-    force = _as_array(force_n, "force_n")
-    radius = _as_array(radius_m, "radius_m")
-    e_star = _as_array(effective_modulus_pa, "effective_modulus_pa")
-    _check_positive(force, "force_n", allow_zero=True)
-    _check_positive(radius, "radius_m")
-    _check_positive(e_star, "effective_modulus_pa")
+    force, radius, e_star = _hertz_arguments(force_n, "force_n", radius_m, effective_modulus_pa)
     result = np.cbrt(3.0 * force * radius / (4.0 * e_star))
     return _like_inputs(result, force_n, radius_m, effective_modulus_pa)
 
@@ -314,10 +323,7 @@ def hertz_indentation_m(
 ) -> ArrayOrFloat:
     """Hertz indentation (total approach of the two bodies) ``delta = a^2 / R`` [m].
 
-    Args:
-        force_n: normal force F [N], >= 0.
-        radius_m: effective radius of curvature R [m], > 0.
-        effective_modulus_pa: effective modulus E* [Pa], > 0.
+    The arguments are those of :func:`hertz_contact_radius_m` (F [N], R [m], E* [Pa]).
     """
     contact_radius_m = np.asarray(
         hertz_contact_radius_m(force_n, radius_m, effective_modulus_pa), dtype=np.float64
@@ -336,12 +342,9 @@ def hertz_force_n(
         radius_m: effective radius of curvature R [m], > 0.
         effective_modulus_pa: effective modulus E* [Pa], > 0.
     """
-    delta = _as_array(indentation_m, "indentation_m")
-    radius = _as_array(radius_m, "radius_m")
-    e_star = _as_array(effective_modulus_pa, "effective_modulus_pa")
-    _check_positive(delta, "indentation_m", allow_zero=True)
-    _check_positive(radius, "radius_m")
-    _check_positive(e_star, "effective_modulus_pa")
+    delta, radius, e_star = _hertz_arguments(
+        indentation_m, "indentation_m", radius_m, effective_modulus_pa
+    )
     result = 4.0 / 3.0 * e_star * np.sqrt(radius) * delta**1.5
     return _like_inputs(result, indentation_m, radius_m, effective_modulus_pa)
 

@@ -11,19 +11,13 @@ import hashlib
 import json
 
 from tactile_compliance.config import ExperimentConfig, config_to_dict
+from tactile_compliance.data.store import SAMPLE_COLUMNS
 
 RESULT_FILE = "metrics.json"
 BEST_FILE = "best.pt"
-PREDICTION_COLUMNS = (
-    "sample_id",
-    "object",
-    "grasp",
-    "augmentation",
-    "finger",
-    "material",
-    "shape",
-    "modulus_pa",
-)
+#: The columns of predictions.csv taken from the store: a sample's identity and label
+#: ("sample_id" ... "modulus_pa"); the prediction follows as "pred_pa".
+PREDICTION_COLUMNS = SAMPLE_COLUMNS[: SAMPLE_COLUMNS.index("modulus_pa") + 1]
 
 
 def config_hash(cfg: ExperimentConfig) -> str:

@@ -33,8 +33,8 @@ from tactile_compliance.synthetic.geometry import PadGrid, sag_map, sample_pose
 from tactile_compliance.synthetic.mechanics import (
     GelModel,
     ObjectMechanics,
-    contact_curve,
     force_curve,
+    gel_compression_fields,
 )
 from tactile_compliance.synthetic.objects import ObjectSpec
 from tactile_compliance.synthetic.render import (
@@ -213,13 +213,7 @@ def _render_sequence(
     jpeg: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Difference images (n, H, W, 3) and reconstructed depth (n, H, W) for approaches."""
-    n = approaches_mm.size
-    fields = np.zeros((n, *grid.shape), dtype=np.float32)
-    touching = approaches_mm > 0
-    if touching.any():
-        curve = contact_curve(sag, gel, obj, grid, approaches_mm[touching], fields=True)
-        assert curve.gel_depth_mm is not None
-        fields[touching] = curve.gel_depth_mm
+    fields = gel_compression_fields(sag, gel, obj, grid, approaches_mm)
     height, contact = gel_height_maps(fields, grid, size, gel.thickness_mm)
     if texture is not None:
         height += np.float32(texture_share) * texture[None] * contact

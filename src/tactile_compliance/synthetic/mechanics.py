@@ -309,3 +309,22 @@ def force_curve(
             return curve
         top *= 1.5
     return curve
+
+
+def gel_compression_fields(
+    sag_mm: np.ndarray,
+    gel: GelModel,
+    obj: ObjectMechanics,
+    grid: PadGrid,
+    approaches_mm: np.ndarray,
+) -> np.ndarray:
+    """Gel compression fields (n, rows, cols) [mm] at each approach; zero where the
+    approach is 0 (no contact), which :func:`contact_curve` cannot evaluate."""
+    approaches = np.asarray(approaches_mm, dtype=np.float64)
+    fields = np.zeros((approaches.size, *grid.shape), dtype=np.float32)
+    touching = approaches > 0
+    if touching.any():
+        curve = contact_curve(sag_mm, gel, obj, grid, approaches[touching], fields=True)
+        assert curve.gel_depth_mm is not None
+        fields[touching] = curve.gel_depth_mm
+    return fields

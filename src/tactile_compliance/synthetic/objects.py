@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tactile_compliance.data.preprocess import UNKNOWN_GROUND_TRUTH_OBJECTS
 from tactile_compliance.synthetic.geometry import ShapeSpec, sample_shape
 from tactile_compliance.synthetic.materials import (
     MATERIALS,
@@ -37,23 +38,7 @@ __all__ = [
     "objects_from_table",
 ]
 
-UNKNOWN_GROUND_TRUTH = frozenset(
-    {
-        "playdoh",
-        "silly_puty",
-        "blue_sponge_dry",
-        "blue_sponge_wet",
-        "apple",
-        "orange",
-        "strawberry",
-        "ripe_banana",
-        "unripe_banana",
-        "lacrosse_ball",
-        "baseball",
-        "racquet_ball",
-        "tennis_ball",
-    }
-)
+UNKNOWN_GROUND_TRUTH = frozenset(UNKNOWN_GROUND_TRUTH_OBJECTS)
 """Objects of the real table whose label is unreliable (``used_in_training`` false)."""
 
 _HOLLOW_NAME_HINTS = (

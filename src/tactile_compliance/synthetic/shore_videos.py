@@ -35,8 +35,8 @@ from tactile_compliance.synthetic.geometry import (
 from tactile_compliance.synthetic.mechanics import (
     GelModel,
     ObjectMechanics,
-    contact_curve,
     force_curve,
+    gel_compression_fields,
 )
 from tactile_compliance.synthetic.render import (
     gel_height_maps,
@@ -102,12 +102,7 @@ def _press_video(
     profile = np.concatenate([np.zeros(n_pre), up, hold, down, np.zeros(n_post)])
     force = peak * profile
     approach = np.where(force > 0, curve.approach_at(np.maximum(force, 1e-9)), 0.0)
-    fields = np.zeros((force.size, *grid.shape), dtype=np.float32)
-    touching = approach > 0
-    if touching.any():
-        evaluated = contact_curve(sag, gel, obj, grid, approach[touching], fields=True)
-        assert evaluated.gel_depth_mm is not None
-        fields[touching] = evaluated.gel_depth_mm
+    fields = gel_compression_fields(sag, gel, obj, grid, approach)
     height, _ = gel_height_maps(fields, grid, size, gel.thickness_mm)
     look = sample_sensor_look(stream(seed, *key, "look"), markers=True)
     # Pressed membrane brightens on this sensor (so the deepest press is the brightest).
