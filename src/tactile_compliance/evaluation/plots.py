@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.artist import Artist
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
@@ -48,6 +49,17 @@ _COLOURS = (
 
 def _colour(index: int) -> str:
     return _COLOURS[index % len(_COLOURS)]
+
+
+def _legend_below(fig: Figure, handles: Sequence[Artist], max_cols: int) -> None:
+    """One figure legend under the panels (constrained layout makes room for it)."""
+    fig.legend(
+        handles=handles,
+        loc="outside lower center",
+        ncol=min(len(handles), max_cols),
+        fontsize=8,
+        frameon=False,
+    )
 
 
 def _save(fig: Figure, out: Path) -> Path:
@@ -250,13 +262,7 @@ def plot_prediction_panels(
         Line2D([], [], color="blue", label="GelSight gel 0.275 MPa"),
         Patch(color="0.6", alpha=0.35, label=f"N-MSE band: E·f^±1, f = 10^({span}·√N-MSE)"),
     ]
-    fig.legend(
-        handles=handles,
-        loc="outside lower center",
-        ncol=min(len(handles), 4 if ncols < 3 else 7),
-        fontsize=8,
-        frameon=False,
-    )
+    _legend_below(fig, handles, max_cols=4 if ncols < 3 else 7)
     if suptitle:
         fig.suptitle(suptitle, fontsize=11)
         # Square log-log panels leave the layout engine too little slack above two-line
@@ -335,13 +341,7 @@ def plot_nmse_boxes(
             ax.set_title(str(name), fontsize=10)
     axes[0].set_ylabel("Test N-MSE (normalised log modulus, lower is better)")
     handles = [Patch(color=_colour(i), alpha=0.55, label=s) for i, s in enumerate(series_order)]
-    fig.legend(
-        handles=handles,
-        loc="outside lower center",
-        ncol=min(len(handles), 6),
-        fontsize=8,
-        frameon=False,
-    )
+    _legend_below(fig, handles, max_cols=6)
     if title:
         fig.suptitle(title, fontsize=11)
     return _save(fig, out)
@@ -392,13 +392,7 @@ def plot_learning_curves(
         Line2D([], [], color="black", linestyle="-", label="validation N-MSE (mean; min–max)"),
         Line2D([], [], color="black", linestyle="--", label="training loss (MSE + l2)"),
     ]
-    fig.legend(
-        handles=handles,
-        loc="outside lower center",
-        ncol=min(len(handles), 6),
-        fontsize=8,
-        frameon=False,
-    )
+    _legend_below(fig, handles, max_cols=6)
     if title:
         fig.suptitle(title, fontsize=11)
     return _save(fig, out)

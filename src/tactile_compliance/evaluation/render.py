@@ -105,9 +105,21 @@ class Heading:
 
 @dataclass
 class Paragraph:
-    """Running text; ``code`` spans are written with backticks and rendered per format."""
+    """Running text; ``code`` spans are written with backticks and rendered per format.
+
+    Text whose every line starts with ``- `` is a bulleted list: Markdown reads it as one
+    as it stands, the other formats take the entries from :attr:`items`.
+    """
 
     text: str
+
+    @property
+    def items(self) -> list[str] | None:
+        """The entries when the paragraph is a bulleted list, else None."""
+        lines = [line for line in self.text.split("\n") if line]
+        if not all(line.startswith("- ") for line in lines):
+            return None
+        return [line[2:] for line in lines]
 
 
 @dataclass
@@ -260,13 +272,11 @@ def render_html(blocks: Sequence[Block], title: str) -> str:
                     for b in sections
                 )
                 out.append(f"<nav><ul>{items}</ul></nav>")
+        elif isinstance(block, Paragraph) and block.items is not None:
+            items = "".join(f"<li>{_html_inline(item)}</li>" for item in block.items)
+            out.append(f"<ul>{items}</ul>")
         elif isinstance(block, Paragraph):
-            lines = block.text.split("\n")
-            if all(line.startswith("- ") for line in lines if line):
-                items = "".join(f"<li>{_html_inline(line[2:])}</li>" for line in lines if line)
-                out.append(f"<ul>{items}</ul>")
-            else:
-                out.append(f"<p>{_html_inline(block.text)}</p>")
+            out.append(f"<p>{_html_inline(block.text)}</p>")
         elif isinstance(block, Note):
             out.append(f'<p class="note"><b>Note:</b> {_html_inline(block.text)}</p>')
         elif isinstance(block, Table):
@@ -419,13 +429,11 @@ def render_latex(blocks: Sequence[Block], figure_root: Path, title: str) -> str:
                 continue  # the document title already says it
             command = {2: "section", 3: "subsection"}.get(block.level, "subsubsection")
             out.append(rf"\{command}*{{{_tex_inline(block.text)}}}")
+        elif isinstance(block, Paragraph) and block.items is not None:
+            items = "\n".join(rf"\item {_tex_inline(item)}" for item in block.items)
+            out.append(f"\\begin{{itemize}}\n{items}\n\\end{{itemize}}")
         elif isinstance(block, Paragraph):
-            lines = block.text.split("\n")
-            if all(line.startswith("- ") for line in lines if line):
-                items = "\n".join(rf"\item {_tex_inline(line[2:])}" for line in lines if line)
-                out.append(f"\\begin{{itemize}}\n{items}\n\\end{{itemize}}")
-            else:
-                out.append(_tex_inline(block.text))
+            out.append(_tex_inline(block.text))
         elif isinstance(block, Note):
             out.append(
                 rf"\noindent\fbox{{\parbox{{0.95\linewidth}}{{\textbf{{Note:}} "

@@ -1,4 +1,7 @@
-"""Tables of the report, computed from the results store (one row per run).
+"""Tables of the report, built from the loaded results frame (one row per run).
+
+This module only aggregates and lays out; reading the store and the run directories is
+:mod:`tactile_compliance.evaluation.loading`'s job.
 
 Which rows feed which table (only ``status == "complete"`` rows ever count):
 
@@ -21,26 +24,25 @@ check numbers without parsing Markdown.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS, rolling_windows
+from tactile_compliance.evaluation.loading import (
+    complete_rows,
+    main_grid,
+    read_groups,
+    resolve_run_dir,
+    store_header,
+)
 from tactile_compliance.evaluation.render import Cell, Table
 from tactile_compliance.models.inputs import InputStrategy
-from tactile_compliance.runs.results import (
-    ROWS_DIR,
-    STATUS_COMPLETE,
-    STATUS_FAILED,
-    ResultsStore,
-)
+from tactile_compliance.runs.results import STATUS_COMPLETE, STATUS_FAILED
 
 __all__ = [
     "CONDITION_LABELS",
@@ -48,21 +50,18 @@ __all__ = [
     "MODEL_ORDER",
     "PRESET_HINTS",
     "SETTING_PREFERENCE",
+    "SHAPE_ORDER",
     "STD_DDOF",
     "PaperTable",
     "describe_runs",
     "describe_weights",
     "failed_table",
     "group_metric_tables",
-    "load_results",
-    "main_grid",
     "model_label",
     "ordered",
     "paper_tables",
-    "resolve_run_dir",
     "shore_table",
     "softhard_subset_table",
-    "store_header",
     "subset_summary_table",
     "summarise",
     "window_label",
@@ -72,6 +71,8 @@ __all__ = [
 MODEL_ORDER: tuple[str, ...] = ("top10nn", "vgg_lstm", "res_tf")
 MODEL_LABELS: dict[str, str] = {"top10nn": "Top10NN", "vgg_lstm": "VGG-LSTM", "res_tf": "Res-Tf"}
 CONDITION_LABELS: dict[str, str] = {"seen": "Seen-Object", "unseen": "UnSeen-Object"}
+#: Paper order of the object shapes (Fig. 7 and its companion table).
+SHAPE_ORDER: tuple[str, ...] = ("Sphere", "Cylinder", "Rectangular", "Irregular")
 #: The setting Fig. 5 and the extras prefer: the paper's Fig. 5 is balanced + seen.
 SETTING_PREFERENCE: tuple[tuple[str, str], ...] = (
     ("balanced", "seen"),
@@ -106,124 +107,6 @@ _LATEX_METRIC = {
 }
 #: Metrics where larger is better (for bolding); the rest are errors.
 HIGHER_IS_BETTER = frozenset({"log10_accuracy", "r2", "within_half_decade"})
-SHORE_SOURCES = frozenset({"yuan"})
-SHORE_PRESETS = frozenset({"new-dataset"})
-
-
-# ============================================================================ loading
-@lru_cache(maxsize=64)
-def _header_cached(path: str) -> dict[str, Any] | None:
-    header = Path(path) / "header.json"
-    try:
-        return json.loads(header.read_text())
-    except (OSError, ValueError):
-        return None
-
-
-def store_header(path: Any) -> dict[str, Any] | None:
-    """A store's ``header.json`` as a dict, or None when the store is not reachable here."""
-    if path is None or (isinstance(path, float) and math.isnan(path)) or str(path) == "":
-        return None
-    return _header_cached(str(Path(str(path)).expanduser().resolve()))
-
-
-def _subset_kind(value: Any) -> tuple[str, Any]:
-    """Classify a row's ``subset``: ``none`` | ``window`` (0-6) | ``softhard`` | ``shape``."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "none", None
-    if isinstance(value, (bool, np.bool_)):
-        return "shape", str(value)
-    if isinstance(value, (int, np.integer)) or (
-        isinstance(value, (float, np.floating)) and float(value).is_integer()
-    ):
-        return "window", int(value)
-    text = str(value).strip()
-    if text.lower() in ("", "none", "null"):
-        return "none", None
-    if text.isdigit():
-        return "window", int(text)
-    if text.lower() in ("soft", "hard"):
-        return "softhard", text.lower()
-    return "shape", text
-
-
-def load_results(results_dir: str | Path) -> pd.DataFrame:
-    """All rows of the results store plus derived columns used for selection.
-
-    Added columns: ``subset_kind`` / ``subset_value`` (see :func:`_subset_kind`),
-    ``store_source`` (the store header's ``source``, None when the store is not reachable)
-    and ``is_shore`` (Shore-hardness data: Table III material).
-
-    Raises:
-        FileNotFoundError: ``results_dir`` does not exist (a typo should not yield an
-            empty report that looks like "no results").
-    """
-    path = Path(results_dir)
-    if not path.is_dir():
-        raise FileNotFoundError(f"{path}: no such results directory")
-    if not (path / ROWS_DIR).is_dir():
-        frame = pd.DataFrame(columns=["key", "preset", "status", "store"])
-    else:
-        frame = ResultsStore(path).table()
-    for column, default in (
-        ("preset", ""),
-        ("store", None),
-        ("status", None),
-        ("model", None),
-        ("inputs", None),
-        ("condition", None),
-        ("sampling", None),
-        ("seed", None),
-        ("subset", None),
-        ("run_dir", None),
-        ("error", None),
-    ):
-        if column not in frame.columns:
-            frame[column] = default
-    frame["preset"] = frame["preset"].fillna("").astype(str)
-    kinds = [_subset_kind(v) for v in frame["subset"].tolist()]
-    frame["subset_kind"] = [k for k, _ in kinds]
-    frame["subset_value"] = pd.Series([v for _, v in kinds], index=frame.index, dtype=object)
-    sources = []
-    for store in frame["store"].tolist():
-        header = store_header(store)
-        sources.append(None if header is None else str(header.get("source")))
-    frame["store_source"] = sources
-    frame["is_shore"] = [
-        (src in SHORE_SOURCES) or any(preset.startswith(p) for p in SHORE_PRESETS)
-        for src, preset in zip(frame["store_source"], frame["preset"], strict=True)
-    ]
-    return frame
-
-
-def complete_rows(frame: pd.DataFrame) -> pd.DataFrame:
-    """Rows whose run finished (the only ones any table or figure uses)."""
-    return frame[frame["status"] == STATUS_COMPLETE]
-
-
-def main_grid(frame: pd.DataFrame) -> pd.DataFrame:
-    """Complete rows of the main grid: whole dataset (no subset), not Shore data."""
-    done = complete_rows(frame)
-    return done[(done["subset_kind"] == "none") & ~done["is_shore"].astype(bool)]
-
-
-def resolve_run_dir(value: Any, results_dir: str | Path) -> Path | None:
-    """Find a run directory recorded as ``value`` (absolute, or relative to where the grid ran).
-
-    Grids usually write ``runs/NAME`` relative to their working directory, which need not
-    be the report's: try the path as is, then relative to the results directory and its
-    parent, then by name under the results directory.
-    """
-    if value is None or (isinstance(value, float) and math.isnan(value)) or str(value) == "":
-        return None
-    path = Path(str(value)).expanduser()
-    root = Path(results_dir)
-    candidates = [path] if path.is_absolute() else [path, root / path, root.parent / path]
-    candidates += [root / path.name, root / "runs" / path.name]
-    for candidate in candidates:
-        if candidate.is_dir():
-            return candidate
-    return None
 
 
 # ============================================================================ helpers
@@ -332,6 +215,11 @@ def describe_runs(frame: pd.DataFrame, extra: str = "") -> str:
         f"seeds {_seed_text(seeds)}; backbone weights: {describe_weights(frame)}{sizes}"
     )
     return text + (f"; {extra}" if extra else "")
+
+
+def _stat_fields(rec: Any) -> dict[str, Any]:
+    """The numbers of one :func:`summarise` record, as every tidy table row carries them."""
+    return {"mean": rec.mean, "std": rec.std, "n": rec.n, "seeds": rec.seeds}
 
 
 def _ddof_text(ddof: int) -> str:
@@ -461,10 +349,7 @@ def paper_tables(
                             "inputs": inp,
                             "condition": condition,
                             "metric": name,
-                            "mean": rec.mean,
-                            "std": rec.std,
-                            "n": rec.n,
-                            "seeds": rec.seeds,
+                            **_stat_fields(rec),
                             "bold": is_bold,
                         }
                     )
@@ -617,10 +502,7 @@ def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> P
                     "condition": condition,
                     "sampling": sampling,
                     "metric": name,
-                    "mean": rec.mean,
-                    "std": rec.std,
-                    "n": rec.n,
-                    "seeds": rec.seeds,
+                    **_stat_fields(rec),
                     "bold": bold[name][index],
                 }
             )
@@ -669,7 +551,7 @@ def subset_summary_table(
     if kind == "window":
         subsets = [k for k in range(N_ROLLING_WINDOWS) if k in set(rows["subset_key"])]
     else:
-        subsets = ordered(rows["subset_key"], ("Sphere", "Cylinder", "Rectangular", "Irregular"))
+        subsets = ordered(rows["subset_key"], SHAPE_ORDER)
     keys = [
         (m, i)
         for m in ordered(rows["model"], MODEL_ORDER)
@@ -702,10 +584,7 @@ def subset_summary_table(
                     "inputs": inp,
                     "subset": subset,
                     "metric": "nmse",
-                    "mean": rec.mean,
-                    "std": rec.std,
-                    "n": rec.n,
-                    "seeds": rec.seeds,
+                    **_stat_fields(rec),
                 }
             )
         body.append(line)
@@ -767,10 +646,7 @@ def softhard_subset_table(
                         "sampling": setting.sampling,
                         "subset": subset,
                         "metric": metric,
-                        "mean": rec.mean,
-                        "std": rec.std,
-                        "n": rec.n,
-                        "seeds": rec.seeds,
+                        **_stat_fields(rec),
                     }
                 )
         body.append(line)
@@ -787,16 +663,6 @@ def softhard_subset_table(
 
 
 # ============================================================================ per-group
-def _read_groups(run_dir: Path | None) -> pd.DataFrame | None:
-    if run_dir is None:
-        return None
-    path = run_dir / "groups.csv"
-    try:
-        return pd.read_csv(path, dtype={"group": str})
-    except (OSError, ValueError):
-        return None
-
-
 def group_metric_tables(
     rows: pd.DataFrame,
     results_dir: str | Path,
@@ -812,7 +678,7 @@ def group_metric_tables(
     """
     frames = []
     for row in rows.itertuples(index=False):
-        groups = _read_groups(resolve_run_dir(row.run_dir, results_dir))
+        groups = read_groups(resolve_run_dir(row.run_dir, results_dir))
         if groups is None or groups.empty:
             continue
         frames.append(groups.assign(model=row.model, inputs=row.inputs, seed=row.seed))
@@ -862,10 +728,7 @@ def group_metric_tables(
                         "model": model,
                         "inputs": inp,
                         "metric": metric,
-                        "mean": rec.mean,
-                        "std": rec.std,
-                        "n": rec.n,
-                        "seeds": rec.seeds,
+                        **_stat_fields(rec),
                     }
                 )
             body.append(line)

@@ -1,0 +1,234 @@
+"""Reading what the report is built from: the results store and the files its runs left.
+
+Everything here touches the file system; nothing builds a table or a figure. The results
+store becomes one frame (one row per run, plus the columns the report selects on), and
+each run directory yields its ``predictions.csv``, ``groups.csv``, ``logs/metrics.csv`` and
+the label range of its ``config.yaml``. A file that is missing or unreadable comes back as
+``None``: a run directory moved since the grid ran must cost one panel, not the report.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from tactile_compliance.data.store import GraspStore, StoreError
+from tactile_compliance.runs.results import ROWS_DIR, STATUS_COMPLETE, ResultsStore
+
+__all__ = [
+    "SHORE_PRESETS",
+    "SHORE_SOURCES",
+    "complete_rows",
+    "load_results",
+    "main_grid",
+    "read_epoch_metrics",
+    "read_groups",
+    "read_label_span",
+    "read_store_samples",
+    "read_test_predictions",
+    "resolve_run_dir",
+    "store_header",
+]
+
+#: Shore-hardness data (Table III): by the store header's source, or by the preset name
+#: when the store is not reachable from where the report is built.
+SHORE_SOURCES = frozenset({"yuan"})
+SHORE_PRESETS = frozenset({"new-dataset"})
+
+
+# ============================================================================ stores
+@lru_cache(maxsize=64)
+def _header_cached(path: str) -> dict[str, Any] | None:
+    header = Path(path) / "header.json"
+    try:
+        return json.loads(header.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def store_header(path: Any) -> dict[str, Any] | None:
+    """A store's ``header.json`` as a dict, or None when the store is not reachable here."""
+    if path is None or (isinstance(path, float) and math.isnan(path)) or str(path) == "":
+        return None
+    return _header_cached(str(Path(str(path)).expanduser().resolve()))
+
+
+def read_store_samples(store: str) -> tuple[pd.DataFrame, str] | None:
+    """A store's samples table and its header's source; None when it is not reachable."""
+    try:
+        opened = GraspStore.open(store)
+        return opened.samples, opened.header.source
+    except (StoreError, OSError, ValueError):
+        # Fig. 1 needs only the table: a store copied without its frames still plots.
+        path = Path(store)
+        header = store_header(store)
+        if header is None or not (path / "samples.parquet").is_file():
+            return None
+        return pd.read_parquet(path / "samples.parquet"), str(header.get("source"))
+
+
+# ============================================================================ results store
+def _subset_kind(value: Any) -> tuple[str, Any]:
+    """Classify a row's ``subset``: ``none`` | ``window`` (0-6) | ``softhard`` | ``shape``."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "none", None
+    if isinstance(value, (bool, np.bool_)):
+        return "shape", str(value)
+    if isinstance(value, (int, np.integer)) or (
+        isinstance(value, (float, np.floating)) and float(value).is_integer()
+    ):
+        return "window", int(value)
+    text = str(value).strip()
+    if text.lower() in ("", "none", "null"):
+        return "none", None
+    if text.isdigit():
+        return "window", int(text)
+    if text.lower() in ("soft", "hard"):
+        return "softhard", text.lower()
+    return "shape", text
+
+
+def load_results(results_dir: str | Path) -> pd.DataFrame:
+    """All rows of the results store plus derived columns used for selection.
+
+    Added columns: ``subset_kind`` / ``subset_value`` (see :func:`_subset_kind`),
+    ``store_source`` (the store header's ``source``, None when the store is not reachable)
+    and ``is_shore`` (Shore-hardness data: Table III material).
+
+    Raises:
+        FileNotFoundError: ``results_dir`` does not exist (a typo should not yield an
+            empty report that looks like "no results").
+    """
+    path = Path(results_dir)
+    if not path.is_dir():
+        raise FileNotFoundError(f"{path}: no such results directory")
+    if not (path / ROWS_DIR).is_dir():
+        frame = pd.DataFrame(columns=["key", "preset", "status", "store"])
+    else:
+        frame = ResultsStore(path).table()
+    for column, default in (
+        ("preset", ""),
+        ("store", None),
+        ("status", None),
+        ("model", None),
+        ("inputs", None),
+        ("condition", None),
+        ("sampling", None),
+        ("seed", None),
+        ("subset", None),
+        ("run_dir", None),
+        ("error", None),
+    ):
+        if column not in frame.columns:
+            frame[column] = default
+    frame["preset"] = frame["preset"].fillna("").astype(str)
+    kinds = [_subset_kind(v) for v in frame["subset"].tolist()]
+    frame["subset_kind"] = [k for k, _ in kinds]
+    frame["subset_value"] = pd.Series([v for _, v in kinds], index=frame.index, dtype=object)
+    sources = []
+    for store in frame["store"].tolist():
+        header = store_header(store)
+        sources.append(None if header is None else str(header.get("source")))
+    frame["store_source"] = sources
+    frame["is_shore"] = [
+        (src in SHORE_SOURCES) or any(preset.startswith(p) for p in SHORE_PRESETS)
+        for src, preset in zip(frame["store_source"], frame["preset"], strict=True)
+    ]
+    return frame
+
+
+def complete_rows(frame: pd.DataFrame) -> pd.DataFrame:
+    """Rows whose run finished (the only ones any table or figure uses)."""
+    return frame[frame["status"] == STATUS_COMPLETE]
+
+
+def main_grid(frame: pd.DataFrame) -> pd.DataFrame:
+    """Complete rows of the main grid: whole dataset (no subset), not Shore data."""
+    done = complete_rows(frame)
+    return done[(done["subset_kind"] == "none") & ~done["is_shore"].astype(bool)]
+
+
+# ============================================================================ run directories
+def resolve_run_dir(value: Any, results_dir: str | Path) -> Path | None:
+    """Find a run directory recorded as ``value`` (absolute, or relative to where the grid ran).
+
+    Grids usually write ``runs/NAME`` relative to their working directory, which need not
+    be the report's: try the path as is, then relative to the results directory and its
+    parent, then by name under the results directory.
+    """
+    if value is None or (isinstance(value, float) and math.isnan(value)) or str(value) == "":
+        return None
+    path = Path(str(value)).expanduser()
+    root = Path(results_dir)
+    candidates = [path] if path.is_absolute() else [path, root / path, root.parent / path]
+    candidates += [root / path.name, root / "runs" / path.name]
+    for candidate in candidates:
+        if candidate.is_dir():
+            return candidate
+    return None
+
+
+def read_test_predictions(run_dir: Path | None) -> pd.DataFrame | None:
+    """The test-split rows of a run's ``predictions.csv`` with positive moduli, or None.
+
+    A file without the modulus columns raises (``KeyError``): it is a broken run, which
+    the report names in a note rather than skipping silently.
+    """
+    if run_dir is None or not (run_dir / "predictions.csv").is_file():
+        return None
+    predictions = pd.read_csv(run_dir / "predictions.csv")
+    if "split" in predictions.columns:
+        predictions = predictions[predictions["split"] == "test"]
+    predictions = predictions[(predictions["modulus_pa"] > 0) & (predictions["pred_pa"] > 0)]
+    return predictions if not predictions.empty else None
+
+
+def read_label_span(run_dir: Path | None) -> float | None:
+    """Label span in decades (9 on [1e3, 1e12]) from a run's ``config.yaml``; None if unknown."""
+    if run_dir is not None and (run_dir / "config.yaml").is_file():
+        try:
+            import yaml
+
+            config = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
+            lo, hi = config.get("data", {}).get("label_range_pa")
+            return math.log10(float(hi)) - math.log10(float(lo))
+        except Exception:
+            # Any malformed config (no data section, no range, text in it) means "unknown":
+            # the caller falls back to the data's default range.
+            pass
+    return None
+
+
+def read_groups(run_dir: Path | None) -> pd.DataFrame | None:
+    """A run's ``groups.csv`` (per-material / shape / stiffness metrics), or None."""
+    if run_dir is None:
+        return None
+    path = run_dir / "groups.csv"
+    try:
+        return pd.read_csv(path, dtype={"group": str})
+    except (OSError, ValueError):
+        return None
+
+
+def read_epoch_metrics(run_dir: Path | None) -> pd.DataFrame | None:
+    """One row per epoch of a run's ``logs/metrics.csv`` (``train_loss``, ``val_nmse``), or None."""
+    path = None if run_dir is None else run_dir / "logs" / "metrics.csv"
+    if path is None or not path.is_file():
+        return None
+    try:
+        log_frame = pd.read_csv(path)
+    except (OSError, ValueError):
+        return None
+    if "epoch" not in log_frame.columns:
+        return None
+    cols = [c for c in ("train_loss", "val_nmse") if c in log_frame.columns]
+    if not cols:
+        return None
+    # Lightning writes train and validation values on separate lines of one epoch.
+    return log_frame.groupby("epoch")[cols].first().reset_index()
