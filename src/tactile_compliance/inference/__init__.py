@@ -1,22 +1,27 @@
 """Inference: load a checkpoint, predict Young's modulus (Pa), stream, ensemble, export.
 
-* :class:`ComplianceEstimator` - ``from_checkpoint(path)`` + ``predict(frames, force,
-  width, estimates)`` for one grasp or a batch (``estimator.py``).
+* :class:`BaseEstimator` - the ``predict(frames, force, width, estimates)`` API for one
+  grasp or a batch, with the input checks and :class:`Prediction`, shared by the PyTorch
+  and ONNX estimators (``base.py``).
+* :class:`ComplianceEstimator` - ``from_checkpoint(path)``: a PyTorch checkpoint
+  (``estimator.py``).
 * :class:`StreamingEstimator` - frames with force/width one at a time from a live sensor
   (``streaming.py``).
 * :class:`EnsembleEstimator` - several checkpoints, mean and interval in decades
   (``ensemble.py``).
-* :func:`export_onnx`, :class:`OnnxEstimator` - ONNX export with a parity check
-  (``export.py``).
+* :func:`export_onnx` - ONNX export with a parity check (``export.py``);
+  :class:`OnnxEstimator` runs the exported file with onnxruntime (``onnx.py``).
 * :func:`predict_path` - a store, raw grasp directory or video -> predictions
   (``sources.py``; the ``predict`` command).
 
 See ``docs/inference.md``.
 """
 
+from tactile_compliance.inference.base import BaseEstimator, Prediction
 from tactile_compliance.inference.ensemble import EnsembleEstimator, EnsemblePrediction
-from tactile_compliance.inference.estimator import ComplianceEstimator, Prediction
-from tactile_compliance.inference.export import OnnxEstimator, export_onnx, format_export_report
+from tactile_compliance.inference.estimator import ComplianceEstimator
+from tactile_compliance.inference.export import export_onnx, format_export_report
+from tactile_compliance.inference.onnx import OnnxEstimator
 from tactile_compliance.inference.sources import (
     GraspBatch,
     format_predictions,
@@ -31,6 +36,7 @@ from tactile_compliance.inference.streaming import (
 )
 
 __all__ = [
+    "BaseEstimator",
     "ComplianceEstimator",
     "EnsembleEstimator",
     "EnsemblePrediction",

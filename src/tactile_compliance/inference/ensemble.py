@@ -23,8 +23,9 @@ from typing import Any
 
 import numpy as np
 
+from tactile_compliance.inference.base import BaseEstimator, to_plain
 from tactile_compliance.inference.estimator import ComplianceEstimator
-from tactile_compliance.inference.inputs import required_inputs
+from tactile_compliance.models import InputStrategy
 
 __all__ = [
     "EnsembleEstimator",
@@ -111,17 +112,13 @@ class EnsemblePrediction:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict."""
-
-        def plain(value: Any) -> Any:
-            return value.tolist() if isinstance(value, np.ndarray) else float(value)
-
         return {
-            "modulus_pa": plain(self.modulus_pa),
-            "log10_modulus_pa": plain(self.log10_modulus_pa),
-            "std_decades": plain(self.std_decades),
-            "interval_pa": [plain(v) for v in self.interval_pa],
-            "interval_log10": [plain(v) for v in self.interval_log10],
-            "half_width_decades": plain(self.half_width_decades),
+            "modulus_pa": to_plain(self.modulus_pa),
+            "log10_modulus_pa": to_plain(self.log10_modulus_pa),
+            "std_decades": to_plain(self.std_decades),
+            "interval_pa": [to_plain(v) for v in self.interval_pa],
+            "interval_log10": [to_plain(v) for v in self.interval_log10],
+            "half_width_decades": to_plain(self.half_width_decades),
             "level": self.level,
             "members_log10": self.members_log10.tolist(),
         }
@@ -138,7 +135,7 @@ def _expand(paths: str | Path | Iterable[str | Path]) -> list[Path]:
 
 
 class EnsembleEstimator:
-    """Several :class:`ComplianceEstimator` members combined in log10 space.
+    """Several estimators (:class:`ComplianceEstimator` or ONNX) combined in log10 space.
 
     Members may differ in model, strategy and label range (each reads its own output back
     to Pa); the ensemble needs the union of their inputs.
@@ -151,7 +148,7 @@ class EnsembleEstimator:
     """
 
     def __init__(
-        self, members: Sequence[ComplianceEstimator], *, level: float = 0.8, scale: float = 1.0
+        self, members: Sequence[BaseEstimator], *, level: float = 0.8, scale: float = 1.0
     ) -> None:
         if not members:
             raise ValueError("an ensemble needs at least one member")
@@ -184,8 +181,9 @@ class EnsembleEstimator:
     @property
     def required_inputs(self) -> tuple[str, ...]:
         """Union of the members' scalar inputs, in the canonical order."""
-        needed = {name for m in self.members for name in required_inputs(m.inputs)}
-        return tuple(n for n in ("force", "width", "estimates") if n in needed)
+        needed = {name for m in self.members for name in m.required_inputs}
+        # ALL uses every scalar input, so its ``needs`` is the canonical order.
+        return tuple(n for n in InputStrategy.ALL.needs if n in needed)
 
     def __len__(self) -> int:
         return len(self.members)

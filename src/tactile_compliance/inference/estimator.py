@@ -8,25 +8,25 @@ result = estimator.predict(frames, force=[8.1, 31.0, 58.7], width=[0.050, 0.047,
 result.modulus_pa, result.log10_modulus_pa
 ```
 
-The estimator owns no preprocessing of its own: input checks and scalar normalisation are
-in :mod:`tactile_compliance.inference.inputs` (built on the normalisation functions used in
-training), and the forward pass is :func:`tactile_compliance.runs.forward.forward_batch`,
-the function training, validation and ``evaluate`` call. A checkpoint therefore gives the
-same numbers here as on the evaluation path.
+This module only loads a PyTorch checkpoint and runs it. Input checks, scalar
+normalisation, batching and the result are :class:`~tactile_compliance.inference.base.
+BaseEstimator`'s (shared with the ONNX estimator), and the forward pass is
+:func:`tactile_compliance.runs.forward.forward_batch`, the function training, validation
+and ``evaluate`` call. A checkpoint therefore gives the same numbers here as on the
+evaluation path.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
-from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
-from tactile_compliance.inference.inputs import PreparedInputs, prepare_inputs, required_inputs
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.inference.base import BaseEstimator, Prediction
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.runs.forward import forward_batch
@@ -34,6 +34,8 @@ from tactile_compliance.runs.forward import forward_batch
 if TYPE_CHECKING:
     from tactile_compliance.inference.streaming import StreamingEstimator
 
+# ``Prediction`` lives in ``base`` (both estimators return it); it stays importable here,
+# where it was defined before the ONNX estimator shared this API.
 __all__ = ["ComplianceEstimator", "Prediction", "resolve_checkpoint"]
 
 #: File name of a run's best checkpoint (``training.train.BEST_FILE``); a run directory
@@ -52,51 +54,6 @@ def resolve_checkpoint(path: str | Path) -> Path:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
     return path
-
-
-@dataclass(frozen=True)
-class Prediction:
-    """Young's modulus predicted for one grasp (floats) or a batch (arrays of shape (B,)).
-
-    Attributes:
-        modulus_pa: Young's modulus E in Pa.
-        log10_modulus_pa: log10 of E in Pa (the scale errors are measured on, in decades).
-        normalised: the model's raw output y in (0, 1), ``(log10 E - lo) / (hi - lo)`` with
-            the checkpoint's label range.
-    """
-
-    modulus_pa: Any
-    log10_modulus_pa: Any
-    normalised: Any
-
-    @property
-    def batched(self) -> bool:
-        """Whether this is a batch (arrays) rather than one grasp (floats)."""
-        return isinstance(self.modulus_pa, np.ndarray)
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-serialisable values (lists for a batch)."""
-
-        def plain(value: Any) -> Any:
-            return value.tolist() if isinstance(value, np.ndarray) else float(value)
-
-        return {
-            "modulus_pa": plain(self.modulus_pa),
-            "log10_modulus_pa": plain(self.log10_modulus_pa),
-            "normalised": plain(self.normalised),
-        }
-
-    @classmethod
-    def from_normalised(
-        cls, y: np.ndarray, constants: NormalisationConstants, single: bool
-    ) -> Prediction:
-        """Read model outputs ``y`` (B,) back to Pa with the checkpoint's constants."""
-        y = np.asarray(y, dtype=np.float64)
-        modulus = np.asarray(denormalise_modulus(y, constants), dtype=np.float64)
-        log10 = np.log10(modulus)
-        if single:
-            return cls(float(modulus[0]), float(log10[0]), float(y[0]))
-        return cls(modulus, log10, y)
 
 
 def _training_store_size(meta: dict[str, Any]) -> tuple[int, int] | None:
@@ -121,13 +78,15 @@ def _training_store_size(meta: dict[str, Any]) -> tuple[int, int] | None:
         return None
 
 
-class ComplianceEstimator:
-    """A trained model plus its own preprocessing: predicts Young's modulus in Pa.
+class ComplianceEstimator(BaseEstimator):
+    """A trained PyTorch model plus its own preprocessing: predicts Young's modulus in Pa.
 
-    Build it with :meth:`from_checkpoint`. ``predict`` accepts one grasp or a batch,
-    validates everything (``ValueError`` with a clear message on bad input) and applies
-    the checkpoint's frame size and normalisation constants.
+    Build it with :meth:`from_checkpoint`. ``predict`` and the input checks are
+    :class:`~tactile_compliance.inference.base.BaseEstimator`'s; this class adds loading,
+    the device and the frame size of the checkpoint.
     """
+
+    kind = "checkpoint"
 
     def __init__(
         self,
@@ -145,7 +104,7 @@ class ComplianceEstimator:
         self.image_size = tuple(image_size) if image_size is not None else None
         self.meta = dict(meta or {})
         self.source = source or "<in memory>"
-        self.inputs: InputStrategy = InputStrategy.parse(model.inputs)
+        self.inputs = InputStrategy.parse(model.inputs)
         #: (H, W) px of the store the model was trained on, when known: readers of raw
         #: sources (grasp directories, videos) resize to it with the importer's function
         #: first, so frames take the same path as at import time.
@@ -184,13 +143,8 @@ class ComplianceEstimator:
     # ------------------------------------------------------------------ description
     @property
     def model_name(self) -> str:
-        """Registry name of the model (``top10nn``, ``vgg_lstm``, ``res_tf``)."""
+        """The model's registry name (its class name for a model without one)."""
         return str(getattr(self.model, "model_name", type(self.model).__name__))
-
-    @property
-    def required_inputs(self) -> tuple[str, ...]:
-        """Scalar inputs ``predict`` needs besides the frames, e.g. ``("force", "width")``."""
-        return required_inputs(self.inputs)
 
     @property
     def min_frame_size(self) -> int:
@@ -223,70 +177,12 @@ class ComplianceEstimator:
         )
 
     # ------------------------------------------------------------------ prediction
-    def prepare(
-        self,
-        frames: Any,
-        force: Any = None,
-        width: Any = None,
-        estimates: Any = None,
-        *,
-        channel_order: str = "RGB",
-    ) -> PreparedInputs:
-        """Validate and normalise inputs (what ``predict`` runs first); see ``inputs``."""
-        return prepare_inputs(
-            frames,
-            {"force": force, "width": width, "estimates": estimates},
-            inputs=self.inputs,
-            constants=self.constants,
-            min_size=self.min_frame_size,
-            channel_order=channel_order,
-            describe=f"checkpoint {self.source} ({self.model_name})",
-        )
-
     @torch.no_grad()
-    def predict_prepared(self, prepared: PreparedInputs, batch_size: int = 64) -> np.ndarray:
-        """Normalised outputs y (B,) of a prepared batch, through ``forward_batch``."""
-        if batch_size < 1:
-            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-        outputs = []
-        for chunk in prepared.chunks(batch_size):
-            chunk = {key: value.to(self.device) for key, value in chunk.items()}
-            y = forward_batch(self.model, chunk, self.constants, self.image_size)
-            outputs.append(y.float().cpu().numpy())
-        return np.concatenate(outputs)
-
-    def predict(
-        self,
-        frames: Any,
-        force: Any = None,
-        width: Any = None,
-        estimates: Any = None,
-        *,
-        channel_order: str = "RGB",
-        batch_size: int = 64,
-    ) -> Prediction:
-        """Young's modulus of one grasp or a batch.
-
-        Args:
-            frames: three difference images ``(3, H, W, 3)`` or a batch
-                ``(B, 3, H, W, 3)``; uint8 or float in [0, 1]; RGB unless ``channel_order``.
-            force: normal force in N at the three frames, ``(3,)`` / ``(B, 3)``
-                (required by ImageF, ImageFW, ALL).
-            width: gripper width in m at the three frames (required by ImageFW, ALL).
-            estimates: (elastic E, Hertz E*) in Pa, ``(2,)`` / ``(B, 2)`` (required by ALL).
-            channel_order: ``"RGB"`` (store order) or ``"BGR"`` (OpenCV).
-            batch_size: grasps per forward pass (memory bound, not a result change).
-
-        Returns:
-            :class:`Prediction` with floats for one grasp, (B,) arrays for a batch.
-
-        Raises:
-            ValueError: bad shapes, dtypes, ranges, NaN, or an input the checkpoint's
-                strategy needs is missing.
-        """
-        prepared = self.prepare(frames, force, width, estimates, channel_order=channel_order)
-        y = self.predict_prepared(prepared, batch_size=batch_size)
-        return Prediction.from_normalised(y, self.constants, prepared.single)
+    def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
+        """Normalised outputs of one prepared chunk, through ``forward_batch``."""
+        chunk = {key: value.to(self.device) for key, value in chunk.items()}
+        y = forward_batch(self.model, chunk, self.constants, self.image_size)
+        return y.float().cpu().numpy()
 
     # ------------------------------------------------------------------ streaming
     def stream(self, **options: Any) -> StreamingEstimator:

@@ -1,4 +1,4 @@
-"""ONNX export of a checkpoint's full forward pass, checked against PyTorch with onnxruntime.
+"""Write a checkpoint's full forward pass to ONNX and check it against PyTorch.
 
 The graph takes *already normalised* inputs, exactly what the PyTorch model takes, with a
 dynamic batch axis:
@@ -14,7 +14,8 @@ dynamic batch axis:
 Models have no tower for a disabled input, so the graph has no input for it either.
 H and W are fixed to the checkpoint's frame size. The checkpoint's description
 (normalisation constants, frame size, strategy, model) is stored in the ONNX metadata
-(key ``tactile_compliance``), so :class:`OnnxEstimator` applies the same preprocessing as
+(key ``tactile_compliance``), so :class:`~tactile_compliance.inference.onnx.OnnxEstimator`
+(which runs the file) applies the same preprocessing as
 :class:`~tactile_compliance.inference.estimator.ComplianceEstimator` and has the same
 ``predict`` API.
 
@@ -41,12 +42,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from tactile_compliance.data.dataset import prepare_frames
-from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.inference.estimator import ComplianceEstimator, Prediction
-from tactile_compliance.inference.inputs import PreparedInputs, prepare_inputs, required_inputs
-from tactile_compliance.models import InputStrategy
+from tactile_compliance.inference.estimator import ComplianceEstimator
+from tactile_compliance.inference.onnx import (
+    ONNX_METADATA_KEY,
+    OUTPUT_NAME,
+    OnnxEstimator,
+    _ort_session,
+    onnx_input_names,
+)
 
+# The runtime names are defined in ``onnx`` (the file's reader); they stay importable from
+# here, where export and runtime lived together before.
 __all__ = [
     "ONNX_METADATA_KEY",
     "OUTPUT_NAME",
@@ -56,14 +62,7 @@ __all__ = [
     "onnx_input_names",
 ]
 
-ONNX_METADATA_KEY = "tactile_compliance"
-OUTPUT_NAME = "modulus_normalised"
 DEFAULT_OPSET = 17
-
-
-def onnx_input_names(inputs: InputStrategy | str) -> list[str]:
-    """Graph input names for a strategy: ``frames`` plus the enabled scalar inputs."""
-    return ["frames", *required_inputs(inputs)]
 
 
 class _ExportWrapper(nn.Module):
@@ -144,16 +143,6 @@ def _example_inputs(
     tensors = [torch.randn(batch, 3, 3, *image_size, generator=gen)]
     tensors += [torch.rand(batch, sizes[n], generator=gen) for n in names[1:]]
     return tuple(tensors)
-
-
-def _ort_session(path: str | Path, threads: int | None = None) -> Any:
-    import onnxruntime as ort
-
-    options = ort.SessionOptions()
-    if threads is not None:
-        options.intra_op_num_threads = int(threads)
-        options.inter_op_num_threads = 1
-    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
 
 
 def export_onnx(
@@ -304,81 +293,6 @@ def _write_metadata(
         f"inputs {names} -> {OUTPUT_NAME} = (log10 E - lo) / (hi - lo)"
     )
     onnx.save(proto, str(path))
-
-
-class OnnxEstimator:
-    """The ``predict`` API of :class:`ComplianceEstimator` on an exported ONNX file.
-
-    Preprocessing is the project's own (``prepare_inputs`` + ``prepare_frames``) with the
-    constants stored in the file, so both estimators agree to the export's parity.
-
-    Args:
-        path: an ``.onnx`` file written by :func:`export_onnx`.
-        threads: onnxruntime intra-op threads (None = onnxruntime's default).
-    """
-
-    def __init__(self, path: str | Path, *, threads: int | None = None) -> None:
-        self.source = str(path)
-        self.session = _ort_session(path, threads)
-        meta = self.session.get_modelmeta().custom_metadata_map
-        if ONNX_METADATA_KEY not in meta:
-            raise ValueError(f"{path}: not exported by tactile-compliance (no metadata)")
-        self.meta: dict[str, Any] = json.loads(meta[ONNX_METADATA_KEY])
-        self.constants = NormalisationConstants.from_dict(self.meta["normalisation"])
-        self.image_size: tuple[int, int] = tuple(self.meta["image_size"])  # type: ignore[assignment]
-        self.inputs = InputStrategy.parse(self.meta["inputs"])
-        self.model_name = str(self.meta["model"])
-        self.input_names: list[str] = list(self.meta["input_names"])
-
-    @property
-    def required_inputs(self) -> tuple[str, ...]:
-        """Scalar inputs ``predict`` needs besides the frames."""
-        return required_inputs(self.inputs)
-
-    def prepare(
-        self,
-        frames: Any,
-        force: Any = None,
-        width: Any = None,
-        estimates: Any = None,
-        *,
-        channel_order: str = "RGB",
-    ) -> PreparedInputs:
-        """Validate and normalise inputs (same checks as ``ComplianceEstimator``)."""
-        return prepare_inputs(
-            frames,
-            {"force": force, "width": width, "estimates": estimates},
-            inputs=self.inputs,
-            constants=self.constants,
-            min_size=1,
-            channel_order=channel_order,
-            describe=f"ONNX model {self.source} ({self.model_name})",
-        )
-
-    def predict_prepared(self, prepared: PreparedInputs, batch_size: int = 64) -> np.ndarray:
-        """Normalised outputs y (B,) of a prepared batch."""
-        outputs = []
-        for chunk in prepared.chunks(batch_size):
-            frames = prepare_frames(chunk["frames"], self.constants, self.image_size)
-            feed = {"frames": frames.numpy()}
-            feed.update({name: chunk[name].numpy() for name in self.input_names[1:]})
-            outputs.append(self.session.run([OUTPUT_NAME], feed)[0])
-        return np.concatenate(outputs)
-
-    def predict(
-        self,
-        frames: Any,
-        force: Any = None,
-        width: Any = None,
-        estimates: Any = None,
-        *,
-        channel_order: str = "RGB",
-        batch_size: int = 64,
-    ) -> Prediction:
-        """Young's modulus of one grasp or a batch; see ``ComplianceEstimator.predict``."""
-        prepared = self.prepare(frames, force, width, estimates, channel_order=channel_order)
-        y = self.predict_prepared(prepared, batch_size=batch_size)
-        return Prediction.from_normalised(y, self.constants, prepared.single)
 
 
 def format_export_report(report: dict[str, Any]) -> str:

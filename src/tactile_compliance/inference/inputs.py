@@ -127,16 +127,12 @@ class PreparedInputs:
 
 
 def required_inputs(inputs: InputStrategy | str) -> tuple[str, ...]:
-    """Scalar inputs a strategy needs besides the frames, e.g. ``("force", "width")``."""
-    strategy = InputStrategy.parse(inputs)
-    needed = []
-    if strategy.uses_force:
-        needed.append("force")
-    if strategy.uses_width:
-        needed.append("width")
-    if strategy.uses_estimates:
-        needed.append("estimates")
-    return tuple(needed)
+    """Scalar inputs a strategy needs besides the frames, e.g. ``("force", "width")``.
+
+    The strategy's own ``needs`` (one vocabulary for models and inference); this only
+    also accepts the strategy's name, as checkpoints and ONNX metadata record it.
+    """
+    return InputStrategy.parse(inputs).needs
 
 
 def _shape(value: Any) -> str:

@@ -41,7 +41,7 @@ from tactile_compliance.data.store import frames_to_uint8
 from tactile_compliance.models import NUM_FRAMES
 
 if TYPE_CHECKING:
-    from tactile_compliance.inference.estimator import ComplianceEstimator, Prediction
+    from tactile_compliance.inference.base import BaseEstimator, Prediction
 
 __all__ = [
     "ONSET_FORCE_N",
@@ -64,6 +64,29 @@ MIN_PEAK_FORCE_N = 10.0
 """Grasps whose peak force stays below 10 N were skipped in the dataset."""
 
 FrameKind = Literal["difference", "raw"]
+
+
+def _check_window(window: int | None) -> int | None:
+    """A window length (None: the whole trajectory); three frames need at least three."""
+    if window is not None and (isinstance(window, bool) or int(window) < NUM_FRAMES):
+        raise ValueError(f"window must be None or an integer >= {NUM_FRAMES}, got {window!r}")
+    return None if window is None else int(window)
+
+
+def _check_frame_kind(frame_kind: str) -> FrameKind:
+    if frame_kind not in ("difference", "raw"):
+        raise ValueError(f"frame_kind must be 'difference' or 'raw', got {frame_kind!r}")
+    return frame_kind  # type: ignore[return-value]
+
+
+def _as_difference_images(
+    frames: np.ndarray, frame_kind: str, reference: np.ndarray | None
+) -> np.ndarray:
+    """Selected frames (3, H, W, 3) as the model takes them: raw frames are differenced."""
+    if _check_frame_kind(frame_kind) == "difference":
+        return frames
+    assert reference is not None  # a raw stream keeps its first frame as the reference
+    return np.stack([difference_image(f, reference) for f in frames])
 
 
 def difference_image(frame: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -125,8 +148,7 @@ def select_frame_indices(
     With ``window=n`` the frames are spread over the last ``n`` frames up to the peak.
     """
     f = np.asarray(forces_n, dtype=np.float64).reshape(-1)
-    if window is not None and (isinstance(window, bool) or int(window) < NUM_FRAMES):
-        raise ValueError(f"window must be None or an integer >= {NUM_FRAMES}, got {window!r}")
+    window = _check_window(window)
     above = np.flatnonzero(f >= onset_force_n)
     if above.size == 0:
         return None
@@ -136,7 +158,7 @@ def select_frame_indices(
         return None
     # Searching from the onset keeps i_peak >= i_start even for peaks just above 5 N.
     peak = onset + int(np.argmax(f[onset:] >= peak_fraction * f_max))
-    start = onset if window is None else max(onset, peak - int(window) + 1)
+    start = onset if window is None else max(onset, peak - window + 1)
     if peak - start < NUM_FRAMES - 1:
         return None
     # Same arithmetic as the published selection: offset + truncated linspace.
@@ -232,7 +254,9 @@ class StreamingEstimator:
     differently).
 
     Args:
-        estimator: a :class:`ComplianceEstimator` (or anything with the same ``predict``).
+        estimator: a :class:`~tactile_compliance.inference.estimator.ComplianceEstimator`
+            or :class:`~tactile_compliance.inference.onnx.OnnxEstimator` (any
+            :class:`~tactile_compliance.inference.base.BaseEstimator`).
         window: None (whole trajectory, the dataset's rule) or n >= 3 (last n frames).
         frame_kind: ``"difference"`` (difference images, uint8 or float [0, 1]) or
             ``"raw"`` (uint8 camera frames, differenced against ``reference``).
@@ -248,7 +272,7 @@ class StreamingEstimator:
 
     def __init__(
         self,
-        estimator: ComplianceEstimator,
+        estimator: BaseEstimator,
         *,
         window: int | None = None,
         frame_kind: FrameKind = "difference",
@@ -261,10 +285,8 @@ class StreamingEstimator:
         release_fraction: float = 0.5,
         max_frames: int = 900,
     ) -> None:
-        if window is not None and (isinstance(window, bool) or int(window) < NUM_FRAMES):
-            raise ValueError(f"window must be None or an integer >= {NUM_FRAMES}, got {window!r}")
-        if frame_kind not in ("difference", "raw"):
-            raise ValueError(f"frame_kind must be 'difference' or 'raw', got {frame_kind!r}")
+        self.window = _check_window(window)
+        self.frame_kind = _check_frame_kind(frame_kind)
         if not 0 < peak_fraction <= 1:
             raise ValueError(f"peak_fraction must be in (0, 1], got {peak_fraction}")
         if not 0 <= release_fraction < peak_fraction:
@@ -276,8 +298,6 @@ class StreamingEstimator:
         if max_frames < NUM_FRAMES:
             raise ValueError(f"max_frames must be >= {NUM_FRAMES}, got {max_frames}")
         self.estimator = estimator
-        self.window = int(window) if window is not None else None
-        self.frame_kind: FrameKind = frame_kind
         self.channel_order = channel_order
         self.onset_force_n = float(onset_force_n)
         self.peak_fraction = float(peak_fraction)
@@ -480,11 +500,8 @@ class StreamingEstimator:
 
     def _frames_at(self, indices: tuple[int, ...]) -> np.ndarray:
         buf = self._buffer
-        frames = [buf.frames[i - buf.offset] for i in indices]
-        if self.frame_kind == "raw":
-            assert self._reference is not None
-            frames = [difference_image(f, self._reference) for f in frames]
-        return np.stack(frames)
+        frames = np.stack([buf.frames[i - buf.offset] for i in indices])
+        return _as_difference_images(frames, self.frame_kind, self._reference)
 
     def _current_estimates(self, selection: FrameSelection) -> np.ndarray | None:
         if self._estimates_pa is not None or not self._has_depth:
@@ -559,7 +576,7 @@ def _replace_final(estimate: StreamEstimate, frames_seen: int) -> StreamEstimate
 
 
 def predict_trajectory(
-    estimator: ComplianceEstimator,
+    estimator: BaseEstimator,
     frames: Any,
     force_n: Any,
     width_m: Any = None,
@@ -614,12 +631,9 @@ def predict_trajectory(
             f"{NUM_FRAMES} frames"
         )
     idx = list(selection.indices)
-    chosen = frames[idx]
-    if frame_kind == "raw":
-        ref = frames[0] if reference is None else np.asarray(reference)
-        chosen = np.stack([difference_image(f, ref) for f in chosen])
-    elif frame_kind != "difference":
-        raise ValueError(f"frame_kind must be 'difference' or 'raw', got {frame_kind!r}")
+    # A recording's first frame shows the gel without contact: the default reference.
+    ref = frames[0] if reference is None else np.asarray(reference)
+    chosen = _as_difference_images(frames[idx], frame_kind, ref)
     prediction = estimator.predict(
         chosen,
         force=forces[idx],

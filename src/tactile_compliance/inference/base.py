@@ -1,0 +1,186 @@
+"""The ``predict`` API every estimator shares, whatever runs the network.
+
+:class:`BaseEstimator` owns the part of inference that must not depend on the runtime:
+input validation and scalar normalisation (:func:`~tactile_compliance.inference.inputs.
+prepare_inputs`), ``required_inputs``, cutting a batch into bounded chunks, and reading
+the normalised outputs back to Pa (:class:`Prediction`). A subclass only loads its network
+and implements :meth:`BaseEstimator._forward` on one prepared chunk:
+
+* :class:`~tactile_compliance.inference.estimator.ComplianceEstimator` - a PyTorch
+  checkpoint, through ``runs.forward.forward_batch``;
+* :class:`~tactile_compliance.inference.onnx.OnnxEstimator` - an exported ONNX file,
+  through onnxruntime.
+
+Both therefore accept, reject and post-process inputs identically; they can differ only by
+the network's numerical round-off.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
+from tactile_compliance.inference.inputs import PreparedInputs, prepare_inputs, required_inputs
+from tactile_compliance.models import InputStrategy
+
+__all__ = ["BaseEstimator", "Prediction", "to_plain"]
+
+
+def to_plain(value: Any) -> Any:
+    """A result value as plain JSON: a list for an array (a batch), a float otherwise."""
+    return value.tolist() if isinstance(value, np.ndarray) else float(value)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Young's modulus predicted for one grasp (floats) or a batch (arrays of shape (B,)).
+
+    Attributes:
+        modulus_pa: Young's modulus E in Pa.
+        log10_modulus_pa: log10 of E in Pa (the scale errors are measured on, in decades).
+        normalised: the model's raw output y in (0, 1), ``(log10 E - lo) / (hi - lo)`` with
+            the checkpoint's label range.
+    """
+
+    modulus_pa: Any
+    log10_modulus_pa: Any
+    normalised: Any
+
+    @property
+    def batched(self) -> bool:
+        """Whether this is a batch (arrays) rather than one grasp (floats)."""
+        return isinstance(self.modulus_pa, np.ndarray)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-serialisable values (lists for a batch)."""
+        return {
+            "modulus_pa": to_plain(self.modulus_pa),
+            "log10_modulus_pa": to_plain(self.log10_modulus_pa),
+            "normalised": to_plain(self.normalised),
+        }
+
+    @classmethod
+    def from_normalised(
+        cls, y: np.ndarray, constants: NormalisationConstants, single: bool
+    ) -> Prediction:
+        """Read model outputs ``y`` (B,) back to Pa with the checkpoint's constants."""
+        y = np.asarray(y, dtype=np.float64)
+        modulus = np.asarray(denormalise_modulus(y, constants), dtype=np.float64)
+        log10 = np.log10(modulus)
+        if single:
+            return cls(float(modulus[0]), float(log10[0]), float(y[0]))
+        return cls(modulus, log10, y)
+
+
+class BaseEstimator(ABC):
+    """A network plus the checkpoint's preprocessing: predicts Young's modulus in Pa.
+
+    ``predict`` accepts one grasp or a batch, validates everything (``ValueError`` with a
+    clear message on bad input) and applies the checkpoint's normalisation constants.
+    Subclasses set the attributes below when they load and implement :meth:`_forward`.
+
+    Attributes:
+        constants: the checkpoint's normalisation constants (scalars, frames, labels).
+        inputs: the checkpoint's input strategy.
+        image_size: (H, W) px the network takes; frames of another size are resized.
+        source: where the network was loaded from (named in error messages).
+        meta: what the checkpoint recorded (seed, package version, ...).
+    """
+
+    #: How error messages name this kind of estimator, before its source.
+    kind: ClassVar[str] = "estimator"
+
+    constants: NormalisationConstants
+    inputs: InputStrategy
+    image_size: tuple[int, int] | None
+    source: str
+    meta: dict[str, Any]
+
+    @property
+    @abstractmethod
+    def model_name(self) -> str:
+        """Registry name of the model (``top10nn``, ``vgg_lstm``, ``res_tf``)."""
+
+    @property
+    def required_inputs(self) -> tuple[str, ...]:
+        """Scalar inputs ``predict`` needs besides the frames, e.g. ``("force", "width")``."""
+        return required_inputs(self.inputs)
+
+    @property
+    def min_frame_size(self) -> int:
+        """Smallest accepted frame side in pixels (1: frames are resized to ``image_size``)."""
+        return 1
+
+    # ------------------------------------------------------------------ prediction
+    def prepare(
+        self,
+        frames: Any,
+        force: Any = None,
+        width: Any = None,
+        estimates: Any = None,
+        *,
+        channel_order: str = "RGB",
+    ) -> PreparedInputs:
+        """Validate and normalise inputs (what ``predict`` runs first); see ``inputs``."""
+        return prepare_inputs(
+            frames,
+            {"force": force, "width": width, "estimates": estimates},
+            inputs=self.inputs,
+            constants=self.constants,
+            min_size=self.min_frame_size,
+            channel_order=channel_order,
+            describe=f"{self.kind} {self.source} ({self.model_name})",
+        )
+
+    def predict_prepared(self, prepared: PreparedInputs, batch_size: int = 64) -> np.ndarray:
+        """Normalised outputs y (B,) of a prepared batch, ``batch_size`` grasps at a time."""
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        return np.concatenate([self._forward(chunk) for chunk in prepared.chunks(batch_size)])
+
+    @abstractmethod
+    def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
+        """Normalised outputs y (b,) of one chunk of :class:`PreparedInputs`.
+
+        ``chunk`` holds ``frames`` in the store's encoding (the subclass resizes and
+        normalises them, as the network it runs expects) and the normalised scalars the
+        strategy uses.
+        """
+
+    def predict(
+        self,
+        frames: Any,
+        force: Any = None,
+        width: Any = None,
+        estimates: Any = None,
+        *,
+        channel_order: str = "RGB",
+        batch_size: int = 64,
+    ) -> Prediction:
+        """Young's modulus of one grasp or a batch.
+
+        Args:
+            frames: three difference images ``(3, H, W, 3)`` or a batch
+                ``(B, 3, H, W, 3)``; uint8 or float in [0, 1]; RGB unless ``channel_order``.
+            force: normal force in N at the three frames, ``(3,)`` / ``(B, 3)``
+                (required by ImageF, ImageFW, ALL).
+            width: gripper width in m at the three frames (required by ImageFW, ALL).
+            estimates: (elastic E, Hertz E*) in Pa, ``(2,)`` / ``(B, 2)`` (required by ALL).
+            channel_order: ``"RGB"`` (store order) or ``"BGR"`` (OpenCV).
+            batch_size: grasps per forward pass (memory bound, not a result change).
+
+        Returns:
+            :class:`Prediction` with floats for one grasp, (B,) arrays for a batch.
+
+        Raises:
+            ValueError: bad shapes, dtypes, ranges, NaN, or an input the checkpoint's
+                strategy needs is missing.
+        """
+        prepared = self.prepare(frames, force, width, estimates, channel_order=channel_order)
+        y = self.predict_prepared(prepared, batch_size=batch_size)
+        return Prediction.from_normalised(y, self.constants, prepared.single)

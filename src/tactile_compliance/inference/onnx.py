@@ -1,0 +1,88 @@
+"""Run an exported ONNX file with onnxruntime behind the estimator API.
+
+:class:`OnnxEstimator` is the ONNX sibling of
+:class:`~tactile_compliance.inference.estimator.ComplianceEstimator`: input checks,
+normalisation and the result are :class:`~tactile_compliance.inference.base.BaseEstimator`'s,
+with the constants stored in the file's metadata, so both agree to the export's parity.
+Writing and checking the file is :mod:`tactile_compliance.inference.export`; the names the
+two modules agree on (metadata key, output name, input names) are defined here.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from tactile_compliance.data.dataset import prepare_frames
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.inference.base import BaseEstimator
+from tactile_compliance.inference.inputs import required_inputs
+from tactile_compliance.models import InputStrategy
+
+__all__ = ["ONNX_METADATA_KEY", "OUTPUT_NAME", "OnnxEstimator", "onnx_input_names"]
+
+ONNX_METADATA_KEY = "tactile_compliance"
+OUTPUT_NAME = "modulus_normalised"
+
+
+def onnx_input_names(inputs: InputStrategy | str) -> list[str]:
+    """Graph input names for a strategy: ``frames`` plus the enabled scalar inputs."""
+    return ["frames", *required_inputs(inputs)]
+
+
+def _ort_session(path: str | Path, threads: int | None = None) -> Any:
+    """A CPU onnxruntime session; ``threads`` fixes intra-op threads (None: its default)."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    if threads is not None:
+        options.intra_op_num_threads = int(threads)
+        options.inter_op_num_threads = 1
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
+class OnnxEstimator(BaseEstimator):
+    """The ``predict`` API of :class:`ComplianceEstimator` on an exported ONNX file.
+
+    Preprocessing is the project's own (``prepare_inputs`` + ``prepare_frames``) with the
+    constants stored in the file, so both estimators agree to the export's parity.
+
+    Args:
+        path: an ``.onnx`` file written by :func:`~tactile_compliance.inference.export.
+            export_onnx`.
+        threads: onnxruntime intra-op threads (None = onnxruntime's default).
+    """
+
+    kind = "ONNX model"
+
+    def __init__(self, path: str | Path, *, threads: int | None = None) -> None:
+        self.source = str(path)
+        self.session = _ort_session(path, threads)
+        meta = self.session.get_modelmeta().custom_metadata_map
+        if ONNX_METADATA_KEY not in meta:
+            raise ValueError(f"{path}: not exported by tactile-compliance (no metadata)")
+        self.meta: dict[str, Any] = json.loads(meta[ONNX_METADATA_KEY])
+        self.constants = NormalisationConstants.from_dict(self.meta["normalisation"])
+        self.image_size = tuple(self.meta["image_size"])  # type: ignore[assignment]
+        self.inputs = InputStrategy.parse(self.meta["inputs"])
+        self.input_names: list[str] = list(self.meta["input_names"])
+
+    @property
+    def model_name(self) -> str:
+        """The exported model's registry name, from the file's metadata."""
+        return str(self.meta["model"])
+
+    def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
+        """Normalised outputs of one prepared chunk, through onnxruntime.
+
+        The graph takes frames already resized and normalised (see ``export``), so that
+        step runs here with the project's ``prepare_frames``, as ``forward_batch`` does.
+        """
+        frames = prepare_frames(chunk["frames"], self.constants, self.image_size)
+        feed = {"frames": frames.numpy()}
+        feed.update({name: chunk[name].numpy() for name in self.input_names[1:]})
+        return self.session.run([OUTPUT_NAME], feed)[0]
