@@ -56,11 +56,11 @@ def test_errors_are_clear(tmp_path):
     args = ["import", "burgess", str(tmp_path / "src"), "--out", str(tmp_path / "store")]
     assert runner.invoke(app, args).exit_code == 0
     again = runner.invoke(app, args)
-    assert again.exit_code == 1 and "--overwrite" in again.output
+    assert again.exit_code == 2 and "--overwrite" in again.output
     bad_size = runner.invoke(app, [*args, "--overwrite", "--size", "big"])
     assert bad_size.exit_code != 0 and "HxW" in bad_size.output
     missing = runner.invoke(app, ["info", str(tmp_path / "nothing")])
-    assert missing.exit_code == 1 and "no such store" in missing.output
+    assert missing.exit_code == 2 and "no such store" in missing.output
 
 
 def test_simulate_then_import(tmp_path):
@@ -119,7 +119,46 @@ def test_search_commands_pass_their_options_and_fail_in_one_line(tmp_path):
         ["tune-balance", "--store", missing, "--models", "top10nn,res_tf", "--epochs", "1"],
     ):
         result = runner.invoke(app, args)
-        assert result.exit_code == 1, result.output
+        assert result.exit_code == 2, result.output
         assert result.output.strip().splitlines() == [
             f"error: store not found: {missing}; pass --store PATH"
         ]
+
+
+def _one_error_line(result) -> str:  # type: ignore[no-untyped-def]
+    """The single ``error: ...`` line of a failed command (no traceback)."""
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    lines = [line for line in result.output.strip().splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.output
+    return lines[0]
+
+
+def test_expected_errors_are_one_line_with_exit_code_2(tmp_path):
+    from toy_store import make_toy_store
+
+    store = tmp_path / "store"
+    make_toy_store(store, n_objects=4, grasps=2, size=(8, 8))
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for name in ("header.json", "samples.parquet"):  # an empty samples.parquet
+        source = store / name
+        if source.exists():
+            (broken / name).write_bytes(b"" if name == "samples.parquet" else source.read_bytes())
+    nothing = tmp_path / "nothing"
+    cases = {
+        "no store (split)": ["split", str(nothing), "--out", str(tmp_path / "s.json")],
+        "no store (train)": ["train", "--set", f"data.store={nothing}"],
+        "empty samples.parquet": ["info", str(broken)],
+        "no run (evaluate)": ["evaluate", str(nothing)],
+        "bad config key": ["train", "--set", f"data.store={store}", "--set", "training.lrr=1"],
+    }
+    for label, args in cases.items():
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, (label, result.output, result.exception)
+        _one_error_line(result)
+
+
+def test_debug_shows_the_traceback(tmp_path):
+    result = runner.invoke(app, ["--debug", "info", str(tmp_path / "nothing")])
+    assert result.exit_code != 0 and result.exception is not None
+    assert not isinstance(result.exception, SystemExit)

@@ -104,4 +104,4 @@ def test_cli_predict_export_and_experiment_on_the_demo_output(tmp_path):
     assert failing.exit_code == 1, failing.output
     assert "1 failed" in failing.output and "cell(s) failed" in failing.output
     bad = runner.invoke(app, ["experiment", "no-such-preset"])
-    assert bad.exit_code == 1 and "error" in bad.output
+    assert bad.exit_code == 2 and "error" in bad.output

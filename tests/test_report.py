@@ -690,4 +690,4 @@ def test_report_command(fake: FakeResults, tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert {p.name for p in out.iterdir()} >= {"report.md", "report.html", "report.tex"}
     missing = CliRunner().invoke(app, ["report", str(tmp_path / "nothing")])
-    assert missing.exit_code == 1 and "error" in missing.output
+    assert missing.exit_code == 2 and "error" in missing.output

@@ -2,15 +2,72 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
+import click
 import typer
 
 from tactile_compliance import __version__
 
-app = typer.Typer(
+#: Exit codes: 0 done; 1 a run failed (cells of a grid, a demo step); 2 bad input (a
+#: path, a file's content, a config key, an option), which includes click's usage errors;
+#: 130 interrupted (Ctrl-C; re-run to continue).
+EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 1, 2, 130
+
+_debug = False  # --debug: let errors raise with their traceback
+
+
+def _expected_errors() -> tuple[type[BaseException], ...]:
+    """Errors that mean bad input rather than a bug: they become one line, exit code 2.
+
+    Imported when an error happens, so that the command starts fast."""
+    from tactile_compliance.data.import_report import DataImportError
+    from tactile_compliance.data.store import StoreError
+    from tactile_compliance.training.experiment import ExperimentError
+    from tactile_compliance.training.hpo import TuneError
+
+    # ValueError covers ConfigError, pydantic's ValidationError, pyarrow's ArrowInvalid and
+    # the library's argument checks; OSError covers missing files, permissions, a full disk.
+    return (ValueError, OSError, StoreError, DataImportError, ExperimentError, TuneError)
+
+
+def _one_line_errors(command: Any) -> Any:
+    """Wrap a command so that expected errors print one line and exit with code 2."""
+
+    @functools.wraps(command)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return command(*args, **kwargs)
+        except (typer.Exit, typer.Abort, click.ClickException):
+            raise
+        except KeyboardInterrupt:
+            typer.secho("interrupted; re-run the same command to continue", err=True)
+            raise typer.Exit(EXIT_INTERRUPTED) from None
+        except Exception as err:
+            if _debug or not isinstance(err, _expected_errors()):
+                raise
+            _fail(str(err) or type(err).__name__, EXIT_BAD_INPUT)
+
+    return run
+
+
+class _Cli(typer.Typer):
+    """A Typer app whose every command turns expected errors into one line (see above)."""
+
+    def command(self, *args: Any, **kwargs: Any) -> Any:
+        register = super().command(*args, **kwargs)
+
+        def decorator(command: Any) -> Any:
+            register(_one_line_errors(command))
+            return command
+
+        return decorator
+
+
+app = _Cli(
     name="tactile-compliance",
     help=(
         "Estimate an object's Young's modulus from one GelSight grasp.\n\n"
@@ -20,14 +77,14 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-import_app = typer.Typer(
+import_app = _Cli(
     help="Import a raw dataset into a GraspStore (the one on-disk format every command reads).",
     no_args_is_help=True,
 )
 app.add_typer(import_app, name="import")
 
 
-def _fail(message: str, code: int = 1) -> None:
+def _fail(message: str, code: int = EXIT_FAILED) -> None:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code)
 
@@ -55,8 +112,13 @@ def main(
             "--version", callback=_version_callback, is_eager=True, help="Show the version."
         ),
     ] = False,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the traceback of an error, not one line.")
+    ] = False,
 ) -> None:
     """Estimate an object's Young's modulus from one GelSight grasp."""
+    global _debug
+    _debug = debug
 
 
 @app.command()
@@ -101,36 +163,32 @@ def simulate(
     reads. Interrupted runs resume: finished objects are kept.
     """
     from tactile_compliance.synthetic import generate_burgess_tree, generate_shore_videos
-    from tactile_compliance.synthetic.generate import GenerationError
 
     image_size = _size_option(size)
     assert image_size is not None
-    try:
-        if kind == "gelsight":
-            options = {"dtype": dtype} | ({"workers": workers} if workers else {})
-            report = generate_burgess_tree(
-                out,
-                n_objects=objects,
-                object_table=object_table,
-                grasps_per_object=grasps_per_object,
-                seed=seed,
-                image_size=image_size,
-                **options,
-            )
-        elif kind == "shore-videos":
-            if object_table is not None:
-                raise typer.BadParameter("--object-table applies to --kind gelsight only")
-            report = generate_shore_videos(
-                out,
-                n_objects=objects or 40,
-                presses_per_object=grasps_per_object or 3,
-                seed=seed,
-                image_size=image_size,
-            )
-        else:
-            raise typer.BadParameter("--kind must be gelsight or shore-videos")
-    except GenerationError as err:
-        _fail(str(err))
+    if kind == "gelsight":
+        options = {"dtype": dtype} | ({"workers": workers} if workers else {})
+        report = generate_burgess_tree(
+            out,
+            n_objects=objects,
+            object_table=object_table,
+            grasps_per_object=grasps_per_object,
+            seed=seed,
+            image_size=image_size,
+            **options,
+        )
+    elif kind == "shore-videos":
+        if object_table is not None:
+            raise typer.BadParameter("--object-table applies to --kind gelsight only")
+        report = generate_shore_videos(
+            out,
+            n_objects=objects or 40,
+            presses_per_object=grasps_per_object or 3,
+            seed=seed,
+            image_size=image_size,
+        )
+    else:
+        raise typer.BadParameter("--kind must be gelsight or shore-videos")
     typer.echo(report.format())
     importer = "burgess" if kind == "gelsight" else "yuan"
     typer.echo(f"Next: tactile-compliance import {importer} {out} --out STORE")
@@ -142,12 +200,9 @@ def info(
     as_json: Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")] = False,
 ) -> None:
     """Show what a store holds: counts by material and shape, modulus range, resolution."""
-    from tactile_compliance.data.store import GraspStore, StoreError
+    from tactile_compliance.data.store import GraspStore
 
-    try:
-        summary = GraspStore.open(store).summary()
-    except StoreError as err:
-        _fail(str(err))
+    summary = GraspStore.open(store).summary()
     if as_json:
         typer.echo(json.dumps(summary, indent=2))
         return
@@ -174,13 +229,8 @@ def info(
 
 
 def _run_import(run: object, report_json: Path | None) -> None:
-    from tactile_compliance.data.import_report import DataImportError
-    from tactile_compliance.data.object_table import ObjectTableError
 
-    try:
-        report = run()  # type: ignore[operator]
-    except (DataImportError, ObjectTableError, FileExistsError) as err:
-        _fail(str(err))
+    report = run()  # type: ignore[operator]
     typer.echo(report.format())
     if report_json is not None:
         report_json.write_text(json.dumps(report.to_dict(), indent=2) + "\n")
@@ -261,12 +311,9 @@ def import_yuan_command(
 
 
 def _load_config(config: str, overrides: list[str] | None) -> object:
-    from tactile_compliance.config import ConfigError, load_config
+    from tactile_compliance.config import load_config
 
-    try:
-        return load_config(config, overrides or [])
-    except ConfigError as err:
-        _fail(str(err))
+    return load_config(config, overrides or [])
     return None  # unreachable
 
 
@@ -359,10 +406,7 @@ def train(
     from tactile_compliance.training.train import train as train_run
 
     cfg = _load_config(config, overrides)
-    try:
-        result = train_run(cfg, run_dir=run_dir, overwrite=overwrite)  # type: ignore[arg-type]
-    except (ValueError, FileNotFoundError) as err:
-        _fail(str(err))
+    result = train_run(cfg, run_dir=run_dir, overwrite=overwrite)  # type: ignore[arg-type]
     test, median = result["test"], result["reference"]["median"]
     typer.echo(
         f"{result['run_name']}: best epoch {result['best_epoch']}, "
@@ -393,10 +437,7 @@ def evaluate(
     """Recompute metrics (overall, per material, shape, soft/hard) from a run's checkpoint."""
     from tactile_compliance.evaluation.evaluate import evaluate_run
 
-    try:
-        evaluation = evaluate_run(run_dir, store, backbone_weights=weights)
-    except (ValueError, FileNotFoundError) as err:
-        _fail(str(err))
+    evaluation = evaluate_run(run_dir, store, backbone_weights=weights)
     if as_json:
         payload = {
             "metrics": evaluation.metrics,
@@ -475,9 +516,7 @@ def experiment(
     Re-running skips finished cells and retries failed or interrupted ones. Exits with
     status 1 when a cell failed and 130 when interrupted (re-run to continue).
     """
-    from tactile_compliance.config import ConfigError
     from tactile_compliance.training.experiment import (
-        ExperimentError,
         plan_experiment,
         run_experiment,
     )
@@ -493,10 +532,10 @@ def experiment(
         output_dir=output_dir,
         results=results,
     )
+    if dry_run:
+        typer.echo(plan_experiment(preset, **common).format())  # type: ignore[arg-type]
+        return
     try:
-        if dry_run:
-            typer.echo(plan_experiment(preset, **common).format())  # type: ignore[arg-type]
-            return
         summary = run_experiment(
             preset,
             workers=workers,
@@ -506,10 +545,8 @@ def experiment(
             retry_failed=retry_failed,
             **common,  # type: ignore[arg-type]
         )
-    except (ConfigError, ExperimentError) as err:
-        _fail(str(err))
     except KeyboardInterrupt:  # the summary is already on stderr
-        raise typer.Exit(130) from None
+        raise typer.Exit(EXIT_INTERRUPTED) from None
     typer.echo(summary.format())
     if summary.failed:
         _fail(f"{summary.failed} cell(s) failed (recorded with their errors); re-run to retry")
@@ -582,14 +619,10 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
     ``options`` are the command's parameters, which are named like the search function's
     keyword arguments. Expected errors become one line.
     """
-    from tactile_compliance.config import ConfigError
     from tactile_compliance.training import hpo
 
     options["overrides"] = options["overrides"] or []
-    try:
-        result = getattr(hpo, name)(**options)
-    except (ConfigError, hpo.TuneError) as err:
-        _fail(str(err))
+    result = getattr(hpo, name)(**options)
     typer.echo(result.format())
 
 
@@ -609,16 +642,13 @@ def predict(
     """Estimate Young's modulus for every grasp of a store, raw directory or video."""
     from tactile_compliance.inference.sources import format_predictions, predict_path
 
-    try:
-        result = predict_path(
-            checkpoint,
-            source,
-            device=device,
-            fingers=fingers,  # type: ignore[arg-type]
-            backbone_weights=weights,
-        )
-    except (ValueError, FileNotFoundError) as err:
-        _fail(str(err))
+    result = predict_path(
+        checkpoint,
+        source,
+        device=device,
+        fingers=fingers,  # type: ignore[arg-type]
+        backbone_weights=weights,
+    )
     typer.echo(json.dumps(result, indent=2, default=str) if as_json else format_predictions(result))
 
 
@@ -644,7 +674,7 @@ def export(
         result = export_onnx(
             checkpoint, onnx, image_size=_size_option(size), backbone_weights=weights
         )
-    except (ValueError, FileNotFoundError, RuntimeError) as err:
+    except RuntimeError as err:  # the graph does not match PyTorch: the export failed
         _fail(str(err))
     typer.echo(format_export_report(result))
 
@@ -671,10 +701,7 @@ def report(
     """
     from tactile_compliance.evaluation.report import build_report
 
-    try:
-        summary = build_report(results, out, formats=formats, stores=stores or ())
-    except (FileNotFoundError, ValueError) as err:
-        _fail(str(err))
+    summary = build_report(results, out, formats=formats, stores=stores or ())
     typer.echo(str(summary))
 
 
