@@ -18,7 +18,8 @@ PACKAGE_DIR = Path(__file__).resolve().parents[1] / "src" / PACKAGE
 #: Lowest first. A part may import parts of lower layers and itself, never a part of its
 #: own layer or of a higher one. The package root holds only ``__version__``.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("__init__", "progress"),
+    ("__init__",),
+    ("progress", "outputs"),
     ("physics",),
     ("data",),
     ("synthetic", "models"),

@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 
 from tactile_compliance.data.safe_pickle import load_numpy_pickle
+from tactile_compliance.outputs import MARKER_NAME
 from tactile_compliance.synthetic import (
     GenerationError,
     generate_burgess_tree,
@@ -36,7 +37,7 @@ def _tree_digest(root: Path) -> dict[str, str]:
     return {
         str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
         for p in sorted(root.rglob("*"))
-        if p.is_file() and p.name != "generation.json"
+        if p.is_file() and p.name not in ("generation.json", MARKER_NAME)
     }
 
 

@@ -228,8 +228,16 @@ def info(
     typer.echo("\n".join(lines))
 
 
-def _run_import(run: object, report_json: Path | None) -> None:
+def _is_import_report(path: Path) -> bool:
+    data = json.loads(path.read_text(encoding="utf-8"))
+    return isinstance(data, dict) and {"source_dir", "samples_imported"} <= data.keys()
 
+
+def _run_import(run: object, report_json: Path | None) -> None:
+    from tactile_compliance.outputs import check_output_file
+
+    if report_json is not None:  # checked first: a refused path must cost no import
+        check_output_file(report_json, "import report", _is_import_report, option="--report")
     report = run()  # type: ignore[operator]
     typer.echo(report.format())
     if report_json is not None:

@@ -91,6 +91,7 @@ def run_demo(
     from tactile_compliance.data.burgess import import_burgess
     from tactile_compliance.data.yuan import import_yuan
     from tactile_compliance.evaluation.report import build_report
+    from tactile_compliance.outputs import claim_output_dir
     from tactile_compliance.synthetic import generate_burgess_tree, generate_shore_videos
     from tactile_compliance.training.cluster import available_cpus
     from tactile_compliance.training.experiment import run_experiment
@@ -98,8 +99,9 @@ def run_demo(
     plan = PLANS[mode]
     if workers is None:
         workers = 1 if mode == "ci" else min(available_cpus(), 4)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = claim_output_dir(
+        out_dir, "demo", recognise=lambda path: (path / "raw" / "gelsight").is_dir()
+    )
     summary = DemoSummary(out_dir=out, report=None)
 
     def stage(name: str, start: float) -> None:

@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.preprocess import require_columns
+from tactile_compliance.outputs import check_output_file
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
@@ -125,6 +126,12 @@ def select_subset(
 # ============================================================================ Split
 def _ids(values: Any) -> np.ndarray:
     return np.sort(np.asarray(values, dtype=np.int64).reshape(-1))
+
+
+def _is_split_file(path: Path) -> bool:
+    """Whether ``path`` is a split written by :meth:`Split.save` (safe to replace)."""
+    data = json.loads(path.read_text(encoding="utf-8"))
+    return isinstance(data, dict) and data.get("format") == SPLIT_FORMAT
 
 
 @dataclass
@@ -231,7 +238,7 @@ class Split:
 
     def save(self, path: str | Path) -> Path:
         """Write the split as JSON (atomically: temp file + rename). Returns the path."""
-        path = Path(path)
+        path = check_output_file(path, "split", _is_split_file)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(self.to_dict(), indent=1) + "\n", encoding="utf-8")

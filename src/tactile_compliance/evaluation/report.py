@@ -59,6 +59,7 @@ from tactile_compliance.evaluation.tables import (
     shore_table,
     softhard_subset_table,
 )
+from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.runs.results import STATUS_COMPLETE, STATUS_FAILED
 
 __all__ = ["FORMATS", "ReportSummary", "build_report"]
@@ -313,8 +314,11 @@ def build_report(
     wanted = _normalise_formats(formats)
     results = Path(results_dir)
     frame = load_results(results)
-    out = Path(out_dir) if out_dir is not None else results / "report"
-    out.mkdir(parents=True, exist_ok=True)
+    out = claim_output_dir(
+        Path(out_dir) if out_dir is not None else results / "report",
+        "report",
+        recognise=lambda path: (path / "report.json").is_file(),
+    )
     builder = _Builder(frame, results, out, ddof, [Path(s) for s in stores], strict)
     parts, fig_dir = builder.parts, builder.fig_dir
 

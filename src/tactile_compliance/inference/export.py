@@ -50,6 +50,7 @@ from tactile_compliance.inference.onnx import (
     _ort_session,
     onnx_input_names,
 )
+from tactile_compliance.outputs import check_output_file
 
 # The runtime names are defined in ``onnx`` (the file's reader); they stay importable from
 # here, where export and runtime lived together before.
@@ -145,6 +146,14 @@ def _example_inputs(
     return tuple(tensors)
 
 
+def _is_our_onnx(path: Path) -> bool:
+    """Whether ``path`` is an ONNX model written by :func:`export_onnx` (safe to replace)."""
+    import onnx
+
+    model = onnx.load(str(path), load_external_data=False)
+    return any(prop.key == ONNX_METADATA_KEY for prop in model.metadata_props)
+
+
 def export_onnx(
     checkpoint: str | Path,
     out: str | Path,
@@ -176,6 +185,7 @@ def export_onnx(
     Raises:
         ValueError: no frame size known; RuntimeError: parity worse than ``atol``.
     """
+    out = check_output_file(out, "ONNX model", _is_our_onnx, option="--onnx")
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
     size = tuple(image_size) if image_size is not None else estimator.image_size
     if size is None:
@@ -188,7 +198,6 @@ def export_onnx(
     model = estimator.model.cpu().eval()
     example = _example_inputs(names, 2, (height, width))
     wrapper = _ExportWrapper(_exportable(model, names, example), names).eval()
-    out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
     os.close(fd)

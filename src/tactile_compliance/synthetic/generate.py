@@ -22,6 +22,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.synthetic.grasp import (
     SimulationOptions,
     make_context,
@@ -233,8 +234,7 @@ def generate_burgess_tree(
         specs = default_objects(count, seed, grasps_per_object)
         source = "default-mix"
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = claim_output_dir(out_dir, "simulate", recognise=lambda path: (path / MANIFEST).is_file())
     manifest = {
         "format": FORMAT,
         "seed": seed,

@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.synthetic.generate import GenerationError, GenerationReport
 from tactile_compliance.synthetic.geometry import (
     PadGrid,
@@ -152,8 +153,9 @@ def generate_shore_videos(
     if seed < 0:
         raise GenerationError(f"seed must be >= 0, got {seed}")
     height, width = (int(v) for v in image_size)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = claim_output_dir(
+        out_dir, "simulate shore-videos", recognise=lambda path: any(path.glob("*.avi"))
+    )
     for partial in out.glob(".partial-*"):  # leftovers of an interrupted run
         partial.unlink()
     # Unique (family, hardness) pairs: object i takes the i-th of a seeded permutation

@@ -60,8 +60,10 @@ from tactile_compliance.config import (
     config_from_dict,
     config_to_dict,
 )
+from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.results import (
+    ROWS_DIR,
     STATUS_COMPLETE,
     STATUS_FAILED,
     ResultsStore,
@@ -453,7 +455,7 @@ def _locked(output_dir: Path) -> Iterator[None]:
             holder = handle.read().strip() or "another process"
             raise ExperimentError(
                 f"{output_dir} is in use by {holder}; wait for it to finish "
-                "(or give this experiment another --out)"
+                "(or give this experiment another --output-dir)"
             ) from None
         handle.seek(0)
         handle.truncate()
@@ -569,6 +571,18 @@ def run_experiment(
         cells=len(plan.cells),
         workers=scheduler or ("client" if client is not None else workers),
         keys=[c.key for c in plan.cells],
+    )
+    claim_output_dir(
+        plan.output_dir,
+        "experiment",
+        recognise=lambda path: (path / EXPERIMENT_FILE).is_file(),
+        option="--output-dir",
+    )
+    claim_output_dir(
+        plan.results_path,
+        "results",
+        recognise=lambda path: (path / ROWS_DIR).is_dir(),
+        option="--results",
     )
     with _locked(plan.output_dir):
         store_rows = ResultsStore(plan.results_path)

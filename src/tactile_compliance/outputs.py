@@ -1,0 +1,126 @@
+"""What a command may write to: never a path it did not create.
+
+Every command that writes a directory (a report, an experiment's runs, a tuning search, a
+demo) *claims* it first with :func:`claim_output_dir`:
+
+* a path that does not exist, or an empty directory, becomes the command's: a marker file
+  ``.tactile-compliance.json`` records which kind of output it is;
+* a directory whose marker names the same kind is reused (re-runs continue or refresh
+  their own files);
+* anything else (a directory of the user's files, another command's output) is refused
+  with :class:`OutputExistsError`, before anything is written.
+
+Directories written by versions before the marker existed are recognised by their
+contents (``recognise``) and adopted. Single output files (a split, an ONNX model, a
+JSON report) go through :func:`check_output_file`: an existing file is replaced only when
+it is recognisably an output of the same kind.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+from tactile_compliance import __version__
+
+__all__ = [
+    "MARKER_NAME",
+    "OutputExistsError",
+    "check_output_file",
+    "claim_output_dir",
+    "output_kind",
+]
+
+MARKER_NAME = ".tactile-compliance.json"
+
+
+class OutputExistsError(FileExistsError):
+    """An output path holds something this kind of command did not create."""
+
+
+def output_kind(path: str | Path) -> str | None:
+    """The kind of output a directory's marker names, or None (no or unreadable marker)."""
+    try:
+        data = json.loads((Path(path) / MARKER_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    kind = data.get("kind") if isinstance(data, dict) else None
+    return kind if isinstance(kind, str) else None
+
+
+def _write_marker(path: Path, kind: str) -> None:
+    # No timestamp: generated trees must be byte-identical for the same seed.
+    data = {
+        "kind": kind,
+        "created_by": f"tactile-compliance {__version__}",
+        "note": "Written by tactile-compliance: this directory may be updated by re-runs.",
+    }
+    (path / MARKER_NAME).write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+
+
+def claim_output_dir(
+    path: str | Path,
+    kind: str,
+    *,
+    recognise: Callable[[Path], bool] | None = None,
+    option: str = "--out",
+) -> Path:
+    """Make ``path`` the output directory of a ``kind`` command, or refuse.
+
+    Args:
+        path: the directory the user named.
+        kind: what writes it ("report", "experiment", "demo", ...).
+        recognise: tells an output of this kind written before markers existed (adopted).
+        option: the command-line option that names ``path``, for the error message.
+
+    Returns:
+        ``path`` as a Path, existing and marked.
+
+    Raises:
+        OutputExistsError: ``path`` is a file, another kind's output, or a non-empty
+            directory that this kind did not create. Nothing has been written then.
+    """
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{out} is a file, not a directory; choose another {option}")
+    if out.is_dir():
+        found = output_kind(out)
+        if found == kind:
+            return out
+        if found is not None:
+            raise OutputExistsError(
+                f"{out} holds the output of `{found}`, not of `{kind}`; choose another {option}"
+            )
+        if any(out.iterdir()) and not (recognise is not None and recognise(out)):
+            raise OutputExistsError(
+                f"{out} is not empty and was not created by tactile-compliance {kind}; "
+                f"nothing was changed: choose a new or empty directory for {option}"
+            )
+    out.mkdir(parents=True, exist_ok=True)
+    _write_marker(out, kind)
+    return out
+
+
+def check_output_file(
+    path: str | Path, what: str, recognise: Callable[[Path], bool], option: str = "--out"
+) -> Path:
+    """Refuse to replace an existing file unless ``recognise`` says it is a ``what``.
+
+    Raises:
+        OutputExistsError: ``path`` is a directory, or a file that is not a ``what``.
+    """
+    out = Path(path)
+    if out.is_dir():
+        raise OutputExistsError(f"{out} is a directory; {option} names the {what} file to write")
+    if out.exists():
+        try:
+            ours = recognise(out)
+        except Exception:  # a file we cannot even parse as ours is not ours
+            ours = False
+        if not ours:
+            raise OutputExistsError(
+                f"{out} exists and is not a {what} written by tactile-compliance; "
+                f"nothing was changed: choose another {option}"
+            )
+    return out
