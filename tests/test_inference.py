@@ -259,6 +259,19 @@ def test_native_size_checkpoint_rejects_frames_smaller_than_the_model_accepts():
         estimator.predict(np.zeros((3, 32, 32, 3), np.uint8))
 
 
+def test_a_resizing_checkpoint_still_rejects_frames_too_small_to_hold_a_contact(estimator_all):
+    # Frames are resized to the checkpoint's size, but a 1x1 "frame" is a wrong array.
+    from tactile_compliance.inference.base import MIN_FRAME_SIDE_PX
+
+    assert estimator_all.image_size is not None
+    side = MIN_FRAME_SIDE_PX
+    for tiny in ((1, 1), (side - 1, 40), (40, side - 1)):
+        with pytest.raises(ValueError, match=rf"at least {side}x{side}"):
+            estimator_all.predict(**{**GOOD, "frames": np.full((3, *tiny, 3), 128, np.uint8)})
+    frames = np.full((3, side, side, 3), 128, np.uint8)
+    assert np.isfinite(estimator_all.predict(**{**GOOD, "frames": frames}).modulus_pa)
+
+
 def test_loading_a_missing_or_foreign_checkpoint_fails_clearly(tmp_path):
     with pytest.raises(FileNotFoundError):
         ComplianceEstimator.from_checkpoint(tmp_path / "nope.pt")
@@ -307,6 +320,22 @@ def test_predict_path_on_a_raw_grasp_dir_equals_the_imported_store(runs, toy_sto
         assert p["true_pa"] == pytest.approx(8.0e5)
     one = predict_path(checkpoint, grasp_dir / "augmentation=1", fingers="markers")
     assert len(one["predictions"]) == 1 and one["predictions"][0]["finger"] == "markers"
+
+
+def test_predict_path_skips_a_corrupt_augmentation_like_the_importer(runs, tmp_path):
+    tree = tmp_path / "tree"
+    write_tree(tree, grasps=1, augmentations=2, size=(48, 64))
+    grasp_dir = tree / "rubber_ball" / "grasp=0"
+    (grasp_dir / "augmentation=1" / "RGB.pkl").write_bytes(b"not a pickle")
+    report = predict_path(runs["top10nn_all"], grasp_dir)
+    assert len(report["predictions"]) == 2  # augmentation 0, both fingers
+    assert {p["augmentation"] for p in report["predictions"]} == {0}
+    (bad,) = report["skipped"]
+    assert bad["augmentation"] == 1 and bad["source_path"].endswith("augmentation=1")
+    assert "RGB.pkl" in bad["reason"]
+    assert report["summary"]["n_skipped"] == 1
+    with pytest.raises(ValueError, match="RGB.pkl"):  # the only sample asked for is bad
+        predict_path(runs["top10nn_all"], grasp_dir / "augmentation=1")
 
 
 def test_predict_path_skips_samples_missing_an_input(runs, toy_store, tmp_path):

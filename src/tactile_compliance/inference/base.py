@@ -28,7 +28,10 @@ from tactile_compliance.data.normalisation import NormalisationConstants, denorm
 from tactile_compliance.inference.inputs import PreparedInputs, prepare_inputs, required_inputs
 from tactile_compliance.models import InputStrategy
 
-__all__ = ["BaseEstimator", "Prediction", "to_plain"]
+__all__ = ["MIN_FRAME_SIDE_PX", "BaseEstimator", "Prediction", "to_plain"]
+
+#: Frames must be at least this many pixels high and wide (see ``min_frame_size``).
+MIN_FRAME_SIDE_PX = 8
 
 
 def to_plain(value: Any) -> Any:
@@ -113,8 +116,11 @@ class BaseEstimator(ABC):
 
     @property
     def min_frame_size(self) -> int:
-        """Smallest accepted frame side in pixels (1: frames are resized to ``image_size``)."""
-        return 1
+        """Smallest accepted frame side in pixels, even when frames are resized.
+
+        A tactile frame smaller than this holds no contact geometry: it is a wrong array
+        (a thumbnail, a single pixel), and upscaling it would only hide the mistake."""
+        return MIN_FRAME_SIDE_PX
 
     # ------------------------------------------------------------------ prediction
     def prepare(

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.inference.base import BaseEstimator, Prediction
+from tactile_compliance.inference.base import MIN_FRAME_SIDE_PX, BaseEstimator, Prediction
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.runs.forward import forward_batch
@@ -148,10 +148,11 @@ class ComplianceEstimator(BaseEstimator):
 
     @property
     def min_frame_size(self) -> int:
-        """Smallest accepted frame side in pixels (1 when the checkpoint resizes frames)."""
+        """Smallest accepted frame side in pixels: ``MIN_FRAME_SIDE_PX`` when the checkpoint
+        resizes frames, else also what the backbone accepts."""
         if self.image_size is not None:
-            return 1
-        return int(getattr(self.model, "min_image_size", 1))
+            return MIN_FRAME_SIDE_PX
+        return max(MIN_FRAME_SIDE_PX, int(getattr(self.model, "min_image_size", 1)))
 
     def describe(self) -> dict[str, Any]:
         """What the estimator is: model, strategy, frame size, label range, provenance."""

@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -80,6 +80,8 @@ class GraspBatch:
         rows: one row per grasp: ``ROW_COLUMNS`` + ``modulus_pa`` (truth, NaN if unknown).
         kind: ``store``, ``grasp_dir`` or ``video``.
         frame_kind: ``difference`` or ``raw`` (videos and Shore-hardness stores).
+        unreadable: raw sample directories that could not be read (``grasp``,
+            ``augmentation``, ``source_path``, ``reason``); skipped like the importer does.
     """
 
     frames: np.ndarray | StoreFrames
@@ -89,6 +91,7 @@ class GraspBatch:
     rows: pd.DataFrame
     kind: SourceKind
     frame_kind: str
+    unreadable: list[dict[str, Any]] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -240,43 +243,41 @@ def read_grasp_dir(
             f"and forces.pkl, or grasp=g/augmentation=k/ below it"
         )
     frames, forces, widths, estimates, rows = [], [], [], [], []
+    unreadable: list[dict[str, Any]] = []
     for grasp, augmentation, directory in dirs:
         try:
-            force = _optional_vector(directory, "forces.pkl")
-            width = _optional_vector(directory, "widths.pkl")
-            estimate = [
-                load_estimate(directory, "elastic_estimate.pkl"),
-                load_estimate(directory, "hertz_estimate.pkl"),
-            ]
-            found = False
-            for finger in names:
-                image_file = FINGER_FILES[finger][0]
-                if not (directory / image_file).is_file():
-                    continue
-                # The importer's reader: allow-list unpickler, shape checks, BGR -> RGB.
-                rgb = load_frames(directory, image_file, None)
-                frames.append(frames_to_uint8(resize_frames(rgb, image_size)))
-                forces.append(force)
-                widths.append(width)
-                estimates.append(estimate)
-                obj, modulus = _label_pa(directory)
-                rows.append(
-                    {
-                        "sample_id": len(rows),
-                        "object": obj,
-                        "grasp": grasp,
-                        "augmentation": augmentation,
-                        "finger": finger,
-                        "source_path": str(directory / image_file),
-                        "modulus_pa": modulus,
-                    }
-                )
-                found = True
-        except SampleError as err:
-            raise ValueError(f"{directory}: {err}") from err
-        if not found:
-            wanted = ", ".join(FINGER_FILES[f][0] for f in names)
-            raise ValueError(f"{directory}: no image file ({wanted})")
+            sample = _read_sample_dir(directory, names, image_size)
+        except ValueError as err:
+            if len(dirs) == 1:
+                raise
+            # Like the importer: one corrupt augmentation does not sink the whole object.
+            unreadable.append(
+                {
+                    "grasp": grasp,
+                    "augmentation": augmentation,
+                    "source_path": str(directory),
+                    "reason": str(err),
+                }
+            )
+            continue
+        for finger, image_file, rgb in sample.images:
+            frames.append(rgb)
+            forces.append(sample.force)
+            widths.append(sample.width)
+            estimates.append(sample.estimates)
+            rows.append(
+                {
+                    "sample_id": len(rows),
+                    "object": sample.object,
+                    "grasp": grasp,
+                    "augmentation": augmentation,
+                    "finger": finger,
+                    "source_path": str(directory / image_file),
+                    "modulus_pa": sample.modulus_pa,
+                }
+            )
+    if not frames:
+        raise ValueError(f"{root}: no readable sample ({unreadable[0]['reason']})")
     shapes = {f.shape for f in frames}
     if len(shapes) > 1:
         raise ValueError(f"{root}: samples have different frame shapes {sorted(shapes)}")
@@ -288,7 +289,57 @@ def read_grasp_dir(
         rows=pd.DataFrame(rows, columns=[*ROW_COLUMNS, "modulus_pa"]),
         kind="grasp_dir",
         frame_kind="difference",
+        unreadable=unreadable,
     )
+
+
+@dataclass
+class _SampleDir:
+    """What one augmentation directory holds: its images (one per finger) and scalars."""
+
+    object: str
+    modulus_pa: float
+    force: np.ndarray
+    width: np.ndarray
+    estimates: list[float]
+    images: list[tuple[str, str, np.ndarray]]  # (finger, file name, uint8 frames)
+
+
+def _read_sample_dir(
+    directory: Path, fingers: list[str], image_size: tuple[int, int] | None
+) -> _SampleDir:
+    """Read one augmentation directory like the importer does.
+
+    Raises:
+        ValueError: an unsafe or corrupt pickle, a wrong shape, no image of ``fingers``.
+    """
+    try:
+        obj, modulus = _label_pa(directory)
+        sample = _SampleDir(
+            object=obj,
+            modulus_pa=modulus,
+            force=_optional_vector(directory, "forces.pkl"),
+            width=_optional_vector(directory, "widths.pkl"),
+            estimates=[
+                load_estimate(directory, "elastic_estimate.pkl"),
+                load_estimate(directory, "hertz_estimate.pkl"),
+            ],
+            images=[],
+        )
+        for finger in fingers:
+            image_file = FINGER_FILES[finger][0]
+            if (directory / image_file).is_file():
+                # The importer's reader: allow-list unpickler, shape checks, BGR -> RGB.
+                rgb = load_frames(directory, image_file, None)
+                sample.images.append(
+                    (finger, image_file, frames_to_uint8(resize_frames(rgb, image_size)))
+                )
+    except SampleError as err:
+        raise ValueError(f"{directory}: {err}") from err
+    if not sample.images:
+        wanted = ", ".join(FINGER_FILES[f][0] for f in fingers)
+        raise ValueError(f"{directory}: no image file ({wanted})")
+    return sample
 
 
 # ---------------------------------------------------------------------- videos
@@ -412,7 +463,8 @@ def predict_path(
         pred_pa[part] = prediction.modulus_pa
         pred_log10[part] = prediction.log10_modulus_pa
 
-    records, skipped = [], []
+    records: list[dict[str, Any]] = []
+    skipped = [{**dict.fromkeys(ROW_COLUMNS), **bad} for bad in source.unreadable]
     truth = source.rows["modulus_pa"].to_numpy(np.float64)
     for i, row in enumerate(source.rows.to_dict(orient="records")):
         ident = {k: _plain(row[k]) for k in ROW_COLUMNS}
