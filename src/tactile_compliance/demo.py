@@ -9,7 +9,7 @@ the same path on a tiny dataset and a few grid cells, in seconds, for the test s
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -30,24 +30,25 @@ class DemoPlan:
     overrides: tuple[str, ...] = ()
 
 
+# Sized for <= 10 minutes on a 2-core CPU: Table I (quick) with one seed, 24 runs, plus
+# the Shore-hardness grid; add seeds or presets with `tactile-compliance experiment`.
+_FULL = DemoPlan(
+    n_objects=60,
+    grasps_per_object=3,
+    image_size=(96, 128),
+    shore_objects=24,
+    presets=("table1",),
+    seeds=1,
+)
 PLANS: dict[str, DemoPlan] = {
-    # Sized for <= 10 minutes on a 2-core CPU: Table I (quick) with one seed, 24 runs,
-    # plus the Shore-hardness grid; add seeds or presets with `tactile-compliance experiment`.
-    "full": DemoPlan(
-        n_objects=60,
-        grasps_per_object=3,
-        image_size=(96, 128),
-        shore_objects=24,
-        presets=("table1",),
-        seeds=1,
-    ),
-    "ci": DemoPlan(
+    "full": _FULL,
+    # The same path in seconds: a tiny dataset, one grid cell, one epoch.
+    "ci": replace(
+        _FULL,
         n_objects=12,
         grasps_per_object=2,
         image_size=(72, 96),
         shore_objects=6,
-        presets=("table1",),
-        seeds=1,
         where=("model.name=top10nn", "inputs=ALL", "split.condition=seen"),
         overrides=("training.max_epochs=1",),
     ),
