@@ -334,7 +334,7 @@ def test_predict_path_skips_a_corrupt_augmentation_like_the_importer(runs, tmp_p
     assert bad["augmentation"] == 1 and bad["source_path"].endswith("augmentation=1")
     assert "RGB.pkl" in bad["reason"]
     assert report["summary"]["n_skipped"] == 1
-    with pytest.raises(ValueError, match="RGB.pkl"):  # the only sample asked for is bad
+    with pytest.raises(ValueError, match=r"RGB\.pkl"):  # the only sample asked for is bad
         predict_path(runs["top10nn_all"], grasp_dir / "augmentation=1")
 
 

@@ -5,16 +5,20 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from tactile_compliance.data.store import (
     FRAMES_FILE,
     HEADER_FILE,
+    SAMPLES_FILE,
     GraspStore,
     GraspStoreWriter,
     StoreError,
     frames_from_uint8,
     frames_to_uint8,
+    store_problems,
+    validate_samples,
 )
 
 
@@ -174,3 +178,77 @@ def test_store_frames_reads_like_the_memmap(tmp_path):
     assert len(frames) == len(store) and frames.shape == store.frames.shape
     assert np.array_equal(frames[[4, 0, 4]], np.asarray(store.frames[[4, 0, 4]]))
     assert np.array_equal(frames[1:5], np.asarray(store.frames[1:5]))
+
+
+def _store_with_table(tmp_path, edit):
+    """A 6-sample store whose samples.parquet is then edited (as a buggy tool might)."""
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "test") as writer:
+        for i in range(6):
+            writer.append(np.zeros((3, 4, 5, 3)), _row(i))
+    table = pd.read_parquet(tmp_path / "s" / SAMPLES_FILE)
+    table = edit(table)
+    table.to_parquet(tmp_path / "s" / SAMPLES_FILE, index=False)
+    return tmp_path / "s"
+
+
+def _set(column, rows, value):
+    def edit(table):
+        table[column] = table[column].astype(str if isinstance(value, str) else float)
+        table.loc[rows, column] = value
+        return table
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    ("edit", "expected"),
+    [
+        (_set("modulus_pa", [1, 4], np.nan), r"modulus_pa .* 2 bad row\(s\): row 1: nan, row 4"),
+        (_set("modulus_pa", [3], -5.0), r"modulus_pa must be a finite number > 0 Pa.*row 3: -5"),
+        (_set("modulus_pa", [0], 0.0), r"modulus_pa.*row 0: 0\.0"),
+        (_set("modulus_pa", [2], np.inf), r"modulus_pa.*row 2: inf"),
+        (_set("modulus_pa", [5], "soft"), r"modulus_pa.*row 5: 'soft'"),
+        (lambda t: t.drop(columns=["modulus_pa", "object"]), r"missing columns"),
+        (_set("sample_id", [2], 1), r"sample_id has 1 duplicated value.*row 2: 1"),
+        (lambda t: t.iloc[::-1], r"sample_id must equal the row number.*row 0: 5"),
+    ],
+)
+def test_open_rejects_bad_tables(tmp_path, edit, expected):
+    path = _store_with_table(tmp_path, edit)
+    with pytest.raises(StoreError, match=expected):
+        GraspStore.open(path)
+    problems = store_problems(path)
+    assert len(problems) == 1 and problems[0]
+    if "missing" not in expected:
+        # validate=False opens it anyway (to inspect); validate_samples says the same.
+        store = GraspStore.open(path, validate=False)
+        assert validate_samples(store.samples) == problems
+
+
+def test_valid_store_has_no_problems(tmp_path):
+    path = _store_with_table(tmp_path, lambda t: t)
+    assert store_problems(path) == [] and validate_samples(GraspStore.open(path).samples) == []
+    assert store_problems(tmp_path / "missing") == [
+        f"{tmp_path / 'missing'}: no such store directory"
+    ]
+
+
+def test_info_reports_a_bad_label(tmp_path):
+    from typer.testing import CliRunner
+
+    from tactile_compliance.cli import app
+
+    path = _store_with_table(tmp_path, _set("modulus_pa", [2], np.nan))
+    result = CliRunner().invoke(app, ["info", str(path)])
+    assert result.exit_code != 0 and "modulus_pa" in result.output and "row 2" in result.output
+
+
+def test_writer_refuses_bad_labels_and_text(tmp_path):
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "test") as writer:
+        for bad in (np.nan, -1.0, 0.0, np.inf, None):
+            with pytest.raises(ValueError, match="modulus_pa must be a finite number > 0"):
+                writer.append(np.zeros((3, 4, 5, 3)), {**_row(0), "modulus_pa": bad})
+        with pytest.raises(ValueError, match="object is not valid UTF-8"):
+            writer.append(np.zeros((3, 4, 5, 3)), {**_row(0), "object": "caf\udce9"})
+        writer.append(np.zeros((3, 4, 5, 3)), _row(0))
+    assert len(GraspStore.open(tmp_path / "s")) == 1

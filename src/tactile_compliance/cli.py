@@ -34,6 +34,14 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
     return (ValueError, OSError, StoreError, DataImportError, ExperimentError, TuneError)
 
 
+def _write_failures() -> tuple[type[BaseException], ...]:
+    """Expected errors where the input was fine but writing failed (a full disk): exit 1."""
+    from tactile_compliance.data.import_report import ImportWriteError
+    from tactile_compliance.data.store import StoreWriteError
+
+    return (ImportWriteError, StoreWriteError)
+
+
 def _one_line_errors(command: Any) -> Any:
     """Wrap a command so that expected errors print one line and exit with code 2."""
 
@@ -49,7 +57,8 @@ def _one_line_errors(command: Any) -> Any:
         except Exception as err:
             if _debug or not isinstance(err, _expected_errors()):
                 raise
-            _fail(str(err) or type(err).__name__, EXIT_BAD_INPUT)
+            code = EXIT_FAILED if isinstance(err, _write_failures()) else EXIT_BAD_INPUT
+            _fail(str(err) or type(err).__name__, code)
 
     return run
 

@@ -11,15 +11,19 @@ Layout (see ``docs/data.md``)::
 
 The synthetic generator writes the same layout, so this one importer serves real and
 synthetic data. Each (grasp, augmentation, finger) becomes one store sample.
+
+The frame size is the majority over the dataset: a first pass reads only the shape each
+image pickle declares (:func:`~tactile_compliance.data.safe_pickle.peek_array_shape`, a
+few hundred bytes per file); samples of another size are skipped and reported. A bad
+file skips its sample (or object), never the import; see ``docs/data.md``.
 """
 
 from __future__ import annotations
 
 import json
-import pickle
 import re
 import time
-from collections.abc import Iterator
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -28,9 +32,21 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.image_ops import resize_frames
-from tactile_compliance.data.import_report import DataImportError, ImportReport, import_paths
+from tactile_compliance.data.import_report import (
+    ImportPathError,
+    ImportReport,
+    NothingImportedError,
+    import_paths,
+    store_writing,
+    utf8_problem,
+)
 from tactile_compliance.data.object_table import read_object_table, valid_modulus
-from tactile_compliance.data.safe_pickle import UnsafePickleError, load_numpy_pickle
+from tactile_compliance.data.safe_pickle import (
+    ArrayTooLargeError,
+    UnsafePickleError,
+    load_numpy_pickle,
+    peek_array_shape,
+)
 from tactile_compliance.data.store import FRAMES_PER_SAMPLE, GraspStoreWriter
 from tactile_compliance.progress import progress_bar
 
@@ -71,16 +87,22 @@ def _numbered_dirs(parent: Path, pattern: re.Pattern[str]) -> list[tuple[int, Pa
 
 
 def _load_array(path: Path, what: str) -> np.ndarray:
+    """A numeric array (integer or float dtype) from an untrusted pickle, or SampleError."""
     if not path.is_file():
         raise SampleError(f"missing file: {path.name}")
     try:
-        return load_numpy_pickle(path)
+        array = load_numpy_pickle(path)
     except UnsafePickleError as err:
         raise SampleError(f"unsafe pickle rejected: {err}") from err
-    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError) as err:
-        raise SampleError(f"corrupt pickle: {path.name} ({type(err).__name__}: {err})") from err
+    except ArrayTooLargeError as err:
+        raise SampleError(f"array too large: {path.name} {err}") from err
     except OSError as err:
         raise SampleError(f"unreadable file: {path.name} ({err})") from err
+    except Exception as err:  # only numpy code runs: any other error means a bad file
+        raise SampleError(f"corrupt pickle: {path.name} ({type(err).__name__}: {err})") from err
+    if array.dtype.kind not in "iuf":
+        raise SampleError(f"wrong dtype: {path.name} is {array.dtype}, expected numbers")
+    return array
 
 
 def load_vector(directory: Path, name: str, length: int) -> np.ndarray:
@@ -106,11 +128,17 @@ def load_estimate(directory: Path, name: str) -> float:
 def load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None) -> np.ndarray:
     """Difference images as float32 RGB (3, H, W, 3); the files store BGR."""
     array = _load_array(directory / name, name)
-    if array.ndim != 4 or array.shape[0] != FRAMES_PER_SAMPLE or array.shape[3] != 3:
+    if (
+        array.ndim != 4
+        or array.shape[0] != FRAMES_PER_SAMPLE
+        or array.shape[3] != 3
+        or array.size == 0
+    ):
         raise SampleError(f"wrong array shape: {name} is {array.shape}, expected (3, H, W, 3)")
     if expected_hw is not None and tuple(array.shape[1:3]) != expected_hw:
         raise SampleError(
-            f"wrong array shape: {name} is {array.shape}, other samples are {expected_hw}"
+            f"wrong array shape: {name} is {array.shape}, the dataset's frames are "
+            f"{expected_hw[0]}x{expected_hw[1]}"
         )
     if not np.all(np.isfinite(array)):
         raise SampleError(f"non-finite values: {name}")
@@ -123,7 +151,7 @@ def _depth_maxima_mm(directory: Path, name: str) -> np.ndarray:
     if not (directory / name).is_file():
         return np.full(FRAMES_PER_SAMPLE, np.nan)
     depth = _load_array(directory / name, name)
-    if depth.ndim != 3 or depth.shape[0] != FRAMES_PER_SAMPLE:
+    if depth.ndim != 3 or depth.shape[0] != FRAMES_PER_SAMPLE or depth.size == 0:
         raise SampleError(f"wrong array shape: {name} is {depth.shape}, expected (3, H, W)")
     if not np.all(np.isfinite(depth)):
         raise SampleError(f"non-finite values: {name}")
@@ -135,6 +163,10 @@ def _object_label(
 ) -> ObjectLabel | None:
     """Labels from the object table when given, else from metadata.json; None = skip object."""
     name = object_dir.name
+    problem = utf8_problem(name)
+    if problem:
+        report.problem(object_dir, f"invalid name: the object directory name is {problem}")
+        return None
     if table is not None:
         if name not in table.index:
             report.problem(object_dir, "object absent from the object table")
@@ -149,34 +181,78 @@ def _object_label(
             )
             return None
         try:
-            metadata: dict[str, Any] = json.loads(metadata_path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            metadata: dict[str, Any] = json.loads(metadata_path.read_text(encoding="utf-8"))
+        except (ValueError, OSError) as err:  # JSONDecodeError, UnicodeDecodeError
             report.problem(metadata_path, f"corrupt metadata.json: {err}")
+            return None
+        if not isinstance(metadata, dict):
+            report.problem(metadata_path, "corrupt metadata.json: not a JSON object")
             return None
         modulus = metadata.get("youngs_modulus")
         material = metadata.get("material", "")
         shape = metadata.get("shape", "")
+        for field_name, text in (("material", material), ("shape", shape)):
+            problem = utf8_problem(str(text))
+            if problem:
+                report.problem(metadata_path, f"invalid metadata.json: {field_name} is {problem}")
+                return None
     if not valid_modulus(modulus):
         report.problem(object_dir, f"invalid modulus: {modulus!r} (must be a finite number > 0 Pa)")
         return None
     return ObjectLabel(name, float(modulus), str(material), str(shape))  # type: ignore[arg-type]
 
 
-def _sample_dirs(object_dir: Path) -> Iterator[tuple[int, int, Path]]:
-    for grasp, grasp_dir in _numbered_dirs(object_dir, _GRASP_DIR):
-        for augmentation, aug_dir in _numbered_dirs(grasp_dir, _AUGMENTATION_DIR):
-            yield grasp, augmentation, aug_dir
+def _sample_dirs(object_dir: Path, report: ImportReport) -> list[tuple[int, int, Path]]:
+    """(grasp, augmentation, directory) of an object; unlistable directories are reported."""
+    found: list[tuple[int, int, Path]] = []
+    try:
+        grasps = _numbered_dirs(object_dir, _GRASP_DIR)
+    except OSError as err:
+        report.problem(object_dir, f"unreadable directory: {err.strerror or err}")
+        return found
+    unreadable = False
+    for grasp, grasp_dir in grasps:
+        try:
+            augmentations = _numbered_dirs(grasp_dir, _AUGMENTATION_DIR)
+        except OSError as err:
+            report.problem(grasp_dir, f"unreadable directory: {err.strerror or err}")
+            unreadable = True
+            continue
+        found.extend((grasp, augmentation, aug_dir) for augmentation, aug_dir in augmentations)
+    if not found and not unreadable:
+        report.problem(object_dir, "no grasp=g/augmentation=k directories")
+    return found
 
 
 def _object_dirs(src: Path) -> list[Path]:
     # A directory is an object when it holds metadata.json or grasp=* directories.
-    return sorted(
+    try:
+        children = sorted(src.iterdir())
+    except OSError as err:
+        raise ImportPathError(f"{src}: cannot list the source directory ({err})") from err
+    return [
         d
-        for d in src.iterdir()
+        for d in children
         if d.is_dir()
         and not d.name.startswith(".")
         and ((d / "metadata.json").exists() or any(d.glob("grasp=*")))
-    )
+    ]
+
+
+def majority_frame_size(
+    samples: list[tuple[ObjectLabel, int, int, Path]], image_files: list[str], progress: bool
+) -> tuple[tuple[int, int] | None, Counter[tuple[int, int]]]:
+    """The most common (H, W) that the image pickles declare, read without loading them
+    (ties: the size met first), and the counts; (None, empty) when none could be read."""
+    sizes: Counter[tuple[int, int]] = Counter()
+    with progress_bar("Reading frame sizes", total=len(samples), enabled=progress) as advance:
+        for _, _, _, aug_dir in samples:
+            for image_file in image_files:
+                shape = peek_array_shape(aug_dir / image_file)
+                if shape is not None and len(shape) == 4 and shape[::3] == (3, 3) and min(shape):
+                    sizes[(shape[1], shape[2])] += 1
+            advance()
+    return (sizes.most_common(1)[0][0] if sizes else None), sizes
 
 
 def import_burgess(
@@ -200,11 +276,18 @@ def import_burgess(
         fingers: which sensor's images to import; ``both`` gives two samples per grasp
             and augmentation.
         image_size: (height, width) in pixels to resize to; default keeps the source size.
+            Either way the source frames must have the dataset's majority size; samples of
+            another size are skipped and reported.
         strict: stop at the first problem instead of skipping and reporting.
-        overwrite: replace an existing store (atomically, only once the new one is complete).
+        overwrite: replace an existing store (atomically, only once the new one is
+            complete); only a store is ever replaced.
         progress: show a progress bar.
         source_name: recorded in the store header; default ``synthetic`` for trees written
             by the generator (they hold ``generation.json``), else ``burgess``.
+
+    Raises:
+        DataImportError: one of its subclasses (``import_report``) when the import cannot
+            go on; nothing is written then.
     """
     start = time.perf_counter()
     src, out = import_paths(src_dir, out_dir, overwrite)
@@ -221,79 +304,93 @@ def import_burgess(
     object_dirs = _object_dirs(src)
     report.objects_seen = len(object_dirs)
     if not object_dirs:
-        raise DataImportError(f"{src}: no object directories (expected {{object}}/grasp=g/...)")
+        raise NothingImportedError(
+            f"{src}: no object directories (expected {{object}}/grasp=g/...)", report=report
+        )
+    samples: list[tuple[ObjectLabel, int, int, Path]] = []
+    for object_dir in object_dirs:
+        label = _object_label(object_dir, table, report)
+        if label is not None:
+            samples.extend((label, g, k, d) for g, k, d in _sample_dirs(object_dir, report))
+    image_files = [FINGER_FILES[finger][0] for finger in finger_names]
+    source_hw, sizes = majority_frame_size(samples, image_files, progress)
 
     writer: GraspStoreWriter | None = None
-    source_hw: tuple[int, int] | None = None
+    objects_imported: set[str] = set()
     try:
-        with progress_bar("Importing objects", total=len(object_dirs), enabled=progress) as advance:
-            for object_dir in object_dirs:
-                label = _object_label(object_dir, table, report)
-                imported_before = report.samples_imported
-                if label is not None:
-                    for grasp, augmentation, aug_dir in _sample_dirs(object_dir):
-                        try:
-                            forces_n = load_vector(aug_dir, "forces.pkl", FRAMES_PER_SAMPLE)
-                            widths_m = load_vector(aug_dir, "widths.pkl", FRAMES_PER_SAMPLE)
-                            elastic_pa = load_estimate(aug_dir, "elastic_estimate.pkl")
-                            hertz_pa = load_estimate(aug_dir, "hertz_estimate.pkl")
-                        except SampleError as err:
-                            report.problem(aug_dir, str(err))
-                            continue
-                        for finger in finger_names:
-                            image_file, depth_file = FINGER_FILES[finger]
-                            try:
-                                frames = load_frames(aug_dir, image_file, source_hw)
-                                depth_max_mm = _depth_maxima_mm(aug_dir, depth_file)
-                            except SampleError as err:
-                                report.problem(aug_dir / image_file, str(err))
-                                continue
-                            if source_hw is None:
-                                source_hw = (frames.shape[1], frames.shape[2])
-                            if writer is None:
-                                writer = GraspStoreWriter(
-                                    out,
-                                    image_size=image_size or source_hw,
-                                    source=source_name,
-                                    creation_parameters={
-                                        "importer": "burgess",
-                                        "source_dir": str(src.resolve()),
-                                        "object_table": str(object_table) if object_table else None,
-                                        "fingers": fingers,
-                                        "source_image_size": list(source_hw),
-                                        "frame_kind": "difference",
-                                    },
-                                    overwrite=overwrite,
-                                )
-                            writer.append(
-                                resize_frames(frames, image_size),
-                                {
-                                    "object": label.name,
-                                    "grasp": grasp,
-                                    "augmentation": augmentation,
-                                    "finger": finger,
-                                    "material": label.material,
-                                    "shape": label.shape,
-                                    "modulus_pa": label.modulus_pa,
-                                    **{f"force_n_{i}": forces_n[i] for i in range(3)},
-                                    **{f"width_m_{i}": widths_m[i] for i in range(3)},
-                                    "elastic_estimate_pa": elastic_pa,
-                                    "hertz_estimate_pa": hertz_pa,
-                                    **{f"depth_max_mm_{i}": depth_max_mm[i] for i in range(3)},
-                                    "source_path": str((aug_dir / image_file).relative_to(src)),
-                                },
-                            )
-                            report.samples_imported += 1
-                    if report.samples_imported > imported_before:
-                        report.objects_imported += 1
-                    elif not any(True for _ in _sample_dirs(object_dir)):
-                        report.problem(object_dir, "no grasp=g/augmentation=k directories")
+        with (
+            store_writing(out, report),
+            progress_bar("Importing samples", total=len(samples), enabled=progress) as advance,
+        ):
+            for label, grasp, augmentation, aug_dir in samples:
                 advance()
-        if writer is None:
-            raise DataImportError(
-                f"{src}: nothing importable ({len(report.problems)} problems)\n{report.format()}"
-            )
-        writer.commit()
+                try:
+                    forces_n = load_vector(aug_dir, "forces.pkl", FRAMES_PER_SAMPLE)
+                    widths_m = load_vector(aug_dir, "widths.pkl", FRAMES_PER_SAMPLE)
+                    elastic_pa = load_estimate(aug_dir, "elastic_estimate.pkl")
+                    hertz_pa = load_estimate(aug_dir, "hertz_estimate.pkl")
+                except SampleError as err:
+                    report.problem(aug_dir, str(err))
+                    continue
+                for finger in finger_names:
+                    image_file, depth_file = FINGER_FILES[finger]
+                    try:
+                        frames = load_frames(aug_dir, image_file, source_hw)
+                        depth_max_mm = _depth_maxima_mm(aug_dir, depth_file)
+                        if source_hw is None:  # no size could be peeked: the first decides
+                            source_hw = (frames.shape[1], frames.shape[2])
+                        frames = resize_frames(frames, image_size)
+                    except SampleError as err:
+                        report.problem(aug_dir / image_file, str(err))
+                        continue
+                    row = {
+                        "object": label.name,
+                        "grasp": grasp,
+                        "augmentation": augmentation,
+                        "finger": finger,
+                        "material": label.material,
+                        "shape": label.shape,
+                        "modulus_pa": label.modulus_pa,
+                        **{f"force_n_{i}": forces_n[i] for i in range(3)},
+                        **{f"width_m_{i}": widths_m[i] for i in range(3)},
+                        "elastic_estimate_pa": elastic_pa,
+                        "hertz_estimate_pa": hertz_pa,
+                        **{f"depth_max_mm_{i}": depth_max_mm[i] for i in range(3)},
+                        "source_path": str((aug_dir / image_file).relative_to(src)),
+                    }
+                    if writer is None:
+                        writer = GraspStoreWriter(
+                            out,
+                            image_size=image_size or source_hw,
+                            source=source_name,
+                            creation_parameters={
+                                "importer": "burgess",
+                                "source_dir": str(src.resolve()),
+                                "object_table": str(object_table) if object_table else None,
+                                "fingers": fingers,
+                                "source_image_size": list(source_hw),
+                                "source_image_sizes": {
+                                    f"{h}x{w}": n for (h, w), n in sizes.most_common()
+                                },
+                                "frame_kind": "difference",
+                            },
+                            overwrite=overwrite,
+                        )
+                    try:
+                        writer.append(frames, row)
+                    except ValueError as err:  # a value the store cannot hold
+                        report.problem(aug_dir / image_file, f"invalid sample: {err}")
+                        continue
+                    report.samples_imported += 1
+                    objects_imported.add(label.name)
+            report.objects_imported = len(objects_imported)
+            if writer is None or report.samples_imported == 0:
+                raise NothingImportedError(
+                    f"{src}: nothing importable, every sample was skipped "
+                    f"({len(report.problems)} problems)\n{report.format()}",
+                    report=report,
+                )
+            writer.commit()
     except BaseException:
         if writer is not None:
             writer.abort()

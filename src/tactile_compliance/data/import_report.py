@@ -1,35 +1,156 @@
-"""What an importer skipped and why, and the path checks, shared by every importer.
+"""What an importer skipped and why, the import errors, and the path checks, shared by
+every importer.
 
 Importers never stop at the first bad file (unless ``strict``): they record the problem
 against the file or object it concerns, skip that sample or object, and carry on. The
 report is printed at the end and returned to the caller.
+
+What stops an import is one exception, a :class:`DataImportError`, and nothing is left
+behind (no store, no partial directory, no parent directory the import created):
+
+======================== ===============================================================
+exception                meaning
+======================== ===============================================================
+:class:`ImportPathError` the source or ``--out`` path is unusable: source missing,
+                         ``--out`` inside the source or the source inside ``--out``,
+                         ``--out`` exists and is not a store (``--overwrite`` only ever
+                         replaces a store), or is a link or a file
+:class:`StoreExistsError` ``--out`` is an existing store and ``--overwrite`` is not
+                         given (also a ``FileExistsError``)
+``ObjectTableError``     the ``--objects`` table cannot be read (``object_table``)
+:class:`NothingImportedError` no sample could be imported (the report says why)
+:class:`StrictModeError` ``strict``: the first problem
+:class:`ImportWriteError` writing the store failed (full disk, permissions, I/O error)
+======================== ===============================================================
+
+Each carries the :class:`ImportReport` so far as ``report`` (None before the import began).
 """
 
 from __future__ import annotations
 
+import os
 from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from tactile_compliance.data.store import (
+    NotAStoreError,
+    StoreWriteError,
+    is_store_dir,
+    recover_interrupted_writes,
+    store_kind_hint,
+)
+from tactile_compliance.outputs import OutputExistsError
+
 
 class DataImportError(Exception):
-    """An import cannot proceed (strict mode, or nothing importable was found)."""
+    """An import cannot proceed; nothing was written. ``report``: the problems so far."""
+
+    def __init__(self, *args: object, report: ImportReport | None = None) -> None:
+        super().__init__(*args)
+        self.report = report
+
+
+class ImportPathError(DataImportError):
+    """The source or the store path of an import is unusable (bad usage)."""
+
+
+class StoreExistsError(ImportPathError, OutputExistsError):
+    """``--out`` is an existing store and ``overwrite`` was not given."""
+
+
+class NothingImportedError(DataImportError):
+    """The source holds no importable sample: every one was skipped (see ``report``)."""
+
+
+class StrictModeError(DataImportError):
+    """Strict mode: the first problem stops the import."""
+
+
+class ImportWriteError(DataImportError):
+    """Writing the store failed (full disk, permissions, I/O error); nothing was left."""
+
+
+def printable_path(path: str | Path) -> str:
+    """``path`` as text that can always be printed and saved as UTF-8: bytes that are not
+    UTF-8 (file names are bytes on Linux) appear as ``\\xNN``."""
+    text = str(path)
+    try:
+        raw = text.encode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:  # a surrogate that no file name decoding produces
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+    return raw.decode("utf-8", "backslashreplace")
+
+
+def utf8_problem(text: str) -> str | None:
+    """None when ``text`` can be stored (valid UTF-8), else why not."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return f"not valid UTF-8: {printable_path(text)!r}"
+    return None
+
+
+def _contains(outer: Path, inner: Path) -> bool:
+    return inner == outer or inner.is_relative_to(outer)
 
 
 def import_paths(src_dir: str | Path, out_dir: str | Path, overwrite: bool) -> tuple[Path, Path]:
     """The source and store paths of an import, checked before any work starts.
 
+    Also tidies what interrupted imports to the same ``out_dir`` left behind
+    (:func:`~tactile_compliance.data.store.recover_interrupted_writes`).
+
     Raises:
-        DataImportError: the source directory does not exist.
-        FileExistsError: the store path exists and ``overwrite`` is false.
+        ImportPathError: the source directory does not exist; ``out_dir`` is the source
+            or inside it, or the source is inside ``out_dir``; ``out_dir`` exists and is
+            not a GraspStore (a file, a link, a directory without the store marker or
+            ``header.json`` + ``samples.parquet``): ``overwrite`` never deletes those.
+        StoreExistsError: ``out_dir`` is a store and ``overwrite`` is false.
     """
     src, out = Path(src_dir), Path(out_dir)
     if not src.is_dir():
-        raise DataImportError(f"{src}: source directory not found")
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
+        raise ImportPathError(f"{src}: source directory not found")
+    real_src, real_out = src.resolve(), out.resolve()
+    if _contains(real_src, real_out):
+        raise ImportPathError(
+            f"--out {out} is inside the source directory {src}; choose a path outside it"
+        )
+    if _contains(real_out, real_src):
+        raise ImportPathError(
+            f"the source directory {src} is inside --out {out}; replacing the store would "
+            "delete the data being imported"
+        )
+    recover_interrupted_writes(out)
+    if os.path.lexists(out):
+        if not overwrite:
+            raise StoreExistsError(f"{out} already exists; pass --overwrite to replace it")
+        if not is_store_dir(out):
+            raise ImportPathError(
+                f"{out} exists and is not a GraspStore ({store_kind_hint(out)}); --overwrite "
+                "only replaces a store. Choose another --out or remove it yourself"
+            )
     return src, out
+
+
+@contextmanager
+def store_writing(out: Path, report: ImportReport) -> Iterator[None]:
+    """Turn the store writer's errors into import errors naming ``out``."""
+    try:
+        yield
+    except StoreWriteError as err:
+        raise ImportWriteError(
+            f"cannot write the store {out}: {err.reason}; nothing was written", report=report
+        ) from err
+    except NotAStoreError as err:
+        raise ImportPathError(str(err), report=report) from err
+    except DataImportError:
+        raise
+    except FileExistsError as err:  # --out appeared while importing
+        raise StoreExistsError(str(err), report=report) from err
 
 
 @dataclass
@@ -48,9 +169,12 @@ class ImportReport:
 
     def problem(self, path: str | Path, reason: str) -> None:
         """Record a skipped file/object; in strict mode the first problem is fatal."""
-        self.problems.append((str(path), reason))
+        shown, reason = printable_path(path), printable_path(reason)
+        self.problems.append((shown, reason))
         if self.strict:
-            raise DataImportError(f"{path}: {reason} (strict mode: stopping at the first problem)")
+            raise StrictModeError(
+                f"{shown}: {reason} (strict mode: stopping at the first problem)", report=self
+            )
 
     @property
     def samples_per_second(self) -> float:

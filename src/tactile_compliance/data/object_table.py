@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data.import_report import DataImportError
+
 LABEL_COLUMN = "Label"
 SHAPE_COLUMN = "Shape"
 MATERIAL_COLUMN = "Material"
@@ -26,8 +28,10 @@ OPTIONAL_COLUMNS = {
 }
 
 
-class ObjectTableError(ValueError):
-    """The object table is missing or does not have the expected columns."""
+class ObjectTableError(DataImportError, ValueError):
+    """The object table is missing, unreadable (empty, not CSV, not UTF-8, a directory,
+    no permission) or does not have the expected columns. Raised before an import writes
+    anything; a :class:`DataImportError` and a ``ValueError``."""
 
 
 def read_object_table(path: str | Path) -> pd.DataFrame:
@@ -42,8 +46,12 @@ def read_object_table(path: str | Path) -> pd.DataFrame:
         raise ObjectTableError(f"{path}: object table not found")
     try:
         raw = pd.read_csv(path)
-    except (pd.errors.ParserError, UnicodeDecodeError) as err:
+    except pd.errors.EmptyDataError as err:
+        raise ObjectTableError(f"{path}: the object table is empty") from err
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as err:
         raise ObjectTableError(f"{path}: cannot parse CSV ({err})") from err
+    except OSError as err:
+        raise ObjectTableError(f"{path}: cannot read the object table ({err})") from err
     raw.columns = [str(c).strip() for c in raw.columns]
     missing = [c for c in REQUIRED_COLUMNS if c not in raw.columns]
     if missing:

@@ -3,6 +3,7 @@
 A store is a directory::
 
     STORE/
+      .tactile-compliance.json  marker, kind "store" (what --overwrite checks)
       header.json       format version, frame shape, channel order, source, creation parameters
       samples.parquet   one row per sample (labels, F, W, estimates, provenance)
       frames.u8         raw uint8 array (N, 3 frames, H, W, 3 channels), RGB, memory-mapped
@@ -15,15 +16,22 @@ lazily through ``np.memmap`` so nothing is loaded into RAM until a sample is ask
 
 Stores are written by :class:`GraspStoreWriter`, which streams frames into a temporary
 sibling directory and renames it into place only when everything is written: an
-interrupted import never leaves a directory that looks like a complete store.
+interrupted import never leaves a directory that looks like a complete store. What a
+killed writer leaves (its ``.NAME.partial-*`` directory, or the old store it was swapping
+out) is tidied by the next writer to the same path (:func:`recover_interrupted_writes`).
+Opening a store checks its table (:func:`validate_samples`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import re
+import secrets
 import shutil
-import tempfile
+import socket
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -34,8 +42,17 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance import __version__
+from tactile_compliance.outputs import MARKER_NAME, output_kind
 
 FORMAT_VERSION = 1
+#: Written into every store by :class:`GraspStoreWriter`; ``--overwrite`` replaces only a
+#: directory that has it (or, for stores written before it existed, header.json +
+#: samples.parquet): see :func:`is_store_dir`.
+#: The marker of every tactile-compliance output (``outputs.MARKER_NAME``), kind "store".
+STORE_MARKER = MARKER_NAME
+STORE_KIND = "store"
+#: Written into a writer's temporary directory when it is created: who owns it.
+PARTIAL_MARKER = ".partial-owner.json"
 HEADER_FILE = "header.json"
 SAMPLES_FILE = "samples.parquet"
 FRAMES_FILE = "frames.u8"
@@ -80,6 +97,21 @@ class StoreError(Exception):
     """A store is missing, incomplete or inconsistent."""
 
 
+class NotAStoreError(StoreError):
+    """A path to be replaced is not a GraspStore; it was left untouched."""
+
+
+class StoreWriteError(StoreError):
+    """Writing a store failed (e.g. a full disk); everything written was removed.
+
+    ``reason`` is the operating system's message, ``errno`` its error number."""
+
+    def __init__(self, message: str, reason: str = "", errno: int | None = None) -> None:
+        super().__init__(message)
+        self.reason = reason or message
+        self.errno = errno
+
+
 #: Decoding is ``(u + FRAME_DECODE_OFFSET) / 255``; see :func:`frames_to_uint8`.
 FRAME_DECODE_OFFSET = 0.5
 
@@ -106,6 +138,182 @@ def frames_from_uint8(frames: np.ndarray) -> np.ndarray:
     return (np.asarray(frames, dtype=np.float32) + np.float32(FRAME_DECODE_OFFSET)) / np.float32(
         255.0
     )
+
+
+def validate_samples(samples: pd.DataFrame) -> list[str]:
+    """What is wrong with a store's table, one message per problem (empty: nothing).
+
+    Checks the columns every later step relies on: all of :data:`SAMPLE_COLUMNS` present;
+    ``sample_id`` equal to the row number 0..N-1 (it is the index into ``frames.u8``), so
+    unique; ``modulus_pa`` a finite number > 0 Pa in every row (the training label).
+    Messages name the column and the first bad rows (0-based row numbers).
+    """
+    problems = []
+    missing = [c for c in SAMPLE_COLUMNS if c not in samples.columns]
+    if missing:
+        problems.append(f"missing columns {missing}")
+
+    def first(rows: np.ndarray, column: str) -> str:
+        values = samples[column].iloc[rows[:5]].tolist()  # plain Python values to print
+        shown = ", ".join(f"row {r}: {v!r}" for r, v in zip(rows[:5], values, strict=True))
+        more = f" and {len(rows) - 5} more" if len(rows) > 5 else ""
+        return f"{shown}{more}"
+
+    if "sample_id" in samples.columns:
+        ids = pd.to_numeric(samples["sample_id"], errors="coerce").to_numpy(dtype=np.float64)
+        duplicated = np.flatnonzero(samples["sample_id"].duplicated().to_numpy())
+        wrong = np.flatnonzero(ids != np.arange(len(samples)))
+        if duplicated.size:
+            problems.append(
+                f"column sample_id has {duplicated.size} duplicated value(s): "
+                f"{first(duplicated, 'sample_id')}"
+            )
+        elif wrong.size:
+            problems.append(
+                f"column sample_id must equal the row number (it indexes {FRAMES_FILE}); "
+                f"{wrong.size} row(s) differ: {first(wrong, 'sample_id')}"
+            )
+    if "modulus_pa" in samples.columns:
+        moduli = pd.to_numeric(samples["modulus_pa"], errors="coerce").to_numpy(dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~(np.isfinite(moduli) & (moduli > 0)))
+        if bad.size:
+            problems.append(
+                f"column modulus_pa must be a finite number > 0 Pa; {bad.size} bad row(s): "
+                f"{first(bad, 'modulus_pa')}"
+            )
+    return problems
+
+
+def store_problems(path: str | Path) -> list[str]:
+    """Everything wrong with the store at ``path`` (empty: it opens and validates).
+
+    Never raises; for ``info`` to list the problems of a store that does not open."""
+    try:
+        store = GraspStore.open(path, validate=False)
+    except StoreError as err:
+        return [str(err)]
+    return validate_samples(store.samples)
+
+
+def is_store_dir(path: str | Path) -> bool:
+    """Whether ``path`` is a GraspStore directory that may be replaced (``--overwrite``).
+
+    A store is a real directory (not a link) holding the :data:`STORE_MARKER` file that
+    :class:`GraspStoreWriter` writes, or, for stores written before the marker existed,
+    a ``header.json`` with ``format_version`` and ``image_size`` next to
+    ``samples.parquet``. Nothing else is ever replaced.
+    """
+    path = Path(path)
+    if path.is_symlink() or not path.is_dir():
+        return False
+    try:
+        if (path / STORE_MARKER).is_file():
+            return output_kind(path) == STORE_KIND
+        if (path / HEADER_FILE).is_file() and (path / SAMPLES_FILE).is_file():
+            header = json.loads((path / HEADER_FILE).read_text())
+            return isinstance(header, dict) and {"format_version", "image_size"} <= set(header)
+    except (OSError, ValueError, AttributeError):
+        return False
+    return False
+
+
+def store_kind_hint(path: str | Path) -> str:
+    """What ``path`` is, for the message refusing to replace it."""
+    path = Path(path)
+    if path.is_symlink():
+        return "a symbolic link"
+    if not path.is_dir():
+        return "not a directory"
+    return f"a directory without {STORE_MARKER}, nor {HEADER_FILE} + {SAMPLES_FILE}"
+
+
+# ------------------------------------------------------------- leftovers of killed writers
+def _process_start(pid: int) -> str | None:
+    """The start time of process ``pid`` (Linux: /proc/PID/stat field 22), or None."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()[19]
+    except (OSError, IndexError):
+        return None
+
+
+def _process_alive(pid: int, start: str | None) -> bool:
+    """Whether process ``pid`` still runs (and is the same process, when ``start`` is known)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: assume it is the owner
+        return True
+    except (OSError, OverflowError, ValueError):
+        return True
+    current = _process_start(pid)
+    return start is None or current is None or current == start
+
+
+def _partial_owner_gone(partial: Path) -> bool:
+    """Whether ``partial`` is a writer's temporary directory whose process is gone."""
+    if partial.is_symlink() or not partial.is_dir():
+        return False
+    try:
+        owner = json.loads((partial / PARTIAL_MARKER).read_text())
+        pid, host = int(owner["pid"]), str(owner["host"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False  # not written by a writer (or by one killed before the marker)
+    if owner.get("kind") != STORE_KIND or host != socket.gethostname():
+        return False  # another machine's (shared file system): cannot tell, keep it
+    return not _process_alive(pid, owner.get("start"))
+
+
+def recover_interrupted_writes(path: str | Path) -> list[Path]:
+    """Tidy what killed writers of the store ``path`` left next to it; returns what was
+    removed or restored.
+
+    - ``.NAME.partial-*`` directories holding :data:`PARTIAL_MARKER` whose process (same
+      host, same PID and start time) no longer runs are deleted. Directories of live
+      writers, of other hosts, or without the marker are left alone.
+    - ``.NAME.old-PID-*`` (the previous store, moved aside while a new one was swapped
+      in) whose process no longer runs: put back as ``NAME`` when ``NAME`` is missing
+      (the swap never finished, the old store survives), deleted when ``NAME`` exists.
+      Only when it is a store (:func:`is_store_dir`).
+    """
+    path = Path(path)
+    parent = path.parent
+    touched: list[Path] = []
+    if not parent.is_dir():
+        return touched
+    partial = re.compile(re.escape(f".{path.name}.partial-") + r"[0-9a-f]+$")
+    backup = re.compile(re.escape(f".{path.name}.old-") + r"(\d+)-[0-9a-f]+$")
+    try:
+        entries = sorted(parent.iterdir())
+    except OSError:
+        return touched
+    for entry in entries:
+        if partial.match(entry.name) and _partial_owner_gone(entry):
+            shutil.rmtree(entry, ignore_errors=True)
+            touched.append(entry)
+        match = backup.match(entry.name)
+        if match and is_store_dir(entry) and not _process_alive(int(match[1]), None):
+            try:
+                if os.path.lexists(path):
+                    shutil.rmtree(entry)
+                else:
+                    os.rename(entry, path)
+            except OSError:
+                continue
+            touched.append(entry)
+    return touched
+
+
+def _write_all(file: Any, data: bytes) -> None:
+    """Append ``data`` to an open binary file (one place, so tests can fill the disk)."""
+    file.write(data)
+
+
+def _write_json(path: Path, content: Any) -> None:
+    """Write ``content`` as JSON text (mode from the umask, like every store file)."""
+    with open(path, "w", encoding="utf-8") as file:
+        file.write(json.dumps(content, indent=2) + "\n")
 
 
 @dataclass(frozen=True)
@@ -181,8 +389,13 @@ class GraspStore:
         self._fd_pid = -1
 
     @classmethod
-    def open(cls, path: str | Path) -> GraspStore:
-        """Open an existing store; raises :class:`StoreError` naming what is wrong."""
+    def open(cls, path: str | Path, *, validate: bool = True) -> GraspStore:
+        """Open an existing store; raises :class:`StoreError` naming what is wrong.
+
+        ``validate`` (default) also checks the table with :func:`validate_samples`: a NaN
+        or negative modulus, a missing column or a wrong sample_id is an error here, not
+        a silent NaN loss in training. ``validate=False`` opens it anyway (to inspect).
+        """
         path = Path(path)
         if not path.is_dir():
             raise StoreError(f"{path}: no such store directory")
@@ -198,7 +411,10 @@ class GraspStore:
                 f"{path}: store format {header.format_version} is newer than this package "
                 f"supports ({FORMAT_VERSION}); upgrade tactile-compliance"
             )
-        samples = pd.read_parquet(path / SAMPLES_FILE)
+        try:
+            samples = pd.read_parquet(path / SAMPLES_FILE)
+        except Exception as err:  # missing, truncated or not parquet (pyarrow's errors vary)
+            raise StoreError(f"{path / SAMPLES_FILE}: cannot read the table ({err})") from err
         if len(samples) != header.num_samples:
             raise StoreError(
                 f"{path}: {SAMPLES_FILE} has {len(samples)} rows, header says {header.num_samples}"
@@ -206,6 +422,10 @@ class GraspStore:
         missing = [c for c in SAMPLE_COLUMNS if c not in samples.columns]
         if missing:
             raise StoreError(f"{path / SAMPLES_FILE}: missing columns {missing}")
+        if validate:
+            problems = validate_samples(samples)
+            if problems:
+                raise StoreError(f"{path / SAMPLES_FILE}: " + "; ".join(problems))
         return cls(path, header, samples)
 
     def __len__(self) -> int:
@@ -342,13 +562,31 @@ def _normalise_row(row: dict[str, Any], sample_id: int) -> dict[str, Any]:
         if column == "sample_id":
             out[column] = sample_id
         elif column in _STRING_COLUMNS:
-            out[column] = str(row.get(column, ""))
+            text = str(row.get(column, ""))
+            try:
+                text.encode("utf-8")
+            except UnicodeEncodeError:
+                shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+                raise ValueError(f"{column} is not valid UTF-8 text: {shown!r}") from None
+            out[column] = text
         elif column in _INT_COLUMNS:
             out[column] = int(row.get(column, 0))
         else:
             value = row.get(column, np.nan)
             out[column] = float(np.nan if value is None else value)
+    modulus = out["modulus_pa"]
+    if not (np.isfinite(modulus) and modulus > 0):
+        raise ValueError(f"modulus_pa must be a finite number > 0 Pa, got {modulus!r}")
     return out
+
+
+def _missing_ancestors(directory: Path) -> list[Path]:
+    """``directory`` and its ancestors that do not exist yet, outermost first."""
+    missing = []
+    while not os.path.lexists(directory) and directory.parent != directory:
+        missing.append(directory)
+        directory = directory.parent
+    return missing[::-1]
 
 
 class GraspStoreWriter:
@@ -359,6 +597,22 @@ class GraspStoreWriter:
 
         with GraspStoreWriter(out, image_size=(250, 350), source="burgess") as writer:
             writer.append(frames, {"object": "foam_cube", "modulus_pa": 2e4, ...})
+
+    Guarantees:
+
+    - ``overwrite`` replaces only a store (:func:`is_store_dir`); any other existing path
+      raises :class:`NotAStoreError` and is left untouched.
+    - Samples go to a hidden sibling ``.NAME.partial-XXXXXXXX`` holding
+      :data:`PARTIAL_MARKER` (PID, host, process start time). :meth:`commit` writes the
+      table, the marker and ``header.json`` there, then renames it to ``NAME``; an old
+      store is moved aside to ``.NAME.old-PID-XXXX`` for the swap and then deleted.
+    - An ``OSError`` while writing (full disk, ...) raises :class:`StoreWriteError` after
+      removing the temporary directory and the parent directories the writer created;
+      a failed swap puts the old store back.
+    - A killed writer's leftovers are tidied by the next writer to the same path
+      (:func:`recover_interrupted_writes`).
+    - Directories and files are created with the default modes, so the umask decides
+      (not 0700/0600).
     """
 
     def __init__(
@@ -370,26 +624,77 @@ class GraspStoreWriter:
         overwrite: bool = False,
     ) -> None:
         self.path = Path(path)
-        if self.path.exists() and not overwrite:
-            raise FileExistsError(f"{self.path} already exists; pass --overwrite to replace it")
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.source = source
         self.creation_parameters = dict(creation_parameters or {})
         self.overwrite = overwrite
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        # The temp dir is a sibling so the final rename stays on one filesystem (atomic).
-        self._tmp = Path(
-            tempfile.mkdtemp(prefix=f".{self.path.name}.partial-", dir=self.path.parent)
-        )
-        self._frames_file = open(self._tmp / FRAMES_FILE, "wb")  # noqa: SIM115 (closed in commit/abort)
         self._rows: list[dict[str, Any]] = []
         self._closed = False
+        recover_interrupted_writes(self.path)
+        self._check_target()
+        self._created = _missing_ancestors(self.path.parent)
+        self._tmp = self.path.with_name(f".{self.path.name}.partial-{secrets.token_hex(4)}")
+        try:
+            for directory in list(self._created):
+                try:
+                    os.mkdir(directory)
+                except FileExistsError:  # made meanwhile by someone else: not ours to remove
+                    self._created.remove(directory)
+            os.mkdir(self._tmp)  # mode 0o777 minus the umask, unlike tempfile.mkdtemp
+            _write_json(
+                self._tmp / PARTIAL_MARKER,
+                {
+                    "kind": STORE_KIND,
+                    "pid": os.getpid(),
+                    "host": socket.gethostname(),
+                    "start": _process_start(os.getpid()),
+                    "created": time.time(),
+                },
+            )
+            self._frames_file = open(self._tmp / FRAMES_FILE, "wb")  # noqa: SIM115 (closed in commit/abort)
+        except OSError as err:
+            self._remove_everything()
+            raise self._write_error(err) from err
+
+    def _check_target(self) -> None:
+        if not os.path.lexists(self.path):
+            return
+        if not self.overwrite:
+            raise FileExistsError(f"{self.path} already exists; pass --overwrite to replace it")
+        if not is_store_dir(self.path):
+            raise NotAStoreError(
+                f"{self.path} is not a GraspStore ({store_kind_hint(self.path)}); "
+                "refusing to replace it"
+            )
+
+    def _write_error(self, err: OSError) -> StoreWriteError:
+        reason = f"[Errno {err.errno}] {err.strerror}" if err.strerror else str(err)
+        return StoreWriteError(f"{self.path}: cannot write the store: {reason}", reason, err.errno)
+
+    def _remove_everything(self) -> None:
+        """Delete the temporary directory and the parent directories this writer made."""
+        frames_file = getattr(self, "_frames_file", None)
+        if frames_file is not None and not frames_file.closed:
+            # The data is discarded anyway (e.g. a full disk on the last flush).
+            with contextlib.suppress(OSError):
+                frames_file.close()
+        shutil.rmtree(self._tmp, ignore_errors=True)
+        for directory in reversed(self._created):
+            try:
+                directory.rmdir()  # only while empty
+            except OSError:
+                break
+        self._closed = True
 
     def __len__(self) -> int:
         return len(self._rows)
 
     def append(self, frames: np.ndarray, row: dict[str, Any]) -> int:
-        """Add one sample: frames (3, H, W, 3) RGB, float in [0, 1] or uint8. Returns its id."""
+        """Add one sample: frames (3, H, W, 3) RGB, float in [0, 1] or uint8. Returns its id.
+
+        Raises ``ValueError`` for a bad sample (shape, NaN frames, unknown field, modulus
+        not finite > 0, text that is not UTF-8): nothing is written for it.
+        """
         if self._closed:
             raise RuntimeError("writer is closed")
         frames = np.asarray(frames)
@@ -400,7 +705,11 @@ class GraspStoreWriter:
             raise ValueError("frames contain NaN or inf")
         sample_id = len(self._rows)
         normalised = _normalise_row(row, sample_id)
-        self._frames_file.write(np.ascontiguousarray(frames_to_uint8(frames)).tobytes())
+        try:
+            _write_all(self._frames_file, np.ascontiguousarray(frames_to_uint8(frames)).tobytes())
+        except OSError as err:
+            self._remove_everything()
+            raise self._write_error(err) from err
         self._rows.append(normalised)
         return sample_id
 
@@ -408,13 +717,15 @@ class GraspStoreWriter:
         """Write the table and header, then move the store into place."""
         if self._closed:
             raise RuntimeError("writer is closed")
-        self._frames_file.close()
         samples = pd.DataFrame(self._rows, columns=list(SAMPLE_COLUMNS))
         for column in _INT_COLUMNS:
             samples[column] = samples[column].astype(np.int64)
         for column in _STRING_COLUMNS:
             samples[column] = samples[column].astype(str)
-        samples.to_parquet(self._tmp / SAMPLES_FILE, index=False)
+        problems = validate_samples(samples)
+        if problems:
+            self.abort()
+            raise StoreError(f"{self.path}: not written: " + "; ".join(problems))
         header = StoreHeader(
             format_version=FORMAT_VERSION,
             num_samples=len(samples),
@@ -425,27 +736,54 @@ class GraspStoreWriter:
             package_version=__version__,
             creation_parameters=self.creation_parameters,
         )
-        # header.json is written last: it is what marks a directory as a store.
-        (self._tmp / HEADER_FILE).write_text(json.dumps(header.to_dict(), indent=2) + "\n")
-        if self.path.exists():
-            if not self.overwrite:
-                self.abort()
-                raise FileExistsError(f"{self.path} appeared while writing; not replacing it")
-            backup = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
-            os.replace(self.path, backup)
-            os.replace(self._tmp, self.path)
-            shutil.rmtree(backup, ignore_errors=True)
-        else:
-            os.replace(self._tmp, self.path)
+        try:
+            self._frames_file.close()  # a full disk may only show on this last flush
+            samples.to_parquet(self._tmp / SAMPLES_FILE, index=False)
+            _write_json(
+                self._tmp / STORE_MARKER, {"kind": STORE_KIND, "format_version": FORMAT_VERSION}
+            )
+            # header.json is written last: with it the directory is a complete store.
+            _write_json(self._tmp / HEADER_FILE, header.to_dict())
+        except OSError as err:
+            self._remove_everything()
+            raise self._write_error(err) from err
+        try:
+            self._check_target()
+        except (FileExistsError, NotAStoreError):
+            self.abort()
+            raise
+        self._swap_into_place()
         self._closed = True
+        # A leftover marker would be harmless: only .NAME.partial-* directories are tidied.
+        with contextlib.suppress(OSError):
+            (self.path / PARTIAL_MARKER).unlink()
         return GraspStore.open(self.path)
+
+    def _swap_into_place(self) -> None:
+        if not os.path.lexists(self.path):
+            try:
+                os.replace(self._tmp, self.path)
+            except OSError as err:
+                self._remove_everything()
+                raise self._write_error(err) from err
+            return
+        backup = self.path.with_name(f".{self.path.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
+        try:
+            os.replace(self.path, backup)
+        except OSError as err:
+            self._remove_everything()
+            raise self._write_error(err) from err
+        try:
+            os.replace(self._tmp, self.path)
+        except OSError as err:
+            os.replace(backup, self.path)  # the old store goes back
+            self._remove_everything()
+            raise self._write_error(err) from err
+        shutil.rmtree(backup, ignore_errors=True)
 
     def abort(self) -> None:
         """Discard everything written so far."""
-        if not self._frames_file.closed:
-            self._frames_file.close()
-        shutil.rmtree(self._tmp, ignore_errors=True)
-        self._closed = True
+        self._remove_everything()
 
     def __enter__(self) -> GraspStoreWriter:
         return self

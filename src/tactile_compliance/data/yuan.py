@@ -5,24 +5,44 @@ Three frames are kept per video: the first frame, the frame with the highest mea
 level (the deepest press) and the frame midway between them. Labels come from the
 Shore 00 hardness through Larson's conversion; there is no force, width or estimate.
 Frames are stored as raw camera images (``frame_kind: raw`` in the store header), in RGB.
+
+Every file with a video suffix (:data:`VIDEO_SUFFIXES`, e.g. ``.avi``, ``.mp4``) is a
+candidate: it is imported when its name matches and OpenCV decodes it, otherwise it is
+skipped and reported with the reason. The store's frame size is the most common size
+among the videos (read from their headers) unless ``image_size`` is given; other videos
+are resized to it.
 """
 
 from __future__ import annotations
 
 import re
 import time
+from collections import Counter
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from tactile_compliance.data.image_ops import resize_frames
-from tactile_compliance.data.import_report import DataImportError, ImportReport, import_paths
+from tactile_compliance.data.import_report import (
+    ImportReport,
+    NothingImportedError,
+    import_paths,
+    store_writing,
+    utf8_problem,
+)
 from tactile_compliance.data.store import GraspStoreWriter
 from tactile_compliance.physics.shore import shore00_to_modulus_pa
 from tactile_compliance.progress import progress_bar
 
-VIDEO_NAME = re.compile(r"^(?P<shape>.+)_(?P<hardness>\d+)_(?P<press>\d+)\.avi$", re.IGNORECASE)
+#: File suffixes treated as videos (case-insensitive); the dataset itself uses ``.avi``.
+VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv", ".webm")
+VIDEO_NAME = re.compile(
+    r"^(?P<shape>.+)_(?P<hardness>\d+)_(?P<press>\d+)\.(?:"
+    + "|".join(suffix[1:] for suffix in VIDEO_SUFFIXES)
+    + r")$",
+    re.IGNORECASE,
+)
 MATERIAL = "Silicone"
 
 
@@ -45,6 +65,19 @@ def read_video_frames(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(np.stack(frames))
 
 
+def video_frame_size(path: str | Path) -> tuple[int, int] | None:
+    """(height, width) from a video's header without decoding it; None if unreadable."""
+    capture = cv2.VideoCapture(str(path))
+    try:
+        if not capture.isOpened():
+            return None
+        height = int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        width = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH))
+    finally:
+        capture.release()
+    return (height, width) if height > 0 and width > 0 else None
+
+
 def select_press_frames(frames: np.ndarray) -> tuple[int, int, int]:
     """Indices (first, midway, brightest) of a press video (T, H, W, 3), in time order."""
     grey_level = frames.reshape(len(frames), -1).mean(axis=1)
@@ -63,23 +96,42 @@ def import_yuan(
 ) -> ImportReport:
     """Import a directory of Shore-hardness press videos into a GraspStore.
 
-    ``image_size`` is (height, width) in pixels; by default the first video's size is used
-    and other videos are resized to it.
+    ``image_size`` is (height, width) in pixels; by default the most common size among the
+    videos is used and other videos are resized to it. Every skipped video is reported.
+    Raises a :class:`~tactile_compliance.data.import_report.DataImportError` subclass when
+    the import cannot go on (nothing is written then).
     """
     start = time.perf_counter()
     src, out = import_paths(src_dir, out_dir, overwrite)
     report = ImportReport(source="yuan", source_dir=str(src), store_dir=str(out), strict=strict)
-    videos = sorted(p for p in src.rglob("*") if p.suffix.lower() == ".avi" and p.is_file())
+    videos = sorted(p for p in src.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES and p.is_file())
     if not videos:
-        raise DataImportError(f"{src}: no .avi videos found")
+        raise NothingImportedError(
+            f"{src}: no videos found ({', '.join(VIDEO_SUFFIXES)})", report=report
+        )
     objects: set[str] = set()
     imported: set[str] = set()
+    # First pass, headers only: the most common frame size (reports nothing).
+    sizes = Counter(
+        size
+        for size in (video_frame_size(v) for v in videos if VIDEO_NAME.match(v.name))
+        if size is not None
+    )
+    if image_size is None and sizes:
+        image_size = sizes.most_common(1)[0][0]
     writer: GraspStoreWriter | None = None
     try:
-        with progress_bar("Importing videos", total=len(videos), enabled=progress) as advance:
+        with (
+            store_writing(out, report),
+            progress_bar("Importing videos", total=len(videos), enabled=progress) as advance,
+        ):
             for video in videos:
                 advance()
                 match = VIDEO_NAME.match(video.name)
+                problem = utf8_problem(str(video.relative_to(src)))
+                if problem:
+                    report.problem(video, f"invalid name: the path is {problem}")
+                    continue
                 if match is None:
                     report.problem(
                         video, "unexpected file name: expected {SHAPE}_{hardness}_{n}.avi"
@@ -93,12 +145,14 @@ def import_yuan(
                     continue
                 try:
                     frames = read_video_frames(video)
-                except ValueError as err:
+                    chosen = frames[list(select_press_frames(frames))]
+                    del frames
+                    if image_size is None:  # no header gave a size: the first video decides
+                        image_size = (chosen.shape[1], chosen.shape[2])
+                    chosen = resize_frames(chosen, image_size)
+                except (ValueError, cv2.error, MemoryError) as err:
                     report.problem(video, f"unreadable video: {err}")
                     continue
-                chosen = frames[list(select_press_frames(frames))]
-                if image_size is None:
-                    image_size = (chosen.shape[1], chosen.shape[2])
                 if writer is None:
                     writer = GraspStoreWriter(
                         out,
@@ -110,32 +164,42 @@ def import_yuan(
                             "frame_kind": "raw",
                             "frame_selection": "first, midway, brightest",
                             "label_conversion": "Shore 00 -> E (Larson 2017)",
+                            "source_image_sizes": {
+                                f"{h}x{w}": n for (h, w), n in sizes.most_common()
+                            },
                         },
                         overwrite=overwrite,
                     )
-                writer.append(
-                    resize_frames(chosen, image_size),
-                    {
-                        "object": object_id,
-                        "grasp": int(match["press"]),
-                        "augmentation": 0,
-                        "finger": "markerless",
-                        "material": MATERIAL,
-                        "shape": shape,
-                        "modulus_pa": float(shore00_to_modulus_pa(float(hardness))),
-                        "source_path": str(video.relative_to(src)),
-                    },
-                )
+                try:
+                    writer.append(
+                        chosen,
+                        {
+                            "object": object_id,
+                            "grasp": int(match["press"]),
+                            "augmentation": 0,
+                            "finger": "markerless",
+                            "material": MATERIAL,
+                            "shape": shape,
+                            "modulus_pa": float(shore00_to_modulus_pa(float(hardness))),
+                            "source_path": str(video.relative_to(src)),
+                        },
+                    )
+                except ValueError as err:  # a value the store cannot hold
+                    report.problem(video, f"invalid sample: {err}")
+                    continue
                 imported.add(object_id)
                 report.samples_imported += 1
-        if writer is None:
-            raise DataImportError(f"{src}: nothing importable\n{report.format()}")
-        writer.commit()
+            report.objects_seen = len(objects)
+            report.objects_imported = len(imported)
+            if writer is None or report.samples_imported == 0:
+                raise NothingImportedError(
+                    f"{src}: nothing importable, every video was skipped\n{report.format()}",
+                    report=report,
+                )
+            writer.commit()
     except BaseException:
         if writer is not None:
             writer.abort()
         raise
-    report.objects_seen = len(objects)
-    report.objects_imported = len(imported)
     report.seconds = time.perf_counter() - start
     return report
