@@ -159,6 +159,8 @@ def test_expected_errors_are_one_line_with_exit_code_2(tmp_path):
 
 
 def test_debug_shows_the_traceback(tmp_path):
-    result = runner.invoke(app, ["--debug", "info", str(tmp_path / "nothing")])
+    args = ["split", str(tmp_path / "nothing"), "--out", str(tmp_path / "s.json")]
+    assert runner.invoke(app, args).exit_code == 2
+    result = runner.invoke(app, ["--debug", *args])
     assert result.exit_code != 0 and result.exception is not None
     assert not isinstance(result.exception, SystemExit)

@@ -208,9 +208,16 @@ def info(
     store: Annotated[Path, typer.Argument(help="GraspStore directory.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print machine-readable JSON.")] = False,
 ) -> None:
-    """Show what a store holds: counts by material and shape, modulus range, resolution."""
-    from tactile_compliance.data.store import GraspStore
+    """Show what a store holds: counts by material and shape, modulus range, resolution.
 
+    A store that does not validate gets every problem listed, and exit code 2."""
+    from tactile_compliance.data.store import GraspStore, store_problems
+
+    problems = store_problems(store)
+    if problems:
+        for problem in problems[:-1]:
+            typer.secho(f"error: {problem}", fg=typer.colors.RED, err=True)
+        _fail(problems[-1], EXIT_BAD_INPUT)
     summary = GraspStore.open(store).summary()
     if as_json:
         typer.echo(json.dumps(summary, indent=2))
