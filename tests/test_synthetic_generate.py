@@ -8,6 +8,7 @@ import re
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pandas as pd
 import pytest
@@ -204,3 +205,27 @@ def test_shore_videos_round_trip(tmp_path: Path) -> None:
     assert len(store) == 6
     expected = {float(shore00_to_modulus_pa(h)) for h in hardness}
     assert set(np.round(store.samples["modulus_pa"], 3)) == set(np.round(list(expected), 3))
+
+
+@pytest.mark.parametrize("size", [(32, 32), (64, 48), (64, 64), (120, 32), (32, 120), (33, 47)])
+def test_every_frame_size_of_at_least_32_px_works(tmp_path: Path, size: tuple[int, int]) -> None:
+    # Sizes taller than the sensor's aspect used to need rows beyond the pad (a crash).
+    report = _generate(tmp_path / "tree", n_objects=1, grasps_per_object=1, image_size=size)
+    rgb_files = sorted((tmp_path / "tree").rglob("RGB.pkl"))
+    assert report.samples > 0 and rgb_files
+    for name in ("RGB.pkl", "depth.pkl", "RGB_markers.pkl"):
+        array = np.asarray(load_numpy_pickle(rgb_files[0].with_name(name)))
+        assert array.shape[1:3] == size, name
+        assert np.isfinite(array.astype(np.float64)).all()
+    if size[0] % 2 or size[1] % 2:  # MJPG videos have even sizes: refused, not cropped
+        with pytest.raises(GenerationError, match="even"):
+            generate_shore_videos(tmp_path / "videos", n_objects=1, image_size=size)
+        return
+    generate_shore_videos(
+        tmp_path / "videos", n_objects=1, presses_per_object=1, image_size=size, progress=False
+    )
+    (video,) = sorted((tmp_path / "videos").glob("*.avi"))
+    capture = cv2.VideoCapture(str(video))
+    ok, frame = capture.read()
+    capture.release()
+    assert ok and frame.shape[:2] == size

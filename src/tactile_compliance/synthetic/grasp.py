@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
+import cv2
 import numpy as np
 
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
@@ -44,6 +45,7 @@ from tactile_compliance.synthetic.render import (
     gel_height_maps,
     pixel_size_mm,
     render_frames,
+    render_size,
     sample_sensor_look,
 )
 from tactile_compliance.synthetic.rng import stream
@@ -141,7 +143,7 @@ def make_context(spec: ObjectSpec, seed: int, options: SimulationOptions) -> Obj
     """Session assignment and texture canvases of an object."""
     sid = int(stream(seed, spec.name, "session").integers(0, max(options.n_sessions, 1)))
     session = _session(seed, sid)
-    size = options.image_size
+    size = render_size(options.image_size)  # textures are cut at the rendered size
     px = pixel_size_mm(size)
     tex_rng = stream(seed, spec.name, "texture-canvas")
     textures = (
@@ -296,18 +298,27 @@ def _render_full_size(
     gel_share = obj.plane_strain_modulus_pa / (
         obj.plane_strain_modulus_pa + gels[0].plane_strain_modulus_pa
     )
-    return _render_sequence(
+    size = render_size(opt.image_size)
+    diff, depth = _render_sequence(
         approaches_mm,
         render_sag,
         PadGrid(opt.render_cell_mm),
         gels[finger],
         obj,
         ctx.session.looks[finger],
-        opt.image_size,
+        size,
         stream(*_grasp_key(ctx, grasp), "render-full", finger),
-        texture=texture_window(ctx.textures[finger], opt.image_size, texture_rng),
+        texture=texture_window(ctx.textures[finger], size, texture_rng),
         texture_share=gel_share,
         solve_scale=opt.depth_solve_scale,
+    )
+    if size == opt.image_size:
+        return diff, depth
+    # A frame taller than the sensor's aspect: rendered wider, squeezed to the stored size.
+    target = (opt.image_size[1], opt.image_size[0])  # OpenCV's (width, height)
+    return (
+        np.stack([cv2.resize(frame, target, interpolation=cv2.INTER_AREA) for frame in diff]),
+        np.stack([cv2.resize(frame, target, interpolation=cv2.INTER_AREA) for frame in depth]),
     )
 
 
@@ -417,7 +428,7 @@ def render_recording(
     _, poses = _poses(ctx, grasp)
     texture_rng = stream(*_grasp_key(ctx, grasp), "texture")
     if finger == 1:  # the stored frames draw finger 0's texture window first
-        texture_window(ctx.textures[0], ctx.options.image_size, texture_rng)
+        texture_window(ctx.textures[0], render_size(ctx.options.image_size), texture_rng)
     render_sag = sag_map(
         ctx.spec.geometry, PadGrid(ctx.options.render_cell_mm), poses[finger], side=finger
     )

@@ -69,6 +69,21 @@ def pixel_size_mm(size: tuple[int, int]) -> float:
     return VISIBLE_SIZE_MM[0] / size[1]
 
 
+def render_size(size: tuple[int, int]) -> tuple[int, int]:
+    """The size (H, W) [px] that frames stored at ``size`` are rendered at.
+
+    Pixels are square and the image spans the visible crop's width, so a frame much
+    taller than the real 250 x 350 aspect (H/W above the pad's 25.5/35) would need rows
+    beyond the pad. Such a frame is rendered wider, with the same rows, and then squeezed
+    to ``size``, as resizing a real frame to that size would. Every other size renders
+    as it is.
+    """
+    height, width = int(size[0]), int(size[1])
+    while round(PAD_SIZE_MM[1] / pixel_size_mm((height, width))) < height:
+        width += 1
+    return height, width
+
+
 @dataclass
 class SensorLook:
     """Appearance of one finger's sensor in one recording session.

@@ -42,6 +42,7 @@ from tactile_compliance.synthetic.mechanics import (
 from tactile_compliance.synthetic.render import (
     gel_height_maps,
     render_frames,
+    render_size,
     sample_sensor_look,
 )
 from tactile_compliance.synthetic.rng import stream
@@ -104,7 +105,7 @@ def _press_video(
     force = peak * profile
     approach = np.where(force > 0, curve.approach_at(np.maximum(force, 1e-9)), 0.0)
     fields = gel_compression_fields(sag, gel, obj, grid, approach)
-    height, _ = gel_height_maps(fields, grid, size, gel.thickness_mm)
+    height, _ = gel_height_maps(fields, grid, render_size(size), gel.thickness_mm)
     look = sample_sensor_look(stream(seed, *key, "look"), markers=True)
     # Pressed membrane brightens on this sensor (so the deepest press is the brightest).
     # Its lighting is steadier than the Wedge's (small frame-to-frame drift).
@@ -116,7 +117,12 @@ def _press_video(
         jpeg_quality=0,
         _cache={},
     )
-    return render_frames(height, look, stream(seed, *key, "noise"))
+    frames = render_frames(height, look, stream(seed, *key, "noise"))
+    if frames.shape[1:3] == tuple(size):
+        return frames
+    # A frame taller than the sensor's aspect: rendered wider, squeezed to the stored size.
+    target = (size[1], size[0])  # OpenCV's (width, height)
+    return np.stack([cv2.resize(f, target, interpolation=cv2.INTER_AREA) for f in frames])
 
 
 def generate_shore_videos(
@@ -153,6 +159,8 @@ def generate_shore_videos(
     if seed < 0:
         raise GenerationError(f"seed must be >= 0, got {seed}")
     height, width = (int(v) for v in image_size)
+    if height % 2 or width % 2:  # the MJPG codec would silently drop the odd row/column
+        raise GenerationError(f"image_size must be even for MJPG videos, got {height}x{width}")
     out = claim_output_dir(
         out_dir, "simulate shore-videos", recognise=lambda path: any(path.glob("*.avi"))
     )
