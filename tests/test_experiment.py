@@ -163,6 +163,63 @@ def test_grid_rules_overrides_filters_and_plain_configs(tiny, tmp_path, toy_stor
     assert child["top10nn Image seen random seed 0"].training.lr == pytest.approx(1e-3)
 
 
+def test_paper_settings_apply_before_rules(tmp_path):
+    (tmp_path / "paper.yaml").write_text(
+        textwrap.dedent("""
+        description: paper settings
+        set: {training.lr: 0.5}
+        grid: {model.name: [top10nn, vgg_lstm, res_tf], inputs: [Image, ALL]}
+        paper_settings: true
+        rules:
+          - when: {model.name: res_tf, inputs: ALL}
+            set: {training.lr: 0.25}
+    """)
+    )
+    spec = load_experiment(tmp_path / "paper.yaml")
+    assert spec.paper_settings and spec.to_dict()["paper_settings"] is True
+    cells = {(c.cfg.model.name, c.cfg.inputs): c.cfg for c in expand_experiment(spec)}
+    vgg = cells["vgg_lstm", "ALL"].training
+    assert (vgg.lr, vgg.batch_size, vgg.gamma) == (3e-4, 16, 0.97974)
+    assert cells["top10nn", "Image"].training.lr == 3e-6  # over `set`
+    assert cells["res_tf", "Image"].training.lr == 8e-5
+    assert cells["res_tf", "Image"].model.hparams["output_dim"] == 1024
+    assert cells["res_tf", "ALL"].training.lr == 0.25  # rules come after
+    assert cells["res_tf", "ALL"].model.hparams == {}
+    overridden = expand_experiment(spec, overrides=["training.batch_size=4"])
+    assert {c.cfg.training.batch_size for c in overridden} == {4}  # --set comes last
+    (tmp_path / "bad.yaml").write_text("description: x\npaper_settings: sure\n")
+    with pytest.raises(ConfigError, match="paper_settings"):
+        load_experiment(tmp_path / "bad.yaml")
+    (tmp_path / "unknown.yaml").write_text("grid: {model.name: [resnet]}\npaper_settings: true\n")
+    with pytest.raises(ConfigError, match="unknown model 'resnet'"):
+        expand_experiment(load_experiment(tmp_path / "unknown.yaml"))
+
+
+def test_table1_paper_settings_equal_the_published_values(tmp_path):
+    # What table1 spelled out per model before the settings moved onto the model classes.
+    (tmp_path / "literal.yaml").write_text(
+        textwrap.dedent("""
+        extends: table1
+        paper_settings: false
+        rules:
+          - when: {model.name: vgg_lstm}
+            set: {training.lr: 3.0e-4, training.batch_size: 16, training.gamma: 0.97974}
+          - when: {model.name: res_tf}
+            set: {training.lr: 1.1e-4, training.batch_size: 24, training.gamma: 0.977}
+          - when: {model.name: res_tf, inputs: Image}
+            set:
+              model.hparams: {num_layers: 5, num_heads: 4, embedding_dim: 256,
+                              output_dim: 1024, decoder_sizes: [256]}
+              training.lr: 8.0e-5
+              training.batch_size: 40
+              training.gamma: 0.962
+    """)
+    )
+    literal = expand_experiment(load_experiment(tmp_path / "literal.yaml"), seeds=1)
+    packaged = expand_experiment(load_experiment("table1"), seeds=1)
+    assert [c.key for c in literal] == [c.key for c in packaged] and len(packaged) == 24
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [

@@ -4,20 +4,32 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any, ClassVar
 
 import pandas as pd
 import pytest
 
 pytest.importorskip("smac")
 
+from torch import nn
+
 from tactile_compliance.config import config_to_dict, load_config
-from tactile_compliance.models import create_model
+from tactile_compliance.models import (
+    InputStrategy,
+    SearchDimension,
+    TactileModel,
+    create_backbone,
+    create_model,
+    list_models,
+    register_model,
+)
+from tactile_compliance.models import registry as registry_module
 from tactile_compliance.training import hpo
 from tactile_compliance.training.grid import expand_experiment, load_experiment
 from toy_store import make_toy_store
 
 TOP10 = ["data.image_size=[72,72]", "augmentation.enabled=false"]
-REAL_TRAIN_TRIAL = hpo._train_trial
+REAL_TRAIN_TRIAL = hpo.objectives._train_trial
 
 
 @pytest.fixture(scope="module")
@@ -53,6 +65,85 @@ def test_search_space_matches_the_paper_and_builds_models(model, inputs):
             create_model(model, inputs=inputs, **cfg.model.hparams)
 
 
+def test_search_space_defaults_are_the_paper_settings():
+    def defaults(model, inputs):
+        space = hpo.search_space(model, inputs)
+        return hpo.trial_values(space.get_default_configuration())
+
+    vgg = defaults("vgg_lstm", "ALL")
+    # lr and batch size are on the grid; gamma 0.97974 is not: the nearest choice.
+    assert vgg["training.lr"] == 3e-4 and vgg["training.batch_size"] == 16
+    assert vgg["training.gamma"] == 0.98 and vgg["model.hparams.hidden_size"] == 256
+    res_image = defaults("res_tf", "Image")
+    assert res_image["training.lr"] == 8e-5 and res_image["model.hparams.num_layers"] == 5
+    assert res_image["model.hparams.decoder_sizes"] == [256, 256, 128]  # nearest to [256]
+    res_all = defaults("res_tf", "ALL")
+    assert res_all["training.lr"] == 1e-4 and res_all["training.batch_size"] == 32
+    assert res_all["model.hparams.num_layers"] == 4
+    top = defaults("top10nn", "ImageF")
+    assert top["training.lr"] == 3e-6 and top["training.gamma"] is None
+
+
+class _TinyTunable(TactileModel):
+    """A throwaway model that declares its own search space."""
+
+    default_training: ClassVar[dict[str, Any]] = {"lr": 2e-3, "batch_size": 8, "gamma": None}
+    hpo_space = (
+        *TactileModel.hpo_space,
+        SearchDimension.hparam("channels", (2, 4, 8)),
+        SearchDimension.hparam("force_dim", (4, 8), needs=("force",)),
+        SearchDimension.hparam("sizes", ((8,), (16, 8)), needs=("force", "width")),
+    )
+
+    def __init__(
+        self,
+        inputs: InputStrategy | str = "ALL",
+        channels: int = 4,
+        force_dim: int = 8,
+        sizes: tuple[int, ...] = (16, 8),
+    ) -> None:
+        super().__init__(inputs, {"channels": channels, "force_dim": force_dim, "sizes": sizes})
+        self.backbone = create_backbone("resnet18")
+        self.out = nn.Linear(3 * self.backbone.feature_dim, 1)
+
+    def _head(self, features, force, width, estimates):
+        return self.out(features.flatten(1)).squeeze(1)
+
+
+def test_any_registered_model_is_tunable_with_its_declared_space():
+    try:
+        register_model("tiny_tunable_model")(_TinyTunable)
+        image = hpo.search_space("tiny_tunable_model", "Image", seed=0)
+        assert set(image.keys()) == {
+            "training.lr",
+            "training.gamma",
+            "training.batch_size",
+            "model.hparams.channels",
+        }
+        space = hpo.search_space("tiny_tunable_model", "ImageF", seed=0)
+        assert {"model.hparams.force_dim", "model.hparams.sizes"} <= set(space.keys())
+        default = hpo.trial_values(space.get_default_configuration())
+        # Defaults: the class's paper settings, else its constructor defaults.
+        assert default["training.lr"] == 2e-3 and default["training.batch_size"] == 8
+        assert default["model.hparams.channels"] == 4 and default["model.hparams.sizes"] == [16, 8]
+        for config in [space.get_default_configuration(), *space.sample_configuration(3)]:
+            cfg = load_config(
+                "default",
+                [
+                    "model.name=tiny_tunable_model",
+                    "inputs=ImageF",
+                    *hpo.trial_overrides(config),
+                ],
+            )
+            model = create_model("tiny_tunable_model", "ImageF", **cfg.model.hparams)
+            assert model.hparams["channels"] in (2, 4, 8)
+    finally:
+        registry_module._REGISTRY.pop("tiny_tunable_model", None)
+    assert "tiny_tunable_model" not in list_models()
+    with pytest.raises(hpo.ConfigError, match="tunable"):
+        hpo.search_space("tiny_tunable_model")
+
+
 # ---------------------------------------------------------------------------- tune
 def _count_trainings(monkeypatch, fail_after: int | None = None) -> list[str]:
     """Record every trial that trains; raise KeyboardInterrupt after ``fail_after`` trials."""
@@ -66,7 +157,7 @@ def _count_trainings(monkeypatch, fail_after: int | None = None) -> list[str]:
             trained.append(run_dir.name)
         return REAL_TRAIN_TRIAL(cfg, trials_dir)
 
-    monkeypatch.setattr(hpo, "_train_trial", counting)
+    monkeypatch.setattr(hpo.objectives, "_train_trial", counting)
     return trained
 
 

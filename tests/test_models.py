@@ -29,6 +29,12 @@ from tactile_compliance.models import (
 )
 from tactile_compliance.models import registry as registry_module
 from tactile_compliance.models.res_tf import sinusoidal_positional_encoding
+from tactile_compliance.models.settings import (
+    FROM_PAPER,
+    SearchDimension,
+    paper_settings,
+    search_dimensions,
+)
 
 MODELS = list_models()
 STRATEGIES = list(InputStrategy)
@@ -461,3 +467,79 @@ def test_register_a_new_model() -> None:
     finally:
         registry_module._REGISTRY.pop("tiny_test_model", None)
     assert "tiny_test_model" not in list_models()
+
+
+# ------------------------------------------------------------- paper settings, spaces
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_hparam_checks_cover_the_constructor(name: str) -> None:
+    # ``hparams`` is built from ``hparam_checks``: a constructor argument missing there
+    # would silently not reach a checkpoint.
+    cls = get_model_class(name)
+    assert set(cls.hparam_checks) == set(model_hyperparameters(name)) - {"backbone_weights"}
+
+
+def test_paper_settings_come_from_the_model_classes() -> None:
+    assert paper_settings("vgg_lstm", "ALL") == {
+        "training.lr": 3e-4,
+        "training.batch_size": 16,
+        "training.gamma": 0.97974,
+    }
+    assert paper_settings("top10nn", "imagef") == {
+        "training.lr": 3e-6,
+        "training.batch_size": 32,
+        "training.gamma": None,
+    }
+    # Res-Tf: its constructor defaults are the tuned ALL model, so ALL only sets training;
+    # the tuned Image configuration adds its hyperparameters.
+    assert paper_settings("res_tf", InputStrategy.ALL) == {
+        "training.lr": 1.1e-4,
+        "training.batch_size": 24,
+        "training.gamma": 0.977,
+    }
+    image = paper_settings("res_tf", "Image")
+    assert image["training.lr"] == 8e-5 and image["training.batch_size"] == 40
+    assert image["model.hparams.num_layers"] == 5 and image["model.hparams.decoder_sizes"] == [256]
+    with pytest.raises(ValueError, match="unknown model"):
+        paper_settings("resnet", "ALL")
+
+
+def test_search_dimensions_follow_the_inputs_and_the_paper() -> None:
+    keys = {d.key for d in search_dimensions("vgg_lstm", "ImageF")}
+    assert "model.hparams.force_dim" in keys and "model.hparams.width_dim" not in keys
+    assert "model.hparams.elastic_dim" not in keys
+    top = {d.key: d for d in search_dimensions("top10nn", "ImageFW")}
+    assert "model.hparams.fwe_size" in top and "model.hparams.estimation_sizes" not in top
+    assert all(d.default is not FROM_PAPER for d in top.values())
+    res = {d.key: d.default for d in search_dimensions("res_tf", "ALL")}
+    # Off-grid paper values start from the nearest choice (lr 1.1e-4, batch 24, [512]).
+    assert res["training.lr"] == 1e-4 and res["training.batch_size"] == 32
+    assert res["training.gamma"] == 0.975 and res["model.hparams.decoder_sizes"] == (512, 512, 256)
+    assert res["model.hparams.estimation_dropout"] == 0.1  # Res-Tf's own default, not Top10NN's
+
+
+def test_search_dimension_validation() -> None:
+    dim = SearchDimension.hparam("fwe_size", (8, 16, 32), needs=("force", "width"))
+    assert dim.key == "model.hparams.fwe_size"
+    assert not dim.applies_to("Image") and dim.applies_to("ImageF")
+    assert dim.nearest(30) == 32 and dim.nearest(16) == 16 and dim.nearest("x") == 8
+    with pytest.raises(ValueError, match="no choices"):
+        SearchDimension("training.lr", ())
+    with pytest.raises(ValueError, match="needs"):
+        SearchDimension("training.lr", (1e-3,), needs=("torque",))
+    with pytest.raises(ValueError, match="no choice"):
+        SearchDimension("training.lr", (1e-3,), default=0.5)
+
+    class Broken(TactileModel):
+        hpo_space = (SearchDimension.hparam("colour", (1, 2)),)
+
+        def __init__(self, inputs: InputStrategy | str = "ALL", channels: int = 4) -> None:
+            super().__init__(inputs, {"channels": channels})
+
+    try:
+        register_model("broken_space_model")(Broken)
+        with pytest.raises(ValueError, match=r"colour.*not a constructor hyperparameter"):
+            search_dimensions("broken_space_model", "ALL")
+    finally:
+        registry_module._REGISTRY.pop("broken_space_model", None)

@@ -154,8 +154,12 @@ def _conv1x1(in_planes: int, out_planes: int, stride: int = 1) -> nn.Conv2d:
     return nn.Conv2d(in_planes, out_planes, kernel_size=1, stride=stride, bias=False)
 
 
-class BasicBlock(nn.Module):
-    """Two 3x3 convolutions with a residual connection (ResNet18/34)."""
+class _ResidualBlock(nn.Module):
+    """``relu(branch(x) + shortcut(x))``; subclasses build the branch in ``_build_branch``.
+
+    The shortcut is ``downsample`` (or the identity), as in torchvision, so the blocks
+    keep its parameter names.
+    """
 
     expansion: int = 1
 
@@ -163,46 +167,53 @@ class BasicBlock(nn.Module):
         self, inplanes: int, planes: int, stride: int = 1, downsample: nn.Module | None = None
     ) -> None:
         super().__init__()
-        self.conv1 = _conv3x3(inplanes, planes, stride)
-        self.bn1 = nn.BatchNorm2d(planes)
+        self._build_branch(inplanes, planes, stride)
         self.relu = nn.ReLU(inplace=True)
-        self.conv2 = _conv3x3(planes, planes)
-        self.bn2 = nn.BatchNorm2d(planes)
         self.downsample = downsample
+
+    def _build_branch(self, inplanes: int, planes: int, stride: int) -> None:
+        raise NotImplementedError
+
+    def _branch(self, x: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Residual block forward pass."""
         identity = x if self.downsample is None else self.downsample(x)
+        return self.relu(self._branch(x) + identity)
+
+
+class BasicBlock(_ResidualBlock):
+    """Two 3x3 convolutions with a residual connection (ResNet18/34)."""
+
+    def _build_branch(self, inplanes: int, planes: int, stride: int) -> None:
+        self.conv1 = _conv3x3(inplanes, planes, stride)
+        self.bn1 = nn.BatchNorm2d(planes)
+        self.conv2 = _conv3x3(planes, planes)
+        self.bn2 = nn.BatchNorm2d(planes)
+
+    def _branch(self, x: torch.Tensor) -> torch.Tensor:
         out = self.relu(self.bn1(self.conv1(x)))
-        out = self.bn2(self.conv2(out))
-        return self.relu(out + identity)
+        return self.bn2(self.conv2(out))
 
 
-class Bottleneck(nn.Module):
+class Bottleneck(_ResidualBlock):
     """1x1-3x3-1x1 bottleneck with a residual connection (ResNet50); stride on the 3x3."""
 
     expansion: int = 4
 
-    def __init__(
-        self, inplanes: int, planes: int, stride: int = 1, downsample: nn.Module | None = None
-    ) -> None:
-        super().__init__()
+    def _build_branch(self, inplanes: int, planes: int, stride: int) -> None:
         self.conv1 = _conv1x1(inplanes, planes)
         self.bn1 = nn.BatchNorm2d(planes)
         self.conv2 = _conv3x3(planes, planes, stride)
         self.bn2 = nn.BatchNorm2d(planes)
         self.conv3 = _conv1x1(planes, planes * self.expansion)
         self.bn3 = nn.BatchNorm2d(planes * self.expansion)
-        self.relu = nn.ReLU(inplace=True)
-        self.downsample = downsample
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Residual block forward pass."""
-        identity = x if self.downsample is None else self.downsample(x)
+    def _branch(self, x: torch.Tensor) -> torch.Tensor:
         out = self.relu(self.bn1(self.conv1(x)))
         out = self.relu(self.bn2(self.conv2(out)))
-        out = self.bn3(self.conv3(out))
-        return self.relu(out + identity)
+        return self.bn3(self.conv3(out))
 
 
 class ResNet(nn.Module):
@@ -215,7 +226,7 @@ class ResNet(nn.Module):
     # The stem and every stage pad their inputs, so even a 1x1 image yields features.
     min_input_size: int = 1
 
-    def __init__(self, block: type[BasicBlock | Bottleneck], layers: list[int]) -> None:
+    def __init__(self, block: type[_ResidualBlock], layers: list[int]) -> None:
         super().__init__()
         self.inplanes = 64
         self.conv1 = nn.Conv2d(3, 64, kernel_size=7, stride=2, padding=3, bias=False)
@@ -235,7 +246,7 @@ class ResNet(nn.Module):
                 nn.init.zeros_(module.bias)
 
     def _make_layer(
-        self, block: type[BasicBlock | Bottleneck], planes: int, blocks: int, stride: int = 1
+        self, block: type[_ResidualBlock], planes: int, blocks: int, stride: int = 1
     ) -> nn.Sequential:
         downsample: nn.Module | None = None
         if stride != 1 or self.inplanes != planes * block.expansion:

@@ -18,23 +18,50 @@ Output: ``(B,)`` in (0, 1), the normalised log10 Young's modulus (sigmoid).
 An input that the strategy enables must be given (``ValueError`` naming it otherwise).
 An input the strategy disables is *ignored* when passed, so one data loader can feed
 models of every strategy; it never reaches the computation.
+
+:class:`FusionModel` adds the Burgess-style fusion head that Top10NN and Res-Tf share.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.models.settings import (
+    DROPOUT_CHOICES,
+    FWE_CHOICES,
+    SIZES_CHOICES,
+    TRAINING_SPACE,
+    SearchDimension,
+)
 
-__all__ = ["NUM_FRAMES", "TactileModel", "make_mlp"]
+__all__ = [
+    "NUM_FRAMES",
+    "FusionModel",
+    "HparamCheck",
+    "Scalar",
+    "TactileModel",
+    "check_dropout",
+    "check_positive_int",
+    "check_sizes",
+    "make_mlp",
+]
 
 #: Frames per sample (start, middle, end of the grasp).
 NUM_FRAMES = 3
+
+#: One scalar input (force, width or estimates, ``(B, n)``); None when not given, and
+#: always None in the head when the input strategy disables it.
+Scalar = Tensor | None
+
+#: Validates one hyperparameter: ``check(name, value)`` returns the value to store.
+HparamCheck = Callable[[str, Any], Any]
 
 _SCALAR_INPUTS: dict[str, tuple[int, str]] = {
     "force": (NUM_FRAMES, "normal force F, normalised F / 60 N"),
@@ -90,17 +117,28 @@ class TactileModel(nn.Module):
     Subclasses set ``self.backbone`` and implement :meth:`_head`. Class attributes:
 
     * ``model_name``: the registry name (set by ``register_model``).
+    * ``hparam_checks``: constructor hyperparameter -> its check, in the order
+      ``hparams`` lists them (:meth:`check_hparams`; subclasses build theirs with
+      :meth:`extend_checks`); ``inputs`` and ``backbone_weights`` are no hyperparameters.
     * ``default_training``: the paper's training settings for this model
       (``lr``, ``batch_size``, ``gamma``; ``gamma=None`` = no learning-rate decay).
     * ``tuned_configs``: per input strategy, tuned ``model`` and ``training`` overrides
-      from the paper where it reports them.
+      from the paper where it reports them (the constructor defaults and
+      ``default_training`` hold for the other strategies).
+    * ``hpo_space``: the tuning search space, :class:`SearchDimension` s whose defaults
+      are the paper settings (``models.settings.search_dimensions``).
     * ``recommended_image_size``: ``(H, W)`` the frames should be resized to, or None.
     * ``pretrained_backbone``: whether the constructor takes ``backbone_weights``.
+
+    ``models.settings.paper_settings(name, inputs)`` reads the paper settings as the
+    dotted overrides that experiment presets apply.
     """
 
     model_name: ClassVar[str] = ""
+    hparam_checks: ClassVar[Mapping[str, HparamCheck]] = MappingProxyType({})
     default_training: ClassVar[dict[str, Any]] = {}
     tuned_configs: ClassVar[dict[str, dict[str, dict[str, Any]]]] = {}
+    hpo_space: ClassVar[tuple[SearchDimension, ...]] = TRAINING_SPACE
     recommended_image_size: ClassVar[tuple[int, int] | None] = None
     pretrained_backbone: ClassVar[bool] = False
 
@@ -118,6 +156,18 @@ class TactileModel(nn.Module):
         # a checkpoint must rebuild the architecture without downloading anything.
         self.backbone_weights: str = "none"
 
+    @classmethod
+    def extend_checks(cls, **checks: HparamCheck) -> Mapping[str, HparamCheck]:
+        """``checks`` followed by this class's ``hparam_checks``: a subclass's table
+        (read-only, as class data shared by every instance must be)."""
+        return MappingProxyType({**checks, **cls.hparam_checks})
+
+    @classmethod
+    def check_hparams(cls, arguments: Mapping[str, Any]) -> dict[str, Any]:
+        """The hyperparameters among a constructor's ``arguments`` (its ``locals()``),
+        each validated by its ``hparam_checks`` entry, in that order."""
+        return {name: check(name, arguments[name]) for name, check in cls.hparam_checks.items()}
+
     # ------------------------------------------------------------------ metadata
     @property
     def feature_dim(self) -> int:
@@ -130,13 +180,13 @@ class TactileModel(nn.Module):
         return int(getattr(self.backbone, "min_input_size", 1))
 
     # ------------------------------------------------------------------ forward
-    def encode_frames(self, frames: torch.Tensor) -> torch.Tensor:
+    def encode_frames(self, frames: Tensor) -> Tensor:
         """Run the backbone on every frame: ``(B, 3, 3, H, W) -> (B, 3, feature_dim)``.
 
         This is what a feature cache stores (with the backbone frozen and in eval mode).
         """
-        if not isinstance(frames, torch.Tensor) or frames.dim() != 5:
-            shape = tuple(frames.shape) if isinstance(frames, torch.Tensor) else type(frames)
+        if not isinstance(frames, Tensor) or frames.dim() != 5:
+            shape = tuple(frames.shape) if isinstance(frames, Tensor) else type(frames)
             raise ValueError(
                 f"frames must be a tensor of shape (B, {NUM_FRAMES}, 3, H, W), got {shape}"
             )
@@ -160,12 +210,8 @@ class TactileModel(nn.Module):
         return features.reshape(batch, n_frames, -1)
 
     def forward(
-        self,
-        frames: torch.Tensor,
-        force: torch.Tensor | None = None,
-        width: torch.Tensor | None = None,
-        estimates: torch.Tensor | None = None,
-    ) -> torch.Tensor:
+        self, frames: Tensor, force: Scalar = None, width: Scalar = None, estimates: Scalar = None
+    ) -> Tensor:
         """Predict the normalised log10 modulus ``(B,)`` from frames and scalar inputs.
 
         Inputs disabled by ``self.inputs`` are ignored even when passed.
@@ -173,75 +219,87 @@ class TactileModel(nn.Module):
         return self.forward_features(self.encode_frames(frames), force, width, estimates)
 
     def forward_features(
-        self,
-        features: torch.Tensor,
-        force: torch.Tensor | None = None,
-        width: torch.Tensor | None = None,
-        estimates: torch.Tensor | None = None,
-    ) -> torch.Tensor:
+        self, features: Tensor, force: Scalar = None, width: Scalar = None, estimates: Scalar = None
+    ) -> Tensor:
         """Same as :meth:`forward` but from cached features ``(B, 3, feature_dim)``."""
         if (
-            not isinstance(features, torch.Tensor)
+            not isinstance(features, Tensor)
             or features.dim() != 3
             or features.shape[1] != NUM_FRAMES
             or features.shape[2] != self.feature_dim
         ):
-            shape = tuple(features.shape) if isinstance(features, torch.Tensor) else features
+            shape = tuple(features.shape) if isinstance(features, Tensor) else features
             raise ValueError(
                 f"features must have shape (B, {NUM_FRAMES}, {self.feature_dim}), got {shape}"
             )
         batch = features.shape[0]
+        given = {"force": force, "width": width, "estimates": estimates}
+        # Disabled inputs become None here, so they never reach the head.
         scalars = {
-            "force": force if self.inputs.uses_force else None,
-            "width": width if self.inputs.uses_width else None,
-            "estimates": estimates if self.inputs.uses_estimates else None,
+            name: self._check_scalar(name, tensor, batch, features.dtype)
+            if name in self.inputs.needs
+            else None
+            for name, tensor in given.items()
         }
-        enabled = {
-            "force": self.inputs.uses_force,
-            "width": self.inputs.uses_width,
-            "estimates": self.inputs.uses_estimates,
-        }
-        for name, tensor in scalars.items():
-            if enabled[name]:
-                scalars[name] = self._check_scalar(name, tensor, batch, features.dtype)
         logits = self._head(features, scalars["force"], scalars["width"], scalars["estimates"])
         return torch.sigmoid(logits.reshape(batch))
 
-    def _check_scalar(
-        self, name: str, tensor: torch.Tensor | None, batch: int, dtype: torch.dtype
-    ) -> torch.Tensor:
+    def _check_scalar(self, name: str, tensor: Scalar, batch: int, dtype: torch.dtype) -> Tensor:
         size, meaning = _SCALAR_INPUTS[name]
         if tensor is None:
             raise ValueError(
                 f"{type(self).__name__} with inputs={self.inputs.value} needs `{name}` "
                 f"({meaning}, shape (B, {size})), got None"
             )
-        if not isinstance(tensor, torch.Tensor) or tuple(tensor.shape) != (batch, size):
-            shape = tuple(tensor.shape) if isinstance(tensor, torch.Tensor) else type(tensor)
+        if not isinstance(tensor, Tensor) or tuple(tensor.shape) != (batch, size):
+            shape = tuple(tensor.shape) if isinstance(tensor, Tensor) else type(tensor)
             raise ValueError(f"`{name}` ({meaning}) must have shape ({batch}, {size}), got {shape}")
         # Data pipelines often hand over float64 (numpy); match the features instead of
         # failing inside a Linear layer.
         return tensor.to(dtype=dtype)
 
-    def _head(
-        self,
-        features: torch.Tensor,
-        force: torch.Tensor | None,
-        width: torch.Tensor | None,
-        estimates: torch.Tensor | None,
-    ) -> torch.Tensor:
+    def _head(self, features: Tensor, force: Scalar, width: Scalar, estimates: Scalar) -> Tensor:
         """Map features and the enabled inputs (others are None) to ``(B,)`` logits."""
         raise NotImplementedError
 
-    # ------------------------------------------------------------------ fusion head
-    def _build_fusion_head(self, image_dim: int, hp: dict[str, Any]) -> None:
-        """The Burgess-style fusion head shared by Top10NN and Res-Tf.
+    def extra_repr(self) -> str:
+        return f"inputs={self.inputs.value}"
 
-        concat(image vector, Linear(3->fwe)(F), Linear(3->fwe)(W)) -> decoder MLP; with
-        estimates the decoder emits ``decoder_output_size`` raw values that an estimation
-        MLP combines with the 2 normalised estimates. Towers exist only for enabled
-        inputs, so a disabled input has no weights at all.
-        """
+
+class FusionModel(TactileModel):
+    """A model with the Burgess-style fusion head (Top10NN, Res-Tf).
+
+    concat(image vector, Linear(3->fwe)(F), Linear(3->fwe)(W)) -> decoder MLP; with
+    estimates the decoder emits ``decoder_output_size`` raw values that an estimation
+    MLP combines with the 2 normalised estimates. Towers exist only for enabled inputs,
+    so a disabled input has no weights at all.
+
+    Subclasses extend ``hparam_checks`` (:meth:`extend_checks`), call
+    :meth:`_build_fusion_head` and implement :meth:`_image_vector`.
+    """
+
+    hparam_checks = TactileModel.extend_checks(
+        fwe_size=check_positive_int,
+        decoder_sizes=check_sizes,
+        decoder_dropout=check_dropout,
+        decoder_output_size=check_positive_int,
+        estimation_sizes=check_sizes,
+        estimation_dropout=check_dropout,
+    )
+    hpo_space: ClassVar[tuple[SearchDimension, ...]] = (
+        *TactileModel.hpo_space,
+        SearchDimension.hparam("decoder_dropout", DROPOUT_CHOICES),
+        SearchDimension.hparam("decoder_sizes", SIZES_CHOICES),
+        SearchDimension.hparam("estimation_sizes", SIZES_CHOICES, needs=("estimates",)),
+        SearchDimension.hparam("decoder_output_size", range(1, 9), needs=("estimates",)),
+        SearchDimension.hparam("estimation_dropout", DROPOUT_CHOICES, needs=("estimates",)),
+        SearchDimension.hparam("fwe_size", FWE_CHOICES, needs=("force", "width")),
+    )
+
+    def _build_fusion_head(self, image_dim: int) -> None:
+        """Build the towers and decoders from ``self.hparams`` for an image vector of
+        ``image_dim`` values."""
+        hp = self.hparams
         decoder_in = image_dim
         if self.inputs.uses_force:
             self.force_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
@@ -256,15 +314,12 @@ class TactileModel(nn.Module):
                 decoder_out + 2, hp["estimation_sizes"], 1, hp["estimation_dropout"]
             )
 
-    def _fuse(
-        self,
-        image_vector: torch.Tensor,
-        force: torch.Tensor | None,
-        width: torch.Tensor | None,
-        estimates: torch.Tensor | None,
-    ) -> torch.Tensor:
-        """Logits (B,) of the fusion head built by :meth:`_build_fusion_head`."""
-        parts = [image_vector]
+    def _image_vector(self, features: Tensor) -> Tensor:
+        """The image part of the fusion input, ``(B, 3, feature_dim) -> (B, image_dim)``."""
+        raise NotImplementedError
+
+    def _head(self, features: Tensor, force: Scalar, width: Scalar, estimates: Scalar) -> Tensor:
+        parts = [self._image_vector(features)]
         if force is not None:
             parts.append(self.force_encoder(force))
         if width is not None:
@@ -273,6 +328,3 @@ class TactileModel(nn.Module):
         if estimates is not None:
             out = self.estimation_decoder(torch.cat([out, estimates], dim=1))
         return out.squeeze(1)
-
-    def extra_repr(self) -> str:
-        return f"inputs={self.inputs.value}"

@@ -21,19 +21,19 @@ from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 from tactile_compliance.models.backbones import create_backbone
 from tactile_compliance.models.base import (
     NUM_FRAMES,
-    TactileModel,
+    FusionModel,
     check_dropout,
     check_positive_int,
-    check_sizes,
 )
 from tactile_compliance.models.dropout import use_fast_dropout
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
+from tactile_compliance.models.settings import DIM_CHOICES, DROPOUT_CHOICES, SearchDimension
 
 __all__ = ["ResTf", "sinusoidal_positional_encoding"]
 
@@ -53,8 +53,18 @@ def sinusoidal_positional_encoding(length: int, dim: int) -> torch.Tensor:
     return encoding
 
 
+def _check_resnet(name: str, value: Any) -> str:
+    """Validate the ``backbone`` hyperparameter (a ResNet name, any case)."""
+    backbone = str(value).strip().lower()
+    if backbone not in _RESNETS:
+        raise ValueError(
+            f"hyperparameter {name} must be one of {', '.join(_RESNETS)}, got {value!r}"
+        )
+    return backbone
+
+
 @register_model("res_tf")
-class ResTf(TactileModel):
+class ResTf(FusionModel):
     """Res-Tf, the ResNet + Transformer model of the paper (defaults: tuned ALL config).
 
     Args:
@@ -77,23 +87,21 @@ class ResTf(TactileModel):
             Recorded in ``self.backbone_weights``, not in ``hparams``.
     """
 
+    hparam_checks = FusionModel.extend_checks(
+        backbone=_check_resnet,
+        num_layers=check_positive_int,
+        num_heads=check_positive_int,
+        embedding_dim=check_positive_int,
+        output_dim=check_positive_int,
+        video_dropout=check_dropout,
+        transformer_dropout=check_dropout,
+        dim_feedforward=check_positive_int,
+    )
+    # The constructor defaults and these settings are the paper's tuned ALL configuration.
     default_training: ClassVar[dict[str, Any]] = {"lr": 1.1e-4, "batch_size": 24, "gamma": 0.977}
-    # The paper's tuned configurations; the constructor defaults are the ALL one.
+    # The paper's other tuned configuration (only the values that differ from the above
+    # are listed: presets and HPO read these through models.settings.paper_settings).
     tuned_configs: ClassVar[dict[str, dict[str, dict[str, Any]]]] = {
-        "ALL": {
-            "model": {
-                "num_layers": 4,
-                "num_heads": 2,
-                "embedding_dim": 256,
-                "output_dim": 512,
-                "decoder_sizes": [512],
-                "estimation_sizes": [64],
-                "video_dropout": 0.1,
-                "decoder_dropout": 0.3,
-                "estimation_dropout": 0.1,
-            },
-            "training": {"lr": 1.1e-4, "batch_size": 24, "gamma": 0.977},
-        },
         "Image": {
             "model": {
                 "num_layers": 5,
@@ -105,6 +113,14 @@ class ResTf(TactileModel):
             "training": {"lr": 8e-5, "batch_size": 40, "gamma": 0.962},
         },
     }
+    hpo_space: ClassVar[tuple[SearchDimension, ...]] = (
+        *FusionModel.hpo_space,
+        SearchDimension.hparam("video_dropout", DROPOUT_CHOICES),
+        SearchDimension.hparam("num_layers", (2, 3, 4, 5, 6)),
+        SearchDimension.hparam("num_heads", (1, 2, 4, 8, 16)),
+        SearchDimension.hparam("embedding_dim", DIM_CHOICES),
+        SearchDimension.hparam("output_dim", DIM_CHOICES),
+    )
     pretrained_backbone: ClassVar[bool] = True
 
     def __init__(
@@ -126,34 +142,15 @@ class ResTf(TactileModel):
         estimation_dropout: float = 0.1,
         backbone_weights: str | os.PathLike[str] = "none",
     ) -> None:
-        backbone_name = str(backbone).strip().lower()
-        if backbone_name not in _RESNETS:
-            raise ValueError(
-                f"hyperparameter backbone must be one of {', '.join(_RESNETS)}, got {backbone!r}"
-            )
-        hparams = {
-            "backbone": backbone_name,
-            "num_layers": check_positive_int("num_layers", num_layers),
-            "num_heads": check_positive_int("num_heads", num_heads),
-            "embedding_dim": check_positive_int("embedding_dim", embedding_dim),
-            "output_dim": check_positive_int("output_dim", output_dim),
-            "video_dropout": check_dropout("video_dropout", video_dropout),
-            "transformer_dropout": check_dropout("transformer_dropout", transformer_dropout),
-            "dim_feedforward": check_positive_int("dim_feedforward", dim_feedforward),
-            "fwe_size": check_positive_int("fwe_size", fwe_size),
-            "decoder_sizes": check_sizes("decoder_sizes", decoder_sizes),
-            "decoder_dropout": check_dropout("decoder_dropout", decoder_dropout),
-            "decoder_output_size": check_positive_int("decoder_output_size", decoder_output_size),
-            "estimation_sizes": check_sizes("estimation_sizes", estimation_sizes),
-            "estimation_dropout": check_dropout("estimation_dropout", estimation_dropout),
-        }
+        # locals() holds exactly the constructor's arguments at this point.
+        hparams = self.check_hparams(locals())
         if hparams["embedding_dim"] % hparams["num_heads"]:
             raise ValueError(
                 f"embedding_dim ({embedding_dim}) must be divisible by num_heads ({num_heads})"
             )
         super().__init__(inputs, hparams)
         hp = self.hparams
-        self.backbone = create_backbone(backbone_name, backbone_weights)
+        self.backbone = create_backbone(hp["backbone"], backbone_weights)
         self.backbone_weights = os.fspath(backbone_weights)
 
         self.token_projection = nn.Linear(self.backbone.feature_dim, hp["embedding_dim"])
@@ -177,16 +174,10 @@ class ResTf(TactileModel):
         self.video_dropout = nn.Dropout(hp["video_dropout"])
         self.image_output = nn.Linear(hp["embedding_dim"], hp["output_dim"])
 
-        self._build_fusion_head(hp["output_dim"], hp)
+        self._build_fusion_head(hp["output_dim"])
         use_fast_dropout(self)
 
-    def _head(
-        self,
-        features: torch.Tensor,
-        force: torch.Tensor | None,
-        width: torch.Tensor | None,
-        estimates: torch.Tensor | None,
-    ) -> torch.Tensor:
+    def _image_vector(self, features: Tensor) -> Tensor:
         tokens = self.token_projection(features) + self.positional_encoding.to(features.dtype)
         video = self.transformer(tokens).mean(dim=1)
-        return self._fuse(self.image_output(self.video_dropout(video)), force, width, estimates)
+        return self.image_output(self.video_dropout(video))

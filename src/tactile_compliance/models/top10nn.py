@@ -16,18 +16,18 @@ from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 from tactile_compliance.models.base import (
     NUM_FRAMES,
-    TactileModel,
+    FusionModel,
     check_dropout,
     check_positive_int,
-    check_sizes,
 )
 from tactile_compliance.models.dropout import use_fast_dropout
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
+from tactile_compliance.models.settings import DROPOUT_CHOICES, POW2_32_512, SearchDimension
 
 __all__ = ["Top10Encoder", "Top10NN"]
 
@@ -81,7 +81,7 @@ class Top10Encoder(nn.Module):
 
 
 @register_model("top10nn")
-class Top10NN(TactileModel):
+class Top10NN(FusionModel):
     """Top10NN baseline (Burgess et al.), trained from scratch.
 
     Args:
@@ -97,7 +97,15 @@ class Top10NN(TactileModel):
         estimation_dropout: dropout in the estimation decoder (paper: 0.3).
     """
 
+    hparam_checks = FusionModel.extend_checks(
+        img_feature_size=check_positive_int, image_dropout=check_dropout
+    )
     default_training: ClassVar[dict[str, Any]] = {"lr": 3e-6, "batch_size": 32, "gamma": None}
+    hpo_space: ClassVar[tuple[SearchDimension, ...]] = (
+        *FusionModel.hpo_space,
+        SearchDimension.hparam("image_dropout", DROPOUT_CHOICES),
+        SearchDimension.hparam("img_feature_size", POW2_32_512),
+    )
 
     def __init__(
         self,
@@ -111,28 +119,12 @@ class Top10NN(TactileModel):
         estimation_sizes: Sequence[int] = (64, 64, 32),
         estimation_dropout: float = 0.3,
     ) -> None:
-        hparams = {
-            "img_feature_size": check_positive_int("img_feature_size", img_feature_size),
-            "image_dropout": check_dropout("image_dropout", image_dropout),
-            "fwe_size": check_positive_int("fwe_size", fwe_size),
-            "decoder_sizes": check_sizes("decoder_sizes", decoder_sizes),
-            "decoder_dropout": check_dropout("decoder_dropout", decoder_dropout),
-            "decoder_output_size": check_positive_int("decoder_output_size", decoder_output_size),
-            "estimation_sizes": check_sizes("estimation_sizes", estimation_sizes),
-            "estimation_dropout": check_dropout("estimation_dropout", estimation_dropout),
-        }
-        super().__init__(inputs, hparams)
+        # locals() holds exactly the constructor's arguments at this point.
+        super().__init__(inputs, self.check_hparams(locals()))
         hp = self.hparams
         self.backbone = Top10Encoder(hp["img_feature_size"], hp["image_dropout"])
-
-        self._build_fusion_head(NUM_FRAMES * hp["img_feature_size"], hp)
+        self._build_fusion_head(NUM_FRAMES * hp["img_feature_size"])
         use_fast_dropout(self)
 
-    def _head(
-        self,
-        features: torch.Tensor,
-        force: torch.Tensor | None,
-        width: torch.Tensor | None,
-        estimates: torch.Tensor | None,
-    ) -> torch.Tensor:
-        return self._fuse(features.flatten(1), force, width, estimates)
+    def _image_vector(self, features: Tensor) -> Tensor:
+        return features.flatten(1)

@@ -16,11 +16,12 @@ import os
 from typing import Any, ClassVar
 
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 from tactile_compliance.models.backbones import create_backbone
 from tactile_compliance.models.base import (
     NUM_FRAMES,
+    Scalar,
     TactileModel,
     check_dropout,
     check_positive_int,
@@ -28,6 +29,12 @@ from tactile_compliance.models.base import (
 from tactile_compliance.models.dropout import use_fast_dropout
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
+from tactile_compliance.models.settings import (
+    DROPOUT_CHOICES,
+    POW2_32_512,
+    SCALAR_DIM_CHOICES,
+    SearchDimension,
+)
 
 __all__ = ["VggLstm", "project_steps"]
 
@@ -114,11 +121,25 @@ class VggLstm(TactileModel):
             Recorded in ``self.backbone_weights``, not in ``hparams``.
     """
 
-    default_training: ClassVar[dict[str, Any]] = {
-        "lr": 3e-4,
-        "batch_size": 16,
-        "gamma": 0.97974,
-    }
+    hparam_checks = TactileModel.extend_checks(
+        hidden_size=check_positive_int,
+        lstm_dropout=check_dropout,
+        force_dim=check_positive_int,
+        width_dim=check_positive_int,
+        elastic_dim=check_positive_int,
+        hertz_dim=check_positive_int,
+    )
+    default_training: ClassVar[dict[str, Any]] = {"lr": 3e-4, "batch_size": 16, "gamma": 0.97974}
+    # Each scalar embedding is searched only when the strategy uses its input.
+    hpo_space: ClassVar[tuple[SearchDimension, ...]] = (
+        *TactileModel.hpo_space,
+        SearchDimension.hparam("lstm_dropout", DROPOUT_CHOICES),
+        SearchDimension.hparam("hidden_size", POW2_32_512),
+        SearchDimension.hparam("force_dim", SCALAR_DIM_CHOICES, needs=("force",)),
+        SearchDimension.hparam("width_dim", SCALAR_DIM_CHOICES, needs=("width",)),
+        SearchDimension.hparam("elastic_dim", SCALAR_DIM_CHOICES, needs=("estimates",)),
+        SearchDimension.hparam("hertz_dim", SCALAR_DIM_CHOICES, needs=("estimates",)),
+    )
     recommended_image_size: ClassVar[tuple[int, int] | None] = (224, 224)
     pretrained_backbone: ClassVar[bool] = True
 
@@ -133,15 +154,8 @@ class VggLstm(TactileModel):
         hertz_dim: int = 32,
         backbone_weights: str | os.PathLike[str] = "none",
     ) -> None:
-        hparams = {
-            "hidden_size": check_positive_int("hidden_size", hidden_size),
-            "lstm_dropout": check_dropout("lstm_dropout", lstm_dropout),
-            "force_dim": check_positive_int("force_dim", force_dim),
-            "width_dim": check_positive_int("width_dim", width_dim),
-            "elastic_dim": check_positive_int("elastic_dim", elastic_dim),
-            "hertz_dim": check_positive_int("hertz_dim", hertz_dim),
-        }
-        super().__init__(inputs, hparams)
+        # locals() holds exactly the constructor's arguments at this point.
+        super().__init__(inputs, self.check_hparams(locals()))
         hp = self.hparams
         self.backbone = create_backbone("vgg16", backbone_weights)
         self.backbone_weights = os.fspath(backbone_weights)
@@ -169,13 +183,7 @@ class VggLstm(TactileModel):
         self.step_weights = nn.Parameter(torch.ones(NUM_FRAMES))
         use_fast_dropout(self)
 
-    def _head(
-        self,
-        features: torch.Tensor,
-        force: torch.Tensor | None,
-        width: torch.Tensor | None,
-        estimates: torch.Tensor | None,
-    ) -> torch.Tensor:
+    def _head(self, features: Tensor, force: Scalar, width: Scalar, estimates: Scalar) -> Tensor:
         batch = features.shape[0]
         constant: list[torch.Tensor] = []
         if estimates is not None:

@@ -14,6 +14,7 @@ cross, which seeds to run, and which extra settings apply to some cells only::
       inputs: [Image, ImageF, ImageFW, ALL]
       split.condition: [seen, unseen]
     seeds: 10                    # n -> seeds 0..n-1, or an explicit list
+    paper_settings: true         # each cell gets its model's paper settings (lr, batch, ...)
     rules:                       # extra overrides for the cells that match, in order
       - when: {model.name: vgg_lstm}
         set: {training.lr: 3.0e-4, training.batch_size: 16}
@@ -29,9 +30,15 @@ merged key by key, ``rules`` appended, everything else replaced). A plain config
 file (one that ``train`` accepts, e.g. the ``best.yaml`` written by ``tune``) is also an
 experiment: a single cell, crossed with the seeds.
 
+``paper_settings: true`` applies, to every cell, the paper settings that its model
+class declares for its input strategy (``models.paper_settings(model, inputs)``: the
+model's training settings and, where the paper tuned them, its hyperparameters), so that
+presets do not repeat them.
+
 A cell's config is built in this order, later steps winning: base config, ``set``, the
-grid values, the seed, matching ``rules`` (matched against the cell's values *before* any
-rule is applied), then command-line overrides (``--set``, ``--store``). Every cell is
+grid values, the seed, the paper settings (with ``paper_settings: true``), matching
+``rules`` (matched against the cell's values *before* the paper settings and any rule
+are applied), then command-line overrides (``--set``, ``--store``). Every cell is
 validated like any other configuration, so a typo fails before anything runs and the
 error names the cell and the key.
 """
@@ -58,6 +65,7 @@ from tactile_compliance.config import (
     list_presets,
     load_config,
 )
+from tactile_compliance.models import paper_settings
 from tactile_compliance.runs.layout import config_hash, run_name
 
 __all__ = [
@@ -75,9 +83,20 @@ EXPERIMENTS_DIR = "experiments"
 #: Keys of an experiment file; a YAML file with any of them (but output_dir) is an
 #: experiment, not a config.
 SPEC_KEYS = frozenset(
-    {"description", "extends", "config", "set", "grid", "seeds", "rules", "quick", "output_dir"}
+    {
+        "description",
+        "extends",
+        "config",
+        "set",
+        "grid",
+        "seeds",
+        "paper_settings",
+        "rules",
+        "quick",
+        "output_dir",
+    }
 )
-_QUICK_KEYS = frozenset({"description", "config", "set", "grid", "seeds", "rules", "output_dir"})
+_QUICK_KEYS = SPEC_KEYS - {"extends", "quick"}
 _RULE_KEYS = frozenset({"when", "set", "include"})
 DEFAULT_RUNS_DIR = "runs"
 
@@ -104,6 +123,12 @@ class ExperimentSpec:
     quick: bool = False
     origin: str = ""
     output_dir: str | None = None
+    paper_settings: bool = False
+
+    @property
+    def is_plain_config(self) -> bool:
+        """Whether the experiment only names a config (one cell, nothing changed)."""
+        return not (self.grid or self.rules or self.set or self.paper_settings)
 
     @property
     def default_output_dir(self) -> Path:
@@ -123,6 +148,7 @@ class ExperimentSpec:
             "set": self.set,
             "grid": self.grid,
             "seeds": self.seeds,
+            "paper_settings": self.paper_settings,
             "rules": [{"when": r.when, "set": r.set} for r in self.rules],
         }
 
@@ -373,6 +399,9 @@ def load_experiment(ref: str | Path, *, quick: bool = False) -> ExperimentSpec:
     else:
         seeds = _parse_seeds(seeds_raw, origin)
     output_dir = raw.get("output_dir")
+    use_paper = raw.get("paper_settings", False)
+    if not isinstance(use_paper, bool):
+        raise ConfigError(f"{origin}: 'paper_settings' must be true or false, got {use_paper!r}")
     return ExperimentSpec(
         name=name,
         description=str(raw.get("description") or f"{name} ({origin})").strip(),
@@ -384,6 +413,7 @@ def load_experiment(ref: str | Path, *, quick: bool = False) -> ExperimentSpec:
         quick=quick,
         origin=origin,
         output_dir=str(output_dir) if output_dir is not None else None,
+        paper_settings=use_paper,
     )
 
 
@@ -488,13 +518,14 @@ def expand_experiment(
                 # The first pass only decides which rules match; warnings come once, below.
                 warnings.simplefilter("ignore")
                 before_rules = config_to_dict(config_from_dict(base, head, origin))
+            paper = _paper_overrides(before_rules, origin) if spec.paper_settings else []
             matched = [
                 _override(k, v)
                 for r in spec.rules
                 if match_cell(before_rules, r.when)
                 for k, v in r.set.items()
             ]
-            cfg = config_from_dict(base, [*head, *matched, *tail], origin)
+            cfg = config_from_dict(base, [*head, *paper, *matched, *tail], origin)
             cfg = _absolute_paths(cfg, out)
             if filters and not match_cell(config_to_dict(cfg), filters):
                 continue
@@ -512,6 +543,15 @@ def expand_experiment(
             stacklevel=2,
         )
     return cells
+
+
+def _paper_overrides(values: Mapping[str, Any], origin: str) -> list[str]:
+    """The paper settings of a cell's model and input strategy, as overrides."""
+    try:
+        settings = paper_settings(values["model"]["name"], values["inputs"])
+    except ValueError as exc:  # an unregistered model: a config error of this cell
+        raise ConfigError(f"{origin}: paper_settings: {exc}") from None
+    return [_override(k, v) for k, v in settings.items()]
 
 
 def _absolute_paths(cfg: ExperimentConfig, out: Path) -> ExperimentConfig:

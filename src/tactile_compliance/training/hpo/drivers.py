@@ -1,0 +1,408 @@
+"""The tuning drivers: :func:`tune` (a model's hyperparameters) and :func:`tune_balance`
+(``sampling.t_balance``), and the files they write (``best.yaml``, ``tuned.yaml``, ...)."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from tactile_compliance.config import (
+    ConfigError,
+    ExperimentConfig,
+    config_from_dict,
+    config_to_dict,
+    save_config,
+)
+from tactile_compliance.models import list_models
+from tactile_compliance.training.grid import load_experiment
+from tactile_compliance.training.hpo.objectives import (
+    BalanceObjective,
+    TrialObjective,
+    base_config,
+    check_store,
+    prepare_features,
+)
+from tactile_compliance.training.hpo.smac_run import (
+    CRASH_COST,
+    incumbent_cost,
+    require_smac,
+    run_smac,
+    search_name,
+    trial_cluster,
+    trials_table,
+)
+from tactile_compliance.training.hpo.space import (
+    canonical_inputs,
+    plain,
+    search_space,
+    trial_overrides,
+    trial_values,
+)
+
+__all__ = ["TuneResult", "tune", "tune_balance"]
+
+
+@dataclass
+class TuneResult:
+    """What a tuning run found and where it wrote it."""
+
+    name: str
+    output_dir: Path
+    best: dict[str, Any]
+    best_cost: float
+    best_budget: float | None
+    trials: int
+    config_path: Path
+    tuned_path: Path
+    trials_path: Path
+    wall_time_s: float = 0.0
+    extra_paths: list[Path] = field(default_factory=list)
+
+    def format(self) -> str:
+        """A printable summary."""
+        budget = f" at {self.best_budget:g} epochs" if self.best_budget is not None else ""
+        lines = [
+            f"{self.name}: {self.trials} trials, best validation N-MSE {self.best_cost:.5f}"
+            f"{budget} ({self.wall_time_s:.1f} s)",
+            *(f"  {k} = {v}" for k, v in self.best.items()),
+            f"Config: {self.config_path}",
+            f"Tuned values: {self.tuned_path}",
+            f"All trials: {self.trials_path}",
+            *(f"Also: {p}" for p in self.extra_paths),
+        ]
+        return "\n".join(lines)
+
+
+def _write_yaml(path: Path, header: str, data: Mapping[str, Any]) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = header + yaml.safe_dump(dict(data), sort_keys=False, default_flow_style=None)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+    return path
+
+
+@dataclass
+class _Search:
+    """What :func:`tune` and :func:`tune_balance` share: where trials start from, where
+    the search writes, how it runs, and its result files."""
+
+    label: str
+    name: str
+    config: str | Path
+    quick: bool
+    store: str | Path | None
+    overrides: Iterable[str]
+    seed: int
+    condition: str | None
+    workers: int
+    scheduler: str | None
+    client: Any
+    output_dir: str | Path | None
+    overwrite: bool
+    threads: int | None
+    progress: bool
+    started: float = field(default_factory=time.perf_counter)
+
+    @classmethod
+    def of(cls, label: str, name: str, arguments: Mapping[str, Any]) -> _Search:
+        """The search ``name`` writing to ``tuning/LABEL`` by default, with the shared
+        options out of a driver's arguments (its ``locals()``)."""
+        shared = [f.name for f in fields(cls) if f.name not in ("label", "name", "started")]
+        return cls(label, name, **{key: arguments[key] for key in shared})
+
+    @property
+    def out(self) -> Path:
+        """Where the search writes (default ``tuning/LABEL``), absolute."""
+        out = Path(self.output_dir) if self.output_dir is not None else Path("tuning") / self.label
+        return out.expanduser().resolve()
+
+    def bases(self, models: Sequence[str], inputs: str) -> list[ExperimentConfig]:
+        """The base config of each model; the store must exist unless trials run
+        elsewhere (a remote scheduler's workers may see other paths)."""
+        bases = [
+            base_config(
+                self.config,
+                model,
+                inputs,
+                quick=self.quick,
+                store=self.store,
+                overrides=self.overrides,
+                seed=self.seed,
+                condition=self.condition,
+            )
+            for model in models
+        ]
+        if self.scheduler is None and self.client is None:
+            for base in bases:
+                check_store(base)
+        return bases
+
+    def trial_bases(self, bases: Sequence[ExperimentConfig]) -> list[dict[str, Any]]:
+        """The base configs as the objectives get them: trials write below ``OUT/trials``."""
+        return [{**config_to_dict(base), "output_dir": str(self.out / "trials")} for base in bases]
+
+    def scenario(self, smac: Any, configspace: Any, name: str, **budget: Any) -> Any:
+        """SMAC's scenario: deterministic trials, ``budget`` for multi-fidelity."""
+        return smac.Scenario(
+            configspace,
+            name=name,
+            output_directory=self.out / "smac",
+            deterministic=True,
+            seed=self.seed,
+            crash_cost=CRASH_COST,
+            **budget,
+        )
+
+    def run(
+        self,
+        facade_cls: Any,
+        scenario: Any,
+        bases: Sequence[ExperimentConfig],
+        objective: Callable[[int | None], Any],
+        title: str,
+        intensifier: Any = None,
+    ) -> tuple[Any, Any]:
+        """Run (or continue) the search: (the facade, its incumbent). ``objective`` builds
+        the target function for the torch threads a trial gets."""
+        cluster = trial_cluster(self.workers, self.scheduler, self.client, self.threads)
+        with cluster as (dask, threads):
+            for base in bases:
+                prepare_features(base, dask, threads)
+            return run_smac(
+                facade_cls,
+                scenario,
+                objective(threads),
+                intensifier=intensifier,
+                client=dask,
+                overwrite=self.overwrite,
+                progress=self.progress,
+                label=title,
+                trials=scenario.n_trials,
+            )
+
+    def result(
+        self,
+        facade: Any,
+        best: dict[str, Any],
+        cost: tuple[float, float | None],
+        paths: Sequence[Path],
+        decode: bool = True,
+    ) -> TuneResult:
+        """Write ``OUT/trials.csv`` and sum the search up.
+
+        Args:
+            facade: the SMAC facade after the search.
+            best: the tuned values (dotted keys).
+            cost: the best cost and the budget it was reached at (None: no budgets).
+            paths: the config to use, the tuned values, then any other written files.
+            decode: write the trials' values as config values.
+        """
+        table = trials_table(facade, decode=decode)
+        trials_path = self.out / "trials.csv"
+        table.to_csv(trials_path, index=False)
+        config_path, tuned_path, *others = paths
+        return TuneResult(
+            name=self.name,
+            output_dir=self.out,
+            best=best,
+            best_cost=cost[0],
+            best_budget=cost[1],
+            trials=len(table),
+            config_path=config_path,
+            tuned_path=tuned_path,
+            trials_path=trials_path,
+            wall_time_s=round(time.perf_counter() - self.started, 2),
+            extra_paths=list(others),
+        )
+
+
+def tune(
+    model: str,
+    inputs: str = "ALL",
+    *,
+    config: str | Path = "default",
+    quick: bool = False,
+    store: str | Path | None = None,
+    overrides: Iterable[str] = (),
+    condition: str | None = None,
+    trials: int = 132,
+    min_epochs: int = 5,
+    max_epochs: int = 50,
+    eta: int = 3,
+    seed: int = 0,
+    workers: int = 1,
+    scheduler: str | None = None,
+    client: Any = None,
+    output_dir: str | Path | None = None,
+    overwrite: bool = False,
+    threads: int | None = None,
+    progress: bool = True,
+) -> TuneResult:
+    """Tune one model for one input strategy with SMAC3 (Hyperband over epochs).
+
+    Args:
+        model: a registered model (``models.list_models()``); its class declares the
+            search space (``hpo_space``).
+        inputs: input strategy whose search space is used (Image, ImageF, ImageFW, ALL).
+        config: base config or experiment (preset or file); see :func:`base_config`.
+        quick: with an experiment as ``config``, use its quick variant.
+        store: GraspStore (``data.store``).
+        overrides: ``dotted.key=value`` applied to the base config.
+        condition: seen / unseen (default: the base config's).
+        trials: SMAC trials (a trial = one configuration at one budget).
+        min_epochs, max_epochs: Hyperband budget range (epochs).
+        eta: Hyperband's halving rate.
+        seed: training seed of every trial and SMAC's seed.
+        workers: parallel trials on a local Dask cluster (1: in this process).
+        scheduler: address or scheduler-file of a running Dask scheduler.
+        client: an existing ``distributed.Client`` (Python API).
+        output_dir: default ``tuning/MODEL-INPUTS`` (``-quick`` appended for quick).
+        overwrite: start over instead of continuing an earlier run in ``output_dir``.
+        threads: torch threads per trial (default: 1 with Dask, torch's default without).
+        progress: show a progress bar.
+    """
+    smac = require_smac()
+    if not 1 <= min_epochs <= max_epochs:
+        raise ConfigError(f"need 1 <= min_epochs <= max_epochs, got {min_epochs}, {max_epochs}")
+    if trials < 1:
+        raise ConfigError(f"trials must be >= 1, got {trials}")
+    inputs = canonical_inputs(inputs)
+    model = model.strip().lower()
+    label = f"{model}-{inputs}" + ("-quick" if quick else "")
+    search = _Search.of(label, f"tune {label}", locals())
+    [base] = search.bases([model], inputs)
+    [base_dict] = search.trial_bases([base])
+    configspace = search_space(model, inputs, seed)
+    name = search_name(
+        "smac", base_dict, str(configspace), min_epochs, max_epochs, eta, seed, "tune"
+    )
+    scenario = search.scenario(
+        smac, configspace, name, n_trials=trials, min_budget=min_epochs, max_budget=max_epochs
+    )
+    facade, incumbent = search.run(
+        smac.MultiFidelityFacade,
+        scenario,
+        [base],
+        lambda threads: TrialObjective(base_dict, str(search.out / "trials"), threads),
+        search.name,
+        intensifier=smac.MultiFidelityFacade.get_intensifier(scenario, eta=eta),
+    )
+    cost, budget = incumbent_cost(facade, incumbent)
+    best_values = trial_values(incumbent)
+    # The tuned config trains for the base config's epochs, not the search budget.
+    best_cfg = config_from_dict(
+        base_dict,
+        [*trial_overrides(incumbent), f"output_dir={json.dumps(str(Path('runs') / label))}"],
+        "tuned configuration",
+    )
+    config_path = save_config(best_cfg, search.out / "best.yaml")
+    header = (
+        f"# Tuned by `tactile-compliance tune {model} --inputs {inputs}`: validation N-MSE "
+        f"{cost:.5f} at {budget} epochs.\n# Dotted overrides; use with `include:` in an "
+        "experiment rule, or --set each line.\n"
+    )
+    tuned_path = _write_yaml(search.out / "tuned.yaml", header, best_values)
+    # The caller prints result.format() (the CLI does).
+    return search.result(facade, best_values, (cost, budget), [config_path, tuned_path])
+
+
+def tune_balance(
+    config: str | Path = "table2",
+    *,
+    quick: bool = False,
+    models: Sequence[str] | None = None,
+    inputs: str = "ALL",
+    condition: str | None = "seen",
+    epochs: int = 10,
+    trials: int = 30,
+    store: str | Path | None = None,
+    overrides: Iterable[str] = (),
+    seed: int = 0,
+    workers: int = 1,
+    scheduler: str | None = None,
+    client: Any = None,
+    output_dir: str | Path | None = None,
+    overwrite: bool = False,
+    threads: int | None = None,
+    progress: bool = True,
+) -> TuneResult:
+    """Tune ``sampling.t_balance`` in [0, 1] (step 0.01) with SMAC3's BO facade.
+
+    Cost of a value: the mean, over ``models`` (default: every registered model), of the
+    best validation N-MSE after ``epochs`` epochs of balanced training. Note that
+    validation is balanced too (``sampling.balance_validation``, as in the paper), so the
+    cost also depends on how the validation set is oversampled; pass
+    ``--set sampling.balance_validation=false`` to score on the untouched validation split.
+
+    Writes ``OUT/tuned.yaml`` (``sampling.strategy``/``t_balance``), ``OUT/best-MODEL.yaml``
+    per model, and, when ``config`` is an experiment NAME, ``OUT/NAME-tuned.yaml``: that
+    experiment with the tuned value (``experiment OUT/NAME-tuned.yaml``, plus ``--quick``
+    for its quick variant).
+    """
+    smac = require_smac()
+    from ConfigSpace import ConfigurationSpace, Integer
+
+    if epochs < 1 or trials < 1:
+        raise ConfigError(f"epochs and trials must be >= 1, got {epochs}, {trials}")
+    inputs = canonical_inputs(inputs)
+    models = [m.strip().lower() for m in (list_models() if models is None else models)]
+    label = "balance" + ("-quick" if quick else "")
+    search = _Search.of(label, f"tune-balance {', '.join(models)}", locals())
+    bases = search.bases(models, inputs)
+    base_dicts = search.trial_bases(bases)
+    configspace = ConfigurationSpace(seed=seed)
+    configspace.add(Integer("t_balance_percent", (0, 100), default=50))
+    name = search_name("smac", base_dicts, epochs, seed, "balance")
+    scenario = search.scenario(smac, configspace, name, n_trials=trials)
+    facade, incumbent = search.run(
+        smac.HyperparameterOptimizationFacade,
+        scenario,
+        bases,
+        lambda threads: BalanceObjective(base_dicts, str(search.out / "trials"), epochs, threads),
+        f"tune-balance{' (quick)' if quick else ''}",
+    )
+    cost, _ = incumbent_cost(facade, incumbent)
+    t_balance = int(plain(incumbent["t_balance_percent"])) / 100
+    best = {"sampling.strategy": "balanced", "sampling.t_balance": t_balance}
+    header = (
+        f"# Tuned by `tactile-compliance tune-balance`: mean validation N-MSE {cost:.5f} "
+        f"of {', '.join(models)} after {epochs} epochs.\n"
+    )
+    tuned_path = _write_yaml(search.out / "tuned.yaml", header, best)
+    extra_paths = []
+    for base in bases:
+        cfg = config_from_dict(
+            config_to_dict(base),
+            [
+                "sampling.strategy=balanced",
+                f"sampling.t_balance={t_balance}",
+                f"output_dir={Path('runs') / label}",
+            ],
+        )
+        extra_paths.append(save_config(cfg, search.out / f"best-{cfg.model.name}.yaml"))
+    config_path = extra_paths[0]
+    spec = load_experiment(config, quick=False)
+    if not spec.is_plain_config:
+        ref = str(config) if spec.origin.startswith("experiment preset") else spec.origin
+        experiment = {
+            "description": f"{spec.description} (t_balance tuned: {t_balance})",
+            "extends": ref,
+            "set": best,
+        }
+        # Named after the experiment: its runs go to runs/NAME-tuned(-quick).
+        config_path = _write_yaml(search.out / f"{spec.name}-tuned.yaml", header, experiment)
+    others = [p for p in extra_paths if p != config_path]
+    return search.result(
+        facade,
+        {"sampling.t_balance": t_balance},
+        (cost, None),
+        [config_path, tuned_path, *others],
+        decode=False,
+    )
