@@ -578,7 +578,7 @@ def experiment(
 
 @app.command()
 def tune(
-    model: Annotated[str, typer.Argument(help="top10nn, vgg_lstm or res_tf.")],
+    model: Annotated[str, typer.Argument(help="A registered model (top10nn, vgg_lstm, ...).")],
     inputs: Annotated[str, typer.Option(help="Input strategy whose search space is used.")] = "ALL",
     config: Annotated[
         str, typer.Option("--config", "-c", help="Base config or experiment preset.")
