@@ -47,7 +47,7 @@ def require_smac() -> Any:
         import smac
     except ImportError as exc:
         raise TuneError(
-            "tuning needs SMAC3: pip install 'tactile-compliance[hpo]' (smac>=2.2,<3)"
+            "tuning needs SMAC3: pip install 'tactile-compliance[hpo]' (smac>=2.3,<3)"
         ) from exc
     return smac
 
