@@ -15,7 +15,10 @@ synthetic data. Each (grasp, augmentation, finger) becomes one store sample.
 The frame size is the majority over the dataset: a first pass reads only the shape each
 image pickle declares (:func:`~tactile_compliance.data.safe_pickle.peek_array_shape`, a
 few hundred bytes per file); samples of another size are skipped and reported. A bad
-file skips its sample (or object), never the import; see ``docs/data.md``.
+file skips its sample (or object), never the import; see ``docs/data.md``. So does a
+physically implausible value (a negative force, a width in millimetres, an infinite or
+negative estimate, float frames that are no difference image in [0, 1]): the rules of
+:mod:`~tactile_compliance.data.plausibility`, the same the store and the estimator apply.
 """
 
 from __future__ import annotations
@@ -41,6 +44,15 @@ from tactile_compliance.data.import_report import (
     utf8_problem,
 )
 from tactile_compliance.data.object_table import read_object_table, valid_modulus
+from tactile_compliance.data.plausibility import (
+    ESTIMATE,
+    FORCE,
+    FRAME,
+    MODULUS,
+    WIDTH,
+    PlausibleRange,
+    dtype_problem,
+)
 from tactile_compliance.data.safe_pickle import (
     ArrayTooLargeError,
     UnsafePickleError,
@@ -59,6 +71,14 @@ FINGER_FILES: dict[str, tuple[str, str]] = {
 }
 # Written by tactile_compliance.synthetic at the root of a generated tree.
 SYNTHETIC_MANIFEST = "generation.json"
+#: The plausibility rule of each file's values (both fingers' image files: frames).
+FILE_RULES: dict[str, PlausibleRange] = {
+    "forces.pkl": FORCE,
+    "widths.pkl": WIDTH,
+    "elastic_estimate.pkl": ESTIMATE,
+    "hertz_estimate.pkl": ESTIMATE,
+    **{image_file: FRAME for image_file, _ in FINGER_FILES.values()},
+}
 _GRASP_DIR = re.compile(r"^grasp=(\d+)$")
 _AUGMENTATION_DIR = re.compile(r"^augmentation=(\d+)$")
 
@@ -86,8 +106,19 @@ def _numbered_dirs(parent: Path, pattern: re.Pattern[str]) -> list[tuple[int, Pa
     return sorted(found)
 
 
+def _implausible(name: str, values: np.ndarray) -> None:
+    """SampleError when a value of file ``name`` breaks its plausibility rule (NaN aside)."""
+    rule = FILE_RULES.get(name)
+    problem = rule.violation(values) if rule is not None else None
+    if problem:
+        raise SampleError(f"implausible value: {name}: {problem}")
+
+
 def _load_array(path: Path, what: str) -> np.ndarray:
-    """A numeric array (integer or float dtype) from an untrusted pickle, or SampleError."""
+    """A numeric array (integer or float dtype) from an untrusted pickle, or SampleError.
+
+    Other dtypes (bool, complex, datetime, timedelta, text, structured) are refused, never
+    cast: a cast would drop an imaginary part or turn a date into a number."""
     if not path.is_file():
         raise SampleError(f"missing file: {path.name}")
     try:
@@ -100,33 +131,45 @@ def _load_array(path: Path, what: str) -> np.ndarray:
         raise SampleError(f"unreadable file: {path.name} ({err})") from err
     except Exception as err:  # only numpy code runs: any other error means a bad file
         raise SampleError(f"corrupt pickle: {path.name} ({type(err).__name__}: {err})") from err
-    if array.dtype.kind not in "iuf":
-        raise SampleError(f"wrong dtype: {path.name} is {array.dtype}, expected numbers")
+    if dtype_problem(array.dtype):
+        rule = FILE_RULES.get(path.name)
+        unit = f" ({rule.quantity} in {rule.unit})" if rule is not None else ""
+        raise SampleError(f"wrong dtype: {path.name} is {array.dtype}, expected numbers{unit}")
     return array
 
 
 def load_vector(directory: Path, name: str, length: int) -> np.ndarray:
-    """A finite float64 vector of ``length`` values (forces [N], widths [m]) from a pickle."""
+    """A finite float64 vector of ``length`` values (forces [N], widths [m]) from a pickle,
+    within the file's plausibility rule (:data:`FILE_RULES`)."""
     array = _load_array(directory / name, name).astype(np.float64)
     if array.shape != (length,):
         raise SampleError(f"wrong array shape: {name} is {array.shape}, expected ({length},)")
     if not np.all(np.isfinite(array)):
         raise SampleError(f"non-finite values: {name}")
+    _implausible(name, array)
     return array
 
 
 def load_estimate(directory: Path, name: str) -> float:
-    """An analytical estimate in Pa, or NaN when absent (the filter decides what to drop)."""
+    """An analytical estimate in Pa, or NaN when absent or NaN (a failed fit: the filter
+    decides what to drop). Infinite, zero or negative estimates are implausible."""
     if not (directory / name).is_file():
         return float("nan")
     array = _load_array(directory / name, name)
     if array.size != 1:
         raise SampleError(f"wrong array shape: {name} is {array.shape}, expected a scalar")
+    _implausible(name, array)
     return float(array.reshape(()))
 
 
 def load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None) -> np.ndarray:
-    """Difference images as float32 RGB (3, H, W, 3); the files store BGR."""
+    """Difference images as float32 RGB (3, H, W, 3); the files store BGR.
+
+    Values must be a difference image in [0, 1] by the frame rule
+    (:data:`~tactile_compliance.data.plausibility.FRAME`: one grey level of tolerance, at
+    most 1 % saturated values, none beyond [-0.5, 1.5]); the store's uint8 encoding would
+    otherwise clip them silently.
+    """
     array = _load_array(directory / name, name)
     if (
         array.ndim != 4
@@ -142,6 +185,7 @@ def load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None)
         )
     if not np.all(np.isfinite(array)):
         raise SampleError(f"non-finite values: {name}")
+    _implausible(name, array)
     # Explicit channel flip: the dataset was written by OpenCV (BGR); the store is RGB.
     return np.ascontiguousarray(array[..., ::-1], dtype=np.float32)
 
@@ -197,7 +241,12 @@ def _object_label(
                 report.problem(metadata_path, f"invalid metadata.json: {field_name} is {problem}")
                 return None
     if not valid_modulus(modulus):
-        report.problem(object_dir, f"invalid modulus: {modulus!r} (must be a finite number > 0 Pa)")
+        must = MODULUS.requirement()
+        report.problem(object_dir, f"invalid modulus: {modulus!r} (must be {must})")
+        return None
+    problem = MODULUS.violation(float(modulus))  # type: ignore[arg-type]
+    if problem:
+        report.problem(object_dir, f"invalid modulus: {modulus!r}: {problem}")
         return None
     return ObjectLabel(name, float(modulus), str(material), str(shape))  # type: ignore[arg-type]
 

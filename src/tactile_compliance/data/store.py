@@ -19,7 +19,9 @@ sibling directory and renames it into place only when everything is written: an
 interrupted import never leaves a directory that looks like a complete store. What a
 killed writer leaves (its ``.NAME.partial-*`` directory, or the old store it was swapping
 out) is tidied by the next writer to the same path (:func:`recover_interrupted_writes`).
-Opening a store checks its table (:func:`validate_samples`).
+Opening a store checks its table (:func:`validate_samples`), including the physical
+plausibility of F, W, E and the label (:mod:`~tactile_compliance.data.plausibility`, the
+rules the importers and the estimator apply too).
 """
 
 from __future__ import annotations
@@ -42,6 +44,16 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance import __version__
+from tactile_compliance.data.plausibility import (
+    ESTIMATE,
+    FORCE,
+    FRAME,
+    MODULUS,
+    WIDTH,
+    PlausibleRange,
+    as_real_number,
+    dtype_problem,
+)
 from tactile_compliance.outputs import MARKER_NAME, output_kind
 
 FORMAT_VERSION = 1
@@ -89,6 +101,14 @@ FORCE_COLUMNS = ("force_n_0", "force_n_1", "force_n_2")
 WIDTH_COLUMNS = ("width_m_0", "width_m_1", "width_m_2")
 ESTIMATE_COLUMNS = ("elastic_estimate_pa", "hertz_estimate_pa")
 DEPTH_COLUMNS = ("depth_max_mm_0", "depth_max_mm_1", "depth_max_mm_2")
+#: The plausibility rule of each numeric column. NaN (missing) is allowed in all of them
+#: but ``modulus_pa``, the training label.
+COLUMN_RULES: dict[str, PlausibleRange] = {
+    "modulus_pa": MODULUS,
+    **{column: FORCE for column in FORCE_COLUMNS},
+    **{column: WIDTH for column in WIDTH_COLUMNS},
+    **{column: ESTIMATE for column in ESTIMATE_COLUMNS},
+}
 _STRING_COLUMNS = ("object", "finger", "material", "shape", "source_path")
 _INT_COLUMNS = ("sample_id", "grasp", "augmentation")
 
@@ -140,12 +160,36 @@ def frames_from_uint8(frames: np.ndarray) -> np.ndarray:
     )
 
 
+def _column_numbers(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
+    """A numeric column as float64, and where it holds something that is no number.
+
+    Object columns (e.g. text written by another tool) are read element by element:
+    numbers and numeric text count, anything else (a word, a bool, a complex number) is
+    flagged; None/NaN stay NaN (missing) and are not flagged."""
+    if series.dtype.kind in "iuf":
+        values = series.to_numpy(dtype=np.float64, na_value=np.nan)
+        return values, np.zeros(len(series), dtype=bool)
+    values = np.full(len(series), np.nan)
+    not_number = np.zeros(len(series), dtype=bool)
+    for row, item in enumerate(series.tolist()):
+        if item is None or (isinstance(item, float) and np.isnan(item)):
+            continue
+        try:
+            values[row] = float(item) if isinstance(item, str) else as_real_number(item)
+        except (TypeError, ValueError):
+            not_number[row] = True
+    return values, not_number
+
+
 def validate_samples(samples: pd.DataFrame) -> list[str]:
     """What is wrong with a store's table, one message per problem (empty: nothing).
 
     Checks the columns every later step relies on: all of :data:`SAMPLE_COLUMNS` present;
     ``sample_id`` equal to the row number 0..N-1 (it is the index into ``frames.u8``), so
-    unique; ``modulus_pa`` a finite number > 0 Pa in every row (the training label).
+    unique; ``modulus_pa`` a finite number within the plausible label range (> 0 Pa) in
+    every row (the training label); the force, width and estimate columns numbers within
+    their plausible ranges or NaN (missing), see :data:`COLUMN_RULES`. A column of another
+    dtype (datetime, complex, bool) is a problem of its own, never cast.
     Messages name the column and the first bad rows (0-based row numbers).
     """
     problems = []
@@ -173,14 +217,27 @@ def validate_samples(samples: pd.DataFrame) -> list[str]:
                 f"column sample_id must equal the row number (it indexes {FRAMES_FILE}); "
                 f"{wrong.size} row(s) differ: {first(wrong, 'sample_id')}"
             )
-    if "modulus_pa" in samples.columns:
-        moduli = pd.to_numeric(samples["modulus_pa"], errors="coerce").to_numpy(dtype=np.float64)
-        with np.errstate(invalid="ignore"):
-            bad = np.flatnonzero(~(np.isfinite(moduli) & (moduli > 0)))
+    for column, rule in COLUMN_RULES.items():
+        if column not in samples.columns:
+            continue
+        series = samples[column]
+        label = column == "modulus_pa"
+        missing = "" if label else ", or NaN (missing)"
+        if series.dtype.kind != "O" and dtype_problem(series.dtype):
+            problems.append(
+                f"column {column} has dtype {series.dtype}, expected numbers "
+                f"({rule.quantity} in {rule.unit})"
+            )
+            continue
+        values, not_number = _column_numbers(series)
+        bad_mask = not_number | rule.outside(values)
+        if label:
+            bad_mask |= np.isnan(values)
+        bad = np.flatnonzero(bad_mask)
         if bad.size:
             problems.append(
-                f"column modulus_pa must be a finite number > 0 Pa; {bad.size} bad row(s): "
-                f"{first(bad, 'modulus_pa')}"
+                f"column {column} must be {rule.requirement()}{missing}; {bad.size} bad "
+                f"row(s): {first(bad, column)}"
             )
     return problems
 
@@ -573,10 +630,19 @@ def _normalise_row(row: dict[str, Any], sample_id: int) -> dict[str, Any]:
             out[column] = int(row.get(column, 0))
         else:
             value = row.get(column, np.nan)
-            out[column] = float(np.nan if value is None else value)
-    modulus = out["modulus_pa"]
-    if not (np.isfinite(modulus) and modulus > 0):
-        raise ValueError(f"modulus_pa must be a finite number > 0 Pa, got {modulus!r}")
+            try:
+                out[column] = as_real_number(value)
+            except ValueError as err:
+                raise ValueError(f"{column}: {err}") from None
+    for column, rule in COLUMN_RULES.items():
+        value = out[column]
+        if column == "modulus_pa" and not rule.contains(value):
+            raise ValueError(
+                f"modulus_pa must be {rule.requirement()}, got {value!r} ({rule.reason})"
+            )
+        problem = rule.violation(value)
+        if problem:
+            raise ValueError(f"{column}: {problem}")
     return out
 
 
@@ -692,8 +758,12 @@ class GraspStoreWriter:
     def append(self, frames: np.ndarray, row: dict[str, Any]) -> int:
         """Add one sample: frames (3, H, W, 3) RGB, float in [0, 1] or uint8. Returns its id.
 
-        Raises ``ValueError`` for a bad sample (shape, NaN frames, unknown field, modulus
-        not finite > 0, text that is not UTF-8): nothing is written for it.
+        Raises ``ValueError`` for a bad sample (shape, dtype, NaN frames, float frames that
+        are no difference images in [0, 1] by the frame rule, which the uint8 encoding
+        would clip; unknown field, a value that is no number or outside its plausibility
+        rule (modulus, force, width, estimates: :data:`COLUMN_RULES`), text that is not
+        UTF-8): nothing is written for it. The few saturated pixels the frame rule allows
+        are saturated to [0, 1] by the encoding.
         """
         if self._closed:
             raise RuntimeError("writer is closed")
@@ -701,8 +771,16 @@ class GraspStoreWriter:
         expected = (FRAMES_PER_SAMPLE, *self.image_size, 3)
         if frames.shape != expected:
             raise ValueError(f"frames have shape {frames.shape}, expected {expected}")
-        if frames.dtype != np.uint8 and not np.all(np.isfinite(frames)):
-            raise ValueError("frames contain NaN or inf")
+        if frames.dtype != np.uint8:
+            if frames.dtype.kind != "f":
+                raise ValueError(
+                    f"frames must be uint8 (0..255) or float in [0, 1], got dtype {frames.dtype}"
+                )
+            if not np.all(np.isfinite(frames)):
+                raise ValueError("frames contain NaN or inf")
+            problem = FRAME.violation(frames)
+            if problem:
+                raise ValueError(f"frames: {problem}")
         sample_id = len(self._rows)
         normalised = _normalise_row(row, sample_id)
         try:

@@ -10,7 +10,9 @@ Every file with a video suffix (:data:`VIDEO_SUFFIXES`, e.g. ``.avi``, ``.mp4``)
 candidate: it is imported when its name matches and OpenCV decodes it, otherwise it is
 skipped and reported with the reason. The store's frame size is the most common size
 among the videos (read from their headers) unless ``image_size`` is given; other videos
-are resized to it.
+are resized to it. A label outside the plausible modulus range
+(:mod:`~tactile_compliance.data.plausibility`, shared with the other importer, the store
+and the estimator) skips its video with a report; the frames are uint8, always in range.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from tactile_compliance.data.import_report import (
     store_writing,
     utf8_problem,
 )
+from tactile_compliance.data.plausibility import MODULUS
 from tactile_compliance.data.store import GraspStoreWriter
 from tactile_compliance.physics.shore import shore00_to_modulus_pa
 from tactile_compliance.progress import progress_bar
@@ -143,6 +146,11 @@ def import_yuan(
                 if not 0 <= hardness <= 100:
                     report.problem(video, f"invalid hardness: Shore 00 {hardness} outside [0, 100]")
                     continue
+                modulus_pa = float(shore00_to_modulus_pa(float(hardness)))
+                problem = MODULUS.violation(modulus_pa)
+                if problem:
+                    report.problem(video, f"implausible value: Shore 00 {hardness}: {problem}")
+                    continue
                 try:
                     frames = read_video_frames(video)
                     chosen = frames[list(select_press_frames(frames))]
@@ -180,7 +188,7 @@ def import_yuan(
                             "finger": "markerless",
                             "material": MATERIAL,
                             "shape": shape,
-                            "modulus_pa": float(shore00_to_modulus_pa(float(hardness))),
+                            "modulus_pa": modulus_pa,
                             "source_path": str(video.relative_to(src)),
                         },
                     )

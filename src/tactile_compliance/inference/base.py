@@ -185,7 +185,8 @@ class BaseEstimator(ABC):
 
         Raises:
             ValueError: bad shapes, dtypes, ranges, NaN, or an input the checkpoint's
-                strategy needs is missing.
+                strategy needs is missing. The ranges are the plausibility rules the
+                importers and the store share (``data.plausibility``, ``docs/data.md``).
         """
         prepared = self.prepare(frames, force, width, estimates, channel_order=channel_order)
         y = self.predict_prepared(prepared, batch_size=batch_size)

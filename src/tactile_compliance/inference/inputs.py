@@ -17,6 +17,10 @@ Conventions of the public API (units in the names):
 * ``force``: normal force in N at the three frames, ``(3,)`` or ``(B, 3)``.
 * ``width``: gripper width in m at the three frames, ``(3,)`` or ``(B, 3)``.
 * ``estimates``: analytical estimates (elastic E, Hertz E*) in Pa, ``(2,)`` or ``(B, 2)``.
+
+The plausible ranges (force, width, estimates, float frames) are the rules of
+:mod:`tactile_compliance.data.plausibility`, the same the importers and the store apply
+(table in ``docs/data.md``): a value rejected here is never imported silently either.
 """
 
 from __future__ import annotations
@@ -34,6 +38,17 @@ from tactile_compliance.data.normalisation import (
     normalise_force,
     normalise_width,
 )
+from tactile_compliance.data.plausibility import (
+    ESTIMATE,
+    FORCE,
+    FRAME,
+    WIDTH,
+    PlausibleRange,
+    as_real_number,
+    dtype_problem,
+    format_number,
+)
+from tactile_compliance.data.store import frames_from_uint8
 from tactile_compliance.models import NUM_FRAMES, InputStrategy
 
 __all__ = [
@@ -47,53 +62,65 @@ __all__ = [
 ]
 
 #: Tolerance on the [0, 1] range of float frames: one grey level, so frames decoded from
-#: the store (``(u + 0.5) / 255`` reaches 1.002) and float16 round-off pass unchanged.
-_RANGE_TOLERANCE = 1.0 / 255.0
+#: the store (``(u + 0.5) / 255`` reaches 1.002) and float16 round-off pass unchanged. The
+#: frame rule's own (``data.plausibility.FRAME``, shared with the importer and the store).
+_RANGE_TOLERANCE = FRAME.tolerance
+#: The smallest and largest value a stored frame decodes to, ``(0 + 0.5) / 255`` and
+#: ``(255 + 0.5) / 255`` (float32, exactly as ``frames_from_uint8`` computes them).
+_DECODED_RANGE = tuple(frames_from_uint8(np.array([0, 255], dtype=np.uint8)).tolist())
 
 
 @dataclass(frozen=True)
 class ScalarSpec:
-    """What one scalar input is, its unit and the range that is physically plausible."""
+    """What one scalar input is, its shape per grasp and its plausibility rule.
+
+    ``unit``, ``low`` and ``high`` are read from ``rule``
+    (:mod:`tactile_compliance.data.plausibility`), never written here.
+    """
 
     name: str
     size: int
     meaning: str
-    unit: str
-    low: float | None
-    high: float | None
+    rule: PlausibleRange
     hint: str
 
+    @property
+    def unit(self) -> str:
+        return self.rule.unit
 
-#: Scalar inputs: shape per grasp, unit and plausible range. The ranges catch the usual
-#: unit mix-ups (width in mm, force already normalised is *not* caught: F/60 N is still a
-#: valid force) without rejecting real grasps: the dataset's grasps reach ~60 N and the
-#: gripper opens to 0.08 m.
+    @property
+    def low(self) -> float:
+        return self.rule.low
+
+    @property
+    def high(self) -> float:
+        return self.rule.high
+
+
+#: Scalar inputs: shape per grasp and plausibility rule (unit, range, why). The ranges
+#: catch the usual unit mix-ups (width in mm; a force already normalised is *not* caught:
+#: F/60 N is still a valid force) without rejecting real grasps: the dataset's grasps
+#: reach ~60 N and the gripper opens to 0.08 m.
 SCALAR_SPECS: dict[str, ScalarSpec] = {
     "force": ScalarSpec(
         "force",
         NUM_FRAMES,
         "normal force at the three frames",
-        "N",
-        0.0,
-        1000.0,
+        FORCE,
         "pass the raw reading in newtons (the model divides by 60 N itself)",
     ),
     "width": ScalarSpec(
         "width",
         NUM_FRAMES,
         "gripper width at the three frames",
-        "m",
-        0.0,
-        0.2,
+        WIDTH,
         "pass metres, not millimetres (the gripper opens to 0.08 m)",
     ),
     "estimates": ScalarSpec(
         "estimates",
         2,
         "analytical estimates (elastic E, Hertz E*)",
-        "Pa",
-        None,
-        None,
+        ESTIMATE,
         "values are clamped to [1e2, 1e14] Pa like in training; NaN means 'missing' and "
         "cannot be used by an ALL model",
     ),
@@ -146,13 +173,18 @@ def check_frames(
     """Validate frames; returns ``((B, 3, H, W, 3) tensor, single)``.
 
     uint8 stays uint8 (the store's encoding, decoded by ``prepare_frames``); floats become
-    float32 and must lie in [0, 1] within one grey level. They are not clipped, so a
-    decoded store frame gives exactly the uint8 frame's result. ``channel_order="BGR"``
-    flips the channels (OpenCV images) so the model always sees RGB.
+    float32 and must be difference images in [0, 1] by the frame rule
+    (``data.plausibility.FRAME``, shared with the importer and the store): within one
+    grey level, but for at most 1 % of a grasp's values (saturated pixels), none beyond
+    [-0.5, 1.5]. Those few values are saturated exactly like the store's encoding
+    saturates them, to ``[0.5 / 255, 255.5 / 255]``; a frame decoded from the store lies
+    within that range and passes unchanged, so it gives exactly the uint8 frame's result.
+    ``channel_order="BGR"`` flips the channels (OpenCV images) so the model always sees
+    RGB.
 
     Raises:
-        ValueError: wrong type, shape, dtype, NaN/inf, values outside [0, 1], or frames
-            smaller than ``min_size`` pixels.
+        ValueError: wrong type, shape, dtype, NaN/inf, values outside [0, 1] beyond what
+            the frame rule allows, or frames smaller than ``min_size`` pixels.
     """
     order = str(channel_order).upper()
     if order not in ("RGB", "BGR"):
@@ -194,12 +226,20 @@ def check_frames(
             bad = int(np.count_nonzero(~np.isfinite(work)))
             raise ValueError(f"frames contain {bad} NaN/inf values")
         low, high = float(work.min()), float(work.max())
-        if low < -_RANGE_TOLERANCE or high > 1 + _RANGE_TOLERANCE:
-            raise ValueError(
-                f"float frames must be difference images in [0, 1] (centred near 0.5), got "
-                f"values in [{low:.4g}, {high:.4g}]; 0..255 images must be uint8, and "
-                f"already-normalised frames must not be passed (the estimator normalises)"
-            )
+        if FRAME.below(low) or FRAME.above(high):
+            for index, grasp in enumerate(work):  # the rule judges each grasp on its own
+                problem = FRAME.violation(grasp, reason=False)
+                if problem:
+                    where = "" if single else f" (grasp {index} of the batch)"
+                    raise ValueError(
+                        f"float frames must be difference images in [0, 1] (centred near "
+                        f"0.5), got values in [{low:.4g}, {high:.4g}]{where}: {problem}; "
+                        f"0..255 images must be uint8, and already-normalised frames must "
+                        f"not be passed (the estimator normalises)"
+                    )
+        lowest, highest = (np.float32(v) for v in _DECODED_RANGE)
+        if low < lowest or high > highest:  # saturated pixels: what the store would hold
+            work = np.clip(work, lowest, highest)
         tensor = torch.from_numpy(np.array(work, copy=True))
     else:
         raise ValueError(
@@ -213,17 +253,18 @@ def check_frames(
 def check_scalar(name: str, value: Any, batch: int, single: bool) -> np.ndarray:
     """Validate one scalar input in its physical unit; returns float64 ``(batch, size)``.
 
+    Only integers and floats are accepted: bool, complex, datetime and text are refused,
+    never cast (a cast would drop an imaginary part or turn a date into a number). The
+    range is the input's plausibility rule (``spec.rule``, shared with the importers and
+    the store).
+
     Raises:
         ValueError: not numeric, wrong shape, NaN/inf, or outside the plausible range.
     """
     spec = SCALAR_SPECS[name]
+    rule = spec.rule
     what = f"`{name}` ({spec.meaning}, {spec.unit})"
-    if isinstance(value, torch.Tensor):
-        value = value.detach().cpu().numpy()
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{what} must be numeric, got {type(value).__name__}") from err
+    array = _numeric_array(value, what)
     expected = (spec.size,) if single else (batch, spec.size)
     if single and array.shape == (1, spec.size):
         array = array[0]
@@ -233,15 +274,43 @@ def check_scalar(name: str, value: Any, batch: int, single: bool) -> np.ndarray:
     finite = np.isfinite(array)
     if not finite.all():
         raise ValueError(f"{what} contains NaN/inf ({int((~finite).sum())} values); {spec.hint}")
-    if spec.low is not None and (array < spec.low).any():
+    plausible = f"plausible {rule.quantity} range {rule.interval()}"
+    if rule.below(array).any():
         raise ValueError(
-            f"{what} must be >= {spec.low:g} {spec.unit}, got min {array.min():.4g}; {spec.hint}"
+            f"{what} must be {rule.lower_bound()} ({plausible}), got min "
+            f"{format_number(float(array.min()))}; {spec.hint}"
         )
-    if spec.high is not None and (array > spec.high).any():
+    upper = rule.upper_bound()
+    if upper is not None and rule.above(array).any():
         raise ValueError(
-            f"{what} must be <= {spec.high:g} {spec.unit}, got max {array.max():.4g}; {spec.hint}"
+            f"{what} must be {upper} ({plausible}), got max "
+            f"{format_number(float(array.max()))}; {spec.hint}"
         )
     return array.reshape(batch, spec.size)
+
+
+def _numeric_array(value: Any, what: str) -> np.ndarray:
+    """``value`` as a float64 array when it holds only integers and floats, else a
+    ValueError naming ``what`` (nothing is cast from bool, complex, datetime or text)."""
+    if isinstance(value, torch.Tensor):
+        tensor = value.detach().cpu()
+        if tensor.is_floating_point():
+            tensor = tensor.to(torch.float64)  # bfloat16 has no numpy dtype
+        value = tensor.numpy()
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError) as err:  # e.g. ragged nested lists
+        raise ValueError(f"{what} must be numeric, got {type(value).__name__}") from err
+    if array.dtype == object:  # mixed Python objects: each must be a real number
+        try:
+            numbers = [as_real_number(item) for item in array.ravel().tolist()]
+        except ValueError as err:
+            raise ValueError(f"{what} must be numeric: {err}") from None
+        return np.asarray(numbers, dtype=np.float64).reshape(array.shape)
+    problem = dtype_problem(array.dtype)
+    if problem:
+        raise ValueError(f"{what} must be numeric (integers or floats), got dtype {problem}")
+    return np.asarray(array, dtype=np.float64)
 
 
 _NORMALISERS = {
