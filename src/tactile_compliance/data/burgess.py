@@ -39,6 +39,7 @@ from tactile_compliance.data.import_report import (
     ImportPathError,
     ImportReport,
     NothingImportedError,
+    commit_import,
     import_paths,
     store_writing,
     utf8_problem,
@@ -433,13 +434,12 @@ def import_burgess(
                     report.samples_imported += 1
                     objects_imported.add(label.name)
             report.objects_imported = len(objects_imported)
-            if writer is None or report.samples_imported == 0:
-                raise NothingImportedError(
-                    f"{src}: nothing importable, every sample was skipped "
-                    f"({len(report.problems)} problems)\n{report.format()}",
-                    report=report,
-                )
-            writer.commit()
+            commit_import(
+                writer,
+                report,
+                f"{src}: nothing importable, every sample was skipped "
+                f"({len(report.problems)} problems)",
+            )
     except BaseException:
         if writer is not None:
             writer.abort()

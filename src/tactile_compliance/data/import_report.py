@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from tactile_compliance.data.store import (
+    GraspStoreWriter,
     NotAStoreError,
     StoreWriteError,
     is_store_dir,
@@ -216,3 +217,14 @@ class ImportReport:
         else:
             lines.append("No problems.")
         return "\n".join(lines)
+
+
+def commit_import(writer: GraspStoreWriter | None, report: ImportReport, nothing: str) -> None:
+    """Commit the store of an import, or fail when every sample was skipped.
+
+    Raises:
+        NothingImportedError: no sample was imported (``nothing`` says what was skipped).
+    """
+    if writer is None or report.samples_imported == 0:
+        raise NothingImportedError(f"{nothing}\n{report.format()}", report=report)
+    writer.commit()

@@ -29,6 +29,7 @@ from tactile_compliance.data.image_ops import resize_frames
 from tactile_compliance.data.import_report import (
     ImportReport,
     NothingImportedError,
+    commit_import,
     import_paths,
     store_writing,
     utf8_problem,
@@ -199,12 +200,7 @@ def import_yuan(
                 report.samples_imported += 1
             report.objects_seen = len(objects)
             report.objects_imported = len(imported)
-            if writer is None or report.samples_imported == 0:
-                raise NothingImportedError(
-                    f"{src}: nothing importable, every video was skipped\n{report.format()}",
-                    report=report,
-                )
-            writer.commit()
+            commit_import(writer, report, f"{src}: nothing importable, every video was skipped")
     except BaseException:
         if writer is not None:
             writer.abort()
