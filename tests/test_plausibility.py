@@ -42,9 +42,9 @@ def test_every_rule_has_a_unit_a_range_and_a_reason():
         assert isinstance(rule.low_inclusive, bool) and isinstance(rule.high_inclusive, bool)
         assert rule.unit in rule.interval()
     with pytest.raises(ValueError, match="low"):
-        PlausibleRange("x", "N", 1.0, 1.0, True, True, "why")
+        PlausibleRange("x", "N", 1.0, 1.0, reason="why")
     with pytest.raises(ValueError, match="unit"):
-        PlausibleRange("x", "", 0.0, 1.0, True, True, "why")
+        PlausibleRange("x", "", 0.0, 1.0, reason="why")
 
 
 def test_the_consumers_read_the_same_rules():

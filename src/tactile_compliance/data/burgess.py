@@ -34,6 +34,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data import plausibility
 from tactile_compliance.data.image_ops import resize_frames
 from tactile_compliance.data.import_report import (
     ImportPathError,
@@ -45,15 +46,7 @@ from tactile_compliance.data.import_report import (
     utf8_problem,
 )
 from tactile_compliance.data.object_table import read_object_table, valid_modulus
-from tactile_compliance.data.plausibility import (
-    ESTIMATE,
-    FORCE,
-    FRAME,
-    MODULUS,
-    WIDTH,
-    PlausibleRange,
-    dtype_problem,
-)
+from tactile_compliance.data.plausibility import PlausibleRange, dtype_problem
 from tactile_compliance.data.safe_pickle import (
     ArrayTooLargeError,
     UnsafePickleError,
@@ -74,11 +67,11 @@ FINGER_FILES: dict[str, tuple[str, str]] = {
 SYNTHETIC_MANIFEST = "generation.json"
 #: The plausibility rule of each file's values (both fingers' image files: frames).
 FILE_RULES: dict[str, PlausibleRange] = {
-    "forces.pkl": FORCE,
-    "widths.pkl": WIDTH,
-    "elastic_estimate.pkl": ESTIMATE,
-    "hertz_estimate.pkl": ESTIMATE,
-    **{image_file: FRAME for image_file, _ in FINGER_FILES.values()},
+    "forces.pkl": plausibility.FORCE,
+    "widths.pkl": plausibility.WIDTH,
+    "elastic_estimate.pkl": plausibility.ESTIMATE,
+    "hertz_estimate.pkl": plausibility.ESTIMATE,
+    **{image_file: plausibility.FRAME for image_file, _ in FINGER_FILES.values()},
 }
 _GRASP_DIR = re.compile(r"^grasp=(\d+)$")
 _AUGMENTATION_DIR = re.compile(r"^augmentation=(\d+)$")
@@ -242,10 +235,10 @@ def _object_label(
                 report.problem(metadata_path, f"invalid metadata.json: {field_name} is {problem}")
                 return None
     if not valid_modulus(modulus):
-        must = MODULUS.requirement()
+        must = plausibility.MODULUS.requirement()
         report.problem(object_dir, f"invalid modulus: {modulus!r} (must be {must})")
         return None
-    problem = MODULUS.violation(float(modulus))  # type: ignore[arg-type]
+    problem = plausibility.MODULUS.violation(float(modulus))  # type: ignore[arg-type]
     if problem:
         report.problem(object_dir, f"invalid modulus: {modulus!r}: {problem}")
         return None

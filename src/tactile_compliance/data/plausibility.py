@@ -86,9 +86,9 @@ class PlausibleRange:
     unit: str
     low: float
     high: float
-    low_inclusive: bool
-    high_inclusive: bool
     reason: str
+    low_inclusive: bool = True
+    high_inclusive: bool = True
     tolerance: float = 0.0
     saturated_share: float = 0.0
     limits: tuple[float, float] | None = None
@@ -226,8 +226,6 @@ FORCE = PlausibleRange(
     unit="N",
     low=0.0,
     high=1000.0,
-    low_inclusive=True,
-    high_inclusive=True,
     reason="a grasp pushes, so never < 0 N; the dataset's grasps reach ~60 N, the "
     "synthetic ones ~90 N; 1000 N catches unit mix-ups",
 )
@@ -239,8 +237,6 @@ WIDTH = PlausibleRange(
     unit="m",
     low=-0.005,
     high=0.2,
-    low_inclusive=True,
-    high_inclusive=True,
     reason="a reading dips below 0 m only by the encoder's offset (~0.5 mm); the gripper "
     "opens to 0.08 m, so 0.2 m catches millimetres",
 )
@@ -262,7 +258,6 @@ MODULUS = PlausibleRange(
     low=0.0,
     high=1e13,
     low_inclusive=False,
-    high_inclusive=True,
     reason="log10 needs > 0 Pa; nothing is stiffer than diamond (~1.2e12 Pa); the "
     "default label range [1e3, 1e12] Pa does not clip, so values outside it are kept",
 )
@@ -279,8 +274,6 @@ FRAME = PlausibleRange(
     unit="full scale",
     low=0.0,
     high=1.0,
-    low_inclusive=True,
-    high_inclusive=True,
     reason="difference images lie in [0, 1] but for a few saturated pixels, which the "
     "store's uint8 encoding saturates; more is no difference image (0..255 or normalised "
     "frames)",
