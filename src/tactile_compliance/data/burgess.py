@@ -39,8 +39,6 @@ from tactile_compliance.data.image_ops import resize_frames
 from tactile_compliance.data.import_report import (
     ImportPathError,
     ImportReport,
-    NothingImportedError,
-    commit_import,
     import_paths,
     store_writing,
     utf8_problem,
@@ -346,10 +344,7 @@ def import_burgess(
 
     object_dirs = _object_dirs(src)
     report.objects_seen = len(object_dirs)
-    if not object_dirs:
-        raise NothingImportedError(
-            f"{src}: no object directories (expected {{object}}/grasp=g/...)", report=report
-        )
+    report.require_sources(object_dirs, src, "object directories (expected {object}/grasp=g/...)")
     samples: list[tuple[ObjectLabel, int, int, Path]] = []
     for object_dir in object_dirs:
         label = _object_label(object_dir, table, report)
@@ -358,84 +353,69 @@ def import_burgess(
     image_files = [FINGER_FILES[finger][0] for finger in finger_names]
     source_hw, sizes = majority_frame_size(samples, image_files, progress)
 
-    writer: GraspStoreWriter | None = None
+    def make_writer() -> GraspStoreWriter:
+        return GraspStoreWriter(
+            out,
+            image_size=image_size or source_hw,
+            source=source_name,
+            creation_parameters={
+                "importer": "burgess",
+                "source_dir": str(src.resolve()),
+                "object_table": str(object_table) if object_table else None,
+                "fingers": fingers,
+                "source_image_size": list(source_hw),
+                "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
+                "frame_kind": "difference",
+            },
+            overwrite=overwrite,
+        )
+
     objects_imported: set[str] = set()
-    try:
-        with (
-            store_writing(out, report),
-            progress_bar("Importing samples", total=len(samples), enabled=progress) as advance,
-        ):
-            for label, grasp, augmentation, aug_dir in samples:
-                advance()
+    with (
+        store_writing(out, report, make_writer) as target,
+        progress_bar("Importing samples", total=len(samples), enabled=progress) as advance,
+    ):
+        for label, grasp, augmentation, aug_dir in samples:
+            advance()
+            try:
+                forces_n = load_vector(aug_dir, "forces.pkl", FRAMES_PER_SAMPLE)
+                widths_m = load_vector(aug_dir, "widths.pkl", FRAMES_PER_SAMPLE)
+                elastic_pa = load_estimate(aug_dir, "elastic_estimate.pkl")
+                hertz_pa = load_estimate(aug_dir, "hertz_estimate.pkl")
+            except SampleError as err:
+                report.problem(aug_dir, str(err))
+                continue
+            for finger in finger_names:
+                image_file, depth_file = FINGER_FILES[finger]
                 try:
-                    forces_n = load_vector(aug_dir, "forces.pkl", FRAMES_PER_SAMPLE)
-                    widths_m = load_vector(aug_dir, "widths.pkl", FRAMES_PER_SAMPLE)
-                    elastic_pa = load_estimate(aug_dir, "elastic_estimate.pkl")
-                    hertz_pa = load_estimate(aug_dir, "hertz_estimate.pkl")
+                    frames = load_frames(aug_dir, image_file, source_hw)
+                    depth_max_mm = _depth_maxima_mm(aug_dir, depth_file)
+                    if source_hw is None:  # no size could be peeked: the first decides
+                        source_hw = (frames.shape[1], frames.shape[2])
+                    frames = resize_frames(frames, image_size)
                 except SampleError as err:
-                    report.problem(aug_dir, str(err))
+                    report.problem(aug_dir / image_file, str(err))
                     continue
-                for finger in finger_names:
-                    image_file, depth_file = FINGER_FILES[finger]
-                    try:
-                        frames = load_frames(aug_dir, image_file, source_hw)
-                        depth_max_mm = _depth_maxima_mm(aug_dir, depth_file)
-                        if source_hw is None:  # no size could be peeked: the first decides
-                            source_hw = (frames.shape[1], frames.shape[2])
-                        frames = resize_frames(frames, image_size)
-                    except SampleError as err:
-                        report.problem(aug_dir / image_file, str(err))
-                        continue
-                    row = {
-                        "object": label.name,
-                        "grasp": grasp,
-                        "augmentation": augmentation,
-                        "finger": finger,
-                        "material": label.material,
-                        "shape": label.shape,
-                        "modulus_pa": label.modulus_pa,
-                        **{f"force_n_{i}": forces_n[i] for i in range(3)},
-                        **{f"width_m_{i}": widths_m[i] for i in range(3)},
-                        "elastic_estimate_pa": elastic_pa,
-                        "hertz_estimate_pa": hertz_pa,
-                        **{f"depth_max_mm_{i}": depth_max_mm[i] for i in range(3)},
-                        "source_path": str((aug_dir / image_file).relative_to(src)),
-                    }
-                    if writer is None:
-                        writer = GraspStoreWriter(
-                            out,
-                            image_size=image_size or source_hw,
-                            source=source_name,
-                            creation_parameters={
-                                "importer": "burgess",
-                                "source_dir": str(src.resolve()),
-                                "object_table": str(object_table) if object_table else None,
-                                "fingers": fingers,
-                                "source_image_size": list(source_hw),
-                                "source_image_sizes": {
-                                    f"{h}x{w}": n for (h, w), n in sizes.most_common()
-                                },
-                                "frame_kind": "difference",
-                            },
-                            overwrite=overwrite,
-                        )
-                    try:
-                        writer.append(frames, row)
-                    except ValueError as err:  # a value the store cannot hold
-                        report.problem(aug_dir / image_file, f"invalid sample: {err}")
-                        continue
-                    report.samples_imported += 1
+                row = {
+                    "object": label.name,
+                    "grasp": grasp,
+                    "augmentation": augmentation,
+                    "finger": finger,
+                    "material": label.material,
+                    "shape": label.shape,
+                    "modulus_pa": label.modulus_pa,
+                    **{f"force_n_{i}": forces_n[i] for i in range(3)},
+                    **{f"width_m_{i}": widths_m[i] for i in range(3)},
+                    "elastic_estimate_pa": elastic_pa,
+                    "hertz_estimate_pa": hertz_pa,
+                    **{f"depth_max_mm_{i}": depth_max_mm[i] for i in range(3)},
+                    "source_path": str((aug_dir / image_file).relative_to(src)),
+                }
+                if target.append(frames, row, aug_dir / image_file):
                     objects_imported.add(label.name)
-            report.objects_imported = len(objects_imported)
-            commit_import(
-                writer,
-                report,
-                f"{src}: nothing importable, every sample was skipped "
-                f"({len(report.problems)} problems)",
-            )
-    except BaseException:
-        if writer is not None:
-            writer.abort()
-        raise
+        report.objects_imported = len(objects_imported)
+        target.commit(
+            f"{src}: nothing importable, every sample was skipped ({len(report.problems)} problems)"
+        )
     report.seconds = time.perf_counter() - start
     return report

@@ -30,11 +30,13 @@ from __future__ import annotations
 
 import os
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from tactile_compliance.data.store import (
     GraspStoreWriter,
@@ -137,21 +139,59 @@ def import_paths(src_dir: str | Path, out_dir: str | Path, overwrite: bool) -> t
     return src, out
 
 
+class ImportTarget:
+    """The store an import writes: created with its first good sample (when the frame
+    size is known), committed at the end, removed again if anything fails."""
+
+    def __init__(self, report: ImportReport, make_writer: Callable[[], GraspStoreWriter]):
+        self.report = report
+        self.make_writer = make_writer
+        self.writer: GraspStoreWriter | None = None
+
+    def append(self, frames: np.ndarray, row: dict[str, Any], source: Path) -> bool:
+        """Add one sample; a value the store cannot hold is reported against ``source``."""
+        if self.writer is None:
+            self.writer = self.make_writer()
+        try:
+            self.writer.append(frames, row)
+        except ValueError as err:
+            self.report.problem(source, f"invalid sample: {err}")
+            return False
+        self.report.samples_imported += 1
+        return True
+
+    def commit(self, nothing: str) -> None:
+        """Commit the store, or fail the import when every sample was skipped.
+
+        Raises:
+            NothingImportedError: no sample was imported (``nothing`` says what was skipped).
+        """
+        if self.writer is None or self.report.samples_imported == 0:
+            raise NothingImportedError(f"{nothing}\n{self.report.format()}", report=self.report)
+        self.writer.commit()
+
+
 @contextmanager
-def store_writing(out: Path, report: ImportReport) -> Iterator[None]:
-    """Turn the store writer's errors into import errors naming ``out``."""
+def store_writing(
+    out: Path, report: ImportReport, make_writer: Callable[[], GraspStoreWriter]
+) -> Iterator[ImportTarget]:
+    """The import's :class:`ImportTarget`; on any error its partial store is removed and
+    the store writer's errors become import errors naming ``out``."""
+    target = ImportTarget(report, make_writer)
     try:
-        yield
-    except StoreWriteError as err:
-        raise ImportWriteError(
-            f"cannot write the store {out}: {err.reason}; nothing was written", report=report
-        ) from err
-    except NotAStoreError as err:
-        raise ImportPathError(str(err), report=report) from err
-    except DataImportError:
+        yield target
+    except BaseException as exc:
+        if target.writer is not None:
+            target.writer.abort()
+        if isinstance(exc, StoreWriteError):
+            raise ImportWriteError(
+                f"cannot write the store {out}: {exc.reason}; nothing was written", report=report
+            ) from exc
+        if isinstance(exc, NotAStoreError):
+            raise ImportPathError(str(exc), report=report) from exc
+        if isinstance(exc, FileExistsError) and not isinstance(exc, DataImportError):
+            raise StoreExistsError(str(exc), report=report) from exc  # --out appeared meanwhile
         raise
-    except FileExistsError as err:  # --out appeared while importing
-        raise StoreExistsError(str(err), report=report) from err
 
 
 @dataclass
@@ -167,6 +207,15 @@ class ImportReport:
     seconds: float = 0.0
     problems: list[tuple[str, str]] = field(default_factory=list)  # (path, reason)
     strict: bool = False
+
+    def require_sources(self, sources: Sequence[Path], src: Path, expected: str) -> None:
+        """Fail the import when the source directory holds nothing to import.
+
+        Raises:
+            NothingImportedError: ``sources`` is empty (``expected``: what was looked for).
+        """
+        if not sources:
+            raise NothingImportedError(f"{src}: no {expected}", report=self)
 
     def problem(self, path: str | Path, reason: str) -> None:
         """Record a skipped file/object; in strict mode the first problem is fatal."""
@@ -217,14 +266,3 @@ class ImportReport:
         else:
             lines.append("No problems.")
         return "\n".join(lines)
-
-
-def commit_import(writer: GraspStoreWriter | None, report: ImportReport, nothing: str) -> None:
-    """Commit the store of an import, or fail when every sample was skipped.
-
-    Raises:
-        NothingImportedError: no sample was imported (``nothing`` says what was skipped).
-    """
-    if writer is None or report.samples_imported == 0:
-        raise NothingImportedError(f"{nothing}\n{report.format()}", report=report)
-    writer.commit()

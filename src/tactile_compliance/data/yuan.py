@@ -28,8 +28,6 @@ import numpy as np
 from tactile_compliance.data.image_ops import resize_frames
 from tactile_compliance.data.import_report import (
     ImportReport,
-    NothingImportedError,
-    commit_import,
     import_paths,
     store_writing,
     utf8_problem,
@@ -109,10 +107,7 @@ def import_yuan(
     src, out = import_paths(src_dir, out_dir, overwrite)
     report = ImportReport(source="yuan", source_dir=str(src), store_dir=str(out), strict=strict)
     videos = sorted(p for p in src.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES and p.is_file())
-    if not videos:
-        raise NothingImportedError(
-            f"{src}: no videos found ({', '.join(VIDEO_SUFFIXES)})", report=report
-        )
+    report.require_sources(videos, src, f"videos found ({', '.join(VIDEO_SUFFIXES)})")
     objects: set[str] = set()
     imported: set[str] = set()
     # First pass, headers only: the most common frame size (reports nothing).
@@ -123,87 +118,73 @@ def import_yuan(
     )
     if image_size is None and sizes:
         image_size = sizes.most_common(1)[0][0]
-    writer: GraspStoreWriter | None = None
-    try:
-        with (
-            store_writing(out, report),
-            progress_bar("Importing videos", total=len(videos), enabled=progress) as advance,
-        ):
-            for video in videos:
-                advance()
-                match = VIDEO_NAME.match(video.name)
-                problem = utf8_problem(str(video.relative_to(src)))
-                if problem:
-                    report.problem(video, f"invalid name: the path is {problem}")
-                    continue
-                if match is None:
-                    report.problem(
-                        video, "unexpected file name: expected {SHAPE}_{hardness}_{n}.avi"
-                    )
-                    continue
-                shape, hardness = match["shape"], int(match["hardness"])
-                object_id = f"{shape}_{match['hardness']}"  # as spelled in the file name
-                objects.add(object_id)
-                if not 0 <= hardness <= 100:
-                    report.problem(video, f"invalid hardness: Shore 00 {hardness} outside [0, 100]")
-                    continue
-                modulus_pa = float(shore00_to_modulus_pa(float(hardness)))
-                problem = MODULUS.violation(modulus_pa)
-                if problem:
-                    report.problem(video, f"implausible value: Shore 00 {hardness}: {problem}")
-                    continue
-                try:
-                    frames = read_video_frames(video)
-                    chosen = frames[list(select_press_frames(frames))]
-                    del frames
-                    if image_size is None:  # no header gave a size: the first video decides
-                        image_size = (chosen.shape[1], chosen.shape[2])
-                    chosen = resize_frames(chosen, image_size)
-                except (ValueError, cv2.error, MemoryError) as err:
-                    report.problem(video, f"unreadable video: {err}")
-                    continue
-                if writer is None:
-                    writer = GraspStoreWriter(
-                        out,
-                        image_size=image_size,
-                        source="yuan",
-                        creation_parameters={
-                            "importer": "yuan",
-                            "source_dir": str(src.resolve()),
-                            "frame_kind": "raw",
-                            "frame_selection": "first, midway, brightest",
-                            "label_conversion": "Shore 00 -> E (Larson 2017)",
-                            "source_image_sizes": {
-                                f"{h}x{w}": n for (h, w), n in sizes.most_common()
-                            },
-                        },
-                        overwrite=overwrite,
-                    )
-                try:
-                    writer.append(
-                        chosen,
-                        {
-                            "object": object_id,
-                            "grasp": int(match["press"]),
-                            "augmentation": 0,
-                            "finger": "markerless",
-                            "material": MATERIAL,
-                            "shape": shape,
-                            "modulus_pa": modulus_pa,
-                            "source_path": str(video.relative_to(src)),
-                        },
-                    )
-                except ValueError as err:  # a value the store cannot hold
-                    report.problem(video, f"invalid sample: {err}")
-                    continue
+
+    def make_writer() -> GraspStoreWriter:
+        assert image_size is not None  # set by the headers or the first readable video
+        return GraspStoreWriter(
+            out,
+            image_size=image_size,
+            source="yuan",
+            creation_parameters={
+                "importer": "yuan",
+                "source_dir": str(src.resolve()),
+                "frame_kind": "raw",
+                "frame_selection": "first, midway, brightest",
+                "label_conversion": "Shore 00 -> E (Larson 2017)",
+                "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
+            },
+            overwrite=overwrite,
+        )
+
+    with (
+        store_writing(out, report, make_writer) as target,
+        progress_bar("Importing videos", total=len(videos), enabled=progress) as advance,
+    ):
+        for video in videos:
+            advance()
+            match = VIDEO_NAME.match(video.name)
+            problem = utf8_problem(str(video.relative_to(src)))
+            if problem:
+                report.problem(video, f"invalid name: the path is {problem}")
+                continue
+            if match is None:
+                report.problem(video, "unexpected file name: expected {SHAPE}_{hardness}_{n}.avi")
+                continue
+            shape, hardness = match["shape"], int(match["hardness"])
+            object_id = f"{shape}_{match['hardness']}"  # as spelled in the file name
+            objects.add(object_id)
+            if not 0 <= hardness <= 100:
+                report.problem(video, f"invalid hardness: Shore 00 {hardness} outside [0, 100]")
+                continue
+            modulus_pa = float(shore00_to_modulus_pa(float(hardness)))
+            problem = MODULUS.violation(modulus_pa)
+            if problem:
+                report.problem(video, f"implausible value: Shore 00 {hardness}: {problem}")
+                continue
+            try:
+                frames = read_video_frames(video)
+                chosen = frames[list(select_press_frames(frames))]
+                del frames
+                if image_size is None:  # no header gave a size: the first video decides
+                    image_size = (chosen.shape[1], chosen.shape[2])
+                chosen = resize_frames(chosen, image_size)
+            except (ValueError, cv2.error, MemoryError) as err:
+                report.problem(video, f"unreadable video: {err}")
+                continue
+            row = {
+                "object": object_id,
+                "grasp": int(match["press"]),
+                "augmentation": 0,
+                "finger": "markerless",
+                "material": MATERIAL,
+                "shape": shape,
+                "modulus_pa": modulus_pa,
+                "source_path": str(video.relative_to(src)),
+            }
+            if target.append(chosen, row, video):
                 imported.add(object_id)
-                report.samples_imported += 1
-            report.objects_seen = len(objects)
-            report.objects_imported = len(imported)
-            commit_import(writer, report, f"{src}: nothing importable, every video was skipped")
-    except BaseException:
-        if writer is not None:
-            writer.abort()
-        raise
+        report.objects_seen = len(objects)
+        report.objects_imported = len(imported)
+        target.commit(f"{src}: nothing importable, every video was skipped")
     report.seconds = time.perf_counter() - start
     return report

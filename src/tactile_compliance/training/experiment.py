@@ -50,9 +50,10 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import pandas as pd
+from typing_extensions import Unpack  # typing.Unpack needs Python 3.11
 
 from tactile_compliance.config import (
     ConfigError,
@@ -341,22 +342,30 @@ class ExperimentPlan:
         return "\n".join(lines)
 
 
-def plan_experiment(
-    preset_or_path: str | Path,
-    *,
-    quick: bool = False,
-    seeds: Sequence[int] | int | None = None,
-    store: str | Path | None = None,
-    overrides: Iterable[str] = (),
-    where: Iterable[str] = (),
-    output_dir: str | Path | None = None,
-    results: str | Path | None = None,
-) -> ExperimentPlan:
+class PlanOptions(TypedDict, total=False):
+    """Which cells of an experiment run and where they go (``run_experiment``'s Args)."""
+
+    quick: bool
+    seeds: Sequence[int] | int | None
+    store: str | Path | None
+    overrides: Iterable[str]
+    where: Iterable[str]
+    output_dir: str | Path | None
+    results: str | Path | None
+
+
+def plan_experiment(preset_or_path: str | Path, **options: Unpack[PlanOptions]) -> ExperimentPlan:
     """Load and expand an experiment without running anything (see :func:`run_experiment`)."""
-    spec = load_experiment(preset_or_path, quick=quick)
+    spec = load_experiment(preset_or_path, quick=options.get("quick", False))
+    output_dir, results = options.get("output_dir"), options.get("results")
     out = Path(output_dir) if output_dir is not None else spec.default_output_dir
     cells = expand_experiment(
-        spec, seeds=seeds, store=store, overrides=overrides, where=where, output_dir=out
+        spec,
+        seeds=options.get("seeds"),
+        store=options.get("store"),
+        overrides=options.get("overrides", ()),
+        where=options.get("where", ()),
+        output_dir=out,
     )
     out = out.expanduser().resolve()
     results_path = Path(results).expanduser() if results is not None else out.parent / RESULTS_DIR
@@ -500,26 +509,21 @@ def _write_plan(plan: ExperimentPlan) -> None:
 def run_experiment(
     preset_or_path: str | Path,
     *,
-    quick: bool = False,
-    seeds: Sequence[int] | int | None = None,
-    store: str | Path | None = None,
-    overrides: Iterable[str] = (),
-    where: Iterable[str] = (),
     workers: int = 1,
     scheduler: str | None = None,
     client: Any = None,
-    output_dir: str | Path | None = None,
-    results: str | Path | None = None,
     retry_failed: bool = True,
     threads: int | None = None,
     keep_checkpoints: str = "best",
     progress: bool = True,
+    **plan_options: Unpack[PlanOptions],
 ) -> ExperimentSummary:
     """Run every cell of an experiment grid on Dask and record it in the results store.
 
     Args:
         preset_or_path: experiment preset (``list_experiment_presets()``), experiment YAML,
             or a plain config (preset or file, e.g. ``tune``'s ``best.yaml``: one cell).
+        plan_options (:class:`PlanOptions`, handed to :func:`plan_experiment`):
         quick: use the experiment's ``quick`` variant (small, for a 2-core CPU).
         seeds: seed count (0..n-1) or list; default: the experiment's.
         store: GraspStore for every cell (default: the experiment's ``data.store``).
@@ -551,16 +555,7 @@ def run_experiment(
     if keep_checkpoints not in ("best", "all", "none"):
         raise ConfigError(f"keep_checkpoints must be best, all or none, got {keep_checkpoints!r}")
     started = time.perf_counter()
-    plan = plan_experiment(
-        preset_or_path,
-        quick=quick,
-        seeds=seeds,
-        store=store,
-        overrides=overrides,
-        where=where,
-        output_dir=output_dir,
-        results=results,
-    )
+    plan = plan_experiment(preset_or_path, **plan_options)
     if not plan.cells:
         raise ConfigError(f"{plan.preset}: no cells to run (check the filters)")
     remote = scheduler is not None or client is not None
