@@ -188,21 +188,15 @@ class EnsembleEstimator:
     def __len__(self) -> int:
         return len(self.members)
 
-    def members_log10(
-        self,
-        frames: Any,
-        force: Any = None,
-        width: Any = None,
-        estimates: Any = None,
-        **kwargs: Any,
-    ) -> np.ndarray:
-        """log10 E of every member: (members,) for one grasp, (members, B) for a batch."""
+    def members_log10(self, *inputs: Any, **options: Any) -> np.ndarray:
+        """log10 E of every member: (members,) for one grasp, (members, B) for a batch.
+
+        ``inputs`` and ``options`` are those of ``BaseEstimator.predict`` (frames, force,
+        width, estimates; channel_order, batch_size): each member validates what it uses.
+        """
         return np.stack(
             [
-                np.asarray(
-                    m.predict(frames, force, width, estimates, **kwargs).log10_modulus_pa,
-                    dtype=np.float64,
-                )
+                np.asarray(m.predict(*inputs, **options).log10_modulus_pa, dtype=np.float64)
                 for m in self.members
             ]
         )
