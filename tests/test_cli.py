@@ -145,17 +145,58 @@ def test_expected_errors_are_one_line_with_exit_code_2(tmp_path):
         if source.exists():
             (broken / name).write_bytes(b"" if name == "samples.parquet" else source.read_bytes())
     nothing = tmp_path / "nothing"
+    # A checkpoint whose weights belong to another architecture (a hand-edited file).
+    import torch
+
+    from tactile_compliance.data.normalisation import NormalisationConstants
+    from tactile_compliance.models import create_model
+    from tactile_compliance.runs.checkpoint import save_checkpoint
+
+    foreign = tmp_path / "foreign.pt"
+    model = create_model("top10nn", inputs="ALL")
+    save_checkpoint(
+        foreign, model, constants=NormalisationConstants(), image_size=(8, 8), config={}, seed=0
+    )
+    payload = torch.load(foreign, weights_only=True)
+    payload["hparams"] = {**payload["hparams"], "decoder_sizes": [7]}
+    torch.save(payload, foreign)
     cases = {
         "no store (split)": ["split", str(nothing), "--out", str(tmp_path / "s.json")],
-        "no store (train)": ["train", "--set", f"data.store={nothing}"],
+        "no store (train)": [
+            "train",
+            "--set",
+            f"data.store={nothing}",
+            "--set",
+            f"output_dir={tmp_path / 'runs'}",
+        ],
         "empty samples.parquet": ["info", str(broken)],
         "no run (evaluate)": ["evaluate", str(nothing)],
-        "bad config key": ["train", "--set", f"data.store={store}", "--set", "training.lrr=1"],
+        "bad config key": [
+            "train",
+            "--set",
+            f"data.store={store}",
+            "--set",
+            f"output_dir={tmp_path / 'runs'}",
+            "--set",
+            "training.lrr=1",
+        ],
+        "another model's weights": ["predict", str(foreign), str(store)],
     }
+    if not torch.cuda.is_available():
+        cases["no GPU"] = [
+            "train",
+            "--set",
+            f"data.store={store}",
+            "--set",
+            f"output_dir={tmp_path / 'runs'}",
+            "--set",
+            "training.device=cuda",
+        ]
     for label, args in cases.items():
         result = runner.invoke(app, args)
         assert result.exit_code == 2, (label, result.output, result.exception)
         _one_error_line(result)
+    assert not list(tmp_path.glob("runs")), "a failed check writes no run directory"
 
 
 def test_debug_shows_the_traceback(tmp_path):

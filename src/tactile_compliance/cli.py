@@ -26,12 +26,21 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
     Imported when an error happens, so that the command starts fast."""
     from tactile_compliance.data.import_report import DataImportError
     from tactile_compliance.data.store import StoreError
+    from tactile_compliance.models.backbones import BackboneWeightsError
     from tactile_compliance.training.experiment import ExperimentError
     from tactile_compliance.training.hpo import TuneError
 
     # ValueError covers ConfigError, pydantic's ValidationError, pyarrow's ArrowInvalid and
     # the library's argument checks; OSError covers missing files, permissions, a full disk.
-    return (ValueError, OSError, StoreError, DataImportError, ExperimentError, TuneError)
+    return (
+        ValueError,
+        OSError,
+        StoreError,
+        DataImportError,
+        ExperimentError,
+        TuneError,
+        BackboneWeightsError,
+    )
 
 
 def _write_failures() -> tuple[type[BaseException], ...]:

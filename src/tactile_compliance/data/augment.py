@@ -105,6 +105,12 @@ class GraspAugmentation(nn.Module):
         if seed is not None:
             self._generator = torch.Generator().manual_seed(int(seed))
 
+    @property
+    def generator(self) -> torch.Generator | None:
+        """The generator of the random parameters (None: torch's global one). A resumed
+        run restores its state to draw the same augmentations as an uninterrupted run."""
+        return self._generator
+
     @classmethod
     def from_config(cls, cfg: Any, seed: int | None = None) -> GraspAugmentation:
         """Build from an ``AugmentationConfig`` (probability forced to 0 when disabled)."""

@@ -43,6 +43,7 @@ from torch import nn
 __all__ = [
     "BACKBONE_WEIGHTS_URLS",
     "VGG16",
+    "BackboneWeightsError",
     "BasicBlock",
     "Bottleneck",
     "ResNet",
@@ -282,6 +283,11 @@ def list_backbones() -> list[str]:
 # -------------------------------------------------------------------------- weights
 
 
+class BackboneWeightsError(RuntimeError):
+    """Backbone weights cannot be had or do not fit: offline, a wrong sha256, an
+    unreadable file, or another network's state dict. The message names the source."""
+
+
 def _sha256(path: Path) -> str:
     digest = hashlib.sha256()
     with path.open("rb") as handle:
@@ -350,13 +356,15 @@ def _load_imagenet_state_dict(name: str) -> dict[str, torch.Tensor]:
         try:
             _probe(url)
         except OSError as exc:
-            raise RuntimeError(_offline_message(name, url, f"no connection: {exc}")) from exc
+            raise BackboneWeightsError(
+                _offline_message(name, url, f"no connection: {exc}")
+            ) from exc
     try:
         return torch.hub.load_state_dict_from_url(
             url, map_location="cpu", progress=True, check_hash=True, weights_only=True
         )
     except (urllib.error.URLError, OSError, TimeoutError) as exc:
-        raise RuntimeError(_offline_message(name, url, f"download failed: {exc}")) from exc
+        raise BackboneWeightsError(_offline_message(name, url, f"download failed: {exc}")) from exc
 
 
 def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
@@ -372,7 +380,7 @@ def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
         expected = match.group("hash")
         actual = _sha256(path)
         if not actual.startswith(expected):
-            raise RuntimeError(
+            raise BackboneWeightsError(
                 f"sha256 mismatch for {path}: the file name promises a hash starting with "
                 f"{expected}, the file's sha256 is {actual}. The file is corrupted or "
                 f"incomplete; download it again (or rename it if it is a different file)."
@@ -380,7 +388,7 @@ def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
     try:
         loaded = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises several types for unreadable/unsafe files
-        raise RuntimeError(
+        raise BackboneWeightsError(
             f"cannot read backbone weights from {path}: {exc}. Expected a state dict saved "
             f"with torch.save (tensors only)."
         ) from exc
@@ -394,7 +402,7 @@ def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
     if not isinstance(loaded, Mapping) or not all(
         isinstance(v, torch.Tensor) for v in loaded.values()
     ):
-        raise RuntimeError(
+        raise BackboneWeightsError(
             f"{path} does not contain a state dict (a mapping of parameter names to tensors)"
         )
     return dict(loaded)
@@ -406,7 +414,7 @@ def load_backbone_weights(
     """Copy ``state_dict`` into ``backbone``, ignoring only the torchvision classifier keys.
 
     Raises:
-        RuntimeError: listing missing and unexpected keys, or shape mismatches, with
+        BackboneWeightsError: listing missing and unexpected keys, or shape mismatches, with
             ``source`` (a path or URL) named so the user knows which file is wrong.
     """
     ignored = _IGNORED_PREFIXES.get(name, ())
@@ -432,7 +440,7 @@ def load_backbone_weights(
             problems.append(f"unexpected keys: {_preview(unexpected)}")
         if mismatched:
             problems.append(f"shape mismatches: {_preview(mismatched)}")
-        raise RuntimeError(
+        raise BackboneWeightsError(
             f"weights from {source} do not fit backbone {name!r} "
             f"(is it a torchvision {name} state dict?): " + "; ".join(problems)
         )
@@ -454,7 +462,7 @@ def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.M
 
     Raises:
         ValueError: unknown backbone name.
-        RuntimeError: "imagenet" without internet (fast, names the local-file
+        BackboneWeightsError: "imagenet" without internet (fast, names the local-file
             alternative), or a weights file that is corrupted or does not fit.
         FileNotFoundError: a weights path that does not exist.
     """

@@ -33,6 +33,7 @@ from tactile_compliance.data.features import weights_fingerprint
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.backbones import no_downloads
+from tactile_compliance.runs.layout import atomic_file
 
 CHECKPOINT_FORMAT = "tactile-compliance-model"
 #: 2: a frozen backbone is stored as a ``backbone`` record instead of its tensors.
@@ -154,7 +155,8 @@ def save_checkpoint(
     frozen_backbone: dict[str, Any] | None = None,
     store_image_size: tuple[int, int] | None = None,
 ) -> Path:
-    """Write ``model`` and its description to ``path`` (atomically).
+    """Write ``model`` and its description to ``path`` (atomically: see
+    :func:`~tactile_compliance.runs.layout.atomic_file`).
 
     ``store_image_size`` (H, W) px: the frame size of the training store, recorded so a
     model trained at the store's native size (``image_size`` None) resizes other inputs
@@ -189,9 +191,9 @@ def save_checkpoint(
         "backbone": frozen_backbone,
         "state_dict": state,
     }
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    tmp.replace(path)
+    # Temp file, fsync, rename: a full disk or a kill leaves the old file and no temp file.
+    with atomic_file(path, "wb") as handle:
+        torch.save(payload, handle)
     return path
 
 
@@ -290,7 +292,13 @@ def load_checkpoint(
     else:
         # The whole state dict is stored: backbone weights come from it, not the network.
         model = create_model(payload["model_name"], inputs=payload["inputs"], **payload["hparams"])
-        model.load_state_dict(payload["state_dict"])
+        try:
+            model.load_state_dict(payload["state_dict"])
+        except RuntimeError as err:  # weights of another model or architecture
+            raise ValueError(
+                f"{path}: the stored weights do not fit {payload['model_name']!r} with the "
+                f"recorded hyperparameters: {str(err).splitlines()[0]}"
+            ) from err
     model.backbone_weights = payload.get("backbone_weights", "none")
     model.to(device).eval()
     image_size = payload.get("image_size")

@@ -1,20 +1,53 @@
-"""A run directory's names: what it is called, its config hash, the files it holds.
+"""A run directory's names, and how its files are written and who may write them.
 
 Training writes these files, evaluation and inference read them, and grids and tuning
 name their runs with :func:`run_name`. The full layout of a run directory is described
 in ``training/train.py``.
+
+Two generic helpers live here because every writer of a run directory needs them:
+
+* :func:`atomic_file`: a file appears complete or not at all (temp file, fsync, rename),
+  and the temp file is removed when writing fails (a full disk, Ctrl-C);
+* :func:`lock_directory`: one process at a time per directory; a second one fails at once
+  with :class:`DirectoryLockedError` naming the lock file and its holder. The lock is an
+  ``fcntl.flock``, which the kernel releases when its process dies, so a lock left by a
+  killed process is simply taken over.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import json
+import os
+import re
+import secrets
+import socket
+from collections.abc import Iterator
+from datetime import datetime
+from pathlib import Path
+from typing import IO, Any
 
 from tactile_compliance.config import ExperimentConfig, config_to_dict
+from tactile_compliance.data.splits import SPLIT_FORMAT
 from tactile_compliance.data.store import SAMPLE_COLUMNS
+
+try:
+    import fcntl
+except ImportError:  # Windows: no flock; the lock falls back to the holder's PID
+    fcntl = None  # type: ignore[assignment]
 
 RESULT_FILE = "metrics.json"
 BEST_FILE = "best.pt"
+#: Lightning's full training state after the last finished epoch, and the one before it.
+CHECKPOINT_DIR = "checkpoints"
+LAST_CHECKPOINT = "last.ckpt"
+PREVIOUS_CHECKPOINT = "last.prev.ckpt"
+#: The per-epoch log (train_loss, train_mse, val_nmse), relative to the run directory.
+EPOCH_LOG = "logs/metrics.csv"
+#: ``flock``-ed by the one process training in a run directory; records its holder.
+LOCK_FILE = ".lock"
 #: The columns of predictions.csv taken from the store: a sample's identity and label
 #: ("sample_id" ... "modulus_pa"); the prediction follows as "pred_pa".
 PREDICTION_COLUMNS = SAMPLE_COLUMNS[: SAMPLE_COLUMNS.index("modulus_pa") + 1]
@@ -35,3 +68,164 @@ def run_name(cfg: ExperimentConfig) -> str:
         f"{cfg.model.name}-{cfg.inputs}-{cfg.split.condition}-{cfg.sampling.strategy}"
         f"-seed{cfg.seed}-{config_hash(cfg)}"
     )
+
+
+# ============================================================================ atomic files
+
+
+def fsync_directory(directory: str | Path) -> None:
+    """Make a rename inside ``directory`` durable (a no-op where directories can't be opened)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_file(
+    path: str | Path, mode: str = "w", *, unique: bool = False, encoding: str | None = None
+) -> Iterator[IO[Any]]:
+    """Write ``path`` all at once: yields a temp file next to it, then fsyncs it and
+    renames it over ``path``.
+
+    A reader (or a process started after a crash) sees the old file or the new one, never
+    a part. When the block raises (a full disk, Ctrl-C) the temp file is removed and
+    ``path`` is untouched. The file is created like ``open()`` creates one: its mode
+    follows the umask.
+
+    Args:
+        path: the file to (re)write.
+        mode: ``"w"`` (text) or ``"wb"`` (binary).
+        unique: name the temp file ``NAME.PID.RANDOM.tmp`` instead of ``NAME.tmp``, for
+            files that several processes may write at once (results-store rows); a
+            single writer (a locked run directory) uses ``NAME.tmp``.
+        encoding: text encoding (default UTF-8 in text mode).
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
+    path = Path(path)
+    suffix = f".{os.getpid()}.{secrets.token_hex(4)}.tmp" if unique else ".tmp"
+    tmp = path.with_name(path.name + suffix)
+    if mode == "w" and encoding is None:
+        encoding = "utf-8"
+    try:
+        with open(tmp, mode, encoding=encoding) as handle:
+            yield handle
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    fsync_directory(path.parent)
+
+
+# ============================================================================== the lock
+
+
+class DirectoryLockedError(OSError):
+    """Another process holds the directory's lock (see :func:`lock_directory`)."""
+
+
+def _holder_record() -> str:
+    since = datetime.now().astimezone().isoformat(timespec="seconds")
+    return f"pid {os.getpid()} on {socket.gethostname()} since {since}"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. EPERM: it exists, owned by someone else
+        return True
+    return True
+
+
+def _held_by_other_process(record: str) -> bool:
+    """For file systems without ``flock``: whether ``record`` names a live other process."""
+    match = re.match(r"pid (\d+) on (\S+)", record)
+    if match is None:
+        return False
+    pid, host = int(match.group(1)), match.group(2)
+    if host != socket.gethostname():
+        return True  # cannot tell from here: treat as held (the message says what to do)
+    return pid != os.getpid() and _pid_alive(pid)
+
+
+@contextlib.contextmanager
+def lock_directory(
+    directory: str | Path, *, name: str = LOCK_FILE, what: str = "run directory"
+) -> Iterator[Path]:
+    """Hold an exclusive lock on ``directory`` (which must exist) for the block.
+
+    The lock is an ``fcntl.flock`` on ``DIRECTORY/NAME``, taken without waiting; the file
+    records the holder (``pid PID on HOST since TIME``). The kernel releases the lock when
+    its process ends, however it ends, so a lock file left by a dead process is taken over.
+    The file itself is never deleted (deleting it while another process opens it would let
+    two processes lock two different files). Where ``flock`` is not available (Windows, a
+    file system that refuses it) the recorded PID decides: a live process on this host, or
+    any process on another host, holds the lock.
+
+    Raises:
+        DirectoryLockedError: another process holds the lock (one line naming the lock
+            file and the holder).
+    """
+    directory = Path(directory)
+    path = directory / name
+    handle = open(path, "a+", encoding="utf-8")  # noqa: SIM115 (held for the whole block)
+    try:
+        locked = False
+        if fcntl is not None:
+            try:
+                fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                locked = True
+            except OSError as err:
+                if err.errno not in (errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOLCK):
+                    handle.seek(0)
+                    holder = handle.read().strip() or "another process"
+                    raise DirectoryLockedError(
+                        f"{directory} is in use: its lock {path} is held by {holder}; wait "
+                        f"for that process to finish or use another {what}"
+                    ) from None
+        if not locked:  # no flock here: fall back to the recorded PID
+            handle.seek(0)
+            holder = handle.read().strip()
+            if holder and _held_by_other_process(holder):
+                raise DirectoryLockedError(
+                    f"{directory} is in use: its lock {path} is held by {holder}; wait for "
+                    f"that process to finish or use another {what} (delete the lock file if "
+                    f"that process is gone)"
+                )
+        handle.seek(0)
+        handle.truncate()
+        handle.write(_holder_record() + "\n")
+        handle.flush()
+        try:
+            yield path
+        finally:
+            # Released: an empty file names nobody (a killed holder leaves its record).
+            with contextlib.suppress(OSError):
+                handle.seek(0)
+                handle.truncate()
+                handle.flush()
+    finally:
+        handle.close()
+
+
+#: The kind of a run directory in its ``outputs`` marker.
+RUN_KIND = "run"
+
+
+def is_legacy_run_dir(path: Path) -> bool:
+    """Whether ``path`` is a run directory written before markers existed: it holds a
+    ``split.json`` that is a saved split (what ``train`` writes first)."""
+    split = path / "split.json"
+    try:
+        data = json.loads(split.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and data.get("format") == SPLIT_FORMAT

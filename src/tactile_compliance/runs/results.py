@@ -23,8 +23,6 @@ Row schema (flat; metrics prefixed by where they come from):
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
@@ -33,7 +31,7 @@ from typing import Any
 import pandas as pd
 
 from tactile_compliance.config import ExperimentConfig
-from tactile_compliance.runs.layout import config_hash, run_name
+from tactile_compliance.runs.layout import atomic_file, config_hash, run_name
 
 ROWS_DIR = "rows"
 STATUS_COMPLETE = "complete"
@@ -137,11 +135,11 @@ class ResultsStore:
     def record(self, row: Mapping[str, Any]) -> Path:
         """Write (or replace) one row atomically."""
         path = self._row_path(str(row["key"]))
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-        with os.fdopen(fd, "w") as handle:
+        # A per-writer temp name (two attempts of one cell may race); created by open(),
+        # so the row's mode follows the umask like every other output file.
+        with atomic_file(path, "w", unique=True) as handle:
             json.dump(dict(row), handle, indent=2, default=str)
             handle.write("\n")
-        os.replace(tmp, path)
         return path
 
     def rows(self) -> list[dict[str, Any]]:

@@ -45,7 +45,6 @@ import sys
 import time
 import traceback
 import warnings
-import zipfile
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -63,6 +62,12 @@ from tactile_compliance.config import (
 )
 from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.progress import progress_bar
+from tactile_compliance.runs.layout import (
+    RUN_KIND,
+    DirectoryLockedError,
+    is_legacy_run_dir,
+    lock_directory,
+)
 from tactile_compliance.runs.results import (
     ROWS_DIR,
     STATUS_COMPLETE,
@@ -94,7 +99,6 @@ __all__ = [
 ]
 
 RESULTS_DIR = "results"
-LOCK_FILE = ".lock"
 ATTEMPTS_FILE = "attempts.json"
 EXPERIMENT_FILE = "experiment.json"
 #: Metrics shown in the summary (mean +- std over seeds).
@@ -199,7 +203,7 @@ def _count_attempt(run_dir: Path) -> int:
             "pid": os.getpid(),
         }
     )
-    run_dir.mkdir(parents=True, exist_ok=True)
+    claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir)
     tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
     tmp.write_text(json.dumps({"attempts": len(history), "history": history}, indent=2) + "\n")
     tmp.replace(path)
@@ -211,22 +215,6 @@ def _attempts(run_dir: Path) -> int:
         return int(json.loads((run_dir / ATTEMPTS_FILE).read_text())["attempts"])
     except (OSError, ValueError, KeyError):
         return 1
-
-
-def _set_aside_truncated_checkpoint(run_dir: Path) -> bool:
-    """Move an unreadable ``last.ckpt`` (process killed while writing it) out of the way."""
-    last = run_dir / "checkpoints" / "last.ckpt"
-    if not last.exists():
-        return False
-    try:
-        with zipfile.ZipFile(last) as archive:  # torch.save writes a zip archive
-            healthy = archive.testzip() is None
-    except (zipfile.BadZipFile, OSError, EOFError):
-        healthy = False
-    if healthy:
-        return False
-    last.replace(last.with_name("last.ckpt.corrupt"))
-    return True
 
 
 def _prune(run_dir: Path, keep_checkpoints: str) -> None:
@@ -279,8 +267,7 @@ def run_cell(
     started = time.perf_counter()
     extra: dict[str, Any] = {"host": socket.gethostname()}
     try:
-        if _set_aside_truncated_checkpoint(run_dir):
-            extra["note"] = "a truncated checkpoint was set aside; the run restarted"
+        # train() resumes from the last finished epoch, or sets a damaged checkpoint aside.
         result = train(cfg, run_dir=run_dir, progress=False)
         _prune(run_dir, keep_checkpoints)
         row = result_row(
@@ -451,28 +438,10 @@ def _locked(output_dir: Path) -> Iterator[None]:
     """Hold an exclusive lock on an experiment's output directory for one driver's lifetime."""
     output_dir.mkdir(parents=True, exist_ok=True)
     try:
-        import fcntl
-    except ImportError:  # pragma: no cover - Windows: no advisory locks, run one driver
-        yield
-        return
-    handle = open(output_dir / LOCK_FILE, "a+")  # noqa: SIM115 (held for the whole run)
-    try:
-        try:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            handle.seek(0)
-            holder = handle.read().strip() or "another process"
-            raise ExperimentError(
-                f"{output_dir} is in use by {holder}; wait for it to finish "
-                "(or give this experiment another --output-dir)"
-            ) from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
-        handle.flush()
-        yield
-    finally:
-        handle.close()
+        with lock_directory(output_dir, what="experiment output directory (--output-dir)"):
+            yield
+    except DirectoryLockedError as err:
+        raise ExperimentError(str(err)) from None
 
 
 def _check_stores(cells: Sequence[Cell]) -> None:

@@ -20,6 +20,7 @@ from tactile_compliance.config import (
     save_config,
 )
 from tactile_compliance.models import list_models
+from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.training.grid import load_experiment
 from tactile_compliance.training.hpo.objectives import (
     BalanceObjective,
@@ -171,6 +172,10 @@ class _Search:
     ) -> tuple[Any, Any]:
         """Run (or continue) the search: (the facade, its incumbent). ``objective`` builds
         the target function for the torch threads a trial gets."""
+        # The search writes only into a directory it created (or an earlier search's).
+        claim_output_dir(
+            self.out, "tune", recognise=lambda path: (path / "smac").is_dir(), option="--output-dir"
+        )
         cluster = trial_cluster(self.workers, self.scheduler, self.client, self.threads)
         with cluster as (dask, threads):
             for base in bases:
