@@ -43,6 +43,7 @@ from tactile_compliance.data.preprocess import FilterRules
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS
 from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
 from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.outputs import atomic_file
 
 __all__ = [
     "AugmentationConfig",
@@ -606,9 +607,8 @@ def save_config(cfg: ExperimentConfig, path: str | Path) -> Path:
     text = "# tactile-compliance experiment configuration (fully resolved)\n" + yaml.safe_dump(
         config_to_dict(cfg), sort_keys=False, default_flow_style=None
     )
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+    with atomic_file(path) as handle:
+        handle.write(text)
     return path
 
 

@@ -13,22 +13,29 @@ demo) *claims* it first with :func:`claim_output_dir`:
 Directories written by versions before the marker existed are recognised by their
 contents (``recognise``) and adopted. Single output files (a split, an ONNX model, a
 JSON report) go through :func:`check_output_file`: an existing file is replaced only when
-it is recognisably an output of the same kind.
+it is recognisably an output of the same kind. Every file a command writes goes through
+:func:`atomic_file`: a reader never sees half of it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
-from collections.abc import Callable
+import os
+import secrets
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import IO, Any
 
 from tactile_compliance import __version__
 
 __all__ = [
     "MARKER_NAME",
     "OutputExistsError",
+    "atomic_file",
     "check_output_file",
     "claim_output_dir",
+    "fsync_directory",
     "output_kind",
 ]
 
@@ -124,3 +131,53 @@ def check_output_file(
                 f"nothing was changed: choose another {option}"
             )
     return out
+
+
+def fsync_directory(directory: str | Path) -> None:
+    """Make a rename inside ``directory`` durable (a no-op where directories can't be opened)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_file(
+    path: str | Path, mode: str = "w", *, unique: bool = False, encoding: str | None = None
+) -> Iterator[IO[Any]]:
+    """Write ``path`` all at once: yields a temp file next to it, then fsyncs it and
+    renames it over ``path``.
+
+    A reader (or a process started after a crash) sees the old file or the new one, never
+    a part. When the block raises (a full disk, Ctrl-C) the temp file is removed and
+    ``path`` is untouched. The file is created like ``open()`` creates one: its mode
+    follows the umask.
+
+    Args:
+        path: the file to (re)write.
+        mode: ``"w"`` (text) or ``"wb"`` (binary).
+        unique: name the temp file ``NAME.PID.RANDOM.tmp`` instead of ``NAME.tmp``, for
+            files that several processes may write at once (results-store rows); a
+            single writer (a locked run directory) uses ``NAME.tmp``.
+        encoding: text encoding (default UTF-8 in text mode).
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
+    path = Path(path)
+    suffix = f".{os.getpid()}.{secrets.token_hex(4)}.tmp" if unique else ".tmp"
+    tmp = path.with_name(path.name + suffix)
+    if mode == "w" and encoding is None:
+        encoding = "utf-8"
+    try:
+        with open(tmp, mode, encoding=encoding) as handle:
+            yield handle
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    fsync_directory(path.parent)

@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.preprocess import require_columns
-from tactile_compliance.outputs import check_output_file
+from tactile_compliance.outputs import atomic_file, check_output_file
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
@@ -128,7 +128,7 @@ def _ids(values: Any) -> np.ndarray:
     return np.sort(np.asarray(values, dtype=np.int64).reshape(-1))
 
 
-def _is_split_file(path: Path) -> bool:
+def is_split_file(path: Path) -> bool:
     """Whether ``path`` is a split written by :meth:`Split.save` (safe to replace)."""
     data = json.loads(path.read_text(encoding="utf-8"))
     return isinstance(data, dict) and data.get("format") == SPLIT_FORMAT
@@ -238,11 +238,10 @@ class Split:
 
     def save(self, path: str | Path) -> Path:
         """Write the split as JSON (atomically: temp file + rename). Returns the path."""
-        path = check_output_file(path, "split", _is_split_file)
+        path = check_output_file(path, "split", is_split_file)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1) + "\n", encoding="utf-8")
-        tmp.replace(path)
+        with atomic_file(path) as handle:
+            handle.write(json.dumps(self.to_dict(), indent=1) + "\n")
         return path
 
     @classmethod

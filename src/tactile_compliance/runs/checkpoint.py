@@ -33,7 +33,7 @@ from tactile_compliance.data.features import weights_fingerprint
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.backbones import no_downloads
-from tactile_compliance.runs.layout import atomic_file
+from tactile_compliance.outputs import atomic_file
 
 CHECKPOINT_FORMAT = "tactile-compliance-model"
 #: 2: a frozen backbone is stored as a ``backbone`` record instead of its tensors.

@@ -22,15 +22,13 @@ import hashlib
 import json
 import os
 import re
-import secrets
 import socket
 from collections.abc import Iterator
 from datetime import datetime
 from pathlib import Path
-from typing import IO, Any
 
 from tactile_compliance.config import ExperimentConfig, config_to_dict
-from tactile_compliance.data.splits import SPLIT_FORMAT
+from tactile_compliance.data.splits import is_split_file
 from tactile_compliance.data.store import SAMPLE_COLUMNS
 
 try:
@@ -68,59 +66,6 @@ def run_name(cfg: ExperimentConfig) -> str:
         f"{cfg.model.name}-{cfg.inputs}-{cfg.split.condition}-{cfg.sampling.strategy}"
         f"-seed{cfg.seed}-{config_hash(cfg)}"
     )
-
-
-# ============================================================================ atomic files
-
-
-def fsync_directory(directory: str | Path) -> None:
-    """Make a rename inside ``directory`` durable (a no-op where directories can't be opened)."""
-    with contextlib.suppress(OSError):
-        fd = os.open(directory, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
-@contextlib.contextmanager
-def atomic_file(
-    path: str | Path, mode: str = "w", *, unique: bool = False, encoding: str | None = None
-) -> Iterator[IO[Any]]:
-    """Write ``path`` all at once: yields a temp file next to it, then fsyncs it and
-    renames it over ``path``.
-
-    A reader (or a process started after a crash) sees the old file or the new one, never
-    a part. When the block raises (a full disk, Ctrl-C) the temp file is removed and
-    ``path`` is untouched. The file is created like ``open()`` creates one: its mode
-    follows the umask.
-
-    Args:
-        path: the file to (re)write.
-        mode: ``"w"`` (text) or ``"wb"`` (binary).
-        unique: name the temp file ``NAME.PID.RANDOM.tmp`` instead of ``NAME.tmp``, for
-            files that several processes may write at once (results-store rows); a
-            single writer (a locked run directory) uses ``NAME.tmp``.
-        encoding: text encoding (default UTF-8 in text mode).
-    """
-    if mode not in ("w", "wb"):
-        raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
-    path = Path(path)
-    suffix = f".{os.getpid()}.{secrets.token_hex(4)}.tmp" if unique else ".tmp"
-    tmp = path.with_name(path.name + suffix)
-    if mode == "w" and encoding is None:
-        encoding = "utf-8"
-    try:
-        with open(tmp, mode, encoding=encoding) as handle:
-            yield handle
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
-    fsync_directory(path.parent)
 
 
 # ============================================================================== the lock
@@ -225,7 +170,6 @@ def is_legacy_run_dir(path: Path) -> bool:
     ``split.json`` that is a saved split (what ``train`` writes first)."""
     split = path / "split.json"
     try:
-        data = json.loads(split.read_text(encoding="utf-8"))
+        return split.is_file() and is_split_file(split)
     except (OSError, ValueError):
         return False
-    return isinstance(data, dict) and data.get("format") == SPLIT_FORMAT

@@ -31,7 +31,8 @@ from typing import Any
 import pandas as pd
 
 from tactile_compliance.config import ExperimentConfig
-from tactile_compliance.runs.layout import atomic_file, config_hash, run_name
+from tactile_compliance.outputs import atomic_file
+from tactile_compliance.runs.layout import config_hash, run_name
 
 ROWS_DIR = "rows"
 STATUS_COMPLETE = "complete"

@@ -60,7 +60,7 @@ from tactile_compliance.config import (
     config_from_dict,
     config_to_dict,
 )
-from tactile_compliance.outputs import claim_output_dir
+from tactile_compliance.outputs import atomic_file, claim_output_dir
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.layout import (
     RUN_KIND,
@@ -204,9 +204,8 @@ def _count_attempt(run_dir: Path) -> int:
         }
     )
     claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir)
-    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps({"attempts": len(history), "history": history}, indent=2) + "\n")
-    tmp.replace(path)
+    with atomic_file(path, unique=True) as handle:
+        handle.write(json.dumps({"attempts": len(history), "history": history}, indent=2) + "\n")
     return len(history)
 
 
@@ -470,9 +469,8 @@ def _write_plan(plan: ExperimentPlan) -> None:
         ],
     }
     path = plan.output_dir / EXPERIMENT_FILE
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
-    tmp.replace(path)
+    with atomic_file(path) as handle:
+        handle.write(json.dumps(data, indent=2, default=str) + "\n")
 
 
 def run_experiment(

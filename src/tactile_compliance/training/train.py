@@ -68,7 +68,7 @@ from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split_from_config
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.models import create_model, get_model_class
-from tactile_compliance.outputs import claim_output_dir
+from tactile_compliance.outputs import atomic_file, claim_output_dir, fsync_directory
 from tactile_compliance.runs.checkpoint import (
     FROZEN_BACKBONE_SEED,
     create_seeded_model,
@@ -86,9 +86,7 @@ from tactile_compliance.runs.layout import (
     PREVIOUS_CHECKPOINT,
     RESULT_FILE,
     RUN_KIND,
-    atomic_file,
     config_hash,
-    fsync_directory,
     is_legacy_run_dir,
     lock_directory,
     run_name,

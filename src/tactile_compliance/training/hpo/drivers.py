@@ -20,7 +20,7 @@ from tactile_compliance.config import (
     save_config,
 )
 from tactile_compliance.models import list_models
-from tactile_compliance.outputs import claim_output_dir
+from tactile_compliance.outputs import atomic_file, claim_output_dir
 from tactile_compliance.training.grid import load_experiment
 from tactile_compliance.training.hpo.objectives import (
     BalanceObjective,
@@ -83,9 +83,8 @@ class TuneResult:
 def _write_yaml(path: Path, header: str, data: Mapping[str, Any]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     text = header + yaml.safe_dump(dict(data), sort_keys=False, default_flow_style=None)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+    with atomic_file(path) as handle:
+        handle.write(text)
     return path
 
 

@@ -18,6 +18,7 @@ from typing import Any
 
 import pandas as pd
 
+from tactile_compliance.outputs import atomic_file
 from tactile_compliance.progress import ProgressBar, progress_bar
 from tactile_compliance.training.cluster import dask_client
 from tactile_compliance.training.hpo.space import plain, trial_values
@@ -116,9 +117,8 @@ def _forget_unfinished_trials(directory: Path) -> None:
     stats = history.get("stats", {})
     stats["submitted"] = max(0, int(stats.get("submitted", 0)) - len(running))
     stats["running"] = 0
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(history, indent=2))
-    tmp.replace(path)
+    with atomic_file(path) as handle:
+        handle.write(json.dumps(history, indent=2))
 
 
 def _initial_design_size(scenario: Any) -> int:
