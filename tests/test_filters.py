@@ -6,8 +6,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from burgess_tree import dump, write_tree
 from tactile_compliance.config import ExperimentConfig, FilterConfig
+from tactile_compliance.data.burgess import import_burgess
 from tactile_compliance.data.preprocess import UNKNOWN_GROUND_TRUTH_OBJECTS, filter_samples
+from tactile_compliance.data.store import GraspStore
 
 
 def good_row(obj: str, **changes: object) -> dict:
@@ -176,3 +179,82 @@ def test_default_exclusion_list_is_the_13_unknown_objects():
 def test_missing_required_column_is_named():
     with pytest.raises(ValueError, match="material"):
         filter_samples(pd.DataFrame({"sample_id": [0], "object": ["a"]}))
+
+
+# ------------------------------------------------------------------ rule 7: which finger's depth
+def two_finger_presses() -> pd.DataFrame:
+    """Two presses of "d" with both fingers, and two of "e" (keep "d" countable alone).
+
+    Press (d, 0): the markerless depth rises, the marker finger's does not.
+    Press (d, 1): the marker finger's depth rises, the markerless one's does not.
+    """
+    flat = {"depth_max_mm_1": 0.8, "depth_max_mm_2": 0.8}
+    return table(
+        [
+            good_row("d", grasp=0),  # 0 markerless, rises
+            good_row("d", grasp=0, finger="markers", **flat),  # 1 markers, flat
+            good_row("d", grasp=1, **flat),  # 2 markerless, flat
+            good_row("d", grasp=1, finger="markers"),  # 3 markers, rises
+            good_row("e", grasp=0),  # 4
+            good_row("e", grasp=0, finger="markers"),  # 5
+        ]
+    )
+
+
+def test_depth_rule_judges_both_fingers_on_the_markerless_depth():
+    # The published code reads depth.pkl (the markerless finger) for the samples of both
+    # fingers, so a press is kept or dropped as a whole, on the markerless finger's depth.
+    kept, report = filter_samples(two_finger_presses())
+    assert kept["sample_id"].tolist() == [0, 1, 4, 5]
+    assert report.removed_by("no_depth_increase") == 2
+    assert "markerless finger's depth" in report.rule("no_depth_increase").note
+
+
+def test_depth_rule_uses_the_marker_depth_when_only_markers_are_used():
+    # use_markers="only_markers" in the published code reads depth_markers.pkl.
+    cfg = FilterConfig(drop_single_sample_objects=False)  # one finger: single samples
+    kept, report = filter_samples(two_finger_presses(), cfg, fingers=["markers"])
+    assert kept["sample_id"].tolist() == [3, 5]
+    assert report.removed_by("no_depth_increase") == 1
+
+
+def test_depth_rule_with_markerless_only_ignores_the_marker_depth():
+    cfg = FilterConfig(drop_single_sample_objects=False)
+    kept, _ = filter_samples(two_finger_presses(), cfg, fingers=["markerless"])
+    assert kept["sample_id"].tolist() == [0, 4]
+
+
+def test_marker_sample_without_a_markerless_sibling_is_judged_on_its_own_depth():
+    df = two_finger_presses()
+    df = df[df["sample_id"] != 2].reset_index(drop=True)  # press (d, 1) lost its markerless row
+    kept, report = filter_samples(df)
+    # Sample 3 (markers, rises) now stands alone and keeps its own, rising, depth.
+    assert kept["sample_id"].tolist() == [0, 1, 3, 4, 5]
+    assert "1 sample(s) without a markerless one" in report.rule("no_depth_increase").note
+
+
+def test_depth_rule_through_the_importer(tmp_path):
+    # Depth files of one press: depth.pkl rises, depth_markers.pkl does not (and the
+    # reverse for the other press); the importer keeps each finger's own maxima.
+    objects = {"foam_block": (2.0e4, "Foam", "Rectangular")}
+    write_tree(tmp_path / "src", objects=objects, grasps=2, augmentations=1)
+    rising = np.ones((3, 12, 16)) * np.array([0.0, 1.0, 2.0])[:, None, None]
+    flat = np.ones((3, 12, 16)) * np.array([0.0, 1.0, 1.0])[:, None, None]
+    press = tmp_path / "src" / "foam_block"
+    dump(press / "grasp=0" / "augmentation=0" / "depth.pkl", rising)
+    dump(press / "grasp=0" / "augmentation=0" / "depth_markers.pkl", flat)
+    dump(press / "grasp=1" / "augmentation=0" / "depth.pkl", flat)
+    dump(press / "grasp=1" / "augmentation=0" / "depth_markers.pkl", rising)
+    import_burgess(tmp_path / "src", tmp_path / "store", progress=False)
+    samples = GraspStore.open(tmp_path / "store").samples
+    # Own maxima per finger in the store...
+    by = samples.set_index(["grasp", "finger"])
+    assert by.loc[(0, "markers"), "depth_max_mm_2"] == 1.0
+    assert by.loc[(1, "markers"), "depth_max_mm_2"] == 2.0
+    # ...but grasp 0 is kept with both fingers and grasp 1 dropped with both.
+    kept, report = filter_samples(samples)
+    assert sorted(zip(kept["grasp"], kept["finger"], strict=True)) == [
+        (0, "markerless"),
+        (0, "markers"),
+    ]
+    assert report.removed_by("no_depth_increase") == 2

@@ -194,3 +194,39 @@ def test_source_is_synthetic_for_generated_trees(tmp_path):
     (tmp_path / "src" / "generation.json").write_text("{}")
     _import(tmp_path / "src", tmp_path / "generated")
     assert GraspStore.open(tmp_path / "generated").header.source == "synthetic"
+
+
+def test_clipped_frame_values_are_counted_in_the_report(tmp_path):
+    # Frames whose differences exceed what uint8 holds (-127..+128 grey levels): a few
+    # saturated pixels pass the frame rule, and the report says how many were clipped.
+    written = write_tree(tmp_path / "src", grasps=1, augmentations=1)
+    rgb = written[("rubber_ball", 0, 0)]["RGB.pkl"].copy()
+    rgb[0, 0, :5, 2] = 1.2  # five values far above +128 levels
+    rgb[1, 2, :3, 0] = -0.003  # three values just below -127 levels (k = -128)
+    rgb[2, 3, 0, 1] = 128 / 255 + 0.5  # +128 levels: the largest that fits, not clipped
+    rgb[2, 3, 1, 1] = -127 / 255 + 0.5  # -127 levels: the smallest that fits
+    dump(tmp_path / "src" / "rubber_ball" / "grasp=0" / "augmentation=0" / "RGB.pkl", rgb)
+    report = _import(tmp_path / "src", tmp_path / "store")
+    assert report.problems == [] and report.samples_imported == 6
+    assert report.frame_values == 6 * rgb.size
+    assert report.clipped_frame_values == 8
+    assert report.samples_with_clipped_frames == 1
+    assert report.clipped_frame_share == pytest.approx(8 / (6 * rgb.size))
+    assert f"Clipped frame values: 8 of {6 * rgb.size:,}" in report.format()
+    saved = report.to_dict()
+    assert saved["clipped_frame_values"] == 8 and saved["frame_values"] == 6 * rgb.size
+    # What the store holds: the clipped values at the ends, the others exact.
+    store = GraspStore.open(tmp_path / "store")
+    row = store.samples.query("object == 'rubber_ball' and finger == 'markerless'")
+    frames = store.load_frames(int(row["sample_id"].iloc[0]))[0]  # RGB: file channel c -> 2-c
+    np.testing.assert_allclose(frames[0, 0, :5, 0], 128 / 255 + 0.5, atol=1e-6)
+    np.testing.assert_allclose(frames[1, 2, :3, 2], -127 / 255 + 0.5, atol=1e-6)
+    np.testing.assert_allclose(frames[2, 3, :2, 1], [128 / 255 + 0.5, -127 / 255 + 0.5], atol=1e-6)
+
+
+def test_frames_within_range_clip_nothing(tmp_path):
+    write_tree(tmp_path / "src", grasps=1, augmentations=1)
+    report = _import(tmp_path / "src", tmp_path / "store")
+    assert report.frame_values == 6 * 3 * 12 * 16 * 3
+    assert report.clipped_frame_values == 0 and report.samples_with_clipped_frames == 0
+    assert "Clipped frame values: 0 of" in report.format()

@@ -264,13 +264,30 @@ def test_rolling_window_subsets_have_equal_size_and_stay_in_range():
     sizes = []
     for k, (lo, hi) in enumerate(rolling_windows()):
         sub = select_subset(samples, k, seed=1)
-        assert sub["modulus_pa"].between(lo, hi).all()
+        assert sub["modulus_pa"].between(lo, hi, inclusive="right").all()
         sizes.append(len(sub))
-    in_window = [samples["modulus_pa"].between(lo, hi).sum() for lo, hi in rolling_windows()]
+    in_window = [
+        samples["modulus_pa"].between(lo, hi, inclusive="right").sum()
+        for lo, hi in rolling_windows()
+    ]
     assert sizes == [min(in_window)] * 7
     # Seeded undersampling: same seed same rows, other seed other rows.
     a, b = select_subset(samples, 3, seed=1), select_subset(samples, 3, seed=2)
     assert a.equals(select_subset(samples, 3, seed=1)) and not a.equals(b)
+
+
+def test_rolling_windows_exclude_the_lower_bound_and_include_the_upper():
+    # The published code keeps 1e3 * 10**k < E <= 1e6 * 10**k. Labels sitting exactly on
+    # a decade (handbook grades) belong to the three windows ending at or above them, never
+    # to the one that starts at their value. With (lo, hi] these four labels put exactly
+    # one sample into each window, so no undersampling happens and every window's rows are
+    # known; including both ends would add 1e3 to window 0, 1e6 to window 3 and 1e9 to
+    # window 6, and those windows would then be undersampled to one random row.
+    samples = pd.DataFrame({"sample_id": [0, 1, 2, 3], "modulus_pa": [1e3, 1e6, 1e9, 1e12]})
+    expected = {0: [1], 1: [1], 2: [1], 3: [2], 4: [2], 5: [2], 6: [3]}
+    for seed in range(10):
+        chosen = {k: select_subset(samples, k, seed=seed)["sample_id"].tolist() for k in range(7)}
+        assert chosen == expected, seed  # 1e3 Pa (sample 0) is in no window
 
 
 def test_rolling_window_without_samples_is_an_error():

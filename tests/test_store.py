@@ -11,10 +11,13 @@ import pytest
 from tactile_compliance.data.store import (
     FRAMES_FILE,
     HEADER_FILE,
+    MAX_DIFFERENCE_LEVEL,
+    MIN_DIFFERENCE_LEVEL,
     SAMPLES_FILE,
     GraspStore,
     GraspStoreWriter,
     StoreError,
+    encode_frames,
     frames_from_uint8,
     frames_to_uint8,
     store_problems,
@@ -77,6 +80,38 @@ def test_recording_pipeline_values_survive_exactly():
         encoded = frames_to_uint8(x)
         assert len(np.unique(encoded)) == len(k), dtype
         assert np.abs(frames_from_uint8(encoded) - (k / 255 + 0.5)).max() < 1e-6
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_encoding_holds_minus_127_to_plus_128_levels_and_counts_the_rest(dtype):
+    # Differences of k grey levels (x = k / 255 + 0.5): -127..+128 fit in uint8, the
+    # three beyond each end are clipped to the end and counted.
+    k = np.arange(-130, 132)
+    x = (k / 255 + 0.5).astype(dtype)
+    encoded, clipped = encode_frames(x)
+    assert clipped == 6
+    decoded_levels = np.round((frames_from_uint8(encoded) - 0.5) * 255).astype(int)
+    inside = (k >= MIN_DIFFERENCE_LEVEL) & (k <= MAX_DIFFERENCE_LEVEL)
+    assert (MIN_DIFFERENCE_LEVEL, MAX_DIFFERENCE_LEVEL) == (-127, 128)
+    assert np.array_equal(decoded_levels[inside], k[inside])
+    assert np.array_equal(decoded_levels[~inside], np.clip(k[~inside], -127, 128))
+    # Any float below 0 or from 1 + 1/255 up is clipped; uint8 never is.
+    assert encode_frames(np.array([-1e-9, 0.0, 1.0 + 0.99 / 255, 1.0 + 1 / 255]))[1] == 2
+    assert encode_frames(np.array([0, 255], dtype=np.uint8))[1] == 0
+
+
+def test_writer_counts_clipped_frame_values(tmp_path):
+    frames = np.full((3, 4, 5, 3), 0.5, dtype=np.float32)
+    saturated = frames.copy()
+    saturated[0, 0, 0, 0] = 1.004  # a few saturated pixels, allowed by the frame rule
+    saturated[2, 3, 4, 2] = -0.003
+    with GraspStoreWriter(tmp_path / "s", image_size=(4, 5), source="test") as writer:
+        writer.append(frames, _row(0))
+        writer.append(saturated, _row(1))
+        writer.append(frames.astype(np.float64), _row(2))
+        assert writer.frame_values == 3 * frames.size
+        assert writer.clipped_frame_values == 2
+        assert writer.samples_with_clipped_frames == 1
 
 
 def test_failed_write_leaves_nothing(tmp_path):

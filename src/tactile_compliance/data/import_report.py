@@ -24,6 +24,11 @@ exception                meaning
 ======================== ===============================================================
 
 Each carries the :class:`ImportReport` so far as ``report`` (None before the import began).
+
+The report also counts the frame values that the store's uint8 encoding clipped
+(differences beyond -127/+128 grey levels, :func:`~tactile_compliance.data.store.
+encode_frames`): a few saturated pixels are normal, a large share says the source's
+frames are not what the store can hold.
 """
 
 from __future__ import annotations
@@ -158,6 +163,10 @@ class ImportTarget:
             self.report.problem(source, f"invalid sample: {err}")
             return False
         self.report.samples_imported += 1
+        # The writer is the one place frames are encoded, so its counts are the truth.
+        self.report.frame_values = self.writer.frame_values
+        self.report.clipped_frame_values = self.writer.clipped_frame_values
+        self.report.samples_with_clipped_frames = self.writer.samples_with_clipped_frames
         return True
 
     def commit(self, nothing: str) -> None:
@@ -196,7 +205,13 @@ def store_writing(
 
 @dataclass
 class ImportReport:
-    """Counts and per-file problems of one import run."""
+    """Counts and per-file problems of one import run.
+
+    ``frame_values`` is the number of frame values written (samples x 3 frames x H x W x
+    3 channels), ``clipped_frame_values`` how many of them the store's uint8 encoding
+    clipped (a difference beyond -127/+128 grey levels, stored as -127/+128), in
+    ``samples_with_clipped_frames`` samples.
+    """
 
     source: str
     source_dir: str
@@ -207,6 +222,9 @@ class ImportReport:
     seconds: float = 0.0
     problems: list[tuple[str, str]] = field(default_factory=list)  # (path, reason)
     strict: bool = False
+    frame_values: int = 0
+    clipped_frame_values: int = 0
+    samples_with_clipped_frames: int = 0
 
     def require_sources(self, sources: Sequence[Path], src: Path, expected: str) -> None:
         """Fail the import when the source directory holds nothing to import.
@@ -230,6 +248,20 @@ class ImportReport:
     def samples_per_second(self) -> float:
         return self.samples_imported / self.seconds if self.seconds > 0 else float("nan")
 
+    @property
+    def clipped_frame_share(self) -> float:
+        """Share of the written frame values that were clipped (0 when none were written)."""
+        return self.clipped_frame_values / self.frame_values if self.frame_values else 0.0
+
+    def clipping_line(self) -> str:
+        """One line on the clipped frame values, e.g. ``Clipped frame values: 12 of
+        1,728,000 (0.0007 %) in 3 samples (...)``."""
+        return (
+            f"Clipped frame values: {self.clipped_frame_values:,} of {self.frame_values:,} "
+            f"({100 * self.clipped_frame_share:.4f} %) in {self.samples_with_clipped_frames} "
+            "samples (differences beyond -127/+128 grey levels, stored as -127/+128)."
+        )
+
     def reasons(self) -> Counter[str]:
         """How many problems of each kind (the reason's text up to the first colon)."""
         return Counter(reason.split(":")[0] for _, reason in self.problems)
@@ -242,6 +274,10 @@ class ImportReport:
             "objects_seen": self.objects_seen,
             "objects_imported": self.objects_imported,
             "samples_imported": self.samples_imported,
+            "frame_values": self.frame_values,
+            "clipped_frame_values": self.clipped_frame_values,
+            "clipped_frame_share": self.clipped_frame_share,
+            "samples_with_clipped_frames": self.samples_with_clipped_frames,
             "seconds": round(self.seconds, 3),
             "problems": [{"path": p, "reason": r} for p, r in self.problems],
             "problem_counts": dict(self.reasons()),
@@ -254,6 +290,8 @@ class ImportReport:
             f"{self.objects_seen} objects ({self.source}) into {self.store_dir} "
             f"in {self.seconds:.1f} s ({self.samples_per_second:.1f} samples/s).",
         ]
+        if self.frame_values:
+            lines.append(self.clipping_line())
         if self.problems:
             lines.append(f"Skipped {len(self.problems)} item(s):")
             for reason, count in self.reasons().most_common():

@@ -17,7 +17,10 @@ Conventions (both prior codebases, see ``DATA_FORMATS.md``):
   even non-positive moduli; NaN stays NaN.
 * force / 60 N (the grasp's force threshold), width / 0.08 m (the gripper's opening).
 * images: per-channel ``(x - mean) / std`` with difference-image statistics, channel order
-  as stored in the GraspStore (RGB).
+  as stored in the GraspStore (RGB). The statistics are the published ones
+  (:data:`PUBLISHED_IMAGE_MEAN_BGR`, :data:`PUBLISHED_IMAGE_STD_BGR`) reversed: the
+  published code normalised the dataset's pickles as they are, in OpenCV's BGR order,
+  while our importer flips frames to RGB.
 
 All functions accept numpy arrays (or scalars / sequences) and torch tensors, and return
 the same kind they were given. Torch inputs are never validated element-wise (no host
@@ -36,7 +39,19 @@ import torch
 
 ArrayT = TypeVar("ArrayT", np.ndarray, torch.Tensor)
 
+#: Per-channel mean of the dataset's difference images in [0, 1], **BGR order**, as
+#: published by Kuhlmann et al. (mfkuhlmann/youngs-modulus-estimation,
+#: ``src/dataset/k_fold_youngs_data_module.py``, the ``Normalize`` transform). Their frames
+#: are the dataset's ``RGB*.pkl`` arrays unchanged (``src/dataset/offloaded_dataset.py``:
+#: no channel flip), and those were written from ``cv2.VideoCapture`` frames by Burgess et
+#: al. (GelSight-lab/TactileEstimateModulus, ``src/wedge_video.py``), i.e. B, G, R.
+PUBLISHED_IMAGE_MEAN_BGR: tuple[float, float, float] = (0.49638007, 0.49770336, 0.49385751)
+#: Per-channel standard deviation, same source and order as :data:`PUBLISHED_IMAGE_MEAN_BGR`.
+PUBLISHED_IMAGE_STD_BGR: tuple[float, float, float] = (0.04634926, 0.06181679, 0.07152624)
+
 __all__ = [
+    "PUBLISHED_IMAGE_MEAN_BGR",
+    "PUBLISHED_IMAGE_STD_BGR",
     "NormalisationConstants",
     "denormalise_images",
     "denormalise_modulus",
@@ -60,8 +75,15 @@ class NormalisationConstants:
         estimate_log10_span: span of the estimate normalisation (decades).
         force_scale_n: force divisor (N); 60 N is the grasp's force threshold.
         width_scale_m: width divisor (m); 0.08 m is the gripper's maximum opening.
-        image_mean: per-channel mean of the difference images (store channel order, [0, 1]).
-        image_std: per-channel standard deviation of the difference images.
+        image_mean: per-channel mean of the difference images in [0, 1], in the store's
+            channel order **R, G, B**: the published BGR statistics
+            (:data:`PUBLISHED_IMAGE_MEAN_BGR`) reversed.
+        image_std: per-channel standard deviation of the difference images, R, G, B
+            (:data:`PUBLISHED_IMAGE_STD_BGR` reversed).
+
+    Checkpoints store these values (:meth:`to_dict`) and are read back with
+    :meth:`from_dict`, so a model keeps the statistics it was trained with even when the
+    defaults change (models trained before the channel-order fix keep the BGR tuple).
     """
 
     label_log10_min: float = 3.0
@@ -71,8 +93,10 @@ class NormalisationConstants:
     estimate_log10_span: float = 12.0
     force_scale_n: float = 60.0
     width_scale_m: float = 0.08
-    image_mean: tuple[float, float, float] = (0.49638, 0.49770, 0.49386)
-    image_std: tuple[float, float, float] = (0.04635, 0.06182, 0.07153)
+    # Reversed because the store is RGB (the importer flips the BGR pickles), while the
+    # published statistics were computed on the pickles as they are.
+    image_mean: tuple[float, float, float] = PUBLISHED_IMAGE_MEAN_BGR[::-1]
+    image_std: tuple[float, float, float] = PUBLISHED_IMAGE_STD_BGR[::-1]
 
     def __post_init__(self) -> None:
         # Coerce lists (from JSON/YAML) to tuples so instances stay hashable and comparable.

@@ -8,7 +8,8 @@ Rules, applied in this order (each switchable in ``FilterConfig``; see ``docs/pr
 4. ``missing_estimates``     a non-finite elastic or Hertz estimate;
 5. ``no_force_increase``     ``F[2] <= F[0]`` (the grasp never squeezed);
 6. ``no_width_decrease``     ``W[2] >= W[0]`` (the gripper never closed);
-7. ``no_depth_increase``     ``max depth[2] <= max depth[1]`` (no deeper imprint at the end);
+7. ``no_depth_increase``     ``max depth[2] <= max depth[1]`` (no deeper imprint at the end),
+                             judged on the markerless finger's depth for both fingers;
 8. ``single_sample_objects`` objects left with a single sample (cannot be split or validated).
 
 Rules 4-7 come from the paper ("removing all samples with missing values for estimation,
@@ -18,6 +19,14 @@ an unverifiable increase is treated like no increase. A rule whose columns are e
 depth, is *not applicable*: it is skipped and reported as such instead of removing everything.
 Exclusion lists match case-insensitively, and the report says how many listed names were
 actually present, so a typo does not silently exclude nothing.
+
+Rule 7 follows the published code (mfkuhlmann/youngs-modulus-estimation,
+``src/dataset/k_fold_youngs_data_module.py``, ``prepare_data``): every sample of a grasp
+and augmentation, whichever finger's images it holds, is judged on the markerless
+finger's ``depth.pkl``; ``depth_markers.pkl`` decides only when the marker finger is used
+alone. So both fingers' samples of one press are kept or dropped together. A sample
+whose markerless sibling is not in the table (skipped at import) is judged on its own
+finger's depth, and the report's note counts them.
 """
 
 from __future__ import annotations
@@ -71,6 +80,11 @@ FORCE_TREND_COLUMNS = (FORCE_COLUMNS[0], FORCE_COLUMNS[-1])
 WIDTH_TREND_COLUMNS = (WIDTH_COLUMNS[0], WIDTH_COLUMNS[-1])
 #: Frame 0 has no contact, so its depth is 0: the depth trend starts at frame 1.
 DEPTH_TREND_COLUMNS = (DEPTH_COLUMNS[1], DEPTH_COLUMNS[-1])
+#: The finger whose depth (``depth.pkl``) judges rule 7 for the samples of both fingers,
+#: unless the experiment uses only the other finger (the published code's rule).
+DEPTH_REFERENCE_FINGER = "markerless"
+#: Columns that identify one press (grasp and time shift) across the two fingers.
+PRESS_KEY_COLUMNS = ("object", "grasp", "augmentation")
 
 
 @dataclass(frozen=True)
@@ -97,7 +111,8 @@ RULE_DESCRIPTIONS: dict[str, str] = {
     "missing_estimates": "missing / non-finite analytical estimate",
     "no_force_increase": "force did not increase (F[2] <= F[0])",
     "no_width_decrease": "width did not decrease (W[2] >= W[0])",
-    "no_depth_increase": "gel depth did not increase (max depth[2] <= max depth[1])",
+    "no_depth_increase": "gel depth did not increase (max depth[2] <= max depth[1]) on the "
+    "markerless finger (both fingers' samples)",
     "single_sample_objects": "object left with a single sample",
 }
 
@@ -184,6 +199,43 @@ def _usable_columns(samples: pd.DataFrame, columns: Sequence[str]) -> list[str]:
     return [c for c in columns if c in samples.columns and samples[c].notna().any()]
 
 
+def _depth_trend(
+    samples: pd.DataFrame, df: pd.DataFrame, fingers: Sequence[str] | None
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """Max depth (mm) of frames 1 and 2 that judge each row of ``df`` in rule 7, and a note.
+
+    The markerless finger's depth judges the samples of both fingers of a press
+    (:data:`DEPTH_REFERENCE_FINGER`), looked up in ``samples`` (the unfiltered table, so
+    a sibling removed by the finger selection still counts). When the experiment uses
+    only other fingers, or the table has no finger/grasp/augmentation columns, each row
+    is judged on its own depth; so is a row whose markerless sibling is absent.
+    """
+    first_col, last_col = DEPTH_TREND_COLUMNS
+    own_first = df[first_col].to_numpy(dtype=float)
+    own_last = df[last_col].to_numpy(dtype=float)
+    key = list(PRESS_KEY_COLUMNS)
+    if "finger" not in samples.columns or not set(key) <= set(samples.columns):
+        return own_first, own_last, "each sample's own depth (no finger/grasp columns)"
+    used = set(fingers) if fingers is not None else set(samples["finger"].astype(str))
+    if DEPTH_REFERENCE_FINGER not in used:
+        return own_first, own_last, f"each sample's own finger's depth ({sorted(used)} only)"
+    reference = samples.loc[
+        samples["finger"].astype(str) == DEPTH_REFERENCE_FINGER, [*key, first_col, last_col]
+    ].drop_duplicates(key)  # one press has one markerless sample; be safe with copies
+    # A left merge keeps df's row order, so the result aligns with df.
+    merged = df[key].merge(reference, on=key, how="left", indicator=True)
+    # A markerless row is its own reference (also in hand-made tables that repeat a key).
+    own = (df["finger"].astype(str) == DEPTH_REFERENCE_FINGER).to_numpy()
+    looked_up = ~own & (merged["_merge"] == "both").to_numpy()
+    first = np.where(looked_up, merged[first_col].to_numpy(dtype=float), own_first)
+    last = np.where(looked_up, merged[last_col].to_numpy(dtype=float), own_last)
+    note = f"the {DEPTH_REFERENCE_FINGER} finger's depth judges both fingers' samples"
+    alone = int((~own & ~looked_up).sum())
+    if alone:
+        note += f"; {alone} sample(s) without a {DEPTH_REFERENCE_FINGER} one: own depth"
+    return first, last, note
+
+
 def _resolve_cfg(cfg: Any) -> tuple[Any, list[str] | None]:
     """Accept FilterRules, a FilterConfig, an ExperimentConfig (its .filters and
     .data.fingers) or None (the default rules)."""
@@ -263,10 +315,14 @@ def filter_samples(
         ("no_depth_increase", fcfg.drop_no_depth_increase, DEPTH_TREND_COLUMNS, "increase"),
     ):
         if len(_usable_columns(samples, columns)) == len(columns):
-            first = df[columns[0]].to_numpy(dtype=float)
-            last = df[columns[1]].to_numpy(dtype=float)
+            note = ""
+            if name == "no_depth_increase":
+                first, last, note = _depth_trend(samples, df, fingers)
+            else:
+                first = df[columns[0]].to_numpy(dtype=float)
+                last = df[columns[1]].to_numpy(dtype=float)
             keep = last > first if direction == "increase" else last < first
-            record(name, enabled, True, keep)
+            record(name, enabled, True, keep, note)
         else:
             record(name, enabled, False, None, f"columns {list(columns)} missing or all NaN")
 

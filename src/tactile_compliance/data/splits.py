@@ -58,14 +58,20 @@ SPLIT_NAMES = ("train", "val", "test")
 
 # ============================================================================ subsets
 def rolling_windows() -> list[tuple[float, float]]:
-    """The 7 rolling-window ranges ``(lo, hi)`` in Pa: 1e3-1e6, 1e4-1e7, ..., 1e9-1e12."""
+    """The 7 rolling-window ranges ``(lo, hi)`` in Pa: 1e3-1e6, 1e4-1e7, ..., 1e9-1e12.
+
+    A window holds the moduli in ``(lo, hi]``: above ``lo``, up to and including ``hi``.
+    """
     return [(10.0 ** (3 + k), 10.0 ** (6 + k)) for k in range(N_ROLLING_WINDOWS)]
 
 
 def _in_window(modulus_pa: pd.Series, window: tuple[float, float]) -> pd.Series:
-    # Inclusive at both ends: handbook grades sit exactly on decades (1e10 Pa pine).
+    # (lo, hi] as in the published code (mfkuhlmann/youngs-modulus-estimation,
+    # k_fold_youngs_data_module.py: 1e3 * 10**k < E <= 1e6 * 10**k). It matters: handbook
+    # grades sit exactly on decades (1e10 Pa pine), and including both ends also put such
+    # an object into the window that starts at its modulus (four windows, not three).
     lo, hi = window
-    return (modulus_pa >= lo) & (modulus_pa <= hi)
+    return (modulus_pa > lo) & (modulus_pa <= hi)
 
 
 def select_subset(
@@ -78,8 +84,9 @@ def select_subset(
 
     Args:
         samples: filtered samples table.
-        subset: None / ``"none"`` (everything); an int 0-6 (rolling window, undersampled so
-            that all 7 windows have the size of the smallest one, seeded); a shape name
+        subset: None / ``"none"`` (everything); an int 0-6 (rolling window: moduli in
+            ``(lo, hi]``, :func:`rolling_windows`; undersampled so that all 7 windows have
+            the size of the smallest one, seeded); a shape name
             (e.g. ``"Sphere"``); ``"soft"`` (modulus < ``sensor_modulus_pa``) or ``"hard"``
             (modulus >= ``sensor_modulus_pa``).
         seed: seed of the rolling-window undersampling.

@@ -13,6 +13,9 @@ Frames are difference images (values centred near 0.5) quantised to uint8 as
 is the camera's own quantisation step, and it makes a
 7,840-sample full-resolution store 6.2 GB on disk instead of 25 GB of float32, read
 lazily through ``np.memmap`` so nothing is loaded into RAM until a sample is asked for.
+The encoding holds differences of -127 to +128 grey levels; larger ones are clipped to
+those (:data:`MIN_DIFFERENCE_LEVEL`, :data:`MAX_DIFFERENCE_LEVEL`), and the writer counts
+every clipped value (:attr:`GraspStoreWriter.clipped_frame_values`) for the import report.
 
 Stores are written by :class:`GraspStoreWriter`, which streams frames into a temporary
 sibling directory and renames it into place only when everything is written: an
@@ -134,6 +137,28 @@ class StoreWriteError(StoreError):
 
 #: Decoding is ``(u + FRAME_DECODE_OFFSET) / 255``; see :func:`frames_to_uint8`.
 FRAME_DECODE_OFFSET = 0.5
+#: The range of difference grey levels k (``x = k / 255 + 0.5``) that uint8 holds:
+#: ``u = floor(k + 127.5) = k + 127`` lies in 0..255 for k in -127..+128. A larger
+#: difference is stored as the nearest end (clipped) and counted.
+MIN_DIFFERENCE_LEVEL = -127
+MAX_DIFFERENCE_LEVEL = 128
+
+
+def encode_frames(frames: np.ndarray) -> tuple[np.ndarray, int]:
+    """:func:`frames_to_uint8` and the number of values it clipped to 0 or 255.
+
+    A float value is clipped when ``floor(x * 255)`` leaves 0..255, i.e. a difference of
+    fewer than -127 or more than +128 grey levels (x < 0 or x >= 1 + 1/255): the
+    saturated pixels the frame rule allows (:data:`~tactile_compliance.data.plausibility.
+    FRAME`). uint8 input is stored unchanged and never clipped.
+    """
+    frames = np.asarray(frames)
+    if frames.dtype == np.uint8:
+        return frames, 0
+    # float64 keeps k/255 + 0.5 exact enough that floor never drops a level.
+    levels = np.floor(frames.astype(np.float64) * 255.0)
+    clipped = int(np.count_nonzero((levels < 0) | (levels > 255)))
+    return np.clip(levels, 0, 255).astype(np.uint8), clipped
 
 
 def frames_to_uint8(frames: np.ndarray) -> np.ndarray:
@@ -145,12 +170,13 @@ def frames_to_uint8(frames: np.ndarray) -> np.ndarray:
     (:func:`frames_from_uint8`, ``(u + 0.5) / 255``) recovers the value exactly. Arbitrary
     floats are reproduced within half a grey level, without bias. uint8 input (raw camera
     frames) is stored unchanged.
+
+    Clipping: only differences k of -127..+128 grey levels fit (:data:`MIN_DIFFERENCE_LEVEL`,
+    :data:`MAX_DIFFERENCE_LEVEL`); k <= -128 is stored as -127 and k >= +129 as +128, like
+    any value below 0 or from 1 + 1/255 up. :func:`encode_frames` also returns how
+    many values were clipped; the store writer counts them for the import report.
     """
-    frames = np.asarray(frames)
-    if frames.dtype == np.uint8:
-        return frames
-    # float64 keeps k/255 + 0.5 exact enough that floor never drops a level.
-    return np.clip(np.floor(frames.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+    return encode_frames(frames)[0]
 
 
 def frames_from_uint8(frames: np.ndarray) -> np.ndarray:
@@ -696,6 +722,12 @@ class GraspStoreWriter:
         self.overwrite = overwrite
         self._rows: list[dict[str, Any]] = []
         self._closed = False
+        #: Frame values written so far, and how many of them the uint8 encoding clipped
+        #: (:func:`encode_frames`); the importers put both into their report.
+        self.frame_values = 0
+        self.clipped_frame_values = 0
+        #: Samples with at least one clipped frame value.
+        self.samples_with_clipped_frames = 0
         recover_interrupted_writes(self.path)
         self._check_target()
         self._created = _missing_ancestors(self.path.parent)
@@ -763,7 +795,8 @@ class GraspStoreWriter:
         would clip; unknown field, a value that is no number or outside its plausibility
         rule (modulus, force, width, estimates: :data:`COLUMN_RULES`), text that is not
         UTF-8): nothing is written for it. The few saturated pixels the frame rule allows
-        are saturated to [0, 1] by the encoding.
+        are saturated to [0, 1] by the encoding (differences beyond -127/+128 grey
+        levels); they are counted in :attr:`clipped_frame_values`.
         """
         if self._closed:
             raise RuntimeError("writer is closed")
@@ -783,12 +816,16 @@ class GraspStoreWriter:
                 raise ValueError(f"frames: {problem}")
         sample_id = len(self._rows)
         normalised = _normalise_row(row, sample_id)
+        encoded, clipped = encode_frames(frames)
         try:
-            _write_all(self._frames_file, np.ascontiguousarray(frames_to_uint8(frames)).tobytes())
+            _write_all(self._frames_file, np.ascontiguousarray(encoded).tobytes())
         except OSError as err:
             self._remove_everything()
             raise self._write_error(err) from err
         self._rows.append(normalised)
+        self.frame_values += int(encoded.size)
+        self.clipped_frame_values += clipped
+        self.samples_with_clipped_frames += clipped > 0
         return sample_id
 
     def commit(self) -> GraspStore:
