@@ -125,6 +125,33 @@ def test_frozen_run_checkpoints_leave_the_backbone_out(frozen_run):
     assert any(f"-{sha256[:16]}-" in name for name in caches), (sha256, caches)
 
 
+def test_checkpoints_record_the_stores_analytical_estimator(frozen_run, tmp_path):
+    """Live estimates must come from the estimator that made the training data's."""
+    from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.inference import ComplianceEstimator
+
+    cfg, run_dir = frozen_run
+    store = GraspStore.open(cfg.data.store)
+    assert store.header.source == "toy" and store.analytical_estimator is None
+    assert load_checkpoint(run_dir / "best.pt").meta["analytical_estimator"] is None
+    # An unrecorded estimator (toy stores, old checkpoints) falls back to the dataset's.
+    assert ComplianceEstimator.from_checkpoint(run_dir).analytical_estimator == "dataset"
+    model = create_model("top10nn", inputs="ALL")
+    path = save_checkpoint(
+        tmp_path / "best.pt",
+        model,
+        constants=NormalisationConstants(),
+        image_size=(72, 72),
+        config={},
+        seed=0,
+        analytical_estimator="contact",
+    )
+    estimator = ComplianceEstimator.from_checkpoint(path)
+    assert estimator.analytical_estimator == "contact"
+    assert estimator.describe()["analytical_estimator"] == "contact"
+    assert estimator.stream().analytical_estimator == "contact"
+
+
 def _tamper(path, out, **changes):
     payload = torch.load(path, weights_only=True)
     payload["backbone"].update(changes)

@@ -192,31 +192,66 @@ def test_stream_with_estimates_for_an_all_checkpoint():
         feed(estimator.stream(), frames, force, width)
 
 
-def test_stream_computes_estimates_from_depth_maps():
-    from tactile_compliance.physics.contact import analytical_estimates_pa
-
-    estimator = _estimator("ALL")
-    frames, force, width = make_grasp()
-    yy, xx = np.mgrid[0:60, 0:80]
-    r2 = (yy - 30) ** 2 + (xx - 40) ** 2
-    depth = np.stack(
-        [np.exp(-r2 / (2 * (4 + 6 * max(f, 0) / 60) ** 2)) * 1.2 * max(f, 0) / 60 for f in force]
+def _depth_maps(force, size=(60, 80), radius_px=(4.0, 6.0), peak_mm=1.2):
+    """Gaussian gel imprints (mm) that widen and deepen with the force (N)."""
+    yy, xx = np.mgrid[0 : size[0], 0 : size[1]]
+    r2 = (yy - size[0] / 2) ** 2 + (xx - size[1] / 2) ** 2
+    share = np.clip(np.asarray(force), 0, None) / 60
+    return np.stack(
+        [np.exp(-r2 / (2 * (radius_px[0] + radius_px[1] * s) ** 2)) * peak_mm * s for s in share]
     )
-    idx = list(expected_indices(force))
-    span = slice(idx[0], idx[2] + 1)  # [i_start, i_peak]
-    estimates = analytical_estimates_pa(force[span], width[span], depth[span])
-    batch = estimator.predict(frames[idx], force=force[idx], width=width[idx], estimates=estimates)
-    stream = estimator.stream()
-    final = [
+
+
+def _stream_final(stream, frames, force, width, depth):
+    return [
         e
         for i in range(len(frames))
         if (e := stream.update(frames[i], force[i], width[i], depth_mm=depth[i])) is not None
     ][-1]
+
+
+def test_stream_computes_estimates_from_depth_maps_with_the_contact_estimator():
+    from tactile_compliance.physics.contact import analytical_estimates_pa
+
+    estimator = _estimator("ALL")
+    frames, force, width = make_grasp()
+    depth = _depth_maps(force)
+    idx = list(expected_indices(force))
+    span = slice(idx[0], idx[2] + 1)  # [i_start, i_peak]
+    estimates = analytical_estimates_pa(force[span], width[span], depth[span])
+    batch = estimator.predict(frames[idx], force=force[idx], width=width[idx], estimates=estimates)
+    stream = estimator.stream(analytical_estimator="contact")
+    final = _stream_final(stream, frames, force, width, depth)
     assert final.final and final.modulus_pa == pytest.approx(batch.modulus_pa, rel=1e-6)
     with pytest.raises(ValueError, match="every frame of a grasp or never"):
         stream.reset()
         stream.update(frames[0], force[0], width[0], depth_mm=depth[0])
         stream.update(frames[1], force[1], width[1])
+
+
+def test_stream_computes_the_dataset_estimates_by_default():
+    """No train/serve skew: a checkpoint that records no estimator, or "dataset", gets the
+    public dataset's estimator, fed the recording as the dataset's driver loaded it."""
+    from tactile_compliance.physics.contact import analytical_estimates_pa
+    from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
+
+    estimator = _estimator("ALL")
+    assert estimator.analytical_estimator == "dataset"
+    frames, force, width = make_grasp()
+    # Large imprints: the dataset's estimator needs >= 2690 px of contact on its grid.
+    depth = _depth_maps(force, size=(250, 350), radius_px=(20.0, 40.0), peak_mm=1.5)
+    expected = dataset_estimates_pa(force, width, depth)  # the whole recording
+    assert np.all(np.isfinite(expected))
+    assert not np.allclose(expected, analytical_estimates_pa(force, width, depth), rtol=0.05)
+    idx = list(expected_indices(force))
+    batch = estimator.predict(frames[idx], force=force[idx], width=width[idx], estimates=expected)
+    final = _stream_final(estimator.stream(), frames, force, width, depth)
+    assert final.final and final.modulus_pa == pytest.approx(batch.modulus_pa, rel=1e-6)
+    # A checkpoint trained on "contact" values is fed "contact" values.
+    estimator.meta["analytical_estimator"] = "contact"
+    assert estimator.stream().analytical_estimator == "contact"
+    with pytest.raises(ValueError, match="unknown analytical estimator"):
+        estimator.stream(analytical_estimator="hertz")
 
 
 def test_stream_input_errors(estimator_fw):

@@ -113,6 +113,11 @@ def test_importer_reads_the_tree(small_tree: Path, tmp_path: Path) -> None:
     assert frames.shape[1:] == (3, *SMALL, 3)
     assert 0.45 < float(frames.mean()) < 0.52
     assert np.isfinite(samples["hertz_estimate_pa"]).mean() > 0.5
+    # The generator stores the public dataset's estimates, and the store says so.
+    assert json.loads((small_tree / "generation.json").read_text())["analytical_estimator"] == (
+        "dataset"
+    )
+    assert store.analytical_estimator == "dataset"
 
 
 def test_same_seed_is_byte_identical_across_runs_and_workers(tmp_path: Path) -> None:

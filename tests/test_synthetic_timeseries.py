@@ -10,8 +10,6 @@ from tactile_compliance.synthetic.mechanics import GelModel, ObjectMechanics, fo
 from tactile_compliance.synthetic.rng import stream
 from tactile_compliance.synthetic.timeseries import (
     FPS,
-    clip_to_press,
-    interpolate_stair_widths,
     select_frames,
     selection_window,
     simulate_timeline,
@@ -80,20 +78,6 @@ def test_selection_stops_augmenting_when_the_force_drops() -> None:
 def test_selection_skips_weak_grasps() -> None:
     forces = np.concatenate([np.zeros(3), np.linspace(0, 9, 10)])
     assert select_frames(forces, forces, forces, label_pa=1e6) is None
-
-
-def test_clip_to_press_matches_the_published_rule() -> None:
-    forces = np.array([0, 1, 2, 3, 10, 40, 60, 59, 58, 50, 20, 0], dtype=float)
-    start, end = clip_to_press(forces)  # type: ignore[misc]
-    assert start == 2  # one frame before F first reaches 2.5 N
-    assert end == 9  # the last frame before F < 0.9 * peak, exclusive end
-    assert clip_to_press(np.zeros(5)) is None
-
-
-def test_interpolate_stair_widths() -> None:
-    widths = np.array([10, 10, 10, 7, 7, 4, 3, 3, 3], dtype=float)
-    out = interpolate_stair_widths(widths)
-    np.testing.assert_allclose(out, [10, 9, 8, 7, 5.5, 4, 3, 3, 3])
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

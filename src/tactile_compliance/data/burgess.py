@@ -296,6 +296,23 @@ def majority_frame_size(
     return (sizes.most_common(1)[0][0] if sizes else None), sizes
 
 
+def _tree_estimator(src: Path) -> str:
+    """The analytical estimator (``physics.estimators`` name) that made a tree's estimates.
+
+    The public dataset's pickles come from its own code (``"dataset"``), and so does anything
+    written in its layout by other tools. A generated tree names its estimator in its
+    manifest; trees generated before it did used ``"contact"``.
+    """
+    manifest = src / SYNTHETIC_MANIFEST
+    if not manifest.is_file():
+        return "dataset"
+    try:
+        recorded = json.loads(manifest.read_text()).get("analytical_estimator")
+    except (OSError, ValueError, AttributeError):
+        recorded = None
+    return str(recorded) if recorded else "contact"
+
+
 def import_burgess(
     src_dir: str | Path,
     out_dir: str | Path,
@@ -366,6 +383,7 @@ def import_burgess(
                 "source_image_size": list(source_hw),
                 "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
                 "frame_kind": "difference",
+                "analytical_estimator": _tree_estimator(src),
             },
             overwrite=overwrite,
         )

@@ -527,6 +527,20 @@ class GraspStore:
         """Frame size (height, width) in pixels."""
         return self.header.image_size
 
+    @property
+    def analytical_estimator(self) -> str | None:
+        """Name of the estimator that made the stored analytical estimates, or None.
+
+        Importers record it (``creation_parameters["analytical_estimator"]``, a name of
+        ``physics.estimators``). Older stores are read by their source: the public dataset
+        was made with ``"dataset"``, the generator used ``"contact"`` before it recorded a
+        name, and Shore-hardness (``yuan``) stores have no estimates.
+        """
+        recorded = self.header.creation_parameters.get("analytical_estimator")
+        if recorded:
+            return str(recorded)
+        return {"burgess": "dataset", "synthetic": "contact"}.get(self.header.source)
+
     def load_frames(self, indices: int | Sequence[int] | np.ndarray) -> np.ndarray:
         """Frames of the given sample ids as float32 in (0, 1), shape (n, 3, H, W, 3), RGB."""
         return frames_from_uint8(self.read_samples(indices))

@@ -27,6 +27,7 @@ import torch
 from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
 from tactile_compliance.inference.inputs import PreparedInputs, prepare_inputs, required_inputs
 from tactile_compliance.models import InputStrategy
+from tactile_compliance.physics.estimators import DEFAULT_ANALYTICAL_ESTIMATOR
 
 __all__ = ["MIN_FRAME_SIDE_PX", "BaseEstimator", "Prediction", "to_plain"]
 
@@ -108,6 +109,16 @@ class BaseEstimator(ABC):
     @abstractmethod
     def model_name(self) -> str:
         """Registry name of the model (``top10nn``, ``vgg_lstm``, ``res_tf``)."""
+
+    @property
+    def analytical_estimator(self) -> str:
+        """Name of the estimator that made the training data's analytical estimates.
+
+        Estimates computed at inference (``StreamingEstimator`` from depth maps) must come
+        from the same one (``physics.estimators``); a checkpoint that records none
+        predates the record and gets ``DEFAULT_ANALYTICAL_ESTIMATOR``.
+        """
+        return str(self.meta.get("analytical_estimator") or DEFAULT_ANALYTICAL_ESTIMATOR)
 
     @property
     def required_inputs(self) -> tuple[str, ...]:

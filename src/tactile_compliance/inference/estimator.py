@@ -167,6 +167,7 @@ class ComplianceEstimator(BaseEstimator):
             "backbone_weights": str(getattr(self.model, "backbone_weights", "none")),
             "seed": self.meta.get("seed"),
             "package_version": self.meta.get("package_version"),
+            "analytical_estimator": self.analytical_estimator,
             "device": str(self.device),
         }
 

@@ -293,6 +293,7 @@ def _write_metadata(
         "checkpoint": estimator.source,
         "seed": estimator.meta.get("seed"),
         "package_version": estimator.meta.get("package_version"),
+        "analytical_estimator": estimator.analytical_estimator,
     }
     entry = proto.metadata_props.add()
     entry.key = ONNX_METADATA_KEY

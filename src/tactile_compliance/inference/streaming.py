@@ -39,6 +39,8 @@ import numpy as np
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.store import frames_to_uint8
 from tactile_compliance.models import NUM_FRAMES
+from tactile_compliance.physics.dataset_estimates import DATASET_PRESS_FORCE_N
+from tactile_compliance.physics.estimators import analytical_estimator as physics_estimator
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.base import BaseEstimator, Prediction
@@ -249,9 +251,8 @@ class StreamingEstimator:
     the checkpoint uses width; for ALL checkpoints the analytical estimates (elastic E,
     Hertz E*) in Pa, either given once (``estimates_pa=``, at construction or with any
     update) or computed on the fly from per-frame depth maps (``depth_mm=`` with each
-    update, via ``physics.contact.analytical_estimates_pa`` over ``[onset, peak]``; these
-    on-the-fly values need not equal the dataset's, whose estimators clip the press
-    differently).
+    update, over ``[onset, peak]``, with the estimator that made the training data's
+    values: the checkpoint records its name, see ``physics.estimators``).
 
     Args:
         estimator: a :class:`~tactile_compliance.inference.estimator.ComplianceEstimator`
@@ -263,6 +264,9 @@ class StreamingEstimator:
         reference: raw no-contact frame for ``frame_kind="raw"``; default the first frame.
         channel_order: ``"RGB"`` or ``"BGR"`` (OpenCV cameras) of the frames.
         estimates_pa: (elastic, Hertz) in Pa, for ALL checkpoints.
+        analytical_estimator: name of the estimator computing E from ``depth_mm``
+            (``"dataset"`` or ``"contact"``); default the one the checkpoint records, so
+            live values follow the training data's distribution.
         onset_force_n, peak_fraction, min_peak_force_n: the selection rule (dataset values).
         release_fraction: the grasp ends (final estimate) when, after reaching the minimum
             peak force, the force falls below this fraction of F_max.
@@ -279,6 +283,7 @@ class StreamingEstimator:
         reference: np.ndarray | None = None,
         channel_order: str = "RGB",
         estimates_pa: Any = None,
+        analytical_estimator: str | None = None,
         onset_force_n: float = ONSET_FORCE_N,
         peak_fraction: float = PEAK_FRACTION,
         min_peak_force_n: float = MIN_PEAK_FORCE_N,
@@ -298,6 +303,9 @@ class StreamingEstimator:
         if max_frames < NUM_FRAMES:
             raise ValueError(f"max_frames must be >= {NUM_FRAMES}, got {max_frames}")
         self.estimator = estimator
+        #: Name of the estimator computing E from depth maps (``physics.estimators``).
+        self.analytical_estimator = analytical_estimator or estimator.analytical_estimator
+        self._estimate_fn = physics_estimator(self.analytical_estimator)
         self.channel_order = channel_order
         self.onset_force_n = float(onset_force_n)
         self.peak_fraction = float(peak_fraction)
@@ -459,10 +467,16 @@ class StreamingEstimator:
         buf = self._buffer
         forces = np.asarray(buf.forces)
         onset = np.flatnonzero(forces >= self.onset_force_n)
+        # The dataset's estimator fits from one frame before F first reaches 2.5 N.
+        press = self._press_start(forces)
         if onset.size == 0:
-            keep_from = len(forces) - 1  # before contact only the newest frame matters
+            # Before contact only the newest frame matters (and, for the dataset's
+            # estimator, the press so far, bounded by max_frames).
+            keep_from = (
+                len(forces) - 1 if press is None else max(press, len(forces) - self.max_frames)
+            )
         elif self.window is None:
-            keep_from = int(onset[0])
+            keep_from = int(onset[0]) if press is None else min(int(onset[0]), press)
         else:
             # i_peak never moves backwards (F_max only grows), so frames before the
             # current window start are never selected again.
@@ -479,6 +493,14 @@ class StreamingEstimator:
             del buf.frames[:drop]
             del buf.depths[:drop]
             buf.offset += drop
+
+    def _press_start(self, forces: np.ndarray) -> int | None:
+        """First frame the dataset's estimator fits from (one before F first reaches its
+        press threshold), when it computes the estimates from depth maps; else None."""
+        if self.analytical_estimator != "dataset" or not self._has_depth:
+            return None
+        pressed = np.flatnonzero(forces >= DATASET_PRESS_FORCE_N)
+        return max(int(pressed[0]) - 1, 0) if pressed.size else None
 
     def finish(self) -> StreamEstimate | None:
         """End the grasp now: the final estimate (None if the grasp never had enough data)."""
@@ -503,18 +525,24 @@ class StreamingEstimator:
         frames = np.stack([buf.frames[i - buf.offset] for i in indices])
         return _as_difference_images(frames, self.frame_kind, self._reference)
 
-    def _current_estimates(self, selection: FrameSelection) -> np.ndarray | None:
+    def _current_estimates(self, selection: FrameSelection, final: bool) -> np.ndarray | None:
         if self._estimates_pa is not None or not self._has_depth:
             return self._estimates_pa
-        from tactile_compliance.physics.contact import analytical_estimates_pa
-
         buf = self._buffer
         lo = max(selection.window_start, buf.offset)
-        span = range(lo, selection.peak + 1)
+        hi = selection.peak + 1
+        press = self._press_start(np.asarray(buf.forces))
+        if press is not None:
+            # The dataset's estimator clips the whole recording itself (press by force,
+            # depth onset, the end of the press after the peak): the final estimate gives
+            # it everything since the press began, as the dataset's driver loaded it;
+            # refinements stop at the peak so they change only when the peak does.
+            lo, hi = max(press, buf.offset), (len(buf.forces) if final else selection.peak + 1)
+        span = range(lo, hi)
         depths = np.stack([buf.depths[i - buf.offset] for i in span])  # type: ignore[misc]
-        forces = np.asarray(buf.forces)[lo : selection.peak + 1]
-        widths = np.asarray(buf.widths)[lo : selection.peak + 1]
-        values = np.asarray(analytical_estimates_pa(forces, widths, depths), dtype=np.float64)
+        forces = np.asarray(buf.forces)[lo:hi]
+        widths = np.asarray(buf.widths)[lo:hi]
+        values = np.asarray(self._estimate_fn(forces, widths, depths), dtype=np.float64)
         return values if np.all(np.isfinite(values)) else None
 
     def _estimate(self, *, final: bool) -> StreamEstimate | None:
@@ -522,7 +550,7 @@ class StreamingEstimator:
         if selection is None:
             return None
         needs_estimates = "estimates" in self.estimator.required_inputs
-        estimates = self._current_estimates(selection) if needs_estimates else None
+        estimates = self._current_estimates(selection, final) if needs_estimates else None
         if needs_estimates and estimates is None:
             if self._has_depth:
                 return None  # not estimable yet from the depth maps; wait for more frames

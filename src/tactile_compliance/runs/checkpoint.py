@@ -154,6 +154,7 @@ def save_checkpoint(
     metrics: dict[str, Any] | None = None,
     frozen_backbone: dict[str, Any] | None = None,
     store_image_size: tuple[int, int] | None = None,
+    analytical_estimator: str | None = None,
 ) -> Path:
     """Write ``model`` and its description to ``path`` (atomically: see
     :func:`~tactile_compliance.runs.layout.atomic_file`).
@@ -166,6 +167,10 @@ def save_checkpoint(
     frozen backbone; the backbone's tensors are then left out and rebuilt on loading.
     Compute the record once, before training: it describes the backbone the head was
     trained on (and the feature cache was computed with), and hashing VGG16 takes ~0.6 s.
+
+    ``analytical_estimator``: the name (``physics.estimators``) of the estimator that made
+    the training store's analytical estimates, so estimates computed at inference come
+    from the same one.
     """
     path = Path(path)
     state = {
@@ -185,6 +190,7 @@ def save_checkpoint(
         "normalisation": constants.to_dict(),
         "image_size": list(image_size) if image_size is not None else None,
         "store_image_size": list(store_image_size) if store_image_size is not None else None,
+        "analytical_estimator": analytical_estimator,
         "config": config,
         "seed": int(seed),
         "metrics": metrics or {},

@@ -24,6 +24,7 @@ from typing import Any
 
 from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.synthetic.grasp import (
+    ANALYTICAL_ESTIMATOR,
     SimulationOptions,
     make_context,
     simulate_grasp,
@@ -243,6 +244,8 @@ def generate_burgess_tree(
         "options": {k: v for k, v in asdict(sim_options).items() if k != "image_size"},
         "dtype": dtype,
         "grasps_per_object": grasps_per_object,
+        # Importers copy it into the store: checkpoints and live estimates follow it.
+        "analytical_estimator": ANALYTICAL_ESTIMATOR,
     }
     _check_manifest(out, manifest)
     manifest["objects"] = len(specs)

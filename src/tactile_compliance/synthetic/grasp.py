@@ -10,9 +10,9 @@ Per grasp (both fingers):
    ``estimator_scale`` of the full size - a quarter by default - because the
    estimators need ~40 depth maps per finger and only 3 x up to 5 are stored);
 5. the published frame selection (three frames, up to five time shifts);
-6. the two analytical estimates with the project's own estimators
-   (``tactile_compliance.physics.contact.analytical_estimates_pa``) on the clipped
-   low-resolution sequence (pixel size and Hertz patch scaled accordingly);
+6. the two analytical estimates with the public dataset's own estimator
+   (``tactile_compliance.physics.dataset_estimates``, quirks included) on the clipped
+   low-resolution sequence (pixel pitch and Hertz patch scaled accordingly);
 7. full-resolution rendering + photometric depth of only the stored frames.
 
 Sensors (gel thickness/modulus, lighting, background, finger stiffness) belong to a
@@ -29,6 +29,14 @@ import cv2
 import numpy as np
 
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
+from tactile_compliance.physics.dataset_estimates import (
+    DATASET_CONSTANTS,
+    DatasetEstimatorConstants,
+    dataset_estimates_pa,
+    dataset_force_press,
+    dataset_press_window,
+    interpolate_repeated_widths,
+)
 from tactile_compliance.synthetic.depth import reconstruct_depth
 from tactile_compliance.synthetic.geometry import PadGrid, sag_map, sample_pose
 from tactile_compliance.synthetic.mechanics import (
@@ -53,8 +61,6 @@ from tactile_compliance.synthetic.textures import texture_canvas, texture_window
 from tactile_compliance.synthetic.timeseries import (
     FrameSelection,
     GraspTimeline,
-    clip_to_press,
-    interpolate_stair_widths,
     select_frames,
     selection_window,
     simulate_timeline,
@@ -229,41 +235,53 @@ def _render_sequence(
     return diff, depth
 
 
-@lru_cache(maxsize=8)
-def _estimator_constants(width_px: int) -> object:
-    from tactile_compliance.physics.contact import SensorConstants
+ANALYTICAL_ESTIMATOR = "dataset"
+"""The estimator (``physics.estimators``) whose values the generator stores: the public
+dataset's own, so synthetic estimates have the real ones' distribution and quirks."""
 
-    base = SensorConstants()
-    factor = FULL_SIZE[1] / width_px
-    patch = max(round(base.hertz_patch_px / factor) | 1, 1)
-    return replace(base, pixel_size_m=base.pixel_size_m * factor, hertz_patch_px=patch)
+
+@lru_cache(maxsize=8)
+def _estimator_constants(width_px: int) -> DatasetEstimatorConstants:
+    """The dataset estimator's constants for depth maps ``width_px`` wide.
+
+    The estimator assumes its own pixel pitch (16.40 px/mm) on 350-px-wide frames; on a
+    coarser grid the same quirk is kept at the same scale, and the 10 x 10 px Hertz patch
+    shrinks with the grid (at least 2 x 2 px).
+    """
+    factor = width_px / FULL_SIZE[1]
+    return replace(
+        DATASET_CONSTANTS,
+        px_per_mm=DATASET_CONSTANTS.px_per_mm * factor,
+        patch_radius_px=max(round(DATASET_CONSTANTS.patch_radius_px * factor), 1),
+    )
 
 
 def _estimates(
     timeline: GraspTimeline,
-    depth_seq: tuple[np.ndarray, np.ndarray],
+    depth_mm: np.ndarray,
+    max_depth_mm: np.ndarray,
     frames: np.ndarray,
     width_px: int,
 ) -> tuple[float, float]:
-    """Both analytical estimates on the clipped sequence, like the published code."""
-    from tactile_compliance.physics.contact import analytical_estimates_pa
+    """Both analytical estimates as the dataset's code made them (``ANALYTICAL_ESTIMATOR``).
 
-    window = clip_to_press(timeline.force_n)
-    if window is None:
-        return math.nan, math.nan
-    a, b = window
-    pos = np.searchsorted(frames, np.arange(a, b))
-    d0 = depth_seq[0][pos].reshape(b - a, -1).max(axis=1)
-    d1 = depth_seq[1][pos].reshape(b - a, -1).max(axis=1)
-    # Clip to the first frame where either finger sees 7.5 % of its peak depth.
-    starts = [int(np.argmax(d >= 0.075 * d.max())) for d in (d0, d1) if d.max() > 0]
-    first = min(starts) if starts else 0
-    forces = timeline.force_n[a:b][first:]
-    widths = interpolate_stair_widths(timeline.width_m[a:b])[first:]
-    depths = depth_seq[0][pos][first:]
+    ``depth_mm`` holds the force-sensing finger's depth maps of the consecutive
+    ``frames``; ``max_depth_mm`` (2, T) both fingers' maximum depth per frame of the
+    whole recording. The published driver loads the whole recording and clips it to the
+    press by force, then to the first frame where either finger's depth reaches 7.5 % of
+    its peak (``dataset_press_window``); only the frames of ``frames`` (which cover the
+    press) are rendered, so the clip is taken on the whole series and the fits on it.
+    """
+    start, end = dataset_press_window(timeline.force_n, max_depth_mm[0], max_depth_mm[1])
+    if start < frames[0] or end > frames[-1] + 1:
+        return math.nan, math.nan  # no press: the original fitted the whole recording
     try:
-        elastic, hertz = analytical_estimates_pa(
-            forces, widths, depths, _estimator_constants(width_px)
+        elastic, hertz = dataset_estimates_pa(
+            timeline.force_n[start:end],
+            interpolate_repeated_widths(timeline.width_m[start:end]),
+            depth_mm[start - frames[0] : end - frames[0]],
+            _estimator_constants(width_px),
+            preprocess=False,
         )
     except ValueError:
         return math.nan, math.nan
@@ -348,7 +366,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     window = selection_window(timeline.force_n, opt.max_aug)
     if window is None:
         return GraspResult([], timeline, None, "peak force < 10 N or too few frames")
-    press = clip_to_press(timeline.force_n)
+    press = dataset_force_press(timeline.force_n)
     lo, hi = window[0], window[2]
     if press is not None:
         lo, hi = min(lo, press[0]), max(hi, press[1])
@@ -378,7 +396,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     )
     if selection is None:
         return GraspResult([], timeline, None, "frame selection failed")
-    elastic, hertz = _estimates(timeline, (seq[0], seq[1]), seq_frames, est_size[1])
+    elastic, hertz = _estimates(timeline, seq[0], max_depth, seq_frames, est_size[1])
 
     # Full resolution, stored frames only.
     tex_rng = stream(*key, "texture")

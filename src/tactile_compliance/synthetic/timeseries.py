@@ -38,8 +38,6 @@ __all__ = [
     "FPS",
     "FrameSelection",
     "GraspTimeline",
-    "clip_to_press",
-    "interpolate_stair_widths",
     "select_frames",
     "simulate_timeline",
 ]
@@ -55,9 +53,6 @@ OPEN_WIDTH_M = 0.08
 
 SELECTION_FORCE_N = 5.0
 """First-frame force threshold of the frame selection [N]."""
-
-ESTIMATOR_FORCE_N = 2.5
-"""Press-clipping force threshold of the estimators [N] (half of the selection's)."""
 
 
 @dataclass
@@ -314,50 +309,3 @@ def select_frames(
         force=force_idx + i_start,
         num_aug=int(num_aug),
     )
-
-
-def clip_to_press(
-    forces_n: np.ndarray, threshold_n: float = ESTIMATOR_FORCE_N, pct_peak: float = 0.9
-) -> tuple[int, int] | None:
-    """The estimators' press clip ``[start, end)`` of the published code, or None.
-
-    Start one frame before the force first reaches ``threshold_n``; end at the last
-    frame before the force drops below ``pct_peak`` of its peak after the peak.
-    """
-    f = np.asarray(forces_n, dtype=np.float64)
-    i_start = max(int(np.argmax(f >= threshold_n)) - 1, 0)
-    i_peak = int(np.argmax(f))
-    i_end = i_peak
-    after = np.flatnonzero((np.arange(f.size) > i_peak) & (f < pct_peak * f[i_peak]))
-    if after.size:
-        i_end = int(after[0]) - 1
-    if i_start >= i_end:
-        return None
-    return i_start, i_end + 1
-
-
-def interpolate_stair_widths(widths_m: np.ndarray) -> np.ndarray:
-    """Linearly interpolate runs of repeated width readings (the published algorithm).
-
-    A run of equal readings starting at ``i`` is replaced by a line from ``W[i]`` to the
-    next different reading ``W[k]``; the scan stops when the reading equals the last one.
-    """
-    w = np.asarray(widths_m, dtype=np.float64)
-    out = w.copy()
-    n = w.size
-    i = 0
-    while i < n - 1:
-        if w[i] == w[-1]:
-            break
-        if w[i] == w[i + 1]:
-            k = i
-            for k in range(i, n):
-                if w[i] != w[k]:
-                    break
-            slope = (w[k] - w[i]) / (k - i)
-            for j in range(i + 1, k):
-                out[j] = w[i] + slope * (j - i)
-            i = k
-        else:
-            i += 1
-    return out

@@ -782,6 +782,7 @@ def _fit_and_evaluate(
             metrics=extra,
             frozen_backbone=frozen_backbone,
             store_image_size=data.store.image_size,
+            analytical_estimator=data.store.analytical_estimator,
         )
 
     best = _BestCheckpoint(save_best, pending_best)

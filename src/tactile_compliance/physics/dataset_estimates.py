@@ -1,0 +1,616 @@
+"""The analytical estimates exactly as the public dataset stored them.
+
+The GelSight Young's-modulus dataset (Burgess et al. 2024) ships two analytical estimates
+per grasp, ``elastic_estimate.pkl`` (a Hooke fit) and ``hertz_estimate.pkl`` (a Hertz/MDR
+fit, E*). They were made by the authors' published code (GelSight-lab/
+TactileEstimateModulus: the default ``fit_modulus_simple()`` and ``fit_modulus_hertz_MDR()``
+of ``EstimateModulus``, driven by ``preprocess_grasp()``). :func:`dataset_estimates_pa`
+is an independent re-implementation of that generator, written from a reading of the code,
+with the same constants, masks, fits and fallbacks, *including its quirks*. A model trained
+on the stored estimates must be fed estimates made this way (no train/serve skew); the
+physically cleaner estimator of :mod:`tactile_compliance.physics.contact` gives other
+numbers for the same grasp (``docs/physics.md``, "The dataset's estimator and ours").
+
+Pipeline (the steps inside :func:`dataset_estimates_pa` with ``preprocess=True``):
+
+1. *Press clip by force*: start one frame before the force first reaches 2.5 N (frame 0
+   if it never does); end at the last frame before the force first drops below 90 % of
+   its peak after the peak, or at the peak when it never drops. If start >= end the
+   series is kept whole.
+2. *Depth-onset clip*: inside that window, drop the frames before the first frame whose
+   maximum depth reaches 7.5 % of the window's maximum, taking the earlier of the two
+   fingers when the marker finger's depth maps are given.
+3. *Width interpolation*: runs of repeated width readings (the gripper encoder updates
+   slower than the camera) are replaced by a straight line to the next different reading;
+   the scan stops at the first reading equal to the last one.
+4. The two fits below, on the clipped series.
+
+Per frame (depths converted to metres first, as the original did):
+
+* contact mask ``depth >= 0.1 mm``; area ``A = count * (1 mm / 16.40)^2``;
+* ``p97`` = 97th percentile of the *whole frame*; ``patch`` = mean of the 10 x 10 patch
+  ``[r-5:r+5, c-5:c+5]`` at the first deepest pixel ``(r, c)``.
+* ``L0``: ``W[0]`` when the whole clipped sequence is shallower than 0.5 mm, else
+  ``W[i_c] + 2 p97[i_c]`` with ``i_c`` the first frame with ``p97 >= 0.1 mm`` (frame 0
+  when there is none).
+
+Elastic (Hooke): frames with ``max depth >= 0.075 max_j p97_j``, a non-empty mask,
+``dL = L0 - (W + 2 p97) >= 0`` and ``A >= 1e-5 m^2`` give points
+``(dL / L0, |F| / A)``; of these, the points with ``|p97/max(p97) - F/max(F)| <= 0.25``
+(maxima over the points) are fitted with a line through the origin.
+
+Hertz/MDR: frames with ``max depth >= 0.075 max_j patch_j``, a non-empty mask,
+``delta = (L0 - W)/2 > 0.1 mm``, ``|F| > 0``, ``A >= 1e-5 m^2`` and ``patch > 0`` give
+``R = a^2 / delta`` (``a = sqrt(A/pi)``) and the point
+``((1 - nu_gel^2)/E_gel * (pi a / 4) * (1/pi)(6 |F| / R^2)^(1/3), patch)``; after the same
+consistency mask (on ``patch`` and ``|F|``) the through-origin slope ``k`` gives
+``E* = k^(3/2)``.
+
+Quirks of the original, reproduced on purpose (each one changes the stored numbers):
+
+* **Pixel size**: 16.40 px/mm, ``sqrt((400/35)^2 + (300/25.5)^2)``: the norm of the two
+  axes' pixel densities of the 400 x 300 px warp of the 35 x 25.5 mm pad, instead of one
+  axis' ~11.4 px/mm. Areas come out (11.43/16.40)^2 = 0.49 times the physical ones, which
+  also moves the 1e-5 m^2 minimum contact to 2690 px (on a 250 x 350 frame, 3.1 %).
+* **Gel modulus** 1.5e5 Pa (the paper's Shore 00 60 gives 2.75e5 Pa).
+* **Whole-frame percentile**: the 97th percentile over every pixel of the frame, so it is
+  the background's depth (about 0: the elastic fit has no usable depth) whenever the
+  imprint covers less than 3 % of the frame; the frames-kept rule compares a frame's
+  *maximum* with 7.5 % of the largest *percentile* (elastic) or *patch mean* (Hertz).
+* **L0 fallback**: a sequence shallower than 0.5 mm (5x the contact threshold) takes
+  ``L0 = W[0]``, the first width without any gel indentation; when no frame's percentile
+  reaches 0.1 mm but the sequence is deeper than 0.5 mm, ``i_c`` falls back to frame 0
+  (numpy's ``argmax`` of an all-False array).
+* **Asymmetric 10 x 10 patch** ``[r-5:r+5, c-5:c+5]`` with Python slicing: the deepest
+  pixel is the 6th of 10 rows/columns; at the bottom/right border the patch is cut short;
+  within 5 px of the top/left border the start index is *negative* and counts from the
+  other end, so the slice is usually empty (mean NaN: the frame leaves the Hertz fit and,
+  because a NaN maximum compares False, the 7.5 % frames-kept rule is switched off for
+  every frame) or, in frames less than 10 px high (or wide), takes rows (columns) from
+  elsewhere.
+  On a flat-topped imprint the first deepest pixel is the imprint's top-left corner, so
+  the patch averages a quarter imprint and three quarters background.
+* **Consistency mask after the fit filters**: depth and force are normalised by their
+  maxima over the points that passed the other filters, not over the sequence; the
+  elastic mask uses the signed force, the Hertz mask ``|F|``.
+* **Strain >= 0 filter** (elastic) and **approach > 0.1 mm** filter (Hertz, in metres:
+  ``(L0 - W)/2 > 1e-4``).
+* **Depth reference**: the original reconstructed the force-sensing finger's depth from
+  difference images against the *first frame of the recording*, but the marker finger's
+  (used only for the depth-onset clip) against the *first frame of the force clip*.
+
+Where the original returned 0 (no frame passed the filters) or NaN (0/0: no frame passed
+the consistency mask, all strains zero, a zero maximum percentile or force), this module
+returns ``nan``. The filters keep both fits' x and y non-negative, so a negative slope
+cannot occur; a non-positive or non-finite result would be ``nan`` too. The dataset
+importer treats zero or negative estimates as implausible and NaN as a failed fit, so
+nothing the original could store as a usable value is lost. Malformed input raises
+``ValueError``.
+
+Only numpy (and the standard library) is used.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from tactile_compliance.physics.contact import _validate_sequence
+
+__all__ = [
+    "DATASET_CONSTANTS",
+    "DATASET_CONTACT_THRESHOLD_MM",
+    "DATASET_DEPTH_PERCENTILE",
+    "DATASET_FIT_TOLERANCE",
+    "DATASET_GEL_MODULUS_PA",
+    "DATASET_GEL_POISSON",
+    "DATASET_L0_FALLBACK_FACTOR",
+    "DATASET_MIN_APPROACH_M",
+    "DATASET_MIN_CONTACT_AREA_M2",
+    "DATASET_MIN_DEPTH_FRACTION",
+    "DATASET_PATCH_RADIUS_PX",
+    "DATASET_PRESS_FORCE_N",
+    "DATASET_PRESS_PEAK_FRACTION",
+    "DATASET_PX_PER_MM",
+    "DatasetEstimatorConstants",
+    "dataset_estimates_pa",
+    "dataset_force_press",
+    "dataset_press_window",
+    "interpolate_repeated_widths",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+DATASET_PX_PER_MM: float = math.sqrt((400 / 35) ** 2 + (300 / 25.5) ** 2)
+"""Pixel density [px/mm] of the original code, 16.40: the norm of the warp's two axis
+densities (400 px / 35 mm and 300 px / 25.5 mm), a quirk; one axis would be ~11.4."""
+
+DATASET_GEL_MODULUS_PA: float = 1.5e5
+"""Gel Young's modulus [Pa] of the final published code."""
+
+DATASET_GEL_POISSON: float = 0.485
+"""Gel Poisson ratio [-]."""
+
+DATASET_CONTACT_THRESHOLD_MM: float = 0.1
+"""Depth [mm] from which a pixel counts as in contact (and the first-contact rule)."""
+
+DATASET_MIN_CONTACT_AREA_M2: float = 1e-5
+"""Smallest contact area [m^2] a frame needs to be fitted (2690 px at 16.40 px/mm)."""
+
+DATASET_DEPTH_PERCENTILE: float = 97.0
+"""Percentile [%] of the whole frame's depth used as the elastic fit's indentation."""
+
+DATASET_PATCH_RADIUS_PX: int = 5
+"""Half side [px] of the Hertz depth patch ``[r-5:r+5, c-5:c+5]`` (10 x 10 px)."""
+
+DATASET_MIN_DEPTH_FRACTION: float = 0.075
+"""Frames-kept fraction [-] of the peak depth, and of the depth-onset clip."""
+
+DATASET_FIT_TOLERANCE: float = 0.25
+"""Depth/force consistency tolerance [-] on the normalised values."""
+
+DATASET_L0_FALLBACK_FACTOR: float = 5.0
+"""``L0 = W[0]`` when the sequence's maximum depth is below this many contact
+thresholds (0.5 mm) [-]."""
+
+DATASET_MIN_APPROACH_M: float = 1e-4
+"""Hertz frames need a per-finger apparent approach ``(L0 - W)/2`` above this [m]."""
+
+DATASET_PRESS_FORCE_N: float = 2.5
+"""Force [N] that starts the press clip (half the 5 N of the frame selection)."""
+
+DATASET_PRESS_PEAK_FRACTION: float = 0.9
+"""The press clip ends before the force drops below this fraction [-] of its peak."""
+
+# The original worked in metres (``0.001 * depth``); doing the same keeps the floating
+# point comparisons with the thresholds identical to it.
+_M_PER_MM = 0.001
+
+
+@dataclass(frozen=True)
+class DatasetEstimatorConstants:
+    """The constants of the dataset's estimator, with units; defaults are the dataset's.
+
+    Change them only to study the estimator (or to run it on rescaled depth maps, e.g.
+    ``px_per_mm / 4`` and ``patch_radius_px=1`` on a quarter-size frame): any other value
+    no longer reproduces the stored estimates.
+
+    Attributes:
+        px_per_mm: pixel density [px/mm] assumed for the depth maps.
+        gel_modulus_pa: gel Young's modulus [Pa].
+        gel_poisson: gel Poisson ratio [-].
+        contact_threshold_mm: contact depth threshold [mm].
+        min_contact_area_m2: minimum contact area of a fitted frame [m^2].
+        depth_percentile: percentile [%] of the whole frame for the elastic depth.
+        patch_radius_px: the Hertz patch is ``[r-k:r+k, c-k:c+k]`` [px].
+        min_depth_fraction: frames-kept and depth-onset fraction [-].
+        fit_tolerance: depth/force consistency tolerance [-].
+        l0_fallback_factor: ``L0 = W[0]`` below this many contact thresholds [-].
+        min_approach_m: minimum per-finger apparent approach of a Hertz frame [m].
+        press_force_n: force [N] that starts the press clip.
+        press_peak_fraction: fraction [-] of the peak force that ends the press clip.
+    """
+
+    px_per_mm: float = DATASET_PX_PER_MM
+    gel_modulus_pa: float = DATASET_GEL_MODULUS_PA
+    gel_poisson: float = DATASET_GEL_POISSON
+    contact_threshold_mm: float = DATASET_CONTACT_THRESHOLD_MM
+    min_contact_area_m2: float = DATASET_MIN_CONTACT_AREA_M2
+    depth_percentile: float = DATASET_DEPTH_PERCENTILE
+    patch_radius_px: int = DATASET_PATCH_RADIUS_PX
+    min_depth_fraction: float = DATASET_MIN_DEPTH_FRACTION
+    fit_tolerance: float = DATASET_FIT_TOLERANCE
+    l0_fallback_factor: float = DATASET_L0_FALLBACK_FACTOR
+    min_approach_m: float = DATASET_MIN_APPROACH_M
+    press_force_n: float = DATASET_PRESS_FORCE_N
+    press_peak_fraction: float = DATASET_PRESS_PEAK_FRACTION
+
+    def __post_init__(self) -> None:
+        for name in ("px_per_mm", "gel_modulus_pa"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(
+                    f"DatasetEstimatorConstants.{name} must be finite and > 0, got {value!r}"
+                )
+        for name in (
+            "contact_threshold_mm",
+            "min_contact_area_m2",
+            "fit_tolerance",
+            "l0_fallback_factor",
+            "min_approach_m",
+            "press_force_n",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(
+                    f"DatasetEstimatorConstants.{name} must be finite and >= 0, got {value!r}"
+                )
+        if not (-1.0 < self.gel_poisson <= 0.5):
+            raise ValueError(
+                f"DatasetEstimatorConstants.gel_poisson must be in (-1, 0.5], "
+                f"got {self.gel_poisson!r}"
+            )
+        if not (0.0 <= self.depth_percentile <= 100.0):
+            raise ValueError(
+                f"DatasetEstimatorConstants.depth_percentile must be in [0, 100], "
+                f"got {self.depth_percentile!r}"
+            )
+        for name in ("min_depth_fraction", "press_peak_fraction"):
+            value = getattr(self, name)
+            if not (0.0 <= value <= 1.0):
+                raise ValueError(
+                    f"DatasetEstimatorConstants.{name} must be in [0, 1], got {value!r}"
+                )
+        radius = self.patch_radius_px
+        if isinstance(radius, bool) or not isinstance(radius, (int, np.integer)) or radius < 1:
+            raise ValueError(
+                f"DatasetEstimatorConstants.patch_radius_px must be a positive integer, "
+                f"got {radius!r}"
+            )
+
+    @property
+    def pixel_size_m(self) -> float:
+        """Side of one pixel [m] as the original computed it, ``0.001 / px_per_mm``."""
+        return _M_PER_MM / self.px_per_mm
+
+    @property
+    def pixel_area_m2(self) -> float:
+        """Area of one pixel [m^2], ``(0.001 / px_per_mm)^2``."""
+        return self.pixel_size_m**2
+
+
+DATASET_CONSTANTS = DatasetEstimatorConstants()
+"""The dataset's constants (the defaults of :class:`DatasetEstimatorConstants`)."""
+
+
+# ---------------------------------------------------------------------------------------
+# Preprocessing of the raw series (the driver's steps before the fits)
+# ---------------------------------------------------------------------------------------
+
+
+def _first_true(flags: npt.NDArray[np.bool_]) -> int:
+    """Index of the first True, or 0 when there is none (what ``np.argmax`` gives)."""
+    return int(np.argmax(flags)) if flags.size else 0
+
+
+def dataset_force_press(
+    forces_n: npt.ArrayLike, constants: DatasetEstimatorConstants = DATASET_CONSTANTS
+) -> tuple[int, int] | None:
+    """The press clip by force of a whole recording, ``[start, end)``, or None (step 1).
+
+    Start one frame before the force first reaches ``constants.press_force_n`` (2.5 N);
+    end at the last frame before the force first drops below
+    ``constants.press_peak_fraction`` (90 %) of its peak after the peak, or at the peak
+    when it never drops. None when that leaves no frames (``start >= end``).
+
+    Args:
+        forces_n: normal force per frame of the whole recording [N], shape (T,).
+        constants: the estimator's constants.
+
+    Raises:
+        ValueError: not a finite, non-empty 1-D array.
+    """
+    forces = _series(forces_n, "forces_n")
+    press_start = max(_first_true(forces >= constants.press_force_n) - 1, 0)
+    peak = int(np.argmax(forces))
+    last = peak
+    # The first post-peak frame under the fraction ends the press (the frame before it is
+    # kept); if the force never falls that far the press ends at the peak itself.
+    falls = np.flatnonzero(
+        (np.arange(forces.size) > peak) & (forces < constants.press_peak_fraction * forces[peak])
+    )
+    if falls.size and constants.press_peak_fraction < 1:
+        last = int(falls[0]) - 1
+    return (press_start, last + 1) if press_start < last else None
+
+
+def dataset_press_window(
+    forces_n: npt.ArrayLike,
+    max_depth_mm: npt.ArrayLike,
+    marker_max_depth_mm: npt.ArrayLike | None = None,
+    constants: DatasetEstimatorConstants = DATASET_CONSTANTS,
+) -> tuple[int, int]:
+    """The frames ``[start, end)`` of a whole recording that the dataset's fits used.
+
+    Args:
+        forces_n: normal force per frame of the whole recording [N], shape (T,).
+        max_depth_mm: maximum depth per frame of the force-sensing finger [mm], (T,).
+        marker_max_depth_mm: the same for the marker finger [mm], (T,), or None to use the
+            force-sensing finger alone (the original took the earlier onset of the two).
+        constants: the estimator's constants.
+
+    Returns:
+        ``(start, end)`` with ``0 <= start < end <= T``: the press clip by force, then the
+        depth-onset clip (module docstring, steps 1-2).
+
+    Raises:
+        ValueError: arrays that are not 1-D, of different lengths, empty or not finite.
+    """
+    forces = _series(forces_n, "forces_n")
+    n_frames = forces.size
+    depth_series = [_series(max_depth_mm, "max_depth_mm")]
+    if marker_max_depth_mm is not None:
+        depth_series.append(_series(marker_max_depth_mm, "marker_max_depth_mm"))
+    for series in depth_series:
+        if series.size != n_frames:
+            raise ValueError(f"the depth series has {series.size} frames, the forces {n_frames}")
+
+    # Without a press the original warned "no press" and went on with the whole series.
+    start, end = dataset_force_press(forces, constants) or (0, n_frames)
+
+    # The original compared the force-sensing finger's depths in metres and the marker
+    # finger's in millimetres; scaling keeps its rounding at the 7.5 % boundary.
+    depth_series[0] = _M_PER_MM * depth_series[0]
+    onsets = []
+    for series in depth_series:
+        window = series[start:end]
+        onsets.append(_first_true(window >= constants.min_depth_fraction * window.max()))
+    return start + min(onsets), end
+
+
+def interpolate_repeated_widths(widths_m: npt.ArrayLike) -> FloatArray:
+    """The original's width interpolation over repeated readings [m] (a new array).
+
+    A run of equal readings starting at ``i`` becomes a straight line from ``W[i]`` to the
+    first later reading that differs, ``W[k]`` (``W[k]`` itself is kept). The scan stops
+    at the first reading equal to the last one, so a final plateau (and anything after a
+    reading that happens to equal the last) is left as recorded.
+
+    Args:
+        widths_m: gripper width per frame [m], shape (T,).
+
+    Raises:
+        ValueError: not a finite 1-D array.
+    """
+    widths = _series(widths_m, "widths_m", allow_empty=True)
+    out = widths.copy()
+    n_frames = widths.size
+    i = 0
+    while i < n_frames - 1:
+        if widths[i] == widths[-1]:
+            break
+        if widths[i] != widths[i + 1]:
+            i += 1
+            continue
+        # A run exists and cannot reach the end (it would equal the last reading).
+        k = i + 1 + int(np.argmax(widths[i + 1 :] != widths[i]))
+        slope = (widths[k] - widths[i]) / (k - i)
+        for j in range(i + 1, k):
+            out[j] = widths[i] + slope * (j - i)
+        i = k
+    return out
+
+
+def _series(values: npt.ArrayLike, name: str, allow_empty: bool = False) -> FloatArray:
+    array = np.asarray(values)
+    if not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise ValueError(f"{name} must hold real numbers, got dtype {array.dtype}")
+    if array.ndim != 1:
+        raise ValueError(f"{name} must have shape (T,), got shape {array.shape}")
+    if array.size == 0 and not allow_empty:
+        raise ValueError(f"{name} is empty (T = 0 frames)")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    return array.astype(np.float64)
+
+
+# ---------------------------------------------------------------------------------------
+# Per-frame quantities and the two fits
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Frames:
+    """Per-frame quantities of the clipped sequence, all in metres / m^2, shape (T,)."""
+
+    max_m: FloatArray
+    percentile_m: FloatArray
+    patch_m: FloatArray
+    """NaN where the patch slice is empty (the top/left border quirk)."""
+    contact_px: npt.NDArray[np.int64]
+    area_m2: FloatArray
+
+
+def _patch_mean_m(frame_m: FloatArray, radius_px: int) -> float:
+    row, col = np.unravel_index(int(np.argmax(frame_m)), frame_m.shape)
+    # Deliberately plain Python slicing with possibly negative starts: that is what the
+    # stored estimates were made with (see the module docstring).
+    patch = frame_m[row - radius_px : row + radius_px, col - radius_px : col + radius_px]
+    return float(patch.mean()) if patch.size else math.nan
+
+
+def _frames(depths_mm: np.ndarray, constants: DatasetEstimatorConstants) -> _Frames:
+    n_frames = depths_mm.shape[0]
+    threshold_m = _M_PER_MM * constants.contact_threshold_mm
+    max_m = np.empty(n_frames)
+    percentile_m = np.empty(n_frames)
+    patch_m = np.empty(n_frames)
+    contact_px = np.empty(n_frames, dtype=np.int64)
+    for i in range(n_frames):
+        frame_m = _M_PER_MM * np.asarray(depths_mm[i], dtype=np.float64)
+        max_m[i] = frame_m.max()
+        percentile_m[i] = np.percentile(frame_m, constants.depth_percentile)
+        patch_m[i] = _patch_mean_m(frame_m, constants.patch_radius_px)
+        contact_px[i] = np.count_nonzero(frame_m >= threshold_m)
+    return _Frames(
+        max_m=max_m,
+        percentile_m=percentile_m,
+        patch_m=patch_m,
+        contact_px=contact_px,
+        area_m2=constants.pixel_area_m2 * contact_px,
+    )
+
+
+def _initial_length_m(
+    widths_m: FloatArray, frames: _Frames, constants: DatasetEstimatorConstants
+) -> float:
+    threshold_m = _M_PER_MM * constants.contact_threshold_mm
+    if frames.max_m.max() < constants.l0_fallback_factor * threshold_m:
+        return float(widths_m[0])
+    i_contact = _first_true(frames.percentile_m >= threshold_m)
+    return float(widths_m[i_contact] + 2 * frames.percentile_m[i_contact])
+
+
+def _consistent_slope(
+    x: FloatArray, y: FloatArray, depth: FloatArray, force: FloatArray, tolerance: float
+) -> float:
+    """Through-origin slope over the depth/force consistent points; NaN if not formable."""
+    if x.size == 0:
+        return math.nan  # the original returned 0 here
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth_norm = depth / depth.max()
+        force_norm = force / force.max()
+        keep = (depth_norm <= force_norm + tolerance) & (depth_norm >= force_norm - tolerance)
+        sum_xx = float(np.dot(x[keep], x[keep]))
+        sum_xy = float(np.dot(x[keep], y[keep]))
+        if sum_xx == 0.0:
+            return math.nan  # 0/0 (empty mask) or a zero strain/compliance everywhere
+        return sum_xy / sum_xx
+
+
+def _elastic_pa(
+    forces_n: FloatArray,
+    widths_m: FloatArray,
+    frames: _Frames,
+    length_0_m: float,
+    constants: DatasetEstimatorConstants,
+) -> float:
+    kept_depth_m = constants.min_depth_fraction * frames.percentile_m.max()
+    x, y, depth, force = [], [], [], []
+    for i in range(forces_n.size):
+        if frames.max_m[i] < kept_depth_m or frames.contact_px[i] == 0:
+            continue
+        shortening_m = length_0_m - (widths_m[i] + 2 * frames.percentile_m[i])
+        if shortening_m >= 0 and frames.area_m2[i] >= constants.min_contact_area_m2:
+            x.append(shortening_m / length_0_m)
+            y.append(abs(forces_n[i]) / frames.area_m2[i])
+            depth.append(frames.percentile_m[i])
+            force.append(forces_n[i])  # signed, as in the original's consistency mask
+    slope = _consistent_slope(
+        np.asarray(x), np.asarray(y), np.asarray(depth), np.asarray(force), constants.fit_tolerance
+    )
+    return slope if (math.isfinite(slope) and slope > 0) else math.nan
+
+
+def _hertz_pa(
+    forces_n: FloatArray,
+    widths_m: FloatArray,
+    frames: _Frames,
+    length_0_m: float,
+    constants: DatasetEstimatorConstants,
+) -> float:
+    # np.max, not nanmax: a NaN patch makes this NaN and switches the rule off (a quirk).
+    kept_depth_m = constants.min_depth_fraction * np.max(frames.patch_m)
+    gel_compliance = 1 - constants.gel_poisson**2
+    x, y, depth, force = [], [], [], []
+    for i in range(forces_n.size):
+        force_n = abs(forces_n[i])
+        approach_m = (length_0_m - widths_m[i]) / 2
+        if frames.max_m[i] < kept_depth_m or frames.contact_px[i] == 0:
+            continue
+        if approach_m <= constants.min_approach_m:
+            continue
+        area_m2 = frames.area_m2[i]
+        patch_m = frames.patch_m[i]
+        if not (force_n > 0 and area_m2 >= constants.min_contact_area_m2 and patch_m > 0):
+            continue
+        contact_radius_m = math.sqrt(area_m2 / math.pi)
+        sphere_radius_m = contact_radius_m**2 / approach_m
+        # Hertz peak pressure without its E*^(2/3) factor, then the MDR centre
+        # displacement of the gel under it; the fitted slope is E*^(2/3).
+        reduced_p0 = (1 / math.pi) * (6 * force_n / sphere_radius_m**2) ** (1 / 3)
+        centre_load = reduced_p0 * math.pi * contact_radius_m / 4
+        x.append(gel_compliance * centre_load / constants.gel_modulus_pa)
+        y.append(patch_m)
+        depth.append(patch_m)
+        force.append(force_n)
+    slope = _consistent_slope(
+        np.asarray(x), np.asarray(y), np.asarray(depth), np.asarray(force), constants.fit_tolerance
+    )
+    if not (math.isfinite(slope) and slope > 0):
+        return math.nan
+    return float(slope**1.5)
+
+
+def dataset_estimates_pa(
+    forces_n: npt.ArrayLike,
+    widths_m: npt.ArrayLike,
+    depths_mm: npt.ArrayLike,
+    constants: DatasetEstimatorConstants = DATASET_CONSTANTS,
+    *,
+    marker_depths_mm: npt.ArrayLike | None = None,
+    preprocess: bool = True,
+) -> tuple[float, float]:
+    """Both analytical estimates ``(E_elastic [Pa], E*_hertz [Pa])`` as the dataset made them.
+
+    Same arguments and conventions as
+    :func:`tactile_compliance.physics.contact.analytical_estimates_pa`, but the series is
+    the *whole recording* of one grasp, as the original's driver loaded it: this function
+    clips it to the press, to the depth onset and interpolates repeated widths itself
+    (module docstring, steps 1-3), then runs the two fits with the dataset's constants and
+    quirks.
+
+    What the caller must do to reproduce a stored value:
+
+    * pass every recorded frame (not a pre-clipped series: the force clip is not
+      idempotent, a second pass would also cut the hold after the peak);
+    * leave out grasps the original skipped entirely (peak force < 10 N, a width that
+      never changes, fewer than three frames to sample): they have no stored estimate;
+    * supply depth maps on the original pixel grid (250 x 350 px, positive into the gel,
+      force-sensing finger, reconstructed against the recording's first frame) and, for an
+      exact depth-onset clip, the marker finger's maps (against the force clip's first
+      frame, as the original did).
+
+    Args:
+        forces_n: normal force per frame [N], shape (T,).
+        widths_m: gripper width per frame [m], shape (T,), as measured (stair-stepped).
+        depths_mm: depth maps of the force-sensing (markerless) finger [mm], (T, H, W).
+        constants: the estimator's constants; the defaults are the dataset's.
+        marker_depths_mm: depth maps of the marker finger [mm], (T, H', W'), used only for
+            the depth-onset clip; None uses the force-sensing finger alone, which can only
+            start the clip later than the original did.
+        preprocess: False skips steps 1-3 for a series that is already clipped and
+            interpolated exactly as the original's driver did.
+
+    Returns:
+        ``(E_elastic, E*_hertz)`` in Pa; ``nan`` for an estimate the original could not
+        form or gave as 0, NaN or a non-positive number.
+
+    Raises:
+        ValueError: malformed input (shapes, frame counts, NaN/inf values, dtypes).
+    """
+    forces, widths, depths = _validate_sequence(forces_n, widths_m, depths_mm)
+    marker = None
+    if marker_depths_mm is not None:
+        marker = np.asarray(marker_depths_mm)
+        if marker.ndim != 3 or marker.shape[0] != forces.size or 0 in marker.shape:
+            raise ValueError(
+                "marker_depths_mm must have shape (T, H, W) with the same T as forces_n "
+                f"({forces.size}), got shape {marker.shape}"
+            )
+        if not np.issubdtype(marker.dtype, np.number) or np.iscomplexobj(marker):
+            raise ValueError(f"marker_depths_mm must hold real numbers, got dtype {marker.dtype}")
+        if not np.all(np.isfinite(marker)):
+            raise ValueError("marker_depths_mm contains NaN or infinite values")
+
+    if preprocess:
+        max_depth_mm = np.array([np.max(depths[i]) for i in range(forces.size)], dtype=np.float64)
+        marker_max_mm = (
+            None
+            if marker is None
+            else np.array([np.max(marker[i]) for i in range(forces.size)], dtype=np.float64)
+        )
+        start, end = dataset_press_window(forces, max_depth_mm, marker_max_mm, constants)
+        forces = forces[start:end]
+        widths = interpolate_repeated_widths(widths[start:end])
+        depths = depths[start:end]
+
+    frames = _frames(depths, constants)
+    length_0_m = _initial_length_m(widths, frames, constants)
+    return (
+        _elastic_pa(forces, widths, frames, length_0_m, constants),
+        _hertz_pa(forces, widths, frames, length_0_m, constants),
+    )
