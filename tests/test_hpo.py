@@ -26,6 +26,8 @@ from tactile_compliance.models import (
 from tactile_compliance.models import registry as registry_module
 from tactile_compliance.training import hpo
 from tactile_compliance.training.grid import expand_experiment, load_experiment
+from tactile_compliance.training.hpo.drivers import balance_budget
+from tactile_compliance.training.hpo.objectives import last_epoch_val_nmse, trial_cost
 from toy_store import make_toy_store
 
 TOP10 = ["data.image_size=[72,72]", "augmentation.enabled=false"]
@@ -144,6 +146,100 @@ def test_any_registered_model_is_tunable_with_its_declared_space():
         hpo.search_space("tiny_tunable_model")
 
 
+# ---------------------------------------------------------------------------- objective
+# A validation curve whose best epoch (1) is not its last (3).
+CURVE = [0.30, 0.05, 0.20, 0.25]
+
+
+def _fake_run(run_dir: Path, val_nmse: list[float]) -> dict[str, Any]:
+    """A run directory whose epoch log holds ``val_nmse`` per epoch (train and validation
+    values on separate lines, as Lightning logs them), and its ``train`` result."""
+    log = run_dir / "logs" / "metrics.csv"
+    log.parent.mkdir(parents=True)
+    lines = ["epoch,step,train_loss,val_nmse"]
+    for epoch, value in enumerate(val_nmse):
+        lines += [f"{epoch},{2 * epoch},0.5,", f"{epoch},{2 * epoch + 1},,{value}"]
+    log.write_text("\n".join(lines) + "\n")
+    best = min(range(len(val_nmse)), key=val_nmse.__getitem__)
+    return {"run_dir": str(run_dir), "best_val_nmse": val_nmse[best], "best_epoch": best}
+
+
+def test_trial_cost_reads_the_last_or_the_best_epoch(tmp_path):
+    result = _fake_run(tmp_path / "run", CURVE)
+    assert last_epoch_val_nmse(tmp_path / "run") == CURVE[-1]
+    assert trial_cost(result, "last") == CURVE[-1]
+    assert trial_cost(result, "best") == min(CURVE)
+    # A result that records the last epoch itself is read directly.
+    assert trial_cost({**result, "last_val_nmse": 0.125}, "last") == 0.125
+    with pytest.raises(hpo.ConfigError, match="objective must be one of last, best"):
+        trial_cost(result, "final")
+    (tmp_path / "empty" / "logs").mkdir(parents=True)
+    (tmp_path / "empty" / "logs" / "metrics.csv").write_text("epoch,step,train_loss\n0,0,0.5\n")
+    with pytest.raises(ValueError, match="no epoch with a validation N-MSE"):
+        last_epoch_val_nmse(tmp_path / "empty")
+    with pytest.raises(ValueError, match="cannot read the epoch log"):
+        last_epoch_val_nmse(tmp_path / "nowhere")
+
+
+def _fake_trials(monkeypatch, curves: dict[str, list[float]]) -> list[Any]:
+    """Replace training by fake runs with ``curves[model]``; returns the configs trained."""
+    trained: list[Any] = []
+
+    def fake(cfg, trials_dir):
+        trained.append(cfg)
+        run_dir = Path(trials_dir) / f"{cfg.model.name}-{len(trained)}"
+        return _fake_run(run_dir, curves[cfg.model.name][: cfg.training.max_epochs])
+
+    monkeypatch.setattr(hpo.objectives, "_train_trial", fake)
+    return trained
+
+
+def test_trial_objective_scores_the_last_epoch_of_the_whole_budget(tmp_path, monkeypatch):
+    base = config_to_dict(load_config("default", ["model.name=top10nn", "inputs=Image"]))
+    config = hpo.search_space("top10nn", "Image", seed=0).get_default_configuration()
+    trained = _fake_trials(monkeypatch, {"top10nn": CURVE})
+    last = hpo.TrialObjective(base, str(tmp_path / "last"))  # the default: the paper's
+    assert last(config, budget=4) == CURVE[-1]
+    # No early stopping: the published trials train their whole budget.
+    assert trained[-1].training.patience == 0 and trained[-1].training.max_epochs == 4
+    best = hpo.TrialObjective(base, str(tmp_path / "best"), objective="best")
+    assert best(config, budget=4) == min(CURVE)
+    assert trained[-1].training.patience == 30  # the base config's early stopping
+    assert last(config, budget=2) == CURVE[1]  # the last of 2 epochs
+
+
+def test_balance_objective_averages_the_models_last_epochs(tmp_path, monkeypatch):
+    bases = [
+        config_to_dict(load_config("default", [f"model.name={m}", "inputs=Image"]))
+        for m in ("top10nn", "res_tf")
+    ]
+    curves = {"top10nn": CURVE, "res_tf": [0.2, 0.1, 0.1, 0.4]}
+    trained = _fake_trials(monkeypatch, curves)
+    last = hpo.BalanceObjective(bases, str(tmp_path / "last"), epochs=4)
+    assert last({"t_balance_percent": 37}) == pytest.approx((CURVE[-1] + 0.4) / 2)
+    assert {(c.sampling.strategy, c.sampling.t_balance) for c in trained} == {("balanced", 0.37)}
+    assert {(c.training.max_epochs, c.training.patience) for c in trained} == {(4, 0)}
+    best = hpo.BalanceObjective(bases, str(tmp_path / "best"), epochs=4, objective="best")
+    assert best({"t_balance_percent": 37}) == pytest.approx((min(CURVE) + 0.1) / 2)
+
+
+def test_balance_budget_defaults_and_the_paper_switch():
+    assert balance_budget() == (10, 30)
+    assert balance_budget(paper_budget=True) == (50, 132)  # the paper's t_balance search
+    assert balance_budget(20, None, paper_budget=True) == (20, 132)  # explicit values win
+    assert balance_budget(None, 5) == (10, 5)
+    with pytest.raises(hpo.ConfigError, match=">= 1"):
+        balance_budget(0)
+
+
+def test_unknown_objective_fails_before_anything_runs(tmp_path):
+    for search in (hpo.tune, hpo.tune_balance):
+        args = ("top10nn",) if search is hpo.tune else ()
+        with pytest.raises(hpo.ConfigError, match="objective must be one of last, best"):
+            search(*args, objective="final", store=tmp_path, output_dir=tmp_path / "t")
+    assert not (tmp_path / "t").exists()
+
+
 # ---------------------------------------------------------------------------- tune
 def _count_trainings(monkeypatch, fail_after: int | None = None) -> list[str]:
     """Record every trial that trains; raise KeyboardInterrupt after ``fail_after`` trials."""
@@ -221,6 +317,10 @@ def test_tune_runs_a_few_trials_and_resumes(toy_store, tmp_path, monkeypatch):
     trial_dirs = list((out / "trials").iterdir())
     assert len(trial_dirs) == 6
     assert all((d / "metrics.json").exists() and not (d / "best.pt").exists() for d in trial_dirs)
+    # Scored as published: the last epoch of a trial that trained its whole budget.
+    assert {load_config(d / "config.yaml").training.patience for d in trial_dirs} == {0}
+    costs = sorted(pd.read_csv(extended.trials_path)["cost"])
+    assert costs == pytest.approx(sorted(last_epoch_val_nmse(d) for d in trial_dirs))
 
 
 def test_tune_balance_writes_an_experiment_with_the_tuned_value(toy_store, tmp_path):

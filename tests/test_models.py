@@ -347,6 +347,102 @@ def test_vgg_lstm_estimates_reach_their_own_embeddings(get_model, get_features) 
     assert (hertz - base).abs().max() > 1e-7
 
 
+def _recorded_dropout(model: TactileModel) -> tuple[list[torch.Tensor], list[torch.Tensor], object]:
+    """Record what ``model.dropout`` gets and returns at each call (its masks)."""
+    inputs: list[torch.Tensor] = []
+    outputs: list[torch.Tensor] = []
+
+    def hook(module, args, output):
+        inputs.append(args[0].detach().clone())
+        outputs.append(output.detach().clone())
+
+    return inputs, outputs, model.dropout.register_forward_hook(hook)
+
+
+def _lstm_steps_with_masks(
+    model: TactileModel,
+    features: torch.Tensor,
+    scalars: dict[str, torch.Tensor],
+    dropped: list[torch.Tensor],
+    recurrent: bool,
+) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """The step loop of the published LRCN, written out with ``nn.LSTMCell``, reusing the
+    dropped-out hidden states the model produced: (h_t before dropout per step, logits)."""
+    constant = [
+        model.estimate_encoder["elastic"](scalars["estimates"][:, 0:1]),
+        model.estimate_encoder["hertz"](scalars["estimates"][:, 1:2]),
+    ]
+    hidden = torch.zeros(features.shape[0], model.lstm.hidden_size)
+    cell = torch.zeros_like(hidden)
+    states, outputs = [], []
+    for t in range(3):
+        step = torch.cat(
+            [
+                features[:, t],
+                model.force_encoder(scalars["force"][:, t : t + 1]),
+                model.width_encoder(scalars["width"][:, t : t + 1]),
+                *constant,
+            ],
+            dim=1,
+        )
+        hidden, cell = model.lstm(step, (hidden, cell))
+        states.append(hidden)
+        outputs.append(model.output(dropped[t]))
+        if recurrent:
+            hidden = dropped[t]  # the published code carries the dropped-out h forward
+    logits = torch.cat(outputs, dim=1) @ torch.softmax(model.step_weights, dim=0)
+    return states, logits
+
+
+def test_vgg_lstm_dropout_modes(get_model, get_features) -> None:
+    """``recurrent`` (the default, as published) feeds the dropped-out h_t into step t + 1;
+    ``output`` only drops the path to y_t. Same parameters; eval mode is unaffected."""
+    recurrent = get_model("vgg_lstm", InputStrategy.ALL)
+    assert recurrent.hparams["lstm_dropout_mode"] == "recurrent"
+    assert recurrent.hparams["lstm_dropout"] == pytest.approx(0.2)
+    output = create_model("vgg_lstm", "ALL", lstm_dropout_mode="output")
+    output.load_state_dict(recurrent.state_dict(), strict=True)
+    assert sum(p.numel() for p in output.parameters()) == sum(
+        p.numel() for p in recurrent.parameters()
+    )
+    features = get_features("vgg_lstm", InputStrategy.ALL)
+    scalars = {k: v for k, v in make_batch(recurrent).items() if k != "frames"}
+    was_training = recurrent.training
+    try:
+        logits = {}
+        for mode, model in (("recurrent", recurrent), ("output", output)):
+            model.train()
+            seen_in, seen_out, handle = _recorded_dropout(model)
+            torch.manual_seed(5)
+            with torch.no_grad():
+                logits[mode] = model._head(features, **scalars)
+                states, expected = _lstm_steps_with_masks(
+                    model, features, scalars, seen_out, recurrent=mode == "recurrent"
+                )
+            handle.remove()
+            assert len(seen_out) == 3
+            # The dropout really dropped something (p = 0.2 over 2 x 256 units)...
+            for before, after in zip(seen_in, seen_out, strict=True):
+                assert (after == 0).any() and not torch.equal(after, before)
+            # ...and each step's h_t is the LSTMCell of the previous step's carried state.
+            for t in range(3):
+                torch.testing.assert_close(seen_in[t], states[t], rtol=1e-5, atol=1e-6)
+            torch.testing.assert_close(logits[mode], expected, rtol=1e-5, atol=1e-6)
+        # Same seed, same masks: step 1 is identical, what follows is not.
+        assert not torch.allclose(logits["recurrent"], logits["output"])
+        recurrent.eval()
+        output.eval()
+        with torch.no_grad():
+            assert torch.equal(
+                recurrent._head(features, **scalars), output._head(features, **scalars)
+            )
+    finally:
+        recurrent.train(was_training)
+        del output
+    with pytest.raises(ValueError, match=r"lstm_dropout_mode.*recurrent, output"):
+        create_model("vgg_lstm", "ALL", lstm_dropout_mode="hidden")
+
+
 @pytest.mark.parametrize("name", MODELS)
 def test_hparams_rebuild_the_same_model(get_model, name: str) -> None:
     model = get_model(name, InputStrategy.ALL).eval()

@@ -2,8 +2,9 @@
 
 One ``.avi`` per press, named ``{SHAPE}_{hardness:02d}_{n}.avi`` (e.g. ``BASIC_34_2.avi``).
 Three frames are kept per video: the first frame, the frame with the highest mean grey
-level (the deepest press) and the frame midway between them. Labels come from the
-Shore 00 hardness through Larson's conversion; there is no force, width or estimate.
+level (the deepest press; OpenCV's weighted grey, as in the published code) and the frame
+midway between them. Labels come from the Shore 00 hardness through Larson's conversion;
+there is no force, width or estimate.
 Frames are stored as raw camera images (``frame_kind: raw`` in the store header), in RGB.
 
 Every file with a video suffix (:data:`VIDEO_SUFFIXES`, e.g. ``.avi``, ``.mp4``) is a
@@ -81,8 +82,20 @@ def video_frame_size(path: str | Path) -> tuple[int, int] | None:
 
 
 def select_press_frames(frames: np.ndarray) -> tuple[int, int, int]:
-    """Indices (first, midway, brightest) of a press video (T, H, W, 3), in time order."""
-    grey_level = frames.reshape(len(frames), -1).mean(axis=1)
+    """Indices (first, midway, brightest) of a press video, in time order.
+
+    ``frames`` are the decoded frames, (T, H, W, 3) uint8 in RGB order (as
+    :func:`read_video_frames` returns them). "Brightest" is the highest mean of OpenCV's
+    greyscale, ``0.299 R + 0.587 G + 0.114 B`` rounded per pixel, as the published code
+    computes it (``cv2.cvtColor(frame, COLOR_BGR2GRAY)`` on the BGR frames OpenCV decodes,
+    at full resolution); the first such frame on a tie. Midway is ``brightest // 2``.
+    """
+    # COLOR_RGB2GRAY on RGB frames is the published COLOR_BGR2GRAY on the BGR ones, with
+    # OpenCV's own fixed-point rounding, so near-ties break the same way.
+    grey_level = [
+        float(cv2.cvtColor(np.ascontiguousarray(frame), cv2.COLOR_RGB2GRAY).mean())
+        for frame in frames
+    ]
     brightest = int(np.argmax(grey_level))
     return 0, brightest // 2, brightest
 

@@ -6,6 +6,13 @@ Linear(hidden, 1) = y_t (only enabled scalars are concatenated; the two estimate
 same at every step). Output: sigmoid(softmax(w) . (y_1, y_2, y_3)) with a learnable
 3-vector w initialised to ones (equal weights at the start).
 
+Where the dropout sits (``lstm_dropout_mode``): the published code overwrites the hidden
+state with its dropped-out copy, so the dropped h_t feeds both y_t and step t + 1 (the
+cell state c_t is never dropped, and every step draws a fresh mask). That is the default,
+``"recurrent"``. ``"output"`` drops only the path to y_t and carries the intact h_t
+forward (this project's behaviour before issue 20). Both draw the same masks in the same
+order, and in eval mode (no dropout) they are the same model.
+
 The paper resizes frames to 224x224 for the ImageNet-pretrained VGG16
 (``recommended_image_size``); the model itself accepts any size >= 32.
 """
@@ -36,7 +43,20 @@ from tactile_compliance.models.settings import (
     SearchDimension,
 )
 
-__all__ = ["VggLstm", "project_steps"]
+__all__ = ["LSTM_DROPOUT_MODES", "VggLstm", "check_lstm_dropout_mode", "project_steps"]
+
+#: Where VGG-LSTM's dropout acts: "recurrent" (the published code: the dropped-out hidden
+#: state also feeds the next step) or "output" (only the per-step output path).
+LSTM_DROPOUT_MODES = ("recurrent", "output")
+
+
+def check_lstm_dropout_mode(name: str, value: Any) -> str:
+    """Validate ``lstm_dropout_mode``: one of :data:`LSTM_DROPOUT_MODES`."""
+    if not isinstance(value, str) or value not in LSTM_DROPOUT_MODES:
+        raise ValueError(
+            f"hyperparameter {name} must be one of {', '.join(LSTM_DROPOUT_MODES)}, got {value!r}"
+        )
+    return value
 
 
 class _ProjectSteps(torch.autograd.Function):
@@ -113,7 +133,11 @@ class VggLstm(TactileModel):
     Args:
         inputs: input strategy (Image, ImageF, ImageFW, ALL).
         hidden_size: LSTM hidden size (tuned: 256).
-        lstm_dropout: dropout between the LSTM output and the per-step linear (tuned: 0.2).
+        lstm_dropout: dropout probability on the LSTM hidden state (tuned: 0.2).
+        lstm_dropout_mode: "recurrent" (default, the published code): the dropped-out
+            hidden state feeds the per-step linear and the next LSTM step; "output": only
+            the per-step linear sees the dropped-out state, the next step gets the intact
+            one. The cell state is never dropped; each step draws a fresh mask.
         force_dim, width_dim, elastic_dim, hertz_dim: sizes of the Linear(1, d)
             embeddings of F_t, W_t, E_elastic and E_hertz (tuned: 32 each).
         backbone_weights: "none" (random init), "imagenet" (official torchvision VGG16,
@@ -124,6 +148,7 @@ class VggLstm(TactileModel):
     hparam_checks = TactileModel.extend_checks(
         hidden_size=check_positive_int,
         lstm_dropout=check_dropout,
+        lstm_dropout_mode=check_lstm_dropout_mode,
         force_dim=check_positive_int,
         width_dim=check_positive_int,
         elastic_dim=check_positive_int,
@@ -148,6 +173,7 @@ class VggLstm(TactileModel):
         inputs: InputStrategy | str = "ALL",
         hidden_size: int = 256,
         lstm_dropout: float = 0.2,
+        lstm_dropout_mode: str = "recurrent",
         force_dim: int = 32,
         width_dim: int = 32,
         elastic_dim: int = 32,
@@ -178,6 +204,7 @@ class VggLstm(TactileModel):
             step_in += hp["elastic_dim"] + hp["hertz_dim"]
         self.lstm = nn.LSTMCell(step_in, hp["hidden_size"])
         self.dropout = nn.Dropout(hp["lstm_dropout"])
+        self.recurrent_dropout = hp["lstm_dropout_mode"] == "recurrent"
         self.output = nn.Linear(hp["hidden_size"], 1)
         # Learnable weights of the three steps' outputs; ones -> a plain mean at init.
         self.step_weights = nn.Parameter(torch.ones(NUM_FRAMES))
@@ -221,6 +248,10 @@ class VggLstm(TactileModel):
                 cell_gate
             )
             hidden = torch.sigmoid(out_gate) * torch.tanh(cell)
-            step_outputs.append(self.output(self.dropout(hidden)))
+            dropped = self.dropout(hidden)
+            if self.recurrent_dropout:
+                # As published: the dropped-out state is also the next step's h (c is not).
+                hidden = dropped
+            step_outputs.append(self.output(dropped))
         outputs = torch.cat(step_outputs, dim=1)  # (B, 3)
         return outputs @ torch.softmax(self.step_weights, dim=0)

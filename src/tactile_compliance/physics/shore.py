@@ -9,7 +9,8 @@ a ``float`` for a scalar input, an ``np.ndarray`` (float64) otherwise. Hardness 
 outside the durometer scale [0, 100] or NaN raise ``ValueError`` naming the value.
 
 - Shore 00 (silicones, Larson 2017): ``E[MPa] = 0.0037 * exp(0.0718 * S00)``.
-- Shore A (Gent 1958): ``E[MPa] = 0.0981 (56 + 7.62336 S) / (0.137505 (254 - 2.54 S))``.
+- Shore A (Gent 1958, as the dataset applied it):
+  ``E[MPa] = 0.0981 (56 + 7.62336 S) / (0.137505 (254 - 2.4 S))``.
 - Shore A / D exponential fit ("Reuss"): ``E[MPa] = exp(0.0235 S - 0.6403)`` with
   ``S = S_A`` for Shore A and ``S = S_D + 50`` for Shore D.
 """
@@ -37,6 +38,19 @@ _PA_PER_MPA = 1.0e6
 # Larson 2017 fit for Shore 00 silicones: E[MPa] = A * exp(B * S00).
 _LARSON_A_MPA = 0.0037
 _LARSON_B_PER_SHORE = 0.0718
+
+# Gent's (1958) Shore A relation: E[MPa] = N (56 + K S) / (M (254 - T S)). The relation
+# as usually quoted has T = 2.54 (mm of indenter travel per 100 points, with its pole at
+# S = 100); the "Gent, Shore A" column of the dataset's object table
+# (dataset_objects_and_compliance.csv) is reproduced, to its 3 significant digits for
+# all 63 objects with a Shore A value, only with T = 2.4 (T = 2.54 is up to 50 % off, at
+# S = 90). The labels derive from that table, so we use T = 2.4.
+_GENT_NUMERATOR_MPA = 0.0981  # kgf/mm^2 -> MPa
+_GENT_OFFSET = 56.0
+_GENT_SLOPE = 7.62336
+_GENT_DENOMINATOR = 0.137505
+_GENT_TRAVEL_MM = 254.0
+_GENT_TRAVEL_PER_SHORE = 2.4
 
 # Exponential Shore A/D fit: E[MPa] = exp(C * S + D); Shore D is shifted by +50 onto A.
 _REUSS_C_PER_SHORE = 0.0235
@@ -131,21 +145,22 @@ def modulus_pa_to_shore00(modulus_pa: ArrayOrFloat) -> ArrayOrFloat:
 
 
 def shore_a_to_modulus_pa_gent(shore_a: ArrayOrFloat) -> ArrayOrFloat:
-    """Young's modulus [Pa] from Shore A hardness [0-100] (Gent 1958).
+    """Young's modulus [Pa] from Shore A hardness [0-100] (Gent 1958, dataset variant).
 
-    ``E[MPa] = 0.0981 (56 + 7.62336 S) / (0.137505 (254 - 2.54 S))``. The relation
-    diverges at S = 100 (the indenter no longer penetrates), where ``inf`` is returned.
+    ``E[MPa] = 0.0981 (56 + 7.62336 S) / (0.137505 (254 - 2.4 S))``: the form that
+    reproduces the "Gent, Shore A" column of the dataset's object table (Burgess et al.),
+    e.g. S = 50 gives 2.33 MPa and S = 90 gives 13.9 MPa. The relation as usually quoted
+    has ``2.54 S`` in the denominator (up to 50 % higher moduli, and a pole at S = 100);
+    with ``2.4 S`` the pole lies at S = 105.8, outside the scale, so every hardness in
+    [0, 100] gives a finite modulus (41.7 MPa at S = 100).
 
     Raises:
         ValueError: a hardness outside [0, 100] or NaN.
     """
     values = _checked_hardness(shore_a, "A")
-    numerator = 0.0981 * (56.0 + 7.62336 * values)
-    denominator = 0.137505 * (254.0 - 2.54 * values)
-    # The denominator is exactly 0 at S = 100: the fit's pole, reported as +inf.
-    with np.errstate(divide="ignore"):
-        modulus_mpa = np.where(denominator > 0.0, numerator / denominator, np.inf)
-    return _like_input(modulus_mpa * _PA_PER_MPA, shore_a)
+    numerator = _GENT_NUMERATOR_MPA * (_GENT_OFFSET + _GENT_SLOPE * values)
+    denominator = _GENT_DENOMINATOR * (_GENT_TRAVEL_MM - _GENT_TRAVEL_PER_SHORE * values)
+    return _like_input(numerator / denominator * _PA_PER_MPA, shore_a)
 
 
 def shore_a_to_modulus_pa_reuss(shore_a: ArrayOrFloat) -> ArrayOrFloat:

@@ -1,5 +1,16 @@
 """The tuning drivers: :func:`tune` (a model's hyperparameters) and :func:`tune_balance`
-(``sampling.t_balance``), and the files they write (``best.yaml``, ``tuned.yaml``, ...)."""
+(``sampling.t_balance``), and the files they write (``best.yaml``, ``tuned.yaml``, ...).
+
+The paper's settings, and how far the defaults are from them:
+
+* ``tune``: the defaults are the paper's (132 trials, Hyperband over 5-50 epochs, eta 3,
+  cost = the last epoch's validation N-MSE).
+* ``tune_balance``: the paper ran 132 trials of 50 epochs per model; the default here is
+  30 trials of 10 epochs (about 1/22 of the compute), and ``paper_budget=True``
+  (``--paper-budget``) is the paper's budget.
+* Both score a trial on its last epoch, as the published code does; ``objective="best"``
+  (``--objective best``) scores it on its best epoch instead (see ``objectives``).
+"""
 
 from __future__ import annotations
 
@@ -23,9 +34,11 @@ from tactile_compliance.models import list_models
 from tactile_compliance.outputs import atomic_file, claim_output_dir
 from tactile_compliance.training.grid import load_experiment
 from tactile_compliance.training.hpo.objectives import (
+    DEFAULT_OBJECTIVE,
     BalanceObjective,
     TrialObjective,
     base_config,
+    check_objective,
     check_store,
     prepare_features,
 )
@@ -46,7 +59,26 @@ from tactile_compliance.training.hpo.space import (
     trial_values,
 )
 
-__all__ = ["TuneResult", "tune", "tune_balance"]
+__all__ = [
+    "BALANCE_EPOCHS",
+    "BALANCE_TRIALS",
+    "PAPER_BALANCE_EPOCHS",
+    "PAPER_BALANCE_TRIALS",
+    "TuneResult",
+    "balance_budget",
+    "tune",
+    "tune_balance",
+]
+
+#: tune_balance's default budget: epochs per model and trial, and trials (CPU-sized).
+BALANCE_EPOCHS = 10
+BALANCE_TRIALS = 30
+#: The paper's t_balance budget (published optimize_balance_threshold.py: SMAC's BO facade
+#: with 132 trials; each trains every model for 50 epochs).
+PAPER_BALANCE_EPOCHS = 50
+PAPER_BALANCE_TRIALS = 132
+
+_OBJECTIVE_WORDS = {"last": "last-epoch", "best": "best-epoch"}
 
 
 @dataclass
@@ -64,13 +96,15 @@ class TuneResult:
     trials_path: Path
     wall_time_s: float = 0.0
     extra_paths: list[Path] = field(default_factory=list)
+    objective: str = DEFAULT_OBJECTIVE
 
     def format(self) -> str:
         """A printable summary."""
         budget = f" at {self.best_budget:g} epochs" if self.best_budget is not None else ""
+        scored = _OBJECTIVE_WORDS.get(self.objective, self.objective)
         lines = [
-            f"{self.name}: {self.trials} trials, best validation N-MSE {self.best_cost:.5f}"
-            f"{budget} ({self.wall_time_s:.1f} s)",
+            f"{self.name}: {self.trials} trials, best {scored} validation N-MSE "
+            f"{self.best_cost:.5f}{budget} ({self.wall_time_s:.1f} s)",
             *(f"  {k} = {v}" for k, v in self.best.items()),
             f"Config: {self.config_path}",
             f"Tuned values: {self.tuned_path}",
@@ -108,6 +142,7 @@ class _Search:
     overwrite: bool
     threads: int | None
     progress: bool
+    objective: str
     started: float = field(default_factory=time.perf_counter)
 
     @classmethod
@@ -224,6 +259,7 @@ class _Search:
             trials_path=trials_path,
             wall_time_s=round(time.perf_counter() - self.started, 2),
             extra_paths=list(others),
+            objective=self.objective,
         )
 
 
@@ -240,6 +276,7 @@ def tune(
     min_epochs: int = 5,
     max_epochs: int = 50,
     eta: int = 3,
+    objective: str = DEFAULT_OBJECTIVE,
     seed: int = 0,
     workers: int = 1,
     scheduler: str | None = None,
@@ -250,6 +287,8 @@ def tune(
     progress: bool = True,
 ) -> TuneResult:
     """Tune one model for one input strategy with SMAC3 (Hyperband over epochs).
+
+    The defaults are the paper's search (132 trials, 5-50 epochs, eta 3, last-epoch cost).
 
     Args:
         model: a registered model (``models.list_models()``); its class declares the
@@ -263,6 +302,9 @@ def tune(
         trials: SMAC trials (a trial = one configuration at one budget).
         min_epochs, max_epochs: Hyperband budget range (epochs).
         eta: Hyperband's halving rate.
+        objective: a trial's cost: the validation N-MSE of its ``"last"`` epoch (the
+            published code; the trial trains its whole budget, no early stopping) or of
+            its ``"best"`` epoch (with the base config's early stopping).
         seed: training seed of every trial and SMAC's seed.
         workers: parallel trials on a local Dask cluster (1: in this process).
         scheduler: address or scheduler-file of a running Dask scheduler.
@@ -277,6 +319,7 @@ def tune(
         raise ConfigError(f"need 1 <= min_epochs <= max_epochs, got {min_epochs}, {max_epochs}")
     if trials < 1:
         raise ConfigError(f"trials must be >= 1, got {trials}")
+    check_objective(objective)
     inputs = canonical_inputs(inputs)
     model = model.strip().lower()
     label = f"{model}-{inputs}" + ("-quick" if quick else "")
@@ -285,7 +328,7 @@ def tune(
     [base_dict] = search.trial_bases([base])
     configspace = search_space(model, inputs, seed)
     name = search_name(
-        "smac", base_dict, str(configspace), min_epochs, max_epochs, eta, seed, "tune"
+        "smac", base_dict, str(configspace), min_epochs, max_epochs, eta, seed, "tune", objective
     )
     scenario = search.scenario(
         smac, configspace, name, n_trials=trials, min_budget=min_epochs, max_budget=max_epochs
@@ -294,7 +337,9 @@ def tune(
         smac.MultiFidelityFacade,
         scenario,
         [base],
-        lambda threads: TrialObjective(base_dict, str(search.out / "trials"), threads),
+        lambda threads: TrialObjective(
+            base_dict, str(search.out / "trials"), threads, objective=objective
+        ),
         search.name,
         intensifier=smac.MultiFidelityFacade.get_intensifier(scenario, eta=eta),
     )
@@ -308,13 +353,32 @@ def tune(
     )
     config_path = save_config(best_cfg, search.out / "best.yaml")
     header = (
-        f"# Tuned by `tactile-compliance tune {model} --inputs {inputs}`: validation N-MSE "
-        f"{cost:.5f} at {budget} epochs.\n# Dotted overrides; use with `include:` in an "
-        "experiment rule, or --set each line.\n"
+        f"# Tuned by `tactile-compliance tune {model} --inputs {inputs} --objective "
+        f"{objective}`: {_OBJECTIVE_WORDS[objective]} validation N-MSE {cost:.5f} at "
+        f"{budget} epochs.\n# Dotted overrides; use with `include:` in an experiment rule, "
+        "or --set each line.\n"
     )
     tuned_path = _write_yaml(search.out / "tuned.yaml", header, best_values)
     # The caller prints result.format() (the CLI does).
     return search.result(facade, best_values, (cost, budget), [config_path, tuned_path])
+
+
+def balance_budget(
+    epochs: int | None = None, trials: int | None = None, paper_budget: bool = False
+) -> tuple[int, int]:
+    """``tune_balance``'s (epochs per model and trial, trials): the given values, else the
+    CPU-sized defaults (10, 30), or with ``paper_budget`` the paper's (50, 132).
+
+    Raises:
+        ConfigError: a value below 1.
+    """
+    if epochs is None:
+        epochs = PAPER_BALANCE_EPOCHS if paper_budget else BALANCE_EPOCHS
+    if trials is None:
+        trials = PAPER_BALANCE_TRIALS if paper_budget else BALANCE_TRIALS
+    if epochs < 1 or trials < 1:
+        raise ConfigError(f"epochs and trials must be >= 1, got {epochs}, {trials}")
+    return epochs, trials
 
 
 def tune_balance(
@@ -324,8 +388,10 @@ def tune_balance(
     models: Sequence[str] | None = None,
     inputs: str = "ALL",
     condition: str | None = "seen",
-    epochs: int = 10,
-    trials: int = 30,
+    epochs: int | None = None,
+    trials: int | None = None,
+    paper_budget: bool = False,
+    objective: str = DEFAULT_OBJECTIVE,
     store: str | Path | None = None,
     overrides: Iterable[str] = (),
     seed: int = 0,
@@ -340,10 +406,18 @@ def tune_balance(
     """Tune ``sampling.t_balance`` in [0, 1] (step 0.01) with SMAC3's BO facade.
 
     Cost of a value: the mean, over ``models`` (default: every registered model), of the
-    best validation N-MSE after ``epochs`` epochs of balanced training. Note that
-    validation is balanced too (``sampling.balance_validation``, as in the paper), so the
-    cost also depends on how the validation set is oversampled; pass
-    ``--set sampling.balance_validation=false`` to score on the untouched validation split.
+    validation N-MSE after ``epochs`` epochs of balanced training: of the last epoch
+    (``objective="last"``, the published code; trials train all ``epochs``, no early
+    stopping) or of the best one (``"best"``). Note that validation is balanced too
+    (``sampling.balance_validation``, as in the paper), so the cost also depends on how
+    the validation set is oversampled; pass ``--set sampling.balance_validation=false`` to
+    score on the untouched validation split.
+
+    Budget: ``epochs`` per model and trial and ``trials`` default to
+    :data:`BALANCE_EPOCHS` x :data:`BALANCE_TRIALS` (10 x 30, sized for a CPU);
+    ``paper_budget=True`` makes the defaults the paper's
+    :data:`PAPER_BALANCE_EPOCHS` x :data:`PAPER_BALANCE_TRIALS` (50 x 132). An explicit
+    ``epochs`` or ``trials`` wins over either.
 
     Writes ``OUT/tuned.yaml`` (``sampling.strategy``/``t_balance``), ``OUT/best-MODEL.yaml``
     per model, and, when ``config`` is an experiment NAME, ``OUT/NAME-tuned.yaml``: that
@@ -353,8 +427,8 @@ def tune_balance(
     smac = require_smac()
     from ConfigSpace import ConfigurationSpace, Integer
 
-    if epochs < 1 or trials < 1:
-        raise ConfigError(f"epochs and trials must be >= 1, got {epochs}, {trials}")
+    epochs, trials = balance_budget(epochs, trials, paper_budget)
+    check_objective(objective)
     inputs = canonical_inputs(inputs)
     models = [m.strip().lower() for m in (list_models() if models is None else models)]
     label = "balance" + ("-quick" if quick else "")
@@ -363,21 +437,24 @@ def tune_balance(
     base_dicts = search.trial_bases(bases)
     configspace = ConfigurationSpace(seed=seed)
     configspace.add(Integer("t_balance_percent", (0, 100), default=50))
-    name = search_name("smac", base_dicts, epochs, seed, "balance")
+    name = search_name("smac", base_dicts, epochs, seed, "balance", objective)
     scenario = search.scenario(smac, configspace, name, n_trials=trials)
     facade, incumbent = search.run(
         smac.HyperparameterOptimizationFacade,
         scenario,
         bases,
-        lambda threads: BalanceObjective(base_dicts, str(search.out / "trials"), epochs, threads),
+        lambda threads: BalanceObjective(
+            base_dicts, str(search.out / "trials"), epochs, threads, objective=objective
+        ),
         f"tune-balance{' (quick)' if quick else ''}",
     )
     cost, _ = incumbent_cost(facade, incumbent)
     t_balance = int(plain(incumbent["t_balance_percent"])) / 100
     best = {"sampling.strategy": "balanced", "sampling.t_balance": t_balance}
     header = (
-        f"# Tuned by `tactile-compliance tune-balance`: mean validation N-MSE {cost:.5f} "
-        f"of {', '.join(models)} after {epochs} epochs.\n"
+        f"# Tuned by `tactile-compliance tune-balance --objective {objective}`: mean "
+        f"{_OBJECTIVE_WORDS[objective]} validation N-MSE {cost:.5f} of {', '.join(models)} "
+        f"after {epochs} epochs, {trials} trials.\n"
     )
     tuned_path = _write_yaml(search.out / "tuned.yaml", header, best)
     extra_paths = []

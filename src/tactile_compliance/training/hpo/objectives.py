@@ -1,12 +1,22 @@
 """What a tuning trial trains: its base configuration and the SMAC target functions.
 
 A trial is one call of the training path (:func:`tactile_compliance.training.train.train`)
-on the base config plus the trial's values; its cost is the run's best validation N-MSE.
+on the base config plus the trial's values. Its cost (``objective``):
+
+* ``"last"`` (default; the published code): the validation N-MSE of the trial's last
+  epoch. As published, the trial trains its whole budget: early stopping is off
+  (``training.patience=0``). Hyperband compares configurations by their score after
+  ``budget`` epochs, which is this; the best epoch of a noisy validation curve is a
+  minimum over epochs and flatters noisy configurations.
+* ``"best"``: the run's best validation N-MSE (``best_val_nmse``), with the base
+  config's early stopping: the epoch ``train`` keeps and tests.
 """
 
 from __future__ import annotations
 
+import csv
 import json
+import math
 import shutil
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -20,19 +30,76 @@ from tactile_compliance.config import (
     config_to_dict,
     load_config,
 )
-from tactile_compliance.runs.layout import config_hash
+from tactile_compliance.runs.layout import EPOCH_LOG, config_hash
 from tactile_compliance.training.cluster import limit_threads
 from tactile_compliance.training.experiment import precompute_features
 from tactile_compliance.training.grid import expand_experiment, load_experiment
 from tactile_compliance.training.hpo.space import canonical_inputs, plain, trial_overrides
 
 __all__ = [
+    "DEFAULT_OBJECTIVE",
+    "OBJECTIVES",
     "BalanceObjective",
     "TrialObjective",
     "base_config",
+    "check_objective",
     "check_store",
+    "last_epoch_val_nmse",
     "prepare_features",
+    "trial_cost",
 ]
+
+#: What a trial's cost is: the validation N-MSE of its "last" epoch (the published code)
+#: or of its "best" epoch.
+OBJECTIVES = ("last", "best")
+DEFAULT_OBJECTIVE = "last"
+
+
+def check_objective(objective: str) -> str:
+    """``objective`` if it is one of :data:`OBJECTIVES`, else a ConfigError."""
+    if objective not in OBJECTIVES:
+        raise ConfigError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+    return objective
+
+
+def last_epoch_val_nmse(run_dir: str | Path) -> float:
+    """The validation N-MSE of the last validated epoch of a run, read from its epoch
+    log (``RUN_DIR/logs/metrics.csv``: ``epoch`` and ``val_nmse`` columns).
+
+    Raises:
+        ValueError: no epoch log, or no finite validation N-MSE in it.
+    """
+    path = Path(run_dir) / EPOCH_LOG
+    try:
+        with open(path, newline="", encoding="utf-8") as handle:
+            rows = list(csv.DictReader(handle))
+    except (OSError, csv.Error, UnicodeDecodeError) as err:
+        raise ValueError(f"{path}: cannot read the epoch log ({err})") from err
+    last: tuple[int, float] | None = None
+    for row in rows:
+        try:
+            epoch = int(float(row.get("epoch") or "nan"))  # NaN (no epoch) raises too
+            value = float(row.get("val_nmse") or "nan")
+        except ValueError:
+            continue
+        # Train and validation values are separate lines of one epoch; a later line of the
+        # same epoch wins (a resumed run rewrites nothing it kept, so there is one).
+        if math.isfinite(value) and (last is None or epoch >= last[0]):
+            last = (epoch, value)
+    if last is None:
+        raise ValueError(f"{path}: no epoch with a validation N-MSE")
+    return last[1]
+
+
+def trial_cost(result: Mapping[str, Any], objective: str) -> float:
+    """A trial's cost from its ``train`` result: the validation N-MSE of the ``"last"``
+    epoch (a ``last_val_nmse`` field when the result has one, else the run's epoch log)
+    or of the ``"best"`` one (``best_val_nmse``)."""
+    if check_objective(objective) == "best":
+        return float(result["best_val_nmse"])
+    if result.get("last_val_nmse") is not None:
+        return float(result["last_val_nmse"])
+    return last_epoch_val_nmse(result["run_dir"])
 
 
 def base_config(
@@ -100,6 +167,12 @@ def prepare_features(base: ExperimentConfig, client: Any, threads: int | None) -
         precompute_features([config_to_dict(base)], None)
 
 
+def _objective_overrides(objective: str) -> list[str]:
+    """Config overrides a trial needs for ``objective``: scored on its last epoch, it
+    trains its whole budget, as the published trials did (no early stopping)."""
+    return ["training.patience=0"] if check_objective(objective) == "last" else []
+
+
 def _train_trial(cfg: ExperimentConfig, trials_dir: str) -> dict[str, Any]:
     """One trial = one training run; weights are deleted afterwards (results are kept)."""
     from tactile_compliance.training.experiment import _quiet_training_warnings
@@ -141,19 +214,21 @@ class TrialObjective(_Objective):
     base: dict[str, Any]
     trials_dir: str
     threads: int | None = None
+    objective: str = DEFAULT_OBJECTIVE
 
     def config_for(self, config: Mapping[str, Any], budget: float | None) -> ExperimentConfig:
         """The experiment config of one trial."""
         extra = trial_overrides(config)
         if budget is not None:
             extra.append(f"training.max_epochs={max(1, round(float(budget)))}")
+        extra.extend(_objective_overrides(self.objective))
         return config_from_dict(self.base, extra, "tuning trial")
 
     def __call__(self, config: Any, seed: int = 0, budget: float | None = None) -> float:
         del seed  # deterministic: the base config's seed
         limit_threads(self.threads)
         result = _train_trial(self.config_for(config, budget), self.trials_dir)
-        return float(result["best_val_nmse"])
+        return trial_cost(result, self.objective)
 
 
 @dataclass
@@ -164,6 +239,7 @@ class BalanceObjective(_Objective):
     trials_dir: str
     epochs: int
     threads: int | None = None
+    objective: str = DEFAULT_OBJECTIVE
 
     def configs_for(self, t_balance: float) -> list[ExperimentConfig]:
         """One config per model with balanced sampling at ``t_balance`` and fixed epochs."""
@@ -171,6 +247,7 @@ class BalanceObjective(_Objective):
             "sampling.strategy=balanced",
             f"sampling.t_balance={t_balance}",
             f"training.max_epochs={self.epochs}",
+            *_objective_overrides(self.objective),
         ]
         return [config_from_dict(base, extra, "balance trial") for base in self.bases]
 
@@ -179,7 +256,7 @@ class BalanceObjective(_Objective):
         limit_threads(self.threads)
         t_balance = int(plain(config["t_balance_percent"])) / 100
         costs = [
-            float(_train_trial(cfg, self.trials_dir)["best_val_nmse"])
+            trial_cost(_train_trial(cfg, self.trials_dir), self.objective)
             for cfg in self.configs_for(t_balance)
         ]
         return sum(costs) / len(costs)
