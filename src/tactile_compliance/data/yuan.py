@@ -142,7 +142,7 @@ def import_yuan(
                 "importer": "yuan",
                 "source_dir": str(src.resolve()),
                 "frame_kind": "raw",
-                "frame_selection": "first, midway, brightest",
+                "frame_selection": "first, midway, brightest (OpenCV-weighted grey)",
                 "label_conversion": "Shore 00 -> E (Larson 2017)",
                 "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
             },
