@@ -83,8 +83,8 @@ def test_packaged_presets_expand_to_valid_cells():
         "new-dataset",
     }
     sizes = {
-        "table1": 240,
-        "table2": 240,
+        "table1": 360,  # 3 models x 4 inputs x 3 object conditions x 10 seeds
+        "table2": 360,
         "rolling-window": 210,
         "shape-test": 240,
         "new-dataset": 30,
@@ -102,9 +102,17 @@ def test_packaged_presets_expand_to_valid_cells():
                 assert min(cfg.data.image_size) >= 65  # the Top10 CNN needs >= 65 px
             else:
                 assert cfg.model.freeze_backbone and max(cfg.data.image_size) <= 64
+    table1 = expand_experiment(load_experiment("table1"))
+    # The paper's Seen/UnSeen as three object conditions, every (model, inputs, seed) in each.
+    conditions = {(c.cfg.split.condition, c.cfg.split.grouping) for c in table1}
+    assert conditions == {("seen", "per_sample"), ("seen", "grasp"), ("unseen", "grasp")}
+    for condition in conditions:
+        same = [c for c in table1 if (c.cfg.split.condition, c.cfg.split.grouping) == condition]
+        assert len(same) == 120
     cells = {
         (c.cfg.model.name, c.cfg.inputs, c.cfg.split.condition): c.cfg
-        for c in expand_experiment(load_experiment("table1"))
+        for c in table1
+        if c.cfg.split.grouping == "grasp"
     }
     assert cells["vgg_lstm", "ALL", "seen"].training.lr == pytest.approx(3e-4)
     assert cells["res_tf", "Image", "unseen"].model.hparams["num_layers"] == 5
@@ -119,6 +127,48 @@ def test_packaged_presets_expand_to_valid_cells():
     assert shore[0].cfg.data.label_range_pa == (1e3, 1e7)
     windows = expand_experiment(load_experiment("rolling-window", quick=True))
     assert sorted({c.cfg.split.subset for c in windows}) == list(range(7))
+    for name in ("rolling-window", "shape-test"):  # one condition: seen, grasp-grouped
+        cells = expand_experiment(load_experiment(name, quick=True))
+        assert {(c.cfg.split.condition, c.cfg.split.grouping) for c in cells} == {("seen", "grasp")}
+
+
+def test_linked_grid_axis_sets_several_keys_together(tmp_path):
+    (tmp_path / "linked.yaml").write_text(
+        textwrap.dedent("""
+        description: linked
+        grid:
+          inputs: [Image, ALL]
+          objects:
+            - {split.condition: seen, split.grouping: per_sample}
+            - {split.condition: unseen}
+          model.hparams: [{dropout: 0.1}, {dropout: 0.2}]   # a mapping-valued config key
+        seeds: 1
+        rules:
+          - when: {split.grouping: per_sample}
+            set: {training.lr: 0.5}
+    """)
+    )
+    cells = expand_experiment(load_experiment(tmp_path / "linked.yaml"))
+    assert len(cells) == 2 * 2 * 2
+    first = cells[0]
+    assert first.axes == {
+        "inputs": "Image",
+        "split.condition": "seen",
+        "split.grouping": "per_sample",
+        "model.hparams": {"dropout": 0.1},
+        "seed": 0,
+    }
+    assert first.label == "top10nn Image seen per_sample random seed 0"
+    per_sample = [c for c in cells if c.cfg.split.grouping == "per_sample"]
+    assert len(per_sample) == 4 and {c.cfg.training.lr for c in per_sample} == {0.5}
+    unseen = [c for c in cells if c.cfg.split.condition == "unseen"]
+    assert len(unseen) == 4 and {c.cfg.split.grouping for c in unseen} == {"grasp"}
+    assert {c.cfg.model.hparams["dropout"] for c in unseen} == {0.1, 0.2}
+    # --where matches the keys a linked axis sets.
+    only = expand_experiment(
+        load_experiment(tmp_path / "linked.yaml"), where=["split.grouping=per_sample"]
+    )
+    assert [c.key for c in only] == [c.key for c in per_sample]
 
 
 def test_grid_rules_overrides_filters_and_plain_configs(tiny, tmp_path, toy_store):
@@ -217,7 +267,7 @@ def test_table1_paper_settings_equal_the_published_values(tmp_path):
     )
     literal = expand_experiment(load_experiment(tmp_path / "literal.yaml"), seeds=1)
     packaged = expand_experiment(load_experiment("table1"), seeds=1)
-    assert [c.key for c in literal] == [c.key for c in packaged] and len(packaged) == 24
+    assert [c.key for c in literal] == [c.key for c in packaged] and len(packaged) == 36
 
 
 @pytest.mark.parametrize(
@@ -226,6 +276,13 @@ def test_table1_paper_settings_equal_the_published_values(tmp_path):
         ("grid: {model.name: [top10nn]}\nsets: {}\n", "unknown key"),
         ("set: {training.lrr: 1}\n", "training.lrr"),
         ("grid: {split.condition: [seen, sideways]}\n", "split.condition"),
+        ("grid: {objects: [{split.conditon: seen}]}\n", "split.conditon"),
+        ("grid: {objects: [{split.condition: seen}, seen]}\n", "linked axis"),
+        ("grid: {objects: [{inputs: ALL}], inputs: [Image]}\n", "both set 'inputs'"),
+        (
+            "grid: {objects: [{split.condition: unseen, split.grouping: per_sample}]}\n",
+            "per_sample only applies",
+        ),
         ("grid: {seed: [1, 2]}\n", "seeds"),
         ("seeds: 0\n", "seeds must be"),
         ("rules:\n  - when: {model.name: top10nn}\n", "changes nothing"),

@@ -15,6 +15,8 @@ from tactile_compliance.runs.metrics import (
     nmse,
     r2,
     reference_predictions,
+    scalar_features,
+    scalar_reference,
     soft_hard_labels,
     within_half_decade,
 )
@@ -125,3 +127,45 @@ def test_reference_predictions():
     assert metrics["log10_accuracy"] == pytest.approx(3 / 4)
     with pytest.raises(ValueError, match="empty"):
         reference_predictions(train.iloc[:0], test)
+
+
+def _scalar_samples() -> pd.DataFrame:
+    return pd.DataFrame(
+        {
+            "modulus_pa": [1e4, 1e6, 1e8, 1e10],
+            **{f"force_n_{i}": [1.0 + i, 2.0, 3.0, 4.0] for i in range(3)},
+            **{f"width_m_{i}": [0.05, 0.04 - 0.001 * i, 0.03, 0.02] for i in range(3)},
+            "elastic_estimate_pa": [1e5, -3.0, np.nan, 1e16],
+            "hertz_estimate_pa": [2e5, 1e7, 1e9, np.nan],
+        }
+    )
+
+
+def test_scalar_features_per_strategy():
+    samples = _scalar_samples()
+    assert scalar_features(samples, "Image")[0].shape == (4, 0)
+    x, names = scalar_features(samples, "ImageF")
+    assert names == ("force_n_0", "force_n_1", "force_n_2")
+    np.testing.assert_array_equal(x[:, 1], samples["force_n_1"])
+    x, names = scalar_features(samples, "image_fw")  # the one vocabulary's spellings
+    assert names[3:] == ("width_m_0", "width_m_1", "width_m_2") and x.shape == (4, 6)
+    x, names = scalar_features(samples, "ALL")
+    assert names[-2:] == ("elastic_estimate_pa", "hertz_estimate_pa")
+    # log10 of the estimate clamped to [1e2, 1e14] Pa (as the models see it); NaN stays NaN.
+    np.testing.assert_allclose(x[:, -2], [5.0, 2.0, np.nan, 14.0])
+    np.testing.assert_allclose(x[:, -1], [np.log10(2e5), 7.0, 9.0, np.nan])
+    assert np.isfinite(samples["elastic_estimate_pa"].iloc[0])  # the input is not modified
+    with pytest.raises(ValueError, match="width_m_0"):
+        scalar_features(samples.drop(columns="width_m_0"), "ALL")
+
+
+def test_scalar_reference_predicts_moduli_in_pa():
+    samples = _scalar_samples()
+    assert scalar_reference(samples, samples, "Image") is None
+    predicted = scalar_reference(samples, samples, "ALL", seed=1)
+    assert predicted.shape == (4,) and np.all(np.isfinite(predicted)) and np.all(predicted > 0)
+    # Four rows are fewer than a leaf's minimum: the fit is the mean normalised label,
+    # i.e. the geometric mean of the training moduli.
+    np.testing.assert_allclose(predicted, 1e7)
+    with pytest.raises(ValueError, match="empty"):
+        scalar_reference(samples.iloc[:0], samples, "ALL")

@@ -49,7 +49,7 @@ PLANS: dict[str, DemoPlan] = {
         grasps_per_object=2,
         image_size=(72, 96),
         shore_objects=6,
-        where=("model.name=top10nn", "inputs=ALL", "split.condition=seen"),
+        where=("model.name=top10nn", "inputs=ALL", "split.condition=seen", "split.grouping=grasp"),
         overrides=("training.max_epochs=1",),
     ),
 }

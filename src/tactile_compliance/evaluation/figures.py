@@ -32,7 +32,6 @@ from tactile_compliance.evaluation.loading import (
 from tactile_compliance.evaluation.parts import ReportParts, safe_name
 from tactile_compliance.evaluation.render import Cell, Heading, Table
 from tactile_compliance.evaluation.tables import (
-    CONDITION_LABELS,
     MODEL_ORDER,
     PRESET_HINTS,
     SETTING_PREFERENCE,
@@ -40,10 +39,12 @@ from tactile_compliance.evaluation.tables import (
     describe_runs,
     model_label,
     ordered,
+    protocol_label,
     subset_summary_table,
     window_label,
 )
 from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.runs.results import PROTOCOLS
 
 __all__ = [
     "MAX_STORES",
@@ -115,14 +116,14 @@ def fig1(
 
 # ============================================================================ Fig. 5 / 8
 def headline_runs(frame: pd.DataFrame) -> tuple[pd.DataFrame, str] | None:
-    """The runs of the preferred setting (balanced + seen first) and a phrase naming it.
+    """The runs of the preferred setting (balanced + seen grasp-grouped first) and its name.
 
     Within a setting, the preset with the most runs wins (ties: the first by name), so a
     quick preset next to the full one never decides what Fig. 5 and the extras show.
     """
     rows = main_grid(frame)
-    for sampling, condition in SETTING_PREFERENCE:
-        part = rows[(rows["sampling"] == sampling) & (rows["condition"] == condition)]
+    for sampling, protocol in SETTING_PREFERENCE:
+        part = rows[(rows["sampling"] == sampling) & (rows["protocol"] == protocol)]
         if part.empty:
             continue
         counts = part["preset"].value_counts()
@@ -130,7 +131,7 @@ def headline_runs(frame: pd.DataFrame) -> tuple[pd.DataFrame, str] | None:
         part = part[part["preset"] == preset]
         return (
             part,
-            f"preset `{preset}`, {sampling} sampling, {CONDITION_LABELS.get(condition, condition)}",
+            f"preset `{preset}`, {sampling} sampling, {protocol_label(protocol)}",
         )
     return None
 
@@ -145,7 +146,7 @@ def _label_span(run_dir: Path | None, shore: bool) -> float:
 
 
 def _setting_rank(row: Any) -> int:
-    key = (row.sampling, row.condition)
+    key = (row.sampling, row.protocol)
     return SETTING_PREFERENCE.index(key) if key in SETTING_PREFERENCE else len(SETTING_PREFERENCE)
 
 
@@ -180,7 +181,7 @@ def _best_panels(
                 ),
             ).dropna(subset=["sel_nmse"])
             cand = cand.sort_values(
-                ["sel_pref", "sel_rank", "preset", "sampling", "condition", "sel_nmse"]
+                ["sel_pref", "sel_rank", "preset", "sampling", "protocol", "sel_nmse"]
             )
             chosen = None
             for row in cand.itertuples(index=False):
@@ -195,7 +196,7 @@ def _best_panels(
             same = cand[
                 (cand["preset"] == row.preset)
                 & (cand["sampling"] == row.sampling)
-                & (cand["condition"] == row.condition)
+                & (cand["protocol"] == row.protocol)
             ]
             rank = int((same["sel_nmse"] < row.sel_nmse).sum()) + 1
             panel = plots.ScatterPanel(
@@ -207,7 +208,7 @@ def _best_panels(
                 .to_numpy(),
                 nmse=float(row.sel_nmse),
                 span_decades=_label_span(resolve_run_dir(row.run_dir, results_dir), shore),
-                subtitle=f"{row.sampling}, {row.condition}, seed {row.seed}",
+                subtitle=f"{row.sampling}, {protocol_label(row.protocol)}, seed {row.seed}",
             )
             panels.append(panel)
             inside = panel.inside
@@ -215,7 +216,7 @@ def _best_panels(
                 [
                     Cell(text=model_label(model)),
                     Cell(text=str(inp)),
-                    Cell(text=f"{row.preset}: {row.sampling}, {row.condition}"),
+                    Cell(text=f"{row.preset}: {row.sampling}, {protocol_label(row.protocol)}"),
                     Cell(text=str(row.seed)),
                     Cell(text=f"{rank} of {len(same)}"),
                     Cell(float(row.sel_nmse)),
@@ -231,6 +232,7 @@ def _best_panels(
                     "preset": row.preset,
                     "sampling": row.sampling,
                     "condition": row.condition,
+                    "protocol": row.protocol,
                     "seed": row.seed,
                     "nmse": float(row.sel_nmse),
                     "inside_band": inside,
@@ -309,7 +311,8 @@ def fig5(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Pa
         describe_runs(
             used,
             "the seed with the lowest test N-MSE of the preferred setting "
-            "(balanced + seen, else random + seen, ...); see the table below",
+            "(balanced + seen grasp-grouped, else random + seen grasp-grouped, then the "
+            "per-sample and unseen splits); see the table below",
         ),
     )
     parts.tables["fig5"] = tidy
@@ -405,10 +408,12 @@ def _series_names(rows: pd.DataFrame) -> list[str]:
 
 def _setting_text(rows: pd.DataFrame) -> str:
     def values(column: str) -> str:
-        order = InputStrategy.names() if column == "inputs" else ("seen", "unseen")
+        if column == "protocol":
+            return "/".join(protocol_label(v) for v in ordered(rows[column], PROTOCOLS))
+        order = InputStrategy.names() if column == "inputs" else ()
         return "/".join(str(v) for v in ordered(rows[column], order))
 
-    return f"{values('inputs')}, {values('condition')}, {values('sampling')} sampling"
+    return f"{values('inputs')}, {values('protocol')}, {values('sampling')} sampling"
 
 
 def _window_layout(part: pd.DataFrame) -> _BoxLayout:

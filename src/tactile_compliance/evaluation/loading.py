@@ -19,7 +19,13 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.store import GraspStore, StoreError
-from tactile_compliance.runs.results import ROWS_DIR, STATUS_COMPLETE, ResultsStore
+from tactile_compliance.runs.results import (
+    ROWS_DIR,
+    STATUS_COMPLETE,
+    ResultsStore,
+    row_grouping,
+    split_protocol,
+)
 
 __all__ = [
     "SHORE_PRESETS",
@@ -94,12 +100,23 @@ def _subset_kind(value: Any) -> tuple[str, Any]:
     return "shape", text
 
 
+def _protocol(condition: Any, grouping: Any) -> str | None:
+    """The row's object condition; None when its condition is not recorded."""
+    try:
+        return split_protocol(condition, grouping)
+    except ValueError:
+        return None
+
+
 def load_results(results_dir: str | Path) -> pd.DataFrame:
     """All rows of the results store plus derived columns used for selection.
 
     Added columns: ``subset_kind`` / ``subset_value`` (see :func:`_subset_kind`),
-    ``store_source`` (the store header's ``source``, None when the store is not reachable)
-    and ``is_shore`` (Shore-hardness data: Table III material).
+    ``protocol`` (the object condition, one of ``runs.results.PROTOCOLS``: what every
+    table groups by where the paper has Seen/UnSeen, so per-sample and grasp-grouped seen
+    runs are never pooled), ``store_source`` (the store header's ``source``, None when the
+    store is not reachable) and ``is_shore`` (Shore-hardness data: Table III material).
+    ``grouping`` is filled in for rows written before it was recorded (``grasp``).
 
     Raises:
         FileNotFoundError: ``results_dir`` does not exist (a typo should not yield an
@@ -119,6 +136,7 @@ def load_results(results_dir: str | Path) -> pd.DataFrame:
         ("model", None),
         ("inputs", None),
         ("condition", None),
+        ("grouping", None),
         ("sampling", None),
         ("seed", None),
         ("subset", None),
@@ -128,6 +146,9 @@ def load_results(results_dir: str | Path) -> pd.DataFrame:
         if column not in frame.columns:
             frame[column] = default
     frame["preset"] = frame["preset"].fillna("").astype(str)
+    pairs = list(zip(frame["condition"], frame["grouping"], strict=True))
+    frame["grouping"] = [row_grouping(c, g) for c, g in pairs]
+    frame["protocol"] = [_protocol(c, g) for c, g in pairs]
     kinds = [_subset_kind(v) for v in frame["subset"].tolist()]
     frame["subset_kind"] = [k for k, _ in kinds]
     frame["subset_value"] = pd.Series([v for _, v in kinds], index=frame.index, dtype=object)

@@ -6,13 +6,16 @@ This module runs the sections in order and writes the documents; reading the sto
 What goes where (only ``status == "complete"`` rows count; each part is skipped with a note
 naming the preset that produces it when its rows are missing):
 
-* Table I / II — :func:`tables.paper_tables` (random / balanced sampling, whole dataset);
+* Table I / II — :func:`tables.paper_tables` (random / balanced sampling, whole dataset):
+  one column group per object condition (seen per-sample as in the paper, seen
+  grasp-grouped, unseen) and the reference rows (median, analytical, scalar GBR);
 * Table III and Fig. 8 — Shore-hardness runs (header source ``yuan`` or preset
   ``new-dataset``);
 * Fig. 1 — the distribution of the normalised modulus by shape in each store the runs used;
 * Fig. 5 — predicted vs true modulus per material for Image and ALL of each model, from the
   ``predictions.csv`` (test split) of the run with the lowest test N-MSE, preferring
-  balanced + seen runs as the paper does and falling back to what exists;
+  balanced + seen runs as the paper does (grasp-grouped before per-sample) and falling
+  back to what exists;
 * Fig. 6 / Fig. 7 — N-MSE box plots over seeds per rolling window / shape, with the numbers
   in a companion table;
 * extras — per-material / shape / soft-hard errors (from ``groups.csv``), soft/hard subset
@@ -152,7 +155,7 @@ class _Builder:
                 counts.append(f"`{preset or '(none)'}` ({ok}/{len(rows)} complete)")
             lines.append(f"- Presets: {', '.join(counts)}")
         if not done.empty:
-            cell_keys = ["preset", "model", "inputs", "condition", "sampling"]
+            cell_keys = ["preset", "model", "inputs", "protocol", "sampling"]
             per_cell = (
                 done.assign(_s=done["subset_value"].astype(str))
                 .groupby([*cell_keys, "_s"], dropna=False)["seed"]

@@ -5,8 +5,10 @@ This module only aggregates and lays out; reading the store and the run director
 
 Which rows feed which table (only ``status == "complete"`` rows ever count):
 
-* Table I   — sampling ``random``,   subset none, not Shore-hardness data;
-* Table II  — sampling ``balanced``, subset none, not Shore-hardness data;
+* Table I   — sampling ``random``,   subset none, not Shore-hardness data; one column group
+  per object condition (``protocol``: seen per-sample, seen grasp-grouped, unseen) and the
+  reference rows (median, analytical, scalar GBR per input strategy);
+* Table II  — sampling ``balanced``, subset none, not Shore-hardness data, the same layout;
 * Table III — Shore-hardness data (store header source ``yuan``, or a preset whose name
   starts with ``new-dataset``, for when the store is not reachable from here);
 * Fig. 6 / Fig. 7 companion tables — subset 0-6 (rolling window) / a shape name;
@@ -42,13 +44,20 @@ from tactile_compliance.evaluation.loading import (
 )
 from tactile_compliance.evaluation.render import Cell, Table
 from tactile_compliance.models.inputs import InputStrategy
-from tactile_compliance.runs.results import STATUS_COMPLETE, STATUS_FAILED
+from tactile_compliance.runs.metrics import REFERENCE_NAMES
+from tactile_compliance.runs.results import (
+    PROTOCOL_LABELS,
+    PROTOCOLS,
+    STATUS_COMPLETE,
+    STATUS_FAILED,
+)
 
 __all__ = [
-    "CONDITION_LABELS",
     "MODEL_LABELS",
     "MODEL_ORDER",
     "PRESET_HINTS",
+    "PROTOCOL_LABELS",
+    "REFERENCE_LABELS",
     "SETTING_PREFERENCE",
     "SHAPE_ORDER",
     "STD_DDOF",
@@ -60,6 +69,7 @@ __all__ = [
     "model_label",
     "ordered",
     "paper_tables",
+    "protocol_label",
     "shore_table",
     "softhard_subset_table",
     "subset_summary_table",
@@ -70,13 +80,24 @@ __all__ = [
 #: Paper order and spelling of the models (registry names -> display names).
 MODEL_ORDER: tuple[str, ...] = ("top10nn", "vgg_lstm", "res_tf")
 MODEL_LABELS: dict[str, str] = {"top10nn": "Top10NN", "vgg_lstm": "VGG-LSTM", "res_tf": "Res-Tf"}
-CONDITION_LABELS: dict[str, str] = {"seen": "Seen-Object", "unseen": "UnSeen-Object"}
+#: References that depend on the input strategy: one table row per strategy.
+_PER_STRATEGY_REFERENCES = frozenset({"scalar_gbr"})
+#: Row labels of the reference predictors (``ref_{name}_*`` columns of the results rows).
+REFERENCE_LABELS: dict[str, str] = {
+    "median": "Median",
+    "analytical": "Analytical",
+    "scalar_gbr": "Scalar GBR",
+}
 #: Paper order of the object shapes (Fig. 7 and its companion table).
 SHAPE_ORDER: tuple[str, ...] = ("Sphere", "Cylinder", "Rectangular", "Irregular")
-#: The setting Fig. 5 and the extras prefer: the paper's Fig. 5 is balanced + seen.
+#: The (sampling, protocol) Fig. 5 and the extras prefer: the paper's Fig. 5 is balanced +
+#: seen; of the two seen splits the grasp-grouped one comes first, because a scatter of a
+#: per-sample split shows partly memorised grasps (the paper's protocol is next in line).
 SETTING_PREFERENCE: tuple[tuple[str, str], ...] = (
-    ("balanced", "seen"),
-    ("random", "seen"),
+    ("balanced", "seen_grasp"),
+    ("random", "seen_grasp"),
+    ("balanced", "seen_per_sample"),
+    ("random", "seen_per_sample"),
     ("balanced", "unseen"),
     ("random", "unseen"),
 )
@@ -88,7 +109,7 @@ PRESET_HINTS: dict[str, str] = {
     "table2": "table2",
     "table3": "new-dataset",
     "fig1": "any preset (it reads the store of the recorded runs)",
-    "fig5": "table2 (balanced, seen; falls back to table1)",
+    "fig5": "table2 (balanced, seen grasp-grouped; falls back to table1)",
     "fig6": "rolling-window",
     "fig7": "shape-test",
     "fig8": "new-dataset",
@@ -112,6 +133,16 @@ HIGHER_IS_BETTER = frozenset({"log10_accuracy", "r2", "within_half_decade"})
 # ============================================================================ helpers
 def model_label(name: Any) -> str:
     return MODEL_LABELS.get(str(name), str(name))
+
+
+def protocol_label(protocol: Any) -> str:
+    """``Seen, grasp-grouped`` for ``seen_grasp``: which split a column or run used."""
+    return PROTOCOL_LABELS.get(str(protocol), str(protocol))
+
+
+def _protocol_rank(protocol: Any) -> int:
+    """Table order of an object condition (unknown ones last)."""
+    return PROTOCOLS.index(protocol) if protocol in PROTOCOLS else len(PROTOCOLS)
 
 
 def ordered(values: Iterable[Any], order: Sequence[Any]) -> list[Any]:
@@ -261,8 +292,8 @@ def _reference_stats(
     """Reference predictor over seeds: one value per seed (the mean over that seed's runs).
 
     Every run of a seed carries the reference on its own test split; runs of one seed and
-    condition share the split, so averaging per seed first keeps the std an over-seeds std
-    instead of counting each split once per model and input.
+    object condition share the split, so averaging per seed first keeps the std an
+    over-seeds std instead of counting each split once per model and input.
     """
     column = f"ref_{name}_{metric}"
     if column not in rows.columns:
@@ -274,14 +305,47 @@ def _reference_stats(
     return mean, std, n, sorted(int(s) for s in per_seed.index)
 
 
+def _has_reference(rows: pd.DataFrame, name: str) -> bool:
+    """Whether any run recorded reference ``name`` (older runs have no scalar reference)."""
+    columns = [c for c in rows.columns if c.startswith(f"ref_{name}_")]
+    return bool(columns) and bool(rows[columns].notna().any(axis=None))
+
+
+def _reference_lines(
+    part: pd.DataFrame, inputs: Sequence[str]
+) -> list[tuple[str, str | None, pd.DataFrame]]:
+    """The reference rows of a paper table: (name, input strategy or None, its runs).
+
+    Median and analytical do not depend on the input strategy (one row each, over all
+    runs); the scalar reference does (one row per strategy of the table; Image has no
+    scalar inputs, so its row shows ``–``).
+    """
+    lines: list[tuple[str, str | None, pd.DataFrame]] = []
+    for name in REFERENCE_NAMES:
+        if not _has_reference(part, name):
+            continue
+        if name in _PER_STRATEGY_REFERENCES:
+            lines += [(name, inp, part[part["inputs"] == inp]) for inp in inputs]
+        else:
+            lines.append((name, None, part))
+    return lines
+
+
 def paper_tables(
     frame: pd.DataFrame, sampling: str, number: str, ddof: int = STD_DDOF, digits: int = 4
 ) -> list[PaperTable]:
     """Table I (``sampling="random"``) or II (``"balanced"``): one table per (preset, store).
 
-    Rows: model x input strategy, then the two reference predictors (median, analytical).
-    Columns: log10 accuracy and N-MSE for Seen-Object and UnSeen-Object; best model cell
-    per column in bold (references are never bolded: they are floors, not contenders).
+    Rows: model x input strategy, then the reference predictors: median, analytical, and
+    the scalar GBR per input strategy (runs recorded before it existed have none, and then
+    no such rows). Column groups: one per object condition that has runs, in the order of
+    ``runs.results.PROTOCOLS`` (Seen per-sample (paper), Seen grasp-grouped, UnSeen), each
+    with log10 accuracy and N-MSE; a condition without runs is left out and named in the
+    caption. Best model cell per column in bold (references are never bolded: they are
+    floors, not contenders).
+
+    The tidy cells carry ``protocol`` (the column group) and ``condition`` / ``grouping``
+    (the split settings it stands for).
     """
     rows = main_grid(frame)
     rows = rows[rows["sampling"] == sampling]
@@ -290,16 +354,21 @@ def paper_tables(
         return out
     groups = list(rows.groupby(["preset", "store"], sort=True, dropna=False))
     for (preset, store), part in groups:
-        stats = summarise(part, ["model", "inputs", "condition"], _PAPER_METRICS, ddof)
-        conditions = ordered(part["condition"], ("seen", "unseen"))
+        stats = summarise(part, ["model", "inputs", "protocol"], _PAPER_METRICS, ddof)
+        protocols = ordered(part["protocol"], PROTOCOLS)
+        # The split settings each column group stands for (in the tidy cells).
+        split_fields = {
+            p: {"protocol": p, "condition": r.condition, "grouping": r.grouping}
+            for p, r in part.drop_duplicates("protocol").set_index("protocol").iterrows()
+        }
         models = ordered(part["model"], MODEL_ORDER)
         inputs = ordered(part["inputs"], InputStrategy.names())
         body_keys = [(m, i) for m in models for i in inputs]
         columns = ["Model", "Input"]
         group_header: list[tuple[str, int]] = [("", 2)]
         latex_columns = ["Model", "Input"]
-        for condition in conditions:
-            group_header.append((CONDITION_LABELS.get(condition, str(condition)), 2))
+        for protocol in protocols:
+            group_header.append((protocol_label(protocol), 2))
             for metric in _PAPER_METRICS:
                 name = metric.removeprefix("test_")
                 columns.append(METRIC_LABELS[name])
@@ -309,35 +378,35 @@ def paper_tables(
         group_header.append(("", 1))
 
         lookup = {
-            (r.model, r.inputs, r.condition, r.metric): r for r in stats.itertuples(index=False)
+            (r.model, r.inputs, r.protocol, r.metric): r for r in stats.itertuples(index=False)
         }
         tidy: list[dict[str, Any]] = []
         # Bold per column over the model rows.
         bold: dict[tuple[str, str], list[bool]] = {}
-        for condition in conditions:
+        for protocol in protocols:
             for metric in _PAPER_METRICS:
                 name = metric.removeprefix("test_")
                 means = [
-                    lookup[(m, i, condition, name)].mean
-                    if (m, i, condition, name) in lookup
+                    lookup[(m, i, protocol, name)].mean
+                    if (m, i, protocol, name) in lookup
                     else math.nan
                     for m, i in body_keys
                 ]
-                bold[(condition, name)] = _best_mask(means, name, digits)
+                bold[(protocol, name)] = _best_mask(means, name, digits)
 
         body: list[list[Cell]] = []
         rules: set[int] = set()
         for index, (model, inp) in enumerate(body_keys):
             line = [Cell(text=model_label(model)), Cell(text=str(inp))]
             runs: list[int] = []
-            for condition in conditions:
+            for protocol in protocols:
                 for metric in _PAPER_METRICS:
                     name = metric.removeprefix("test_")
-                    rec = lookup.get((model, inp, condition, name))
+                    rec = lookup.get((model, inp, protocol, name))
                     if rec is None:
                         line.append(Cell(text="–"))
                         continue
-                    is_bold = bold[(condition, name)][index]
+                    is_bold = bold[(protocol, name)][index]
                     line.append(Cell(rec.mean, rec.std, bold=is_bold, digits=digits))
                     runs.append(rec.n)
                     tidy.append(
@@ -347,7 +416,7 @@ def paper_tables(
                             "store": store,
                             "model": model,
                             "inputs": inp,
-                            "condition": condition,
+                            **split_fields[protocol],
                             "metric": name,
                             **_stat_fields(rec),
                             "bold": is_bold,
@@ -359,15 +428,15 @@ def paper_tables(
                 rules.add(index)
         rules.add(len(body) - 1)  # a rule between the models and the references (if any)
         n_models = len(body)
-        for ref_name, ref_label in (("median", "Median"), ("analytical", "Analytical")):
-            if not any(c.startswith(f"ref_{ref_name}_") for c in part.columns) or part[
-                [c for c in part.columns if c.startswith(f"ref_{ref_name}_")]
-            ].isna().all(axis=None):
-                continue  # runs recorded without reference metrics: no empty row
-            line = [Cell(text=f"{ref_label} (reference)"), Cell(text="–")]
+        references = _reference_lines(part, inputs)
+        for ref_name, ref_inputs, ref_rows in references:
+            line = [
+                Cell(text=f"{REFERENCE_LABELS[ref_name]} (reference)"),
+                Cell(text=ref_inputs or "–"),
+            ]
             runs = []
-            for condition in conditions:
-                cond_rows = part[part["condition"] == condition]
+            for protocol in protocols:
+                cond_rows = ref_rows[ref_rows["protocol"] == protocol]
                 for metric in _PAPER_METRICS:
                     name = metric.removeprefix("test_")
                     mean, std, n, seeds = _reference_stats(cond_rows, ref_name, name, ddof)
@@ -380,8 +449,8 @@ def paper_tables(
                                 "preset": preset,
                                 "store": store,
                                 "model": f"ref_{ref_name}",
-                                "inputs": None,
-                                "condition": condition,
+                                "inputs": ref_inputs,
+                                **split_fields[protocol],
                                 "metric": name,
                                 "mean": mean,
                                 "std": std,
@@ -395,19 +464,15 @@ def paper_tables(
         title = f"Table {number} — preset {preset or '(none)'}"
         if len(groups) > 1 and len({p for (p, _), _ in groups}) < len(groups):
             title += f", store {Path(str(store)).name}"
-        has_refs = len(body) > n_models
         caption = (
             f"Overall performance of all models with {sampling} sampling"
             f"{' and the Balanced strategy' if sampling == 'balanced' else ''}: "
             "log₁₀ accuracy (higher is better) and N-MSE (lower is better) per input strategy; "
-            "best model per column in **bold**"
-            + (
-                "; the reference predictors (training median; analytical estimate) are "
-                "computed on the same test splits."
-                if has_refs
-                else "."
-            )
+            "best model per column in **bold**. "
+            + _protocol_caption(protocols)
+            + _reference_caption({name for name, _, _ in references})
         )
+        has_refs = len(body) > n_models
         provenance = describe_runs(
             part, _ddof_text(ddof) + ("; references: one value per seed" if has_refs else "")
         )
@@ -426,6 +491,46 @@ def paper_tables(
     return out
 
 
+#: What each column group's split is, for the captions of Tables I and II.
+_PROTOCOL_TEXT = {
+    "seen_per_sample": (
+        "Seen, per-sample (paper) = the paper's protocol: samples split at random, so the "
+        "other finger and the time-shifted copies of most test grasps are in training"
+    ),
+    "seen_grasp": (
+        "Seen, grasp-grouped = the same objects, each grasp's samples in one split "
+        "(no grasp shared between train and test)"
+    ),
+    "unseen": "UnSeen = split by object (test objects never in training)",
+}
+
+
+def _protocol_caption(protocols: Sequence[str]) -> str:
+    """The column groups in words, and the object conditions this table has no runs of."""
+    present = [_PROTOCOL_TEXT.get(p, protocol_label(p)) for p in protocols]
+    text = "Columns: " + "; ".join(present) + "."
+    absent = [protocol_label(p) for p in PROTOCOLS if p not in protocols]
+    if absent:
+        text += f" No runs of {', '.join(absent)} in this preset (column group left out)."
+    return text
+
+
+def _reference_caption(names: set[str]) -> str:
+    if not names:
+        return ""
+    parts = {
+        "median": "the training median",
+        "analytical": "the sample's analytical estimate",
+        "scalar_gbr": (
+            "Scalar GBR: gradient-boosted trees on the strategy's scalar inputs only (F; F, W; "
+            "F, W, log₁₀ E) fitted on the training split, which shows what the images add "
+            "(none for Image: no scalar inputs)"
+        ),
+    }
+    listed = "; ".join(parts[name] for name in REFERENCE_NAMES if name in names)
+    return f" Reference predictors on the same test splits: {listed}."
+
+
 def _runs_text(runs: Sequence[int]) -> str:
     if not runs:
         return "0"
@@ -441,12 +546,13 @@ def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> P
     if rows.empty:
         return None
     metrics = ("test_nmse", "test_r2")
-    keys = ["preset", "store", "model", "inputs", "condition", "sampling"]
+    keys = ["preset", "store", "model", "inputs", "protocol", "sampling"]
     stats = summarise(rows, keys, metrics, ddof)
     settings = stats[keys].drop_duplicates()
     settings = settings.assign(
-        _m=[ordered(rows["model"], MODEL_ORDER).index(m) for m in settings["model"]]
-    ).sort_values(["preset", "_m", "inputs", "condition", "sampling"])
+        _m=[ordered(rows["model"], MODEL_ORDER).index(m) for m in settings["model"]],
+        _p=[_protocol_rank(p) for p in settings["protocol"]],
+    ).sort_values(["preset", "_m", "inputs", "_p", "sampling"])
     lookup = {(*(getattr(r, k) for k in keys), r.metric): r for r in stats.itertuples(index=False)}
     show_preset = settings["preset"].nunique() > 1 or settings["store"].nunique() > 1
     columns = (["Preset"] if show_preset else []) + [
@@ -477,12 +583,12 @@ def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> P
     body: list[list[Cell]] = []
     tidy: list[dict[str, Any]] = []
     for index, setting in enumerate(setting_keys):
-        preset, store, model, inp, condition, sampling = setting
+        preset, store, model, inp, protocol, sampling = setting
         line = [Cell(text=str(preset))] if show_preset else []
         line += [
             Cell(text=model_label(model)),
             Cell(text=str(inp)),
-            Cell(text=f"{condition}, {sampling}"),
+            Cell(text=f"{protocol_label(protocol)}, {sampling}"),
         ]
         runs = []
         for name in ("nmse", "r2"):
@@ -499,7 +605,7 @@ def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> P
                     "store": store,
                     "model": model,
                     "inputs": inp,
-                    "condition": condition,
+                    "protocol": protocol,
                     "sampling": sampling,
                     "metric": name,
                     **_stat_fields(rec),
@@ -611,24 +717,25 @@ def softhard_subset_table(
     rows = rows.assign(subset_key=rows["subset_value"].astype(object))
     metrics = ("test_log10_accuracy", "test_nmse")
     stats = summarise(
-        rows, ["model", "inputs", "condition", "sampling", "subset_key"], metrics, ddof
+        rows, ["model", "inputs", "protocol", "sampling", "subset_key"], metrics, ddof
     )
     body: list[list[Cell]] = []
     tidy: list[dict[str, Any]] = []
-    settings = stats[["model", "inputs", "condition", "sampling"]].drop_duplicates()
+    settings = stats[["model", "inputs", "protocol", "sampling"]].drop_duplicates()
     order = ordered(rows["model"], MODEL_ORDER)
-    settings = settings.assign(_m=[order.index(m) for m in settings["model"]]).sort_values(
-        ["_m", "inputs", "condition", "sampling"]
-    )
+    settings = settings.assign(
+        _m=[order.index(m) for m in settings["model"]],
+        _p=[_protocol_rank(p) for p in settings["protocol"]],
+    ).sort_values(["_m", "inputs", "_p", "sampling"])
     lookup = {
-        (r.model, r.inputs, r.condition, r.sampling, r.subset_key, r.metric): r
+        (r.model, r.inputs, r.protocol, r.sampling, r.subset_key, r.metric): r
         for r in stats.itertuples(index=False)
     }
-    for setting in settings[["model", "inputs", "condition", "sampling"]].itertuples(index=False):
+    for setting in settings[["model", "inputs", "protocol", "sampling"]].itertuples(index=False):
         line = [
             Cell(text=model_label(setting.model)),
             Cell(text=str(setting.inputs)),
-            Cell(text=f"{setting.condition}, {setting.sampling}"),
+            Cell(text=f"{protocol_label(setting.protocol)}, {setting.sampling}"),
         ]
         for subset in ("soft", "hard"):
             for metric in ("log10_accuracy", "nmse"):
@@ -642,7 +749,7 @@ def softhard_subset_table(
                         "table": "softhard-subsets",
                         "model": setting.model,
                         "inputs": setting.inputs,
-                        "condition": setting.condition,
+                        "protocol": setting.protocol,
                         "sampling": setting.sampling,
                         "subset": subset,
                         "metric": metric,
@@ -672,7 +779,7 @@ def group_metric_tables(
 ) -> list[PaperTable]:
     """Per-material / per-shape / soft-hard test errors from each run's ``groups.csv``.
 
-    ``rows`` are the runs of one setting (one preset, sampling and condition); columns are
+    ``rows`` are the runs of one setting (one preset, sampling and object condition); columns are
     model x input strategy (Image and ALL when both exist, as in Fig. 5, else all inputs);
     one table per metric (N-MSE, log10 accuracy), mean ± std over seeds.
     """
@@ -769,7 +876,7 @@ def failed_table(frame: pd.DataFrame, max_error_chars: int = 160) -> Table | Non
                 Cell(text=str(row.preset or "")),
                 Cell(text=model_label(row.model)),
                 Cell(text=str(row.inputs)),
-                Cell(text=f"{row.condition}, {row.sampling}"),
+                Cell(text=f"{protocol_label(row.protocol)}, {row.sampling}"),
                 Cell(text=str(row.seed)),
                 Cell(text=subset),
                 Cell(text=str(row.status)),

@@ -61,9 +61,16 @@ def config_hash(cfg: ExperimentConfig) -> str:
 
 
 def run_name(cfg: ExperimentConfig) -> str:
-    """Readable, unique run directory name: model-inputs-condition-sampling-seed-hash."""
+    """Readable, unique run directory name: model-inputs-condition-sampling-seed-hash.
+
+    The condition reads ``seen-per_sample`` for the paper's per-sample Seen split, so its
+    runs stand apart from the leak-free grasp-grouped ones at a glance.
+    """
+    condition = cfg.split.condition
+    if condition == "seen" and cfg.split.grouping == "per_sample":
+        condition = "seen-per_sample"
     return (
-        f"{cfg.model.name}-{cfg.inputs}-{cfg.split.condition}-{cfg.sampling.strategy}"
+        f"{cfg.model.name}-{cfg.inputs}-{condition}-{cfg.sampling.strategy}"
         f"-seed{cfg.seed}-{config_hash(cfg)}"
     )
 

@@ -17,12 +17,14 @@ Comparisons at exactly 1 (or 0.5) decade count as inside; a 1e-9 decade toleranc
 floating-point error in log10.
 
 Reference predictors, computed on the same split so a model's numbers have a floor to beat:
-``median`` (the training set's median modulus for every test sample) and ``analytical``
+``median`` (the training set's median modulus for every test sample), ``analytical``
 (the sample's own analytical estimate: the elastic (Hooke) estimate, falling back to the
 Hertz estimate when the elastic one is missing, and to the training median when both are;
-estimates are clamped to the estimate range [1e2, 1e14] Pa like the model input). The Hertz
-value is E* (gel and object in series) and is used as is: converting it to E needs the
-object's Poisson ratio, which a baseline should not know.
+estimates are clamped to the estimate range [1e2, 1e14] Pa like the model input) and
+``scalar_gbr`` (gradient-boosted trees on the input strategy's scalar inputs, no images:
+what a model could reach without the tactile frames; see :func:`scalar_reference`). The
+Hertz value is E* (gel and object in series) and is used as is: converting it to E needs
+the object's Poisson ratio, which a baseline should not know.
 """
 
 from __future__ import annotations
@@ -33,11 +35,19 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tactile_compliance.data.normalisation import NormalisationConstants, normalise_modulus
+from tactile_compliance.data.normalisation import (
+    NormalisationConstants,
+    denormalise_modulus,
+    normalise_modulus,
+)
+from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
+from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
     "METRIC_NAMES",
+    "REFERENCE_NAMES",
+    "SCALAR_GBR_PARAMS",
     "compute_metrics",
     "grouped_metrics",
     "log10_accuracy",
@@ -45,6 +55,8 @@ __all__ = [
     "nmse",
     "r2",
     "reference_predictions",
+    "scalar_features",
+    "scalar_reference",
     "soft_hard_labels",
     "within_half_decade",
 ]
@@ -58,6 +70,25 @@ METRIC_NAMES: tuple[str, ...] = (
     "within_half_decade",
 )
 _TOL_DECADES = 1e-9
+
+#: Names of the reference predictors, in report order (``scalar_gbr`` only for strategies
+#: with scalar inputs).
+REFERENCE_NAMES: tuple[str, ...] = ("median", "analytical", "scalar_gbr")
+#: Hyperparameters of the scalar reference: scikit-learn's defaults, written out so that a
+#: new scikit-learn release cannot change the reference silently, with early stopping off
+#: (by default it switches on above 10,000 samples and then fits on a random 90 % of the
+#: training split only). Untuned on purpose: a reference tuned against the test split
+#: would not be a reference.
+SCALAR_GBR_PARAMS: dict[str, Any] = {
+    "loss": "squared_error",
+    "learning_rate": 0.1,
+    "max_iter": 100,
+    "max_leaf_nodes": 31,
+    "min_samples_leaf": 20,
+    "l2_regularization": 0.0,
+    "max_bins": 255,
+    "early_stopping": False,
+}
 
 
 def _pair(true_pa: Any, pred_pa: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -171,18 +202,95 @@ def grouped_metrics(
     return pd.DataFrame(rows)
 
 
+def scalar_features(
+    samples: pd.DataFrame,
+    inputs: InputStrategy | str,
+    c: NormalisationConstants | None = None,
+) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The scalar inputs of ``inputs`` as a feature matrix, and the column names.
+
+    Forces F (N, 3 columns) with ImageF, ImageFW and ALL; widths W (m, 3 columns) with
+    ImageFW and ALL; with ALL also log10 of the elastic and Hertz estimates (Pa), clamped to
+    ``c.estimate_clamp_pa`` as the models see them (so a non-positive estimate becomes the
+    lower clamp instead of an undefined log). NaN stays NaN: the trees route missing values
+    to a learned side. Image has no scalar inputs: an ``(n, 0)`` matrix.
+    """
+    c = c or NormalisationConstants()
+    strategy = InputStrategy.parse(inputs)
+    groups = {"force": FORCE_COLUMNS, "width": WIDTH_COLUMNS, "estimates": ESTIMATE_COLUMNS}
+    names = tuple(column for need in strategy.needs for column in groups[need])
+    missing = [column for column in names if column not in samples.columns]
+    if missing:
+        raise ValueError(f"the {strategy} scalar reference needs column(s) {missing}")
+    # A copy (np.array, not to_numpy): pandas may hand out a read-only view of its data.
+    values = np.array(samples[list(names)], dtype=np.float64).reshape(len(samples), len(names))
+    for index, column in enumerate(names):
+        if column in ESTIMATE_COLUMNS:
+            lo, hi = c.estimate_clamp_pa
+            values[:, index] = np.log10(np.clip(values[:, index], lo, hi))  # NaN stays NaN
+    return values, names
+
+
+def scalar_reference(
+    train_samples: pd.DataFrame,
+    test_samples: pd.DataFrame,
+    inputs: InputStrategy | str,
+    c: NormalisationConstants | None = None,
+    seed: int = 0,
+) -> np.ndarray | None:
+    """Gradient-boosted trees on the scalar inputs only: predictions (Pa) for ``test_samples``.
+
+    A ``HistGradientBoostingRegressor`` (:data:`SCALAR_GBR_PARAMS`, ``random_state=seed``)
+    is fitted on ``train_samples`` alone, with :func:`scalar_features` as inputs and the
+    normalised label ``normalise_modulus(E)`` as target, and its predictions are mapped back
+    to Pa. It answers "what do the images add?": a model that beats the median and the
+    analytical estimate but not this reference has learned nothing from the frames that
+    the force, width and estimates did not already say.
+
+    Returns:
+        None for the Image strategy (no scalar inputs, so no such reference).
+    """
+    c = c or NormalisationConstants()
+    strategy = InputStrategy.parse(inputs)
+    if not strategy.needs:
+        return None
+    if len(train_samples) == 0:
+        raise ValueError("the training set is empty; nothing to fit the scalar reference on")
+    from sklearn.ensemble import HistGradientBoostingRegressor
+    from threadpoolctl import threadpool_limits
+
+    x_train, _ = scalar_features(train_samples, strategy, c)
+    x_test, _ = scalar_features(test_samples, strategy, c)
+    y_train = normalise_modulus(train_samples["modulus_pa"].to_numpy(dtype=np.float64), c)
+    model = HistGradientBoostingRegressor(**SCALAR_GBR_PARAMS, random_state=int(seed))
+    # One OpenMP thread: grid workers already run one torch thread per core, and a
+    # few thousand rows take well under a second single-threaded.
+    with threadpool_limits(limits=1, user_api="openmp"):
+        model.fit(x_train, y_train)
+        predicted = model.predict(x_test) if len(test_samples) else np.empty(0)
+    return np.asarray(denormalise_modulus(predicted.astype(np.float64), c), dtype=np.float64)
+
+
 def reference_predictions(
     train_samples: pd.DataFrame,
     test_samples: pd.DataFrame,
     c: NormalisationConstants | None = None,
+    *,
+    inputs: InputStrategy | str | None = None,
+    seed: int = 0,
 ) -> dict[str, np.ndarray]:
-    """Predictions (Pa) of the two reference predictors for ``test_samples``, in row order.
+    """Predictions (Pa) of the reference predictors for ``test_samples``, in row order.
+
+    Only ``train_samples`` are ever fitted on; of ``test_samples`` the references read the
+    inputs (estimates, forces, widths), never ``modulus_pa``.
 
     * ``median``: the median ``modulus_pa`` of ``train_samples`` for every test sample
       (the median of log10 E equals the log of the median, so it is also the best constant
       in decades for the absolute error).
     * ``analytical``: the elastic estimate, else the Hertz estimate (E*, not converted),
       else the training median; clamped to ``c.estimate_clamp_pa``.
+    * ``scalar_gbr`` (only with ``inputs`` given and not Image): :func:`scalar_reference`
+      on the strategy's scalar inputs, ``random_state=seed``.
     """
     c = c or NormalisationConstants()
     if len(train_samples) == 0:
@@ -197,4 +305,9 @@ def reference_predictions(
             analytical[ok] = values[ok]
     analytical[~np.isfinite(analytical)] = median
     lo, hi = c.estimate_clamp_pa
-    return {"median": np.full(n, median), "analytical": np.clip(analytical, lo, hi)}
+    out = {"median": np.full(n, median), "analytical": np.clip(analytical, lo, hi)}
+    if inputs is not None:
+        scalar = scalar_reference(train_samples, test_samples, inputs, c, seed)
+        if scalar is not None:
+            out["scalar_gbr"] = scalar
+    return out

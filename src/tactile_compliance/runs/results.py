@@ -9,15 +9,23 @@ Row schema (flat; metrics prefixed by where they come from):
 
 - identity: ``key`` (the run's config hash, seed included), ``run_name``, ``run_dir``,
   ``preset``, ``store``;
-- axes: ``model``, ``inputs``, ``condition``, ``sampling``, ``seed``, ``subset``
-  (None, a rolling-window index 0-6, a shape name, ``soft``/``hard``), ``t_balance``;
+- axes: ``model``, ``inputs``, ``condition``, ``grouping`` (``grasp`` | ``per_sample``
+  under ``seen``; ``object`` under ``unseen``, as the saved split records it),
+  ``sampling``, ``seed``, ``subset`` (None, a rolling-window index 0-6, a shape name,
+  ``soft``/``hard``), ``t_balance``;
 - outcome: ``status`` (``complete`` | ``failed``), ``error``, ``attempts``,
   ``wall_time_s``, ``finished`` (UTC ISO time);
 - metrics: ``test_*`` and ``val_*`` (``n``, ``log10_accuracy``, ``nmse``, ``r2``,
-  ``mae_decades``, ``within_half_decade``), ``ref_median_*`` and ``ref_analytical_*``
-  (the reference predictors on the same test split), ``best_epoch``, ``best_val_nmse``,
+  ``mae_decades``, ``within_half_decade``), ``ref_median_*``, ``ref_analytical_*`` and,
+  for strategies with scalar inputs, ``ref_scalar_gbr_*`` (the reference predictors on the
+  same test split, ``runs.metrics.reference_predictions``), ``best_epoch``, ``best_val_nmse``,
   ``epochs_trained``, ``n_train``, ``n_val``, ``n_test``, ``backbone_weights``,
   ``freeze_backbone``, ``image_size``.
+
+The object condition of a run (the column groups of Tables I and II) is the pair
+(``condition``, ``grouping``); :func:`split_protocol` names it with one of
+:data:`PROTOCOLS` and :data:`PROTOCOL_LABELS` says it in words. Rows written before
+``grouping`` was recorded are grasp-grouped (the only seen grouping of the presets then).
 """
 
 from __future__ import annotations
@@ -37,7 +45,41 @@ from tactile_compliance.runs.layout import config_hash, run_name
 ROWS_DIR = "rows"
 STATUS_COMPLETE = "complete"
 STATUS_FAILED = "failed"
-AXES = ("model", "inputs", "condition", "sampling", "seed", "subset", "t_balance")
+AXES = ("model", "inputs", "condition", "grouping", "sampling", "seed", "subset", "t_balance")
+
+#: The three object conditions of Tables I and II, in table order: seen objects with the
+#: paper's per-sample split (a grasp's near-duplicate samples straddle train and test),
+#: seen objects with whole grasps kept in one split (leak-free), unseen objects.
+PROTOCOLS: tuple[str, ...] = ("seen_per_sample", "seen_grasp", "unseen")
+#: How tables, figures and summaries name each protocol (every header says which split).
+PROTOCOL_LABELS: dict[str, str] = {
+    "seen_per_sample": "Seen, per-sample (paper)",
+    "seen_grasp": "Seen, grasp-grouped",
+    "unseen": "UnSeen",
+}
+
+
+def row_grouping(condition: Any, grouping: Any) -> str:
+    """A row's ``grouping``: ``object`` under unseen, else ``grasp`` unless ``per_sample``.
+
+    A missing ``grouping`` (rows written before it was recorded) means ``grasp``.
+    """
+    if str(condition) == "unseen":
+        return "object"
+    return "per_sample" if str(grouping) == "per_sample" else "grasp"
+
+
+def split_protocol(condition: Any, grouping: Any = None) -> str:
+    """One of :data:`PROTOCOLS` for a run's ``split.condition`` and ``split.grouping``.
+
+    Raises:
+        ValueError: a condition other than seen/unseen.
+    """
+    if str(condition) == "unseen":
+        return "unseen"
+    if str(condition) != "seen":
+        raise ValueError(f"split condition must be 'seen' or 'unseen', got {condition!r}")
+    return f"seen_{row_grouping(condition, grouping)}"
 
 
 def run_key(cfg: ExperimentConfig) -> str:
@@ -50,6 +92,7 @@ def _axes(cfg: ExperimentConfig) -> dict[str, Any]:
         "model": cfg.model.name,
         "inputs": cfg.inputs,
         "condition": cfg.split.condition,
+        "grouping": row_grouping(cfg.split.condition, cfg.split.grouping),
         "sampling": cfg.sampling.strategy,
         "seed": cfg.seed,
         "subset": cfg.split.subset,

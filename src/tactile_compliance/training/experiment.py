@@ -74,6 +74,7 @@ from tactile_compliance.runs.results import (
     STATUS_FAILED,
     ResultsStore,
     result_row,
+    row_grouping,
 )
 from tactile_compliance.training.cluster import dask_client, limit_threads
 from tactile_compliance.training.grid import (
@@ -415,11 +416,21 @@ def aggregate_results(table: pd.DataFrame) -> pd.DataFrame:
     metrics = [m for m in SUMMARY_METRICS if m in done.columns]
     if done.empty or not metrics:
         return pd.DataFrame()
-    by = [c for c in ("model", "inputs", "condition", "sampling", "subset") if c in done.columns]
+    frame = done
+    if "condition" in frame.columns:
+        # The object condition is (condition, grouping): per-sample and grasp-grouped seen
+        # runs must not be pooled; rows written before grouping was recorded are grasp.
+        old = frame["grouping"] if "grouping" in frame.columns else [None] * len(frame)
+        frame = frame.assign(
+            grouping=[row_grouping(c, g) for c, g in zip(frame["condition"], old, strict=True)]
+        )
+    by = [
+        c
+        for c in ("model", "inputs", "condition", "grouping", "sampling", "subset")
+        if c in frame.columns
+    ]
     if "subset" in by:  # None (whole store) would otherwise drop out of the groups
-        frame = done.assign(subset=[("-" if pd.isna(v) else str(v)) for v in done["subset"]])
-    else:
-        frame = done
+        frame = frame.assign(subset=[("-" if pd.isna(v) else str(v)) for v in frame["subset"]])
     grouped = frame.groupby(by, dropna=False, sort=True)
     out = grouped.size().rename("seeds").reset_index()
     for metric in metrics:

@@ -12,7 +12,10 @@ cross, which seeds to run, and which extra settings apply to some cells only::
     grid:                        # cartesian product, first axis outermost
       model.name: [top10nn, vgg_lstm, res_tf]
       inputs: [Image, ImageF, ImageFW, ALL]
-      split.condition: [seen, unseen]
+      objects:                   # a linked axis: each value sets several keys together
+        - {split.condition: seen, split.grouping: grasp}
+        - {split.condition: seen, split.grouping: per_sample}
+        - {split.condition: unseen}
     seeds: 10                    # n -> seeds 0..n-1, or an explicit list
     paper_settings: true         # each cell gets its model's paper settings (lr, batch, ...)
     rules:                       # extra overrides for the cells that match, in order
@@ -24,6 +27,13 @@ cross, which seeds to run, and which extra settings apply to some cells only::
       seeds: 2
       set: {training.max_epochs: 5}
       rules: [...]               # appended after the rules above
+
+A grid axis is either a configuration key with its values, or a *linked axis*: a name
+that is not a configuration key (``objects`` above), whose values are all mappings of
+dotted keys set together. The three object conditions of the paper's tables are one: the config
+keys ``split.condition`` and ``split.grouping`` cannot be crossed freely (``unseen`` with
+``per_sample`` is a configuration error), so the grid lists the valid pairs. Two axes
+may not set the same key.
 
 ``extends: NAME_OR_PATH`` starts from another experiment file (``set`` and ``grid`` are
 merged key by key, ``rules`` appended, everything else replaced). A plain configuration
@@ -169,9 +179,15 @@ class Cell:
 
     @property
     def label(self) -> str:
-        """Short human-readable description, e.g. ``res_tf ALL seen random seed 3``."""
+        """Short human-readable description, e.g. ``res_tf ALL seen random seed 3``.
+
+        A per-sample seen split says so: ``res_tf ALL seen per_sample random seed 3``.
+        """
         cfg = self.cfg
-        parts = [cfg.model.name, cfg.inputs, cfg.split.condition, cfg.sampling.strategy]
+        parts = [cfg.model.name, cfg.inputs, cfg.split.condition]
+        if cfg.split.condition == "seen" and cfg.split.grouping == "per_sample":
+            parts.append("per_sample")  # grasp grouping is the default and stays unsaid
+        parts.append(cfg.sampling.strategy)
         if cfg.split.subset is not None:
             parts.append(f"subset {cfg.split.subset}")
         parts.append(f"seed {cfg.seed}")
@@ -501,12 +517,15 @@ def expand_experiment(
         tail.append(_override("data.store", str(store)))
     filters = parse_where(where)
     axes = list(spec.grid)
+    linked = _linked_axes(spec.grid, base, spec.origin)
     cells: list[Cell] = []
     seen: dict[str, int] = {}
     duplicates = 0
     for combo in itertools.product(*(spec.grid[a] for a in axes)):
         for seed in seed_list:
-            values = dict(zip(axes, combo, strict=True))
+            values: dict[str, Any] = {}
+            for axis, value in zip(axes, combo, strict=True):
+                values.update(value if axis in linked else {axis: value})
             where_text = ", ".join(f"{k}={v}" for k, v in {**values, "seed": seed}.items())
             origin = f"{spec.origin}, cell {where_text}"
             head = [
@@ -543,6 +562,49 @@ def expand_experiment(
             stacklevel=2,
         )
     return cells
+
+
+def _overlap(a: str, b: str) -> bool:
+    """Whether two dotted keys set the same value (equal, or one inside the other)."""
+    return a == b or a.startswith(f"{b}.") or b.startswith(f"{a}.")
+
+
+def _linked_axes(
+    grid: Mapping[str, Sequence[Any]], base: Mapping[str, Any], origin: str
+) -> set[str]:
+    """The grid's linked axes (names that are not config keys), validated.
+
+    A linked axis lists mappings of dotted keys; every key any axis sets must be set by
+    that axis alone, so the order of the axes can never decide a cell's value.
+    """
+    linked: set[str] = set()
+    owners: dict[str, str] = {}
+    for axis, values in grid.items():
+        if _lookup(base, axis)[0] or not any(isinstance(v, Mapping) for v in values):
+            # A config key (model.hparams.* included): validated with each cell, as before.
+            keys = [axis]
+        else:
+            if not all(isinstance(v, Mapping) and v for v in values):
+                raise ConfigError(
+                    f"{origin}: grid axis {axis!r} is not a configuration key, so it is a "
+                    "linked axis and every value must be a non-empty mapping of dotted keys, "
+                    "e.g. objects: [{split.condition: seen, split.grouping: grasp}, "
+                    f"{{split.condition: unseen}}]; got {list(values)!r}"
+                )
+            for value in values:
+                _as_dotted_mapping(value, f"{origin}: grid axis {axis!r}")
+            linked.add(axis)
+            keys = list(dict.fromkeys(k for v in values for k in v))
+        for key in keys:
+            for other, owner in owners.items():
+                if owner != axis and _overlap(key, other):
+                    raise ConfigError(
+                        f"{origin}: grid axes {owner!r} and {axis!r} both set {key!r}; "
+                        f"change the values of {owner!r} instead (e.g. with 'extends', "
+                        "give the whole axis again)"
+                    )
+            owners[key] = axis
+    return linked
 
 
 def _paper_overrides(values: Mapping[str, Any], origin: str) -> list[str]:

@@ -68,6 +68,7 @@ from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split_from_config
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.models import create_model, get_model_class
+from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.outputs import atomic_file, claim_output_dir, fsync_directory
 from tactile_compliance.runs.checkpoint import (
     FROZEN_BACKBONE_SEED,
@@ -578,8 +579,16 @@ def evaluate_model(
     features: np.ndarray | None,
     batch_size: int,
     device: str | torch.device = "cpu",
+    *,
+    inputs: InputStrategy | str | None = None,
+    seed: int = 0,
 ) -> tuple[pd.DataFrame, dict[str, Any]]:
-    """Predictions on val and test, test metrics (overall, grouped, reference predictors)."""
+    """Predictions on val and test, test metrics (overall, grouped, reference predictors).
+
+    ``inputs`` (the run's input strategy) adds the scalar reference on that strategy's
+    scalar inputs (none for Image), fitted with ``random_state=seed``; the references are
+    fitted on the split's training rows (before balancing) and scored on its test rows.
+    """
     frames = []
     for name, ids in (("val", data.split.val_ids), ("test", data.split.test_ids)):
         dataset = GraspDataset(data.store, ids, data.constants, features)
@@ -594,6 +603,8 @@ def evaluate_model(
         data.store.samples.iloc[data.split.train_ids],
         data.store.samples.iloc[data.split.test_ids],
         data.constants,
+        inputs=inputs,
+        seed=seed,
     )
     metrics = {
         "test": compute_metrics(test["modulus_pa"], test["pred_pa"], data.constants),
@@ -820,7 +831,13 @@ def _fit_and_evaluate(
     # Test with the BEST epoch's weights, never the last epoch's.
     best_model = load_checkpoint(run_dir / BEST_FILE, device=device).model
     predictions, metrics = evaluate_model(
-        best_model, data, features, batch_size=max(64, cfg.training.batch_size), device=device
+        best_model,
+        data,
+        features,
+        batch_size=max(64, cfg.training.batch_size),
+        device=device,
+        inputs=cfg.inputs,
+        seed=cfg.seed,
     )
     predictions.to_csv(run_dir / "predictions.csv", index=False)
     test_rows = predictions[predictions["split"] == "test"]
