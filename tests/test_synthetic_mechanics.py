@@ -19,6 +19,7 @@ from tactile_compliance.synthetic.mechanics import (
     ObjectMechanics,
     contact_curve,
     force_curve,
+    gel_compression_fields,
     hertz_force_n,
     shell_stiffness_n_per_m,
 )
@@ -149,3 +150,63 @@ def test_shell_stiffness_formula() -> None:
     # k = 4 E t^2 / (R sqrt(3 (1 - nu^2))), t = 1 mm, R = 20 mm, E = 2 GPa, nu = 0.4
     expected = 4 * 2e9 * 1e-6 / (0.02 * np.sqrt(3 * (1 - 0.16)))
     assert shell_stiffness_n_per_m(2e9, 0.4, 1.0, 20.0) == pytest.approx(expected)
+
+
+def _fields_at_60n(modulus_pa: float, spec: ShapeSpec) -> tuple[np.ndarray, np.ndarray, float]:
+    """(rendered gel field, unconformed field [mm], approach [mm]) at 60 N, 0.25 mm grid."""
+    grid = PadGrid(0.25)
+    gel = GelModel(thickness_mm=5.0)
+    obj = ObjectMechanics(modulus_pa, 0.45, spec.thickness_mm, max_strain=0.5)
+    sag = sag_map(spec, grid, CENTRED)
+    approach = float(force_curve(sag, gel, obj, grid).approach_at(60.0))
+    delta = np.array([approach])
+    conformed = gel_compression_fields(sag, gel, obj, grid, delta)[0]
+    local = gel_compression_fields(sag, gel, obj, grid, delta, conformity=False)[0]
+    return conformed, local, approach
+
+
+def _max_slope(field: np.ndarray, cell_mm: float = 0.25) -> float:
+    gy, gx = np.gradient(field, cell_mm)
+    return float(np.hypot(gx, gy).max())
+
+
+BOX = ShapeSpec("Rectangular", {"face_u_mm": 12.0, "face_v_mm": 12.0, "edge_radius_mm": 0.5}, 20.0)
+
+
+def test_hard_objects_print_their_geometry() -> None:
+    # A rigid object: the gel takes the whole interference, edges included.
+    for spec in (BOX, ShapeSpec("Sphere", {"radius_mm": 10.0}, 20.0)):
+        conformed, local, approach = _fields_at_60n(1e9, spec)
+        np.testing.assert_allclose(conformed, local, atol=0.005 * float(local.max()))
+        sag = sag_map(spec, PadGrid(0.25), CENTRED)
+        inside = sag < approach
+        interference = approach - sag[inside]
+        assert np.abs(conformed[inside] - interference).max() < 0.02 * approach
+
+
+def test_soft_objects_press_soft_edged_imprints() -> None:
+    # Same 60 N on the same box: a compliant object's smooth pressure gives a dished,
+    # soft-edged imprint; the rigid box prints sharp walls.
+    hard, _, _ = _fields_at_60n(1e9, BOX)
+    rows, cols = hard.shape
+    near_edge = (rows // 2, cols // 2 + round(5.8 / 0.25))  # 0.2 mm inside the face edge
+    ratios = {}
+    for modulus in (1e5, 1e6, 1e7, 1e9):
+        field, _, _ = _fields_at_60n(modulus, BOX)
+        ratios[modulus] = field[near_edge] / field[rows // 2, cols // 2]
+        # The same load: the imprint keeps its volume.
+        assert field.sum() == pytest.approx(_fields_at_60n(modulus, BOX)[1].sum(), rel=1e-3)
+    assert ratios[1e5] < ratios[1e6] < ratios[1e7] <= ratios[1e9] + 1e-6, ratios
+    soft, _, _ = _fields_at_60n(1e5, BOX)
+    assert _max_slope(soft) < 0.7 * _max_slope(hard)
+
+
+def test_soft_objects_conform_into_large_contacts() -> None:
+    # A curved object: the softer it is, the larger the contact at the same force.
+    sphere = ShapeSpec("Sphere", {"radius_mm": 10.0}, 20.0)
+    areas = []
+    for modulus in (1e5, 1e6, 1e9):
+        field, _, _ = _fields_at_60n(modulus, sphere)
+        areas.append(float((field > 0).sum()) * 0.25**2)
+    assert areas[0] > areas[1] > areas[2], areas
+    assert areas[0] > 1.5 * areas[2]

@@ -90,3 +90,53 @@ def test_parametric_background_has_the_wedge_layout() -> None:
     assert red[:10].mean() > red[60:90].mean() + 5  # red tint at the top
     chroma = green - (blue + red) / 2  # green tint at the left edge
     assert chroma[:, :5].mean() > chroma[:, 100:110].mean() + 3
+
+
+def test_texture_finer_than_a_pixel_is_averaged_away() -> None:
+    from tactile_compliance.synthetic.materials import TextureSpec
+    from tactile_compliance.synthetic.textures import resolved_fraction, texture_canvas
+
+    fine = TextureSpec("machined", amplitude_mm=0.005, scale_mm=0.1, angle_rad=0.3)
+    coarse = TextureSpec("knurled", amplitude_mm=0.03, scale_mm=1.0, angle_rad=0.3)
+    for size in ((250, 350), (48, 64)):
+        px = pixel_size_mm(size)
+        for spec in (fine, coarse):
+            canvas = texture_canvas(spec, size, px, stream(0, "tex", spec.kind))
+            expected = spec.amplitude_mm * resolved_fraction(spec.scale_mm, px)
+            assert float(canvas.std()) == pytest.approx(expected, rel=0.02)
+    # Full size resolves a 1 mm knurl completely; 48 x 64 px (0.48 mm) keeps a tenth
+    # of a 0.1 mm machining lay.
+    assert resolved_fraction(1.0, pixel_size_mm((250, 350))) == 1.0
+    assert resolved_fraction(0.1, pixel_size_mm((48, 64))) < 0.15
+
+
+def test_open_pores_print_on_soft_foam() -> None:
+    from tactile_compliance.synthetic.materials import (
+        PORE_PRINT_SHARE,
+        elastic_share,
+        pore_imprint_gain,
+    )
+
+    # The renderer scales textures by the elastic share (~0.03 for a 1e4 Pa foam); the
+    # pores' canvas gain makes them print with at least PORE_PRINT_SHARE.
+    for modulus in (1e4, 1e5, 1e7):
+        share = elastic_share(modulus, 0.2)
+        printed = share * pore_imprint_gain(modulus, 0.2)
+        assert printed == pytest.approx(max(share, PORE_PRINT_SHARE))
+    assert elastic_share(1e4, 0.2) < 0.05
+
+
+def test_contact_grows_across_the_three_frames() -> None:
+    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
+    from tactile_compliance.synthetic.objects import default_objects
+
+    options = SimulationOptions(image_size=(60, 80))
+    grown = []
+    for spec in default_objects(5, seed=6):
+        for sample in simulate_grasp(make_context(spec, 6, options), 0).samples[:1]:
+            deviation = np.abs(sample.rgb - 0.5).max(axis=-1) * 255.0  # (3, H, W)
+            area = (deviation > 5.0).reshape(3, -1).mean(axis=1)
+            depth = sample.depth.reshape(3, -1).max(axis=1)
+            assert depth[0] <= depth[2] + 0.05, (spec.name, depth)
+            grown.append(area[2] - area[0])
+    assert len(grown) >= 4 and np.mean(grown) > 0, grown

@@ -16,6 +16,7 @@ the two fingers see opposite sides of it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
@@ -173,11 +174,26 @@ def _irregular_side(rng: np.random.Generator) -> np.ndarray:
     return np.minimum(surface, NO_SURFACE).astype(np.float32)
 
 
-def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    return float(10 ** rng.uniform(np.log10(low), np.log10(high)))
+def _sized(rng: np.random.Generator, low: float, high: float, bias: float) -> float:
+    """A size in [low, high]: uniform for ``bias`` 0, skewed to large sizes for bias > 0
+    (the quantile u ** exp(-bias)) and to small ones for bias < 0. With bias 0 it draws
+    exactly what ``rng.uniform(low, high)`` draws."""
+    u = rng.random()
+    if bias:
+        u = u ** math.exp(-bias)
+    return float(low + (high - low) * u)
 
 
-def sample_shape(kind: str, rng: np.random.Generator, radius_mm: float | None = None) -> ShapeSpec:
+def _log_uniform(rng: np.random.Generator, low: float, high: float, bias: float = 0.0) -> float:
+    return float(10 ** _sized(rng, np.log10(low), np.log10(high), bias))
+
+
+def sample_shape(
+    kind: str,
+    rng: np.random.Generator,
+    radius_mm: float | None = None,
+    size_bias: float = 0.0,
+) -> ShapeSpec:
     """Draw the geometry of an object of shape class ``kind``.
 
     Args:
@@ -185,19 +201,24 @@ def sample_shape(kind: str, rng: np.random.Generator, radius_mm: float | None = 
             ``Irregular``; anything else is treated as ``Irregular``).
         rng: the object's geometry stream (never sees the label).
         radius_mm: a known radius (the table's ``Radius [m]``) for spheres/cylinders [mm].
+        size_bias: size tendency of the object's material grade (0: sizes uniform over
+            their ranges; +0.35, one sigma of ``materials.SIZE_BIAS_SIGMA``, moves the
+            median of a range from its middle to ~62 % of the way up) [-]. Radii, lengths,
+            faces, flats and thicknesses follow it; edge radii and poses do not.
     """
     kind = kind if kind in {"Sphere", "Cylinder", "Rectangular", "Hex"} else "Irregular"
+    b = float(size_bias)
     if kind == "Sphere":
-        radius = radius_mm if radius_mm else rng.uniform(5.0, 35.0)
+        radius = radius_mm if radius_mm else _sized(rng, 5.0, 35.0, b)
         return ShapeSpec(kind, {"radius_mm": radius}, thickness_mm=min(2 * radius, 75.0))
     if kind == "Cylinder":
-        radius = radius_mm if radius_mm else _log_uniform(rng, 1.5, 25.0)
-        length = rng.uniform(8.0, 150.0)
+        radius = radius_mm if radius_mm else _log_uniform(rng, 1.5, 25.0, b)
+        length = _sized(rng, 8.0, 150.0, b)
         return ShapeSpec(
             kind, {"radius_mm": radius, "length_mm": length}, thickness_mm=min(2 * radius, 75.0)
         )
     if kind == "Rectangular":
-        face = (rng.uniform(5.0, 60.0), rng.uniform(5.0, 60.0))
+        face = (_sized(rng, 5.0, 60.0, b), _sized(rng, 5.0, 60.0, b))
         return ShapeSpec(
             kind,
             {
@@ -205,24 +226,24 @@ def sample_shape(kind: str, rng: np.random.Generator, radius_mm: float | None = 
                 "face_v_mm": face[1],
                 "edge_radius_mm": rng.uniform(0.3, 3.0),
             },
-            thickness_mm=rng.uniform(5.0, 60.0),
+            thickness_mm=_sized(rng, 5.0, 60.0, b),
         )
     if kind == "Hex":
-        flats = rng.uniform(5.0, 40.0)
+        flats = _sized(rng, 5.0, 40.0, b)
         mode = "flats" if rng.random() < 0.6 else "corners"
         thickness = flats if mode == "flats" else 2 * flats / np.sqrt(3)
         return ShapeSpec(
             kind,
             {
                 "flats_mm": flats,
-                "length_mm": rng.uniform(10.0, 100.0),
+                "length_mm": _sized(rng, 10.0, 100.0, b),
                 "hex_mode": mode,
                 "edge_radius_mm": rng.uniform(0.2, 1.0),
             },
             thickness_mm=min(float(thickness), 75.0),
         )
     sides = (_irregular_side(rng), _irregular_side(rng))
-    return ShapeSpec(kind, {}, thickness_mm=rng.uniform(8.0, 60.0), sides=sides)
+    return ShapeSpec(kind, {}, thickness_mm=_sized(rng, 8.0, 60.0, b), sides=sides)
 
 
 def sample_pose(rng: np.random.Generator, kind: str, mirror_of: Pose | None = None) -> Pose:

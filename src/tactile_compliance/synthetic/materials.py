@@ -1,52 +1,183 @@
-"""Material catalogue of the synthetic generator: labels, physics, shapes and surface cues.
+"""Material catalogue of the synthetic generator: material grades, physics, shapes, surfaces.
 
-The real object table (DATA_FORMATS.md section 1) is the model for every number here:
+The real object table (DATA_FORMATS.md section 1) is the model for every number here.
+Its labels are per *material grade*, not per object: 287 objects carry only 108
+distinct moduli, and 224 of them share their exact modulus with another object (steel
+2.0e11 Pa, aluminium 7.0e10, ABS 2.35e9, pine 1.0e10, a few silicone hardnesses, ...).
+An unseen test object is therefore usually a new object of a grade seen in training,
+and whatever the images show of the grade (surface, shapes, how it deforms) is a cue.
 
-* material frequencies (Rubber .28, Metal .25, Plastic .24, Wood .08, Foam .06,
-  Food .03, Glass .03, Ceramic .015);
-* label distributions, in Pa. Hard labels are *handbook grades* (steel 2.0e11,
-  aluminium 7.0e10, ABS 2.35e9, pine 1.0e10, ...), so many objects share a label and
-  above ~1e8 Pa only weak cues (texture, shape) separate them;
-* the label-vs-physics mismatch ``E_physics = E_label * 10**N(0, sigma)``: handbook
-  values are not the modulus of the particular object (grade, temperature, anisotropy,
-  Shore-conversion error); sigma in decades (dex);
-* wood is loaded across the grain in a grasp, so its physics modulus is E/10 - E/20
-  of the (along-grain) handbook label; cork is the exception;
-* shapes conditional on material (crosstab of the real table, rounded), hollow /
-  thin-walled probabilities and surface-texture kinds (weak, overlapping cues).
+The generator follows that structure:
+
+* **Materials** keep the real frequencies (Rubber .28, Metal .25, Plastic .24, Wood .08,
+  Foam .06, Food .03, Glass .03, Ceramic .015) and shape mix.
+* **Grades.** Every object belongs to a :class:`Grade`: either a *stock grade* of its
+  material's catalogue (handbook metals, plastics, woods and glasses; silicone and
+  rubber stock sold by nominal Shore hardness, whose labels are the package's Shore
+  conversions of those nominal values; a few foam and food stock grades drawn once per
+  dataset seed) or a *one-off* grade of its own (a found object whose hardness was
+  measured on it: a continuous label). The share of one-offs per material follows the
+  real table (rubber 46 %, foam 55 %, food 80 %, plastic 10 %, metal 1.5 %).
+* A grade fixes, once per dataset seed: its handbook label; its **physical modulus**
+  ``E_grade = label x 10^N(0, mismatch_dex)`` (handbook values are not the modulus of
+  the particular stock: grade, temper, cure, anisotropy, Shore-conversion error; wood
+  loaded across the grain divides by U(10, 20), a per-species ratio); its Poisson
+  ratio; its **surface** (a texture family of the material and that family's
+  parameters: see :data:`TEXTURE_KINDS`); and its **shape tendencies** (the material's
+  shape weights tilted per grade, a size tendency, a hollow probability).
+* Each object then draws its geometry and poses, a small **per-object spread** of the
+  modulus ``E_object = E_grade x 10^N(0, object_spread_dex)`` (alloy temper barely moves
+  E: 0.01 dex for metal, glass, ceramic; moulding and crystallinity 0.03 for plastics;
+  cure and mix ratio 0.03 for rubber; density and moisture 0.05 for foam, food and
+  wood), and a per-object variation of its grade's surface (amplitude x 10^N(0, 0.1),
+  scale x 10^N(0, 0.06); paint or lacquer on 5-15 % of metal, plastic and wood objects).
+
+Determinism: a grade depends only on ``(seed, grade key)`` (``rng.stream(seed, "grade",
+key)``) and the catalogue only on ``(seed, material)``, so an object depends only on
+``(seed, object name)``. The key of a stock grade is ``"{material}/{label:.4g}"``, the
+same in the default mix and in a user table (objects of one table ``(material, label)``
+share the grade).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import numpy as np
+
+from tactile_compliance.synthetic.rng import stream
 
 __all__ = [
     "MATERIALS",
     "SHAPES",
     "TEXTURE_KINDS",
+    "Grade",
+    "GradeEntry",
     "MaterialModel",
+    "TextureSpec",
+    "draw_object_grade",
+    "elastic_share",
+    "grade_catalogue",
+    "grade_key",
+    "make_grade",
     "material_model",
+    "object_texture",
+    "one_off_grade",
+    "pore_imprint_gain",
+    "stock_grade",
 ]
 
 SHAPES = ("Irregular", "Cylinder", "Rectangular", "Sphere", "Hex")
 """Shape classes of the real table."""
 
 TEXTURE_KINDS = (
-    "smooth",  # polished metal, glass, glazed ceramic: a few um of roughness
-    "machined",  # turned / milled metal: fine parallel lines
+    "smooth",  # polished metal, glass, glazed ceramic, paint: a few um of roughness
+    "machined",  # turned / milled metal: fine parallel lay lines
     "knurled",  # tool handles: crossed ridges
-    "matte",  # moulded plastic: isotropic fine roughness
-    "grain",  # wood: elongated anisotropic ridges
-    "rubbery",  # cast rubber / silicone: soft isotropic roughness
-    "cellular",  # foams and sponges: pores
-    "organic",  # food: low-frequency bumps plus fine roughness
+    "matte",  # moulded or bead-blasted surfaces: isotropic fine roughness
+    "grain",  # wood: elongated anisotropic ridges and growth rings
+    "rubbery",  # cast rubber / silicone: soft isotropic moulding roughness
+    "cellular",  # foams and sponges: open pores
+    "organic",  # food skins: low-frequency bumps plus fine roughness
 )
+
+# Per texture family: ranges of the grade's surface parameters, drawn once per grade.
+# amplitude [um] (std of the surface height), scale [mm] (period / correlation length).
+_FAMILY_RANGES: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {
+    "smooth": ((1.0, 3.0), (0.05, 0.15)),
+    "machined": ((2.0, 10.0), (0.08, 0.5)),
+    "knurled": ((15.0, 45.0), (0.6, 1.2)),
+    "matte": ((3.0, 10.0), (0.05, 0.25)),
+    "grain": ((8.0, 25.0), (0.15, 0.45)),
+    "rubbery": ((5.0, 18.0), (0.08, 0.4)),
+    "cellular": ((40.0, 120.0), (0.2, 1.2)),
+    "organic": ((15.0, 50.0), (0.3, 1.5)),
+}
+
+OBJECT_AMPLITUDE_DEX = 0.1
+"""Per-object spread of a grade's texture amplitude [decades]."""
+
+OBJECT_SCALE_DEX = 0.06
+"""Per-object spread of a grade's texture scale [decades]."""
+
+
+@dataclass(frozen=True)
+class TextureSpec:
+    """Surface texture of an object (imprinted on the gel where it touches).
+
+    Attributes:
+        kind: one of :data:`TEXTURE_KINDS`.
+        amplitude_mm: standard deviation of the surface height [mm].
+        scale_mm: characteristic length (correlation length or period) [mm].
+        angle_rad: orientation of anisotropic textures (grain, machining) in the image
+            [rad]; a pose nuisance, drawn per object.
+        elongation: along/across ratio of the grain streaks (``grain``) [-].
+        open_fraction: share of the surface in open pores (``cellular``) [-].
+        fine_share: relative amplitude of the fine roughness on top of the bumps
+            (``organic``, ``machined``) [-].
+        imprint_gain: factor on the canvas that compensates the renderer's elastic
+            share for surfaces that print by another mechanism (open pores: the gel
+            bulges into them; see :func:`pore_imprint_gain`) [-].
+    """
+
+    kind: str
+    amplitude_mm: float
+    scale_mm: float
+    angle_rad: float
+    elongation: float = 6.0
+    open_fraction: float = 0.2
+    fine_share: float = 0.3
+    imprint_gain: float = 1.0
+
+
+PORE_PRINT_SHARE = 0.5
+"""Share of an open pore's depth that the gel fills at grasp pressures [-]: the gel
+bulges into a pore of width d by ~ p d / E_gel' (~70 um at 0.05 MPa over a 0.5 mm pore,
+about the pores' 40-120 um depth) whatever the foam's own stiffness."""
+
+
+def elastic_share(modulus_pa: float, poisson: float) -> float:
+    """The gel's share of a homogeneous surface's roughness, E_o' / (E_o' + E_g') [-]
+    (what the renderer scales textures by, with the default gel)."""
+    from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA, DEFAULT_GEL_POISSON
+
+    e_obj = modulus_pa / (1.0 - poisson**2)
+    e_gel = DEFAULT_GEL_MODULUS_PA / (1.0 - DEFAULT_GEL_POISSON**2)
+    return float(e_obj / (e_obj + e_gel))
+
+
+def pore_imprint_gain(modulus_pa: float, poisson: float) -> float:
+    """Canvas gain that makes open pores print with at least :data:`PORE_PRINT_SHARE`:
+    the renderer scales a texture by the elastic share, which would hide the pores of
+    a soft foam although the gel bulges into them [-]."""
+    share = elastic_share(modulus_pa, poisson)
+    return float(max(share, PORE_PRINT_SHARE) / max(share, 1e-6))
 
 
 def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
     return float(10.0 ** rng.uniform(np.log10(low), np.log10(high)))
+
+
+def _round_label(value: float) -> float:
+    """A label as a table would write it: 3 significant digits [Pa]."""
+    return float(f"{value:.3g}")
+
+
+@dataclass(frozen=True)
+class GradeEntry:
+    """One stock grade of a material's catalogue.
+
+    Attributes:
+        name: what it is (``steel``, ``ABS``, ``Shore A 30``, ...).
+        label_pa: handbook label [Pa].
+        weight: relative frequency among the material's stock objects [-].
+    """
+
+    name: str
+    label_pa: float
+    weight: float
 
 
 @dataclass(frozen=True)
@@ -56,15 +187,20 @@ class MaterialModel:
     Attributes:
         name: material name as in the real table (``Rubber``, ``Metal``, ...).
         weight: relative frequency in the default object mix [-].
-        poisson_range: uniform range of the object's Poisson ratio [-].
-        mismatch_dex: sigma of the label-vs-physics mismatch [decades].
+        poisson_range: uniform range of the Poisson ratio (one value per grade) [-].
+        mismatch_dex: sigma of the grade's label-vs-physics mismatch [decades].
+        object_spread_dex: sigma of the per-object modulus spread within a grade [decades].
         shape_weights: relative frequency of each shape for this material [-].
-        texture_weights: relative frequency of each texture kind [-].
-        hollow_probability: probability that an object is hollow / thin-walled [-].
+        texture_weights: relative frequency of each texture family among its grades [-].
+        hollow_probability: mean probability that an object is hollow / thin-walled [-].
         shell_thickness_mm: uniform range of the wall thickness of hollow objects [mm].
         max_strain: saturating compressive strain of the object (densification of
             foams, bulging limit of rubbers) [-].
-        across_grain: physics modulus = label / U(10, 20) (wood loaded across the grain).
+        across_grain: physics modulus = label / U(10, 20) per grade (wood loaded across
+            the grain; labels above 1e9 Pa only, cork is isotropic enough).
+        one_off_share: share of objects that are one-off grades of their own [-].
+        one_off_range_pa: log-uniform range of one-off labels [Pa].
+        coated_probability: share of objects painted or lacquered (smooth surface) [-].
     """
 
     name: str
@@ -77,102 +213,59 @@ class MaterialModel:
     shell_thickness_mm: tuple[float, float] = (0.6, 2.0)
     max_strain: float = 0.3
     across_grain: bool = False
-    grades: tuple[tuple[float, float], ...] = field(default_factory=tuple)
-
-    def sample_label_pa(self, rng: np.random.Generator) -> float:
-        """Draw a ground-truth label [Pa] from this material's label distribution."""
-        return float(_LABEL_SAMPLERS[self.name](rng))
-
-    def physics_modulus_pa(self, label_pa: float, rng: np.random.Generator) -> float:
-        """The modulus that drives the mechanics [Pa]: label x mismatch (x across-grain)."""
-        modulus = label_pa * 10.0 ** rng.normal(0.0, self.mismatch_dex)
-        # Cork (label 1e8) is isotropic enough; real wood is loaded across the grain.
-        if self.across_grain and label_pa > 1e9:
-            modulus /= rng.uniform(10.0, 20.0)
-        return float(modulus)
+    object_spread_dex: float = 0.03
+    one_off_share: float = 0.0
+    one_off_range_pa: tuple[float, float] = (1e6, 1e9)
+    coated_probability: float = 0.0
+    grades: tuple[GradeEntry, ...] = field(default_factory=tuple)
 
     def sample_poisson(self, rng: np.random.Generator) -> float:
-        """Draw the object's Poisson ratio [-]."""
+        """Draw a Poisson ratio [-]."""
         return float(rng.uniform(*self.poisson_range))
 
+    def sample_one_off_label_pa(self, rng: np.random.Generator) -> float:
+        """Label of a one-off object [Pa] (3 significant digits).
 
-def _grade(rng: np.random.Generator, grades: list[float], weights: list[float]) -> float:
-    p = np.asarray(weights, dtype=float)
-    return float(grades[int(rng.choice(len(grades), p=p / p.sum()))])
+        Rubber one-offs follow what found rubber objects are: 7 % hard rubbers
+        (ebonite, hard urethane; logU(1e7, 3e9)), 20 % soft gels and silicones
+        (logU(1.3e4, 2e5)), and the rest everyday Shore A rubbers, log-normal around
+        1e6 Pa (sigma 0.4 dex, within [1e5, 7e6]); the real table's rubber labels
+        cluster the same way (half of them within 5.6e5-3.1e6). Other materials:
+        log-uniform over ``one_off_range_pa``.
+        """
+        if self.name == "Rubber":
+            u = rng.random()
+            if u < 0.07:
+                return _round_label(_log_uniform(rng, 1e7, 3e9))
+            if u < 0.27:
+                return _round_label(_log_uniform(rng, 1.3e4, 2e5))
+            low, high = 5.0, float(np.log10(self.one_off_range_pa[1]))
+            value = float(np.clip(rng.normal(6.0, 0.4), low, high))
+            for _ in range(8):  # truncated normal by rejection (clip as a last resort)
+                draw = rng.normal(6.0, 0.4)
+                if low <= draw <= high:
+                    value = float(draw)
+                    break
+            return _round_label(10.0**value)
+        return _round_label(_log_uniform(rng, *self.one_off_range_pa))
 
 
-def _rubber(rng: np.random.Generator) -> float:
-    # 3 % hard rubbers (ebonite, hard urethane) reach into the plastics' range.
-    if rng.random() < 0.03:
-        return _log_uniform(rng, 1e7, 3e9)
-    return _log_uniform(rng, 1.3e4, 7e6)
+def _entries(*rows: tuple[str, float, float]) -> tuple[GradeEntry, ...]:
+    return tuple(GradeEntry(name, float(label), float(weight)) for name, label, weight in rows)
 
 
-def _metal(rng: np.random.Generator) -> float:
-    # aluminium, brass, bronze/iron, cast iron, steel, stainless/tool steel
-    return _grade(rng, [7.0e10, 1.0e11, 1.5e11, 1.9e11, 2.0e11, 2.2e11], [27, 18, 3, 4, 42, 6])
-
-
-def _plastic(rng: np.random.Generator) -> float:
-    u = rng.random()
-    if u < 0.04:
-        return 2.6e8  # LDPE
-    if u < 0.07:
-        return _log_uniform(rng, 8.0e8, 1.5e9)
-    if u < 0.10:
-        return _log_uniform(rng, 3.5e9, 8.9e9)  # filled / reinforced grades
-    return _grade(
-        rng,
-        [1.67e9, 1.8e9, 2.1e9, 2.35e9, 2.7e9, 2.9e9, 3.0e9, 3.2e9],
-        [5, 10, 12, 25, 12, 15, 10, 11],
+def _shore_grades() -> tuple[GradeEntry, ...]:
+    """Silicone and rubber stock sold by nominal hardness: Shore 00 (Larson fit) and
+    Shore A (Gent fit), the package's conversions, so the labels are what a table
+    would compute from the nominal hardness (weights are drawn per seed)."""
+    from tactile_compliance.physics.shore import (
+        shore00_to_modulus_pa,
+        shore_a_to_modulus_pa_gent,
     )
 
-
-def _wood(rng: np.random.Generator) -> float:
-    if rng.random() < 0.05:
-        return 1.0e8  # cork
-    return _grade(rng, [9.6e9, 1.0e10, 1.1e10, 1.2e10, 1.25e10], [5, 70, 12, 8, 5])
-
-
-def _foam(rng: np.random.Generator) -> float:
-    u = rng.random()
-    if u < 0.04:
-        return 4.0e8  # rigid foam board
-    if u < 0.12:
-        return 1.65e6  # expanded polystyrene
-    return _log_uniform(rng, 5e3, 4.5e5)
-
-
-def _food(rng: np.random.Generator) -> float:
-    if rng.random() < 0.10:
-        return 1.0e9  # hard candy
-    return _log_uniform(rng, 3e4, 3.3e6)
-
-
-def _glass(rng: np.random.Generator) -> float:
-    return _grade(rng, [6.25e10, 6.5e10, 6.7e10], [3, 2, 3])
-
-
-def _ceramic(rng: np.random.Generator) -> float:
-    return 5.85e10
-
-
-def _generic(rng: np.random.Generator) -> float:
-    return _log_uniform(rng, 1e6, 1e9)
-
-
-_LABEL_SAMPLERS = {
-    "Rubber": _rubber,
-    "Metal": _metal,
-    "Plastic": _plastic,
-    "Wood": _wood,
-    "Foam": _foam,
-    "Food": _food,
-    "Glass": _glass,
-    "Ceramic": _ceramic,
-    "Paper": _generic,
-    "Other": _generic,
-}
+    rows = [(f"Shore 00-{s}", float(shore00_to_modulus_pa(s)), 1.0) for s in (20, 30, 50)]
+    rows += [(f"Shore A{s}", float(shore_a_to_modulus_pa_gent(s)), 1.0) for s in range(10, 71, 10)]
+    return tuple(GradeEntry(n, _round_label(e), w) for n, e, w in rows)
 
 
 def _tex(**weights: float) -> dict[str, float]:
@@ -188,8 +281,12 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.47, 0.499),
             0.15,
             {"Irregular": 56, "Sphere": 20, "Cylinder": 13, "Rectangular": 11},
-            _tex(rubbery=55, matte=20, smooth=10, organic=8, cellular=7),
+            _tex(rubbery=60, matte=20, smooth=12, organic=8),
             max_strain=0.5,
+            object_spread_dex=0.03,
+            one_off_share=0.46,
+            one_off_range_pa=(1.3e4, 7e6),
+            grades=_shore_grades(),
         ),
         MaterialModel(
             "Metal",
@@ -197,8 +294,22 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.28, 0.34),
             0.05,
             {"Irregular": 55, "Cylinder": 25, "Rectangular": 11, "Hex": 6, "Sphere": 3},
-            _tex(machined=40, smooth=30, knurled=15, matte=15),
+            _tex(machined=45, smooth=25, knurled=12, matte=18),
             hollow_probability=0.15,
+            object_spread_dex=0.01,
+            one_off_share=0.015,
+            one_off_range_pa=(4.5e10, 2.1e11),
+            coated_probability=0.10,
+            grades=_entries(
+                ("aluminium", 7.0e10, 24),
+                ("brass", 1.0e11, 18),
+                ("titanium", 1.1e11, 1.5),
+                ("copper", 1.2e11, 2),
+                ("bronze / iron", 1.5e11, 3),
+                ("cast iron", 1.9e11, 4),
+                ("steel", 2.0e11, 44),
+                ("tool steel", 2.2e11, 6),
+            ),
         ),
         MaterialModel(
             "Plastic",
@@ -206,8 +317,26 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.35, 0.42),
             0.10,
             {"Irregular": 62, "Cylinder": 19, "Sphere": 10, "Rectangular": 7, "Hex": 2},
-            _tex(matte=45, smooth=25, knurled=10, rubbery=10, machined=10),
+            _tex(matte=45, smooth=25, knurled=8, rubbery=10, machined=12),
             hollow_probability=0.30,
+            object_spread_dex=0.03,
+            one_off_share=0.10,
+            one_off_range_pa=(8.0e8, 8.9e9),
+            coated_probability=0.05,
+            grades=_entries(
+                ("LDPE", 2.6e8, 4),
+                ("HDPE", 1.1e9, 3),
+                ("PP", 1.5e9, 5),
+                ("PETG", 2.1e9, 7),
+                ("ABS", 2.35e9, 22),
+                ("PC", 2.4e9, 6),
+                ("nylon", 2.7e9, 8),
+                ("PET", 2.8e9, 6),
+                ("POM", 2.9e9, 8),
+                ("PS", 3.0e9, 6),
+                ("acrylic", 3.2e9, 8),
+                ("PLA", 3.5e9, 6),
+            ),
         ),
         MaterialModel(
             "Wood",
@@ -215,8 +344,20 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.30, 0.40),
             0.20,
             {"Cylinder": 33, "Irregular": 29, "Rectangular": 29, "Sphere": 5, "Hex": 4},
-            _tex(grain=60, matte=25, organic=15),
+            _tex(grain=75, matte=15, organic=10),
             across_grain=True,
+            object_spread_dex=0.05,
+            one_off_share=0.08,
+            one_off_range_pa=(8e9, 1.4e10),
+            coated_probability=0.15,
+            grades=_entries(
+                ("cork", 1.0e8, 5),
+                ("spruce", 9.6e9, 5),
+                ("pine", 1.0e10, 70),
+                ("oak", 1.1e10, 12),
+                ("maple", 1.2e10, 8),
+                ("birch", 1.25e10, 5),
+            ),
         ),
         MaterialModel(
             "Foam",
@@ -224,8 +365,13 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.05, 0.30),
             0.20,
             {"Rectangular": 75, "Cylinder": 10, "Irregular": 8, "Sphere": 7},
-            _tex(cellular=65, rubbery=20, matte=15),
+            _tex(cellular=80, rubbery=12, matte=8),
             max_strain=0.75,
+            object_spread_dex=0.05,
+            one_off_share=0.55,
+            one_off_range_pa=(5e3, 4.5e5),
+            # Three polyurethane stock foams are drawn per seed (see grade_catalogue).
+            grades=_entries(("EPS", 1.65e6, 8), ("rigid foam board", 4.0e8, 4)),
         ),
         MaterialModel(
             "Food",
@@ -233,8 +379,13 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.30, 0.49),
             0.20,
             {"Irregular": 65, "Sphere": 23, "Cylinder": 12},
-            _tex(organic=60, rubbery=20, smooth=20),
+            _tex(organic=70, rubbery=15, smooth=15),
             max_strain=0.5,
+            object_spread_dex=0.05,
+            one_off_share=0.80,
+            one_off_range_pa=(3e4, 3.3e6),
+            # One soft stock food (gummies, tofu, ...) is drawn per seed.
+            grades=_entries(("hard candy", 1.0e9, 1)),
         ),
         MaterialModel(
             "Glass",
@@ -245,6 +396,12 @@ MATERIALS: dict[str, MaterialModel] = {
             _tex(smooth=80, matte=20),
             hollow_probability=0.30,
             shell_thickness_mm=(1.5, 4.0),
+            object_spread_dex=0.01,
+            one_off_share=0.10,
+            one_off_range_pa=(5e10, 9e10),
+            grades=_entries(
+                ("soda-lime", 6.7e10, 3), ("borosilicate", 6.25e10, 3), ("lead", 6.5e10, 2)
+            ),
         ),
         MaterialModel(
             "Ceramic",
@@ -255,6 +412,8 @@ MATERIALS: dict[str, MaterialModel] = {
             _tex(smooth=60, matte=40),
             hollow_probability=0.50,
             shell_thickness_mm=(2.0, 5.0),
+            object_spread_dex=0.01,
+            grades=_entries(("stoneware", 5.85e10, 3), ("porcelain", 7.0e10, 1)),
         ),
     )
 }
@@ -268,6 +427,20 @@ _FALLBACK = MaterialModel(
     {"Irregular": 50, "Cylinder": 20, "Rectangular": 15, "Sphere": 12, "Hex": 3},
     _tex(matte=40, rubbery=20, grain=20, smooth=20),
     max_strain=0.5,
+    object_spread_dex=0.05,
+    one_off_share=1.0,
+)
+
+_PAPER = MaterialModel(
+    "Paper",
+    0.0,
+    (0.2, 0.4),
+    0.2,
+    {"Rectangular": 1.0},
+    _tex(matte=50, grain=50),
+    max_strain=0.6,
+    object_spread_dex=0.05,
+    one_off_share=1.0,
 )
 
 
@@ -277,13 +450,196 @@ def material_model(name: str) -> MaterialModel:
         if key.lower() == name.strip().lower():
             return model
     if name.strip().lower() == "paper":
-        return MaterialModel(
-            "Paper",
-            0.0,
-            (0.2, 0.4),
-            0.2,
-            {"Rectangular": 1.0},
-            _tex(matte=50, grain=50),
-            max_strain=0.6,
-        )
+        return _PAPER
     return _FALLBACK
+
+
+@dataclass(frozen=True)
+class Grade:
+    """A material grade: what all its objects share.
+
+    Attributes:
+        key: identity of the grade (``"Metal/2e+11"``, ``"Rubber/own/obj_0012"``).
+        material: material class (real table names).
+        name: what it is (``steel``, ``Shore A 30``, ``one-off``, ...).
+        label_pa: handbook label [Pa] (the ground truth of its objects).
+        physics_modulus_pa: the grade's physical modulus, label x mismatch [Pa].
+        poisson: Poisson ratio [-].
+        object_spread_dex: sigma of the per-object modulus spread [decades].
+        texture: the grade's surface (objects vary it slightly, see :func:`object_texture`).
+        coated_probability: share of its objects that are painted / lacquered [-].
+        shape_weights: relative frequency of each shape among its objects [-].
+        size_bias: size tendency of its objects (0 = the material's, > 0 larger) [-].
+        hollow_probability: probability that one of its objects is hollow [-].
+    """
+
+    key: str
+    material: str
+    name: str
+    label_pa: float
+    physics_modulus_pa: float
+    poisson: float
+    object_spread_dex: float
+    texture: TextureSpec
+    coated_probability: float
+    shape_weights: dict[str, float]
+    size_bias: float
+    hollow_probability: float
+
+    def object_physics_modulus_pa(self, rng: np.random.Generator) -> float:
+        """One object's physical modulus [Pa]: the grade's x 10^N(0, object_spread_dex)."""
+        return float(self.physics_modulus_pa * 10.0 ** rng.normal(0.0, self.object_spread_dex))
+
+    def sample_shape(self, rng: np.random.Generator) -> str:
+        """Draw a shape class from the grade's shape weights."""
+        shapes = list(self.shape_weights)
+        p = np.array([self.shape_weights[s] for s in shapes], dtype=float)
+        return shapes[int(rng.choice(len(shapes), p=p / p.sum()))]
+
+
+def grade_key(material: str, label_pa: float) -> str:
+    """The key of the stock grade of ``(material, label)`` (also used for table rows)."""
+    return f"{material}/{float(label_pa):.4g}"
+
+
+SIZE_BIAS_SIGMA = 0.35
+"""Sigma of a grade's size tendency (see ``geometry.sample_shape``) [-]."""
+
+SHAPE_CONCENTRATION = 30.0
+"""Dirichlet concentration of a grade's shape weights around its material's [-]."""
+
+
+def _grade_texture(rng: np.random.Generator, weights: dict[str, float]) -> TextureSpec:
+    kinds = [k for k in TEXTURE_KINDS if weights.get(k, 0.0) > 0]
+    p = np.array([weights[k] for k in kinds], dtype=float)
+    kind = str(kinds[int(rng.choice(len(kinds), p=p / p.sum()))])
+    (a_lo, a_hi), (s_lo, s_hi) = _FAMILY_RANGES[kind]
+    return TextureSpec(
+        kind,
+        amplitude_mm=_log_uniform(rng, a_lo, a_hi) * 1e-3,
+        scale_mm=_log_uniform(rng, s_lo, s_hi),
+        angle_rad=0.0,  # orientation is per object (a pose nuisance)
+        elongation=float(rng.uniform(4.0, 12.0)),
+        open_fraction=float(rng.uniform(0.1, 0.45)),
+        fine_share=float(rng.uniform(0.1, 0.6)),
+    )
+
+
+def make_grade(seed: int, material: str, label_pa: float, key: str, name: str = "one-off") -> Grade:
+    """Draw a grade's physics, surface and shape tendencies from ``stream(seed, "grade",
+    key)`` (independent of the order in which grades or objects are built)."""
+    model = material_model(material)
+    rng = stream(seed, "grade", key)
+    modulus = label_pa * 10.0 ** rng.normal(0.0, model.mismatch_dex)
+    ratio = rng.uniform(10.0, 20.0)  # drawn for every grade: the stream stays aligned
+    if model.across_grain and label_pa > 1e9:
+        modulus /= ratio
+    poisson = model.sample_poisson(rng)
+    texture = _grade_texture(rng, model.texture_weights)
+    shapes = list(model.shape_weights)
+    base = np.array([model.shape_weights[s] for s in shapes], dtype=float)
+    base /= base.sum()
+    tilt = rng.dirichlet(SHAPE_CONCENTRATION * base + 1e-3)
+    size_bias = float(rng.normal(0.0, SIZE_BIAS_SIGMA))
+    hollow = float(min(model.hollow_probability * rng.uniform(0.3, 1.7), 0.95))
+    return Grade(
+        key=key,
+        material=_material_name(material),
+        name=name,
+        label_pa=float(label_pa),
+        physics_modulus_pa=float(modulus),
+        poisson=poisson,
+        object_spread_dex=model.object_spread_dex,
+        texture=texture,
+        coated_probability=model.coated_probability,
+        shape_weights={s: float(w) for s, w in zip(shapes, tilt, strict=True)},
+        size_bias=size_bias,
+        hollow_probability=hollow,
+    )
+
+
+def _material_name(material: str) -> str:
+    """The catalogue's spelling of a material (a table's own name if it has none)."""
+    model = material_model(material)
+    return model.name if model is not _FALLBACK else material.strip()
+
+
+def stock_grade(seed: int, material: str, label_pa: float, name: str = "") -> Grade:
+    """The stock grade of ``(material, label)`` for a dataset seed (a table row's grade)."""
+    material = _material_name(material)
+    return make_grade(seed, material, label_pa, grade_key(material, label_pa), name or "stock")
+
+
+def one_off_grade(seed: int, material: str, object_name: str) -> Grade:
+    """A one-off grade of its own for an object: a continuous label (measured on it)."""
+    model = material_model(material)
+    material = _material_name(material)
+    key = f"{material}/own/{object_name}"
+    label = model.sample_one_off_label_pa(stream(seed, "grade", key, "label"))
+    return make_grade(seed, material, label, key)
+
+
+@lru_cache(maxsize=64)
+def grade_catalogue(seed: int, material: str) -> tuple[GradeEntry, ...]:
+    """The stock grades of a material for a dataset seed, with their weights.
+
+    Handbook grades (metals, plastics, woods, glasses, ceramics) keep their fixed
+    frequencies (steel the most common metal, ABS the most common plastic, pine the most
+    common wood). Rubber stock (nominal Shore hardnesses) gets per-seed popularity
+    weights (a Dirichlet draw, concentration 1 for the Shore 00 silicones and 2.5 for
+    the Shore A rubbers: some hardnesses are more common, as on a lab's shelf);
+    foam gets three polyurethane stock grades and food one soft stock food, with
+    labels drawn per seed.
+    """
+    model = material_model(material)
+    rng = stream(seed, "catalogue", model.name)
+    entries = list(model.grades)
+    if model.name == "Rubber":
+        # Soft silicone stock (Shore 00) is rarer than Shore A rubber stock.
+        alpha = np.array([1.0 if e.name.startswith("Shore 00") else 2.5 for e in entries])
+        weights = rng.dirichlet(alpha)
+        entries = [replace(e, weight=float(w)) for e, w in zip(entries, weights, strict=True)]
+    elif model.name == "Foam":
+        weights = rng.dirichlet(np.ones(3)) * 30.0
+        entries += [
+            GradeEntry(f"PU foam {i + 1}", _round_label(_log_uniform(rng, 8e3, 4.5e5)), float(w))
+            for i, w in enumerate(weights)
+        ]
+    elif model.name == "Food":
+        entries.append(
+            GradeEntry("soft stock food", _round_label(_log_uniform(rng, 3e4, 3.3e6)), 1.0)
+        )
+    return tuple(entries)
+
+
+def draw_object_grade(seed: int, material: str, object_name: str) -> Grade:
+    """The grade of a default-mix object: a one-off with the material's one-off share,
+    else a stock grade by catalogue weight (stream ``(seed, object, "label")``)."""
+    model = material_model(material)
+    rng = stream(seed, object_name, "label")
+    entries = grade_catalogue(seed, model.name)
+    if not entries or rng.random() < model.one_off_share:
+        return one_off_grade(seed, model.name, object_name)
+    p = np.array([e.weight for e in entries], dtype=float)
+    entry = entries[int(rng.choice(len(entries), p=p / p.sum()))]
+    return stock_grade(seed, model.name, entry.label_pa, entry.name)
+
+
+def object_texture(grade: Grade, rng: np.random.Generator) -> TextureSpec:
+    """One object's surface: its grade's, varied slightly (or painted)."""
+    base = grade.texture
+    if rng.random() < grade.coated_probability:
+        # Paint or lacquer fills the surface: a smooth, low-amplitude finish.
+        (a_lo, a_hi), (s_lo, s_hi) = _FAMILY_RANGES["smooth"]
+        base = replace(
+            base,
+            kind="smooth",
+            amplitude_mm=_log_uniform(rng, a_lo, a_hi) * 1e-3,
+            scale_mm=_log_uniform(rng, s_lo, s_hi),
+        )
+    return replace(
+        base,
+        amplitude_mm=float(base.amplitude_mm * 10.0 ** rng.normal(0.0, OBJECT_AMPLITUDE_DEX)),
+        scale_mm=float(base.scale_mm * 10.0 ** rng.normal(0.0, OBJECT_SCALE_DEX)),
+        angle_rad=float(rng.uniform(0.0, math.pi)),
+    )

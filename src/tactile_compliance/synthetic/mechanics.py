@@ -30,18 +30,34 @@ objects hard to tell apart). Hollow objects add the shell spring
 
 Calibration (see ``tests/test_synthetic_mechanics.py``): a rigid R = 25 mm sphere at
 60 N sinks ~1.2 mm into a 5 mm gel; a rigid flat covering the pad <= 0.2 mm.
+
+*Conformity* (the rendered fields only, :func:`gel_compression_fields`). The cells of
+the foundations are independent, so a uniform pressure would press a flat-bottomed,
+sharp-walled imprint whatever the object's stiffness. That is right for a rigid object
+(the gel surface takes the object's shape: it prints its geometry, edges included), but
+a compliant object transmits a smooth pressure and the gel answers with its own smooth
+response: a uniformly loaded elastic surface sags less at the edge of the load than in
+its middle (2/pi of it on a half-space), and a thin bonded layer spreads a load over
+about its own thickness. The rendered gel field is therefore
+``(1 - c_o) d_g + c_o G_sigma * d_g`` inside the contact, with ``c_o`` the object's share
+of the deformation (0 for a rigid object, -> 1 for a soft one) and ``G_sigma`` a
+Gaussian of ``sigma = CONFORM_SIGMA_H x h``, rescaled to the imprint's volume: soft
+objects give soft-edged, dished imprints, hard ones keep their edges. Force curves are
+unchanged.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 from tactile_compliance.synthetic.geometry import NO_SURFACE, PadGrid
 
 __all__ = [
+    "CONFORM_SIGMA_H",
     "ContactCurve",
     "GelModel",
     "ObjectMechanics",
@@ -51,6 +67,11 @@ __all__ = [
     "hertz_force_n",
     "shell_stiffness_n_per_m",
 ]
+
+
+CONFORM_SIGMA_H = 0.3
+"""Spread of the gel's response to a compliant object's smooth pressure, in gel
+thicknesses (sigma of the Gaussian in :func:`gel_compression_fields`) [-]."""
 
 
 @dataclass(frozen=True)
@@ -147,6 +168,8 @@ class ContactCurve:
         semi_axis_mm: contact minor semi-axis a_c [mm].
         gel_depth_mm: gel compression field delta_g per approach, (K, rows, cols) [mm]
             (only when fields were requested).
+        object_share: the object's share of the deformation per approach,
+            sum(delta_o) / sum(delta_g + delta_o) over the contact [-] (only with fields).
     """
 
     approaches_mm: np.ndarray
@@ -154,6 +177,7 @@ class ContactCurve:
     contact_area_mm2: np.ndarray
     semi_axis_mm: np.ndarray
     gel_depth_mm: np.ndarray | None = None
+    object_share: np.ndarray | None = None
 
     def approach_at(self, force_n: np.ndarray | float) -> np.ndarray:
         """Approach [mm] at a force [N] (monotone interpolation in log-log)."""
@@ -276,12 +300,18 @@ def contact_curve(
     pressure = np.where(masks & (denom > 0), 2.0 * qc / np.maximum(denom, tiny), np.float32(0))
     forces = pressure.sum(axis=1, dtype=np.float64) * grid.cell_area_m2
     gel_depth = None
+    object_share = None
     if fields:
         dg = l_g * pressure / (e_c + pressure * inv_eg)
+        do = l_o * pressure / (e_o + pressure * inv_eo)
+        total = (dg + do).sum(axis=1, dtype=np.float64)
+        object_share = np.where(
+            total > 0, do.sum(axis=1, dtype=np.float64) / np.maximum(total, 1e-30), 0.0
+        )
         gel_depth = np.zeros((approaches.size, flat.size), dtype=np.float32)
         gel_depth[:, candidates] = dg
         gel_depth = gel_depth.reshape(approaches.size, *sag.shape)
-    return ContactCurve(approaches, forces, area_mm2, a_c, gel_depth)
+    return ContactCurve(approaches, forces, area_mm2, a_c, gel_depth, object_share)
 
 
 def force_curve(
@@ -311,20 +341,89 @@ def force_curve(
     return curve
 
 
+def conform(
+    gel_depth_mm: np.ndarray,
+    object_share: np.ndarray | float,
+    gel: GelModel,
+    grid: PadGrid,
+    inplace: bool = False,
+) -> np.ndarray:
+    """Gel fields as a compliant object presses them (see the module docstring).
+
+    ``(1 - c_o) d_g + c_o G_sigma * d_g`` inside the contact (zero outside, where the
+    renderer's skirt drapes the membrane), ``sigma = CONFORM_SIGMA_H x h``, rescaled to
+    the volume of ``d_g`` (the same load).
+
+    Args:
+        gel_depth_mm: one field (rows, cols) or a stack (n, rows, cols) [mm], float32.
+        object_share: the object's share ``c_o`` of each field's deformation [-].
+        gel: the gel (its thickness sets sigma).
+        grid: the pad grid of the fields.
+        inplace: overwrite ``gel_depth_mm`` instead of returning a copy.
+    """
+    fields = np.asarray(gel_depth_mm, dtype=np.float32)
+    out = fields if inplace else fields.copy()
+    stack = out[None] if out.ndim == 2 else out
+    shares = np.clip(
+        np.broadcast_to(np.asarray(object_share, dtype=np.float64), stack.shape[:1]), 0.0, 1.0
+    )
+    active = np.flatnonzero(shares >= 1e-3)
+    if active.size == 0:
+        return out
+    touched = stack[active].max(axis=0) > 0
+    rows, cols = np.flatnonzero(touched.any(axis=1)), np.flatnonzero(touched.any(axis=0))
+    if rows.size == 0:
+        return out
+    # The blur reaches 4 sigma (OpenCV's kernel): work on the contact's box only.
+    sigma = CONFORM_SIGMA_H * gel.thickness_mm / grid.cell_mm
+    m = int(np.ceil(4.0 * sigma)) + 1
+    box = (
+        slice(max(int(rows[0]) - m, 0), min(int(rows[-1]) + m + 1, touched.shape[0])),
+        slice(max(int(cols[0]) - m, 0), min(int(cols[-1]) + m + 1, touched.shape[1])),
+    )
+    crop = stack[(active, *box)]  # (k, h, w) copy
+    h, w = crop.shape[1:]
+    coarse = (max(w // 2, 1), max(h // 2, 1))  # OpenCV's (width, height)
+    smooth = np.empty_like(crop)
+    for i in range(crop.shape[0]):
+        # The response is smooth: blur a 2x coarser copy (4x fewer cells, a 2x shorter
+        # kernel) and interpolate back.
+        small = cv2.resize(crop[i], coarse, interpolation=cv2.INTER_AREA)
+        small = cv2.GaussianBlur(small, (0, 0), sigma / 2, borderType=cv2.BORDER_CONSTANT)
+        smooth[i] = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    smooth -= crop
+    smooth *= shares[active].astype(np.float32)[:, None, None]
+    smooth += crop
+    smooth[crop <= 0] = 0.0
+    # What the blur moved past the contact's edge stays in it: the same volume.
+    before = crop.sum(axis=(1, 2), dtype=np.float64)
+    after = smooth.sum(axis=(1, 2), dtype=np.float64)
+    scale = np.where(after > 0, before / np.maximum(after, 1e-30), 1.0)
+    smooth *= scale.astype(np.float32)[:, None, None]
+    stack[(active, *box)] = smooth
+    return out
+
+
 def gel_compression_fields(
     sag_mm: np.ndarray,
     gel: GelModel,
     obj: ObjectMechanics,
     grid: PadGrid,
     approaches_mm: np.ndarray,
+    conformity: bool = True,
 ) -> np.ndarray:
     """Gel compression fields (n, rows, cols) [mm] at each approach; zero where the
-    approach is 0 (no contact), which :func:`contact_curve` cannot evaluate."""
+    approach is 0 (no contact), which :func:`contact_curve` cannot evaluate.
+
+    With ``conformity`` (default) each field is shaped by :func:`conform`: compliant
+    objects press soft-edged imprints, rigid ones print their geometry."""
     approaches = np.asarray(approaches_mm, dtype=np.float64)
     fields = np.zeros((approaches.size, *grid.shape), dtype=np.float32)
-    touching = approaches > 0
-    if touching.any():
+    touching = np.flatnonzero(approaches > 0)
+    if touching.size:
         curve = contact_curve(sag_mm, gel, obj, grid, approaches[touching], fields=True)
-        assert curve.gel_depth_mm is not None
+        assert curve.gel_depth_mm is not None and curve.object_share is not None
+        if conformity:
+            conform(curve.gel_depth_mm, curve.object_share, gel, grid, inplace=True)
         fields[touching] = curve.gel_depth_mm
     return fields

@@ -1,21 +1,24 @@
 """Synthetic objects: the default mix that follows the real object table, or a user table.
 
 An :class:`ObjectSpec` holds everything that is fixed for an object across its grasps:
-its label (ground-truth Young's modulus, a handbook value), the modulus that actually
-drives the physics (label x mismatch), Poisson ratio, hollowness, geometry and surface
-texture. Every block comes from its own random stream (``rng.stream``), so the
-geometry, texture and sensor session never see the label.
+its material grade (``materials.Grade``: the label - ground-truth Young's modulus, a
+handbook value shared by all objects of the grade -, the grade's physical modulus,
+Poisson ratio, surface family and shape tendencies), the object's own modulus (the
+grade's x a small per-object spread), hollowness, geometry and surface texture (the
+grade's, varied per object). Every block comes from its own random stream
+(``rng.stream``); geometry, poses and the sensor session never see the label, and the
+grade's cues (surface, shape tendencies) are drawn independently of its label value.
 
 Default objects are named neutrally (``obj_0000``, ``obj_0001``, ...): nothing in a name
 gives the label away. With an object table (the real CSV format) the table's labels,
 materials, shapes, names, radii and trial counts are used, one simulated object per row
-with a valid modulus.
+with a valid modulus; all rows of one ``(material, label)`` share one grade.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,16 +27,23 @@ from tactile_compliance.data.preprocess import UNKNOWN_GROUND_TRUTH_OBJECTS
 from tactile_compliance.synthetic.geometry import ShapeSpec, sample_shape
 from tactile_compliance.synthetic.materials import (
     MATERIALS,
-    TEXTURE_KINDS,
+    Grade,
+    TextureSpec,
+    draw_object_grade,
     material_model,
+    object_texture,
+    pore_imprint_gain,
+    stock_grade,
 )
 from tactile_compliance.synthetic.mechanics import shell_stiffness_n_per_m
 from tactile_compliance.synthetic.rng import stream
 
 __all__ = [
     "UNKNOWN_GROUND_TRUTH",
+    "ObjectIdentity",
     "ObjectSpec",
     "TextureSpec",
+    "default_identities",
     "default_objects",
     "objects_from_table",
 ]
@@ -60,23 +70,6 @@ _HOLLOW_NAME_HINTS = (
 )
 
 
-@dataclass(frozen=True)
-class TextureSpec:
-    """Surface texture of an object (imprinted on the gel where it touches).
-
-    Attributes:
-        kind: one of :data:`~tactile_compliance.synthetic.materials.TEXTURE_KINDS`.
-        amplitude_mm: standard deviation of the surface height [mm].
-        scale_mm: characteristic length (correlation length or period) [mm].
-        angle_rad: orientation of anisotropic textures (grain, machining) [rad].
-    """
-
-    kind: str
-    amplitude_mm: float
-    scale_mm: float
-    angle_rad: float
-
-
 @dataclass
 class ObjectSpec:
     """One synthetic object (fixed across its grasps).
@@ -87,7 +80,8 @@ class ObjectSpec:
         material: material class (real table names).
         shape: shape class (real table names).
         modulus_pa: ground-truth label [Pa] (what ``metadata.json`` stores).
-        physics_modulus_pa: the modulus that drives the mechanics [Pa].
+        physics_modulus_pa: the modulus that drives the mechanics [Pa]: the grade's
+            physical modulus x 10^N(0, grade.object_spread_dex).
         poisson: the object's Poisson ratio [-].
         max_strain: saturating compressive strain of the object [-].
         hollow: thin-walled object.
@@ -98,6 +92,7 @@ class ObjectSpec:
         n_grasps: number of grasps to simulate.
         shore_00, shore_a, shore_d: hardness values for ``metadata.json`` (None if n/a).
         used_in_training: ``metadata.json`` flag (False for unknown ground truth).
+        grade: the object's material grade (shared with the other objects of the grade).
     """
 
     name: str
@@ -118,27 +113,7 @@ class ObjectSpec:
     shore_a: float | None = None
     shore_d: float | None = None
     used_in_training: bool = True
-
-
-def _texture(rng: np.random.Generator, weights: dict[str, float]) -> TextureSpec:
-    kinds = [k for k in TEXTURE_KINDS if weights.get(k, 0.0) > 0]
-    p = np.array([weights[k] for k in kinds], dtype=float)
-    # A third of objects are painted, coated or otherwise atypical: any texture.
-    if rng.random() < 0.3:
-        kind = str(rng.choice(TEXTURE_KINDS))
-    else:
-        kind = str(kinds[int(rng.choice(len(kinds), p=p / p.sum()))])
-    amplitude_um, scale_mm = {
-        "smooth": (rng.uniform(1.0, 3.0), rng.uniform(0.05, 0.15)),
-        "machined": (rng.uniform(3.0, 8.0), rng.uniform(0.12, 0.35)),
-        "knurled": (rng.uniform(15.0, 45.0), rng.uniform(0.6, 1.2)),
-        "matte": (rng.uniform(3.0, 10.0), rng.uniform(0.06, 0.15)),
-        "grain": (rng.uniform(8.0, 25.0), rng.uniform(0.15, 0.4)),
-        "rubbery": (rng.uniform(5.0, 18.0), rng.uniform(0.1, 0.25)),
-        "cellular": (rng.uniform(40.0, 120.0), rng.uniform(0.25, 0.8)),
-        "organic": (rng.uniform(15.0, 50.0), rng.uniform(0.4, 1.0)),
-    }[kind]
-    return TextureSpec(kind, amplitude_um * 1e-3, float(scale_mm), float(rng.uniform(0, np.pi)))
+    grade: Grade | None = field(default=None, repr=False)
 
 
 def _shore_values(material: str, modulus_pa: float) -> tuple[float | None, ...]:
@@ -164,19 +139,20 @@ def _build(
     seed: int,
     material: str,
     shape: str,
-    label_pa: float,
+    grade: Grade,
     n_grasps: int,
     radius_mm: float | None = None,
     shore: tuple[float | None, float | None, float | None] | None = None,
     used_in_training: bool = True,
 ) -> ObjectSpec:
     model = material_model(material)
-    physics_rng = stream(seed, name, "physics")
-    physics_modulus = model.physics_modulus_pa(label_pa, physics_rng)
-    poisson = model.sample_poisson(physics_rng)
-    geometry = sample_shape(shape, stream(seed, name, "geometry"), radius_mm)
+    physics_modulus = grade.object_physics_modulus_pa(stream(seed, name, "physics"))
+    poisson = grade.poisson
+    geometry = sample_shape(
+        shape, stream(seed, name, "geometry"), radius_mm, size_bias=grade.size_bias
+    )
     hollow_rng = stream(seed, name, "hollow")
-    hollow_p = model.hollow_probability
+    hollow_p = grade.hollow_probability
     if any(h in name.lower() for h in _HOLLOW_NAME_HINTS):
         hollow_p = max(hollow_p, 0.8)
     hollow = bool(hollow_rng.random() < hollow_p) and geometry.kind != "Hex"
@@ -187,15 +163,17 @@ def _build(
         if hollow
         else math.inf
     )
-    texture = _texture(stream(seed, name, "texture"), model.texture_weights)
+    texture = object_texture(grade, stream(seed, name, "texture"))
+    if texture.kind == "cellular":
+        texture = replace(texture, imprint_gain=pore_imprint_gain(physics_modulus, poisson))
     if shore is None:
-        shore = _shore_values(model.name, label_pa)
+        shore = _shore_values(model.name, grade.label_pa)
     return ObjectSpec(
         name=name,
         index=index,
         material=material,
         shape=shape,
-        modulus_pa=float(label_pa),
+        modulus_pa=float(grade.label_pa),
         physics_modulus_pa=physics_modulus,
         poisson=poisson,
         max_strain=model.max_strain,
@@ -209,39 +187,78 @@ def _build(
         shore_a=shore[1],
         shore_d=shore[2],
         used_in_training=used_in_training,
+        grade=grade,
     )
+
+
+@dataclass(frozen=True)
+class ObjectIdentity:
+    """What the default mix decides about an object before its geometry is drawn.
+
+    Attributes:
+        name: directory name (``obj_NNNN``).
+        index: position in the mix.
+        material: material class.
+        grade: the object's material grade.
+        shape: shape class.
+        n_grasps: number of grasps.
+    """
+
+    name: str
+    index: int
+    material: str
+    grade: Grade
+    shape: str
+    n_grasps: int
+
+
+def default_identities(
+    n_objects: int, seed: int = 0, grasps_per_object: int | None = None
+) -> list[ObjectIdentity]:
+    """Material, grade, shape and grasp count of each default object (cheap: no geometry).
+
+    Each object draws its material (real frequencies) from ``stream(seed, name,
+    "identity")``, then its grade (``materials.draw_object_grade``: a stock grade of
+    the material's catalogue or a one-off of its own), then its shape from the grade's
+    shape tendencies and its number of grasps.
+    """
+    names = list(MATERIALS)
+    weights = np.array([MATERIALS[m].weight for m in names])
+    weights /= weights.sum()
+    identities = []
+    for i in range(n_objects):
+        name = f"obj_{i:04d}"
+        rng = stream(seed, name, "identity")
+        material = names[int(rng.choice(len(names), p=weights))]
+        grade = draw_object_grade(seed, material, name)
+        shape = grade.sample_shape(rng)
+        if grasps_per_object is None:
+            n_grasps = int(rng.choice([5, 6, 7, 8], p=[0.62, 0.05, 0.04, 0.29]))
+        else:
+            n_grasps = int(grasps_per_object)
+        identities.append(ObjectIdentity(name, i, material, grade, shape, n_grasps))
+    return identities
 
 
 def default_objects(
     n_objects: int, seed: int = 0, grasps_per_object: int | None = None
 ) -> list[ObjectSpec]:
-    """The default object mix (materials and shapes as in the real table).
+    """The default object mix (materials, grades and shapes as in the real table).
+
+    See :func:`default_identities` for the draws; then every object gets its geometry,
+    its modulus (the grade's x a small per-object spread), hollowness and surface.
 
     Args:
         n_objects: number of objects.
-        seed: base seed; object i depends only on (seed, i).
+        seed: base seed; object i depends only on (seed, i) (grades only on the seed and
+            the grade).
         grasps_per_object: fixed number of grasps; default 5-8 per object like the
             real data (mostly 5, ~30 % with 8).
     """
-    names = list(MATERIALS)
-    weights = np.array([MATERIALS[m].weight for m in names])
-    weights /= weights.sum()
-    objects = []
-    for i in range(n_objects):
-        name = f"obj_{i:04d}"
-        rng = stream(seed, name, "identity")
-        material = names[int(rng.choice(len(names), p=weights))]
-        model = MATERIALS[material]
-        shapes = list(model.shape_weights)
-        p = np.array([model.shape_weights[s] for s in shapes], dtype=float)
-        shape = shapes[int(rng.choice(len(shapes), p=p / p.sum()))]
-        label = model.sample_label_pa(stream(seed, name, "label"))
-        if grasps_per_object is None:
-            n_grasps = int(rng.choice([5, 6, 7, 8], p=[0.62, 0.05, 0.04, 0.29]))
-        else:
-            n_grasps = int(grasps_per_object)
-        objects.append(_build(name, i, seed, material, shape, label, n_grasps))
-    return objects
+    return [
+        _build(o.name, o.index, seed, o.material, o.shape, o.grade, o.n_grasps)
+        for o in default_identities(n_objects, seed, grasps_per_object)
+    ]
 
 
 def objects_from_table(
@@ -252,6 +269,9 @@ def objects_from_table(
     Uses ``Label`` (directory name), ``Material``, ``Shape``, ``Modulus [Pa]`` (label),
     ``Radius [m]`` (sphere/cylinder radius when given), ``Trials Recorded?`` (number of
     grasps unless ``grasps_per_object`` is given) and the Shore columns (metadata).
+    Rows of one ``(Material, Modulus [Pa])`` share one grade
+    (``materials.stock_grade``: the same physics draw, surface family and shape
+    tendencies; the same grade as a default-mix stock grade of that label and seed).
 
     Returns:
         ``(objects, skipped)`` with a reason string per skipped row.
@@ -281,14 +301,15 @@ def objects_from_table(
             n_grasps = int(trials) if trials and trials > 0 else 5
         radius_m = number(row, "radius_m")
         shore = (number(row, "shore_00"), number(row, "shore_a"), number(row, "shore_d"))
+        material = str(row["material"]) or "Other"
         objects.append(
             _build(
                 str(name),
                 index,
                 seed,
-                str(row["material"]) or "Other",
+                material,
                 str(row["shape"]) or "Irregular",
-                float(row["modulus_pa"]),
+                stock_grade(seed, material, float(row["modulus_pa"])),
                 n_grasps,
                 radius_mm=radius_m * 1e3 if radius_m else None,
                 shore=shore,

@@ -1,12 +1,22 @@
 """Surface textures of objects, as height fields imprinted on the gel.
 
-Textures are the weak material cues of the real data: wood grain, machining marks,
-knurling, foam pores, the matte roughness of moulded plastic. They are generated once
-per object and finger side on a canvas twice the image size (heights in mm, zero mean);
-each grasp takes a randomly placed, randomly flipped window, so repeated grasps of an
-object show the same surface at different places. The renderer scales the imprint by
-the gel's share of the deformation (a soft object's texture flattens instead of
-printing into the gel) and applies it only where the object touches.
+Textures are material cues of the real data: machining lay lines, knurling, wood grain,
+foam pores, rubber moulding, food skins, the matte roughness of moulded plastic. Every
+object has its material grade's surface family with the grade's parameters, varied a
+little per object (``materials.object_texture``). They are generated once per object
+and finger side on a canvas twice the image size (heights in mm, zero mean); each
+grasp takes a randomly placed, randomly flipped window, so repeated grasps of an object
+show the same surface at different places. The renderer scales the imprint by the
+gel's share of the deformation (a soft object's texture flattens instead of printing
+into the gel) and applies it only where the object touches.
+
+Detail finer than the image resolves is not drawn at full amplitude: a camera pixel
+averages the membrane over its footprint, so a texture whose scale is below two
+pixels keeps only ``scale / (2 px)`` of its amplitude (the standard deviation of a
+random surface averaged over a pixel larger than its correlation length; for a
+periodic lay, roughly the first lobe of the pixel's sinc response) and is drawn at the
+smallest scale the grid can hold. Without it a low-resolution store would show
+fine textures as full-contrast pixel noise or Nyquist stripes, a cue no camera gives.
 """
 
 from __future__ import annotations
@@ -14,9 +24,17 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from tactile_compliance.synthetic.objects import TextureSpec
+from tactile_compliance.synthetic.materials import TextureSpec
 
-__all__ = ["texture_canvas", "texture_window"]
+__all__ = ["resolved_fraction", "texture_canvas", "texture_window"]
+
+MIN_SCALE_PX = 2.0
+"""Smallest texture scale the pixel grid holds [px] (periods: the Nyquist limit)."""
+
+
+def resolved_fraction(scale_mm: float, pixel_mm: float) -> float:
+    """Share of a texture's amplitude that survives averaging over a pixel [-]."""
+    return float(min(1.0, (scale_mm / pixel_mm) / MIN_SCALE_PX))
 
 
 def _blurred_noise(
@@ -38,40 +56,52 @@ def _rotate(field: np.ndarray, angle_rad: float) -> np.ndarray:
 def texture_canvas(
     spec: TextureSpec, size: tuple[int, int], pixel_mm: float, rng: np.random.Generator
 ) -> np.ndarray:
-    """A (2H, 2W) height field [mm] with zero mean and std ``spec.amplitude_mm``."""
+    """A (2H, 2W) height field [mm] with zero mean.
+
+    Its standard deviation is ``spec.amplitude_mm`` times :func:`resolved_fraction`
+    (detail below two pixels is averaged away by the camera) times
+    ``spec.imprint_gain`` (open pores print whatever the foam's stiffness).
+    """
     h, w = 2 * size[0], 2 * size[1]
-    scale_px = spec.scale_mm / pixel_mm
+    scale_px = max(spec.scale_mm / pixel_mm, MIN_SCALE_PX)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     c, s = np.cos(spec.angle_rad), np.sin(spec.angle_rad)
     along = xx * c + yy * s
     across = -xx * s + yy * c
     kind = spec.kind
     if kind == "machined":
-        field = np.sin(2 * np.pi * across / max(scale_px, 2.0))
-        field += 0.3 * _blurred_noise(rng, (h, w), (1.0, 1.0))
+        # Turning / milling lay: parallel lines, with tool chatter along them.
+        field = np.sin(2 * np.pi * across / scale_px)
+        field += spec.fine_share * _blurred_noise(rng, (h, w), (1.0, 1.0))
     elif kind == "knurled":
         period = max(scale_px, 3.0)
         field = np.abs(np.sin(np.pi * (along + across) / period)) + np.abs(
             np.sin(np.pi * (along - across) / period)
         )
     elif kind == "grain":
-        streaks = _blurred_noise(rng, (h, w), (6.0 * scale_px, 0.6 * scale_px))
+        # Fibres: streaks elongated along the grain, plus the growth-ring ridges.
+        streaks = _blurred_noise(rng, (h, w), (spec.elongation * scale_px, 0.6 * scale_px))
         field = _rotate(streaks, spec.angle_rad)
         field += 0.5 * np.sin(2 * np.pi * across / max(4.0 * scale_px, 3.0))
     elif kind == "cellular":
         pores = _blurred_noise(rng, (h, w), (scale_px / 2, scale_px / 2))
-        # Pores are holes in the surface: the gel is pushed less where they are.
-        field = -np.clip(pores - 0.8, 0.0, None)
+        # Open pores are holes in the surface: the gel is pushed less where they are.
+        threshold = float(np.quantile(pores, 1.0 - spec.open_fraction))
+        field = -np.clip(pores - threshold, 0.0, None)
         field = cv2.GaussianBlur(field, (0, 0), max(scale_px / 6, 0.5))
     elif kind == "organic":
+        # Skin: low-frequency bumps (peel dimples, wrinkles) plus fine roughness.
         field = _blurred_noise(rng, (h, w), (scale_px, scale_px))
-        field += 0.3 * _blurred_noise(rng, (h, w), (scale_px / 6, scale_px / 6))
+        field += spec.fine_share * _blurred_noise(
+            rng, (h, w), (max(scale_px / 6, 0.5), max(scale_px / 6, 0.5))
+        )
     else:  # smooth, matte, rubbery: isotropic roughness at its own scale
         field = _blurred_noise(rng, (h, w), (scale_px, scale_px))
     field = field.astype(np.float32)
     field -= field.mean()
     std = float(field.std())
-    return field * np.float32(spec.amplitude_mm / (std if std > 0 else 1.0))
+    amplitude = spec.amplitude_mm * resolved_fraction(spec.scale_mm, pixel_mm) * spec.imprint_gain
+    return field * np.float32(amplitude / (std if std > 0 else 1.0))
 
 
 def texture_window(

@@ -1,0 +1,232 @@
+"""Probe what a (synthetic) GraspStore lets a model learn about unseen objects.
+
+Research script (issue 17): cheap learned probes under the UnSeen protocol - 5-fold
+``GroupKFold`` by object, so no object is in both the training and the test fold - that
+show how much of the label each input carries. Each probe is a
+``sklearn.ensemble.HistGradientBoostingRegressor`` on ``log10 E`` (fixed seed):
+
+=====================  ==========================================================
+``image features``     hand-made image features alone: per frame, the share of the
+                       image whose deviation from 0.5 (max over channels) exceeds 2, 5
+                       and 10 grey levels (contact-area shares), and the mean and
+                       max deviation [grey levels] (15 features)
+``median``             the training fold's median label (no learning)
+``F, W, log10 E``      the three forces, the three widths, log10 of both analytical
+                       estimates (clamped to [1e2, 1e14] Pa like the model input)
+``F, W, E + image``    both sets together (what the learned models see, roughly)
+``image + texture``    the image features plus the ladder's texture statistics of the
+                       last frame (``synthetic.ladder.image_statistics``: fine/coarse
+                       Laplacian energy, orientation coherence) - the surface cues
+``oracle material``    no learning: the training fold's median label of the sample's
+                       material (what knowing the material alone would give)
+``analytical``         no learning: the share of test samples whose analytical estimate
+                       is within one decade of the label - the elastic (Hooke) estimate,
+                       the Hertz E* converted to the object's E
+                       (``physics.contact.object_modulus_from_effective_pa``, default gel
+                       and object Poisson ratios; "much stiffer than the gel" = inf is
+                       never within a decade), and either of the two
+=====================  ==========================================================
+
+N-MSE and the other metrics are ``tactile_compliance.runs.metrics.compute_metrics`` with
+the package's default normalisation (labels on [1e3, 1e12] Pa). Prints a markdown table
+(and ``--json`` writes the numbers).
+
+Usage::
+
+    tactile-compliance simulate --out /tmp/raw --objects 286 --size 48x64
+    tactile-compliance import burgess /tmp/raw --out /tmp/store
+    python benchmarks/calibrate_synthetic.py /tmp/store [--finger markerless] [--json out.json]
+
+The issue's targets: image-only probe clearly better than the median; the analytical
+estimates within one decade for 20-40 % of test samples.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+THRESHOLDS_GREY = (2.0, 5.0, 10.0)
+"""Contact thresholds of the image features [grey levels of the difference image]."""
+
+ESTIMATE_CLAMP_PA = (1e2, 1e14)
+
+
+def image_features(frames: np.ndarray) -> np.ndarray:
+    """Hand-made features of uint8 frames (n, 3, H, W, 3) -> (n, 15).
+
+    Per frame: the area share above each of :data:`THRESHOLDS_GREY`, the mean and the
+    max deviation [grey levels]. The store holds difference images as uint8 with 0.5 at
+    ~128 (``frames_to_uint8``), so the deviation is ``|x - 0.5|`` in grey levels.
+    """
+    from tactile_compliance.data.store import frames_from_uint8
+
+    n = frames.shape[0]
+    out = np.empty((n, 3, len(THRESHOLDS_GREY) + 2), dtype=np.float64)
+    for start in range(0, n, 256):
+        block = frames_from_uint8(frames[start : start + 256])  # float32 in (0, 1)
+        dev = np.abs(block - 0.5).max(axis=-1) * 255.0  # (b, 3, H, W)
+        flat = dev.reshape(*dev.shape[:2], -1)
+        for j, t in enumerate(THRESHOLDS_GREY):
+            out[start : start + len(block), :, j] = (flat > t).mean(axis=-1)
+        out[start : start + len(block), :, -2] = flat.mean(axis=-1)
+        out[start : start + len(block), :, -1] = flat.max(axis=-1)
+    return out.reshape(n, -1)
+
+
+def force_width_estimate_features(samples) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """F (3) [N], W (3) [m], log10 of both analytical estimates (clamped) -> (n, 8)."""
+    from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
+
+    f = samples[list(FORCE_COLUMNS)].to_numpy(dtype=np.float64)
+    w = samples[list(WIDTH_COLUMNS)].to_numpy(dtype=np.float64)
+    e = samples[list(ESTIMATE_COLUMNS)].to_numpy(dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        log_e = np.log10(np.clip(e, *ESTIMATE_CLAMP_PA))
+    return np.concatenate([f, w, log_e], axis=1)
+
+
+def analytical_within_decade(samples) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    """Share of samples whose analytical estimate is within one decade of the label."""
+    from tactile_compliance.physics.contact import object_modulus_from_effective_pa
+
+    label = np.log10(samples["modulus_pa"].to_numpy(dtype=np.float64))
+    elastic = samples["elastic_estimate_pa"].to_numpy(dtype=np.float64)
+    hertz_star = samples["hertz_estimate_pa"].to_numpy(dtype=np.float64)
+    valid = np.isfinite(hertz_star) & (hertz_star > 0)
+    hertz = np.full_like(hertz_star, np.nan)
+    hertz[valid] = object_modulus_from_effective_pa(hertz_star[valid])
+
+    def within(e: np.ndarray) -> np.ndarray:
+        ok = np.isfinite(e) & (e > 0)
+        hit = np.zeros(e.shape, dtype=bool)
+        hit[ok] = np.abs(np.log10(e[ok]) - label[ok]) <= 1.0
+        return hit
+
+    hit_e, hit_h = within(elastic), within(hertz)
+    return {
+        "elastic": float(hit_e.mean()),
+        "hertz_as_e": float(hit_h.mean()),
+        "either": float((hit_e | hit_h).mean()),
+    }
+
+
+def run_probes(samples, frames: np.ndarray, folds: int = 5, seed: int = 0) -> dict:  # type: ignore[no-untyped-def]
+    """All probes on one set of samples (a DataFrame of the store) and their uint8 frames."""
+    from sklearn.ensemble import HistGradientBoostingRegressor
+    from sklearn.model_selection import GroupKFold
+
+    from tactile_compliance.runs.metrics import compute_metrics
+
+    y = np.log10(samples["modulus_pa"].to_numpy(dtype=np.float64))
+    groups = samples["object"].to_numpy()
+    from tactile_compliance.synthetic.ladder import image_statistics
+
+    img = image_features(frames)
+    texture = np.concatenate(
+        [image_statistics(frames[i : i + 256]) for i in range(0, len(frames), 256)]
+    )
+    fwe = force_width_estimate_features(samples)
+    inputs = {
+        "image features": img,
+        "F, W, log10 E": fwe,
+        "F, W, E + image features": np.concatenate([fwe, img], axis=1),
+        "image + texture statistics": np.concatenate([img, texture], axis=1),
+    }
+    materials = samples["material"].to_numpy()
+    predictions = {name: np.empty_like(y) for name in ["median", "oracle material", *inputs]}
+    for train, test in GroupKFold(n_splits=folds).split(y, y, groups):
+        predictions["median"][test] = np.median(y[train])
+        medians = {m: np.median(y[train][materials[train] == m]) for m in set(materials[train])}
+        predictions["oracle material"][test] = [
+            medians.get(m, np.median(y[train])) for m in materials[test]
+        ]
+        for name, x in inputs.items():
+            model = HistGradientBoostingRegressor(random_state=seed)
+            model.fit(x[train], y[train])
+            predictions[name][test] = model.predict(x[test])
+    true_pa = 10.0**y
+    rows = {name: compute_metrics(true_pa, 10.0**pred) for name, pred in predictions.items()}
+    return {
+        "samples": len(y),
+        "objects": int(np.unique(groups).size),
+        "probes": rows,
+        "analytical_within_one_decade": analytical_within_decade(samples),
+    }
+
+
+def format_table(result: dict) -> str:
+    """The probes as a markdown table."""
+    lines = [
+        f"{result['samples']} samples, {result['objects']} objects, "
+        "UnSeen 5-fold GroupKFold by object",
+        "",
+        "| probe | N-MSE | log10 accuracy | R^2 | MAE [dex] |",
+        "|---|---|---|---|---|",
+    ]
+    order = [
+        "image features",
+        "median",
+        "F, W, log10 E",
+        "F, W, E + image features",
+        "image + texture statistics",
+        "oracle material",
+    ]
+    for name in order:
+        m = result["probes"][name]
+        lines.append(
+            f"| {name} | {m['nmse']:.4f} | {m['log10_accuracy']:.3f} | {m['r2']:.3f} "
+            f"| {m['mae_decades']:.2f} |"
+        )
+    a = result["analytical_within_one_decade"]
+    lines.append(
+        f"| analytical within one decade (no learning) | - | elastic {a['elastic']:.3f}, "
+        f"Hertz->E {a['hertz_as_e']:.3f}, either {a['either']:.3f} | - | - |"
+    )
+    img, all_ = result["probes"]["image features"], result["probes"]["F, W, E + image features"]
+    med = result["probes"]["median"]
+    lines += [
+        "",
+        f"image-only N-MSE / all N-MSE = {img['nmse'] / all_['nmse']:.2f} "
+        f"(target <= 1.3); image-only / median = {img['nmse'] / med['nmse']:.2f}",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python benchmarks/calibrate_synthetic.py STORE``: print the probe table."""
+    from tactile_compliance.data.store import GraspStore
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("store", type=Path, help="a GraspStore directory")
+    parser.add_argument(
+        "--finger", default="all", choices=["all", "markerless", "markers"], help="which rows"
+    )
+    parser.add_argument("--folds", type=int, default=5)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    store = GraspStore.open(args.store)
+    samples = store.samples
+    rows = np.arange(len(samples))
+    if args.finger != "all":
+        rows = rows[(samples["finger"] == args.finger).to_numpy()]
+    samples = samples.iloc[rows].reset_index(drop=True)
+    frames = store.read_block(0, len(store))[rows]
+    # Unknown-ground-truth objects stay in (the probe measures the generator, not the paper).
+    result = run_probes(samples, frames, folds=args.folds, seed=args.seed)
+    result["store"] = str(args.store)
+    result["finger"] = args.finger
+    result["seconds"] = round(time.perf_counter() - start, 1)
+    print(format_table(result))
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
