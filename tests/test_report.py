@@ -550,14 +550,76 @@ def test_per_material_table_aggregates_groups_csv(fake: FakeResults, report: Any
 
 # ============================================================================ files
 def test_every_figure_is_a_real_png(report: Any) -> None:
+    import matplotlib.image
+
     expected = {"fig5", "fig6", "fig7", "fig8", "learning-curves"}
     assert expected <= set(report.figures)
     assert any(key.startswith("fig1-toy_store") for key in report.figures)
     assert any(key.startswith("fig1-shore_store") for key in report.figures)
-    for path in report.figures.values():
+    for key, path in report.figures.items():
         data = Path(path).read_bytes()
         assert data[:8] == PNG_MAGIC, path
-        assert len(data) > 15_000, f"{path} looks empty ({len(data)} bytes)"
+        pixels = matplotlib.image.imread(path)[..., :3]
+        assert min(pixels.shape[:2]) >= 200, (key, pixels.shape)
+        # Drawn on: many distinct colours, and ink on a good part of the canvas.
+        rgb = (pixels.reshape(-1, 3) * 255).astype(np.int64)
+        colours = np.unique(rgb[:, 0] * 65536 + rgb[:, 1] * 256 + rgb[:, 2])
+        assert len(colours) > 20, (key, len(colours))
+        assert np.mean(pixels.mean(axis=-1) < 0.9) > 0.02, key
+
+
+def _band_share(predictions: pd.DataFrame, span_decades: float, nmse: float) -> float:
+    d = np.abs(np.log10(predictions["pred_pa"]) - np.log10(predictions["modulus_pa"]))
+    return float(np.mean(d <= span_decades * math.sqrt(nmse) + 1e-9))
+
+
+@pytest.mark.parametrize(
+    "key, preset, span_decades",
+    [("fig5", "table2", 9.0), ("fig8", "shore", 4.0)],  # label ranges 1e3-1e12, 1e3-1e7 Pa
+)
+def test_scatter_figure_data_files_match_their_runs(
+    fake: FakeResults, report: Any, key: str, preset: str, span_decades: float
+) -> None:
+    """tables/fig5.csv and fig8.csv (what the figures draw) against the runs' own files."""
+    table = pd.read_csv(report.out_dir / "tables" / f"{key}.csv")
+    panels = {(r["model"], r["inputs"]) for r in _rows(fake, preset=preset)}
+    assert set(zip(table["model"], table["inputs"], strict=True)) == panels
+    assert len(table) == len(panels)
+    for row in table.itertuples():
+        runs = _rows(fake, preset=preset, model=row.model, inputs=row.inputs)
+        best = min(runs, key=lambda r: r["test_nmse"])
+        assert row.seed == best["seed"]
+        run_dir = fake.root / best["run_dir"]  # relative rows resolve from the results' parent
+        predictions = pd.read_csv(run_dir / "predictions.csv").query("split == 'test'")
+        d = np.log10(predictions["pred_pa"]) - np.log10(predictions["modulus_pa"])
+        nmse = float(np.mean((d / span_decades) ** 2))
+        assert row.nmse == pytest.approx(nmse, rel=1e-9)
+        assert row.n == len(predictions)
+        assert row.inside_band == pytest.approx(_band_share(predictions, span_decades, nmse))
+        assert Path(row.run_dir).name == run_dir.name
+
+
+@pytest.mark.parametrize(
+    "key, preset, by", [("fig6", "rolling-window", "subset"), ("fig7", "shape-test", "subset")]
+)
+def test_box_plot_data_files_match_their_runs(
+    fake: FakeResults, report: Any, key: str, preset: str, by: str
+) -> None:
+    """tables/fig6.csv and fig7.csv: one row per box, mean/std over the seeds' rows."""
+    table = pd.read_csv(report.out_dir / "tables" / f"{key}.csv")
+    runs = _rows(fake, preset=preset)
+    boxes = {(r["model"], r["inputs"], str(r[by])) for r in runs}
+    got = set(zip(table["model"], table["inputs"], table[by].astype(str), strict=True))
+    assert got == boxes and len(table) == len(boxes)
+    for row in table.itertuples():
+        values = [
+            r["test_nmse"]
+            for r in runs
+            if (r["model"], r["inputs"], str(r[by])) == (row.model, row.inputs, str(row.subset))
+        ]
+        mean, std = _mean_std(values)
+        assert row.mean == pytest.approx(mean, rel=1e-12) and row.metric == "nmse"
+        assert row.std == pytest.approx(std, rel=1e-12) and row.n == len(values)
 
 
 def test_documents_provenance_and_embedding(fake: FakeResults, report: Any) -> None:
