@@ -93,6 +93,13 @@ MAX_AUGMENTATIONS = 5
 AUGMENTATION_FORCE_FRACTION = 0.95
 """Augmentation k exists while the force at the shifted last frame is >= 0.95 F_max."""
 
+HARD_OBJECT_PA = 5e5
+"""Objects at least this stiff [Pa] stop augmenting once the first frame is nearly as deep
+as the last (the published code's rule)."""
+
+HARD_DEPTH_RATIO = 0.8
+"""... 'nearly as deep': first frame's maximum depth >= 0.8 x the last frame's."""
+
 OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
 """The object table written next to the object directories (the dataset's file name)."""
 
@@ -304,12 +311,22 @@ def capture_grasp(
 
 # ---------------------------------------------------------------------- selection
 def augmented_indices(
-    force_n: Sequence[float] | np.ndarray, max_aug: int = MAX_AUGMENTATIONS
+    force_n: Sequence[float] | np.ndarray,
+    max_aug: int = MAX_AUGMENTATIONS,
+    *,
+    modulus_pa: float | None = None,
+    max_depth_mm: Sequence[np.ndarray] = (),
 ) -> list[tuple[int, int, int]]:
     """The dataset's three frames of each augmentation k = 0, 1, ... (frame indices).
 
-    Augmentation 0 is ``select_frame_indices``; augmentation k shifts all three by +k
-    while the force at the shifted last frame stays >= 0.95 F_max (``DATA_FORMATS.md``).
+    Augmentation 0 is ``streaming.select_frame_indices`` (the frames ``live`` uses).
+    Augmentation k shifts all three by +k while the force at the shifted last frame stays
+    >= 0.95 F_max (``DATA_FORMATS.md``; F_max over the published clip
+    ``[i_start, i_peak + 1 + max_aug)``). The published code also capped the count, and
+    this follows it: at most ``max(i_1 - i_0, 2)`` augmentations, one when the three
+    frames span fewer than three frames, none reaching past the clip, and, for objects
+    of >= 5e5 Pa, none whose first frame is already >= 80 % as deep as its last (on
+    every sensor of ``max_depth_mm``, per-frame maximum depths in mm).
 
     Raises:
         ValueError: no selection (no frame reaches 5 N, the peak stays below 10 N, or
@@ -325,14 +342,30 @@ def augmented_indices(
             f"from contact to peak)"
         )
     base = np.asarray(selection.indices)
-    f_max = float(f[selection.onset :].max())
-    out = [tuple(int(i) for i in base)]
+    clip_end = min(selection.peak + 1 + max_aug, f.size)
+    f_max = float(f[selection.onset : clip_end].max())
+    count = 1
     for k in range(1, max_aug):
         last = int(base[-1]) + k
-        if last >= f.size or f[last] < AUGMENTATION_FORCE_FRACTION * f_max:
+        if last >= clip_end or f[last] < AUGMENTATION_FORCE_FRACTION * f_max:
             break
-        out.append(tuple(int(i) + k for i in base))
-    return out  # type: ignore[return-value]
+        count += 1
+    count = min(count, max(int(base[1] - base[0]), 2))
+    if base[-1] - base[0] < len(base):
+        count = 1
+    hard = modulus_pa is not None and modulus_pa >= HARD_OBJECT_PA
+    for k in range(1, count):
+        if base[-1] + k >= clip_end:
+            count = k
+            break
+        if (
+            hard
+            and max_depth_mm
+            and all(d[base[0] + k] >= HARD_DEPTH_RATIO * d[base[-1] + k] for d in max_depth_mm)
+        ):
+            count = k
+            break
+    return [tuple(int(i) + k for i in base) for k in range(count)]  # type: ignore[misc]
 
 
 # ---------------------------------------------------------------------- writing
@@ -535,7 +568,7 @@ def write_grasp(
         ValueError: the grasp has no frame selection (nothing is written), or the object
             exists with another modulus.
     """
-    indices = augmented_indices(captured.force_n, max_aug)  # before writing anything
+    augmented_indices(captured.force_n, max_aug)  # no selection: fail before any work
     frames = captured.frames
     ref = frames[0] if reference is None else np.asarray(reference)
     if ref.shape != frames.shape[1:]:
@@ -553,6 +586,12 @@ def write_grasp(
         mdiff = difference_images(markers, mref)
         marker_depth = reconstruct_depth(mdiff, markers=True)
         fingers.append(("RGB_markers.pkl", "depth_markers.pkl", mdiff, marker_depth))
+    depth_maxima = [depth.reshape(len(depth), -1).max(axis=1)]
+    if marker_depth is not None:
+        depth_maxima.append(marker_depth.reshape(len(marker_depth), -1).max(axis=1))
+    indices = augmented_indices(
+        captured.force_n, max_aug, modulus_pa=info.modulus_pa, max_depth_mm=depth_maxima
+    )
     estimate_fn = analytical_estimator(estimator)
     try:
         if estimator == "dataset" and marker_depth is not None:
