@@ -400,3 +400,49 @@ def test_bad_sources_are_one_line_errors_in_the_cli(grasp, tmp_path):
         errors = [line for line in result.output.splitlines() if line.startswith("error:")]
         assert len(errors) == 1, (label, result.output)
     assert not (tmp_path / "d").exists()
+
+
+def test_the_documented_robot_loop_runs(grasp, tmp_path, monkeypatch):
+    """docs/inference.md's GelSight Mini loop, with the camera replaced by the replayed video
+    and the gripper by the readings; it prints provisional estimates and the final one."""
+    from pathlib import Path
+
+    from tactile_compliance.inference.calibration import calibrate
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "inference.md").read_text()
+    block = text.split("### A robot loop with a GelSight Mini")[1]
+    block = block.split("```python\n", 1)[1].split("```", 1)[0]
+    assert "mini:/dev/v4l/by-id/" in block and "runs/RUN/best.pt" in block
+    block = block.replace("mini:/dev/v4l/by-id/usb-GelSight_GelSight_Mini-video-index0", "MINI")
+    block = block.replace('"MINI"', repr(f"video:{grasp['video']}"))
+    monkeypatch.chdir(tmp_path)
+    _checkpoint(tmp_path / "m.pt")
+    block = block.replace("runs/RUN/best.pt", "m.pt")
+    calibrate(f"video:{grasp['still']}", n_frames=5, out="sensor.json")
+    readings = pd.read_csv(grasp["readings"])
+
+    class Gripper:  # replays the readings, one per frame
+        def __init__(self):
+            self.i, self.released = -1, False
+
+        def close(self, **_):
+            pass
+
+        def force_n(self):
+            self.i += 1
+            return float(readings.force_n[self.i])
+
+        def width_m(self):
+            return float(readings.width_m[self.i])
+
+        def opening(self):
+            return self.released
+
+        def open(self):
+            self.released = True
+
+    printed: list[str] = []
+    namespace = {"gripper": Gripper(), "print": lambda *a: printed.append(" ".join(map(str, a)))}
+    exec(compile(block, "docs/inference.md", "exec"), namespace)
+    assert namespace["final"] is not None and namespace["final"].final
+    assert printed[-1].endswith("(final)") and len(printed) >= 3
