@@ -313,32 +313,44 @@ def run_end_to_end(grasp, tmp_path, inputs, size):
     assert final[0]["frames_seen"] == recorded["n_frames"]
     assert len(events) >= 3  # provisional estimates came first
     assert final[0]["log10_modulus_pa"] == pytest.approx(rows[0]["pred_log10_pa"], abs=1e-5)
-    return ckpt, common, events, rows
+    return events, rows
 
 
 def test_record_import_predict_and_live_agree(grasp, tmp_path):
-    ckpt, common, events, rows = run_end_to_end(grasp, tmp_path, "ImageFW", (72, 72))
+    events, rows = run_end_to_end(grasp, tmp_path, "ImageFW", (72, 72))
     # The agreement is no accident: other frames (the provisional selections) give other
     # values.
     final = events[-1]
     others = [e["log10_modulus_pa"] for e in events if e["frame_indices"] != final["frame_indices"]]
     assert others and all(abs(v - rows[0]["pred_log10_pa"]) > 1e-5 for v in others)
-    # Two checkpoints: an ensemble interval around the members' geometric mean.
-    second = _checkpoint(tmp_path / "m2.pt", seed=1)
-    source = ["--source", f"video:{grasp['video']}"]
-    ensemble = _json_lines(_cli("live", ckpt, second, *source, *common, "--json"))[-1]
-    members = ensemble["members_log10"]
-    assert (
-        ensemble["final"]
-        and len(members) == 2
-        and members[0] == pytest.approx(events[-1]["log10_modulus_pa"], abs=1e-9)
-    )
-    assert ensemble["log10_modulus_pa"] == pytest.approx(np.mean(members), abs=1e-12)
-    low, high = np.log10(ensemble["interval_pa"])
-    assert low < min(members) <= max(members) < high
-    # The text form of the same events.
     assert format_live_event(events[-1]).startswith("final       E = ")
-    assert "80% interval" in format_live_event(ensemble)
+
+
+def test_live_with_several_checkpoints_gives_an_interval(grasp, tmp_path):
+    """Each member streams the same frames; the final event combines the members' finals."""
+    from tactile_compliance.inference.live import live_estimates, load_members
+    from tactile_compliance.inference.streaming import predict_trajectory
+
+    paths = [_checkpoint(tmp_path / f"m{seed}.pt", seed=seed) for seed in (0, 1)]
+    members = load_members(paths)
+    readings = Readings.from_csv(grasp["readings"])
+    with open_source(f"video:{grasp['video']}") as source:
+        events = list(live_estimates(members, source, readings, level=0.9))
+    final = events[-1]
+    assert final["final"] and [e["final"] for e in events].count(True) == 1
+    # Each member's final is its own whole-trajectory estimate on the same frames.
+    frames = decoded(grasp["video"])[: final["frames_seen"]]
+    force, width = grasp["force"][: len(frames)], grasp["width"][: len(frames)]
+    for member, got in zip(members, final["members_log10"], strict=True):
+        expected, _ = predict_trajectory(
+            member, frames, force, width, frame_kind="raw", channel_order="BGR"
+        )
+        assert got == pytest.approx(expected.log10_modulus_pa, abs=1e-5)
+    logs = final["members_log10"]
+    assert final["log10_modulus_pa"] == pytest.approx(np.mean(logs), abs=1e-12)
+    low, high = np.log10(final["interval_pa"])
+    assert low < min(logs) <= max(logs) < high and final["level"] == 0.9
+    assert "90% interval" in format_live_event(final)
 
 
 def test_two_sensors_write_both_fingers(grasp, tmp_path):
@@ -365,7 +377,7 @@ def test_end_to_end_with_estimates_at_the_datasets_frame_size(tmp_path):
     """ALL inputs: the analytical estimates from depth maps agree too (250 x 350 frames,
     where the dataset's estimator constants apply)."""
     data = make_grasp(tmp_path / "grasp", (250, 350))
-    _, _, events, rows = run_end_to_end(data, tmp_path, "ALL", (72, 72))
+    events, rows = run_end_to_end(data, tmp_path, "ALL", (72, 72))
     assert np.isfinite(rows[0]["pred_pa"]) and events[-1]["final"]
 
 
@@ -446,3 +458,22 @@ def test_the_documented_robot_loop_runs(grasp, tmp_path, monkeypatch):
     exec(compile(block, "docs/inference.md", "exec"), namespace)
     assert namespace["final"] is not None and namespace["final"].final
     assert printed[-1].endswith("(final)") and len(printed) >= 3
+
+
+def test_readings_are_followed_while_the_robot_writes_them(tmp_path):
+    from tactile_compliance.inference.recording import FollowedReadings
+
+    path = tmp_path / "log.csv"
+    follow = FollowedReadings(path, wait_s=0.05)  # the file does not exist yet
+    with pytest.raises(ReadingError, match="last reading: none yet"):
+        follow(0.0)
+    path.write_text("timestamp_s,force_n,width_m\n0.0,0.0,0.05\n0.1,10.0,0.049\n0.2,20")
+    assert follow(0.05) == pytest.approx((5.0, 0.0495))  # the incomplete line is ignored
+    with pytest.raises(ReadingError, match=r"last reading: 0\.1000 s"):
+        follow(0.15)
+    with open(path, "a") as handle:  # the robot finishes the line and goes on
+        handle.write(",0.048\n0.3,30.0,0.047\n")
+    assert follow(0.25) == pytest.approx((25.0, 0.0475))
+    path.write_text("timestamp_s,force_n,width_m\n0.0,x,0.05\n0.1,1,0.05\n")
+    with pytest.raises(ValueError, match="row 1 holds a value that is not a number"):
+        FollowedReadings(path)

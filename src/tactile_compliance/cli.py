@@ -758,6 +758,14 @@ FolderTimesOption = Annotated[
 ]
 
 
+def _readings(path: Path, source: Any) -> Any:
+    """The readings CSV: read once for a replay; followed while the robot writes it for a
+    live device (each frame waits up to 1 s for its reading)."""
+    from tactile_compliance.inference.recording import FollowedReadings, Readings
+
+    return FollowedReadings(path) if source.live else Readings.from_csv(path)
+
+
 def _open_source(
     spec: str, calibration: Path | None, fps: float | None, timestamps: Path | None
 ) -> tuple[Any, Any]:
@@ -853,7 +861,12 @@ def record(
     object_name: Annotated[str, typer.Option("--object", help="Object name (its directory).")],
     modulus: Annotated[float, typer.Option("--modulus", help="Young's modulus E in Pa.")],
     readings: Annotated[
-        Path, typer.Option("--readings", help="CSV of timestamp_s,force_n,width_m (s, N, m).")
+        Path,
+        typer.Option(
+            "--readings",
+            help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
+            "writes it when the source is a live device.",
+        ),
     ],
     material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
     shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
@@ -880,13 +893,13 @@ def record(
     OUT/dataset_objects_and_compliance.csv; `import burgess OUT` reads it."""
     from contextlib import ExitStack
 
-    from tactile_compliance.inference.recording import ObjectInfo, Readings, record_grasp
+    from tactile_compliance.inference.recording import ObjectInfo, record_grasp
 
     info = ObjectInfo(object_name, modulus, material, shape)
-    table = Readings.from_csv(readings)
     with ExitStack() as stack:
         frames, sensor = _open_source(source, calibration, fps, timestamps)
         stack.enter_context(frames)
+        table = _readings(readings, frames)
         markers, marker_sensor = None, None
         if markers_source is not None:
             markers, marker_sensor = _open_source(markers_source, markers_calibration, fps, None)
@@ -917,7 +930,12 @@ def live(
     ],
     source: Annotated[str, typer.Option("--source", help=SOURCE_HELP)],
     readings: Annotated[
-        Path, typer.Option("--readings", help="CSV of timestamp_s,force_n,width_m (s, N, m).")
+        Path,
+        typer.Option(
+            "--readings",
+            help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
+            "writes it when the source is a live device.",
+        ),
     ],
     calibration: CalibrationOption = None,
     window: Annotated[
@@ -934,13 +952,12 @@ def live(
     """Stream a sensor (or a replayed video) through the estimator: provisional estimates
     while the gripper closes, the final one on release."""
     from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
-    from tactile_compliance.inference.recording import Readings
 
     members = load_members(checkpoints, device=device, backbone_weights=weights)
-    table = Readings.from_csv(readings)
     frames, sensor = _open_source(source, calibration, fps, timestamps)
     final = False
     with frames:
+        table = _readings(readings, frames)
         for event in live_estimates(
             members, frames, table, calibration=sensor, window=window, level=level
         ):

@@ -42,6 +42,7 @@ import math
 import os
 import re
 import shutil
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -76,6 +77,7 @@ __all__ = [
     "MAX_AUGMENTATIONS",
     "OBJECT_TABLE_FILE",
     "CapturedGrasp",
+    "FollowedReadings",
     "ObjectInfo",
     "ReadingError",
     "Readings",
@@ -193,6 +195,74 @@ class Readings:
             float(np.interp(t, self.timestamp_s, self.force_n)),
             float(np.interp(t, self.timestamp_s, self.width_m)),
         )
+
+
+class FollowedReadings:
+    """Readings from a CSV that the robot is still writing (``timestamp_s,force_n,width_m``).
+
+    For a live sensor: a frame newer than the last reading re-reads the file (when it
+    changed) until a reading at or after the frame's time is there, for at most
+    ``wait_s`` seconds, then it is a :class:`ReadingError` for that frame. An incomplete
+    last line (the robot mid-write) is ignored until it is complete. The file may not
+    exist yet when the capture starts.
+    """
+
+    def __init__(self, path: str | Path, wait_s: float = 1.0, tolerance_s: float = 0.0) -> None:
+        self.path = Path(path)
+        self.wait_s = float(wait_s)
+        self.tolerance_s = float(tolerance_s)
+        self.readings: Readings | None = None
+        self._stamp: tuple[int, int] | None = None
+        self._load()
+
+    def _load(self) -> None:
+        try:
+            stat = self.path.stat()
+        except FileNotFoundError:
+            return
+        stamp = (stat.st_mtime_ns, stat.st_size)
+        if stamp == self._stamp:
+            return
+        try:
+            table = pd.read_csv(self.path)
+        except pd.errors.EmptyDataError:
+            return
+        except (pd.errors.ParserError, UnicodeDecodeError) as err:
+            raise ValueError(f"{self.path}: not a readings CSV ({err})") from err
+        table.columns = [str(c).strip() for c in table.columns]
+        columns = ["timestamp_s", "force_n", "width_m"]
+        missing = [c for c in columns if c not in table.columns]
+        if missing:
+            raise ValueError(f"{self.path}: missing column(s) {missing}; expected {columns}")
+        values = table[columns].apply(pd.to_numeric, errors="coerce")
+        complete = values.notna().all(axis=1).to_numpy()
+        n = len(complete)
+        if not complete.all():
+            first = int(np.argmin(complete))
+            # Only the last line may be incomplete (the robot mid-write); others are errors.
+            if first < n - 1:
+                raise ValueError(f"{self.path}: row {first + 1} holds a value that is not a number")
+            n -= 1
+        self._stamp = stamp
+        if n:
+            arrays = (values[c].to_numpy()[:n] for c in columns)
+            self.readings = Readings(*arrays, tolerance_s=self.tolerance_s)
+
+    def __call__(self, timestamp_s: float) -> tuple[float, float]:
+        """(force_n, width_m) at ``timestamp_s``, waiting for the robot's log to reach it."""
+        deadline = time.monotonic() + self.wait_s
+        while True:
+            readings = self.readings
+            if readings is not None and timestamp_s <= readings.timestamp_s[-1] + self.tolerance_s:
+                return readings(timestamp_s)
+            if time.monotonic() >= deadline:
+                last = "none yet" if readings is None else f"{readings.timestamp_s[-1]:.4f} s"
+                raise ReadingError(
+                    f"no force/width reading at {timestamp_s:.4f} s in {self.path} after "
+                    f"waiting {self.wait_s:g} s (last reading: {last})"
+                )
+            time.sleep(0.005)
+            self._load()
 
 
 def checked_reading(readings: ReadingsCallback, timestamp_s: float) -> tuple[float, float]:

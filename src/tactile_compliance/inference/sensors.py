@@ -264,6 +264,9 @@ class FrameSourceBase:
 
     #: What the source reads, for messages (a path, URL, device).
     name: str = "source"
+    #: True for a device or stream that delivers frames as they happen (not a replay), so
+    #: the robot's readings of a frame may still be on their way.
+    live: bool = False
 
     def __init__(self, geometry: FrameGeometry = PLAIN_GEOMETRY) -> None:
         self.geometry = geometry
@@ -395,6 +398,7 @@ class VideoCaptureSource(FrameSourceBase):
             raise SensorError(f"{text}: no such video file")
         if not self.is_file and not is_index and not is_url and not Path(text).exists():
             raise SensorError(f"{text}: no such device (is the sensor plugged in?)")
+        self.live = not self.is_file
         self.use_video_time = timestamps == "video" or (timestamps == "auto" and self.is_file)
         self._capture = cv2.VideoCapture(int(text) if is_index else text)
         if not self._capture.isOpened():
@@ -501,6 +505,7 @@ class DigitSource(FrameSourceBase):
     ) -> None:
         super().__init__(geometry)
         self.name = f"DIGIT {serial}"
+        self.live = True
         try:
             from digit_interface import Digit  # optional, non-commercial licence
         except ImportError as err:
