@@ -236,3 +236,27 @@ def test_video_capture_source_reports_a_device_that_stops(tmp_path):
     with pytest.raises(SensorError, match="stopped delivering"):
         source.read()
     source.close()
+
+
+def test_calibrate_command_replaces_the_presets_steps(tmp_path):
+    from typer.testing import CliRunner
+
+    from tactile_compliance.cli import app
+
+    write_video(tmp_path / "v.avi", _frames(3, (96, 128)), 25)
+    runner = CliRunner()
+    out = tmp_path / "sensor.json"
+    corners = "0,0 127,0 127,95 0,95"
+    args = ["calibrate", f"mini:{tmp_path / 'v.avi'}", "--out", str(out), "--frames", "3"]
+    result = runner.invoke(
+        app,
+        [*args, "--corners", corners, "--warp-size", "48x64", "--crop-px", "4", "--size", "20x28"],
+    )
+    assert result.exit_code == 0, result.output
+    assert "20x28 px frames" in result.output
+    geometry = SensorCalibration.load(out).geometry
+    assert geometry.warp_size == (48, 64) and geometry.crop_px == 4
+    assert geometry.crop_fraction == pytest.approx(1 / 7)  # kept from the Mini preset
+    assert geometry.input_size == (96, 128) and geometry.output_size == (20, 28)
+    bad = runner.invoke(app, [*args, "--corners", "1,2 3,4"])
+    assert bad.exit_code == 2 and "four points" in bad.output
