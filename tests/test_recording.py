@@ -183,15 +183,17 @@ def test_record_writes_the_datasets_raw_layout(grasp, tmp_path):
     np.testing.assert_allclose(first.estimates_pa, expected_estimates, rtol=1e-9)
     for k, idx in enumerate(indices):
         sample = first.path / f"augmentation={k}"
+        # An estimate whose fit failed has no file, as in the dataset (at 60 x 84 px the
+        # dataset's constants, fitted to 350-px-wide frames, find no contact area).
+        estimate_files = [
+            name
+            for name, value in zip(
+                ("elastic_estimate.pkl", "hertz_estimate.pkl"), expected_estimates, strict=True
+            )
+            if np.isfinite(value)
+        ]
         assert sorted(p.name for p in sample.iterdir()) == sorted(
-            [
-                "RGB.pkl",
-                "depth.pkl",
-                "forces.pkl",
-                "widths.pkl",
-                "elastic_estimate.pkl",
-                "hertz_estimate.pkl",
-            ]
+            ["RGB.pkl", "depth.pkl", "forces.pkl", "widths.pkl", *estimate_files]
         )
         rgb = load_numpy_pickle(sample / "RGB.pkl")
         assert rgb.shape == (3, *SIZE, 3) and rgb.dtype == np.float32
@@ -204,7 +206,8 @@ def test_record_writes_the_datasets_raw_layout(grasp, tmp_path):
         np.testing.assert_allclose(
             load_numpy_pickle(sample / "widths.pkl"), grasp["width"][list(idx)]
         )
-        assert load_numpy_pickle(sample / "hertz_estimate.pkl").shape == ()
+        for name in estimate_files:
+            assert load_numpy_pickle(sample / name).shape == ()
     meta = json.loads((out / grasp["name"] / "metadata.json").read_text())
     assert meta["youngs_modulus"] == grasp["modulus_pa"] and meta["material"] == "Rubber"
 

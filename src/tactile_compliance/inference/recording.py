@@ -11,6 +11,7 @@ robot (a callback ``timestamp_s -> (force_n, width_m)`` or a CSV of timestamped 
                                             forces.pkl         (3,) float64 N
                                             widths.pkl         (3,) float64 m
                                             elastic_estimate.pkl, hertz_estimate.pkl  0-d Pa
+                                                (absent where the fit failed, as in the dataset)
                                             RGB_markers.pkl, depth_markers.pkl (second sensor)
     OUT/dataset_objects_and_compliance.csv           the object table, one row per object
 
@@ -101,6 +102,9 @@ as the last (the published code's rule)."""
 
 HARD_DEPTH_RATIO = 0.8
 """... 'nearly as deep': first frame's maximum depth >= 0.8 x the last frame's."""
+
+ESTIMATE_FILES = ("elastic_estimate.pkl", "hertz_estimate.pkl")
+"""The analytical estimates' files; left out where the fit failed, as in the dataset."""
 
 OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
 """The object table written next to the object directories (the dataset's file name)."""
@@ -692,8 +696,9 @@ def write_grasp(
                 dump_numpy_pickle(directory / depth_file, depths[sel].astype(np.float32))
             dump_numpy_pickle(directory / "forces.pkl", captured.force_n[sel].astype(np.float64))
             dump_numpy_pickle(directory / "widths.pkl", captured.width_m[sel].astype(np.float64))
-            dump_numpy_pickle(directory / "elastic_estimate.pkl", np.array(estimates[0]))
-            dump_numpy_pickle(directory / "hertz_estimate.pkl", np.array(estimates[1]))
+            for name, value in zip(ESTIMATE_FILES, estimates, strict=True):
+                if math.isfinite(value):  # the dataset has no file for a failed fit
+                    dump_numpy_pickle(directory / name, np.array(value, dtype=np.float64))
         if final.exists():  # another recorder took the number meanwhile
             raise FileExistsError(f"{final} exists; nothing was overwritten, record again")
         os.rename(partial, final)
