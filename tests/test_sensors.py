@@ -20,6 +20,7 @@ from tactile_compliance.inference.sensors import (
     FrameError,
     FrameGeometry,
     FrameSizeError,
+    FrameSource,
     SensorError,
     TimestampError,
     VideoCaptureSource,
@@ -99,6 +100,7 @@ def test_a_video_replays_with_its_own_frame_times(tmp_path, fps):
 def test_specs_pick_the_presets(tmp_path):
     write_video(tmp_path / "v.avi", _frames(2, (96, 128)), 25)
     with open_source(f"mini:{tmp_path / 'v.avi'}") as source:
+        assert isinstance(source, FrameSource)
         assert source.read()[1].shape == (240, 320, 3)  # the Mini's crop and resize
     with open_source(str(tmp_path / "v.avi")) as source:  # a plain path: as recorded
         assert source.read()[1].shape == (96, 128, 3)
