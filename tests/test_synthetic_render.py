@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactile_compliance.synthetic.depth import reconstruct_depth
+from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.synthetic.geometry import PadGrid
 from tactile_compliance.synthetic.render import (
     difference_images,

@@ -739,6 +739,238 @@ def export(
     typer.echo(format_export_report(result))
 
 
+SOURCE_HELP = (
+    "Frame source: mini:0, mini:/dev/v4l/by-id/..., wedge:http://host:port/stream.mjpg, "
+    "digit:SERIAL, camera:0, video:FILE, folder:DIR, or a plain path."
+)
+SourceArg = Annotated[str, typer.Argument(help=SOURCE_HELP)]
+CalibrationOption = Annotated[
+    Optional[Path],  # noqa: UP045
+    typer.Option("--calibration", help="Sensor calibration JSON (from `calibrate`)."),
+]
+FolderFpsOption = Annotated[
+    Optional[float],  # noqa: UP045
+    typer.Option("--fps", help="Frame rate of a folder of frames (or give --timestamps)."),
+]
+FolderTimesOption = Annotated[
+    Optional[Path],  # noqa: UP045
+    typer.Option("--timestamps", help="CSV of a folder's frame times (file,timestamp_s)."),
+]
+
+
+def _readings(path: Path, source: Any) -> Any:
+    """The readings CSV: read once for a replay; followed while the robot writes it for a
+    live device (each frame waits up to 1 s for its reading)."""
+    from tactile_compliance.inference.recording import FollowedReadings, Readings
+
+    return FollowedReadings(path) if source.live else Readings.from_csv(path)
+
+
+def _open_source(
+    spec: str, calibration: Path | None, fps: float | None, timestamps: Path | None
+) -> tuple[Any, Any]:
+    """(source, calibration or None): the source opened with the calibration's geometry."""
+    from tactile_compliance.inference.calibration import SensorCalibration
+    from tactile_compliance.inference.sensors import open_source
+
+    options = {"fps": fps, "timestamps_csv": timestamps}
+    if calibration is None:
+        return open_source(spec, **options), None
+    loaded = SensorCalibration.load(calibration)
+    return loaded.open(spec, **options), loaded
+
+
+@app.command()
+def calibrate(
+    source: SourceArg,
+    out: Annotated[Path, typer.Option("--out", help="Calibration JSON to write.")],
+    frames: Annotated[int, typer.Option("--frames", help="Frames to take the median of.")] = 30,
+    corners: Annotated[
+        Optional[str],  # noqa: UP045
+        typer.Option(
+            "--corners",
+            help="Warp: the pad's corners in the camera frame as 'x,y x,y x,y x,y' "
+            "(top-left, top-right, bottom-right, bottom-left).",
+        ),
+    ] = None,
+    warp_size: Annotated[
+        Optional[str],  # noqa: UP045
+        typer.Option("--warp-size", help="HxW of the warped image (with --corners)."),
+    ] = None,
+    crop_px: Annotated[
+        Optional[int],  # noqa: UP045
+        typer.Option("--crop-px", help="Pixels cropped per side after the warp."),
+    ] = None,
+    crop_fraction: Annotated[
+        Optional[float],  # noqa: UP045
+        typer.Option("--crop-fraction", help="Share of each side cropped (Mini: 1/7)."),
+    ] = None,
+    size: Annotated[
+        Optional[str],  # noqa: UP045
+        typer.Option("--size", help="Final frame size HxW (default: the preset's)."),
+    ] = None,
+    fps: FolderFpsOption = None,
+    timestamps: FolderTimesOption = None,
+) -> None:
+    """Record a sensor's no-contact reference frame and its crop/warp (nothing may touch
+    the gel). Options replace the source preset's geometry step by step."""
+    from dataclasses import replace
+
+    from tactile_compliance.inference.calibration import calibrate as run_calibration
+    from tactile_compliance.inference.sensors import open_source
+
+    with open_source(source, fps=fps, timestamps_csv=timestamps) as probe:
+        geometry = probe.geometry  # the preset's steps, replaced below where given
+    changes: dict[str, Any] = {}
+    if corners is not None:
+        try:
+            points = tuple(tuple(float(v) for v in p.split(",")) for p in corners.split())
+        except ValueError as err:
+            raise typer.BadParameter(f"--corners: {err}") from err
+        if len(points) != 4 or any(len(p) != 2 for p in points):
+            raise typer.BadParameter("--corners needs four points 'x,y x,y x,y x,y'")
+        changes["warp_corners"] = points
+        changes["warp_size"] = _size_option(warp_size) or geometry.warp_size
+        if changes["warp_size"] is None:
+            raise typer.BadParameter("--corners needs --warp-size HxW")
+    if crop_px is not None:
+        changes["crop_px"] = crop_px
+    if crop_fraction is not None:
+        changes["crop_fraction"] = crop_fraction
+    if size is not None:
+        changes["output_size"] = _size_option(size)
+    result = run_calibration(
+        source,
+        geometry=replace(geometry, **changes),
+        n_frames=frames,
+        out=out,
+        fps=fps,
+        timestamps_csv=timestamps,
+    )
+    height, width = result.frame_size
+    typer.echo(
+        f"Calibration {out}: reference = median of {result.n_frames} frames, "
+        f"{height}x{width} px frames"
+    )
+
+
+@app.command()
+def record(
+    source: SourceArg,
+    out: Annotated[Path, typer.Option("--out", help="Dataset directory (raw layout).")],
+    object_name: Annotated[str, typer.Option("--object", help="Object name (its directory).")],
+    modulus: Annotated[float, typer.Option("--modulus", help="Young's modulus E in Pa.")],
+    readings: Annotated[
+        Path,
+        typer.Option(
+            "--readings",
+            help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
+            "writes it when the source is a live device.",
+        ),
+    ],
+    material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
+    shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
+    calibration: CalibrationOption = None,
+    markers_source: Annotated[
+        Optional[str],  # noqa: UP045
+        typer.Option("--markers-source", help="A second sensor (the marker finger)."),
+    ] = None,
+    markers_calibration: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option("--markers-calibration", help="Calibration of the second sensor."),
+    ] = None,
+    max_frames: Annotated[
+        Optional[int],  # noqa: UP045
+        typer.Option("--max-frames", help="Stop after this many frames (default: release)."),
+    ] = None,
+    fps: FolderFpsOption = None,
+    timestamps: FolderTimesOption = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Record one grasp into a dataset in the public dataset's raw layout.
+
+    Writes OUT/OBJECT/grasp=G/augmentation=K/ (G: the next free number) and updates
+    OUT/dataset_objects_and_compliance.csv; `import burgess OUT` reads it."""
+    from contextlib import ExitStack
+
+    from tactile_compliance.inference.recording import ObjectInfo, record_grasp
+
+    info = ObjectInfo(object_name, modulus, material, shape)
+    with ExitStack() as stack:
+        frames, sensor = _open_source(source, calibration, fps, timestamps)
+        stack.enter_context(frames)
+        table = _readings(readings, frames)
+        markers, marker_sensor = None, None
+        if markers_source is not None:
+            markers, marker_sensor = _open_source(markers_source, markers_calibration, fps, None)
+            stack.enter_context(markers)
+        result = record_grasp(
+            frames,
+            table,
+            out,
+            info,
+            calibration=sensor,
+            markers_source=markers,
+            markers_calibration=marker_sensor,
+            max_frames=max_frames,
+        )
+    if as_json:
+        typer.echo(json.dumps(result.to_dict(), indent=2))
+        return
+    typer.echo(result.format())
+    fingers = "" if markers_source is not None else " --fingers markerless"
+    typer.echo(f"Next: tactile-compliance import burgess {out} --out STORE{fingers}")
+
+
+@app.command()
+def live(
+    checkpoints: Annotated[
+        list[Path],
+        typer.Argument(help="best.pt or run directory; several give an ensemble interval."),
+    ],
+    source: Annotated[str, typer.Option("--source", help=SOURCE_HELP)],
+    readings: Annotated[
+        Path,
+        typer.Option(
+            "--readings",
+            help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
+            "writes it when the source is a live device.",
+        ),
+    ],
+    calibration: CalibrationOption = None,
+    window: Annotated[
+        Optional[int],  # noqa: UP045
+        typer.Option("--window", help="Estimate from the last N frames (default: all)."),
+    ] = None,
+    level: Annotated[float, typer.Option(help="Ensemble interval coverage.")] = 0.8,
+    fps: FolderFpsOption = None,
+    timestamps: FolderTimesOption = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
+    device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
+    weights: BackboneWeightsOption = None,
+) -> None:
+    """Stream a sensor (or a replayed video) through the estimator: provisional estimates
+    while the gripper closes, the final one on release."""
+    from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
+
+    members = load_members(checkpoints, device=device, backbone_weights=weights)
+    frames, sensor = _open_source(source, calibration, fps, timestamps)
+    final = False
+    with frames:
+        table = _readings(readings, frames)
+        for event in live_estimates(
+            members, frames, table, calibration=sensor, window=window, level=level
+        ):
+            final = final or bool(event.get("final"))
+            typer.echo(json.dumps(event) if as_json else format_live_event(event))
+    if not final:
+        _fail(
+            "no estimate: the grasp never reached the frame selection (a frame >= 5 N, "
+            "a peak >= 10 N, three frames from contact to peak)",
+            EXIT_BAD_INPUT,
+        )
+
+
 @app.command()
 def report(
     results: Annotated[Path, typer.Argument(help="Results store directory (holds rows/*.json).")],

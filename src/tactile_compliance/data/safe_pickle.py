@@ -1,5 +1,6 @@
 """Load pickled numpy arrays from untrusted dataset files without executing code or
-allocating what the file merely declares.
+allocating what the file merely declares (and write them as the dataset does:
+:func:`dump_numpy_pickle`, for the generator and recorded grasps).
 
 Unpickling calls whatever callables the file names, so a crafted ``.pkl`` can run
 arbitrary code. The dataset's pickles only ever contain numpy arrays, numpy scalars
@@ -352,3 +353,17 @@ def load_numpy_pickle(path: str | Path) -> np.ndarray:
     if result.dtype.hasobject:
         raise UnsafePickleError(f"{path}: object arrays are not allowed")
     return result
+
+
+PICKLE_PROTOCOL = 4
+"""Protocol of the pickles written (same bytes for the same array)."""
+
+
+def dump_numpy_pickle(path: str | Path, array: np.ndarray) -> None:
+    """Write ``array`` as a pickled numpy array, the dataset's ``.pkl`` format.
+
+    C order is required without ``np.ascontiguousarray``, which would turn a 0-d
+    estimate into shape (1,).
+    """
+    with open(path, "wb") as handle:
+        pickle.dump(np.require(array, requirements="C"), handle, protocol=PICKLE_PROTOCOL)

@@ -13,15 +13,25 @@
   :class:`OnnxEstimator` runs the exported file with onnxruntime (``onnx.py``).
 * :func:`predict_path` - a store, raw grasp directory or video -> predictions
   (``sources.py``; the ``predict`` command).
+* :func:`open_source` - live frame sources: GelSight Mini, Wedge over HTTP MJPEG, DIGIT,
+  cameras, videos, folders (``sensors.py``); :class:`SensorCalibration` - a sensor's
+  geometry and no-contact frame (``calibration.py``; the ``calibrate`` command).
+* :func:`record_grasp` - record your own grasps in the public dataset's raw layout
+  (``recording.py``; the ``record`` command); :func:`live_estimates` - a source plus
+  readings through the streaming estimator (``live.py``; the ``live`` command).
 
 See ``docs/inference.md``.
 """
 
 from tactile_compliance.inference.base import BaseEstimator, Prediction
+from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.ensemble import EnsembleEstimator, EnsemblePrediction
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.inference.export import export_onnx, format_export_report
+from tactile_compliance.inference.live import live_estimates
 from tactile_compliance.inference.onnx import OnnxEstimator
+from tactile_compliance.inference.recording import ObjectInfo, Readings, record_grasp
+from tactile_compliance.inference.sensors import open_source
 from tactile_compliance.inference.sources import (
     GraspBatch,
     format_predictions,
@@ -41,15 +51,21 @@ __all__ = [
     "EnsembleEstimator",
     "EnsemblePrediction",
     "GraspBatch",
+    "ObjectInfo",
     "OnnxEstimator",
     "Prediction",
+    "Readings",
+    "SensorCalibration",
     "StreamEstimate",
     "StreamingEstimator",
     "export_onnx",
     "format_export_report",
     "format_predictions",
+    "live_estimates",
+    "open_source",
     "predict_path",
     "predict_trajectory",
     "read_source",
+    "record_grasp",
     "select_frame_indices",
 ]

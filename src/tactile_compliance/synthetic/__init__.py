@@ -8,7 +8,8 @@
 * :func:`render_montage` draws the documentation montage.
 
 Physics and parameters: ``docs/synthetic.md`` and the module docstrings
-(``mechanics``, ``timeseries``, ``render``, ``depth``, ``materials``, ``geometry``).
+(``mechanics``, ``timeseries``, ``render``, ``materials``, ``geometry``; the photometric
+  depth reconstruction is ``data.photometric``, shared with recorded real grasps).
 """
 
 from typing import Any

@@ -28,6 +28,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 from tactile_compliance.physics.dataset_estimates import (
     DATASET_CONSTANTS,
@@ -37,7 +38,6 @@ from tactile_compliance.physics.dataset_estimates import (
     dataset_press_window,
     interpolate_repeated_widths,
 )
-from tactile_compliance.synthetic.depth import reconstruct_depth
 from tactile_compliance.synthetic.geometry import PadGrid, sag_map, sample_pose
 from tactile_compliance.synthetic.mechanics import (
     GelModel,

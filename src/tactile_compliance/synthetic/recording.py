@@ -4,7 +4,9 @@ The generator stores only the three selected frames of each grasp. A streaming
 estimator needs the whole recording: :func:`synthetic_trajectories` re-simulates grasps
 of a ``generate_burgess_tree`` dataset from their (seed, object, grasp) key, which gives
 exactly the stored grasps' time series, and renders every frame (new draws of the same
-sensor noise).
+sensor noise). :func:`camera_recording` gives one grasp as a camera would film it: raw
+uint8 BGR frames and the sensor's no-contact frame, for replaying through the live
+sensor sources (``inference.sensors``) in tests and demos.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["GraspTrajectory", "synthetic_trajectories"]
+__all__ = ["CameraRecording", "GraspTrajectory", "camera_recording", "synthetic_trajectories"]
 
 
 @dataclass
@@ -83,3 +85,55 @@ def synthetic_trajectories(
             width_m=np.asarray(timeline.width_m, dtype=np.float64),
             estimates_pa=np.array([sample.elastic_estimate, sample.hertz_estimate]),
         )
+
+
+@dataclass
+class CameraRecording:
+    """One grasp as the camera saw it (markerless or marker finger).
+
+    Attributes:
+        frames: (T, H, W, 3) uint8 BGR raw camera frames.
+        reference: (H, W, 3) uint8 BGR no-contact frame of the same sensor (another
+            noise draw: what a calibration would record).
+        times_s: (T,) frame times [s] of the simulation (jittered around 1 / 30 s).
+        force_n: (T,) measured force [N]; width_m: (T,) measured width [m].
+        modulus_pa: the object's ground truth [Pa].
+    """
+
+    frames: np.ndarray
+    reference: np.ndarray
+    times_s: np.ndarray
+    force_n: np.ndarray
+    width_m: np.ndarray
+    modulus_pa: float
+
+
+def camera_recording(ctx: Any, grasp: int, finger: int = 0) -> CameraRecording:
+    """Grasp ``grasp`` of an object context (``synthetic.grasp.make_context``) as raw frames.
+
+    The frames are the rendered difference images put back on a no-contact frame:
+    ``GaussianBlur11x11(reference) + 255 (diff - 0.5)``, rounded, so that differencing
+    them against ``reference`` as the real pipeline does gives the rendered difference
+    images back (to rounding and clipping).
+    """
+    import cv2
+
+    from tactile_compliance.synthetic.grasp import render_recording
+    from tactile_compliance.synthetic.render import reference_frame
+    from tactile_compliance.synthetic.rng import stream
+
+    result, diff_bgr = render_recording(ctx, int(grasp), finger=finger)
+    size = tuple(diff_bgr.shape[1:3])
+    rng = stream(ctx.seed, ctx.spec.name, "grasp", int(grasp), "camera-reference", finger)
+    reference = reference_frame(ctx.session.looks[finger], size, rng)  # type: ignore[arg-type]
+    blurred = cv2.GaussianBlur(reference, (11, 11), 0).astype(np.float32)
+    raw = np.rint(blurred[None] + 255.0 * (diff_bgr.astype(np.float32) - 0.5))
+    timeline = result.timeline
+    return CameraRecording(
+        frames=np.clip(raw, 0, 255).astype(np.uint8),
+        reference=reference,
+        times_s=np.asarray(timeline.times_s, dtype=np.float64),
+        force_n=np.asarray(timeline.force_n, dtype=np.float64),
+        width_m=np.asarray(timeline.width_m, dtype=np.float64),
+        modulus_pa=float(ctx.spec.modulus_pa),
+    )

@@ -15,7 +15,7 @@ OpenCV reads the real camera):
    bottom - at elevations of 25-40 deg; Lambertian, each light's strength falling off
    away from its edge, soft saturation near 255. The gains are such that the real
    pipeline's photometric inversion (``G - (R+B)/2`` ~ x-slope, ``B - R`` ~ y-slope,
-   ``depth.py``) recovers the imprint within ~+-25 %, with cross-talk and spatial bias.
+   ``data.photometric``) recovers the imprint within ~+-25 %, with cross-talk and spatial bias.
 3. *Background*: a parametric model of a Wedge no-contact frame (lavender-grey
    centre, blue band at the bottom, red tint at the top, green at the left edge,
    smooth blotches, bright specks; markers on the marker finger).

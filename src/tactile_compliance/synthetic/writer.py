@@ -27,18 +27,17 @@ from __future__ import annotations
 
 import json
 import os
-import pickle
 import shutil
 from pathlib import Path
 
 import numpy as np
 
+from tactile_compliance.data.safe_pickle import PICKLE_PROTOCOL, dump_numpy_pickle
 from tactile_compliance.synthetic.grasp import GraspSample
 from tactile_compliance.synthetic.objects import ObjectSpec
 
 __all__ = ["PARTIAL_PREFIX", "PICKLE_PROTOCOL", "ObjectWriter", "metadata_dict"]
 
-PICKLE_PROTOCOL = 4
 PARTIAL_PREFIX = ".partial-"
 ALLOWED_DTYPES = ("float16", "float32", "float64")
 
@@ -57,10 +56,7 @@ def metadata_dict(spec: ObjectSpec) -> dict[str, object]:
     }
 
 
-def _dump(path: Path, array: np.ndarray) -> None:
-    with open(path, "wb") as handle:
-        # (np.ascontiguousarray would turn the 0-d estimates into shape (1,))
-        pickle.dump(np.require(array, requirements="C"), handle, protocol=PICKLE_PROTOCOL)
+_dump = dump_numpy_pickle
 
 
 class ObjectWriter:

@@ -1,4 +1,7 @@
-"""Photometric depth reconstruction, the way the real GelSight pipeline does it.
+"""Photometric depth reconstruction of difference images, as the real GelSight pipeline does.
+
+Real frames (``inference.recording`` writes ``depth.pkl`` for recorded grasps) and the
+synthetic generator's rendered frames both go through this one function.
 
 From a difference image (BGR, centred on 0.5) the real pipeline takes the gradients
 
@@ -14,7 +17,8 @@ Differences from the original code, both deliberate and small: the solver uses t
 consistent DST-I eigenvalues (the original divides by ``cos(pi k / (N + 2))`` terms and
 mixes DST-II with DST-I eigenvalues), and the interior is zero-padded to a length whose
 FFT is fast (the border condition moves a few pixels out). For image sizes other than
-250 x 350 the scale follows the pixel size, so depths stay in millimetres.
+250 x 350 the scale follows the pixel size (the frame is taken to span the dataset's
+field of view, 350 px of 0.0875 mm across), so depths stay in millimetres.
 
 On the marker finger, marker pixels (dark blobs of the difference image) are masked
 and their gradients filled from the neighbourhood before integration, as the original
@@ -29,12 +33,24 @@ import cv2
 import numpy as np
 import scipy.fft
 
-from tactile_compliance.synthetic.render import PIXEL_SIZE_MM_FULL, pixel_size_mm
-
-__all__ = ["DEPTH_TO_MM", "reconstruct_depth"]
+__all__ = ["CALIBRATION_WIDTH_PX", "DEPTH_TO_MM", "reconstruct_depth"]
 
 DEPTH_TO_MM = 21.5
 """Scale of the Poisson solution [mm per unit] of the real pipeline at 0.0875 mm/px."""
+
+CALIBRATION_WIDTH_PX = 350
+"""Width [px] of the frames ``DEPTH_TO_MM`` was fitted on (the dataset's 250 x 350 crop);
+a frame ``w`` px wide over the same field has ``350 / w`` times larger pixels, so its
+slopes integrate to proportionally larger depths."""
+
+_PIXEL_SIZE_MM = 35.0 / 400.0  # the dataset's pixel: 400 px over the 35 mm pad [mm]
+_FIELD_WIDTH_MM = CALIBRATION_WIDTH_PX * _PIXEL_SIZE_MM  # 30.625 mm across the crop
+
+
+def _pixel_size_mm(width_px: int) -> float:
+    """Pixel size [mm] of a frame ``width_px`` wide spanning the dataset's field of view."""
+    return _FIELD_WIDTH_MM / width_px
+
 
 _MARKER_THRESHOLD = 0.07  # difference-image darkness that flags a marker pixel [-]
 
@@ -145,7 +161,7 @@ def reconstruct_depth(
         marker_mask[:, :-1, :] |= dark[:, 1:, :]
         marker_mask[:, :, 1:] |= dark[:, :, :-1]
         marker_mask[:, :, :-1] |= dark[:, :, 1:]
-    scale = DEPTH_TO_MM * pixel_size_mm((h, w)) / PIXEL_SIZE_MM_FULL
+    scale = DEPTH_TO_MM * _pixel_size_mm(w) / _PIXEL_SIZE_MM
     if solve_scale < 1.0:
         small = (max(round(h * solve_scale), 8), max(round(w * solve_scale), 8))
         step = w / small[1]  # full-resolution pixels per solver pixel
@@ -155,7 +171,7 @@ def reconstruct_depth(
             # A solver pixel is a marker pixel if any pixel under it is.
             marker_mask = _resize_stack(marker_mask.astype(np.float32), small, cv2.INTER_AREA) > 0
     if marker_mask is not None:
-        sigma = max(0.25 / pixel_size_mm(gx.shape[1:]), 1.0)
+        sigma = max(0.25 / _pixel_size_mm(gx.shape[2]), 1.0)
         gx = _fill_markers(gx, marker_mask, sigma)
         gy = _fill_markers(gy, marker_mask, sigma)
     depth = _poisson(gx, gy)

@@ -1,0 +1,172 @@
+"""Live estimation: a frame source plus force/width readings through the streaming estimator.
+
+:func:`live_estimates` is the library side of ``tactile-compliance live``. Every good frame
+of the source is paired with the robot's reading at its time (``recording.Readings`` or
+any ``timestamp_s -> (force_n, width_m)`` callback) and fed to
+:class:`~tactile_compliance.inference.streaming.StreamingEstimator` as a raw BGR camera
+frame (``frame_kind="raw"``, ``channel_order="BGR"``), differenced against the
+calibration's no-contact frame or the grasp's first frame. Checkpoints that use the
+analytical estimates get them computed on the fly from each frame's depth map
+(``data.photometric.reconstruct_depth``, the reconstruction ``record`` stores) with the
+estimator the checkpoint records. So a grasp recorded with ``record`` and predicted after
+``import burgess`` gets the estimate ``live`` gives on the same frames and readings.
+
+Several checkpoints form an ensemble: ``EnsembleEstimator`` has no streaming mode of its
+own, so each member runs its own stream on the same frames (the frame selection depends
+only on the force, so all members select the same frames), and every time a member
+refines its estimate the members' latest estimates are combined with
+``EnsembleEstimator.combine`` (mean and interval in decades).
+
+Bad frames and frames without a reading are reported as ``{"event": "skipped", ...}``
+and the loop goes on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.photometric import reconstruct_depth
+from tactile_compliance.inference.base import BaseEstimator
+from tactile_compliance.inference.calibration import SensorCalibration
+from tactile_compliance.inference.ensemble import EnsembleEstimator
+from tactile_compliance.inference.estimator import ComplianceEstimator
+from tactile_compliance.inference.recording import ReadingError, ReadingsCallback, checked_reading
+from tactile_compliance.inference.sensors import FrameError, FrameSourceBase, iter_frames
+from tactile_compliance.inference.streaming import StreamEstimate, StreamingEstimator
+
+__all__ = ["format_live_event", "live_estimates", "load_members"]
+
+
+def load_members(
+    checkpoints: Sequence[str | Path],
+    *,
+    device: str = "cpu",
+    backbone_weights: str | Path | None = None,
+) -> list[ComplianceEstimator]:
+    """Estimators of the given checkpoints (files or run directories)."""
+    if not checkpoints:
+        raise ValueError("give at least one checkpoint")
+    return [
+        ComplianceEstimator.from_checkpoint(p, device=device, backbone_weights=backbone_weights)
+        for p in checkpoints
+    ]
+
+
+def live_estimates(
+    members: Sequence[BaseEstimator],
+    source: FrameSourceBase,
+    readings: ReadingsCallback,
+    *,
+    calibration: SensorCalibration | None = None,
+    window: int | None = None,
+    level: float = 0.8,
+    scale: float = 1.0,
+) -> Iterator[dict[str, Any]]:
+    """Run ``source`` through streaming estimators; yield one dict per event.
+
+    Events: ``{"event": "estimate", ...}`` (a provisional or the final estimate:
+    ``StreamEstimate.to_dict()`` plus ``timestamp_s``; with several members also
+    ``std_decades``, ``interval_pa``, ``level`` and ``members_log10``) and
+    ``{"event": "skipped", "reason": ...}`` (a frame left out). The loop ends after the
+    final estimate (the grasp was released) or with the source; a grasp that never
+    reached the selection thresholds ends without an estimate.
+
+    Args:
+        members: one estimator, or several for an ensemble interval.
+        source: an open frame source (open it with the calibration's geometry).
+        readings: ``timestamp_s -> (force_n, width_m)``.
+        calibration: its reference frame is the no-contact frame (default: the first
+            frame).
+        window: ``StreamingEstimator``'s window (None: the whole trajectory).
+        level, scale: the ensemble interval (``EnsembleEstimator``).
+    """
+    if not members:
+        raise ValueError("give at least one estimator")
+    ensemble = EnsembleEstimator(list(members), level=level, scale=scale)
+    reference = None if calibration is None else calibration.reference
+    streams = [
+        StreamingEstimator(
+            member,
+            window=window,
+            frame_kind="raw",
+            channel_order="BGR",
+            reference=reference,
+        )
+        for member in members
+    ]
+    needs_depth = "estimates" in ensemble.required_inputs
+    skipped: list[FrameError] = []
+    depth_reference = reference
+    for timestamp_s, frame in iter_frames(source, skipped.append):
+        while skipped:
+            yield {"event": "skipped", "reason": str(skipped.pop(0))}
+        try:
+            force_n, width_m = checked_reading(readings, timestamp_s)
+        except ReadingError as err:
+            yield {"event": "skipped", "reason": f"frame at {timestamp_s:.4f} s: {err}"}
+            continue
+        depth = None
+        if needs_depth:
+            if depth_reference is None:
+                depth_reference = frame  # the streams' default reference: the first frame
+            diff = difference_images(frame[None], depth_reference)
+            depth = reconstruct_depth(diff)[0]
+        emitted = [stream.update(frame, force_n, width_m, depth_mm=depth) for stream in streams]
+        if any(e is not None for e in emitted):
+            event = _combine(ensemble, streams, timestamp_s)
+            if event is not None:
+                yield event
+        if all(stream.state == "done" for stream in streams):
+            return
+    while skipped:
+        yield {"event": "skipped", "reason": str(skipped.pop(0))}
+    finals = [stream.finish() for stream in streams]
+    if any(f is not None for f in finals):
+        event = _combine(ensemble, streams, None)
+        if event is not None:
+            yield event
+
+
+def _combine(
+    ensemble: EnsembleEstimator, streams: list[StreamingEstimator], timestamp_s: float | None
+) -> dict[str, Any] | None:
+    """One event from the members' latest estimates (None until every member has one)."""
+    latest: list[StreamEstimate | None] = [s.latest for s in streams]
+    if any(e is None for e in latest):
+        return None
+    estimates: list[StreamEstimate] = latest  # type: ignore[assignment]
+    first = estimates[0]
+    event: dict[str, Any] = {"event": "estimate", "timestamp_s": timestamp_s, **first.to_dict()}
+    event["final"] = all(e.final for e in estimates)
+    if len(estimates) > 1:
+        combined = ensemble.combine(np.array([e.log10_modulus_pa for e in estimates]))
+        event.update(
+            modulus_pa=float(combined.modulus_pa),
+            log10_modulus_pa=float(combined.log10_modulus_pa),
+            std_decades=float(combined.std_decades),
+            interval_pa=[float(v) for v in combined.interval_pa],
+            level=combined.level,
+            members_log10=[float(v) for v in combined.members_log10],
+        )
+    return event
+
+
+def format_live_event(event: dict[str, Any]) -> str:
+    """One human-readable line per event (what ``live`` prints without ``--json``)."""
+    if event["event"] == "skipped":
+        return f"skipped     {event['reason']}"
+    kind = "final      " if event["final"] else "provisional"
+    when = "" if event["timestamp_s"] is None else f" t={event['timestamp_s']:.3f} s"
+    line = (
+        f"{kind} E = {event['modulus_pa']:.4g} Pa (log10 {event['log10_modulus_pa']:.3f})"
+        f"  frames {tuple(event['frame_indices'])} of {event['frames_seen']}{when}"
+    )
+    if "interval_pa" in event:
+        low, high = event["interval_pa"]
+        line += f"  {event['level']:.0%} interval {low:.3g}..{high:.3g} Pa"
+    return line

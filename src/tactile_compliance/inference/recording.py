@@ -1,0 +1,772 @@
+"""Record your own grasps in the raw layout of the public dataset, ready for ``import burgess``.
+
+One call records one grasp: frames from a sensor (``sensors``), force and width from the
+robot (a callback ``timestamp_s -> (force_n, width_m)`` or a CSV of timestamped readings
+``timestamp_s,force_n,width_m``, linearly interpolated to each frame's time). It writes::
+
+    OUT/{object}/metadata.json                       object_name, youngs_modulus [Pa],
+                                                     material, shape, Shore hardness
+    OUT/{object}/grasp={g}/augmentation={k}/RGB.pkl  (3, H, W, 3) float32 BGR difference images
+                                            depth.pkl          (3, H, W) float32 mm
+                                            forces.pkl         (3,) float64 N
+                                            widths.pkl         (3,) float64 m
+                                            elastic_estimate.pkl, hertz_estimate.pkl  0-d Pa
+                                                (absent where the fit failed, as in the dataset)
+                                            RGB_markers.pkl, depth_markers.pkl (second sensor)
+    OUT/dataset_objects_and_compliance.csv           the object table, one row per object
+
+as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen"):
+
+* the three frames: ``inference.streaming.select_frame_indices`` (first F >= 5 N to first
+  F >= 0.975 F_max); augmentation k = 0..4 shifts all three by +k while F stays
+  >= 0.95 F_max (:func:`augmented_indices`);
+* difference images ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5``
+  (``data.image_ops.difference_images``), with the calibration's no-contact frame as
+  reference, or the recording's first frame;
+* depth maps: ``data.photometric.reconstruct_depth`` (the marker sensor with its markers
+  masked);
+* the analytical estimates: ``physics.dataset_estimates.dataset_estimates_pa`` on the
+  whole recording (it clips the press itself), as the dataset's own code did.
+
+The grasp number is the next free one; a grasp directory is written under a hidden name
+and renamed into place, so nothing existing is ever overwritten and an interrupted
+recording leaves no half grasp that the importer would read. A frame without a reading
+in range, of the wrong size or with a time going backwards is skipped and reported
+(:attr:`RecordedGrasp.skipped`); the capture goes on.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import re
+import shutil
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.object_table import (
+    LABEL_COLUMN,
+    MATERIAL_COLUMN,
+    MODULUS_COLUMN,
+    SHAPE_COLUMN,
+)
+from tactile_compliance.data.photometric import reconstruct_depth
+from tactile_compliance.data.safe_pickle import dump_numpy_pickle
+from tactile_compliance.inference.calibration import SensorCalibration
+from tactile_compliance.inference.sensors import (
+    FrameError,
+    FrameSizeError,
+    FrameSourceBase,
+    iter_frames,
+)
+from tactile_compliance.inference.streaming import MIN_PEAK_FORCE_N, select_frame_indices
+from tactile_compliance.outputs import atomic_file
+from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
+from tactile_compliance.physics.estimators import analytical_estimator
+
+__all__ = [
+    "AUGMENTATION_FORCE_FRACTION",
+    "MAX_AUGMENTATIONS",
+    "OBJECT_TABLE_FILE",
+    "CapturedGrasp",
+    "FollowedReadings",
+    "ObjectInfo",
+    "ReadingError",
+    "Readings",
+    "RecordedGrasp",
+    "augmented_indices",
+    "capture_grasp",
+    "record_grasp",
+    "write_grasp",
+    "write_readings_csv",
+]
+
+MAX_AUGMENTATIONS = 5
+"""Augmentations per grasp at most (k = 0..4), as in the dataset."""
+
+AUGMENTATION_FORCE_FRACTION = 0.95
+"""Augmentation k exists while the force at the shifted last frame is >= 0.95 F_max."""
+
+HARD_OBJECT_PA = 5e5
+"""Objects at least this stiff [Pa] stop augmenting once the first frame is nearly as deep
+as the last (the published code's rule)."""
+
+HARD_DEPTH_RATIO = 0.8
+"""... 'nearly as deep': first frame's maximum depth >= 0.8 x the last frame's."""
+
+ESTIMATE_FILES = ("elastic_estimate.pkl", "hertz_estimate.pkl")
+"""The analytical estimates' files; left out where the fit failed, as in the dataset."""
+
+OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
+"""The object table written next to the object directories (the dataset's file name)."""
+
+TRIALS_COLUMN = "Trials Recorded?"
+_OBJECT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+
+ReadingsCallback = Callable[[float], tuple[float, float]]
+"""``timestamp_s -> (force_n, width_m)``; raise :class:`ReadingError` for no reading."""
+
+
+class ReadingError(ValueError):
+    """No force/width reading for a frame (outside the readings' time range)."""
+
+
+# ---------------------------------------------------------------------- readings
+@dataclass
+class Readings:
+    """Timestamped force and width readings from the robot, interpolated to frame times.
+
+    Attributes:
+        timestamp_s: (N,) reading times in s, strictly increasing, on the frames' clock.
+        force_n: (N,) normal force in N.
+        width_m: (N,) gripper width in m.
+        tolerance_s: how far outside ``[timestamp_s[0], timestamp_s[-1]]`` a frame may lie
+            and still take the nearest reading (default 0: none).
+    """
+
+    timestamp_s: np.ndarray
+    force_n: np.ndarray
+    width_m: np.ndarray
+    tolerance_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.timestamp_s = np.asarray(self.timestamp_s, dtype=np.float64).reshape(-1)
+        self.force_n = np.asarray(self.force_n, dtype=np.float64).reshape(-1)
+        self.width_m = np.asarray(self.width_m, dtype=np.float64).reshape(-1)
+        n = self.timestamp_s.size
+        if n == 0 or self.force_n.size != n or self.width_m.size != n:
+            raise ValueError(
+                f"readings need as many times, forces and widths (>= 1), got {n}, "
+                f"{self.force_n.size}, {self.width_m.size}"
+            )
+        for name in ("timestamp_s", "force_n", "width_m"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"readings: {name} holds NaN or infinite values")
+        if n > 1 and np.any(np.diff(self.timestamp_s) <= 0):
+            i = int(np.flatnonzero(np.diff(self.timestamp_s) <= 0)[0]) + 1
+            raise ValueError(
+                f"readings: timestamps must increase; reading {i} at "
+                f"{self.timestamp_s[i]:.4f} s follows {self.timestamp_s[i - 1]:.4f} s"
+            )
+
+    @classmethod
+    def from_csv(cls, path: str | Path, tolerance_s: float = 0.0) -> Readings:
+        """Read a CSV with columns ``timestamp_s,force_n,width_m`` (s, N, m).
+
+        Raises:
+            ValueError: a missing column, a value that is not a number, times not
+                increasing. OSError: the file cannot be read.
+        """
+        path = Path(path)
+        try:
+            table = pd.read_csv(path)
+        except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as err:
+            raise ValueError(f"{path}: not a readings CSV ({err})") from err
+        table.columns = [str(c).strip() for c in table.columns]
+        missing = [c for c in ("timestamp_s", "force_n", "width_m") if c not in table.columns]
+        if missing:
+            raise ValueError(
+                f"{path}: missing column(s) {missing}; expected timestamp_s,force_n,width_m"
+            )
+        try:
+            values = table[["timestamp_s", "force_n", "width_m"]].astype(np.float64)
+            return cls(*(values[c].to_numpy() for c in values.columns), tolerance_s=tolerance_s)
+        except ValueError as err:
+            raise ValueError(f"{path}: {err}") from err
+
+    def __call__(self, timestamp_s: float) -> tuple[float, float]:
+        """(force_n, width_m) at ``timestamp_s``, linearly interpolated.
+
+        Raises:
+            ReadingError: the time lies outside the readings (beyond ``tolerance_s``).
+        """
+        t = float(timestamp_s)
+        lo, hi = self.timestamp_s[0], self.timestamp_s[-1]
+        if not (lo - self.tolerance_s <= t <= hi + self.tolerance_s):
+            raise ReadingError(
+                f"no force/width reading at {t:.4f} s (readings cover {lo:.4f}..{hi:.4f} s)"
+            )
+        return (
+            float(np.interp(t, self.timestamp_s, self.force_n)),
+            float(np.interp(t, self.timestamp_s, self.width_m)),
+        )
+
+
+class FollowedReadings:
+    """Readings from a CSV that the robot is still writing (``timestamp_s,force_n,width_m``).
+
+    For a live sensor: a frame newer than the last reading re-reads the file (when it
+    changed) until a reading at or after the frame's time is there, for at most
+    ``wait_s`` seconds, then it is a :class:`ReadingError` for that frame. An incomplete
+    last line (the robot mid-write) is ignored until it is complete. The file may not
+    exist yet when the capture starts.
+    """
+
+    def __init__(self, path: str | Path, wait_s: float = 1.0, tolerance_s: float = 0.0) -> None:
+        self.path = Path(path)
+        self.wait_s = float(wait_s)
+        self.tolerance_s = float(tolerance_s)
+        self.readings: Readings | None = None
+        self._stamp: tuple[int, int] | None = None
+        self._load()
+
+    def _load(self) -> None:
+        try:
+            stat = self.path.stat()
+        except FileNotFoundError:
+            return
+        stamp = (stat.st_mtime_ns, stat.st_size)
+        if stamp == self._stamp:
+            return
+        try:
+            table = pd.read_csv(self.path)
+        except pd.errors.EmptyDataError:
+            return
+        except (pd.errors.ParserError, UnicodeDecodeError) as err:
+            raise ValueError(f"{self.path}: not a readings CSV ({err})") from err
+        table.columns = [str(c).strip() for c in table.columns]
+        columns = ["timestamp_s", "force_n", "width_m"]
+        missing = [c for c in columns if c not in table.columns]
+        if missing:
+            raise ValueError(f"{self.path}: missing column(s) {missing}; expected {columns}")
+        values = table[columns].apply(pd.to_numeric, errors="coerce")
+        complete = values.notna().all(axis=1).to_numpy()
+        n = len(complete)
+        if not complete.all():
+            first = int(np.argmin(complete))
+            # Only the last line may be incomplete (the robot mid-write); others are errors.
+            if first < n - 1:
+                raise ValueError(f"{self.path}: row {first + 1} holds a value that is not a number")
+            n -= 1
+        self._stamp = stamp
+        if n:
+            arrays = (values[c].to_numpy()[:n] for c in columns)
+            self.readings = Readings(*arrays, tolerance_s=self.tolerance_s)
+
+    def __call__(self, timestamp_s: float) -> tuple[float, float]:
+        """(force_n, width_m) at ``timestamp_s``, waiting for the robot's log to reach it."""
+        deadline = time.monotonic() + self.wait_s
+        while True:
+            readings = self.readings
+            if readings is not None and timestamp_s <= readings.timestamp_s[-1] + self.tolerance_s:
+                return readings(timestamp_s)
+            if time.monotonic() >= deadline:
+                last = "none yet" if readings is None else f"{readings.timestamp_s[-1]:.4f} s"
+                raise ReadingError(
+                    f"no force/width reading at {timestamp_s:.4f} s in {self.path} after "
+                    f"waiting {self.wait_s:g} s (last reading: {last})"
+                )
+            time.sleep(0.005)
+            self._load()
+
+
+def checked_reading(readings: ReadingsCallback, timestamp_s: float) -> tuple[float, float]:
+    """A callback's reading, checked: two finite numbers (N, m)."""
+    force, width = readings(timestamp_s)
+    force, width = float(force), float(width)
+    if not (math.isfinite(force) and math.isfinite(width)):
+        raise ReadingError(f"reading at {timestamp_s:.4f} s is not finite ({force}, {width})")
+    return force, width
+
+
+# ---------------------------------------------------------------------- capture
+@dataclass
+class CapturedGrasp:
+    """Every good frame of one grasp with its readings.
+
+    Attributes:
+        timestamp_s: (T,) frame times in s.
+        frames: (T, H, W, 3) uint8 BGR sensor frames.
+        force_n: (T,) N; width_m: (T,) m, interpolated to the frame times.
+        markers_frames: (T, H', W', 3) uint8 BGR of a second (marker) sensor, or None.
+        skipped: one line per frame left out (bad frame, no reading).
+        interrupted: the capture was stopped with Ctrl-C (what came before is kept).
+    """
+
+    timestamp_s: np.ndarray
+    frames: np.ndarray
+    force_n: np.ndarray
+    width_m: np.ndarray
+    markers_frames: np.ndarray | None = None
+    skipped: list[str] = field(default_factory=list)
+    interrupted: bool = False
+
+    def __len__(self) -> int:
+        return int(self.timestamp_s.size)
+
+
+def capture_grasp(
+    source: FrameSourceBase,
+    readings: ReadingsCallback,
+    *,
+    markers_source: FrameSourceBase | None = None,
+    max_frames: int | None = None,
+    stop_on_release: bool = True,
+    release_fraction: float = 0.5,
+    min_peak_force_n: float = MIN_PEAK_FORCE_N,
+) -> CapturedGrasp:
+    """Read frames and readings until the source ends, the grasp is released or
+    ``max_frames`` good frames are in.
+
+    The grasp is released when, after the force reached ``min_peak_force_n``, it falls
+    below ``release_fraction`` x its maximum (the streaming estimator's rule). Bad frames
+    and frames without a reading are skipped and listed, never fatal; Ctrl-C ends the
+    capture and keeps what was recorded.
+
+    Args:
+        source: the (markerless) sensor.
+        readings: ``timestamp_s -> (force_n, width_m)``, e.g. :class:`Readings`.
+        markers_source: a second sensor (the marker finger), read in lockstep: its i-th
+            frame pairs with the first sensor's i-th.
+    """
+    times: list[float] = []
+    frames: list[np.ndarray] = []
+    marker_frames: list[np.ndarray] = []
+    forces: list[float] = []
+    widths: list[float] = []
+    skipped: list[str] = []
+    interrupted = False
+
+    def bad(err: FrameError) -> None:
+        skipped.append(str(err))
+
+    try:
+        for timestamp_s, frame in iter_frames(source, bad):
+            marker = None
+            if markers_source is not None:
+                try:
+                    item = markers_source.read()
+                except FrameError as err:
+                    skipped.append(f"markers sensor: {err}")
+                    continue
+                if item is None:
+                    break
+                marker = item[1]
+            try:
+                force, width = checked_reading(readings, timestamp_s)
+            except ReadingError as err:
+                skipped.append(f"frame at {timestamp_s:.4f} s: {err}")
+                continue
+            times.append(timestamp_s)
+            frames.append(frame)
+            forces.append(force)
+            widths.append(width)
+            if marker is not None:
+                marker_frames.append(marker)
+            f_max = max(forces)
+            if stop_on_release and f_max >= min_peak_force_n and force < release_fraction * f_max:
+                break
+            if max_frames is not None and len(frames) >= max_frames:
+                break
+    except KeyboardInterrupt:
+        interrupted = True
+    if not frames:
+        why = f" ({len(skipped)} skipped; first: {skipped[0]})" if skipped else ""
+        raise ValueError(f"{source.name}: no usable frame was recorded{why}")
+    return CapturedGrasp(
+        timestamp_s=np.asarray(times),
+        frames=np.stack(frames),
+        force_n=np.asarray(forces),
+        width_m=np.asarray(widths),
+        markers_frames=np.stack(marker_frames) if marker_frames else None,
+        skipped=skipped,
+        interrupted=interrupted,
+    )
+
+
+# ---------------------------------------------------------------------- selection
+def augmented_indices(
+    force_n: Sequence[float] | np.ndarray,
+    max_aug: int = MAX_AUGMENTATIONS,
+    *,
+    modulus_pa: float | None = None,
+    max_depth_mm: Sequence[np.ndarray] = (),
+) -> list[tuple[int, int, int]]:
+    """The dataset's three frames of each augmentation k = 0, 1, ... (frame indices).
+
+    Augmentation 0 is ``streaming.select_frame_indices`` (the frames ``live`` uses).
+    Augmentation k shifts all three by +k while the force at the shifted last frame stays
+    >= 0.95 F_max (``DATA_FORMATS.md``; F_max over the published clip
+    ``[i_start, i_peak + 1 + max_aug)``). The published code also capped the count, and
+    this follows it: at most ``max(i_1 - i_0, 2)`` augmentations, one when the three
+    frames span fewer than three frames, none reaching past the clip, and, for objects
+    of >= 5e5 Pa, none whose first frame is already >= 80 % as deep as its last (on
+    every sensor of ``max_depth_mm``, per-frame maximum depths in mm).
+
+    Raises:
+        ValueError: no selection (no frame reaches 5 N, the peak stays below 10 N, or
+            fewer than three frames between contact and peak).
+    """
+    f = np.asarray(force_n, dtype=np.float64).reshape(-1)
+    selection = select_frame_indices(f)
+    if selection is None:
+        peak = float(f.max()) if f.size else 0.0
+        raise ValueError(
+            f"the grasp has no frame selection: peak force {peak:.1f} N over {f.size} frames "
+            f"(it needs a frame >= 5 N, a peak >= {MIN_PEAK_FORCE_N:g} N and three frames "
+            f"from contact to peak)"
+        )
+    base = np.asarray(selection.indices)
+    clip_end = min(selection.peak + 1 + max_aug, f.size)
+    f_max = float(f[selection.onset : clip_end].max())
+    count = 1
+    for k in range(1, max_aug):
+        last = int(base[-1]) + k
+        if last >= clip_end or f[last] < AUGMENTATION_FORCE_FRACTION * f_max:
+            break
+        count += 1
+    count = min(count, max(int(base[1] - base[0]), 2))
+    if base[-1] - base[0] < len(base):
+        count = 1
+    hard = modulus_pa is not None and modulus_pa >= HARD_OBJECT_PA
+    for k in range(1, count):
+        if base[-1] + k >= clip_end:
+            count = k
+            break
+        if (
+            hard
+            and max_depth_mm
+            and all(d[base[0] + k] >= HARD_DEPTH_RATIO * d[base[-1] + k] for d in max_depth_mm)
+        ):
+            count = k
+            break
+    return [tuple(int(i) + k for i in base) for k in range(count)]  # type: ignore[misc]
+
+
+# ---------------------------------------------------------------------- writing
+@dataclass(frozen=True)
+class ObjectInfo:
+    """What ``metadata.json`` and the object table say about the grasped object.
+
+    Attributes:
+        name: directory name (letters, digits, ``_ . + -``).
+        modulus_pa: Young's modulus E in Pa (the label).
+        material: e.g. ``Rubber``, ``Foam``, ``Plastic``.
+        shape: e.g. ``Sphere``, ``Cylinder``, ``Rectangle``.
+        shore_00, shore_a, shore_d: hardness, when measured.
+    """
+
+    name: str
+    modulus_pa: float
+    material: str = ""
+    shape: str = ""
+    shore_00: float | None = None
+    shore_a: float | None = None
+    shore_d: float | None = None
+
+    def __post_init__(self) -> None:
+        if not _OBJECT_NAME.match(self.name):
+            raise ValueError(
+                f"object name {self.name!r}: use letters, digits and _ . + - "
+                f"(it names a directory), starting with a letter or digit"
+            )
+        if not (math.isfinite(float(self.modulus_pa)) and float(self.modulus_pa) > 0):
+            raise ValueError(f"modulus_pa must be a finite number > 0 Pa, got {self.modulus_pa}")
+
+    def metadata(self) -> dict[str, Any]:
+        """The ``metadata.json`` fields of the dataset."""
+        return {
+            "object_name": self.name,
+            "youngs_modulus": float(self.modulus_pa),
+            "material": self.material,
+            "shape": self.shape,
+            "shore_00_hardness": self.shore_00,
+            "shore_A_hardness": self.shore_a,
+            "shore_D_hardness": self.shore_d,
+        }
+
+
+@dataclass
+class RecordedGrasp:
+    """What :func:`write_grasp` wrote.
+
+    Attributes:
+        path: the ``grasp={g}`` directory.
+        grasp: its number g.
+        frame_indices: the three frames of each augmentation (into the capture).
+        estimates_pa: (elastic E, Hertz E*) in Pa, NaN where not estimable.
+        n_frames: frames captured; skipped: frames left out, with the reason.
+        object_table: the object table written or updated.
+    """
+
+    path: Path
+    grasp: int
+    frame_indices: list[tuple[int, int, int]]
+    estimates_pa: tuple[float, float]
+    n_frames: int
+    skipped: list[str]
+    object_table: Path
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly dict."""
+        return {
+            "path": str(self.path),
+            "grasp": self.grasp,
+            "augmentations": len(self.frame_indices),
+            "frame_indices": [list(i) for i in self.frame_indices],
+            "estimates_pa": [None if math.isnan(v) else v for v in self.estimates_pa],
+            "n_frames": self.n_frames,
+            "skipped": self.skipped,
+            "object_table": str(self.object_table),
+        }
+
+    def format(self) -> str:
+        """Human-readable summary (what the CLI prints)."""
+        elastic, hertz = self.estimates_pa
+        lines = [
+            f"Recorded    {self.path}  ({self.n_frames} frames, "
+            f"{len(self.frame_indices)} augmentations)",
+            f"Frames      {', '.join(map(str, self.frame_indices[0]))} (augmentation 0)",
+            f"Estimates   elastic {elastic:.4g} Pa, Hertz {hertz:.4g} Pa",
+            f"Objects     {self.object_table}",
+        ]
+        if self.skipped:
+            lines.append(f"Skipped     {len(self.skipped)} frames; first: {self.skipped[0]}")
+        return "\n".join(lines)
+
+
+def _next_grasp(object_dir: Path) -> int:
+    taken = [
+        int(m.group(1))
+        for child in object_dir.iterdir()
+        if (m := re.match(r"^\.?(?:partial-)?grasp=(\d+)", child.name))
+    ]
+    return max(taken, default=-1) + 1
+
+
+def _write_metadata(object_dir: Path, info: ObjectInfo) -> None:
+    """Create ``metadata.json``, or check an existing one names the same label."""
+    path = object_dir / "metadata.json"
+    if path.exists():
+        try:
+            existing = json.loads(path.read_text(encoding="utf-8"))
+            modulus = float(existing.get("youngs_modulus"))
+        except (ValueError, TypeError, AttributeError) as err:
+            raise ValueError(f"{path}: unreadable metadata.json ({err}); nothing written") from err
+        if not math.isclose(modulus, float(info.modulus_pa), rel_tol=1e-9):
+            raise ValueError(
+                f"{path} gives {info.name} a modulus of {modulus:.6g} Pa, not "
+                f"{info.modulus_pa:.6g}; nothing written (use another object name)"
+            )
+        return
+    with atomic_file(path, "w") as handle:
+        json.dump(info.metadata(), handle, indent=2, sort_keys=True)
+        handle.write("\n")
+
+
+def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
+    """Add the object to the table (or update its trial count), keeping other columns."""
+    path = out_dir / OBJECT_TABLE_FILE
+    if path.exists():
+        try:
+            table = pd.read_csv(path, dtype=str, keep_default_na=False)
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
+            raise ValueError(f"{path}: not an object table ({err}); nothing updated") from err
+        missing = [c for c in (LABEL_COLUMN, MODULUS_COLUMN) if c not in table.columns]
+        if missing:
+            raise ValueError(f"{path}: not an object table (missing {missing}); nothing updated")
+    else:
+        table = pd.DataFrame(
+            columns=[
+                LABEL_COLUMN,
+                SHAPE_COLUMN,
+                MATERIAL_COLUMN,
+                "Shore 00 [/]",
+                "Shore A [/]",
+                "Shore D [/]",
+                MODULUS_COLUMN,
+                TRIALS_COLUMN,
+            ],
+            dtype=str,
+        )
+    for column in (SHAPE_COLUMN, MATERIAL_COLUMN, TRIALS_COLUMN):
+        if column not in table.columns:
+            table[column] = ""
+
+    def text(value: float | None) -> str:
+        return "" if value is None else f"{value:g}"
+
+    row = {
+        LABEL_COLUMN: info.name,
+        SHAPE_COLUMN: info.shape,
+        MATERIAL_COLUMN: info.material,
+        "Shore 00 [/]": text(info.shore_00),
+        "Shore A [/]": text(info.shore_a),
+        "Shore D [/]": text(info.shore_d),
+        MODULUS_COLUMN: f"{float(info.modulus_pa):.6g}",
+        TRIALS_COLUMN: str(grasps),
+    }
+    match = table.index[table[LABEL_COLUMN].str.strip() == info.name]
+    if len(match):
+        table.loc[match[0], TRIALS_COLUMN] = str(grasps)
+    else:
+        new = {c: row.get(c, "") for c in table.columns}
+        table = pd.concat([table, pd.DataFrame([new], dtype=str)], ignore_index=True)
+    with atomic_file(path, "w") as handle:
+        table.to_csv(handle, index=False)
+    return path
+
+
+def write_grasp(
+    captured: CapturedGrasp,
+    out_dir: str | Path,
+    info: ObjectInfo,
+    *,
+    reference: np.ndarray | None = None,
+    markers_reference: np.ndarray | None = None,
+    max_aug: int = MAX_AUGMENTATIONS,
+    estimator: str = "dataset",
+) -> RecordedGrasp:
+    """Write a captured grasp as ``OUT/{object}/grasp={next}/augmentation={k}/``.
+
+    Args:
+        captured: from :func:`capture_grasp`.
+        out_dir: the dataset directory (created if needed).
+        info: the object's label and description.
+        reference: the no-contact frame (a calibration's); default the first frame.
+        markers_reference: the same for the marker sensor.
+        max_aug: augmentations at most.
+        estimator: the analytical estimator (``physics.estimators``): ``dataset`` makes
+            the values the public dataset stored.
+
+    Raises:
+        ValueError: the grasp has no frame selection (nothing is written), or the object
+            exists with another modulus.
+    """
+    augmented_indices(captured.force_n, max_aug)  # no selection: fail before any work
+    frames = captured.frames
+    ref = frames[0] if reference is None else np.asarray(reference)
+    if ref.shape != frames.shape[1:]:
+        raise FrameSizeError(
+            f"the reference frame is {ref.shape[:2]}, the recorded frames {frames.shape[1:3]}"
+        )
+    # Every frame's depth: the dataset's estimator clips the press out of the whole series.
+    diff = difference_images(frames, ref)
+    depth = reconstruct_depth(diff)
+    fingers = [("RGB.pkl", "depth.pkl", diff, depth)]
+    marker_depth = None
+    if captured.markers_frames is not None:
+        markers = captured.markers_frames
+        mref = markers[0] if markers_reference is None else np.asarray(markers_reference)
+        mdiff = difference_images(markers, mref)
+        marker_depth = reconstruct_depth(mdiff, markers=True)
+        fingers.append(("RGB_markers.pkl", "depth_markers.pkl", mdiff, marker_depth))
+    depth_maxima = [depth.reshape(len(depth), -1).max(axis=1)]
+    if marker_depth is not None:
+        depth_maxima.append(marker_depth.reshape(len(marker_depth), -1).max(axis=1))
+    indices = augmented_indices(
+        captured.force_n, max_aug, modulus_pa=info.modulus_pa, max_depth_mm=depth_maxima
+    )
+    estimate_fn = analytical_estimator(estimator)
+    try:
+        if estimator == "dataset" and marker_depth is not None:
+            # The original took the earlier depth onset of the two fingers.
+            values = dataset_estimates_pa(
+                captured.force_n, captured.width_m, depth, marker_depths_mm=marker_depth
+            )
+        else:
+            values = estimate_fn(captured.force_n, captured.width_m, depth)
+        estimates = (float(values[0]), float(values[1]))
+    except ValueError:
+        estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps
+
+    out = Path(out_dir)
+    object_dir = out / info.name
+    object_dir.mkdir(parents=True, exist_ok=True)
+    _write_metadata(object_dir, info)
+    grasp = _next_grasp(object_dir)
+    partial = object_dir / f".partial-grasp={grasp}-{os.getpid()}"
+    final = object_dir / f"grasp={grasp}"
+    try:
+        for k, idx in enumerate(indices):
+            directory = partial / f"augmentation={k}"
+            directory.mkdir(parents=True)
+            sel = list(idx)
+            for image_file, depth_file, images, depths in fingers:
+                dump_numpy_pickle(directory / image_file, images[sel].astype(np.float32))
+                dump_numpy_pickle(directory / depth_file, depths[sel].astype(np.float32))
+            dump_numpy_pickle(directory / "forces.pkl", captured.force_n[sel].astype(np.float64))
+            dump_numpy_pickle(directory / "widths.pkl", captured.width_m[sel].astype(np.float64))
+            for name, value in zip(ESTIMATE_FILES, estimates, strict=True):
+                if math.isfinite(value):  # the dataset has no file for a failed fit
+                    dump_numpy_pickle(directory / name, np.array(value, dtype=np.float64))
+        if final.exists():  # another recorder took the number meanwhile
+            raise FileExistsError(f"{final} exists; nothing was overwritten, record again")
+        os.rename(partial, final)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+    grasps = sum(1 for c in object_dir.iterdir() if re.match(r"^grasp=\d+$", c.name))
+    table = _update_object_table(out, info, grasps)
+    return RecordedGrasp(
+        path=final,
+        grasp=grasp,
+        frame_indices=indices,
+        estimates_pa=estimates,
+        n_frames=len(captured),
+        skipped=list(captured.skipped),
+        object_table=table,
+    )
+
+
+def record_grasp(
+    source: FrameSourceBase,
+    readings: ReadingsCallback,
+    out_dir: str | Path,
+    info: ObjectInfo,
+    *,
+    calibration: SensorCalibration | None = None,
+    markers_source: FrameSourceBase | None = None,
+    markers_calibration: SensorCalibration | None = None,
+    max_frames: int | None = None,
+    stop_on_release: bool = True,
+    max_aug: int = MAX_AUGMENTATIONS,
+) -> RecordedGrasp:
+    """Capture one grasp from ``source`` with ``readings`` and write it (see the module).
+
+    Args:
+        source: an open frame source (``sensors.open_source``; with a calibration, open
+            it with ``calibration.open(spec)`` so the geometry matches the reference).
+        readings: ``timestamp_s -> (force_n, width_m)``, e.g. ``Readings.from_csv(path)``.
+        out_dir: the dataset directory.
+        info: the object.
+        calibration: its reference frame is the no-contact frame (default: the first
+            recorded frame).
+        markers_source, markers_calibration: a second sensor (the marker finger).
+        max_frames, stop_on_release: when the capture stops (see :func:`capture_grasp`).
+    """
+    captured = capture_grasp(
+        source,
+        readings,
+        markers_source=markers_source,
+        max_frames=max_frames,
+        stop_on_release=stop_on_release,
+    )
+    return write_grasp(
+        captured,
+        out_dir,
+        info,
+        reference=None if calibration is None else calibration.reference,
+        markers_reference=None if markers_calibration is None else markers_calibration.reference,
+        max_aug=max_aug,
+    )
+
+
+def write_readings_csv(path: str | Path, timestamp_s: Any, force_n: Any, width_m: Any) -> Path:
+    """Write readings as ``timestamp_s,force_n,width_m`` (the CSV ``record`` reads)."""
+    path = Path(path)
+    with atomic_file(path, "w") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["timestamp_s", "force_n", "width_m"])
+        for row in zip(timestamp_s, force_n, width_m, strict=True):
+            writer.writerow([repr(float(v)) for v in row])
+    return path

@@ -1,0 +1,670 @@
+"""Live frame sources: tactile sensor cameras, replayed videos and folders of frames.
+
+Every source yields ``(timestamp_s, frame)``: the time in seconds of the frame and a uint8
+BGR image ``(H, W, 3)`` (OpenCV's channel order) already cut to the sensor's pad by the
+source's :class:`FrameGeometry` (an optional perspective warp, a crop, a resize). Sources
+are context managers and iterators::
+
+    with open_source("mini:0") as source:          # a GelSight Mini on /dev/video0
+        for timestamp_s, frame in source:
+            ...
+
+Timestamps: a video file gives its own frame times (``CAP_PROP_POS_MSEC``), so a replay
+has the recording's timing whatever the reading speed; live devices and streams take
+``time.monotonic()`` when the frame arrives; a folder of frames takes a CSV of times or a
+given frame rate.
+
+Errors (one line each; ``OSError`` / ``ValueError`` subclasses, which the CLI reports as
+``error: ...``):
+
+* :class:`SensorError` (``OSError``): the device, stream or file cannot be opened or
+  stops delivering (a camera that is not there), or an optional driver is missing.
+* :class:`FrameSizeError` (``ValueError``): a frame whose size differs from the
+  source's first frame or from the size a calibration expects.
+* :class:`TimestampError` (``ValueError``): a frame older than the previous one.
+
+The last two concern one frame: :meth:`FrameSourceBase.read` raises them for that frame
+and the source stays usable, so a capture loop (:func:`iter_frames` with ``on_error``)
+skips the frame and keeps what it already has.
+
+Presets (every step a documented parameter of :class:`FrameGeometry`):
+
+* **GelSight Mini** (:data:`MINI_GEOMETRY`, :func:`gelsight_mini`): a UVC camera opened by
+  index or ``/dev/v4l/by-id/...`` path; 3280 x 2464 MJPG requested (nominally 25 fps,
+  about 18 on Linux); a 1/7 border cropped per side; resized to 320 x 240 (W x H).
+* **GelSight Wedge over HTTP MJPEG** (:data:`WEDGE_GEOMETRY`, :func:`gelsight_wedge`),
+  the public dataset's rig: 640 x 480 frames, warped with four corner points to
+  400 x 300 (W x H), cropped 25 px per side to 350 x 250 (``DATA_FORMATS.md``).
+* **DIGIT** (:class:`DigitSource`) through the optional ``digit-interface`` package
+  (non-commercial licence: never a dependency of this project).
+* A **video file** or URL (:class:`VideoCaptureSource`) and a **folder of frames**
+  (:class:`FolderSource`) for replay and tests.
+
+:func:`open_source` parses a spec string (``mini:0``, ``wedge:http://host:port/...``,
+``digit:SERIAL``, ``video:path.avi``, ``camera:0``, ``folder:dir`` or a plain path).
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Protocol, runtime_checkable
+
+import cv2
+import numpy as np
+
+from tactile_compliance.data.image_ops import resize_frames
+
+__all__ = [
+    "MINI_GEOMETRY",
+    "PLAIN_GEOMETRY",
+    "WEDGE_GEOMETRY",
+    "DigitSource",
+    "FolderSource",
+    "FrameError",
+    "FrameGeometry",
+    "FrameSizeError",
+    "FrameSource",
+    "FrameSourceBase",
+    "SensorError",
+    "TimestampError",
+    "VideoCaptureSource",
+    "gelsight_mini",
+    "gelsight_wedge",
+    "iter_frames",
+    "open_source",
+]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv", ".mjpg", ".mjpeg")
+
+
+class SensorError(OSError):
+    """A source cannot be opened or stopped delivering frames (device, stream, file)."""
+
+
+class FrameError(ValueError):
+    """One frame is unusable; the source itself can go on (see subclasses)."""
+
+
+class FrameSizeError(FrameError):
+    """A frame's size differs from the source's first frame or the calibration's size."""
+
+
+class TimestampError(FrameError):
+    """A frame's timestamp is older than the previous frame's (time going backwards)."""
+
+
+# ---------------------------------------------------------------------- geometry
+Corners = tuple[tuple[float, float], tuple[float, float], tuple[float, float], tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class FrameGeometry:
+    """How a camera frame becomes a sensor frame: warp, then crop, then resize.
+
+    Sizes are (height, width) in pixels, like the rest of the package.
+
+    Attributes:
+        input_size: the camera frame size (H, W) px this geometry expects; frames of
+            another size are refused (:class:`FrameSizeError`). None accepts any size
+            (all frames of one source must still agree).
+        warp_corners: four (x, y) points in the camera frame [px], in the order top-left,
+            top-right, bottom-right, bottom-left, mapped onto the corners of a
+            ``warp_size`` image by a perspective transform (the pad's corners). None: no
+            warp.
+        warp_size: (H, W) px of the warped image (the Wedge rig: (300, 400)).
+        crop_px: pixels removed from each side after the warp (the Wedge rig: 25).
+        crop_fraction: share of the height (top and bottom) and of the width (left and
+            right) removed from each side, after ``crop_px`` (the Mini: 1/7, the
+            border of the gel outside the lit pad).
+        output_size: (H, W) px of the final frame (resized with area averaging when
+            shrinking); None keeps the cropped size.
+    """
+
+    input_size: tuple[int, int] | None = None
+    warp_corners: Corners | None = None
+    warp_size: tuple[int, int] | None = None
+    crop_px: int = 0
+    crop_fraction: float = 0.0
+    output_size: tuple[int, int] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("input_size", "warp_size", "output_size"):
+            size = getattr(self, name)
+            if size is not None:
+                if len(size) != 2 or min(int(v) for v in size) < 1:
+                    raise ValueError(f"{name} must be (height, width) px > 0, got {size!r}")
+                object.__setattr__(self, name, (int(size[0]), int(size[1])))
+        if (self.warp_corners is None) != (self.warp_size is None):
+            raise ValueError("warp_corners and warp_size go together (both or neither)")
+        if self.warp_corners is not None:
+            corners = tuple((float(x), float(y)) for x, y in self.warp_corners)
+            if len(corners) != 4:
+                raise ValueError(f"warp_corners must be four (x, y) points, got {corners!r}")
+            object.__setattr__(self, "warp_corners", corners)
+        if int(self.crop_px) < 0:
+            raise ValueError(f"crop_px must be >= 0, got {self.crop_px}")
+        if not 0.0 <= float(self.crop_fraction) < 0.5:
+            raise ValueError(f"crop_fraction must be in [0, 0.5), got {self.crop_fraction}")
+
+    def cropped_size(self, size: tuple[int, int]) -> tuple[int, int]:
+        """(H, W) px left after warp and crop of a camera frame of ``size``."""
+        h, w = self.warp_size if self.warp_size is not None else size
+        h, w = h - 2 * self.crop_px, w - 2 * self.crop_px
+        dy, dx = int(h * self.crop_fraction), int(w * self.crop_fraction)
+        h, w = h - 2 * dy, w - 2 * dx
+        if h < 1 or w < 1:
+            raise ValueError(f"the crop leaves nothing of a {size[0]}x{size[1]} frame")
+        return h, w
+
+    def frame_size(self, size: tuple[int, int]) -> tuple[int, int]:
+        """(H, W) px of the sensor frames made from camera frames of ``size``."""
+        return self.output_size if self.output_size is not None else self.cropped_size(size)
+
+    def apply(self, frame: np.ndarray) -> np.ndarray:
+        """Warp, crop and resize one uint8 camera frame (H, W, 3).
+
+        Raises:
+            FrameSizeError: the frame is not (H, W, 3) or not ``input_size``.
+        """
+        if frame.ndim != 3 or frame.shape[2] != 3:
+            raise FrameSizeError(f"a frame must be (H, W, 3), got {tuple(frame.shape)}")
+        size = (int(frame.shape[0]), int(frame.shape[1]))
+        if self.input_size is not None and size != self.input_size:
+            raise FrameSizeError(
+                f"frame is {size[0]}x{size[1]} px, the sensor geometry expects "
+                f"{self.input_size[0]}x{self.input_size[1]}"
+            )
+        out = frame
+        if self.warp_corners is not None and self.warp_size is not None:
+            h, w = self.warp_size
+            target = np.float32([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]])
+            matrix = cv2.getPerspectiveTransform(np.float32(self.warp_corners), target)
+            out = cv2.warpPerspective(out, matrix, (w, h), flags=cv2.INTER_LINEAR)
+        h, w = self.cropped_size(size)
+        top = self.crop_px + int((out.shape[0] - 2 * self.crop_px) * self.crop_fraction)
+        left = self.crop_px + int((out.shape[1] - 2 * self.crop_px) * self.crop_fraction)
+        out = out[top : top + h, left : left + w]
+        if self.output_size is not None:
+            out = resize_frames(out[None], self.output_size)[0]
+        return np.ascontiguousarray(out, dtype=np.uint8)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly dict (lists for tuples)."""
+        data = asdict(self)
+        if data["warp_corners"] is not None:
+            data["warp_corners"] = [list(point) for point in data["warp_corners"]]
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in data.items()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> FrameGeometry:
+        """Inverse of :meth:`to_dict`; unknown keys are an error."""
+        unknown = set(data) - {f for f in cls.__dataclass_fields__}
+        if unknown:
+            raise ValueError(f"unknown frame geometry field(s) {sorted(unknown)}")
+        values = dict(data)
+        for key in ("input_size", "warp_size", "output_size"):
+            if values.get(key) is not None:
+                values[key] = tuple(values[key])
+        if values.get("warp_corners") is not None:
+            values["warp_corners"] = tuple(tuple(p) for p in values["warp_corners"])
+        return cls(**values)
+
+
+PLAIN_GEOMETRY = FrameGeometry()
+"""Frames as the camera delivers them."""
+
+MINI_CAPTURE_SIZE = (2464, 3280)
+"""(H, W) px the GelSight Mini is asked for (MJPG); it may deliver another mode."""
+
+MINI_GEOMETRY = FrameGeometry(crop_fraction=1.0 / 7.0, output_size=(240, 320))
+"""GelSight Mini: 1/7 of each side cropped (the gel's unlit border), resized to 320 x 240
+(W x H), as the manufacturer's examples do."""
+
+WEDGE_CAMERA_SIZE = (480, 640)
+"""(H, W) px of the Wedge rig's camera (the public dataset, 30 fps over HTTP MJPEG)."""
+
+WEDGE_GEOMETRY = FrameGeometry(
+    input_size=WEDGE_CAMERA_SIZE,
+    warp_corners=((0.0, 0.0), (639.0, 0.0), (639.0, 479.0), (0.0, 479.0)),
+    warp_size=(300, 400),
+    crop_px=25,
+)
+"""GelSight Wedge: 640 x 480 warped to 400 x 300 (W x H), 25 px cropped per side ->
+350 x 250, the dataset's frames. The default corners are the whole camera frame (a plain
+resize); the rig's pad corners come from a calibration (``tactile-compliance calibrate
+--corners``)."""
+
+
+# ---------------------------------------------------------------------- sources
+@runtime_checkable
+class FrameSource(Protocol):
+    """Anything that yields ``(timestamp_s, bgr_uint8_frame)`` and can be closed."""
+
+    def __iter__(self) -> Iterator[tuple[float, np.ndarray]]: ...
+
+    def __enter__(self) -> FrameSource: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class FrameSourceBase:
+    """Applies the geometry, checks sizes and timestamps; subclasses implement ``_grab``.
+
+    ``_grab()`` returns ``(timestamp_s, raw_bgr_frame)`` or None at the end of the
+    stream, and raises :class:`SensorError` when the device fails.
+    """
+
+    #: What the source reads, for messages (a path, URL, device).
+    name: str = "source"
+    #: True for a device or stream that delivers frames as they happen (not a replay), so
+    #: the robot's readings of a frame may still be on their way.
+    live: bool = False
+
+    def __init__(self, geometry: FrameGeometry = PLAIN_GEOMETRY) -> None:
+        self.geometry = geometry
+        self._last_time: float | None = None
+        self._frame_size: tuple[int, int] | None = None
+        self.last_raw_size: tuple[int, int] | None = None
+        self.frames_read = 0
+
+    # subclasses
+    def _grab(self) -> tuple[float, np.ndarray] | None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release the device or file (idempotent)."""
+
+    # protocol
+    def __enter__(self) -> FrameSourceBase:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def __iter__(self) -> Iterator[tuple[float, np.ndarray]]:
+        """Every frame until the stream ends; a bad frame raises (see :func:`iter_frames`)."""
+        while (item := self.read()) is not None:
+            yield item
+
+    def read(self) -> tuple[float, np.ndarray] | None:
+        """The next ``(timestamp_s, frame)``, or None at the end of the stream.
+
+        Raises:
+            FrameSizeError, TimestampError: this frame is unusable (it is consumed; the
+                next call reads the next frame).
+            SensorError: the device or stream failed.
+        """
+        grabbed = self._grab()
+        if grabbed is None:
+            return None
+        timestamp_s, raw = grabbed
+        self.frames_read += 1
+        raw = np.asarray(raw)
+        #: (H, W) px of the last camera frame, before the geometry (for calibrations).
+        self.last_raw_size = (int(raw.shape[0]), int(raw.shape[1])) if raw.ndim >= 2 else None
+        try:
+            frame = self.geometry.apply(raw)
+        except FrameSizeError as err:
+            raise FrameSizeError(f"{self.name}: frame {self.frames_read - 1}: {err}") from None
+        size = (int(frame.shape[0]), int(frame.shape[1]))
+        if self._frame_size is None:
+            self._frame_size = size
+        elif size != self._frame_size:
+            raise FrameSizeError(
+                f"{self.name}: frame {self.frames_read - 1} is {size[0]}x{size[1]} px, the "
+                f"first frame was {self._frame_size[0]}x{self._frame_size[1]}"
+            )
+        t = float(timestamp_s)
+        if not np.isfinite(t):
+            raise TimestampError(f"{self.name}: frame {self.frames_read - 1} has no valid time")
+        if self._last_time is not None and t < self._last_time:
+            raise TimestampError(
+                f"{self.name}: frame {self.frames_read - 1} at {t:.4f} s is older than the "
+                f"previous frame ({self._last_time:.4f} s): timestamps go backwards"
+            )
+        self._last_time = t
+        return t, frame
+
+
+def iter_frames(
+    source: FrameSourceBase, on_error: Callable[[FrameError], None] | None = None
+) -> Iterator[tuple[float, np.ndarray]]:
+    """Frames of ``source``, skipping bad ones: each :class:`FrameError` goes to
+    ``on_error`` (default: re-raised) and the loop continues with the next frame."""
+    while True:
+        try:
+            item = source.read()
+        except FrameError as err:
+            if on_error is None:
+                raise
+            on_error(err)
+            continue
+        if item is None:
+            return
+        yield item
+
+
+class VideoCaptureSource(FrameSourceBase):
+    """An OpenCV ``VideoCapture``: a camera index, a device path, a video file or a URL.
+
+    Args:
+        target: camera index (``0``), device path (``/dev/v4l/by-id/...``), video file or
+            stream URL (``http://host:port/stream.mjpg``).
+        geometry: warp / crop / resize of every frame.
+        capture_size: (H, W) px to ask a live camera for (ignored for files).
+        fourcc: pixel format to ask a live camera for, e.g. ``"MJPG"``.
+        fps: frame rate to ask a live camera for.
+        timestamps: ``"auto"`` (files: the video's own frame times; devices and streams:
+            ``time.monotonic()``), ``"video"`` or ``"clock"``.
+        name: how messages name the source.
+
+    Raises:
+        SensorError: nothing could be opened at ``target`` (no such camera, file or stream).
+    """
+
+    def __init__(
+        self,
+        target: int | str | Path,
+        geometry: FrameGeometry = PLAIN_GEOMETRY,
+        *,
+        capture_size: tuple[int, int] | None = None,
+        fourcc: str | None = None,
+        fps: float | None = None,
+        timestamps: str = "auto",
+        name: str | None = None,
+    ) -> None:
+        super().__init__(geometry)
+        if timestamps not in ("auto", "video", "clock"):
+            raise ValueError(f"timestamps must be auto, video or clock, got {timestamps!r}")
+        is_index = isinstance(target, int) or (isinstance(target, str) and target.isdigit())
+        text = str(target)
+        is_url = "://" in text
+        self.is_file = not is_index and not is_url and not text.startswith("/dev/")
+        self.name = name or (f"camera {text}" if is_index else text)
+        if self.is_file and not Path(text).is_file():
+            raise SensorError(f"{text}: no such video file")
+        if not self.is_file and not is_index and not is_url and not Path(text).exists():
+            raise SensorError(f"{text}: no such device (is the sensor plugged in?)")
+        self.live = not self.is_file
+        self.use_video_time = timestamps == "video" or (timestamps == "auto" and self.is_file)
+        self._capture = cv2.VideoCapture(int(text) if is_index else text)
+        if not self._capture.isOpened():
+            self._capture.release()
+            what = "camera" if is_index else "stream" if is_url else "video"
+            raise SensorError(
+                f"{self.name}: cannot open the {what} (not connected, in use, or not a "
+                f"format OpenCV reads)"
+            )
+        if not self.is_file:
+            # Ask for the mode before reading: a UVC camera picks its format on the first grab.
+            if fourcc:
+                self._capture.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*fourcc))
+            if capture_size is not None:
+                self._capture.set(cv2.CAP_PROP_FRAME_WIDTH, capture_size[1])
+                self._capture.set(cv2.CAP_PROP_FRAME_HEIGHT, capture_size[0])
+            if fps:
+                self._capture.set(cv2.CAP_PROP_FPS, fps)
+
+    @property
+    def nominal_fps(self) -> float:
+        """The frame rate the device or file declares (0 when unknown)."""
+        return float(self._capture.get(cv2.CAP_PROP_FPS) or 0.0)
+
+    def _grab(self) -> tuple[float, np.ndarray] | None:
+        if self._capture is None:
+            return None
+        ok, frame = self._capture.read()
+        if not ok or frame is None:
+            if self.is_file:
+                return None  # end of the video
+            raise SensorError(f"{self.name}: the device stopped delivering frames")
+        if self.use_video_time:
+            return self._capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0, frame
+        return time.monotonic(), frame
+
+    def close(self) -> None:
+        if self._capture is not None:
+            self._capture.release()
+            self._capture = None
+
+
+def gelsight_mini(
+    device: int | str | Path = 0,
+    geometry: FrameGeometry = MINI_GEOMETRY,
+    *,
+    capture_size: tuple[int, int] = MINI_CAPTURE_SIZE,
+    fourcc: str = "MJPG",
+    timestamps: str = "auto",
+) -> VideoCaptureSource:
+    """A GelSight Mini (a UVC camera) by index, ``/dev/v4l/by-id/...`` path or a replayed
+    video of one: ``capture_size`` MJPG requested, then ``geometry`` (1/7 crop, 320 x 240)."""
+    return VideoCaptureSource(
+        device,
+        geometry,
+        capture_size=capture_size,
+        fourcc=fourcc,
+        timestamps=timestamps,
+        name=f"GelSight Mini {device}",
+    )
+
+
+def gelsight_wedge(
+    url: str | Path,
+    corners: Corners | None = None,
+    geometry: FrameGeometry = WEDGE_GEOMETRY,
+    *,
+    timestamps: str = "auto",
+) -> VideoCaptureSource:
+    """A GelSight Wedge streaming MJPEG over HTTP (or a replayed video of one).
+
+    ``corners``: the pad's four corners (x, y) px in the 640 x 480 camera frame
+    (top-left, top-right, bottom-right, bottom-left); default: those of ``geometry``.
+    """
+    if corners is not None:
+        geometry = replace(geometry, warp_corners=corners)
+    return VideoCaptureSource(url, geometry, timestamps=timestamps, name=f"GelSight Wedge {url}")
+
+
+class DigitSource(FrameSourceBase):
+    """A DIGIT sensor through the optional ``digit-interface`` package.
+
+    ``digit-interface`` is under a non-commercial licence, so it is never installed with
+    this project: install it yourself (``pip install digit-interface``) if its licence
+    suits your use. Timestamps are ``time.monotonic()`` at arrival.
+
+    Args:
+        serial: the DIGIT's serial number (``D12345``).
+        geometry: crop / resize of every frame (default: as delivered, 320 x 240 at QVGA).
+        resolution: ``"QVGA"`` or ``"VGA"`` (``Digit.STREAMS``); None keeps the default.
+        fps: frame rate of that stream (e.g. 60 or 30); None keeps the default.
+
+    Raises:
+        SensorError: ``digit-interface`` is not installed, or the DIGIT cannot be opened.
+    """
+
+    def __init__(
+        self,
+        serial: str,
+        geometry: FrameGeometry = PLAIN_GEOMETRY,
+        *,
+        resolution: str | None = None,
+        fps: int | None = None,
+    ) -> None:
+        super().__init__(geometry)
+        self.name = f"DIGIT {serial}"
+        self.live = True
+        try:
+            from digit_interface import Digit  # optional, non-commercial licence
+        except ImportError as err:
+            raise SensorError(
+                "DIGIT sensors need the optional package digit-interface, which is not "
+                "installed (pip install digit-interface; it has a non-commercial licence, "
+                "so tactile-compliance does not install it)"
+            ) from err
+        try:
+            digit = Digit(serial)
+            digit.connect()
+            if resolution is not None:
+                stream = Digit.STREAMS[resolution]
+                digit.set_resolution(stream)
+                if fps is not None:
+                    digit.set_fps(stream["fps"][f"{int(fps)}fps"])
+        except (KeyError, ValueError) as err:
+            raise ValueError(f"{self.name}: unsupported resolution/fps ({err})") from err
+        except Exception as err:  # the driver raises plain Exceptions for a missing device
+            raise SensorError(f"{self.name}: cannot open the DIGIT ({err})") from err
+        self._digit: Any = digit
+
+    def _grab(self) -> tuple[float, np.ndarray] | None:
+        if self._digit is None:
+            return None
+        try:
+            frame = self._digit.get_frame()
+        except Exception as err:
+            raise SensorError(f"{self.name}: the sensor stopped delivering frames ({err})") from err
+        return time.monotonic(), np.asarray(frame)
+
+    def close(self) -> None:
+        if getattr(self, "_digit", None) is not None:
+            try:
+                self._digit.disconnect()
+            finally:
+                self._digit = None
+
+
+class FolderSource(FrameSourceBase):
+    """Image files of a folder in name order (``.png``, ``.jpg``, ``.bmp``, ``.tif``).
+
+    Timestamps come from ``timestamps_csv`` (columns ``file,timestamp_s``, or one column
+    ``timestamp_s`` in name order) or from ``fps`` (frame i at ``i / fps`` s).
+
+    Raises:
+        SensorError: no such folder or no image in it.
+        ValueError: neither or both of ``fps`` and ``timestamps_csv``; a bad CSV.
+    """
+
+    def __init__(
+        self,
+        folder: str | Path,
+        geometry: FrameGeometry = PLAIN_GEOMETRY,
+        *,
+        fps: float | None = None,
+        timestamps_csv: str | Path | None = None,
+    ) -> None:
+        super().__init__(geometry)
+        self.folder = Path(folder)
+        self.name = str(self.folder)
+        if not self.folder.is_dir():
+            raise SensorError(f"{self.folder}: no such folder of frames")
+        self.files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not self.files:
+            raise SensorError(f"{self.folder}: no image files ({', '.join(IMAGE_SUFFIXES)})")
+        if (fps is None) == (timestamps_csv is None):
+            raise ValueError(f"{self.folder}: give the frames' fps or a timestamps CSV (one)")
+        if fps is not None:
+            if not fps > 0:
+                raise ValueError(f"fps must be > 0, got {fps}")
+            self.times = [i / float(fps) for i in range(len(self.files))]
+        else:
+            self.times = self._read_times(Path(timestamps_csv))  # type: ignore[arg-type]
+        self._next = 0
+
+    def _read_times(self, path: Path) -> list[float]:
+        try:
+            with open(path, newline="", encoding="utf-8") as handle:
+                rows = list(csv.DictReader(handle))
+        except OSError as err:
+            raise ValueError(f"{path}: cannot read the timestamps CSV ({err})") from err
+        if not rows or "timestamp_s" not in rows[0]:
+            raise ValueError(f"{path}: expected a column timestamp_s (and optionally file)")
+        try:
+            if "file" in rows[0]:
+                by_name = {r["file"]: float(r["timestamp_s"]) for r in rows}
+                missing = [p.name for p in self.files if p.name not in by_name]
+                if missing:
+                    raise ValueError(f"{path}: no timestamp for {missing[0]}")
+                return [by_name[p.name] for p in self.files]
+            times = [float(r["timestamp_s"]) for r in rows]
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{path}: {err}") from err
+        if len(times) != len(self.files):
+            raise ValueError(f"{path}: {len(times)} timestamps for {len(self.files)} frames")
+        return times
+
+    def _grab(self) -> tuple[float, np.ndarray] | None:
+        if self._next >= len(self.files):
+            return None
+        i, self._next = self._next, self._next + 1
+        frame = cv2.imread(str(self.files[i]), cv2.IMREAD_COLOR)
+        if frame is None:
+            self.frames_read += 1
+            raise FrameError(f"{self.files[i]}: not a readable image")
+        return self.times[i], frame
+
+
+# ---------------------------------------------------------------------- specs
+SPEC_KINDS = ("mini", "wedge", "digit", "video", "camera", "folder")
+
+
+def open_source(
+    spec: str,
+    *,
+    geometry: FrameGeometry | None = None,
+    fps: float | None = None,
+    timestamps_csv: str | Path | None = None,
+) -> FrameSourceBase:
+    """Open the source a spec string names.
+
+    Specs: ``mini:0`` / ``mini:/dev/v4l/by-id/...`` / ``mini:replay.avi`` (GelSight Mini),
+    ``wedge:http://host:port/stream.mjpg`` (GelSight Wedge), ``digit:D12345``,
+    ``camera:0`` (any camera, frames as delivered), ``video:path.avi`` (a video or URL),
+    ``folder:dir`` (image files; needs ``fps`` or ``timestamps_csv``), or a plain path /
+    index / URL (a folder, a video, a camera index, a stream).
+
+    Args:
+        geometry: replaces the preset's warp/crop/resize (a calibration's geometry).
+        fps, timestamps_csv: the frames' timing for a folder.
+
+    Raises:
+        ValueError: an unknown kind; SensorError: nothing to open there.
+    """
+    kind, sep, target = spec.partition(":")
+    if not sep or target.startswith("//") or len(kind) < 2:
+        kind, target = "", spec  # a plain path, index or URL (or a Windows drive letter)
+    elif kind not in SPEC_KINDS:
+        raise ValueError(
+            f"unknown source kind {kind!r} in {spec!r}; use one of {', '.join(SPEC_KINDS)} "
+            f"(e.g. mini:0, video:grasp.avi)"
+        )
+    if not target:
+        raise ValueError(f"source spec {spec!r} names no device, file or URL")
+
+    def pick(default: FrameGeometry) -> FrameGeometry:
+        return geometry if geometry is not None else default
+
+    if kind == "mini":
+        return gelsight_mini(target, pick(MINI_GEOMETRY))
+    if kind == "wedge":
+        return gelsight_wedge(target, geometry=pick(WEDGE_GEOMETRY))
+    if kind == "digit":
+        return DigitSource(target, pick(PLAIN_GEOMETRY))
+    if kind == "folder" or (kind == "" and Path(target).is_dir()):
+        return FolderSource(target, pick(PLAIN_GEOMETRY), fps=fps, timestamps_csv=timestamps_csv)
+    if kind in ("video", "camera", ""):
+        if kind == "camera" and not (target.isdigit() or target.startswith("/dev/")):
+            raise ValueError(f"camera:{target}: expected a camera index or a /dev/ path")
+        return VideoCaptureSource(target, pick(PLAIN_GEOMETRY))
+    raise AssertionError(kind)  # pragma: no cover - every kind is handled above

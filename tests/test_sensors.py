@@ -1,0 +1,264 @@
+"""Live frame sources and sensor calibration: geometry, timing, specs and the bad-source errors.
+
+Videos and frames are made here with OpenCV, a few small frames each.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from tactile_compliance.inference.calibration import SensorCalibration, calibrate
+from tactile_compliance.inference.sensors import (
+    MINI_GEOMETRY,
+    WEDGE_GEOMETRY,
+    DigitSource,
+    FolderSource,
+    FrameError,
+    FrameGeometry,
+    FrameSizeError,
+    FrameSource,
+    SensorError,
+    TimestampError,
+    VideoCaptureSource,
+    iter_frames,
+    open_source,
+)
+from tactile_compliance.outputs import OutputExistsError
+
+SIZE = (48, 64)  # (H, W)
+
+
+def _frames(n: int, size=SIZE, seed: int = 0) -> np.ndarray:
+    """Frames that differ from each other (a moving bright square on a gradient)."""
+    rng = np.random.default_rng(seed)
+    h, w = size
+    base = np.zeros((h, w, 3), np.uint8)
+    base[..., 0] = np.linspace(60, 120, w, dtype=np.uint8)[None]
+    base[..., 1] = np.linspace(80, 140, h, dtype=np.uint8)[:, None]
+    base[..., 2] = 100
+    out = np.repeat(base[None], n, axis=0)
+    for i in range(n):
+        out[i, 5 + i : 15 + i, 10 + i : 20 + i] = 220
+    return np.clip(out.astype(int) + rng.integers(-2, 3, out.shape), 0, 255).astype(np.uint8)
+
+
+def write_video(path, frames: np.ndarray, fps: float) -> None:
+    h, w = frames.shape[1:3]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+    assert writer.isOpened()
+    for frame in frames:
+        writer.write(frame)
+    writer.release()
+
+
+# ---------------------------------------------------------------------- geometry
+def test_geometry_warps_crops_and_resizes_as_documented():
+    frame = _frames(1, (480, 640))[0]
+    # The Wedge rig: 640 x 480 -> warp 400 x 300 -> 25 px per side -> 350 x 250.
+    assert WEDGE_GEOMETRY.apply(frame).shape == (250, 350, 3)
+    # Corners that pick the top-left quarter: the warp maps it onto the whole 300 x 400.
+    quarter = FrameGeometry(
+        warp_corners=((0, 0), (319, 0), (319, 239), (0, 239)), warp_size=(240, 320)
+    )
+    np.testing.assert_allclose(
+        quarter.apply(frame).astype(float), frame[:240, :320].astype(float), atol=1
+    )
+    # The Mini: 1/7 per side, then 320 x 240 (W x H).
+    mini = MINI_GEOMETRY.apply(_frames(1, (2464 // 8, 3280 // 8))[0])
+    assert mini.shape == (240, 320, 3) and mini.dtype == np.uint8
+    crop = FrameGeometry(crop_px=4, crop_fraction=0.25)
+    out = crop.apply(frame[:48, :64])
+    # 48 - 8 = 40 rows, 10 off each side -> 20; 64 - 8 = 56 columns, 14 off -> 28.
+    assert out.shape == (20, 28, 3)
+    np.testing.assert_array_equal(out, frame[14:34, 18:46])
+    # A geometry survives its JSON form.
+    assert FrameGeometry.from_dict(WEDGE_GEOMETRY.to_dict()) == WEDGE_GEOMETRY
+    with pytest.raises(ValueError, match="together"):
+        FrameGeometry(warp_size=(10, 10))
+    with pytest.raises(FrameSizeError, match="expects 480x640"):
+        WEDGE_GEOMETRY.apply(frame[:100, :100])
+
+
+# ---------------------------------------------------------------------- video files
+@pytest.mark.parametrize("fps", [18.0, 25.0, 30.0])
+def test_a_video_replays_with_its_own_frame_times(tmp_path, fps):
+    frames = _frames(6)
+    write_video(tmp_path / "v.avi", frames, fps)
+    with open_source(f"video:{tmp_path / 'v.avi'}") as source:
+        got = list(source)
+    times = np.array([t for t, _ in got])
+    np.testing.assert_allclose(times, np.arange(6) / fps, atol=1e-6)
+    assert all(f.shape == (*SIZE, 3) and f.dtype == np.uint8 for _, f in got)
+    # MJPG is lossy: the decoded frames are close to what was written, not equal.
+    assert np.abs(got[3][1].astype(int) - frames[3].astype(int)).mean() < 4
+
+
+def test_specs_pick_the_presets(tmp_path):
+    write_video(tmp_path / "v.avi", _frames(2, (96, 128)), 25)
+    with open_source(f"mini:{tmp_path / 'v.avi'}") as source:
+        assert isinstance(source, FrameSource)
+        assert source.read()[1].shape == (240, 320, 3)  # the Mini's crop and resize
+    with open_source(str(tmp_path / "v.avi")) as source:  # a plain path: as recorded
+        assert source.read()[1].shape == (96, 128, 3)
+    custom = FrameGeometry(output_size=(24, 32))
+    with open_source(f"video:{tmp_path / 'v.avi'}", geometry=custom) as source:
+        assert source.read()[1].shape == (24, 32, 3)
+
+
+# ---------------------------------------------------------------------- bad sources
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("camera:97", "cannot open the camera"),
+        ("97", "cannot open the camera"),
+        ("mini:/dev/v4l/by-id/usb-no-such-gelsight-video-index0", "no such device"),
+        ("video:does-not-exist.avi", "no such video file"),
+        ("folder:does-not-exist", "no such folder"),
+    ],
+)
+def test_a_source_that_is_not_there_is_one_clear_error(spec, message):
+    with pytest.raises(SensorError, match=message) as err:
+        open_source(spec)
+    assert isinstance(err.value, OSError) and "\n" not in str(err.value)
+
+
+def test_bad_specs_are_value_errors():
+    with pytest.raises(ValueError, match="unknown source kind 'webcam'"):
+        open_source("webcam:0")
+    with pytest.raises(ValueError, match="names no device"):
+        open_source("mini:")
+
+
+def test_digit_without_digit_interface_is_a_clear_error(monkeypatch):
+    # None in sys.modules makes the import fail even where the package is installed.
+    monkeypatch.setitem(sys.modules, "digit_interface", None)
+    with pytest.raises(SensorError, match=r"pip install digit-interface.*non-commercial"):
+        DigitSource("D12345")
+    with pytest.raises(SensorError, match="digit-interface"):
+        open_source("digit:D12345")
+
+
+def _folder(tmp_path, sizes, times=None):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    names = []
+    for i, size in enumerate(sizes):
+        name = f"f{i:03d}.png"
+        cv2.imwrite(str(folder / name), _frames(1, size, seed=i)[0])
+        names.append(name)
+    if times is not None:
+        rows = ["file,timestamp_s", *(f"{n},{t}" for n, t in zip(names, times, strict=True))]
+        (tmp_path / "times.csv").write_text("\n".join(rows) + "\n")
+    return folder
+
+
+def test_a_frame_of_the_wrong_size_is_skipped_not_fatal(tmp_path):
+    folder = _folder(tmp_path, [SIZE, SIZE, (40, 64), SIZE])
+    source = FolderSource(folder, fps=10)
+    errors: list[FrameError] = []
+    got = list(iter_frames(source, errors.append))
+    assert [round(t, 6) for t, _ in got] == [0.0, 0.1, 0.3]  # frame 2 left out, 3 kept
+    assert len(errors) == 1 and isinstance(errors[0], FrameSizeError)
+    assert "frame 2 is 40x64 px, the first frame was 48x64" in str(errors[0])
+    # Plain iteration stops at the bad frame with the error.
+    with pytest.raises(FrameSizeError), FolderSource(folder, fps=10) as again:
+        list(again)
+
+
+def test_timestamps_going_backwards_are_refused_per_frame(tmp_path):
+    folder = _folder(tmp_path, [SIZE] * 4, times=[0.0, 0.1, 0.05, 0.2])
+    source = FolderSource(folder, timestamps_csv=tmp_path / "times.csv")
+    errors: list[FrameError] = []
+    got = list(iter_frames(source, errors.append))
+    assert [t for t, _ in got] == [0.0, 0.1, 0.2]
+    assert len(errors) == 1 and isinstance(errors[0], TimestampError)
+    assert "older than the previous frame" in str(errors[0])
+
+
+def test_a_folder_needs_its_timing(tmp_path):
+    folder = _folder(tmp_path, [SIZE])
+    with pytest.raises(ValueError, match="fps or a timestamps CSV"):
+        FolderSource(folder)
+
+
+# ---------------------------------------------------------------------- calibration
+def test_calibration_records_the_median_reference_and_round_trips(tmp_path):
+    still = _frames(1)[0]
+    rng = np.random.default_rng(1)
+    frames = np.clip(still.astype(int) + rng.integers(-3, 4, (7, *still.shape)), 0, 255)
+    frames[3] = 255  # one flash: the median ignores it
+    folder = tmp_path / "still"
+    folder.mkdir()
+    for i, frame in enumerate(frames.astype(np.uint8)):
+        cv2.imwrite(str(folder / f"{i}.png"), frame)
+    geometry = FrameGeometry(crop_px=2)
+    out = tmp_path / "sensor.json"
+    calibration = calibrate(f"folder:{folder}", geometry=geometry, n_frames=7, out=out, fps=30)
+    expected = np.median(frames[:, 2:-2, 2:-2], axis=0).round().astype(np.uint8)
+    np.testing.assert_array_equal(calibration.reference, expected)
+    # The camera size is recorded, so another camera size is refused later.
+    assert calibration.geometry.input_size == SIZE and calibration.geometry.crop_px == 2
+    loaded = SensorCalibration.load(out)
+    np.testing.assert_array_equal(loaded.reference, calibration.reference)  # PNG: lossless
+    assert loaded.geometry == calibration.geometry and loaded.n_frames == 7
+    # Sources opened with it apply its geometry and check the camera size.
+    write_video(tmp_path / "other.avi", _frames(2, (40, 40)), 25)
+    with (
+        loaded.open(f"video:{tmp_path / 'other.avi'}") as source,
+        pytest.raises(FrameSizeError, match="expects 48x64"),
+    ):
+        source.read()
+    # Re-running replaces its own file, never another file.
+    calibrate(f"folder:{folder}", n_frames=2, out=out, fps=30)
+    other = tmp_path / "notes.json"
+    other.write_text('{"mine": 1}')
+    with pytest.raises(OutputExistsError):
+        calibrate(f"folder:{folder}", n_frames=2, out=other, fps=30)
+    assert other.read_text() == '{"mine": 1}'
+    with pytest.raises(ValueError, match="not a sensor calibration"):
+        SensorCalibration.load(other)
+
+
+def test_calibration_needs_enough_frames(tmp_path):
+    write_video(tmp_path / "v.avi", _frames(3), 25)
+    with pytest.raises(SensorError, match="only 3 of 10 frames"):
+        calibrate(f"video:{tmp_path / 'v.avi'}", n_frames=10)
+
+
+def test_video_capture_source_reports_a_device_that_stops(tmp_path):
+    write_video(tmp_path / "v.avi", _frames(2), 25)
+    # A file read as a live device: the end of the file is a device that stopped.
+    source = VideoCaptureSource(tmp_path / "v.avi", timestamps="clock")
+    source.is_file = False
+    list(zip(range(2), source, strict=False))
+    with pytest.raises(SensorError, match="stopped delivering"):
+        source.read()
+    source.close()
+
+
+def test_calibrate_command_replaces_the_presets_steps(tmp_path):
+    from typer.testing import CliRunner
+
+    from tactile_compliance.cli import app
+
+    write_video(tmp_path / "v.avi", _frames(3, (96, 128)), 25)
+    runner = CliRunner()
+    out = tmp_path / "sensor.json"
+    corners = "0,0 127,0 127,95 0,95"
+    args = ["calibrate", f"mini:{tmp_path / 'v.avi'}", "--out", str(out), "--frames", "3"]
+    result = runner.invoke(
+        app,
+        [*args, "--corners", corners, "--warp-size", "48x64", "--crop-px", "4", "--size", "20x28"],
+    )
+    assert result.exit_code == 0, result.output
+    assert "20x28 px frames" in result.output
+    geometry = SensorCalibration.load(out).geometry
+    assert geometry.warp_size == (48, 64) and geometry.crop_px == 4
+    assert geometry.crop_fraction == pytest.approx(1 / 7)  # kept from the Mini preset
+    assert geometry.input_size == (96, 128) and geometry.output_size == (20, 28)
+    bad = runner.invoke(app, [*args, "--corners", "1,2 3,4"])
+    assert bad.exit_code == 2 and "four points" in bad.output
