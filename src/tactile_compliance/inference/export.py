@@ -52,8 +52,12 @@ from tactile_compliance.inference.onnx import (
     _ort_session,
     onnx_input_names,
 )
-from tactile_compliance.inference.pretrained import write_pretrained
-from tactile_compliance.outputs import check_output_file
+from tactile_compliance.inference.pretrained import (
+    OUTPUT_KIND,
+    require_safetensors,
+    write_pretrained,
+)
+from tactile_compliance.outputs import check_output_file, claim_output_dir
 from tactile_compliance.runs.layout import RESULT_FILE
 
 # The runtime names are defined in ``onnx`` (the file's reader); they stay importable from
@@ -370,6 +374,9 @@ def export_safetensors(
     Returns:
         ``out``, ``files`` (name -> bytes), ``config`` (what ``config.json`` holds).
     """
+    # Refused (a user's directory, safetensors missing) before the checkpoint is read.
+    require_safetensors()
+    claim_output_dir(out, OUTPUT_KIND, option="--safetensors")
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
     if image_size is not None:
         estimator.image_size = (int(image_size[0]), int(image_size[1]))

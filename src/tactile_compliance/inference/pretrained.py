@@ -51,6 +51,7 @@ __all__ = [
     "load_pretrained",
     "model_card",
     "pretrained_config",
+    "require_safetensors",
     "write_pretrained",
 ]
 
@@ -77,7 +78,8 @@ class SafetensorsMissingError(ImportError):
     """The optional ``safetensors`` package is not installed."""
 
 
-def _safetensors_torch() -> Any:
+def require_safetensors() -> Any:
+    """The ``safetensors.torch`` module, or a clear error saying how to install it."""
     try:
         import safetensors.torch
     except ImportError as err:
@@ -207,7 +209,7 @@ def write_pretrained(
         OutputExistsError: ``out`` holds something that is not an export.
         SafetensorsMissingError: safetensors is not installed.
     """
-    st = _safetensors_torch()
+    st = require_safetensors()
     model = getattr(estimator, "model", None)
     if model is None:
         raise ValueError(f"{estimator.source}: only PyTorch estimators can be exported")
@@ -261,7 +263,7 @@ def load_pretrained(path: str | Path, device: str | torch.device = "cpu") -> Loa
     missing_keys = [k for k in ("model_name", "inputs", "normalisation") if k not in config]
     if missing_keys:
         raise ValueError(f"{directory / CONFIG_FILE}: missing {', '.join(missing_keys)}")
-    st = _safetensors_torch()
+    st = require_safetensors()
     try:
         tensors = st.load_file(str(directory / WEIGHTS_FILE), device="cpu")
     except Exception as err:  # safetensors raises its own error type for corrupt files
