@@ -206,3 +206,26 @@ def test_from_pretrained_errors(tmp_path, top10nn_run, monkeypatch):
     result = runner.invoke(app, ["export", str(top10nn_run), "--safetensors", str(tmp_path / "x")])
     assert result.exit_code == 2 and "safetensors is not installed" in result.output
     assert not (tmp_path / "x").exists()  # nothing written before the check
+
+
+@pytest.mark.slow
+def test_frozen_vgg_lstm_export_is_self_contained(tmp_path):
+    # VGG16 (138 M parameters): the head-only checkpoint is small, the export holds it all.
+    model = create_seeded_model("vgg_lstm", FROZEN_BACKBONE_SEED, inputs="ALL", hidden_size=32)
+    record = frozen_backbone_record(model, seed=FROZEN_BACKBONE_SEED)
+    checkpoint = save_checkpoint(
+        tmp_path / "best.pt",
+        model.eval(),
+        constants=NormalisationConstants(),
+        image_size=(32, 32),
+        config={},
+        seed=0,
+        frozen_backbone=record,
+    )
+    export_safetensors(checkpoint, tmp_path / "model")
+    size = (tmp_path / "model" / WEIGHTS_FILE).stat().st_size
+    assert size > 20 * checkpoint.stat().st_size  # the backbone's tensors are in it
+    inputs = _inputs(batch=2)
+    expected = _predict(ComplianceEstimator.from_checkpoint(checkpoint), inputs)
+    loaded = ComplianceEstimator.from_pretrained(tmp_path / "model")
+    np.testing.assert_allclose(_predict(loaded, inputs), expected, rtol=0, atol=1e-5)

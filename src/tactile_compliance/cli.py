@@ -731,7 +731,8 @@ def export(
     size: Annotated[
         Optional[str],  # noqa: UP045
         typer.Option(
-            "--size", help="Frame size HxW baked into the graph (default: the checkpoint's)."
+            "--size",
+            help="Frame size HxW the export takes (default: the checkpoint's; ONNX bakes it in).",
         ),
     ] = None,
     weights: BackboneWeightsOption = None,

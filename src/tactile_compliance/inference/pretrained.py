@@ -214,13 +214,21 @@ def write_pretrained(
     if model is None:
         raise ValueError(f"{estimator.source}: only PyTorch estimators can be exported")
     config = pretrained_config(estimator, checkpoint=checkpoint, evaluation=evaluation)
-    # clone(): safetensors refuses tensors that share memory; each gets its own copy.
-    tensors = {k: v.detach().cpu().contiguous().clone() for k, v in model.state_dict().items()}
-    blob = st.save(tensors, metadata={"format": "pt", "library": "tactile-compliance"})
+    tensors: dict[str, torch.Tensor] = {}
+    storages: set[int] = set()
+    for name, value in model.state_dict().items():
+        value = value.detach().cpu().contiguous()
+        storage = value.untyped_storage().data_ptr()
+        # safetensors refuses tensors that share memory (tied weights): copy those only,
+        # so a 0.5 GB backbone is not held twice.
+        tensors[name] = value.clone() if storage in storages else value
+        storages.add(storage)
     out = claim_output_dir(out, OUTPUT_KIND, option="--safetensors")
     with atomic_file(out / WEIGHTS_FILE, "wb") as handle:
-        handle.write(blob)
-    config["weights_sha256"] = hashlib.sha256(blob).hexdigest()
+        # Written straight to the temp file by name (no copy of the weights in memory);
+        # atomic_file then fsyncs it and renames it into place.
+        st.save_file(tensors, handle.name, metadata={"format": "pt"})
+    config["weights_sha256"] = file_sha256(out / WEIGHTS_FILE)
     with atomic_file(out / CONFIG_FILE) as handle:
         handle.write(json.dumps(config, indent=2) + "\n")
     with atomic_file(out / CARD_FILE) as handle:
