@@ -107,6 +107,7 @@ def _commands(user: Path, user_file: Path, store: Path) -> dict[str, list[str]]:
             str(user),
         ],
         "export --onnx (a file)": ["export", str(store / "no-run"), "--onnx", str(user_file)],
+        "export --safetensors": ["export", str(store / "no-run"), "--safetensors", str(user)],
         "tune-balance --output-dir": [
             "tune-balance",
             "--store",

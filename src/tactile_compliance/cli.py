@@ -26,6 +26,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
     Imported when an error happens, so that the command starts fast."""
     from tactile_compliance.data.import_report import DataImportError
     from tactile_compliance.data.store import StoreError
+    from tactile_compliance.inference.pretrained import SafetensorsMissingError
     from tactile_compliance.models.backbones import BackboneWeightsError
     from tactile_compliance.training.experiment import ExperimentError
     from tactile_compliance.training.hpo import TuneError
@@ -40,6 +41,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
         ExperimentError,
         TuneError,
         BackboneWeightsError,
+        SafetensorsMissingError,
     )
 
 
@@ -715,28 +717,53 @@ def predict(
 @app.command()
 def export(
     checkpoint: Annotated[Path, typer.Argument(help="best.pt of a run, or the run directory.")],
-    onnx: Annotated[Path, typer.Option("--onnx", help="The .onnx file to write.")],
+    onnx: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option("--onnx", help="The .onnx file to write."),
+    ] = None,
+    safetensors: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option(
+            "--safetensors",
+            help="Directory to write: model.safetensors + config.json + a model card README.md.",
+        ),
+    ] = None,
     size: Annotated[
         Optional[str],  # noqa: UP045
         typer.Option(
-            "--size", help="Frame size HxW baked into the graph (default: the checkpoint's)."
+            "--size",
+            help="Frame size HxW the export takes (default: the checkpoint's; ONNX bakes it in).",
         ),
     ] = None,
     weights: BackboneWeightsOption = None,
 ) -> None:
-    """Export a checkpoint to ONNX with a dynamic batch size.
+    """Export a checkpoint to ONNX (dynamic batch size) and/or a safetensors directory.
 
-    The graph is checked against PyTorch with onnxruntime; the max abs difference is printed.
+    The ONNX graph is checked against PyTorch with onnxruntime (the max abs difference is
+    printed). The safetensors directory loads with ComplianceEstimator.from_pretrained.
     """
-    from tactile_compliance.inference.export import export_onnx, format_export_report
+    from tactile_compliance.inference.export import (
+        export_onnx,
+        export_safetensors,
+        format_export_report,
+        format_safetensors_report,
+    )
 
-    try:
-        result = export_onnx(
-            checkpoint, onnx, image_size=_size_option(size), backbone_weights=weights
+    if onnx is None and safetensors is None:
+        raise typer.BadParameter("give --onnx FILE, --safetensors DIR or both")
+    if safetensors is not None:
+        written = export_safetensors(
+            checkpoint, safetensors, image_size=_size_option(size), backbone_weights=weights
         )
-    except RuntimeError as err:  # the graph does not match PyTorch: the export failed
-        _fail(str(err))
-    typer.echo(format_export_report(result))
+        typer.echo(format_safetensors_report(written))
+    if onnx is not None:
+        try:
+            result = export_onnx(
+                checkpoint, onnx, image_size=_size_option(size), backbone_weights=weights
+            )
+        except RuntimeError as err:  # the graph does not match PyTorch: the export failed
+            _fail(str(err))
+        typer.echo(format_export_report(result))
 
 
 SOURCE_HELP = (

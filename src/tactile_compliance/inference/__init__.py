@@ -11,6 +11,9 @@
   (``ensemble.py``).
 * :func:`export_onnx` - ONNX export with a parity check (``export.py``);
   :class:`OnnxEstimator` runs the exported file with onnxruntime (``onnx.py``).
+* :func:`export_safetensors` - weights + ``config.json`` + a model card in one directory
+  (``export.py``, format in ``pretrained.py``), loaded by
+  ``ComplianceEstimator.from_pretrained``.
 * :func:`predict_path` - a store, raw grasp directory or video -> predictions
   (``sources.py``; the ``predict`` command).
 * :func:`open_source` - live frame sources: GelSight Mini, Wedge over HTTP MJPEG, DIGIT,
@@ -27,7 +30,11 @@ from tactile_compliance.inference.base import BaseEstimator, Prediction
 from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.ensemble import EnsembleEstimator, EnsemblePrediction
 from tactile_compliance.inference.estimator import ComplianceEstimator
-from tactile_compliance.inference.export import export_onnx, format_export_report
+from tactile_compliance.inference.export import (
+    export_onnx,
+    export_safetensors,
+    format_export_report,
+)
 from tactile_compliance.inference.live import live_estimates
 from tactile_compliance.inference.onnx import OnnxEstimator
 from tactile_compliance.inference.recording import ObjectInfo, Readings, record_grasp
@@ -59,6 +66,7 @@ __all__ = [
     "StreamEstimate",
     "StreamingEstimator",
     "export_onnx",
+    "export_safetensors",
     "format_export_report",
     "format_predictions",
     "live_estimates",

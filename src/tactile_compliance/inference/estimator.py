@@ -81,7 +81,8 @@ def _training_store_size(meta: dict[str, Any]) -> tuple[int, int] | None:
 class ComplianceEstimator(BaseEstimator):
     """A trained PyTorch model plus its own preprocessing: predicts Young's modulus in Pa.
 
-    Build it with :meth:`from_checkpoint`. ``predict`` and the input checks are
+    Build it with :meth:`from_checkpoint` (a ``best.pt``) or :meth:`from_pretrained` (an
+    exported safetensors directory). ``predict`` and the input checks are
     :class:`~tactile_compliance.inference.base.BaseEstimator`'s; this class adds loading,
     the device and the frame size of the checkpoint.
     """
@@ -138,6 +139,42 @@ class ComplianceEstimator(BaseEstimator):
             source=str(file),
         )
         estimator.store_image_size = store_size
+        return estimator
+
+    @classmethod
+    def from_pretrained(
+        cls, path: str | Path, device: str | torch.device = "cpu"
+    ) -> ComplianceEstimator:
+        """Load a directory written by ``tactile-compliance export CHECKPOINT --safetensors DIR``.
+
+        The directory holds ``model.safetensors`` (the whole state dict, a frozen backbone
+        included), ``config.json`` and a model card ``README.md``: the Hugging Face hub's
+        layout, read locally (no hub dependency, nothing downloaded). The model is rebuilt
+        by the same function as :meth:`from_checkpoint`'s, so both give the same
+        predictions. Needs the ``safetensors`` package (``pip install
+        'tactile-compliance[export]'``).
+
+        Raises:
+            FileNotFoundError: no such directory, or ``config.json`` or
+                ``model.safetensors`` missing.
+            SafetensorsMissingError: ``safetensors`` is not installed.
+            ValueError: weights that do not fit the model ``config.json`` describes.
+        """
+        from tactile_compliance.inference.pretrained import load_pretrained
+
+        loaded = load_pretrained(path, device=device)
+        estimator = cls(
+            loaded.model,
+            loaded.constants,
+            loaded.image_size,
+            meta=loaded.meta,
+            device=device,
+            source=str(path),
+        )
+        store_size = loaded.meta.get("store_image_size")
+        estimator.store_image_size = (
+            (int(store_size[0]), int(store_size[1])) if store_size else None
+        )
         return estimator
 
     # ------------------------------------------------------------------ description

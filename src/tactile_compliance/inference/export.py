@@ -1,4 +1,6 @@
-"""Write a checkpoint's full forward pass to ONNX and check it against PyTorch.
+"""Export a checkpoint: its full forward pass to ONNX (checked against PyTorch), or its
+weights to a safetensors directory with a config and a model card (:func:`export_safetensors`,
+format in ``inference/pretrained.py``).
 
 The graph takes *already normalised* inputs, exactly what the PyTorch model takes, with a
 dynamic batch axis:
@@ -50,7 +52,13 @@ from tactile_compliance.inference.onnx import (
     _ort_session,
     onnx_input_names,
 )
-from tactile_compliance.outputs import check_output_file
+from tactile_compliance.inference.pretrained import (
+    OUTPUT_KIND,
+    require_safetensors,
+    write_pretrained,
+)
+from tactile_compliance.outputs import check_output_file, claim_output_dir
+from tactile_compliance.runs.layout import RESULT_FILE
 
 # The runtime names are defined in ``onnx`` (the file's reader); they stay importable from
 # here, where export and runtime lived together before.
@@ -59,7 +67,9 @@ __all__ = [
     "OUTPUT_NAME",
     "OnnxEstimator",
     "export_onnx",
+    "export_safetensors",
     "format_export_report",
+    "format_safetensors_report",
     "onnx_input_names",
 ]
 
@@ -327,3 +337,63 @@ def format_export_report(report: dict[str, Any]) -> str:
             f"{report['atol']:g}): {verdict}"
         )
     return "\n".join(lines)
+
+
+def _run_evaluation(checkpoint: Path) -> dict[str, Any] | None:
+    """The run's ``metrics.json`` next to ``checkpoint`` (test/val metrics), if any."""
+    try:
+        result = json.loads((checkpoint.parent / RESULT_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return result if isinstance(result, dict) and "test" in result else None
+
+
+def export_safetensors(
+    checkpoint: str | Path,
+    out: str | Path,
+    *,
+    image_size: tuple[int, int] | None = None,
+    backbone_weights: str | Path | None = None,
+) -> dict[str, Any]:
+    """Write a checkpoint as ``model.safetensors`` + ``config.json`` + a model card ``README.md``.
+
+    ``out`` is claimed with ``outputs.claim_output_dir`` (kind ``pretrained``): a new or
+    empty directory, or an earlier export, never a directory of other files. A frozen
+    backbone is rebuilt and verified as :meth:`ComplianceEstimator.from_checkpoint` does
+    (``backbone_weights``: a local copy of its weights file) and its tensors are written
+    with the head, so the directory is self-contained. The card's metrics come from the
+    run's ``metrics.json`` next to the checkpoint when there is one.
+
+    Args:
+        checkpoint: ``best.pt`` or a run directory.
+        out: the directory to write.
+        image_size: (H, W) px; only needed when the checkpoint does not record its frame
+            size and its training store is gone.
+        backbone_weights: see ``ComplianceEstimator.from_checkpoint``.
+
+    Returns:
+        ``out``, ``files`` (name -> bytes), ``config`` (what ``config.json`` holds).
+    """
+    # Refused (a user's directory, safetensors missing) before the checkpoint is read.
+    require_safetensors()
+    claim_output_dir(out, OUTPUT_KIND, option="--safetensors")
+    estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
+    if image_size is not None:
+        estimator.image_size = (int(image_size[0]), int(image_size[1]))
+    file = Path(estimator.source)
+    return write_pretrained(estimator, out, checkpoint=file, evaluation=_run_evaluation(file))
+
+
+def format_safetensors_report(report: dict[str, Any]) -> str:
+    """Human-readable text of an :func:`export_safetensors` report (what the CLI prints)."""
+    config = report["config"]
+    sizes = ", ".join(f"{name} {size / 1e6:.2f} MB" for name, size in report["files"].items())
+    height, width = config["image_size"]
+    return "\n".join(
+        [
+            f"Wrote {report['out']} ({sizes})",
+            f"Model     {config['model_name']} inputs={config['inputs']}, frames "
+            f"{height}x{width} {config['channel_order']}",
+            f"Load      ComplianceEstimator.from_pretrained({report['out']!r})",
+        ]
+    )

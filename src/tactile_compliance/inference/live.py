@@ -116,7 +116,10 @@ def live_estimates(
                 depth_reference = frame  # the streams' default reference: the first frame
             diff = difference_images(frame[None], depth_reference)
             depth = reconstruct_depth(diff)[0]
-        emitted = [stream.update(frame, force_n, width_m, depth_mm=depth) for stream in streams]
+        emitted = [
+            stream.update(frame, force_n, width_m, depth_mm=depth, timestamp_s=timestamp_s)
+            for stream in streams
+        ]
         if any(e is not None for e in emitted):
             event = _combine(ensemble, streams, timestamp_s)
             if event is not None:

@@ -390,10 +390,12 @@ def augmented_indices(
     *,
     modulus_pa: float | None = None,
     max_depth_mm: Sequence[np.ndarray] = (),
+    timestamps_s: Sequence[float] | np.ndarray | None = None,
 ) -> list[tuple[int, int, int]]:
     """The dataset's three frames of each augmentation k = 0, 1, ... (frame indices).
 
-    Augmentation 0 is ``streaming.select_frame_indices`` (the frames ``live`` uses).
+    Augmentation 0 is ``streaming.select_frame_indices`` (the frames ``live`` uses), in
+    time when ``timestamps_s`` (s, one per frame) are given, as ``live`` does.
     Augmentation k shifts all three by +k while the force at the shifted last frame stays
     >= 0.95 F_max (``DATA_FORMATS.md``; F_max over the published clip
     ``[i_start, i_peak + 1 + max_aug)``). The published code also capped the count, and
@@ -407,7 +409,7 @@ def augmented_indices(
             fewer than three frames between contact and peak).
     """
     f = np.asarray(force_n, dtype=np.float64).reshape(-1)
-    selection = select_frame_indices(f)
+    selection = select_frame_indices(f, timestamps_s=timestamps_s)
     if selection is None:
         peak = float(f.max()) if f.size else 0.0
         raise ValueError(
@@ -642,7 +644,8 @@ def write_grasp(
         ValueError: the grasp has no frame selection (nothing is written), or the object
             exists with another modulus.
     """
-    augmented_indices(captured.force_n, max_aug)  # no selection: fail before any work
+    # No selection: fail before any work.
+    augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
     frames = captured.frames
     ref = frames[0] if reference is None else np.asarray(reference)
     if ref.shape != frames.shape[1:]:
@@ -664,7 +667,11 @@ def write_grasp(
     if marker_depth is not None:
         depth_maxima.append(marker_depth.reshape(len(marker_depth), -1).max(axis=1))
     indices = augmented_indices(
-        captured.force_n, max_aug, modulus_pa=info.modulus_pa, max_depth_mm=depth_maxima
+        captured.force_n,
+        max_aug,
+        modulus_pa=info.modulus_pa,
+        max_depth_mm=depth_maxima,
+        timestamps_s=captured.timestamp_s,
     )
     estimate_fn = analytical_estimator(estimator)
     try:

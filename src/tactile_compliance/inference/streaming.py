@@ -16,11 +16,29 @@ The estimate becomes final when the grasp is released (force below
 that point the selection is the whole-trajectory selection, so the final estimate equals
 :func:`predict_trajectory` on the same recording (the batch estimate).
 
+**Frame rate.** The published rule picks frames by index, which assumes a constant frame
+rate. Real sensors do not keep one (a GelSight Mini streams about 18 fps on Linux with
+uneven gaps, the dataset was recorded at 30 fps, other cameras run at 60), so every
+function here also takes each frame's timestamp (``timestamp_s=`` with
+:meth:`StreamingEstimator.update`, ``timestamps_s=`` for :func:`predict_trajectory` and
+:func:`select_frame_indices`). With timestamps the three frames are the frames nearest in
+time to ``linspace(t_start, t_peak, 3)`` (a tie goes to the earlier frame), where
+``t_start`` and ``t_peak`` are the times of ``i_start`` and ``i_peak``. At a constant
+frame rate that is exactly the index rule above (``floor`` of the half-way index is the
+earlier of two equally near frames); at an uneven rate the middle frame is the one at the
+middle *moment* of the press, whatever frames were dropped. Without timestamps the index
+rule is kept unchanged. Timestamps must increase: one that does not is refused with an
+error and the frames already buffered are kept.
+
 ``window=n`` is the paper's future-work variant "estimate from the last n frames instead
 of the whole trajectory": the three frames are spread over the last ``n`` frames up to
 ``i_peak`` (``[max(i_start, i_peak - n + 1), i_peak]``) instead of over
 ``[i_start, i_peak]``. It needs only a bounded buffer and no reliable contact onset;
 ``docs/inference.md`` documents its accuracy against the full-trajectory estimate.
+``window=n`` counts frames, so it spans a different time at another frame rate
+(n - 1 frame periods); with timestamps, ``window_s=`` is the same variant in time: the
+frames are spread over the last ``window_s`` seconds up to ``t_peak`` (frames with
+``t_peak - t <= window_s``), i.e. ``window=n`` at ``fps`` is ``window_s=(n - 1) / fps``.
 
 Frames are either difference images (``frame_kind="difference"``, as stored in the
 dataset: uint8 or float in [0, 1]) or raw uint8 camera frames (``frame_kind="raw"``);
@@ -67,12 +85,54 @@ MIN_PEAK_FORCE_N = 10.0
 
 FrameKind = Literal["difference", "raw"]
 
+#: Two frame times closer than this (s) to a target are equally near: the earlier frame
+#: is taken, as the index rule's ``floor`` does. Far below any frame period (>= 1 ms) and
+#: above the rounding of float64 timestamps on an epoch clock (~2e-7 s).
+TIME_TOLERANCE_S = 1e-6
+
 
 def _check_window(window: int | None) -> int | None:
     """A window length (None: the whole trajectory); three frames need at least three."""
     if window is not None and (isinstance(window, bool) or int(window) < NUM_FRAMES):
         raise ValueError(f"window must be None or an integer >= {NUM_FRAMES}, got {window!r}")
     return None if window is None else int(window)
+
+
+def _check_window_s(window_s: float | None) -> float | None:
+    """A window length in seconds (None: the whole trajectory); must be positive."""
+    if window_s is None:
+        return None
+    try:
+        value = float(window_s)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"window_s must be None or a duration in s, got {window_s!r}") from err
+    if not np.isfinite(value) or value <= 0 or isinstance(window_s, bool):
+        raise ValueError(f"window_s must be None or a positive duration in s, got {window_s!r}")
+    return value
+
+
+def _check_timestamps(times_s: Any, n_frames: int) -> np.ndarray:
+    """(T,) finite, strictly increasing frame times in s, one per force reading."""
+    times = np.asarray(times_s, dtype=np.float64).reshape(-1)
+    if times.size != n_frames:
+        raise ValueError(f"{n_frames} force readings but {times.size} timestamps")
+    if not np.all(np.isfinite(times)):
+        raise ValueError("timestamps_s must be finite (s)")
+    steps = np.diff(times)
+    if np.any(steps <= 0):
+        bad = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise ValueError(
+            f"timestamps_s must increase: frame {bad} is at {times[bad]:.6f} s, frame "
+            f"{bad - 1} at {times[bad - 1]:.6f} s"
+        )
+    return times
+
+
+def _nearest_in_time(times_s: np.ndarray, start: int, stop: int, target_s: float) -> int:
+    """Index in ``[start, stop]`` of the frame nearest to ``target_s``; a tie (within
+    ``TIME_TOLERANCE_S``) goes to the earlier frame, like the index rule's ``floor``."""
+    distance = np.abs(times_s[start : stop + 1] - target_s)
+    return start + int(np.flatnonzero(distance <= distance.min() + TIME_TOLERANCE_S)[0])
 
 
 def _check_frame_kind(frame_kind: str) -> FrameKind:
@@ -127,18 +187,23 @@ class FrameSelection:
         peak: ``i_peak``, first frame with F >= peak_fraction x F_max.
         window_start: first frame the three frames are spread over (``onset`` unless a
             window cuts it).
+        times_s: timestamps (s) of the three frames when the selection was made in time,
+            else None.
     """
 
     indices: tuple[int, int, int]
     onset: int
     peak: int
     window_start: int
+    times_s: tuple[float, float, float] | None = None
 
 
 def select_frame_indices(
     forces_n: Any,
     *,
     window: int | None = None,
+    timestamps_s: Any = None,
+    window_s: float | None = None,
     onset_force_n: float = ONSET_FORCE_N,
     peak_fraction: float = PEAK_FRACTION,
     min_peak_force_n: float = MIN_PEAK_FORCE_N,
@@ -148,9 +213,19 @@ def select_frame_indices(
     None when no frame reaches ``onset_force_n``, the peak is below ``min_peak_force_n``,
     or fewer than three distinct frames lie between the window start and the peak.
     With ``window=n`` the frames are spread over the last ``n`` frames up to the peak.
+
+    With ``timestamps_s`` ((T,) s, increasing) the three frames are the frames nearest in
+    time to ``linspace(t_start, t_peak, 3)`` (see the module docstring); ``window_s``
+    (s, needs timestamps) spreads them over the last ``window_s`` seconds up to the peak.
     """
     f = np.asarray(forces_n, dtype=np.float64).reshape(-1)
     window = _check_window(window)
+    window_s = _check_window_s(window_s)
+    if window is not None and window_s is not None:
+        raise ValueError("give window (frames) or window_s (seconds), not both")
+    times = None if timestamps_s is None else _check_timestamps(timestamps_s, f.size)
+    if window_s is not None and times is None:
+        raise ValueError("window_s (a window in seconds) needs the frames' timestamps_s")
     above = np.flatnonzero(f >= onset_force_n)
     if above.size == 0:
         return None
@@ -161,12 +236,30 @@ def select_frame_indices(
     # Searching from the onset keeps i_peak >= i_start even for peaks just above 5 N.
     peak = onset + int(np.argmax(f[onset:] >= peak_fraction * f_max))
     start = onset if window is None else max(onset, peak - window + 1)
+    if window_s is not None:
+        assert times is not None
+        inside = np.flatnonzero(times[: peak + 1] >= times[peak] - window_s - TIME_TOLERANCE_S)
+        start = max(onset, int(inside[0]))
     if peak - start < NUM_FRAMES - 1:
         return None
-    # Same arithmetic as the published selection: offset + truncated linspace.
-    offsets = np.linspace(0, peak - start, NUM_FRAMES, endpoint=True).astype(int)
-    indices = tuple(int(start + o) for o in offsets)
-    return FrameSelection(indices=indices, onset=onset, peak=peak, window_start=start)  # type: ignore[arg-type]
+    if times is None:
+        # Same arithmetic as the published selection: offset + truncated linspace.
+        offsets = np.linspace(0, peak - start, NUM_FRAMES, endpoint=True).astype(int)
+        indices = tuple(int(start + o) for o in offsets)
+        chosen_times = None
+    else:
+        # An interior frame is always nearer the middle moment than either end, so the
+        # three indices are distinct whenever three frames exist.
+        targets = np.linspace(times[start], times[peak], NUM_FRAMES, endpoint=True)
+        indices = tuple(_nearest_in_time(times, start, peak, float(t)) for t in targets)
+        chosen_times = tuple(float(times[i]) for i in indices)
+    return FrameSelection(
+        indices=indices,  # type: ignore[arg-type]
+        onset=onset,
+        peak=peak,
+        window_start=start,
+        times_s=chosen_times,  # type: ignore[arg-type]
+    )
 
 
 @dataclass(frozen=True)
@@ -184,6 +277,8 @@ class StreamEstimate:
         force_n: force at the three frames (N).
         width_m: width at the three frames (m), None if not streamed.
         window: the window length in frames, None for the whole trajectory.
+        frame_times_s: timestamps (s) of the three frames, None without timestamps.
+        window_s: the window length in s (``window_s=``), else None.
     """
 
     modulus_pa: float
@@ -196,6 +291,8 @@ class StreamEstimate:
     force_n: tuple[float, float, float]
     width_m: tuple[float, float, float] | None
     window: int | None
+    frame_times_s: tuple[float, float, float] | None = None
+    window_s: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict."""
@@ -210,6 +307,8 @@ class StreamEstimate:
             "force_n": list(self.force_n),
             "width_m": list(self.width_m) if self.width_m is not None else None,
             "window": self.window,
+            "frame_times_s": list(self.frame_times_s) if self.frame_times_s else None,
+            "window_s": self.window_s,
         }
 
 
@@ -232,6 +331,7 @@ class _Buffer:
     depths: list[np.ndarray | None] = field(default_factory=list)
     forces: list[float] = field(default_factory=list)  # every frame (cheap), global index
     widths: list[float] = field(default_factory=list)
+    times: list[float] = field(default_factory=list)  # s, every frame, when timestamped
 
 
 class StreamingEstimator:
@@ -239,8 +339,8 @@ class StreamingEstimator:
 
     ```python
     stream = estimator.stream()                         # or StreamingEstimator(estimator)
-    for frame, force_n, width_m in sensor:
-        estimate = stream.update(frame, force_n, width_m)
+    for timestamp_s, frame, force_n, width_m in sensor:
+        estimate = stream.update(frame, force_n, width_m, timestamp_s=timestamp_s)
         if estimate is not None:                        # provisional, then refinements
             print(estimate.modulus_pa, estimate.final)
     final = stream.finish()                             # or: emitted on release
@@ -259,6 +359,8 @@ class StreamingEstimator:
             or :class:`~tactile_compliance.inference.onnx.OnnxEstimator` (any
             :class:`~tactile_compliance.inference.base.BaseEstimator`).
         window: None (whole trajectory, the dataset's rule) or n >= 3 (last n frames).
+        window_s: the same in time: the last ``window_s`` seconds up to the peak (needs
+            ``timestamp_s`` with every update); exclusive with ``window``.
         frame_kind: ``"difference"`` (difference images, uint8 or float [0, 1]) or
             ``"raw"`` (uint8 camera frames, differenced against ``reference``).
         reference: raw no-contact frame for ``frame_kind="raw"``; default the first frame.
@@ -279,6 +381,7 @@ class StreamingEstimator:
         estimator: BaseEstimator,
         *,
         window: int | None = None,
+        window_s: float | None = None,
         frame_kind: FrameKind = "difference",
         reference: np.ndarray | None = None,
         channel_order: str = "RGB",
@@ -291,6 +394,9 @@ class StreamingEstimator:
         max_frames: int = 900,
     ) -> None:
         self.window = _check_window(window)
+        self.window_s = _check_window_s(window_s)
+        if self.window is not None and self.window_s is not None:
+            raise ValueError("give window (frames) or window_s (seconds), not both")
         self.frame_kind = _check_frame_kind(frame_kind)
         if not 0 < peak_fraction <= 1:
             raise ValueError(f"peak_fraction must be in (0, 1], got {peak_fraction}")
@@ -331,6 +437,7 @@ class StreamingEstimator:
         self._last_key: tuple[Any, ...] | None = None
         self._done = False
         self._has_depth: bool | None = None
+        self._has_times: bool | None = None
         self.history: list[StreamEstimate] = []
 
     @property
@@ -405,6 +512,7 @@ class StreamingEstimator:
         *,
         estimates_pa: Any = None,
         depth_mm: Any = None,
+        timestamp_s: float | None = None,
     ) -> StreamEstimate | None:
         """Add one frame and its readings; returns a new estimate or None.
 
@@ -419,6 +527,15 @@ class StreamingEstimator:
             estimates_pa: (elastic E, Hertz E*) in Pa, replaces earlier values.
             depth_mm: (H', W') gel depth map in mm of this frame, to compute the estimates
                 on the fly (give it with every frame or never).
+            timestamp_s: when the frame was captured, in s on any clock that only moves
+                forward (e.g. ``time.monotonic()`` or the camera's); give it with every
+                frame or never. With timestamps the frames are selected in time, not by
+                index (see the module docstring).
+
+        Raises:
+            ValueError: a bad frame or reading, or a timestamp that does not increase. The
+                frame is then not added and the frames buffered so far are kept, so the
+                caller can skip it and go on.
         """
         if self._done:
             return None
@@ -434,6 +551,7 @@ class StreamingEstimator:
             width = float("nan")
         else:
             width = _check_reading("width_m", width_m, "m")
+        time_s = self._check_timestamp(timestamp_s)
         if estimates_pa is not None:
             self._estimates_pa = self._check_estimates(estimates_pa)
         has_depth = depth_mm is not None
@@ -446,6 +564,9 @@ class StreamingEstimator:
             self._reference = array.copy()
 
         buf = self._buffer
+        self._has_times = time_s is not None
+        if time_s is not None:
+            buf.times.append(time_s)
         buf.forces.append(force)
         buf.widths.append(width)
         buf.frames.append(array.copy())
@@ -462,6 +583,31 @@ class StreamingEstimator:
             return self.finish()
         return self._estimate(final=False)
 
+    def _check_timestamp(self, timestamp_s: Any) -> float | None:
+        """The frame's time in s, checked against the stream's (nothing is changed)."""
+        has_time = timestamp_s is not None
+        if self._has_times is not None and has_time != self._has_times:
+            raise ValueError(
+                "timestamp_s must be given with every frame of a grasp or never "
+                f"({'missing' if self._has_times else 'given'} for frame {self.frames_seen}; "
+                "the frame was not added)"
+            )
+        if not has_time:
+            if self.window_s is not None:
+                raise ValueError(
+                    "window_s (a window in seconds) needs timestamp_s with every frame"
+                )
+            return None
+        time_s = _check_reading("timestamp_s", timestamp_s, "s")
+        times = self._buffer.times
+        if times and time_s <= times[-1]:
+            raise ValueError(
+                f"timestamp_s went backwards or repeated: {time_s:.6f} s after "
+                f"{times[-1]:.6f} s; the frame was not added, the {len(times)} frames "
+                f"received so far are kept"
+            )
+        return time_s
+
     def _trim(self) -> None:
         """Drop frames that no future selection can use (bounded memory)."""
         buf = self._buffer
@@ -475,7 +621,7 @@ class StreamingEstimator:
             keep_from = (
                 len(forces) - 1 if press is None else max(press, len(forces) - self.max_frames)
             )
-        elif self.window is None:
+        elif self.window is None and self.window_s is None:
             keep_from = int(onset[0]) if press is None else min(int(onset[0]), press)
         else:
             # i_peak never moves backwards (F_max only grows), so frames before the
@@ -483,6 +629,8 @@ class StreamingEstimator:
             selection = select_frame_indices(
                 forces,
                 window=self.window,
+                timestamps_s=self._times(),
+                window_s=self.window_s,
                 onset_force_n=self.onset_force_n,
                 peak_fraction=self.peak_fraction,
                 min_peak_force_n=0.0,
@@ -511,10 +659,16 @@ class StreamingEstimator:
         return estimate
 
     # ------------------------------------------------------------------ estimation
+    def _times(self) -> list[float] | None:
+        """Timestamps (s) of every frame so far, None for an untimed stream."""
+        return self._buffer.times if self._has_times else None
+
     def _select(self) -> FrameSelection | None:
         return select_frame_indices(
             self._buffer.forces,
             window=self.window,
+            timestamps_s=self._times(),
+            window_s=self.window_s,
             onset_force_n=self.onset_force_n,
             peak_fraction=self.peak_fraction,
             min_peak_force_n=self.min_peak_force_n,
@@ -596,6 +750,8 @@ class StreamingEstimator:
             force_n=forces,  # type: ignore[arg-type]
             width_m=widths,  # type: ignore[arg-type]
             window=self.window,
+            frame_times_s=selection.times_s,
+            window_s=self.window_s,
         )
 
 
@@ -611,6 +767,8 @@ def predict_trajectory(
     estimates_pa: Any = None,
     *,
     window: int | None = None,
+    timestamps_s: Any = None,
+    window_s: float | None = None,
     frame_kind: FrameKind = "difference",
     reference: np.ndarray | None = None,
     channel_order: str = "RGB",
@@ -626,6 +784,9 @@ def predict_trajectory(
         width_m: (T,) gripper width in m (when the model uses width).
         estimates_pa: (elastic E, Hertz E*) in Pa (ALL models).
         window: None (dataset rule) or the last ``n`` frames up to the peak.
+        timestamps_s: (T,) capture times in s (increasing): select the frames in time
+            (see the module docstring); None keeps the index rule.
+        window_s: the last ``window_s`` seconds up to the peak (needs ``timestamps_s``).
 
     Returns:
         (prediction for the grasp, the frame selection used).
@@ -648,6 +809,8 @@ def predict_trajectory(
     selection = select_frame_indices(
         forces,
         window=window,
+        timestamps_s=timestamps_s,
+        window_s=window_s,
         onset_force_n=onset_force_n,
         peak_fraction=peak_fraction,
         min_peak_force_n=min_peak_force_n,

@@ -155,6 +155,7 @@ def save_checkpoint(
     frozen_backbone: dict[str, Any] | None = None,
     store_image_size: tuple[int, int] | None = None,
     analytical_estimator: str | None = None,
+    store: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``model`` and its description to ``path`` (atomically: see
     :func:`~tactile_compliance.runs.layout.atomic_file`).
@@ -171,6 +172,10 @@ def save_checkpoint(
     ``analytical_estimator``: the name (``physics.estimators``) of the estimator that made
     the training store's analytical estimates, so estimates computed at inference come
     from the same one.
+
+    ``store``: the training store's provenance (its path and ``header.json``: source,
+    creation time and parameters, package version), so a model card can say what the
+    model was trained on even where that store is gone.
     """
     path = Path(path)
     state = {
@@ -191,6 +196,7 @@ def save_checkpoint(
         "image_size": list(image_size) if image_size is not None else None,
         "store_image_size": list(store_image_size) if store_image_size is not None else None,
         "analytical_estimator": analytical_estimator,
+        "store": store,
         "config": config,
         "seed": int(seed),
         "metrics": metrics or {},
@@ -293,6 +299,34 @@ def load_checkpoint(
         raise ValueError(f"{path}: not a tactile-compliance model checkpoint")
     if int(payload.get("format_version", 0)) > CHECKPOINT_VERSION:
         raise ValueError(f"{path}: checkpoint format is newer than this package; upgrade it")
+    return rebuild_model(path, payload, device, backbone_weights=backbone_weights)
+
+
+def rebuild_model(
+    source: str | Path,
+    payload: dict[str, Any],
+    device: str | torch.device = "cpu",
+    *,
+    backbone_weights: str | os.PathLike[str] | None = None,
+) -> LoadedModel:
+    """The model a checkpoint's contents describe, with its weights loaded (eval mode).
+
+    The one way a model is rebuilt from a description: :func:`load_checkpoint` calls it on
+    a ``best.pt``'s payload, and the safetensors directories of ``export --safetensors``
+    (``inference.pretrained``) on their ``config.json`` plus ``model.safetensors``.
+
+    Args:
+        source: where the payload came from, for error messages.
+        payload: ``model_name``, ``inputs``, ``hparams``, ``normalisation``,
+            ``image_size`` and ``state_dict``; ``backbone`` (a frozen backbone's record)
+            when the state dict is the head only; everything else is kept as ``meta``.
+        device: where the model goes.
+        backbone_weights: see :func:`load_checkpoint`.
+
+    Raises:
+        ValueError: weights that do not fit the described model.
+    """
+    path = Path(source)
     if payload.get("backbone") is not None:
         model = _rebuild_with_frozen_backbone(path, payload, backbone_weights)
     else:

@@ -430,8 +430,17 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     return GraspResult(samples, timeline, selection)
 
 
+def camera_times_s(timeline_times_s: np.ndarray, fps: float) -> np.ndarray:
+    """Frame times (s) of a camera at a constant ``fps`` (1/s) over a time line's span,
+    starting at its first frame."""
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a positive frame rate (1/s), got {fps!r}")
+    start, end = float(timeline_times_s[0]), float(timeline_times_s[-1])
+    return start + np.arange(int((end - start) * fps) + 1) / fps
+
+
 def render_recording(
-    ctx: ObjectContext, grasp: int, finger: int = 0
+    ctx: ObjectContext, grasp: int, finger: int = 0, *, fps: float | None = None
 ) -> tuple[GraspResult, np.ndarray]:
     """A grasp and every frame of one finger's recording at full size.
 
@@ -439,10 +448,19 @@ def render_recording(
     (T, H, W, 3), BGR, for all T frames of its time line: the same pose, sensor and
     texture window as the stored frames, and noise from the same stream (so a stored
     frame and the same frame here differ only by read noise). For streaming studies.
+
+    ``fps``: render as a camera at this constant rate (1/s) would see the grasp instead,
+    at :func:`camera_times_s` over the time line's span: the gel's approach is
+    interpolated linearly between the time line's frames (30 fps), so every frame rate
+    sees the same press.
     """
     if finger not in (0, 1):
         raise ValueError(f"finger must be 0 (markerless) or 1 (markers), got {finger}")
     result = simulate_grasp(ctx, grasp)
+    approach = result.timeline.approach_mm[finger]
+    if fps is not None:
+        times = result.timeline.times_s
+        approach = np.interp(camera_times_s(times, fps), times, approach)
     _, poses = _poses(ctx, grasp)
     texture_rng = stream(*_grasp_key(ctx, grasp), "texture")
     if finger == 1:  # the stored frames draw finger 0's texture window first
@@ -454,7 +472,7 @@ def render_recording(
         ctx,
         grasp,
         finger,
-        result.timeline.approach_mm[finger],
+        approach,
         render_sag,
         _object_mechanics(ctx.spec),
         texture_rng,

@@ -30,6 +30,7 @@ class GraspTrajectory:
         frames: (T, H, W, 3) uint8 RGB difference images (store encoding).
         force_n: (T,) measured normal force (N); width_m: (T,) measured width (m).
         estimates_pa: (elastic E, Hertz E*) of the grasp (Pa), NaN if not estimable.
+        times_s: (T,) capture time of each frame (s).
     """
 
     object: str
@@ -39,6 +40,7 @@ class GraspTrajectory:
     force_n: np.ndarray
     width_m: np.ndarray
     estimates_pa: np.ndarray
+    times_s: np.ndarray | None = None
 
 
 def synthetic_trajectories(
@@ -47,6 +49,7 @@ def synthetic_trajectories(
     n_objects: int,
     seed: int,
     image_size: tuple[int, int],
+    fps: float | None = None,
     **options: Any,
 ) -> Iterator[GraspTrajectory]:
     """Re-simulate grasps of a ``generate_burgess_tree`` dataset and render every frame.
@@ -55,10 +58,16 @@ def synthetic_trajectories(
         grasps: (object name, grasp number) pairs, e.g. a run's test split.
         n_objects, seed, image_size, options: the generation's parameters (the default
             object mix; ``options`` are ``SimulationOptions`` fields).
+        fps: None: the simulated frames (30 fps, ~2 ms jitter). A rate in frames/s: the
+            same grasp seen by a camera at that constant rate over the same time span
+            (``render_recording(fps=)``); the measured force is interpolated linearly
+            between the simulated frames, the measured width is held from the last
+            reading at or before each frame (the encoder's stair steps).
     """
     from tactile_compliance.data.store import frames_to_uint8
     from tactile_compliance.synthetic.grasp import (
         SimulationOptions,
+        camera_times_s,
         make_context,
         render_recording,
     )
@@ -71,19 +80,27 @@ def synthetic_trajectories(
         if name not in specs:
             raise ValueError(f"object {name!r} is not in the default mix of {n_objects} objects")
         ctx = contexts.setdefault(name, make_context(specs[name], seed, opt))
-        result, diff_bgr = render_recording(ctx, int(grasp), finger=0)
+        result, diff_bgr = render_recording(ctx, int(grasp), finger=0, fps=fps)
         if not result.samples:
             continue  # the generator rejected this grasp too
         timeline = result.timeline
+        times = np.asarray(timeline.times_s, dtype=np.float64)
+        force = np.asarray(timeline.force_n, dtype=np.float64)
+        width = np.asarray(timeline.width_m, dtype=np.float64)
+        if fps is not None:
+            frame_times = camera_times_s(times, fps)
+            held = np.clip(np.searchsorted(times, frame_times, side="right") - 1, 0, None)
+            times, force, width = frame_times, np.interp(frame_times, times, force), width[held]
         sample = result.samples[0]
         yield GraspTrajectory(
             object=name,
             grasp=int(grasp),
             modulus_pa=float(ctx.spec.modulus_pa),
             frames=frames_to_uint8(diff_bgr[..., ::-1]),  # BGR (OpenCV) -> RGB like the store
-            force_n=np.asarray(timeline.force_n, dtype=np.float64),
-            width_m=np.asarray(timeline.width_m, dtype=np.float64),
+            force_n=force,
+            width_m=width,
             estimates_pa=np.array([sample.elastic_estimate, sample.hertz_estimate]),
+            times_s=times,
         )
 
 

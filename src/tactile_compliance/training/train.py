@@ -794,6 +794,7 @@ def _fit_and_evaluate(
             frozen_backbone=frozen_backbone,
             store_image_size=data.store.image_size,
             analytical_estimator=data.store.analytical_estimator,
+            store={"path": str(Path(data.store.path).resolve()), **data.store.header.to_dict()},
         )
 
     best = _BestCheckpoint(save_best, pending_best)

@@ -1,0 +1,499 @@
+"""Deployable weights: a directory of ``model.safetensors``, ``config.json`` and ``README.md``.
+
+The layout follows the Hugging Face hub convention (weights + a JSON config + a model
+card), so such a directory can be uploaded or shared as is, but nothing here depends on
+the hub: :func:`load_pretrained` (behind ``ComplianceEstimator.from_pretrained``) reads a
+local directory. :func:`write_pretrained` writes one (behind ``tactile-compliance export
+CHECKPOINT --safetensors DIR``, see ``inference/export.py``).
+
+* ``model.safetensors``: the model's **whole** state dict. A checkpoint of a frozen-backbone
+  run stores the head only and rebuilds the backbone from a seed or a weights file; the
+  export rebuilds (and verifies) it once and writes its tensors too, so the directory needs
+  no weights file, seed or torch version to load (a frozen VGG16 adds 0.53 GB). Where the
+  backbone came from stays recorded in ``config.json`` (``frozen_backbone``).
+* ``config.json``: everything needed to rebuild the model and its input pipeline: model
+  name and hyperparameters, input strategy, normalisation constants (image mean/std per
+  channel, scalar scales, label range), frame size (H, W) px, channel order, the analytical
+  estimator's name, the training store's provenance, the training configuration and its
+  metrics, the package version and the checkpoint's sha256.
+* ``README.md``: a model card generated from the same facts (see :func:`model_card`).
+
+Rebuilding goes through :func:`~tactile_compliance.runs.checkpoint.rebuild_model`, the
+function that also rebuilds ``best.pt`` checkpoints: there is one way to make a model.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import torch
+
+from tactile_compliance import __version__
+from tactile_compliance.inference.inputs import required_inputs
+from tactile_compliance.models import InputStrategy
+from tactile_compliance.outputs import atomic_file, claim_output_dir
+from tactile_compliance.runs.checkpoint import LoadedModel, rebuild_model
+
+if TYPE_CHECKING:
+    from tactile_compliance.inference.base import BaseEstimator
+
+__all__ = [
+    "CARD_FILE",
+    "CONFIG_FILE",
+    "OUTPUT_KIND",
+    "PRETRAINED_FORMAT",
+    "WEIGHTS_FILE",
+    "SafetensorsMissingError",
+    "load_pretrained",
+    "model_card",
+    "pretrained_config",
+    "require_safetensors",
+    "write_pretrained",
+]
+
+PRETRAINED_FORMAT = "tactile-compliance-pretrained"
+PRETRAINED_VERSION = 1
+WEIGHTS_FILE = "model.safetensors"
+CONFIG_FILE = "config.json"
+CARD_FILE = "README.md"
+#: The ``outputs.claim_output_dir`` kind of an exported directory.
+OUTPUT_KIND = "pretrained"
+#: Channel order of the frames the network takes (the store's); ``predict`` converts
+#: BGR input when told ``channel_order="BGR"``.
+MODEL_CHANNEL_ORDER = "RGB"
+_FRAME_KIND = (
+    "difference images (frame - GaussianBlur11x11(no-contact frame)) / 255 + 0.5, "
+    "uint8 (u = floor(x * 255)) or float in [0, 1]"
+)
+# Store sources that are recordings of real sensors (the importers' names).
+_REAL_SOURCES = {"burgess": "real (Burgess et al. dataset layout)", "yuan": "real (Yuan videos)"}
+_UNITS = {"force": "N", "width": "m", "estimates": "Pa"}
+
+
+class SafetensorsMissingError(ImportError):
+    """The optional ``safetensors`` package is not installed."""
+
+
+def require_safetensors() -> Any:
+    """The ``safetensors.torch`` module, or a clear error saying how to install it."""
+    try:
+        import safetensors.torch
+    except ImportError as err:
+        raise SafetensorsMissingError(
+            "safetensors is not installed: pip install 'tactile-compliance[export]' "
+            "(or pip install safetensors)"
+        ) from err
+    return safetensors.torch
+
+
+def file_sha256(path: str | Path) -> str:
+    """sha256 of a file's bytes (read in 1 MiB blocks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+# ---------------------------------------------------------------------- config.json
+def pretrained_config(
+    estimator: BaseEstimator,
+    *,
+    checkpoint: str | Path,
+    evaluation: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The ``config.json`` of an exported model (plain JSON values only).
+
+    Args:
+        estimator: the loaded checkpoint (a ``ComplianceEstimator``); its ``meta`` is the
+            checkpoint's description.
+        checkpoint: the checkpoint file it was loaded from (hashed).
+        evaluation: the run's ``metrics.json`` (test/val metrics, split sizes), if any.
+    """
+    meta = estimator.meta
+    if estimator.image_size is None:
+        raise ValueError(
+            f"{estimator.source}: the checkpoint does not record its frame size and its "
+            f"training store is not available; pass image_size=(H, W)"
+        )
+    # A model loaded from an export has its whole state dict (no record) but keeps the
+    # record's provenance in the config it was loaded from.
+    backbone = meta.get("backbone") or (meta.get("pretrained") or {}).get("frozen_backbone")
+    store_size = meta.get("store_image_size")
+    config = {
+        "format": PRETRAINED_FORMAT,
+        "format_version": PRETRAINED_VERSION,
+        "library_name": "tactile-compliance",
+        "package_version": __version__,
+        "model_name": estimator.model_name,
+        "hparams": dict(meta.get("hparams") or {}),
+        "inputs": estimator.inputs.value,
+        "required_inputs": ["frames", *estimator.required_inputs],
+        "image_size": [int(v) for v in estimator.image_size],
+        "store_image_size": [int(v) for v in store_size] if store_size else None,
+        "channel_order": MODEL_CHANNEL_ORDER,
+        "frames_per_sample": 3,
+        "frame_kind": _FRAME_KIND,
+        "normalisation": estimator.constants.to_dict(),
+        "label_range_pa": list(estimator.constants.label_range_pa),
+        "analytical_estimator": estimator.analytical_estimator,
+        "backbone_weights": str(meta.get("backbone_weights", "none")),
+        # Provenance only: the weights file holds the backbone's tensors.
+        "frozen_backbone": (
+            None
+            if backbone is None
+            else {k: backbone.get(k) for k in ("weights", "seed", "sha256")}
+        ),
+        "checkpoint": {
+            "file": Path(checkpoint).name,
+            "sha256": file_sha256(checkpoint),
+            "package_version": meta.get("package_version"),
+            "seed": meta.get("seed"),
+            "metrics": meta.get("metrics") or {},
+        },
+        "training_store": meta.get("store"),
+        "training_config": meta.get("config") or {},
+        "evaluation": evaluation,
+    }
+    # Through JSON once: the dict returned is exactly what config.json will hold.
+    return json.loads(json.dumps(config))
+
+
+def _payload(config: dict[str, Any], state_dict: dict[str, torch.Tensor]) -> dict[str, Any]:
+    """``config.json`` + tensors -> the description ``rebuild_model`` takes."""
+    checkpoint = config.get("checkpoint") or {}
+    return {
+        "model_name": config["model_name"],
+        "inputs": config["inputs"],
+        "hparams": config.get("hparams") or {},
+        "normalisation": config["normalisation"],
+        "image_size": config.get("image_size"),
+        "store_image_size": config.get("store_image_size"),
+        "analytical_estimator": config.get("analytical_estimator"),
+        "backbone_weights": config.get("backbone_weights", "none"),
+        "backbone": None,  # the state dict is whole (see the module docstring)
+        "seed": checkpoint.get("seed"),
+        "package_version": checkpoint.get("package_version"),
+        "metrics": checkpoint.get("metrics") or {},
+        "config": config.get("training_config") or {},
+        "store": config.get("training_store"),
+        "pretrained": {k: v for k, v in config.items() if k != "training_config"},
+        "state_dict": state_dict,
+    }
+
+
+# ---------------------------------------------------------------------- write / read
+def write_pretrained(
+    estimator: BaseEstimator,
+    out: str | Path,
+    *,
+    checkpoint: str | Path,
+    evaluation: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write ``estimator``'s model as a safetensors directory (claimed, never a user's).
+
+    Args:
+        estimator: a ``ComplianceEstimator`` loaded from ``checkpoint``.
+        out: the directory; new, empty, or an earlier export (its files are replaced).
+        checkpoint: the checkpoint file (its sha256 goes into ``config.json``).
+        evaluation: the run's ``metrics.json``, for the card.
+
+    Returns:
+        A report: ``out``, ``files`` (name -> bytes), ``config`` (the written config).
+
+    Raises:
+        OutputExistsError: ``out`` holds something that is not an export.
+        SafetensorsMissingError: safetensors is not installed.
+    """
+    st = require_safetensors()
+    model = getattr(estimator, "model", None)
+    if model is None:
+        raise ValueError(f"{estimator.source}: only PyTorch estimators can be exported")
+    config = pretrained_config(estimator, checkpoint=checkpoint, evaluation=evaluation)
+    tensors: dict[str, torch.Tensor] = {}
+    storages: set[int] = set()
+    for name, value in model.state_dict().items():
+        value = value.detach().cpu().contiguous()
+        storage = value.untyped_storage().data_ptr()
+        # safetensors refuses tensors that share memory (tied weights): copy those only,
+        # so a 0.5 GB backbone is not held twice.
+        tensors[name] = value.clone() if storage in storages else value
+        storages.add(storage)
+    out = claim_output_dir(out, OUTPUT_KIND, option="--safetensors")
+    with atomic_file(out / WEIGHTS_FILE, "wb") as handle:
+        # Written straight to the temp file by name (no copy of the weights in memory);
+        # atomic_file then fsyncs it and renames it into place.
+        st.save_file(tensors, handle.name, metadata={"format": "pt"})
+    config["weights_sha256"] = file_sha256(out / WEIGHTS_FILE)
+    with atomic_file(out / CONFIG_FILE) as handle:
+        handle.write(json.dumps(config, indent=2) + "\n")
+    with atomic_file(out / CARD_FILE) as handle:
+        handle.write(model_card(config, parameters=sum(t.numel() for t in tensors.values())))
+    files = {name: (out / name).stat().st_size for name in (WEIGHTS_FILE, CONFIG_FILE, CARD_FILE)}
+    return {"out": str(out), "files": files, "config": config}
+
+
+def load_pretrained(path: str | Path, device: str | torch.device = "cpu") -> LoadedModel:
+    """Rebuild the model of an exported directory (see the module docstring).
+
+    Raises:
+        FileNotFoundError: no such directory, or one without ``config.json`` or
+            ``model.safetensors``.
+        SafetensorsMissingError: safetensors is not installed.
+        ValueError: not an export of this package, a newer format, or weights that do
+            not fit the model ``config.json`` describes.
+    """
+    directory = Path(path)
+    if not directory.is_dir():
+        raise FileNotFoundError(f"{directory}: no such directory (an `export --safetensors` one)")
+    missing = [name for name in (CONFIG_FILE, WEIGHTS_FILE) if not (directory / name).is_file()]
+    if missing:
+        raise FileNotFoundError(
+            f"{directory}: missing {' and '.join(missing)}; a model directory written by "
+            f"`tactile-compliance export CHECKPOINT --safetensors DIR` holds {WEIGHTS_FILE}, "
+            f"{CONFIG_FILE} and {CARD_FILE}"
+        )
+    try:
+        config = json.loads((directory / CONFIG_FILE).read_text(encoding="utf-8"))
+    except ValueError as err:
+        raise ValueError(f"{directory / CONFIG_FILE}: not valid JSON ({err})") from err
+    if not isinstance(config, dict) or config.get("format") != PRETRAINED_FORMAT:
+        raise ValueError(
+            f"{directory / CONFIG_FILE}: not a tactile-compliance model config "
+            f"(format {PRETRAINED_FORMAT!r} expected)"
+        )
+    if int(config.get("format_version", 0)) > PRETRAINED_VERSION:
+        raise ValueError(f"{directory / CONFIG_FILE}: format is newer than this package; upgrade")
+    missing_keys = [k for k in ("model_name", "inputs", "normalisation") if k not in config]
+    if missing_keys:
+        raise ValueError(f"{directory / CONFIG_FILE}: missing {', '.join(missing_keys)}")
+    st = require_safetensors()
+    try:
+        tensors = st.load_file(str(directory / WEIGHTS_FILE), device="cpu")
+    except Exception as err:  # safetensors raises its own error type for corrupt files
+        raise ValueError(
+            f"{directory / WEIGHTS_FILE}: not a readable safetensors file ({err})"
+        ) from err
+    try:
+        return rebuild_model(directory, _payload(config, tensors), device)
+    except (TypeError, KeyError) as err:  # hyperparameters the model does not take
+        raise ValueError(
+            f"{directory / CONFIG_FILE}: cannot rebuild {config['model_name']!r} from it: {err}"
+        ) from err
+
+
+# ---------------------------------------------------------------------- the model card
+def _number(value: Any) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
+
+
+def _training_data(config: dict[str, Any]) -> list[str]:
+    store = config.get("training_store")
+    data = (config.get("training_config") or {}).get("data") or {}
+    if not store:
+        where = data.get("store") or "unknown"
+        return [
+            f"- Store: `{where}`; the checkpoint predates store provenance records, so "
+            f"whether it was synthetic or real is not recorded.",
+        ]
+    source = str(store.get("source"))
+    if source == "synthetic":
+        kind = "synthetic (the package's GelSight simulator, `tactile-compliance simulate`)"
+    else:
+        kind = _REAL_SOURCES.get(source, f"source `{source}` (not a known real-data importer)")
+    params = store.get("creation_parameters") or {}
+    lines = [
+        f"- Data: **{kind}**.",
+        f"- Store: `{store.get('path')}`, {store.get('num_samples')} samples at "
+        f"{'x'.join(map(str, store.get('image_size') or []))} px (H x W), channel order "
+        f"{store.get('channel_order')}, created {store.get('created')} by tactile-compliance "
+        f"{store.get('package_version')}.",
+    ]
+    if params:
+        text = json.dumps(params, sort_keys=True)
+        lines.append(f"- Creation parameters: `{text[:600]}{'...' if len(text) > 600 else ''}`")
+    fingers = data.get("fingers")
+    if fingers:
+        lines.append(f"- Fingers used: {', '.join(fingers)}.")
+    return lines
+
+
+def _split_protocol(config: dict[str, Any]) -> str:
+    cfg = config.get("training_config") or {}
+    split, sampling = cfg.get("split") or {}, cfg.get("sampling") or {}
+    if not split:
+        return "not recorded"
+    return (
+        f"condition **{split.get('condition')}** (objects in the test set "
+        f"{'also' if split.get('condition') == 'seen' else 'never'} seen in training), "
+        f"grouping {split.get('grouping')}, test fraction {split.get('test_fraction')}, "
+        f"validation fraction {split.get('val_fraction')}, split seed "
+        f"{split.get('seed') if split.get('seed') is not None else 'the run seed'}; "
+        f"training sampling {sampling.get('strategy')}; run seed {cfg.get('seed')}"
+    )
+
+
+def _metrics_section(config: dict[str, Any]) -> list[str]:
+    evaluation = config.get("evaluation")
+    checkpoint = config.get("checkpoint") or {}
+    lines = [f"Split protocol: {_split_protocol(config)}.", ""]
+    if not evaluation:
+        best = (checkpoint.get("metrics") or {}).get("best_val_nmse")
+        return [
+            *lines,
+            f"No `metrics.json` was found next to the checkpoint, so there are no test "
+            f"metrics here; the checkpoint records the best validation N-MSE "
+            f"{_number(best)}.",
+        ]
+    names = ["log10_accuracy", "nmse", "r2", "mae_decades", "within_half_decade"]
+    rows = [("model, test split", evaluation.get("test") or {})]
+    rows.append(("model, validation split", evaluation.get("val") or {}))
+    for name, values in (evaluation.get("reference") or {}).items():
+        rows.append((f"reference `{name}`, test split", values))
+    lines += [
+        f"Samples: {evaluation.get('n_train')} train, {evaluation.get('n_val')} validation, "
+        f"{evaluation.get('n_test')} test; best epoch {evaluation.get('best_epoch')} of "
+        f"{evaluation.get('epochs_trained')} (the best-validation checkpoint is exported).",
+        "",
+        "| predictor | n | " + " | ".join(names) + " |",
+        "|---|---|" + "---|" * len(names),
+    ]
+    for label, values in rows:
+        cells = " | ".join(_number(values.get(n)) for n in names)
+        lines.append(f"| {label} | {_number(values.get('n'))} | {cells} |")
+    lines += [
+        "",
+        "`log10_accuracy`: share within one decade of the true modulus; `nmse`: mean "
+        "squared error of the normalised log label; `r2`: on the normalised label; "
+        "`mae_decades`: mean |log10 E_pred - log10 E|; `within_half_decade`: share within "
+        "0.5 decade (definitions: `tactile_compliance.runs.metrics`). The references are "
+        "the training median, the sample's own analytical estimate and gradient-boosted "
+        "trees on the scalar inputs.",
+    ]
+    return lines
+
+
+def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
+    """The ``README.md`` of an exported model, generated from its ``config.json``.
+
+    Sections: model, inputs (strategy, frame size, channel order, image statistics,
+    scalar normalisation), training data (synthetic or real, the store's provenance),
+    evaluation (metrics with their split protocol), intended use and limits, loading.
+    """
+    norm = config["normalisation"]
+    strategy = InputStrategy.parse(config["inputs"])
+    scalars = [f"{name} ({_UNITS[name]})" for name in required_inputs(strategy)]
+    height, width = config["image_size"]
+    lo, hi = config["label_range_pa"]
+    frozen = config.get("frozen_backbone")
+    weights = config.get("backbone_weights", "none")
+    checkpoint = config.get("checkpoint") or {}
+    source = (config.get("training_store") or {}).get("source")
+    if source in _REAL_SOURCES:
+        validity = "a different sensor, gel or gripper needs its own validation."
+    elif source == "synthetic":
+        validity = (
+            "the model was trained on synthetic data and has not been validated on a real sensor."
+        )
+    else:
+        validity = (
+            f"the training data's origin ({source or 'not recorded'}) is neither a known real "
+            "dataset nor the simulator: treat the model as not validated on a real sensor."
+        )
+    hparams = json.dumps(config.get("hparams") or {}, sort_keys=True)
+    backbone = (
+        "randomly initialised (no ImageNet weights were used)"
+        if weights == "none"
+        else f"initialised from `{weights}`"
+    )
+    if frozen:
+        backbone += f"; frozen during training (sha256 {str(frozen.get('sha256'))[:16]}...)"
+    lines = [
+        "---",
+        "library_name: tactile-compliance",
+        "tags:",
+        "- tactile-sensing",
+        "- gelsight",
+        "- youngs-modulus",
+        "---",
+        "",
+        f"# {config['model_name']} ({strategy.value}): Young's modulus from one GelSight grasp",
+        "",
+        "Generated by `tactile-compliance export CHECKPOINT --safetensors DIR` (tactile-"
+        f"compliance {config.get('package_version')}) from checkpoint "
+        f"`{checkpoint.get('file')}` (sha256 `{checkpoint.get('sha256')}`, trained with "
+        f"tactile-compliance {checkpoint.get('package_version')}, seed "
+        f"{checkpoint.get('seed')}).",
+        "",
+        "## Model",
+        "",
+        f"- Architecture: `{config['model_name']}` with hyperparameters `{hparams}`"
+        + (f", {parameters:,} parameters." if parameters is not None else "."),
+        f"- Backbone: {backbone}. `model.safetensors` holds the whole state dict, backbone "
+        "included.",
+        f"- Output: log10 of Young's modulus E, trained on labels in [{lo:.3g}, {hi:.3g}] Pa.",
+        "",
+        "## Inputs",
+        "",
+        f"- Input strategy: **{strategy.value}**: three tactile frames"
+        + (f" plus {', '.join(scalars)} at the same three frames." if scalars else " only."),
+        f"- Frames: {config.get('frame_kind')}; resized to **{height} x {width} px** (H x W); "
+        f'channel order **{config.get("channel_order")}** (pass `channel_order="BGR"` for '
+        "OpenCV frames).",
+        "- The three frames: first frame with F >= 5 N, first frame with F >= 0.975 F_max, and "
+        "the frame midway between them (in time when timestamps are given).",
+        f"- Image statistics (per channel {config.get('channel_order')}, on [0, 1] "
+        f"difference images): mean {norm['image_mean']}, std {norm['image_std']}.",
+        f"- Scalar normalisation: force / {norm['force_scale_n']} N, width / "
+        f"{norm['width_scale_m']} m; analytical estimates clamped to "
+        f"{norm['estimate_clamp_pa']} Pa, log10, minus {norm['estimate_log10_min']}, divided "
+        f"by {norm['estimate_log10_span']}; label log10 E in [{norm['label_log10_min']}, "
+        f"{norm['label_log10_max']}].",
+        f"- Analytical estimator (for estimates computed at inference from depth maps): "
+        f"`{config.get('analytical_estimator')}`.",
+        "",
+        "## Training data",
+        "",
+        *_training_data(config),
+        "",
+        "## Evaluation",
+        "",
+        *_metrics_section(config),
+        "",
+        "## Intended use and limits",
+        "",
+        "- Research use: estimating the Young's modulus of an object squeezed once by a "
+        "parallel gripper with a GelSight-type sensor, with the frames selected by the "
+        "force rule above and the frame size, channel order and normalisation above.",
+        f"- Predictions are bounded to the training label range [{lo:.3g}, {hi:.3g}] Pa; "
+        "objects outside it are predicted at the edge.",
+        "- The metrics hold for the split protocol above on this training store; " + validity,
+        "- Not for safety-critical decisions.",
+        "",
+        "## Loading",
+        "",
+        "```python",
+        "from tactile_compliance.inference import ComplianceEstimator",
+        "",
+        'estimator = ComplianceEstimator.from_pretrained("DIR")',
+        "result = estimator.predict(frames, "
+        + ", ".join(
+            {"force": "force=F_N", "width": "width=W_M", "estimates": "estimates=E_PA"}[n]
+            for n in required_inputs(strategy)
+        )
+        + ")",
+        "```",
+        "",
+        f"Files: `{WEIGHTS_FILE}` (sha256 `{config.get('weights_sha256')}`), `{CONFIG_FILE}` "
+        "(everything above, machine-readable), this card.",
+        "",
+    ]
+    return "\n".join(lines)
