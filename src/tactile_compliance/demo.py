@@ -34,9 +34,9 @@ class DemoPlan:
 # one seed, 36 runs (3 models x 4 inputs x 3 object conditions), each trained until early
 # stopping, plus the Shore-hardness grid. Many objects at a low resolution rather than few
 # at a high one: the UnSeen condition needs objects of each material grade on both sides
-# of the split, and the quick models see 72 x 72 (Top10NN) or 32 x 32 px frames anyway.
+# of the split, and the quick models see 65 x 65 (Top10NN) or 32 x 32 px frames anyway.
 _FULL = DemoPlan(
-    n_objects=150,
+    n_objects=100,
     grasps_per_object=2,
     image_size=(64, 88),
     shore_objects=24,
