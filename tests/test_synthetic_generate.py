@@ -212,6 +212,33 @@ def test_shore_videos_round_trip(tmp_path: Path) -> None:
     assert set(np.round(store.samples["modulus_pa"], 3)) == set(np.round(list(expected), 3))
 
 
+def test_shore_videos_carry_the_hardness_cue(tmp_path: Path) -> None:
+    # A soft sample shares the press with the gel and flattens, so the gel's imprint (the
+    # brightened, shaded region of the brightest frame) is shallow; a hard one prints
+    # deep. The mean max-channel |brightest - first| of 30 presses (seed 0, 48 x 64 px)
+    # ranks with log10 E at Spearman 0.84 (0.67-0.84 over seeds 0-5); the generator
+    # before the fix gave 0.39 (0.16-0.40), when trees on such features reached R^2 ~0
+    # (docs/synthetic.md, Shore section). The bound fails if the cue is lost again.
+    from scipy.stats import spearmanr
+
+    from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.data.yuan import import_yuan
+
+    generate_shore_videos(
+        tmp_path / "videos",
+        n_objects=30,
+        presses_per_object=1,
+        image_size=(48, 64),
+        progress=False,
+    )
+    import_yuan(tmp_path / "videos", tmp_path / "store", progress=False)
+    store = GraspStore.open(tmp_path / "store")
+    frames = store.read_block(0, len(store)).astype(np.float32)  # (n, first/mid/brightest, H, W, 3)
+    imprint = np.abs(frames[:, 2] - frames[:, 0]).max(axis=-1).mean(axis=(1, 2))
+    rho = spearmanr(imprint, np.log10(store.moduli_pa())).statistic
+    assert rho > 0.6, f"the Shore videos lost the hardness cue: Spearman {rho:.3f}"
+
+
 @pytest.mark.parametrize("size", [(32, 32), (64, 48), (64, 64), (120, 32), (32, 120), (33, 47)])
 def test_every_frame_size_of_at_least_32_px_works(tmp_path: Path, size: tuple[int, int]) -> None:
     # Sizes taller than the sensor's aspect used to need rows beyond the pad (a crash).

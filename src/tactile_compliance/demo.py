@@ -32,14 +32,16 @@ class DemoPlan:
 
 # Sized for <= 10 minutes on a 2-core CPU with models that converge: Table I (quick) with
 # one seed, 36 runs (3 models x 4 inputs x 3 object conditions), each trained until early
-# stopping, plus the Shore-hardness grid. Many objects at a low resolution rather than few
-# at a high one: the UnSeen condition needs objects of each material grade on both sides
-# of the split, and the quick models see 65 x 65 (Top10NN) or 32 x 32 px frames anyway.
+# stopping, plus the Shore-hardness grid (120 silicone samples x 3 presses: Table III needs
+# a few hundred training presses to learn hardness). Many objects at a low resolution
+# rather than few at a high one: the UnSeen condition needs objects of each material grade
+# on both sides of the split, and the quick models see 65 x 65 (Top10NN) or 32 x 32 px
+# frames anyway.
 _FULL = DemoPlan(
     n_objects=100,
     grasps_per_object=2,
     image_size=(64, 88),
-    shore_objects=24,
+    shore_objects=120,
     presets=("table1",),
     seeds=1,
 )

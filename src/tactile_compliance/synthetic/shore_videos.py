@@ -3,11 +3,19 @@
 Each object is a silicone sample of Shore 00 hardness 8-87 (Young's modulus from the
 Larson fit, ``tactile_compliance.physics.shore``) with one of the dataset's shape
 families; each press is a video ``{SHAPE}_{hardness:02d}_{n}.avi`` (MJPG, 30 fps) of a
-GelSight pressed into the sample by hand: a force rising to a 5-25 N peak, a short hold
-and the release. The frames are raw camera images (BGR in the file, as OpenCV writes
-them), rendered with the same mechanics and optics as the grasp generator. The gel of
-this older sensor is marked, and pressing brightens the membrane, so the deepest press
-is the brightest frame - the rule the importer uses to pick it.
+GelSight pressed into the sample by hand: a force rising to a 5-25 N peak (or until the
+sample has given way by 3-6 mm, whichever comes first), a short hold and the release.
+The frames are raw camera images (BGR in the file, as OpenCV writes them), rendered with
+the same mechanics and optics as the grasp generator. One sensor records every press of
+a dataset (its gel, lighting and membrane are drawn once per seed). The gel of this
+older sensor is marked, and pressing brightens the membrane, so the deepest press is the
+brightest frame - the rule the importer uses to pick it.
+
+The hardness cue is physical: the sample and the gel share each press as two springs in
+series (``synthetic.mechanics``), so a soft sample sinks around the sensor and leaves a
+shallow, wide gel imprint, a hard one a deep imprint of its shape. docs/synthetic.md
+(Shore section) has the measurements that shaped :data:`SILICONE_MAX_STRAIN`,
+:data:`STOP_DEPTH_MM` and the one-sensor rule.
 
 Shape families (file prefix -> geometry): ``BASIC`` hemispheres, ``CYLINDER``,
 ``FLAT`` (box faces), ``EDGE`` (prism edges), ``CORNER`` and ``MOULD`` (irregular
@@ -18,7 +26,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -40,6 +48,7 @@ from tactile_compliance.synthetic.mechanics import (
     gel_compression_fields,
 )
 from tactile_compliance.synthetic.render import (
+    SensorLook,
     gel_height_maps,
     render_frames,
     render_size,
@@ -54,6 +63,25 @@ HARDNESS_RANGE = (8, 87)
 """Shore 00 hardness range of the samples [-]."""
 
 _FPS = 30.0
+
+SILICONE_MAX_STRAIN = 3.0
+"""Saturating compressive strain of the silicone samples in the mechanics [-].
+
+The samples are solid, nearly incompressible (nu = 0.49) silicone blocks: under the
+sensor they flow sideways instead of densifying, and an elastomer stays close to linear
+(Hertz) in indentation to depths of a good fraction of the contact radius. The
+foundation's cap ``delta_o <= l_o eps_o`` is meant for foams and hollow objects; the
+earlier 0.5 made soft samples bottom out ~3 mm into the press, after which the gel took
+all the remaining interference and printed a soft sample as deeply as a hard one (the
+mechanics' object share fell, the videos lost the hardness cue). 3.0 leaves a mild
+stiffening, at most x1.5 within the stop depth below (foundation strain <= ~1)."""
+
+STOP_DEPTH_MM = (3.0, 6.0)
+"""Range of the approach [mm] at which a hand stops pressing a sample that gives way
+(15-30 % of the 20 mm block); hard samples reach the target force long before."""
+
+LIGHT_DRIFT = 0.05
+"""Relative sigma of the sensor's LED brightness between presses (warm-up, sessions) [-]."""
 
 
 def shore_video_name(shape: str, hardness: int, press: int) -> str:
@@ -75,22 +103,63 @@ def _geometry(family: str, rng: np.random.Generator) -> ShapeSpec:
     return sample_shape("Irregular", rng)
 
 
+@dataclass(frozen=True)
+class _Sensor:
+    """The one GelSight that recorded every press of a dataset.
+
+    Attributes:
+        gel: the sensor's elastomer (its thickness is fixed by the sensor's build).
+        look: the sensor's appearance (background, lights, markers).
+        brighten: grey levels gained per mm of imprint where the pressed membrane
+            lights up, before the per-press lighting drift [1/mm].
+    """
+
+    gel: GelModel
+    look: SensorLook
+    brighten: float
+
+
+def _sensor(seed: int) -> _Sensor:
+    """Draw the dataset's sensor once per seed.
+
+    Yuan et al. recorded all presses with one GelSight, so its gel thickness, lighting
+    and membrane are constants of the dataset, not nuisances of each press. Drawing
+    them per press (as this generator once did) made the imprint's brightness a random
+    +-27 % gain and its depth scale a random gel, which drowned the hardness cue
+    (docs/synthetic.md, Shore section). The per-press lighting drift stays (see
+    :func:`_press_video`).
+    """
+    rng = stream(seed, "shore-sensor")
+    gel = GelModel(thickness_mm=float(rng.uniform(1.5, 3.0)))
+    look = sample_sensor_look(stream(seed, "shore-sensor", "look"), markers=True)
+    return _Sensor(gel=gel, look=look, brighten=float(rng.uniform(40.0, 70.0)))
+
+
 def _press_video(
     spec: ShapeSpec,
     modulus_pa: float,
     seed: int,
     key: tuple[object, ...],
     size: tuple[int, int],
+    sensor: _Sensor,
 ) -> np.ndarray:
     """Raw BGR frames (T, H, W, 3) of one press."""
     rng = stream(seed, *key, "press")
-    gel = GelModel(thickness_mm=float(rng.uniform(1.5, 3.0)))
-    obj = ObjectMechanics(modulus_pa=modulus_pa, poisson=0.49, size_mm=20.0, max_strain=0.5)
+    gel = sensor.gel
+    obj = ObjectMechanics(
+        modulus_pa=modulus_pa, poisson=0.49, size_mm=20.0, max_strain=SILICONE_MAX_STRAIN
+    )
     grid = PadGrid(0.5)
     pose = sample_pose(rng, spec.kind)
     sag = sag_map(spec, grid, pose)
     curve = force_curve(sag, gel, obj, grid, max_force_n=30.0)
-    peak = float(rng.uniform(5.0, 25.0))
+    # The hand aims at a 5-25 N press but stops early when the sample gives way: a
+    # person does not squash a 20 mm block (the mechanics' foundation would let a very
+    # soft sample take a 25 N press by sinking up to 16 mm, 4/5 of its height). The press
+    # ends at the target force or at the stop depth, whichever comes first.
+    target_n = float(rng.uniform(5.0, 25.0))
+    stop_mm = float(rng.uniform(*STOP_DEPTH_MM))
+    peak = min(target_n, float(np.interp(stop_mm, curve.approaches_mm, curve.forces_n)))
     n_pre, n_up, n_hold, n_down, n_post = (
         int(rng.integers(3, 7)),
         int(rng.integers(8, 20)),
@@ -106,16 +175,16 @@ def _press_video(
     approach = np.where(force > 0, curve.approach_at(np.maximum(force, 1e-9)), 0.0)
     fields = gel_compression_fields(sag, gel, obj, grid, approach)
     height, _ = gel_height_maps(fields, grid, render_size(size), gel.thickness_mm)
-    look = sample_sensor_look(stream(seed, *key, "look"), markers=True)
     # Pressed membrane brightens on this sensor (so the deepest press is the brightest).
-    # Its lighting is steadier than the Wedge's (small frame-to-frame drift).
-    brighten = -float(rng.uniform(40.0, 70.0))
+    # Its lighting is steadier than the Wedge's (small frame-to-frame drift); between
+    # presses the LEDs drift by a few per cent.
+    brighten = -sensor.brighten * float(1.0 + rng.normal(0.0, LIGHT_DRIFT))
     look = replace(
-        look,
+        sensor.look,
         darkening=(brighten, brighten, brighten),
         drift=(0.0005, 0.1),
         jpeg_quality=0,
-        _cache={},
+        _cache=sensor.look._cache,
     )
     frames = render_frames(height, look, stream(seed, *key, "noise"))
     if frames.shape[1:3] == tuple(size):
@@ -170,6 +239,7 @@ def generate_shore_videos(
     # whose order depends on the seed only (a subset gives the same first objects).
     order = stream(seed, "shore-objects").permutation(n_pairs)
     report = GenerationReport(out_dir=out, objects_total=n_objects, workers=1)
+    sensor = _sensor(seed)
     total = n_objects * presses_per_object
     with progress_bar("rendering press videos", total, progress) as advance:
         for i in range(n_objects):
@@ -185,7 +255,7 @@ def generate_shore_videos(
                     advance(1)
                     continue
                 key = ("shore", family, hardness, n)
-                frames = _press_video(spec, modulus, seed, key, (height, width))
+                frames = _press_video(spec, modulus, seed, key, (height, width), sensor)
                 partial = path.with_name(f".partial-{path.name}")
                 writer = cv2.VideoWriter(
                     str(partial), cv2.VideoWriter_fourcc(*"MJPG"), _FPS, (width, height)
