@@ -55,8 +55,8 @@ def load_rows(results: Path) -> pd.DataFrame:
 
 
 def condition_name(row: pd.Series) -> str:
-    grouping = row.get("grouping") or "grasp"
-    return CONDITIONS.get((row["condition"], grouping if row["condition"] == "seen" else "grasp"), "?")
+    grouping = (row.get("grouping") or "grasp") if row["condition"] == "seen" else "grasp"
+    return CONDITIONS.get((row["condition"], grouping), "?")
 
 
 def convergence(frame: pd.DataFrame) -> str:
@@ -79,9 +79,7 @@ def convergence(frame: pd.DataFrame) -> str:
             val = log["val_nmse"].dropna().to_numpy()
             if len(val) >= 4:
                 falls.append((val[-4] - val[-1]) / val[-4])
-        spread = (
-            f"{100 * np.median(falls):.1f} %, {100 * np.max(falls):.1f} %" if falls else "-"
-        )
+        spread = f"{100 * np.median(falls):.1f} %, {100 * np.max(falls):.1f} %" if falls else "-"
         lines.append(f"| {model} | {len(part)} | {early} | {full} | {spread} |")
     return "\n".join(lines)
 
