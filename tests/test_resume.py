@@ -19,6 +19,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from epoch_trace import committed_epochs
 from tactile_compliance.cli import app
 from tactile_compliance.data.store import StoreError
 from tactile_compliance.outputs import MARKER_NAME, claim_output_dir
@@ -98,12 +99,6 @@ def _trace(run_dir: Path) -> list[tuple[int, int]]:
     return [tuple(map(int, line.split())) for line in path.read_text().splitlines() if line]
 
 
-def _epochs_done(run_dir: Path) -> int:
-    """Epochs the committed last.ckpt holds."""
-    ckpt = torch.load(run_dir / "checkpoints" / "last.ckpt", weights_only=True, mmap=True)
-    return int(ckpt["callbacks"]["tactile_compliance.EpochState"]["epochs_done"])
-
-
 @pytest.fixture(scope="module")
 def uninterrupted(small_store, tmp_path_factory):
     """The reference: the same configuration run once without interruption (subprocess,
@@ -129,7 +124,7 @@ def test_interrupted_run_resumes_and_ends_as_if_uninterrupted(
     proc.communicate(timeout=120)
     assert proc.returncode != 0  # it was interrupted, not finished
     assert not (run_dir / "metrics.json").exists()
-    done = _epochs_done(run_dir)
+    done = committed_epochs(run_dir)
     assert done >= kill_at
 
     _finish(_start(small_store, run_dir))
@@ -354,7 +349,7 @@ def test_full_disk_while_saving_the_training_state_keeps_the_previous_epoch(
     with pytest.raises(OSError, match="No space left"):
         train(cfg, run_dir=run_dir, progress=False)
     assert not list(run_dir.rglob("*.tmp"))
-    assert _epochs_done(run_dir) == 1  # epoch 0's state, intact
+    assert committed_epochs(run_dir) == 1  # epoch 0's state, intact
     monkeypatch.undo()  # space again: the re-run resumes with epoch 1
     result = train(cfg, run_dir=run_dir, progress=False)
     assert result["epochs_trained"] == 3
