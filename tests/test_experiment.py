@@ -3,6 +3,7 @@ that lose a worker (or the whole driver) midway and still end with every cell do
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -518,3 +519,63 @@ def test_interrupted_driver_resumes_and_ends_as_if_uninterrupted(
     for key, row in rows.items():
         assert row["status"] == "complete"
         assert _comparable(row) == _comparable(uninterrupted_grid[key]), key
+
+
+def _kill_every_attempt(run_dir: Path, stop: threading.Event, killed: list[int]) -> None:
+    """SIGKILL each worker process that starts this cell, as soon as its start is recorded."""
+    attempts = run_dir / "attempts.json"
+    while not stop.is_set():
+        try:
+            history = json.loads(attempts.read_text())["history"]
+        except (OSError, ValueError, KeyError):
+            history = []
+        for start in history:
+            if start["pid"] not in killed:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(start["pid"], signal.SIGKILL)
+                killed.append(start["pid"])
+        time.sleep(0.02)
+
+
+def test_a_cell_whose_worker_keeps_dying_is_recorded_as_failed_and_the_grid_goes_on(
+    kill_setup, tmp_path
+):
+    """Dask re-runs a cell whose worker died on a fresh worker, and gives up after
+    ``distributed.scheduler.allowed-failures`` deaths more than one (3 by default; 1 here,
+    to keep the test short): the cell is recorded as failed with the reason, and the other
+    cells finish."""
+    import dask
+
+    grid, store = kill_setup
+    out = tmp_path / "out"
+    plan = plan_experiment(grid, store=store.path, output_dir=out)
+    doomed = plan.cells[1]
+    stop, killed = threading.Event(), []
+    watcher = threading.Thread(target=_kill_every_attempt, args=(doomed.run_dir, stop, killed))
+    watcher.start()
+    try:
+        # One task per worker at a time, so that a death counts against the doomed cell only.
+        with dask.config.set(
+            {
+                "distributed.scheduler.allowed-failures": 1,
+                "distributed.scheduler.worker-saturation": 1.0,
+            }
+        ):
+            summary = run_experiment(
+                grid, store=store.path, output_dir=out, workers=1, progress=False
+            )
+    finally:
+        stop.set()
+        watcher.join()
+    assert len(killed) == 2  # allowed-failures + 1 deaths, then Dask gave up
+    assert (summary.completed, summary.failed) == (1, 1)
+    rows = _rows(summary.results_path)
+    lost = rows[doomed.key]
+    assert lost["status"] == "failed" and lost["attempts"] == 2
+    assert (
+        lost["error"].startswith("KilledWorker") and "died while running this cell" in lost["error"]
+    )
+    assert "KilledWorker" in lost["traceback"] and lost["run_dir"] == str(doomed.run_dir)
+    other = rows[plan.cells[0].key]
+    assert other["status"] == "complete" and other["attempts"] == 1
+    assert summary.failures == [(doomed.label, lost["error"])]

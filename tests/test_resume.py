@@ -8,10 +8,12 @@ import json
 import os
 import signal
 import stat
+import struct
 import subprocess
 import sys
 import textwrap
 import time
+import zipfile
 from pathlib import Path
 
 import pandas as pd
@@ -26,6 +28,7 @@ from tactile_compliance.outputs import MARKER_NAME, claim_output_dir
 from tactile_compliance.runs.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
 from tactile_compliance.runs.layout import RUN_KIND, DirectoryLockedError, lock_directory
 from tactile_compliance.runs.results import ResultsStore
+from tactile_compliance.training import module
 from tactile_compliance.training.train import build_model, train
 from toy_store import make_toy_store, tiny_run_config
 
@@ -169,35 +172,79 @@ def _quick(store_path, out, extra=()):
     )
 
 
+def _trained_epochs(monkeypatch) -> list[int]:
+    """The epochs this process starts training from now on, in order."""
+    epochs: list[int] = []
+    started = module.ComplianceModule.on_train_epoch_start
+
+    def traced(self):
+        epochs.append(self.current_epoch)
+        started(self)
+
+    monkeypatch.setattr(module.ComplianceModule, "on_train_epoch_start", traced)
+    return epochs
+
+
+def _flip_a_byte_of_the_largest_tensor(path: Path) -> None:
+    """Damage a stored tensor without touching the zip structure: torch.load reads the
+    file without complaint (it checks no CRC), only the members' checksums tell."""
+    with zipfile.ZipFile(path) as archive:
+        info = max(archive.infolist(), key=lambda i: i.file_size)
+    raw = bytearray(path.read_bytes())
+    name_length, extra_length = struct.unpack_from("<HH", raw, info.header_offset + 26)
+    start = info.header_offset + 30 + name_length + extra_length  # the member's bytes
+    raw[start + info.file_size // 2] ^= 0xFF
+    path.write_bytes(bytes(raw))
+    torch.load(path, weights_only=True)  # still loads
+
+
 def test_unreadable_checkpoint_falls_back_to_the_previous_one_then_to_a_fresh_start(
-    toy_store, tmp_path
+    toy_store, tmp_path, monkeypatch
 ):
     run_dir = tmp_path / "run"
     cfg = _quick(toy_store.path, tmp_path)
     first = train(cfg, run_dir=run_dir, progress=False)
     checkpoints = run_dir / "checkpoints"
     assert {p.name for p in checkpoints.iterdir()} == {"last.ckpt", "last.prev.ckpt"}
+    epochs = _trained_epochs(monkeypatch)
+    last, previous = checkpoints / "last.ckpt", checkpoints / "last.prev.ckpt"
 
-    # Killed while an older version wrote last.ckpt in place: it is cut short.
-    (run_dir / "metrics.json").unlink()
-    last = checkpoints / "last.ckpt"
-    last.write_bytes(last.read_bytes()[: last.stat().st_size // 2])
-    with pytest.warns(RuntimeWarning, match=r"last\.ckpt is unreadable .*resuming from last"):
-        again = train(cfg, run_dir=run_dir, progress=False)
-    for key in ("test", "best_epoch", "best_val_nmse", "epochs_trained"):
-        assert again[key] == first[key], key
-    assert (checkpoints / "last.ckpt.corrupt").exists()  # set aside, never deleted
-    log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
-    assert log["epoch"].astype(int).tolist() == [0, 1, 2]
+    # Killed while an older version wrote last.ckpt in place: it is cut short. Or a bit
+    # flipped on the disk. Either way last.prev.ckpt (epochs 0 and 1) takes over and only
+    # the last epoch is trained again.
+    damages = {
+        "truncated": lambda path: path.write_bytes(path.read_bytes()[: path.stat().st_size // 2]),
+        "bit flip": _flip_a_byte_of_the_largest_tensor,
+    }
+    for damage, reason in (("truncated", "BadZipFile"), ("bit flip", "fails its checksum")):
+        (run_dir / "metrics.json").unlink()
+        (checkpoints / "last.ckpt.corrupt").unlink(missing_ok=True)
+        damages[damage](last)
+        damaged = last.read_bytes()
+        epochs.clear()
+        with pytest.warns(
+            RuntimeWarning, match=rf"last\.ckpt is unreadable \(.*{reason}.*resuming from last"
+        ):
+            again = train(cfg, run_dir=run_dir, progress=False)
+        assert epochs == [2], damage
+        for key in ("test", "best_epoch", "best_val_nmse", "epochs_trained"):
+            assert again[key] == first[key], (damage, key)
+        # Set aside as it was, never deleted.
+        assert (checkpoints / "last.ckpt.corrupt").read_bytes() == damaged, damage
+        log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
+        assert log["epoch"].astype(int).tolist() == [0, 1, 2]
 
     # Both unreadable: the run starts over (and still ends the same way).
     (run_dir / "metrics.json").unlink()
-    for name in ("last.ckpt", "last.prev.ckpt"):
-        (checkpoints / name).write_bytes(b"not a checkpoint")
+    for path in (last, previous):
+        path.write_bytes(b"not a checkpoint")
+    epochs.clear()
     with pytest.warns(RuntimeWarning, match="starting the run over"):
         fresh = train(cfg, run_dir=run_dir, progress=False)
+    assert epochs == [0, 1, 2]
     assert fresh["test"] == first["test"] and fresh["epochs_trained"] == 3
     assert (checkpoints / "last.prev.ckpt.corrupt").read_bytes() == b"not a checkpoint"
+    assert (checkpoints / "last.ckpt.corrupt").read_bytes() == b"not a checkpoint"
 
 
 def test_a_run_that_stopped_early_does_not_train_on_when_resumed(toy_store, tmp_path):
