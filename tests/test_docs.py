@@ -40,28 +40,51 @@ except ImportError:  # pragma: no cover
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
-SHELL = ("bash", "sh", "shell", "console", "")
+SHELL = ("bash", "sh", "shell", "console")
+#: The line right before a fence that marks its block illustrative (docs/testing.md).
+ILLUSTRATIVE = re.compile(r"^<!--\s*illustrative:\s*(?P<reason>\S.*?)\s*-->$")
 
 
-def _fenced_blocks(text: str, languages: tuple[str, ...]) -> list[str]:
-    """The bodies of the fenced code blocks whose language is one of ``languages``."""
-    blocks, body, language = [], [], None
-    for line in text.splitlines():
-        if line.startswith("```"):
-            if language is None:
-                language = line[3:].strip()
-                body = []
-            else:
-                if language in languages:
-                    blocks.append("\n".join(body) + "\n")
-                language = None
-        elif language is not None:
-            body.append(line)
+@dataclass(frozen=True)
+class Block:
+    """A fenced code block of a doc page."""
+
+    doc: str
+    line: int  # of the opening fence, 1-based
+    language: str
+    body: str
+    illustrative: str | None  # the reason, when marked
+
+    @property
+    def id(self) -> str:
+        return f"{self.doc}:{self.line}"
+
+
+def _parse_blocks(text: str, doc: str = "") -> list[Block]:
+    """The fenced code blocks of a Markdown text, in order."""
+    blocks: list[Block] = []
+    lines = text.splitlines()
+    start, language = None, ""
+    for number, line in enumerate(lines):
+        if not line.startswith("```"):
+            continue
+        if start is None:
+            start, language = number, line[3:].strip().split(" ")[0]
+            continue
+        before = lines[start - 1].strip() if start else ""
+        marked = ILLUSTRATIVE.match(before)
+        body = "\n".join(lines[start + 1 : number]) + "\n"
+        blocks.append(Block(doc, start + 1, language, body, marked["reason"] if marked else None))
+        start = None
     return blocks
 
 
+def _blocks(doc: Path) -> list[Block]:
+    return _parse_blocks(doc.read_text(encoding="utf-8"), doc.relative_to(REPO).as_posix())
+
+
 def _yaml_blocks(text: str) -> list[str]:
-    return _fenced_blocks(text, ("yaml",))
+    return [block.body for block in _parse_blocks(text) if block.language == "yaml"]
 
 
 def test_the_reference_config_in_the_docs_is_the_shipped_default() -> None:
@@ -76,8 +99,10 @@ def _command_lines() -> list[tuple[str, str]]:
     """(doc name, command line) for every `tactile-compliance` line in a shell block."""
     found = []
     for doc in DOCS:
-        for block in _fenced_blocks(doc.read_text(encoding="utf-8"), SHELL):
-            joined = re.sub(r"\\\n\s*", " ", block)  # continuation lines
+        for block in _blocks(doc):
+            if block.language not in SHELL:
+                continue
+            joined = re.sub(r"\\\n\s*", " ", block.body)  # continuation lines
             for line in joined.splitlines():
                 line = line.split("  #", 1)[0].strip()
                 for part in re.split(r"&&|;", line):
@@ -135,53 +160,9 @@ def test_the_experiment_file_example_is_the_shipped_table1_grid() -> None:
 
 
 # ============================================================================ blocks that run
-ILLUSTRATIVE = re.compile(r"^<!--\s*illustrative:\s*(?P<reason>\S.*?)\s*-->$")
-RUNNABLE_SHELL = ("bash", "sh", "shell", "console")
-
-
-@dataclass(frozen=True)
-class Block:
-    """A fenced code block of a doc page."""
-
-    doc: str
-    line: int  # of the opening fence, 1-based
-    language: str
-    body: str
-    illustrative: str | None  # the reason, when marked
-
-    @property
-    def id(self) -> str:
-        return f"{self.doc}:{self.line}"
-
-
-def _blocks(doc: Path) -> list[Block]:
-    blocks: list[Block] = []
-    lines = doc.read_text(encoding="utf-8").splitlines()
-    start, language = None, ""
-    for number, line in enumerate(lines):
-        if not line.startswith("```"):
-            continue
-        if start is None:
-            start, language = number, line[3:].strip().split(" ")[0]
-            continue
-        before = lines[start - 1].strip() if start else ""
-        marked = ILLUSTRATIVE.match(before)
-        blocks.append(
-            Block(
-                doc.relative_to(REPO).as_posix(),
-                start + 1,
-                language,
-                "\n".join(lines[start + 1 : number]) + "\n",
-                marked["reason"] if marked else None,
-            )
-        )
-        start = None
-    return blocks
-
-
 BLOCKS = [block for doc in DOCS for block in _blocks(doc)]
 PYTHON = [b for b in BLOCKS if b.language == "python"]
-SHELL_BLOCKS = [b for b in BLOCKS if b.language in RUNNABLE_SHELL]
+SHELL_BLOCKS = [b for b in BLOCKS if b.language in SHELL]
 
 
 def test_every_block_says_what_it_is_and_every_marker_marks_a_block() -> None:
