@@ -15,6 +15,7 @@ epoch is traced after the previous one was committed to ``last.ckpt``.
 from __future__ import annotations
 
 import os
+import signal
 import textwrap
 from pathlib import Path
 
@@ -95,3 +96,10 @@ def committed_epochs(run_dir: Path) -> int:
         return 0
     checkpoint = torch.load(path, weights_only=True, mmap=True)
     return int(checkpoint["callbacks"]["tactile_compliance.EpochState"]["epochs_done"])
+
+
+def default_sigint() -> None:
+    """``preexec_fn`` for a child that a test interrupts with SIGINT: Ctrl-C's default
+    disposition, even when the tests run in a background job (where the shell ignores
+    SIGINT, children inherit that, and Python then installs no KeyboardInterrupt)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -21,7 +21,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from epoch_trace import committed_epochs
+from epoch_trace import committed_epochs, default_sigint
 from tactile_compliance.cli import app
 from tactile_compliance.data.store import StoreError
 from tactile_compliance.outputs import MARKER_NAME, claim_output_dir
@@ -84,6 +84,7 @@ def small_store(tmp_path_factory):
 def _start(store, run_dir: Path) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-c", WORKER, str(store.path), str(run_dir), f"{run_dir}.trace", *RESUMED],
+        preexec_fn=default_sigint,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
