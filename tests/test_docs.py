@@ -1,21 +1,35 @@
-"""The docs describe the system as it is: shipped configs and documented commands.
+"""The docs describe the system as it is: shipped configs, documented commands, and code
+blocks that run.
 
-* The reference config in docs/protocol.md is the shipped default preset, key for key.
+* The reference config in docs/protocol.md is the shipped default preset, key for key; the
+  experiment-file example in docs/experiments.md is the shipped table1 grid.
 * Every `tactile-compliance ...` command line in README.md and docs/*.md names an existing
   command, and every `--option` it uses exists on that command.
+* Every fenced block says what it is (an info string: ``python``, ``bash``, ``text``, ...).
+* Every ``python`` and shell block runs here, on tiny data, or is marked illustrative by an
+  ``<!-- illustrative: REASON -->`` line right before its fence (docs/testing.md). A
+  runnable block runs in a sandbox directory whose names are the docs' own (``stores/ym``,
+  ``runs/RUN``, ``STORE``, ...: tiny stand-ins); the Python blocks of one page share one
+  namespace, in order, like a notebook, that starts with one grasp's ``frames``, ``force``,
+  ``width`` and ``estimates``. An illustrative Python block still compiles and its imports
+  still run, so a documented name that disappears fails here too.
 """
 
 from __future__ import annotations
 
+import ast
 import re
 import shlex
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 import typer.main
 import yaml
+from typer.testing import CliRunner
 
 from tactile_compliance.cli import app
+from toy_store import make_toy_store, tiny_run_config
 
 try:  # typer vendors its own click since 0.20; its commands use that one
     from typer import _click as click
@@ -26,28 +40,51 @@ except ImportError:  # pragma: no cover
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
-SHELL = ("bash", "sh", "shell", "console", "")
+SHELL = ("bash", "sh", "shell", "console")
+#: The line right before a fence that marks its block illustrative (docs/testing.md).
+ILLUSTRATIVE = re.compile(r"^<!--\s*illustrative:\s*(?P<reason>\S.*?)\s*-->$")
 
 
-def _fenced_blocks(text: str, languages: tuple[str, ...]) -> list[str]:
-    """The bodies of the fenced code blocks whose language is one of ``languages``."""
-    blocks, body, language = [], [], None
-    for line in text.splitlines():
-        if line.startswith("```"):
-            if language is None:
-                language = line[3:].strip()
-                body = []
-            else:
-                if language in languages:
-                    blocks.append("\n".join(body) + "\n")
-                language = None
-        elif language is not None:
-            body.append(line)
+@dataclass(frozen=True)
+class Block:
+    """A fenced code block of a doc page."""
+
+    doc: str
+    line: int  # of the opening fence, 1-based
+    language: str
+    body: str
+    illustrative: str | None  # the reason, when marked
+
+    @property
+    def id(self) -> str:
+        return f"{self.doc}:{self.line}"
+
+
+def _parse_blocks(text: str, doc: str = "") -> list[Block]:
+    """The fenced code blocks of a Markdown text, in order."""
+    blocks: list[Block] = []
+    lines = text.splitlines()
+    start, language = None, ""
+    for number, line in enumerate(lines):
+        if not line.startswith("```"):
+            continue
+        if start is None:
+            start, language = number, line[3:].strip().split(" ")[0]
+            continue
+        before = lines[start - 1].strip() if start else ""
+        marked = ILLUSTRATIVE.match(before)
+        body = "\n".join(lines[start + 1 : number]) + "\n"
+        blocks.append(Block(doc, start + 1, language, body, marked["reason"] if marked else None))
+        start = None
     return blocks
 
 
+def _blocks(doc: Path) -> list[Block]:
+    return _parse_blocks(doc.read_text(encoding="utf-8"), doc.relative_to(REPO).as_posix())
+
+
 def _yaml_blocks(text: str) -> list[str]:
-    return _fenced_blocks(text, ("yaml",))
+    return [block.body for block in _parse_blocks(text) if block.language == "yaml"]
 
 
 def test_the_reference_config_in_the_docs_is_the_shipped_default() -> None:
@@ -62,8 +99,10 @@ def _command_lines() -> list[tuple[str, str]]:
     """(doc name, command line) for every `tactile-compliance` line in a shell block."""
     found = []
     for doc in DOCS:
-        for block in _fenced_blocks(doc.read_text(encoding="utf-8"), SHELL):
-            joined = re.sub(r"\\\n\s*", " ", block)  # continuation lines
+        for block in _blocks(doc):
+            if block.language not in SHELL:
+                continue
+            joined = re.sub(r"\\\n\s*", " ", block.body)  # continuation lines
             for line in joined.splitlines():
                 line = line.split("  #", 1)[0].strip()
                 for part in re.split(r"&&|;", line):
@@ -107,3 +146,146 @@ def test_every_documented_command_and_option_exists(doc: str, line: str) -> None
         command.make_context(" ".join(path), list(words))
     except UsageError as err:
         pytest.fail(f"{doc}: `{line}`: {err.format_message()}")
+
+
+def test_the_experiment_file_example_is_the_shipped_table1_grid() -> None:
+    text = (REPO / "docs" / "experiments.md").read_text(encoding="utf-8")
+    example = text[text.index("## Experiment files") :]
+    documented = yaml.safe_load(_yaml_blocks(example)[0])
+    shipped_path = REPO / "src" / "tactile_compliance" / "configs" / "experiments" / "table1.yaml"
+    shipped = yaml.safe_load(shipped_path.read_text(encoding="utf-8"))
+    # rules, include and quick are the page's own examples of the format.
+    for key in ("description", "config", "set", "grid", "seeds", "paper_settings"):
+        assert documented[key] == shipped[key], key
+
+
+# ============================================================================ blocks that run
+BLOCKS = [block for doc in DOCS for block in _blocks(doc)]
+PYTHON = [b for b in BLOCKS if b.language == "python"]
+SHELL_BLOCKS = [b for b in BLOCKS if b.language in SHELL]
+
+
+def test_every_block_says_what_it_is_and_every_marker_marks_a_block() -> None:
+    assert len(PYTHON) > 10 and len(SHELL_BLOCKS) > 10  # the extraction itself works
+    untagged = [b.id for b in BLOCKS if not b.language]
+    assert not untagged, f"fenced blocks without an info string (python, bash, text...): {untagged}"
+    for doc in DOCS:
+        lines = doc.read_text(encoding="utf-8").splitlines()
+        for number, line in enumerate(lines):
+            if "illustrative" in line and line.lstrip().startswith("<!--"):
+                name = f"{doc.relative_to(REPO).as_posix()}:{number + 1}"
+                assert ILLUSTRATIVE.match(line.strip()), f"{name}: give a reason: {line}"
+                following = lines[number + 1] if number + 1 < len(lines) else ""
+                assert following.startswith("```"), f"{name}: the marker must precede a fence"
+
+
+@pytest.mark.parametrize("block", PYTHON, ids=[b.id for b in PYTHON])
+def test_every_python_block_compiles_and_its_imports_exist(block: Block) -> None:
+    tree = ast.parse(block.body, filename=block.id)
+    imports = [node for node in tree.body if isinstance(node, ast.Import | ast.ImportFrom)]
+    exec(compile(ast.Module(body=imports, type_ignores=[]), block.id, "exec"), {})
+
+
+def _grasp(store) -> dict:
+    """One grasp of a store as a user holds it: the inputs the docs' examples pass."""
+    return {
+        "frames": store.load_frames([0])[0],  # (3, H, W, 3) float32 difference images
+        "force": store.forces_n()[0],  # (3,) N
+        "width": store.widths_m()[0],  # (3,) m
+        "estimates": store.estimates_pa()[0],  # (2,) Pa
+    }
+
+
+@pytest.fixture(scope="module")
+def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The docs' names, standing for tiny data: stores (one toy store), trained runs (one
+    epoch each: Top10NN ALL as ``runs/RUN``, also what the report's Fig. 5 needs, and two
+    Top10NN ImageFW seeds for the ensemble example), a config file and a results store of
+    those runs."""
+    from tactile_compliance.config import load_config, save_config
+    from tactile_compliance.runs.results import ResultsStore, result_row
+    from tactile_compliance.training.train import train
+
+    root = tmp_path_factory.mktemp("docs-sandbox")
+    store = make_toy_store(root / "data" / "toy", n_objects=8, grasps=2, size=(72, 72))
+    (root / "stores").mkdir()
+    for name in ("ym", "quick", "synthetic"):
+        (root / "stores" / name).symlink_to(store.path)
+    (root / "STORE").symlink_to(store.path)
+    runs, results = root / "runs", ResultsStore(root / "results")
+    for inputs, seed in (("ALL", 0), ("ImageFW", 0), ("ImageFW", 1)):
+        extra = ["data.image_size=[72,72]", "training.max_epochs=1", f"inputs={inputs}"]
+        cfg = tiny_run_config(store.path, runs, "top10nn", [*extra, f"seed={seed}"])
+        result = train(cfg, progress=False)
+        results.record(result_row(cfg, result, preset="docs"))
+        if inputs == "ALL":
+            (runs / "RUN").symlink_to(result["run_dir"])
+    save_config(load_config("default"), runs / "my.yaml")
+    return root
+
+
+@pytest.fixture
+def workdir(sandbox: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A fresh working directory with the sandbox's names (what a block writes stays here,
+    but under runs/ and results/, which are shared)."""
+    for entry in sandbox.iterdir():
+        if entry.name != "data":
+            (tmp_path / entry.name).symlink_to(entry)
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def _pages(blocks: list[Block]) -> dict[str, list[Block]]:
+    pages: dict[str, list[Block]] = {}
+    for block in blocks:
+        if block.illustrative is None:
+            pages.setdefault(block.doc, []).append(block)
+    return pages
+
+
+PYTHON_PAGES = _pages(PYTHON)
+
+
+@pytest.mark.parametrize("doc", sorted(PYTHON_PAGES))
+def test_the_python_blocks_of_each_page_run(doc: str, workdir: Path, sandbox: Path) -> None:
+    from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.models import registry
+
+    namespace = {"__name__": "__docs__", **_grasp(GraspStore.open(sandbox / "stores" / "ym"))}
+    models = dict(registry._REGISTRY)  # a page may register an example model
+    try:
+        for block in PYTHON_PAGES[doc]:
+            try:
+                exec(compile(block.body, block.id, "exec"), namespace)
+            except Exception as err:
+                pytest.fail(f"{block.id} (python) fails: {type(err).__name__}: {err}")
+    finally:
+        registry._REGISTRY.clear()
+        registry._REGISTRY.update(models)
+
+
+def _shell_commands(block: Block) -> list[str]:
+    """The commands of a shell block (continuations joined, comments dropped)."""
+    joined = re.sub(r"\\\n\s*", " ", block.body)
+    commands = []
+    for line in joined.splitlines():
+        line = line.split("#", 1)[0].strip() if not line.lstrip().startswith("#") else ""
+        commands.extend(part.strip() for part in re.split(r"&&|;", line) if part.strip())
+    return commands
+
+
+RUNNABLE_SHELL_BLOCKS = [b for b in SHELL_BLOCKS if b.illustrative is None]
+
+
+@pytest.mark.parametrize("block", RUNNABLE_SHELL_BLOCKS, ids=[b.id for b in RUNNABLE_SHELL_BLOCKS])
+def test_the_runnable_shell_blocks_run(block: Block, workdir: Path) -> None:
+    commands = _shell_commands(block)
+    assert commands, f"{block.id}: an empty shell block"
+    for command in commands:
+        words = shlex.split(command)
+        assert words[0] == "tactile-compliance", (
+            f"{block.id}: `{command}` is not a tactile-compliance command; run it here or "
+            "mark the block <!-- illustrative: REASON -->"
+        )
+        result = CliRunner().invoke(app, words[1:])
+        assert result.exit_code == 0, f"{block.id}: `{command}` failed:\n{result.output[-3000:]}"

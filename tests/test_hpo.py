@@ -3,16 +3,22 @@
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Any, ClassVar
 
 import pandas as pd
 import pytest
+import yaml
 
 pytest.importorskip("smac")
 
 from torch import nn
 
+from epoch_trace import committed_epochs, default_sigint, read_trace, traced_env
 from tactile_compliance.config import config_to_dict, load_config
 from tactile_compliance.models import (
     InputStrategy,
@@ -366,6 +372,124 @@ def test_tune_balance_writes_an_experiment_with_the_tuned_value(toy_store, tmp_p
     assert {(c.cfg.sampling.strategy, c.cfg.sampling.t_balance) for c in cells} == {("balanced", t)}
     for path in result.extra_paths:
         assert load_config(path).sampling.t_balance == t
+
+
+# ------------------------------------------------------------ the command interrupted
+#: Two trials of two epochs each (with min = max epochs Hyperband has one budget), so a
+#: trial can be caught midway after the first one finished.
+KILL_TRIALS, KILL_EPOCHS = 2, 2
+
+
+def _tune_command(store, out: Path, trace: Path) -> subprocess.Popen:
+    """``tactile-compliance tune`` as a user runs it (serial trials in its own process),
+    every training epoch traced."""
+    command = [sys.executable, "-m", "tactile_compliance.cli", "tune", "top10nn"]
+    command += ["--inputs", "Image", "--store", str(store.path), "--output-dir", str(out)]
+    command += [f"--set={override}" for override in TOP10]
+    command += ["--trials", str(KILL_TRIALS), "--min-epochs", str(KILL_EPOCHS)]
+    command += ["--max-epochs", str(KILL_EPOCHS)]
+    return subprocess.Popen(
+        command,
+        env=traced_env(trace.parent / "site", trace),
+        preexec_fn=default_sigint,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _history(out: Path) -> pd.DataFrame:
+    """trials.csv without the measured time: config id, budget, cost, status, values."""
+    return pd.read_csv(out / "trials.csv").drop(columns="time_s")
+
+
+@pytest.fixture(scope="module")
+def small_store(tmp_path_factory):
+    # Frames at the training size (no resizing), two or three batches per epoch.
+    return make_toy_store(
+        tmp_path_factory.mktemp("small") / "store", n_objects=8, grasps=2, size=(72, 72)
+    )
+
+
+@pytest.fixture(scope="module")
+def uninterrupted_tune(small_store, tmp_path_factory) -> Path:
+    """The reference: the same search run once without interruption (its output dir)."""
+    root = tmp_path_factory.mktemp("uninterrupted-tune")
+    reference = _tune_command(small_store, root / "tune", root / "trace")
+    _, err = reference.communicate(timeout=600)
+    assert reference.returncode == 0, err[-3000:]
+    return root / "tune"
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
+def test_interrupted_tune_resumes_without_training_a_finished_trial_again(
+    small_store, uninterrupted_tune, tmp_path, signum
+):
+    """SIGKILL or SIGINT `tune` with one trial finished and the next one midway; the same
+    command again never trains a finished trial or a committed epoch again, and keeps the
+    trials before the interruption exactly. SMAC does not save its random state, so what
+    it proposes afterwards may differ from the uninterrupted search (docs/testing.md)."""
+    reference_out = uninterrupted_tune
+    out, trace = tmp_path / "tune", tmp_path / "trace"
+    proc = _tune_command(small_store, out, trace)
+    midway: Path | None = None
+    try:
+        deadline = time.monotonic() + 300
+        while midway is None:
+            assert proc.poll() is None, f"tune ended first: {proc.communicate()[1][-3000:]}"
+            assert time.monotonic() < deadline, "no trial got midway"
+            done = list((out / "trials").glob("*/metrics.json")) if out.exists() else []
+            # Epoch 1 of an unfinished trial has started, so its epoch 0 is committed.
+            started = {run_dir for _, epoch, run_dir in read_trace(trace) if epoch >= 1}
+            unfinished = [d for d in started if not (d / "metrics.json").exists()]
+            if done and unfinished:
+                midway = unfinished[0]
+            time.sleep(0.02)
+    finally:
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=120)
+    # Ctrl-C: "interrupted: re-run to continue" (130).
+    assert proc.returncode == (130 if signum == signal.SIGINT else -signal.SIGKILL), err[-3000:]
+    finished = {d.parent for d in (out / "trials").glob("*/metrics.json")}
+    assert finished and midway not in finished
+    committed = {d: committed_epochs(d) for d in (out / "trials").iterdir() if d not in finished}
+    assert committed[midway] >= 1  # 1, unless epoch 1 ended in the instant before the kill
+    first_pids = {pid for pid, _, _ in read_trace(trace)}
+
+    rerun = _tune_command(small_store, out, trace)
+    _, err = rerun.communicate(timeout=600)
+    assert rerun.returncode == 0, err[-3000:]
+
+    # (a) No finished trial and no committed epoch is trained again.
+    again: dict[Path, list[int]] = {}
+    for pid, epoch, run_dir in read_trace(trace):
+        if pid not in first_pids:
+            again.setdefault(run_dir, []).append(epoch)
+    assert not finished & set(again), again
+    for run_dir, epochs in again.items():
+        assert epochs == list(range(committed.get(run_dir, 0), KILL_EPOCHS)), again
+    # (b) The history: every trial once, scored from its own run directory; the trials
+    # finished before the kill exactly as the uninterrupted search ran them (SMAC's
+    # proposals up to the kill are deterministic), every configuration both searches
+    # tried at the same cost (trials are deterministic).
+    history, uninterrupted = _history(out), _history(reference_out)
+    assert len(history) == KILL_TRIALS and set(history["status"]) == {"SUCCESS"}
+    assert not history.duplicated(["config_id", "budget"]).any()
+    trial_dirs = [d for d in (out / "trials").iterdir() if (d / "metrics.json").exists()]
+    assert sorted(history["cost"]) == pytest.approx(
+        sorted(last_epoch_val_nmse(d) for d in trial_dirs), abs=0
+    )
+    before = len(finished)
+    pd.testing.assert_frame_equal(history.iloc[:before], uninterrupted.iloc[:before])
+    values = [c for c in history.columns if c not in ("config_id", "cost", "status")]
+    both = history.merge(uninterrupted, on=values, suffixes=("", "_reference"))
+    assert len(both) >= before + (midway in again)  # the killed trial was proposed again
+    assert (both["cost"] == both["cost_reference"]).all()
+    # The incumbent it reports is the best of its own history.
+    tuned = yaml.safe_load((out / "tuned.yaml").read_text())
+    scalars = ["training.lr", "training.batch_size", "model.hparams.img_feature_size"]
+    best_rows = history[history["cost"] == history["cost"].min()]
+    assert [tuned[k] for k in scalars] in best_rows[scalars].values.tolist()
 
 
 @pytest.mark.slow

@@ -8,10 +8,12 @@ import json
 import os
 import signal
 import stat
+import struct
 import subprocess
 import sys
 import textwrap
 import time
+import zipfile
 from pathlib import Path
 
 import pandas as pd
@@ -19,12 +21,14 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from epoch_trace import committed_epochs, default_sigint
 from tactile_compliance.cli import app
 from tactile_compliance.data.store import StoreError
 from tactile_compliance.outputs import MARKER_NAME, claim_output_dir
 from tactile_compliance.runs.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
 from tactile_compliance.runs.layout import RUN_KIND, DirectoryLockedError, lock_directory
 from tactile_compliance.runs.results import ResultsStore
+from tactile_compliance.training import module
 from tactile_compliance.training.train import build_model, train
 from toy_store import make_toy_store, tiny_run_config
 
@@ -80,6 +84,7 @@ def small_store(tmp_path_factory):
 def _start(store, run_dir: Path) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-c", WORKER, str(store.path), str(run_dir), f"{run_dir}.trace", *RESUMED],
+        preexec_fn=default_sigint,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
@@ -96,12 +101,6 @@ def _trace(run_dir: Path) -> list[tuple[int, int]]:
     if not path.exists():
         return []
     return [tuple(map(int, line.split())) for line in path.read_text().splitlines() if line]
-
-
-def _epochs_done(run_dir: Path) -> int:
-    """Epochs the committed last.ckpt holds."""
-    ckpt = torch.load(run_dir / "checkpoints" / "last.ckpt", weights_only=True, mmap=True)
-    return int(ckpt["callbacks"]["tactile_compliance.EpochState"]["epochs_done"])
 
 
 @pytest.fixture(scope="module")
@@ -129,7 +128,7 @@ def test_interrupted_run_resumes_and_ends_as_if_uninterrupted(
     proc.communicate(timeout=120)
     assert proc.returncode != 0  # it was interrupted, not finished
     assert not (run_dir / "metrics.json").exists()
-    done = _epochs_done(run_dir)
+    done = committed_epochs(run_dir)
     assert done >= kill_at
 
     _finish(_start(small_store, run_dir))
@@ -174,35 +173,79 @@ def _quick(store_path, out, extra=()):
     )
 
 
+def _trained_epochs(monkeypatch) -> list[int]:
+    """The epochs this process starts training from now on, in order."""
+    epochs: list[int] = []
+    started = module.ComplianceModule.on_train_epoch_start
+
+    def traced(self):
+        epochs.append(self.current_epoch)
+        started(self)
+
+    monkeypatch.setattr(module.ComplianceModule, "on_train_epoch_start", traced)
+    return epochs
+
+
+def _flip_a_byte_of_the_largest_tensor(path: Path) -> None:
+    """Damage a stored tensor without touching the zip structure: torch.load reads the
+    file without complaint (it checks no CRC), only the members' checksums tell."""
+    with zipfile.ZipFile(path) as archive:
+        info = max(archive.infolist(), key=lambda i: i.file_size)
+    raw = bytearray(path.read_bytes())
+    name_length, extra_length = struct.unpack_from("<HH", raw, info.header_offset + 26)
+    start = info.header_offset + 30 + name_length + extra_length  # the member's bytes
+    raw[start + info.file_size // 2] ^= 0xFF
+    path.write_bytes(bytes(raw))
+    torch.load(path, weights_only=True)  # still loads
+
+
 def test_unreadable_checkpoint_falls_back_to_the_previous_one_then_to_a_fresh_start(
-    toy_store, tmp_path
+    toy_store, tmp_path, monkeypatch
 ):
     run_dir = tmp_path / "run"
     cfg = _quick(toy_store.path, tmp_path)
     first = train(cfg, run_dir=run_dir, progress=False)
     checkpoints = run_dir / "checkpoints"
     assert {p.name for p in checkpoints.iterdir()} == {"last.ckpt", "last.prev.ckpt"}
+    epochs = _trained_epochs(monkeypatch)
+    last, previous = checkpoints / "last.ckpt", checkpoints / "last.prev.ckpt"
 
-    # Killed while an older version wrote last.ckpt in place: it is cut short.
-    (run_dir / "metrics.json").unlink()
-    last = checkpoints / "last.ckpt"
-    last.write_bytes(last.read_bytes()[: last.stat().st_size // 2])
-    with pytest.warns(RuntimeWarning, match=r"last\.ckpt is unreadable .*resuming from last"):
-        again = train(cfg, run_dir=run_dir, progress=False)
-    for key in ("test", "best_epoch", "best_val_nmse", "epochs_trained"):
-        assert again[key] == first[key], key
-    assert (checkpoints / "last.ckpt.corrupt").exists()  # set aside, never deleted
-    log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
-    assert log["epoch"].astype(int).tolist() == [0, 1, 2]
+    # Killed while an older version wrote last.ckpt in place: it is cut short. Or a bit
+    # flipped on the disk. Either way last.prev.ckpt (epochs 0 and 1) takes over and only
+    # the last epoch is trained again.
+    damages = {
+        "truncated": lambda path: path.write_bytes(path.read_bytes()[: path.stat().st_size // 2]),
+        "bit flip": _flip_a_byte_of_the_largest_tensor,
+    }
+    for damage, reason in (("truncated", "BadZipFile"), ("bit flip", "fails its checksum")):
+        (run_dir / "metrics.json").unlink()
+        (checkpoints / "last.ckpt.corrupt").unlink(missing_ok=True)
+        damages[damage](last)
+        damaged = last.read_bytes()
+        epochs.clear()
+        with pytest.warns(
+            RuntimeWarning, match=rf"last\.ckpt is unreadable \(.*{reason}.*resuming from last"
+        ):
+            again = train(cfg, run_dir=run_dir, progress=False)
+        assert epochs == [2], damage
+        for key in ("test", "best_epoch", "best_val_nmse", "epochs_trained"):
+            assert again[key] == first[key], (damage, key)
+        # Set aside as it was, never deleted.
+        assert (checkpoints / "last.ckpt.corrupt").read_bytes() == damaged, damage
+        log = pd.read_csv(run_dir / "logs" / "metrics.csv").dropna(subset=["val_nmse"])
+        assert log["epoch"].astype(int).tolist() == [0, 1, 2]
 
     # Both unreadable: the run starts over (and still ends the same way).
     (run_dir / "metrics.json").unlink()
-    for name in ("last.ckpt", "last.prev.ckpt"):
-        (checkpoints / name).write_bytes(b"not a checkpoint")
+    for path in (last, previous):
+        path.write_bytes(b"not a checkpoint")
+    epochs.clear()
     with pytest.warns(RuntimeWarning, match="starting the run over"):
         fresh = train(cfg, run_dir=run_dir, progress=False)
+    assert epochs == [0, 1, 2]
     assert fresh["test"] == first["test"] and fresh["epochs_trained"] == 3
     assert (checkpoints / "last.prev.ckpt.corrupt").read_bytes() == b"not a checkpoint"
+    assert (checkpoints / "last.ckpt.corrupt").read_bytes() == b"not a checkpoint"
 
 
 def test_a_run_that_stopped_early_does_not_train_on_when_resumed(toy_store, tmp_path):
@@ -354,7 +397,7 @@ def test_full_disk_while_saving_the_training_state_keeps_the_previous_epoch(
     with pytest.raises(OSError, match="No space left"):
         train(cfg, run_dir=run_dir, progress=False)
     assert not list(run_dir.rglob("*.tmp"))
-    assert _epochs_done(run_dir) == 1  # epoch 0's state, intact
+    assert committed_epochs(run_dir) == 1  # epoch 0's state, intact
     monkeypatch.undo()  # space again: the re-run resumes with epoch 1
     result = train(cfg, run_dir=run_dir, progress=False)
     assert result["epochs_trained"] == 3

@@ -17,6 +17,50 @@ MATERIALS = ("Foam", "Rubber", "Plastic", "Metal")
 SHAPES = ("Sphere", "Cylinder")
 
 
+def make_sample(
+    rng: np.random.Generator,
+    log_e: float,
+    size: tuple[int, int],
+    *,
+    time_shift: float = 0.0,
+    period: float = 3.0,
+) -> tuple[np.ndarray, dict[str, float]]:
+    """One learnable sample of an object with log10 modulus ``log_e`` (Pa): its three
+    frames (float32 in [0, 1], (3, H, W, 3)) and its physical columns (modulus, force,
+    width, the two estimates, contact depth).
+
+    The object is pressed into a blob whose radius and contrast grow with softness over
+    the frames; ``time_shift`` moves the frames later in the press by that many frame
+    steps (a time-shifted copy of a grasp), and the blob reaches its full radius after
+    ``period`` steps. The random draws (frame noise, force noise, estimate noise) come
+    from ``rng`` in this order, so a store is reproducible from its seed.
+    """
+    height, width = size
+    yy, xx = np.mgrid[0:height, 0:width]
+    radius_sq = (yy - height / 2) ** 2 + (xx - width / 2) ** 2
+    softness = (11.0 - log_e) / 7.0  # 1 for soft (1e4 Pa), 0 for hard (1e11 Pa)
+    frames = np.empty((3, height, width, 3), np.float32)
+    for t in range(3):
+        blob_radius = 3 + 8 * softness * (t + 1 + time_shift) / period
+        blob = np.exp(-radius_sq / (2 * blob_radius**2))
+        for c in range(3):
+            frames[t, ..., c] = 0.5 + (0.05 + 0.1 * softness) * blob * (c + 1) / 3
+    frames += rng.normal(0, 0.01, frames.shape).astype(np.float32)
+    force_n = np.array([8.0, 30.0, 58.0]) + rng.normal(0, 0.5, 3)
+    squeeze_m = 0.002 + 0.01 * softness
+    widths_m = 0.05 - np.array([0.0, 0.5, 1.0]) * squeeze_m
+    estimate_pa = 10 ** (log_e * 0.4 + 3.0 + rng.normal(0, 0.2))
+    columns = {
+        "modulus_pa": 10**log_e,
+        **{f"force_n_{i}": force_n[i] for i in range(3)},
+        **{f"width_m_{i}": widths_m[i] for i in range(3)},
+        "elastic_estimate_pa": estimate_pa,
+        "hertz_estimate_pa": estimate_pa * 2,
+        **{f"depth_max_mm_{i}": 0.3 * (i + 1) for i in range(3)},
+    }
+    return np.clip(frames, 0, 1), columns
+
+
 def make_toy_store(
     path: Path,
     n_objects: int = 16,
@@ -25,28 +69,14 @@ def make_toy_store(
     seed: int = 0,
 ) -> GraspStore:
     rng = np.random.default_rng(seed)
-    height, width = size
-    yy, xx = np.mgrid[0:height, 0:width]
-    radius_sq = (yy - height / 2) ** 2 + (xx - width / 2) ** 2
     with GraspStoreWriter(path, size, "toy") as writer:
         for index in range(n_objects):
             log_e = 4.0 + 7.0 * index / max(1, n_objects - 1)  # 1e4 .. 1e11 Pa
-            softness = (11.0 - log_e) / 7.0  # 1 for soft, 0 for hard
             for grasp in range(grasps):
                 for finger in ("markerless", "markers"):
-                    frames = np.empty((3, height, width, 3), np.float32)
-                    for t in range(3):
-                        blob_radius = 3 + 8 * softness * (t + 1) / 3
-                        blob = np.exp(-radius_sq / (2 * blob_radius**2))
-                        for c in range(3):
-                            frames[t, ..., c] = 0.5 + (0.05 + 0.1 * softness) * blob * (c + 1) / 3
-                    frames += rng.normal(0, 0.01, frames.shape).astype(np.float32)
-                    force = np.array([8.0, 30.0, 58.0]) + rng.normal(0, 0.5, 3)
-                    squeeze = 0.002 + 0.01 * softness
-                    widths = 0.05 - np.array([0.0, 0.5, 1.0]) * squeeze
-                    estimate = 10 ** (log_e * 0.4 + 3.0 + rng.normal(0, 0.2))
+                    frames, columns = make_sample(rng, log_e, size)
                     writer.append(
-                        np.clip(frames, 0, 1),
+                        frames,
                         {
                             "object": f"toy_{index:02d}",
                             "grasp": grasp,
@@ -54,12 +84,7 @@ def make_toy_store(
                             "finger": finger,
                             "material": MATERIALS[index * len(MATERIALS) // n_objects],
                             "shape": SHAPES[index % 2],
-                            "modulus_pa": 10**log_e,
-                            **{f"force_n_{i}": force[i] for i in range(3)},
-                            **{f"width_m_{i}": widths[i] for i in range(3)},
-                            "elastic_estimate_pa": estimate,
-                            "hertz_estimate_pa": estimate * 2,
-                            **{f"depth_max_mm_{i}": 0.3 * (i + 1) for i in range(3)},
+                            **columns,
                             "source_path": f"toy/{index}/{grasp}",
                         },
                     )

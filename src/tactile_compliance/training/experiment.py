@@ -16,10 +16,12 @@ Reliability:
 * **Failures stay local.** An exception in a cell is caught in the worker and recorded as a
   ``failed`` row with the error and traceback; the grid goes on. A worker process that dies
   (killed, out of memory) is restarted by Dask and the cell is re-run on a healthy worker,
-  resuming from its checkpoint; after Dask gives up (``distributed.scheduler.allowed-failures``,
-  3 by default) the cell is recorded as failed. ``attempts`` counts every start of a cell.
-* **A truncated checkpoint** (the process died while writing it) is moved aside to
-  ``last.ckpt.corrupt`` and the run starts over instead of failing forever.
+  resuming from its checkpoint; once it has died more often than
+  ``distributed.scheduler.allowed-failures`` allows (3 by default: at the 4th death) Dask
+  gives up and the cell is recorded as failed. ``attempts`` counts every start of a cell.
+* **A damaged checkpoint** (cut short, or failing its checksums) is moved aside to
+  ``last.ckpt.corrupt`` and the run resumes from ``last.prev.ckpt`` (one epoch earlier),
+  or starts over if that one is damaged too, instead of failing forever.
 * **Feature caches** (frozen backbones) are computed before the cells that need them, one
   task per model, so two workers never compute the same cache at the same time.
 * **One driver per experiment.** A lock file stops a second ``experiment`` process from

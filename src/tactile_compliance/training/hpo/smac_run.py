@@ -98,7 +98,9 @@ def _forget_unfinished_trials(directory: Path) -> None:
 
     SMAC saves a trial as RUNNING when it is handed out; if the process dies before the
     result comes back, a resumed SMAC would count it as a trial forever without a result.
-    Dropped, it is proposed again, and its run directory resumes from its checkpoint.
+    Dropped, it runs again when SMAC proposes it again (its run directory then resumes from
+    its checkpoint); SMAC does not save its random state, so it may propose another
+    configuration instead.
     """
     from smac.runhistory.enumerations import StatusType
 
