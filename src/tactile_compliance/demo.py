@@ -38,7 +38,7 @@ class DemoPlan:
 # on both sides of the split, and the quick models see 65 x 65 (Top10NN) or 32 x 32 px
 # frames anyway.
 _FULL = DemoPlan(
-    n_objects=100,
+    n_objects=90,
     grasps_per_object=2,
     image_size=(64, 88),
     shore_objects=120,
