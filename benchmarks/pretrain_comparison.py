@@ -100,12 +100,14 @@ def _cells(store: Path, models: list[str], inputs: list[str], seeds: int, out: P
     return [c for c in plan.cells if c.cfg.model.name in models and c.cfg.inputs in inputs]
 
 
-def _summary(values: list[float]) -> str:
+def _summary(values: list[float], digits: int = 4) -> str:
+    """Mean ± sample standard deviation (the mean alone for one value; "-" for none)."""
     if not values:
         return "-"
     array = np.asarray(values, dtype=float)
-    sd = float(array.std(ddof=1)) if len(array) > 1 else float("nan")
-    return f"{array.mean():.4f} ± {sd:.4f}" if len(array) > 1 else f"{array.mean():.4f}"
+    if len(array) == 1:
+        return f"{array.mean():.{digits}f}"
+    return f"{array.mean():.{digits}f} ± {float(array.std(ddof=1)):.{digits}f}"
 
 
 def main() -> None:
@@ -224,7 +226,7 @@ def main() -> None:
                     if variant != "random"
                     else ""
                 )
-                cost = _summary(pretrain_cost.get(model, [])) if variant != "random" else ""
+                cost = _summary(pretrain_cost.get(model, []), 0) if variant != "random" else ""
                 gbr_text = _summary([g for g in gbr if g is not None])
                 lines.append(
                     f"| {model} | {inputs} | frozen {variant} | {_summary(values)} | {change} | "

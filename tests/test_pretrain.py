@@ -250,7 +250,7 @@ def test_interrupted_pretraining_resumes_and_never_overwrites_foreign_files(
     assert not (tmp_path / "w.pt.pretrain-state.pt").exists()
     # A finished file is returned as it is; --overwrite retrains it.
     again = pretrain(_cfg(depth_store), settings, out, progress=False)
-    assert again.provenance["created"] == result.provenance["created"]
+    assert again.existing and again.provenance["created"] == result.provenance["created"]
 
 
 def test_weights_sha256_and_provenance_land_in_the_checkpoint(depth_store, tmp_path):

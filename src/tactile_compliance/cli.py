@@ -515,6 +515,8 @@ def pretrain(
     )
     result = run_pretrain(cfg, settings, out, split_file=split_file, overwrite=overwrite)  # type: ignore[arg-type]
     record = result.provenance
+    if result.existing:
+        typer.echo(f"{out} is already pretrained (pass --overwrite to train it again).")
     typer.echo(
         f"{record['backbone']}: {record['epochs']} epochs (best {record['best_epoch']}) on "
         f"{record['n_train_samples']} samples of {record['n_train_objects']} training objects, "

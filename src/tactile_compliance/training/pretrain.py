@@ -153,6 +153,8 @@ class PretrainResult:
     train_ids: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     val_ids: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
     resumed_from_epoch: int = 0
+    #: ``out`` already held a pretrained file and was returned as it is (no --overwrite).
+    existing: bool = False
 
 
 # ============================================================================ the networks
@@ -427,7 +429,7 @@ def pretrain(
     state_path = out.with_name(out.name + STATE_SUFFIX)
     check_output_file(state_path, "pretrain state", _is_state_file)
     if out.exists() and not overwrite:
-        return PretrainResult(out=out, provenance=dict(_load(out)[PRETRAIN_KEY]))
+        return PretrainResult(out=out, provenance=dict(_load(out)[PRETRAIN_KEY]), existing=True)
     if cfg.data.store is None:
         raise ValueError("no store: pass STORE (data.store)")
     store = GraspStore.open(cfg.data.store)
