@@ -53,9 +53,9 @@ def _parse() -> argparse.Namespace:
     parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1")
     parser.add_argument("--objects", type=int, default=None, help="default: the demo's")
     parser.add_argument("--grasps", type=int, default=None, help="default: the demo's")
-    parser.add_argument("--pretrain-epochs", type=int, default=20)
+    parser.add_argument("--pretrain-epochs", type=int, default=30)
     parser.add_argument("--pretrain-patience", type=int, default=4)
-    parser.add_argument("--pretrain-batch-size", type=int, default=32)
+    parser.add_argument("--pretrain-batch-size", type=int, default=16)
     parser.add_argument("--pretrain-lr", type=float, default=1e-3)
     parser.add_argument(
         "--no-pretrain-augment", action="store_true", help="pretrain without augmentation"

@@ -482,8 +482,8 @@ def pretrain(
         str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
     ] = "default",
     overrides: SetOption = None,
-    epochs: Annotated[int, typer.Option(help="Maximum epochs.")] = 20,
-    batch_size: Annotated[int, typer.Option(help="Samples (3 frames each) per batch.")] = 32,
+    epochs: Annotated[int, typer.Option(help="Maximum epochs.")] = 30,
+    batch_size: Annotated[int, typer.Option(help="Samples (3 frames each) per batch.")] = 16,
     lr: Annotated[float, typer.Option(help="AdamW learning rate.")] = 1e-3,
     patience: Annotated[int, typer.Option(help="Early-stopping patience (epochs, 0: off).")] = 4,
     size: Annotated[

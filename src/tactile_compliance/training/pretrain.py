@@ -116,8 +116,8 @@ class PretrainSettings:
     """
 
     backbone: str
-    epochs: int = 20
-    batch_size: int = 32
+    epochs: int = 30
+    batch_size: int = 16
     lr: float = 1e-3
     weight_decay: float = 1e-4
     patience: int = 4
