@@ -164,6 +164,23 @@ def test_every_parameter_of_backbone_and_decoder_gets_a_gradient():
     assert any(n.startswith("decoder.") for n, _ in net.named_parameters())
 
 
+def test_flips_move_frames_and_depth_maps_together():
+    from tactile_compliance.training.pretrain import _flip
+
+    frames = torch.zeros(64, 3, 8, 8, 3, dtype=torch.uint8)
+    frames[:, :, :4, :4] = 255  # top-left quadrant
+    depth = torch.zeros(64, 3, 2, 2)
+    depth[:, :, 0, 0] = 1.0
+    cfg = load_config("default", ["augmentation.probability=1.0"])
+    flipped, flipped_depth = _flip(frames, depth, cfg, torch.Generator().manual_seed(0))
+    quadrant = flipped[:, 0, ::4, ::4, 0] == 255  # (64, 2, 2): where the bright block went
+    assert torch.equal(quadrant, flipped_depth[:, 0] == 1.0)
+    assert len({tuple(q.flatten().tolist()) for q in quadrant}) == 4  # all four flips seen
+    off = load_config("default", ["augmentation.enabled=false"])
+    unchanged, _ = _flip(frames, depth, off, torch.Generator().manual_seed(0))
+    assert torch.equal(unchanged, frames)
+
+
 def test_pretraining_lowers_the_depth_loss(depth_store, tmp_path):
     settings = PretrainSettings("resnet18", epochs=5, batch_size=8, lr=1e-3, patience=0)
     cfg = _cfg(depth_store, "augmentation.enabled=false")

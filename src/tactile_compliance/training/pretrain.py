@@ -342,8 +342,11 @@ def _flip(
     frames: torch.Tensor, depth: torch.Tensor, cfg: ExperimentConfig, generator: torch.Generator
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Random horizontal/vertical flips, the same for a sample's frames and depth maps
-    (with the config's pipeline probability and flip probabilities)."""
+    (with the config's pipeline probability and flip probabilities; none when the
+    config's augmentation is off)."""
     aug = cfg.augmentation
+    if not aug.enabled:
+        return frames, depth
     batch = frames.shape[0]
     applied = torch.rand(batch, generator=generator) < aug.probability
     hflip = applied & (torch.rand(batch, generator=generator) < aug.hflip)
