@@ -18,7 +18,10 @@ scores the gradient-boosting scalar reference on its own split (``runs.metrics``
 ``scalar_gbr``: F, W, log10 E; strategies with scalar inputs only) and the median.
 
 Prints a markdown table of test N-MSE (mean +- sd over the seeds), the change of the
-pretrained backbone against the random one, and the pretraining cost per seed (s), and
+pretrained backbone against the random one, a probe of the frozen features themselves
+(test N-MSE of a ridge regression from the cached image features to the label, fitted on
+the run's training objects: free of the noise of a few epochs of head training), and the
+pretraining cost per seed (s), and
 writes every number to ``OUT/comparison.json``. The issue's goal: a frozen pretrained
 Res-Tf beats the frozen random one by >= 15 % in UnSeen N-MSE (mean of 3 seeds).
 
@@ -100,6 +103,51 @@ def _cells(store: Path, models: list[str], inputs: list[str], seeds: int, out: P
     return [c for c in plan.cells if c.cfg.model.name in models and c.cfg.inputs in inputs]
 
 
+def _feature_probe(cfg: Any, run_dir: Path) -> float:
+    """Test N-MSE of a ridge regression from a run's cached frozen image features (the
+    three frames' vectors, standardised) to the normalised label, fitted on the run's
+    training ids (alpha by 5-fold cross-validation by object on them): what the features
+    carry, without the noise of training a head for a few epochs."""
+    from sklearn.linear_model import Ridge
+    from sklearn.model_selection import GroupKFold
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    from tactile_compliance.data.features import cached_features
+    from tactile_compliance.data.normalisation import denormalise_modulus, normalise_modulus
+    from tactile_compliance.data.splits import Split
+    from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.runs.metrics import nmse
+    from tactile_compliance.training.train import build_model
+
+    store = GraspStore.open(cfg.data.store)
+    constants = cfg.normalisation_constants()
+    size = tuple(cfg.data.image_size) if cfg.data.image_size else None
+    features = cached_features(store, build_model(cfg).backbone, size, constants, progress=False)
+    split = Split.load(run_dir / "split.json")
+
+    def matrix(ids: np.ndarray) -> np.ndarray:
+        return np.asarray(features[ids], dtype=np.float64).reshape(len(ids), -1)
+
+    moduli = store.moduli_pa()
+    x, y = matrix(split.train_ids), normalise_modulus(moduli[split.train_ids], constants)
+    objects = store.samples["object"].to_numpy()[split.train_ids]
+
+    def object_cv_error(alpha: float) -> float:
+        # Folds by object: samples of one object share a label, so a per-sample CV
+        # would reward memorising objects and pick too little regularisation.
+        errors = []
+        for fit, held in GroupKFold(n_splits=5).split(x, y, objects):
+            model = make_pipeline(StandardScaler(), Ridge(alpha=alpha)).fit(x[fit], y[fit])
+            errors.append(float(np.mean((model.predict(x[held]) - y[held]) ** 2)))
+        return float(np.mean(errors))
+
+    alpha = min(np.logspace(0, 7, 15), key=object_cv_error)
+    probe = make_pipeline(StandardScaler(), Ridge(alpha=alpha)).fit(x, y)
+    predicted = np.clip(probe.predict(matrix(split.test_ids)), 0.0, 1.0)
+    return nmse(moduli[split.test_ids], denormalise_modulus(predicted, constants), constants)
+
+
 def _summary(values: list[float], digits: int = 4) -> str:
     """Mean ± sample standard deviation (the mean alone for one value; "-" for none)."""
     if not values:
@@ -173,6 +221,7 @@ def main() -> None:
 
     variants = ["random", "pretrained"] + (["finetuned"] if args.finetune else [])
     rows: list[dict[str, Any]] = []
+    probes: dict[tuple[str, str, int], float] = {}  # (model, variant, seed) -> N-MSE
     for cell in cells:
         path = weights[(cell.cfg.model.name, cell.cfg.seed)]
         for variant in variants:
@@ -189,6 +238,9 @@ def main() -> None:
             )
             result = train(cfg, run_dir=run_dir, progress=False)
             reference = result.get("reference", {})
+            probe_key = (cell.cfg.model.name, variant, cell.cfg.seed)
+            if variant != "finetuned" and probe_key not in probes:
+                probes[probe_key] = _feature_probe(cfg, run_dir)
             rows.append(
                 {
                     "model": cell.cfg.model.name,
@@ -198,6 +250,7 @@ def main() -> None:
                     "test_nmse": result["test"]["nmse"],
                     "median_nmse": reference.get("median", {}).get("nmse"),
                     "scalar_gbr_nmse": reference.get("scalar_gbr", {}).get("nmse"),
+                    "feature_probe_nmse": probes.get(probe_key),
                     "wall_time_s": result["wall_time_s"],
                 }
             )
@@ -207,9 +260,9 @@ def main() -> None:
             )
 
     lines = [
-        "| model | inputs | backbone | UnSeen N-MSE | vs random | scalar GBR N-MSE "
-        "| median N-MSE | pretraining (s per seed) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| model | inputs | backbone | UnSeen N-MSE | vs random | image-feature ridge N-MSE "
+        "| scalar GBR N-MSE | median N-MSE | pretraining (s per seed) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for model in args.models:
         for inputs in args.inputs:
@@ -228,12 +281,16 @@ def main() -> None:
                 )
                 cost = _summary(pretrain_cost.get(model, []), 0) if variant != "random" else ""
                 gbr_text = _summary([g for g in gbr if g is not None])
+                probe = [
+                    r["feature_probe_nmse"]
+                    for r in selected
+                    if r["variant"] == variant and r["feature_probe_nmse"] is not None
+                ]
+                label = "fine-tuned pretrained" if variant == "finetuned" else f"frozen {variant}"
                 lines.append(
-                    f"| {model} | {inputs} | frozen {variant} | {_summary(values)} | {change} | "
-                    f"{gbr_text} | {_summary([m for m in median if m is not None])} | {cost} |"
-                    if variant != "finetuned"
-                    else f"| {model} | {inputs} | fine-tuned pretrained | {_summary(values)} | "
-                    f"{change} | {gbr_text} | {_summary(median)} | {cost} |"
+                    f"| {model} | {inputs} | {label} | {_summary(values)} | {change} | "
+                    f"{_summary(probe)} | {gbr_text} | "
+                    f"{_summary([m for m in median if m is not None])} | {cost} |"
                 )
     table = "\n".join(lines)
     print()
