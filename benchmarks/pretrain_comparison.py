@@ -1,7 +1,7 @@
 """Frozen random vs frozen depth-pretrained backbones on UnSeen objects (issue 15).
 
-Research script: on the demo-size synthetic store (``demo.PLANS["full"]``: 60 objects,
-3 grasps each, 96x128 frames), for each seed the backbone of each model is pretrained
+Research script: on the demo-size synthetic store (``demo.PLANS["full"]``; ``--objects``,
+``--grasps``, ``--size`` change it), for each seed the backbone of each model is pretrained
 (``training.pretrain``) on the depth maps of that seed's UnSeen *training* objects only,
 then the model's head is trained with
 
@@ -12,8 +12,9 @@ then the model's head is trained with
 ============  =================================================================
 
 with the Table I quick settings of the model (``table1 --quick``: frozen backbone,
-32x32 frames, markerless finger, 6 epochs, small heads) and its UnSeen split; the
-pretraining uses the same filters, split, frame size and seed as the run. Every run also
+32x32 frames, markerless finger, small heads; ``--set KEY=VALUE`` changes them) and its
+UnSeen split; the pretraining uses the same filters, split, frame size and seed as the
+run. Every run also
 scores the gradient-boosting scalar reference on its own split (``runs.metrics``,
 ``scalar_gbr``: F, W, log10 E; strategies with scalar inputs only) and the median.
 
@@ -64,13 +65,22 @@ def _parse() -> argparse.Namespace:
         "--no-pretrain-augment", action="store_true", help="pretrain without augmentation"
     )
     parser.add_argument("--finetune", action="store_true", help="also train end to end")
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        help="config override applied to every run and pretraining (repeatable)",
+    )
+    parser.add_argument("--size", default=None, help="frame size HxW of the store (default: demo)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default 1)")
     return parser.parse_args()
 
 
-def _store(out: Path, n_objects: int | None, grasps: int | None) -> Path:
+def _store(out: Path, n_objects: int | None, grasps: int | None, size: str | None) -> Path:
     """The demo-size synthetic store (with depth maps), generated and imported once."""
     from tactile_compliance.data.burgess import import_burgess
+    from tactile_compliance.data.image_ops import parse_size
     from tactile_compliance.demo import PLANS
     from tactile_compliance.synthetic import generate_burgess_tree
 
@@ -81,15 +91,17 @@ def _store(out: Path, n_objects: int | None, grasps: int | None) -> Path:
         n_objects=n_objects or plan.n_objects,
         grasps_per_object=grasps or plan.grasps_per_object,
         seed=0,
-        image_size=plan.image_size,
+        image_size=parse_size(size) or plan.image_size,
     )
     if not store.exists():
         print(import_burgess(raw, store).format())
     return store
 
 
-def _cells(store: Path, models: list[str], inputs: list[str], seeds: int, out: Path) -> list:
-    """The table1 --quick UnSeen cells of ``models`` x ``inputs`` x seeds."""
+def _cells(
+    store: Path, models: list[str], inputs: list[str], seeds: int, out: Path, overrides: list[str]
+) -> list:
+    """The table1 --quick UnSeen cells of ``models`` x ``inputs`` x seeds (+ overrides)."""
     from tactile_compliance.training.experiment import plan_experiment
 
     plan = plan_experiment(
@@ -97,6 +109,7 @@ def _cells(store: Path, models: list[str], inputs: list[str], seeds: int, out: P
         quick=True,
         seeds=list(range(seeds)),
         store=store,
+        overrides=overrides,
         where=["split.condition=unseen"],
         output_dir=out / "runs",
     )
@@ -170,8 +183,8 @@ def main() -> None:
     torch.set_num_threads(args.threads or 1)
     out = claim_output_dir(args.out, "pretrain-comparison")
     started = time.perf_counter()
-    store = _store(out, args.objects, args.grasps)
-    cells = _cells(store, args.models, args.inputs, args.seeds, out)
+    store = _store(out, args.objects, args.grasps, args.size)
+    cells = _cells(store, args.models, args.inputs, args.seeds, out, args.overrides)
     if not cells:
         raise SystemExit("no cells: check --models and --inputs")
 

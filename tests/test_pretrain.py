@@ -182,13 +182,13 @@ def test_flips_move_frames_and_depth_maps_together():
 
 
 def test_pretraining_lowers_the_depth_loss(depth_store, tmp_path):
-    settings = PretrainSettings("resnet18", epochs=5, batch_size=8, lr=1e-3, patience=0)
+    settings = PretrainSettings("resnet18", epochs=4, batch_size=8, lr=1e-3, patience=0)
     cfg = _cfg(depth_store, "augmentation.enabled=false")
     result = pretrain(cfg, settings, tmp_path / "w.pt", progress=False)
     history = result.provenance["history"]
-    assert len(history) == 5
-    # Measured: last/first 0.53 and 0.44 (seeds 0, 1); a backbone or decoder that does not
-    # learn stays near 1.
+    assert len(history) == 4
+    # Measured: last/first 0.52 (seed 0; 0.48 with seed 1); a backbone or decoder that
+    # does not learn stays near 1.
     assert history[-1]["train_loss"] < 0.75 * history[0]["train_loss"]
     assert result.provenance["final_depth_loss_mm2"] < result.provenance["first_depth_loss_mm2"]
     # The file loads as backbone weights and holds the best epoch's backbone.
