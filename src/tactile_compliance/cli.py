@@ -493,6 +493,9 @@ def pretrain(
         ),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a pretrained weights file.")] = False,
+    device: Annotated[
+        str, typer.Option(help="auto (a GPU if torch sees one), cpu or cuda.")
+    ] = "auto",
 ) -> None:
     """Pretrain a backbone to predict depth maps and contact masks from the difference images.
 
@@ -513,7 +516,14 @@ def pretrain(
         patience=patience,
         image_size=_size_option(size),
     )
-    result = run_pretrain(cfg, settings, out, split_file=split_file, overwrite=overwrite)  # type: ignore[arg-type]
+    result = run_pretrain(
+        cfg,  # type: ignore[arg-type]
+        settings,
+        out,
+        split_file=split_file,
+        overwrite=overwrite,
+        device=device,
+    )
     record = result.provenance
     if result.existing:
         typer.echo(f"{out} is already pretrained (pass --overwrite to train it again).")

@@ -39,7 +39,6 @@ written. Neither file is written over unless it is recognisably this command's.
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import json
 import math
@@ -371,6 +370,11 @@ def _model_frames(
 
 
 # ============================================================================ pretrain
+def _cpu_copy(module: nn.Module) -> dict[str, torch.Tensor]:
+    """A copy of ``module``'s state dict on the CPU (what the weights file holds)."""
+    return {k: v.detach().to("cpu", copy=True) for k, v in module.state_dict().items()}
+
+
 def _arguments(
     settings: PretrainSettings,
     store: GraspStore,
@@ -402,6 +406,7 @@ def pretrain(
     split_file: str | Path | None = None,
     progress: bool = True,
     overwrite: bool = False,
+    device: str = "auto",
 ) -> PretrainResult:
     """Pretrain ``settings.backbone`` on the depth maps of ``cfg.data.store``'s training
     objects and write its weights (+ provenance) to ``out``.
@@ -416,6 +421,8 @@ def pretrain(
         split_file: a saved split (``tactile-compliance split``, a run's ``split.json``)
             instead of drawing one from ``cfg``.
         progress: show a progress bar.
+        device: ``auto`` (a CUDA GPU when torch sees one, else the CPU), ``cpu`` or
+            ``cuda[:N]``.
         overwrite: retrain when ``out`` already holds a pretrained weights file.
 
     Returns:
@@ -479,7 +486,12 @@ def pretrain(
     )
     history: list[dict[str, float]] = []
     best_loss, best_epoch, bad_epochs = float("inf"), -1, 0
-    best_state = copy.deepcopy(net.backbone.state_dict())
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"device {device}, but torch sees no CUDA GPU; use auto or cpu")
+    net.to(device)
+    best_state = _cpu_copy(net.backbone)
     first_epoch, seconds_before = 0, 0.0
     if state_path.exists():
         state = torch.load(state_path, map_location="cpu", weights_only=True)
@@ -521,8 +533,8 @@ def pretrain(
                 if n_batches >= batches_per_epoch:
                     break
                 frames, depth = _flip(frames, depth, cfg, generator)
-                x = _model_frames(frames, constants, image_size, photometric)
-                losses = net.losses(x, depth.reshape(-1, *depth.shape[2:]))
+                x = _model_frames(frames.to(device), constants, image_size, photometric)
+                losses = net.losses(x, depth.to(device).reshape(-1, *depth.shape[2:]))
                 optimiser.zero_grad(set_to_none=True)
                 losses["loss"].backward()
                 optimiser.step()
@@ -530,7 +542,7 @@ def pretrain(
                     sums[key] += float(losses[key].detach())
                 n_batches += 1
                 bar()
-            val = _evaluate(net, store, val_ids, constants, image_size, settings.batch_size)
+            val = _evaluate(net, store, val_ids, constants, image_size, settings.batch_size, device)
             row = {
                 "epoch": epoch,
                 **{f"train_{k}": v / max(1, n_batches) for k, v in sums.items()},
@@ -540,7 +552,7 @@ def pretrain(
             bar.update(val=f"{val['depth_mse_mm2']:.4f}")
             if val["loss"] < best_loss:
                 best_loss, best_epoch, bad_epochs = val["loss"], epoch, 0
-                best_state = copy.deepcopy(net.backbone.state_dict())
+                best_state = _cpu_copy(net.backbone)
             else:
                 bad_epochs += 1
             stopped = settings.patience > 0 and bad_epochs >= settings.patience
@@ -623,14 +635,15 @@ def _evaluate(
     constants: NormalisationConstants,
     image_size: tuple[int, int],
     batch_size: int,
+    device: str | torch.device = "cpu",
 ) -> dict[str, float]:
     """Mean losses over ``ids`` (eval mode, no augmentation), weighted by batch size."""
     net.eval()
     sums = {"loss": 0.0, "depth_mse_mm2": 0.0, "mask_bce": 0.0}
     count = 0
     for chunk, frames, depth in _batches(store, ids, batch_size):
-        x = _model_frames(frames, constants, image_size, None)
-        losses = net.losses(x, depth.reshape(-1, *depth.shape[2:]))
+        x = _model_frames(frames.to(device), constants, image_size, None)
+        losses = net.losses(x, depth.to(device).reshape(-1, *depth.shape[2:]))
         for key in sums:
             sums[key] += float(losses[key]) * len(chunk)
         count += len(chunk)
