@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_compliance.data.store import GraspStore, GraspStoreWriter, depth_size_for
+from tactile_compliance.data.store import GraspStore, GraspStoreWriter
 
 MATERIALS = ("Foam", "Rubber", "Plastic", "Metal")
 SHAPES = ("Sphere", "Cylinder")
@@ -23,36 +23,21 @@ def make_toy_store(
     grasps: int = 4,
     size: tuple[int, int] = (32, 32),
     seed: int = 0,
-    depth: bool = False,
 ) -> GraspStore:
-    """``depth``: also store depth maps (mm) of the same blobs, at the importer's size."""
     rng = np.random.default_rng(seed)
     height, width = size
     yy, xx = np.mgrid[0:height, 0:width]
     radius_sq = (yy - height / 2) ** 2 + (xx - width / 2) ** 2
-    depth_size = depth_size_for(size) if depth else None
-    if depth_size is not None:
-        dy, dx = np.mgrid[0 : depth_size[0], 0 : depth_size[1]]
-        # Pixel centres of the small grid in frame pixels, so the blobs line up.
-        scale = height / depth_size[0]
-        depth_radius_sq = ((dy + 0.5) * scale - height / 2) ** 2 + (
-            (dx + 0.5) * scale - width / 2
-        ) ** 2
-    with GraspStoreWriter(path, size, "toy", depth_size=depth_size) as writer:
+    with GraspStoreWriter(path, size, "toy") as writer:
         for index in range(n_objects):
             log_e = 4.0 + 7.0 * index / max(1, n_objects - 1)  # 1e4 .. 1e11 Pa
             softness = (11.0 - log_e) / 7.0  # 1 for soft, 0 for hard
             for grasp in range(grasps):
                 for finger in ("markerless", "markers"):
                     frames = np.empty((3, height, width, 3), np.float32)
-                    maps = np.zeros((3, *depth_size), np.float32) if depth_size else None
                     for t in range(3):
                         blob_radius = 3 + 8 * softness * (t + 1) / 3
                         blob = np.exp(-radius_sq / (2 * blob_radius**2))
-                        if maps is not None:
-                            maps[t] = (
-                                0.3 * (t + 1) * np.exp(-depth_radius_sq / (2 * blob_radius**2))
-                            )
                         for c in range(3):
                             frames[t, ..., c] = 0.5 + (0.05 + 0.1 * softness) * blob * (c + 1) / 3
                     frames += rng.normal(0, 0.01, frames.shape).astype(np.float32)
@@ -77,7 +62,6 @@ def make_toy_store(
                             **{f"depth_max_mm_{i}": 0.3 * (i + 1) for i in range(3)},
                             "source_path": f"toy/{index}/{grasp}",
                         },
-                        maps,
                     )
     return GraspStore.open(path)
 
