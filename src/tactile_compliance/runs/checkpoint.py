@@ -169,9 +169,9 @@ def save_checkpoint(
     seed: int,
     metrics: dict[str, Any] | None = None,
     frozen_backbone: dict[str, Any] | None = None,
+    backbone_weights_file: dict[str, Any] | None = None,
     store_image_size: tuple[int, int] | None = None,
     analytical_estimator: str | None = None,
-    backbone_weights_file: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``model`` and its description to ``path`` (atomically: see
     :func:`~tactile_compliance.runs.layout.atomic_file`).
@@ -185,12 +185,12 @@ def save_checkpoint(
     Compute the record once, before training: it describes the backbone the head was
     trained on (and the feature cache was computed with), and hashing VGG16 takes ~0.6 s.
 
+    ``backbone_weights_file``: the :func:`backbone_weights_file_record` of the weights
+    file the backbone was initialised from (None: random or ImageNet weights).
+
     ``analytical_estimator``: the name (``physics.estimators``) of the estimator that made
     the training store's analytical estimates, so estimates computed at inference come
     from the same one.
-
-    ``backbone_weights_file``: the :func:`backbone_weights_file_record` of the weights
-    file the backbone was initialised from (None: random or ImageNet weights).
     """
     path = Path(path)
     state = {

@@ -794,10 +794,10 @@ def _fit_and_evaluate(
             config=config_dict,
             seed=cfg.seed,
             metrics=extra,
+            backbone_weights_file=weights_file,
             frozen_backbone=frozen_backbone,
             store_image_size=data.store.image_size,
             analytical_estimator=data.store.analytical_estimator,
-            backbone_weights_file=weights_file,
         )
 
     best = _BestCheckpoint(save_best, pending_best)
