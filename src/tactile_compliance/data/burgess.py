@@ -51,7 +51,7 @@ from tactile_compliance.data.safe_pickle import (
     load_numpy_pickle,
     peek_array_shape,
 )
-from tactile_compliance.data.store import FRAMES_PER_SAMPLE, GraspStoreWriter
+from tactile_compliance.data.store import FRAMES_PER_SAMPLE, GraspStoreWriter, depth_size_for
 from tactile_compliance.progress import progress_bar
 
 FingerChoice = Literal["markerless", "markers", "both"]
@@ -182,16 +182,23 @@ def load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None)
     return np.ascontiguousarray(array[..., ::-1], dtype=np.float32)
 
 
-def _depth_maxima_mm(directory: Path, name: str) -> np.ndarray:
-    """Maximum gel depth of each frame in mm; NaN when the depth file is absent."""
+def load_depth(
+    directory: Path, name: str, depth_size: tuple[int, int] | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Maximum gel depth of each frame in mm (NaN when the depth file is absent), and the
+    depth maps area-averaged to ``depth_size`` (h, w) px as float32 mm (None when the
+    file is absent or ``depth_size`` is None: the store keeps no depth)."""
     if not (directory / name).is_file():
-        return np.full(FRAMES_PER_SAMPLE, np.nan)
+        return np.full(FRAMES_PER_SAMPLE, np.nan), None
     depth = _load_array(directory / name, name)
     if depth.ndim != 3 or depth.shape[0] != FRAMES_PER_SAMPLE or depth.size == 0:
         raise SampleError(f"wrong array shape: {name} is {depth.shape}, expected (3, H, W)")
     if not np.all(np.isfinite(depth)):
         raise SampleError(f"non-finite values: {name}")
-    return depth.reshape(FRAMES_PER_SAMPLE, -1).max(axis=1).astype(np.float64)
+    maxima = depth.reshape(FRAMES_PER_SAMPLE, -1).max(axis=1).astype(np.float64)
+    if depth_size is None:
+        return maxima, None
+    return maxima, resize_frames(depth.astype(np.float32), depth_size)
 
 
 def _object_label(
@@ -324,6 +331,7 @@ def import_burgess(
     overwrite: bool = False,
     progress: bool = True,
     source_name: str | None = None,
+    depth: bool = True,
 ) -> ImportReport:
     """Import a GelSight Young's-modulus dataset tree into a GraspStore at ``out_dir``.
 
@@ -342,6 +350,11 @@ def import_burgess(
         progress: show a progress bar.
         source_name: recorded in the store header; default ``synthetic`` for trees written
             by the generator (they hold ``generation.json``), else ``burgess``.
+        depth: keep each sample's three depth maps (its own finger's ``depth*.pkl``) in
+            the store, area-averaged to a quarter of the frame size per side, float16 mm
+            (:func:`~tactile_compliance.data.store.depth_size_for`). On by default: the
+            importer reads the depth files anyway (for ``depth_max_mm``), and they add
+            about 4 % to the store; they are what ``pretrain`` learns from.
 
     Raises:
         DataImportError: one of its subclasses (``import_report``) when the import cannot
@@ -370,10 +383,15 @@ def import_burgess(
     image_files = [FINGER_FILES[finger][0] for finger in finger_names]
     source_hw, sizes = majority_frame_size(samples, image_files, progress)
 
+    def store_depth_size() -> tuple[int, int] | None:
+        size = image_size or source_hw
+        return depth_size_for(size) if depth and size is not None else None
+
     def make_writer() -> GraspStoreWriter:
         return GraspStoreWriter(
             out,
             image_size=image_size or source_hw,
+            depth_size=store_depth_size(),
             source=source_name,
             creation_parameters={
                 "importer": "burgess",
@@ -384,6 +402,7 @@ def import_burgess(
                 "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
                 "frame_kind": "difference",
                 "analytical_estimator": _tree_estimator(src),
+                "depth": bool(depth),
             },
             overwrite=overwrite,
         )
@@ -407,9 +426,9 @@ def import_burgess(
                 image_file, depth_file = FINGER_FILES[finger]
                 try:
                     frames = load_frames(aug_dir, image_file, source_hw)
-                    depth_max_mm = _depth_maxima_mm(aug_dir, depth_file)
                     if source_hw is None:  # no size could be peeked: the first decides
                         source_hw = (frames.shape[1], frames.shape[2])
+                    depth_max_mm, depth_maps = load_depth(aug_dir, depth_file, store_depth_size())
                     frames = resize_frames(frames, image_size)
                 except SampleError as err:
                     report.problem(aug_dir / image_file, str(err))
@@ -429,7 +448,7 @@ def import_burgess(
                     **{f"depth_max_mm_{i}": depth_max_mm[i] for i in range(3)},
                     "source_path": str((aug_dir / image_file).relative_to(src)),
                 }
-                if target.append(frames, row, aug_dir / image_file):
+                if target.append(frames, row, aug_dir / image_file, depth_maps):
                     objects_imported.add(label.name)
         report.objects_imported = len(objects_imported)
         target.commit(

@@ -153,12 +153,19 @@ class ImportTarget:
         self.make_writer = make_writer
         self.writer: GraspStoreWriter | None = None
 
-    def append(self, frames: np.ndarray, row: dict[str, Any], source: Path) -> bool:
-        """Add one sample; a value the store cannot hold is reported against ``source``."""
+    def append(
+        self,
+        frames: np.ndarray,
+        row: dict[str, Any],
+        source: Path,
+        depth: np.ndarray | None = None,
+    ) -> bool:
+        """Add one sample (``depth``: its depth maps in mm, for a store that keeps them);
+        a value the store cannot hold is reported against ``source``."""
         if self.writer is None:
             self.writer = self.make_writer()
         try:
-            self.writer.append(frames, row)
+            self.writer.append(frames, row, depth)
         except ValueError as err:
             self.report.problem(source, f"invalid sample: {err}")
             return False

@@ -7,6 +7,7 @@ A store is a directory::
       header.json       format version, frame shape, channel order, source, creation parameters
       samples.parquet   one row per sample (labels, F, W, estimates, provenance)
       frames.u8         raw uint8 array (N, 3 frames, H, W, 3 channels), RGB, memory-mapped
+      depth.f16         optional: float16 gel depth maps in mm (N, 3 frames, h, w), see below
 
 Frames are difference images (values centred near 0.5) quantised to uint8 as
 ``floor(x * 255)`` and decoded as ``(u + 0.5) / 255`` (see :func:`frames_to_uint8`); that
@@ -16,6 +17,15 @@ lazily through ``np.memmap`` so nothing is loaded into RAM until a sample is ask
 The encoding holds differences of -127 to +128 grey levels; larger ones are clipped to
 those (:data:`MIN_DIFFERENCE_LEVEL`, :data:`MAX_DIFFERENCE_LEVEL`), and the writer counts
 every clipped value (:attr:`GraspStoreWriter.clipped_frame_values`) for the import report.
+
+Depth maps (optional, ``header.json`` ``depth_size``; stores without them open unchanged):
+the gel's indentation depth of every frame in mm, as the dataset's ``depth*.pkl`` give it,
+area-averaged down to :func:`depth_size_for` the frame size (a quarter of each side,
+rounded up: 24x32 for 96x128 frames, 63x88 for 250x350) and stored as float16. float16
+holds -65504..65504 mm with a relative step of 2**-11 (0.0005 mm at 1 mm, 0.002 mm at
+4 mm, far below the reconstruction's own error); NaN marks a sample without a depth file.
+At a quarter of each side they add 4 % to the frames' bytes. They are the label-free
+target of tactile pretraining (``training.pretrain``).
 
 Stores are written by :class:`GraspStoreWriter`, which streams frames into a temporary
 sibling directory and renames it into place only when everything is written: an
@@ -71,7 +81,12 @@ PARTIAL_MARKER = ".partial-owner.json"
 HEADER_FILE = "header.json"
 SAMPLES_FILE = "samples.parquet"
 FRAMES_FILE = "frames.u8"
+DEPTH_FILE = "depth.f16"
 FRAMES_PER_SAMPLE = 3
+#: Depth maps are stored at ``ceil(H / DEPTH_DOWNSAMPLE) x ceil(W / DEPTH_DOWNSAMPLE)``.
+DEPTH_DOWNSAMPLE = 4
+#: Largest stored |depth| in mm: a gel is a few mm thick, so anything beyond is no depth map.
+MAX_ABS_DEPTH_MM = 100.0
 
 FINGERS = ("markerless", "markers")
 
@@ -184,6 +199,12 @@ def frames_from_uint8(frames: np.ndarray) -> np.ndarray:
     return (np.asarray(frames, dtype=np.float32) + np.float32(FRAME_DECODE_OFFSET)) / np.float32(
         255.0
     )
+
+
+def depth_size_for(image_size: tuple[int, int]) -> tuple[int, int]:
+    """The stored depth-map size (h, w) px for frames of ``image_size`` (H, W) px."""
+    height, width = image_size
+    return (-(-int(height) // DEPTH_DOWNSAMPLE), -(-int(width) // DEPTH_DOWNSAMPLE))
 
 
 def _column_numbers(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
@@ -411,8 +432,20 @@ class StoreHeader:
     created: str
     package_version: str
     creation_parameters: dict[str, Any]
+    #: (h, w) px of the stored depth maps (``depth.f16``), or None: no depth maps.
+    depth_size: tuple[int, int] | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        depth = (
+            {
+                "depth_size": list(self.depth_size),
+                "depth_file": DEPTH_FILE,
+                "depth_dtype": "float16",
+                "depth_unit": "mm",
+            }
+            if self.depth_size is not None
+            else {}
+        )
         return {
             "format_version": self.format_version,
             "num_samples": self.num_samples,
@@ -426,6 +459,7 @@ class StoreHeader:
             "created": self.created,
             "package_version": self.package_version,
             "creation_parameters": self.creation_parameters,
+            **depth,
         }
 
     @classmethod
@@ -440,6 +474,11 @@ class StoreHeader:
                 created=str(data.get("created", "")),
                 package_version=str(data.get("package_version", "")),
                 creation_parameters=dict(data.get("creation_parameters", {})),
+                depth_size=(
+                    (int(data["depth_size"][0]), int(data["depth_size"][1]))
+                    if data.get("depth_size") is not None
+                    else None
+                ),
             )
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise StoreError(f"{HEADER_FILE} is malformed: {err!r}") from err
@@ -470,6 +509,28 @@ class GraspStore:
         self._sample_bytes = int(np.prod(shape[1:]))
         self._fd: int | None = None
         self._fd_pid = -1
+        self._depth_path = path / DEPTH_FILE
+        self.depth: np.ndarray | None = None
+        self._open_depth()
+
+    def _open_depth(self) -> None:
+        """Map ``depth.f16`` read-only when the header names depth maps (checks its size)."""
+        if self.header.depth_size is None:
+            self.depth = None
+            return
+        shape = (self.header.num_samples, FRAMES_PER_SAMPLE, *self.header.depth_size)
+        expected = int(np.prod(shape)) * 2
+        actual = self._depth_path.stat().st_size if self._depth_path.exists() else -1
+        if actual != expected:
+            raise StoreError(
+                f"{self._depth_path}: expected {expected} bytes for depth maps of shape "
+                f"{shape} (float16), found {actual}"
+            )
+        self.depth = (
+            np.zeros(shape, dtype=np.float16)
+            if expected == 0
+            else np.memmap(self._depth_path, dtype=np.float16, mode="r", shape=shape)
+        )
 
     @classmethod
     def open(cls, path: str | Path, *, validate: bool = True) -> GraspStore:
@@ -541,6 +602,33 @@ class GraspStore:
             return str(recorded)
         return {"burgess": "dataset", "synthetic": "contact"}.get(self.header.source)
 
+    @property
+    def has_depth(self) -> bool:
+        """Whether the store holds depth maps (``depth.f16``)."""
+        return self.depth is not None
+
+    @property
+    def depth_size(self) -> tuple[int, int] | None:
+        """Size (h, w) px of the stored depth maps, or None when the store has none."""
+        return self.header.depth_size
+
+    def read_depth(self, indices: int | Sequence[int] | np.ndarray) -> np.ndarray:
+        """Depth maps of the given sample ids in mm, float32 (n, 3, h, w); NaN = none.
+
+        Raises:
+            StoreError: the store holds no depth maps (imported with ``--no-depth`` or
+                before depth was kept: re-import it).
+        """
+        if self.depth is None:
+            raise StoreError(
+                f"{self.path}: the store holds no depth maps; re-import it with "
+                "`tactile-compliance import burgess SRC --out STORE --depth`"
+            )
+        idx = np.atleast_1d(np.asarray(indices, dtype=np.int64))
+        if idx.size and (idx.min() < 0 or idx.max() >= len(self)):
+            raise IndexError(f"sample ids out of range (store has {len(self)})")
+        return np.asarray(self.depth[idx], dtype=np.float32)
+
     def load_frames(self, indices: int | Sequence[int] | np.ndarray) -> np.ndarray:
         """Frames of the given sample ids as float32 in (0, 1), shape (n, 3, H, W, 3), RGB."""
         return frames_from_uint8(self.read_samples(indices))
@@ -598,6 +686,7 @@ class GraspStore:
         state = self.__dict__.copy()
         state["_fd"] = None
         state["frames"] = None
+        state["depth"] = None
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -607,6 +696,7 @@ class GraspStore:
             self.frames = np.zeros(shape, dtype=np.uint8)
         else:
             self.frames = np.memmap(self._frames_path, dtype=np.uint8, mode="r", shape=shape)
+        self._open_depth()
 
     def forces_n(self) -> np.ndarray:
         """Normal force at the three frames, (N, 3) in N."""
@@ -644,6 +734,18 @@ class GraspStore:
             "has_force_width": bool(s[list(FORCE_COLUMNS)].notna().any().any()),
             "has_estimates": bool(s[list(ESTIMATE_COLUMNS)].notna().any().any()),
             "frames_bytes": int(np.prod(self.frames.shape)),
+            # Samples with a depth file have a finite maximum depth in the table.
+            "depth": (
+                {
+                    "size": list(self.header.depth_size),
+                    "dtype": "float16",
+                    "unit": "mm",
+                    "samples_with_depth": int(s[list(DEPTH_COLUMNS)].notna().all(axis=1).sum()),
+                    "bytes": int(np.prod(self.depth.shape)) * 2,
+                }
+                if self.depth is not None and self.header.depth_size is not None
+                else None
+            ),
             "created": self.header.created,
             "package_version": self.header.package_version,
             "creation_parameters": self.header.creation_parameters,
@@ -728,9 +830,14 @@ class GraspStoreWriter:
         source: str,
         creation_parameters: dict[str, Any] | None = None,
         overwrite: bool = False,
+        depth_size: tuple[int, int] | None = None,
     ) -> None:
         self.path = Path(path)
         self.image_size = (int(image_size[0]), int(image_size[1]))
+        #: (h, w) px of the depth maps :meth:`append` takes, or None: the store keeps none.
+        self.depth_size = (
+            (int(depth_size[0]), int(depth_size[1])) if depth_size is not None else None
+        )
         self.source = source
         self.creation_parameters = dict(creation_parameters or {})
         self.overwrite = overwrite
@@ -764,6 +871,11 @@ class GraspStoreWriter:
                 },
             )
             self._frames_file = open(self._tmp / FRAMES_FILE, "wb")  # noqa: SIM115 (closed in commit/abort)
+            self._depth_file = (
+                open(self._tmp / DEPTH_FILE, "wb")  # noqa: SIM115 (closed in commit/abort)
+                if self.depth_size is not None
+                else None
+            )
         except OSError as err:
             self._remove_everything()
             raise self._write_error(err) from err
@@ -785,11 +897,11 @@ class GraspStoreWriter:
 
     def _remove_everything(self) -> None:
         """Delete the temporary directory and the parent directories this writer made."""
-        frames_file = getattr(self, "_frames_file", None)
-        if frames_file is not None and not frames_file.closed:
-            # The data is discarded anyway (e.g. a full disk on the last flush).
-            with contextlib.suppress(OSError):
-                frames_file.close()
+        for handle in (getattr(self, "_frames_file", None), getattr(self, "_depth_file", None)):
+            if handle is not None and not handle.closed:
+                # The data is discarded anyway (e.g. a full disk on the last flush).
+                with contextlib.suppress(OSError):
+                    handle.close()
         shutil.rmtree(self._tmp, ignore_errors=True)
         for directory in reversed(self._created):
             try:
@@ -801,8 +913,15 @@ class GraspStoreWriter:
     def __len__(self) -> int:
         return len(self._rows)
 
-    def append(self, frames: np.ndarray, row: dict[str, Any]) -> int:
+    def append(
+        self, frames: np.ndarray, row: dict[str, Any], depth: np.ndarray | None = None
+    ) -> int:
         """Add one sample: frames (3, H, W, 3) RGB, float in [0, 1] or uint8. Returns its id.
+
+        ``depth``: the sample's depth maps in mm, (3, h, w) at the writer's ``depth_size``
+        (the caller resizes), stored as float16; None stores NaN (no depth file). Ignored
+        by a writer without ``depth_size``. NaN is allowed (missing), inf and
+        |depth| > :data:`MAX_ABS_DEPTH_MM` are not.
 
         Raises ``ValueError`` for a bad sample (shape, dtype, NaN frames, float frames that
         are no difference images in [0, 1] by the frame rule, which the uint8 encoding
@@ -830,9 +949,12 @@ class GraspStoreWriter:
                 raise ValueError(f"frames: {problem}")
         sample_id = len(self._rows)
         normalised = _normalise_row(row, sample_id)
+        depth_bytes = self._depth_bytes(depth)
         encoded, clipped = encode_frames(frames)
         try:
             _write_all(self._frames_file, np.ascontiguousarray(encoded).tobytes())
+            if self._depth_file is not None:
+                _write_all(self._depth_file, depth_bytes)
         except OSError as err:
             self._remove_everything()
             raise self._write_error(err) from err
@@ -841,6 +963,27 @@ class GraspStoreWriter:
         self.clipped_frame_values += clipped
         self.samples_with_clipped_frames += clipped > 0
         return sample_id
+
+    def _depth_bytes(self, depth: np.ndarray | None) -> bytes:
+        """One sample's depth maps as float16 bytes (NaN when None); ValueError if bad."""
+        if self.depth_size is None:
+            return b""
+        shape = (FRAMES_PER_SAMPLE, *self.depth_size)
+        if depth is None:
+            return np.full(shape, np.nan, dtype=np.float16).tobytes()
+        depth = np.asarray(depth)
+        if depth.shape != shape:
+            raise ValueError(f"depth maps have shape {depth.shape}, expected {shape}")
+        if depth.dtype.kind not in "iuf":
+            raise ValueError(f"depth maps must be numbers (mm), got dtype {depth.dtype}")
+        values = depth.astype(np.float64)
+        finite = values[~np.isnan(values)]
+        if np.isinf(finite).any() or (finite.size and np.abs(finite).max() > MAX_ABS_DEPTH_MM):
+            raise ValueError(
+                f"depth maps must be finite and within +-{MAX_ABS_DEPTH_MM:g} mm "
+                f"(max |depth| {np.abs(finite).max():.4g} mm)"
+            )
+        return values.astype(np.float16).tobytes()
 
     def commit(self) -> GraspStore:
         """Write the table and header, then move the store into place."""
@@ -864,9 +1007,12 @@ class GraspStoreWriter:
             created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
             package_version=__version__,
             creation_parameters=self.creation_parameters,
+            depth_size=self.depth_size,
         )
         try:
             self._frames_file.close()  # a full disk may only show on this last flush
+            if self._depth_file is not None:
+                self._depth_file.close()
             samples.to_parquet(self._tmp / SAMPLES_FILE, index=False)
             _write_json(
                 self._tmp / STORE_MARKER, {"kind": STORE_KIND, "format_version": FORMAT_VERSION}

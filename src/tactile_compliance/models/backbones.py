@@ -20,7 +20,9 @@ Weights (``create_backbone(name, weights=...)``):
   the cached file is used.
 * a filesystem path: a local state dict, loaded with ``torch.load(weights_only=True)``;
   a file named like torchvision's ``<name>-<hash>.pth`` must have a sha256 that starts
-  with ``<hash>``.
+  with ``<hash>``. A file may wrap the state dict as ``{"state_dict": ..., ...}``; the
+  files ``tactile-compliance pretrain`` writes do, with their provenance under
+  :data:`PRETRAIN_KEY` (read by :func:`weights_file_record`).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from torch import nn
 
 __all__ = [
     "BACKBONE_WEIGHTS_URLS",
+    "PRETRAIN_KEY",
     "VGG16",
     "BackboneWeightsError",
     "BasicBlock",
@@ -50,8 +53,14 @@ __all__ = [
     "create_backbone",
     "list_backbones",
     "load_backbone_weights",
+    "load_weights_file",
     "no_downloads",
+    "weights_file_record",
 ]
+
+#: Key of the provenance record (store, split, epochs, depth loss) in a weights file
+#: written by ``tactile-compliance pretrain``; its state dict is under ``state_dict``.
+PRETRAIN_KEY = "tactile_compliance_pretrain"
 
 #: Official torchvision ImageNet weights (the IMAGENET1K_V1 files). The 8 hex digits in
 #: each file name are the start of the file's sha256, which torch.hub checks.
@@ -445,6 +454,37 @@ def load_backbone_weights(
             f"(is it a torchvision {name} state dict?): " + "; ".join(problems)
         )
     backbone.load_state_dict(filtered, strict=True)
+
+
+def load_weights_file(backbone: nn.Module, name: str, path: str | os.PathLike[str]) -> None:
+    """Load a local weights file (a state dict, or ``{"state_dict": ...}``) into
+    ``backbone`` (registered as ``name`` for the keys to ignore), checking that it fits.
+
+    Raises:
+        FileNotFoundError: no such file.
+        BackboneWeightsError: unreadable, not a state dict, or another network's.
+    """
+    file = Path(path).expanduser()
+    load_backbone_weights(backbone, name, _load_local_state_dict(file), str(file))
+
+
+def weights_file_record(path: str | os.PathLike[str]) -> dict[str, object]:
+    """What a checkpoint records about a local backbone weights file.
+
+    Returns ``{"path", "sha256", "provenance"}``: the absolute path, the sha256 of the
+    file's bytes, and the provenance a ``pretrain`` weights file carries under
+    :data:`PRETRAIN_KEY` (None for other files, e.g. a torchvision ``.pth``).
+    """
+    file = Path(path).expanduser().resolve()
+    provenance = None
+    try:
+        # mmap: the tensors are not read, only the small provenance record.
+        loaded = torch.load(file, map_location="cpu", weights_only=True, mmap=True)
+    except Exception:  # an old-format (non-zip) file cannot be mapped: read it whole
+        loaded = torch.load(file, map_location="cpu", weights_only=True)
+    if isinstance(loaded, Mapping) and isinstance(loaded.get(PRETRAIN_KEY), Mapping):
+        provenance = dict(loaded[PRETRAIN_KEY])
+    return {"path": str(file), "sha256": _sha256(file), "provenance": provenance}
 
 
 def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.Module:

@@ -12,12 +12,14 @@ passed through the estimation decoder [64, 64, 32] -> 1 logit. Sigmoid at the en
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
 
+from tactile_compliance.models.backbones import load_weights_file
 from tactile_compliance.models.base import (
     NUM_FRAMES,
     FusionModel,
@@ -29,7 +31,10 @@ from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
 from tactile_compliance.models.settings import DROPOUT_CHOICES, POW2_32_512, SearchDimension
 
-__all__ = ["Top10Encoder", "Top10NN"]
+__all__ = ["TOP10_BACKBONE", "Top10Encoder", "Top10NN"]
+
+#: The name of Top10NN's per-frame CNN as a backbone (``pretrain --backbone``).
+TOP10_BACKBONE = "top10nn-cnn"
 
 _CHANNELS = (32, 64, 128, 256, 512)
 _KERNELS = (5, 3, 3, 3, 3)
@@ -95,12 +100,16 @@ class Top10NN(FusionModel):
             (paper: 3); unused without E (the decoder then emits one logit).
         estimation_sizes: hidden sizes of the estimation decoder (paper: [64, 64, 32]).
         estimation_dropout: dropout in the estimation decoder (paper: 0.3).
+        backbone_weights: "none" (random init, the paper) or a path to a
+            :class:`Top10Encoder` state dict, e.g. one written by ``tactile-compliance
+            pretrain --backbone top10nn-cnn``. There are no ImageNet weights.
     """
 
     hparam_checks = FusionModel.extend_checks(
         img_feature_size=check_positive_int, image_dropout=check_dropout
     )
     default_training: ClassVar[dict[str, Any]] = {"lr": 3e-6, "batch_size": 32, "gamma": None}
+    pretrained_backbone: ClassVar[bool] = True
     hpo_space: ClassVar[tuple[SearchDimension, ...]] = (
         *FusionModel.hpo_space,
         SearchDimension.hparam("image_dropout", DROPOUT_CHOICES),
@@ -118,11 +127,18 @@ class Top10NN(FusionModel):
         decoder_output_size: int = 3,
         estimation_sizes: Sequence[int] = (64, 64, 32),
         estimation_dropout: float = 0.3,
+        backbone_weights: str | os.PathLike[str] = "none",
     ) -> None:
         # locals() holds exactly the constructor's arguments at this point.
         super().__init__(inputs, self.check_hparams(locals()))
         hp = self.hparams
         self.backbone = Top10Encoder(hp["img_feature_size"], hp["image_dropout"])
+        weights = os.fspath(backbone_weights)
+        if weights.strip().lower() == "imagenet":
+            raise ValueError("top10nn has no ImageNet weights: use 'none' or a weights file")
+        if weights.strip().lower() != "none":
+            load_weights_file(self.backbone, TOP10_BACKBONE, weights)
+        self.backbone_weights = weights
         self._build_fusion_head(NUM_FRAMES * hp["img_feature_size"])
         use_fast_dropout(self)
 

@@ -15,6 +15,12 @@ record, ``{"weights": "none" | "imagenet" | PATH, "seed": int | None, "sha256": 
 "summary": ...}``, and :func:`load_checkpoint` rebuilds the backbone from it (never
 downloading) and checks its sha256 before loading the head. Fine-tuned backbones are
 stored whole. Format 1 checkpoints (always whole) still load.
+
+A backbone initialised from a local weights file (frozen or fine-tuned), e.g. one written
+by ``tactile-compliance pretrain``, is also recorded as ``backbone_weights_file``:
+``{"path", "sha256", "provenance"}`` (:func:`backbone_weights_file_record`), so a
+checkpoint says which file, byte for byte, its backbone started from, and where that file
+came from (store, split, epochs, depth loss).
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from tactile_compliance import __version__
 from tactile_compliance.data.features import weights_fingerprint
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.models import create_model, get_model_class
-from tactile_compliance.models.backbones import no_downloads
+from tactile_compliance.models.backbones import no_downloads, weights_file_record
 from tactile_compliance.outputs import atomic_file
 
 CHECKPOINT_FORMAT = "tactile-compliance-model"
@@ -143,6 +149,16 @@ def frozen_backbone_record(model: torch.nn.Module, *, seed: int | None) -> dict[
     }
 
 
+def backbone_weights_file_record(model: torch.nn.Module) -> dict[str, Any] | None:
+    """``{"path", "sha256", "provenance"}`` of the local weights file ``model``'s backbone
+    was initialised from (:func:`~tactile_compliance.models.backbones.weights_file_record`),
+    or None for random or ImageNet weights. Hashes the file: compute it once per run."""
+    weights = str(getattr(model, "backbone_weights", "none")).strip()
+    if weights.lower() in ("none", "imagenet"):
+        return None
+    return weights_file_record(weights)
+
+
 def save_checkpoint(
     path: str | Path,
     model: torch.nn.Module,
@@ -153,6 +169,7 @@ def save_checkpoint(
     seed: int,
     metrics: dict[str, Any] | None = None,
     frozen_backbone: dict[str, Any] | None = None,
+    backbone_weights_file: dict[str, Any] | None = None,
     store_image_size: tuple[int, int] | None = None,
     analytical_estimator: str | None = None,
     store: dict[str, Any] | None = None,
@@ -168,6 +185,9 @@ def save_checkpoint(
     frozen backbone; the backbone's tensors are then left out and rebuilt on loading.
     Compute the record once, before training: it describes the backbone the head was
     trained on (and the feature cache was computed with), and hashing VGG16 takes ~0.6 s.
+
+    ``backbone_weights_file``: the :func:`backbone_weights_file_record` of the weights
+    file the backbone was initialised from (None: random or ImageNet weights).
 
     ``analytical_estimator``: the name (``physics.estimators``) of the estimator that made
     the training store's analytical estimates, so estimates computed at inference come
@@ -201,6 +221,7 @@ def save_checkpoint(
         "seed": int(seed),
         "metrics": metrics or {},
         "backbone": frozen_backbone,
+        "backbone_weights_file": backbone_weights_file,
         "state_dict": state,
     }
     # Temp file, fsync, rename: a full disk or a kill leaves the old file and no temp file.

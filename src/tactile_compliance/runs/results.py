@@ -20,6 +20,7 @@ Row schema (flat; metrics prefixed by where they come from):
   for strategies with scalar inputs, ``ref_scalar_gbr_*`` (the reference predictors on the
   same test split, ``runs.metrics.reference_predictions``), ``best_epoch``, ``best_val_nmse``,
   ``epochs_trained``, ``n_train``, ``n_val``, ``n_test``, ``backbone_weights``,
+  ``backbone_weights_sha256`` (of a local weights file, e.g. from ``pretrain``),
   ``freeze_backbone``, ``image_size``.
 
 The object condition of a run (the column groups of Tables I and II) is the pair
@@ -142,6 +143,7 @@ def result_row(
                         "n_val",
                         "n_test",
                         "backbone_weights",
+                        "backbone_weights_sha256",
                         "freeze_backbone",
                         "image_size",
                     )

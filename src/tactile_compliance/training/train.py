@@ -72,6 +72,7 @@ from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.outputs import atomic_file, claim_output_dir, fsync_directory
 from tactile_compliance.runs.checkpoint import (
     FROZEN_BACKBONE_SEED,
+    backbone_weights_file_record,
     create_seeded_model,
     frozen_backbone_record,
     load_checkpoint,
@@ -741,6 +742,8 @@ def _fit_and_evaluate(
         if cfg.model.freeze_backbone
         else None
     )
+    # The weights file (e.g. from `pretrain`) the backbone started from: sha256 + provenance.
+    weights_file = backbone_weights_file_record(model)
     if cfg.model.freeze_backbone:
         if cfg.augmentation.enabled:
             warnings.warn(
@@ -791,6 +794,7 @@ def _fit_and_evaluate(
             config=config_dict,
             seed=cfg.seed,
             metrics=extra,
+            backbone_weights_file=weights_file,
             frozen_backbone=frozen_backbone,
             store_image_size=data.store.image_size,
             analytical_estimator=data.store.analytical_estimator,
@@ -855,6 +859,7 @@ def _fit_and_evaluate(
         "seed": cfg.seed,
         "config_hash": config_hash(cfg),
         "backbone_weights": str(getattr(model, "backbone_weights", "none")),
+        "backbone_weights_sha256": weights_file["sha256"] if weights_file else None,
         "freeze_backbone": cfg.model.freeze_backbone,
         "image_size": list(data.image_size) if data.image_size else None,
         "n_train": len(data.train_ids),

@@ -1,0 +1,329 @@
+"""Frozen random vs frozen depth-pretrained backbones on UnSeen objects (issue 15).
+
+Research script: on the demo-size synthetic store (``demo.PLANS["full"]``; ``--objects``,
+``--grasps``, ``--size`` change it), for each seed the backbone of each model is pretrained
+(``training.pretrain``) on the depth maps of that seed's UnSeen *training* objects only,
+then the model's head is trained with
+
+============  =================================================================
+``random``     the frozen random backbone every quick preset uses today
+``pretrained`` the frozen depth-pretrained backbone (``model.backbone_weights``)
+``finetuned``  (``--finetune``) the pretrained backbone trained end to end
+============  =================================================================
+
+with the Table I quick settings of the model (``table1 --quick``: frozen backbone,
+32x32 frames, markerless finger, small heads; ``--set KEY=VALUE`` changes them) and its
+UnSeen split; the pretraining uses the same filters, split, frame size and seed as the
+run. Every run also
+scores the gradient-boosting scalar reference on its own split (``runs.metrics``,
+``scalar_gbr``: F, W, log10 E; strategies with scalar inputs only) and the median.
+
+Prints a markdown table of test N-MSE (mean +- sd over the seeds), the change of the
+pretrained backbone against the random one, a probe of the frozen features themselves
+(test N-MSE of a ridge regression from the cached image features to the label, fitted on
+the run's training objects: free of the noise of a few epochs of head training), and the
+pretraining cost per seed (s), and
+writes every number to ``OUT/comparison.json``. The issue's goal: a frozen pretrained
+Res-Tf beats the frozen random one by >= 15 % in UnSeen N-MSE (mean of 3 seeds).
+
+Usage (the whole comparison: about 30-60 min on a quiet 2-core CPU)::
+
+    python benchmarks/pretrain_comparison.py --out /tmp/pretrain-cmp
+    python benchmarks/pretrain_comparison.py --out /tmp/pretrain-cmp --models res_tf vgg_lstm
+    python benchmarks/pretrain_comparison.py --out /tmp/pretrain-cmp --finetune
+
+Reduced form (minutes): ``--seeds 1 --pretrain-epochs 5``. Re-running reuses the
+generated tree, the store, the weights files and finished runs in ``OUT``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+BACKBONE_OF = {"res_tf": "resnet18", "vgg_lstm": "vgg16"}
+
+
+def _parse() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, required=True, help="work directory")
+    parser.add_argument("--models", nargs="+", default=["res_tf"], choices=sorted(BACKBONE_OF))
+    parser.add_argument("--inputs", nargs="+", default=["Image", "ALL"])
+    parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1")
+    parser.add_argument("--objects", type=int, default=None, help="default: the demo's")
+    parser.add_argument("--grasps", type=int, default=None, help="default: the demo's")
+    parser.add_argument("--pretrain-epochs", type=int, default=30)
+    parser.add_argument("--pretrain-patience", type=int, default=4)
+    parser.add_argument("--pretrain-batch-size", type=int, default=16)
+    parser.add_argument("--pretrain-lr", type=float, default=1e-3)
+    parser.add_argument(
+        "--no-pretrain-augment", action="store_true", help="pretrain without augmentation"
+    )
+    parser.add_argument("--finetune", action="store_true", help="also train end to end")
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        help="config override applied to every run and pretraining (repeatable)",
+    )
+    parser.add_argument("--size", default=None, help="frame size HxW of the store (default: demo)")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default 1)")
+    return parser.parse_args()
+
+
+def _store(out: Path, n_objects: int | None, grasps: int | None, size: str | None) -> Path:
+    """The demo-size synthetic store (with depth maps), generated and imported once."""
+    from tactile_compliance.data.burgess import import_burgess
+    from tactile_compliance.data.image_ops import parse_size
+    from tactile_compliance.demo import PLANS
+    from tactile_compliance.synthetic import generate_burgess_tree
+
+    plan = PLANS["full"]
+    raw, store = out / "raw", out / "store"
+    generate_burgess_tree(
+        raw,
+        n_objects=n_objects or plan.n_objects,
+        grasps_per_object=grasps or plan.grasps_per_object,
+        seed=0,
+        image_size=parse_size(size) or plan.image_size,
+    )
+    if not store.exists():
+        print(import_burgess(raw, store).format())
+    return store
+
+
+def _cells(
+    store: Path, models: list[str], inputs: list[str], seeds: int, out: Path, overrides: list[str]
+) -> list:
+    """The table1 --quick UnSeen cells of ``models`` x ``inputs`` x seeds (+ overrides)."""
+    from tactile_compliance.training.experiment import plan_experiment
+
+    plan = plan_experiment(
+        "table1",
+        quick=True,
+        seeds=list(range(seeds)),
+        store=store,
+        overrides=overrides,
+        where=["split.condition=unseen"],
+        output_dir=out / "runs",
+    )
+    return [c for c in plan.cells if c.cfg.model.name in models and c.cfg.inputs in inputs]
+
+
+def _feature_probe(cfg: Any, run_dir: Path) -> float:
+    """Test N-MSE of a ridge regression from a run's cached frozen image features (the
+    three frames' vectors, standardised) to the normalised label, fitted on the run's
+    training ids (alpha by 5-fold cross-validation by object on them): what the features
+    carry, without the noise of training a head for a few epochs."""
+    from sklearn.linear_model import Ridge
+    from sklearn.model_selection import GroupKFold
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    from tactile_compliance.data.features import cached_features
+    from tactile_compliance.data.normalisation import denormalise_modulus, normalise_modulus
+    from tactile_compliance.data.splits import Split
+    from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.runs.metrics import nmse
+    from tactile_compliance.training.train import build_model
+
+    store = GraspStore.open(cfg.data.store)
+    constants = cfg.normalisation_constants()
+    size = tuple(cfg.data.image_size) if cfg.data.image_size else None
+    features = cached_features(store, build_model(cfg).backbone, size, constants, progress=False)
+    split = Split.load(run_dir / "split.json")
+
+    def matrix(ids: np.ndarray) -> np.ndarray:
+        return np.asarray(features[ids], dtype=np.float64).reshape(len(ids), -1)
+
+    moduli = store.moduli_pa()
+    x, y = matrix(split.train_ids), normalise_modulus(moduli[split.train_ids], constants)
+    objects = store.samples["object"].to_numpy()[split.train_ids]
+
+    def object_cv_error(alpha: float) -> float:
+        # Folds by object: samples of one object share a label, so a per-sample CV
+        # would reward memorising objects and pick too little regularisation.
+        errors = []
+        for fit, held in GroupKFold(n_splits=5).split(x, y, objects):
+            model = make_pipeline(StandardScaler(), Ridge(alpha=alpha)).fit(x[fit], y[fit])
+            errors.append(float(np.mean((model.predict(x[held]) - y[held]) ** 2)))
+        return float(np.mean(errors))
+
+    alpha = min(np.logspace(0, 7, 15), key=object_cv_error)
+    probe = make_pipeline(StandardScaler(), Ridge(alpha=alpha)).fit(x, y)
+    predicted = np.clip(probe.predict(matrix(split.test_ids)), 0.0, 1.0)
+    return nmse(moduli[split.test_ids], denormalise_modulus(predicted, constants), constants)
+
+
+def _summary(values: list[float], digits: int = 4) -> str:
+    """Mean ± sample standard deviation (the mean alone for one value; "-" for none)."""
+    if not values:
+        return "-"
+    array = np.asarray(values, dtype=float)
+    if len(array) == 1:
+        return f"{array.mean():.{digits}f}"
+    return f"{array.mean():.{digits}f} ± {float(array.std(ddof=1)):.{digits}f}"
+
+
+def main() -> None:
+    args = _parse()
+    import torch
+
+    from tactile_compliance.config import apply_overrides
+    from tactile_compliance.outputs import claim_output_dir
+    from tactile_compliance.training.pretrain import PretrainSettings, pretrain
+    from tactile_compliance.training.train import train
+
+    torch.set_num_threads(args.threads or 1)
+    out = claim_output_dir(args.out, "pretrain-comparison")
+    started = time.perf_counter()
+    store = _store(out, args.objects, args.grasps, args.size)
+    cells = _cells(store, args.models, args.inputs, args.seeds, out, args.overrides)
+    if not cells:
+        raise SystemExit("no cells: check --models and --inputs")
+
+    # One pretraining per (model, seed): its cells share the split, filters and frame size.
+    weights: dict[tuple[str, int], Path] = {}
+    pretrain_cost: dict[str, list[float]] = {}
+    pretrain_records: dict[str, Any] = {}
+    for cell in cells:
+        key = (cell.cfg.model.name, cell.cfg.seed)
+        if key in weights:
+            continue
+        backbone = BACKBONE_OF[key[0]]
+        path = out / "weights" / f"{backbone}-seed{key[1]}.pt"
+        path.parent.mkdir(exist_ok=True)
+        augment = "false" if args.no_pretrain_augment else "true"
+        # The pretraining's own augmentation; freeze_backbone is the downstream run's
+        # business (and would warn that frozen runs cannot augment).
+        cfg = apply_overrides(
+            cell.cfg, [f"augmentation.enabled={augment}", "model.freeze_backbone=false"]
+        )
+        settings = PretrainSettings(
+            backbone,
+            epochs=args.pretrain_epochs,
+            batch_size=args.pretrain_batch_size,
+            lr=args.pretrain_lr,
+            patience=args.pretrain_patience,
+        )
+        record = pretrain(cfg, settings, path).provenance
+        weights[key] = path
+        pretrain_cost.setdefault(key[0], []).append(float(record["seconds"]))
+        pretrain_records[f"{key[0]}-seed{key[1]}"] = {
+            k: record[k]
+            for k in (
+                "seconds",
+                "epochs",
+                "best_epoch",
+                "first_depth_loss_mm2",
+                "final_depth_loss_mm2",
+                "n_train_samples",
+                "image_size",
+            )
+        }
+        print(
+            f"pretrained {backbone} seed {key[1]}: depth MSE {record['first_depth_loss_mm2']:.4g}"
+            f" -> {record['final_depth_loss_mm2']:.4g} mm² in {record['seconds']:.0f} s"
+        )
+
+    variants = ["random", "pretrained"] + (["finetuned"] if args.finetune else [])
+    rows: list[dict[str, Any]] = []
+    probes: dict[tuple[str, str, int], float] = {}  # (model, variant, seed) -> N-MSE
+    for cell in cells:
+        path = weights[(cell.cfg.model.name, cell.cfg.seed)]
+        for variant in variants:
+            overrides = {
+                "random": [],
+                "pretrained": [f"model.backbone_weights={path}"],
+                "finetuned": [f"model.backbone_weights={path}", "model.freeze_backbone=false"],
+            }[variant]
+            cfg = apply_overrides(cell.cfg, overrides)
+            run_dir = (
+                out
+                / "runs"
+                / f"{cell.cfg.model.name}-{cell.cfg.inputs}-{variant}-seed{cell.cfg.seed}"
+            )
+            result = train(cfg, run_dir=run_dir, progress=False)
+            reference = result.get("reference", {})
+            probe_key = (cell.cfg.model.name, variant, cell.cfg.seed)
+            if variant != "finetuned" and probe_key not in probes:
+                probes[probe_key] = _feature_probe(cfg, run_dir)
+            rows.append(
+                {
+                    "model": cell.cfg.model.name,
+                    "inputs": cell.cfg.inputs,
+                    "variant": variant,
+                    "seed": cell.cfg.seed,
+                    "test_nmse": result["test"]["nmse"],
+                    "median_nmse": reference.get("median", {}).get("nmse"),
+                    "scalar_gbr_nmse": reference.get("scalar_gbr", {}).get("nmse"),
+                    "feature_probe_nmse": probes.get(probe_key),
+                    "wall_time_s": result["wall_time_s"],
+                }
+            )
+            print(
+                f"{cell.cfg.model.name} {cell.cfg.inputs} {variant} seed {cell.cfg.seed}: "
+                f"N-MSE {result['test']['nmse']:.4f}"
+            )
+
+    lines = [
+        "| model | inputs | backbone | UnSeen N-MSE | vs random | image-feature ridge N-MSE "
+        "| scalar GBR N-MSE | median N-MSE | pretraining (s per seed) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for model in args.models:
+        for inputs in args.inputs:
+            selected = [r for r in rows if r["model"] == model and r["inputs"] == inputs]
+            if not selected:
+                continue
+            random_mean = np.mean([r["test_nmse"] for r in selected if r["variant"] == "random"])
+            gbr = [r["scalar_gbr_nmse"] for r in selected if r["variant"] == "random"]
+            median = [r["median_nmse"] for r in selected if r["variant"] == "random"]
+            for variant in variants:
+                values = [r["test_nmse"] for r in selected if r["variant"] == variant]
+                change = (
+                    f"{100 * (np.mean(values) / random_mean - 1):+.1f} %"
+                    if variant != "random"
+                    else ""
+                )
+                cost = _summary(pretrain_cost.get(model, []), 0) if variant != "random" else ""
+                gbr_text = _summary([g for g in gbr if g is not None])
+                probe = [
+                    r["feature_probe_nmse"]
+                    for r in selected
+                    if r["variant"] == variant and r["feature_probe_nmse"] is not None
+                ]
+                label = "fine-tuned pretrained" if variant == "finetuned" else f"frozen {variant}"
+                lines.append(
+                    f"| {model} | {inputs} | {label} | {_summary(values)} | {change} | "
+                    f"{_summary(probe)} | {gbr_text} | "
+                    f"{_summary([m for m in median if m is not None])} | {cost} |"
+                )
+    table = "\n".join(lines)
+    print()
+    print(table)
+    total = time.perf_counter() - started
+    print(f"\n{len(rows)} runs, {args.seeds} seed(s), {total:.0f} s in all")
+    (out / "comparison.json").write_text(
+        json.dumps(
+            {
+                "arguments": {k: str(v) for k, v in vars(args).items()},
+                "rows": rows,
+                "pretraining": pretrain_records,
+                "table": table,
+                "seconds": total,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+
+
+if __name__ == "__main__":
+    main()
