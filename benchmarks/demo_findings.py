@@ -6,8 +6,8 @@ Research script (issue 13): reads the results store and run directories that
 
 1. **Convergence**: per model, how many runs ended by early stopping and, for runs that
    used their whole epoch budget, how much the best validation N-MSE so far still
-   improved over the last 5 epochs, and the trend: the mean validation N-MSE of the last
-   5 epochs against the 5 before them (from each run's ``logs/metrics.csv``; per-epoch
+   improved over the last 3 epochs, and the trend: the mean validation N-MSE of the last
+   3 epochs against the 3 before them (from each run's ``logs/metrics.csv``; per-epoch
    values of the cached-feature heads scatter by +-20 % around their plateau, and the
    running best of a noisy plateau keeps creeping down, so the trend is the fairer test).
 2. **The per-sample leak**: Seen with the paper's per-sample split next to Seen grouped by
@@ -49,7 +49,7 @@ MODELS = ("top10nn", "vgg_lstm", "res_tf")
 # just above, rubbers and soft plastics, hard. Labels are normalised on [1e3, 1e12] Pa.
 BANDS = ((3.0, 4.5), (4.5, 5.44), (5.44, 6.5), (6.5, 9.0), (9.0, 12.0))
 LABEL_SPAN_DECADES = 9.0
-LAST_EPOCHS = 5  # convergence: the best validation N-MSE's gain over these epochs
+LAST_EPOCHS = 3  # convergence: the window of the last epochs that must be flat
 
 
 def load_rows(results: Path) -> pd.DataFrame:
@@ -66,8 +66,8 @@ def condition_name(row: pd.Series) -> str:
 def convergence(frame: pd.DataFrame) -> str:
     lines = [
         "| model | runs | ended by early stopping | used the whole budget | "
-        "of those, best val N-MSE gain over the last 5 epochs (median, max) | "
-        "of those, mean val N-MSE of the last 5 epochs vs the 5 before (median, max) |",
+        "of those, best val N-MSE gain over the last 3 epochs (median, max) | "
+        "of those, mean val N-MSE of the last 3 epochs vs the 3 before (median, max) |",
         "|---|---|---|---|---|---|",
     ]
     for model, part in frame.groupby("model", sort=False):
