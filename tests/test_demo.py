@@ -71,6 +71,8 @@ def test_demo_ci_mode_runs_every_layer(demo):
     assert len(rows) >= 1 and (rows["status"] == "complete").all()
     report = (demo / "report" / "report.html").read_text()
     assert "Table I" in report and "data:image/png;base64" in report
+    # The report says why VGG-LSTM and Res-Tf keep frozen random backbones (issue 13).
+    assert "fine-tuning does not fit" in (demo / "report" / "report.md").read_text()
     # Re-running continues: nothing is retrained, the same rows stay.
     again = CliRunner().invoke(app, ["demo", "--out", str(demo), "--mode", "ci"])
     assert again.exit_code == 0, again.output
