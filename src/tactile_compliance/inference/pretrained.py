@@ -24,7 +24,6 @@ function that also rebuilds ``best.pt`` checkpoints: there is one way to make a 
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from pathlib import Path
@@ -35,6 +34,7 @@ import torch
 from tactile_compliance import __version__
 from tactile_compliance.inference.inputs import required_inputs
 from tactile_compliance.models import InputStrategy
+from tactile_compliance.models.backbones import file_sha256
 from tactile_compliance.outputs import atomic_file, claim_output_dir
 from tactile_compliance.runs.checkpoint import LoadedModel, rebuild_model
 
@@ -88,15 +88,6 @@ def require_safetensors() -> Any:
             "(or pip install safetensors)"
         ) from err
     return safetensors.torch
-
-
-def file_sha256(path: str | Path) -> str:
-    """sha256 of a file's bytes (read in 1 MiB blocks)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 # ---------------------------------------------------------------------- config.json

@@ -51,6 +51,7 @@ __all__ = [
     "Bottleneck",
     "ResNet",
     "create_backbone",
+    "file_sha256",
     "list_backbones",
     "load_backbone_weights",
     "load_weights_file",
@@ -297,9 +298,10 @@ class BackboneWeightsError(RuntimeError):
     unreadable file, or another network's state dict. The message names the source."""
 
 
-def _sha256(path: Path) -> str:
+def file_sha256(path: str | Path) -> str:
+    """sha256 of a file's bytes, read in 1 MiB blocks (weights, splits, exports)."""
     digest = hashlib.sha256()
-    with path.open("rb") as handle:
+    with Path(path).open("rb") as handle:
         for chunk in iter(lambda: handle.read(1 << 20), b""):
             digest.update(chunk)
     return digest.hexdigest()
@@ -387,7 +389,7 @@ def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
         # torchvision convention: the name carries the sha256 prefix. Checking it catches
         # truncated downloads and files renamed to the wrong backbone.
         expected = match.group("hash")
-        actual = _sha256(path)
+        actual = file_sha256(path)
         if not actual.startswith(expected):
             raise BackboneWeightsError(
                 f"sha256 mismatch for {path}: the file name promises a hash starting with "
@@ -484,7 +486,7 @@ def weights_file_record(path: str | os.PathLike[str]) -> dict[str, object]:
         loaded = torch.load(file, map_location="cpu", weights_only=True)
     if isinstance(loaded, Mapping) and isinstance(loaded.get(PRETRAIN_KEY), Mapping):
         provenance = dict(loaded[PRETRAIN_KEY])
-    return {"path": str(file), "sha256": _sha256(file), "provenance": provenance}
+    return {"path": str(file), "sha256": file_sha256(file), "provenance": provenance}
 
 
 def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.Module:

@@ -39,7 +39,6 @@ written. Neither file is written over unless it is recognisably this command's.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import time
@@ -63,7 +62,7 @@ from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split, make_split_from_config
 from tactile_compliance.data.store import SAMPLES_FILE, GraspStore, StoreError
 from tactile_compliance.models import get_model_class
-from tactile_compliance.models.backbones import PRETRAIN_KEY, create_backbone
+from tactile_compliance.models.backbones import PRETRAIN_KEY, create_backbone, file_sha256
 from tactile_compliance.models.top10nn import TOP10_BACKBONE, Top10Encoder
 from tactile_compliance.outputs import atomic_file, check_output_file
 from tactile_compliance.progress import progress_bar
@@ -244,14 +243,6 @@ class DepthPretrainNet(nn.Module):
 
 
 # ============================================================================ files
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def _load(path: Path) -> Any:
     try:
         return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
@@ -286,7 +277,7 @@ def _split_of(
             )
         record = {
             "file": str(Path(split_file).resolve()),
-            "sha256": _sha256(Path(split_file)),
+            "sha256": file_sha256(Path(split_file)),
             "condition": split.condition,
             "seed": split.seed,
         }
@@ -590,7 +581,7 @@ def pretrain(
         "store": str(store.path.resolve()),
         "store_created": store.header.created,
         "store_num_samples": len(store),
-        "store_samples_sha256": _sha256(store.path / SAMPLES_FILE),
+        "store_samples_sha256": file_sha256(store.path / SAMPLES_FILE),
         "split": split_record,
         "n_train_samples": len(train_ids),
         "n_val_samples": len(val_ids),
