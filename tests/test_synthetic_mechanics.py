@@ -14,6 +14,7 @@ from tactile_compliance.synthetic.geometry import (
     sample_pose,
     sample_shape,
 )
+from tactile_compliance.synthetic.materials import MATERIALS, SOLID_ELASTOMER_MAX_STRAIN
 from tactile_compliance.synthetic.mechanics import (
     GelModel,
     ObjectMechanics,
@@ -144,6 +145,37 @@ def test_soft_objects_are_monotone_in_modulus(spec: ShapeSpec) -> None:
     assert np.all(np.diff(gel_depth[upper]) > 0), gel_depth
     assert np.all(np.diff(area[upper]) < 0), area
     assert gel_depth[-1] > 1.2 * gel_depth[upper][0]
+
+
+@pytest.mark.parametrize(
+    ("radius_mm", "soft_pa", "firm_pa"), [(10.0, 1e5, 1e6), (20.0, 10**4.5, 10**5.5)]
+)
+def test_soft_solid_rubber_keeps_giving_way_after_the_first_frame(
+    radius_mm: float, soft_pa: float, firm_pa: float
+) -> None:
+    # A solid elastomer flows sideways instead of densifying (SOLID_ELASTOMER_MAX_STRAIN),
+    # so between the first stored frame (~16 N) and the 60 N peak a softer rubber ball
+    # still closes the gripper further than one a decade firmer, and its total closure
+    # is at least 1.6x. With the foam-like cap of 0.5 that rubber had before, the softer
+    # ball had bottomed out by 16 N (1.18 vs 1.23 mm and 1.32 vs 1.72 mm late closure;
+    # total ratios 1.4 and 1.54), and every sub-1e5 Pa object looked alike.
+    grid = PadGrid(0.5)
+    spec = ShapeSpec("Sphere", {"radius_mm": radius_mm}, 2.0 * radius_mm)
+    sag = sag_map(spec, grid, CENTRED)
+    rubber = MATERIALS["Rubber"]
+    assert rubber.max_strain == MATERIALS["Food"].max_strain == SOLID_ELASTOMER_MAX_STRAIN
+
+    def closure_mm(modulus_pa: float) -> tuple[float, float]:
+        obj = ObjectMechanics(modulus_pa, 0.49, spec.thickness_mm, rubber.max_strain)
+        at16, at60 = force_curve(sag, GelModel(), obj, grid).approach_at([16.0, 60.0])
+        return float(at60 - at16), float(at60)
+
+    soft_late, soft_total = closure_mm(soft_pa)
+    firm_late, firm_total = closure_mm(firm_pa)
+    assert soft_late > 1.15 * firm_late, (soft_late, firm_late)
+    assert soft_total > 1.6 * firm_total, (soft_total, firm_total)
+    # The fingers never meet: the cap keeps a tenth of the object between them.
+    assert 2.0 * closure_mm(1e3)[1] < 0.9 * spec.thickness_mm + 1e-6
 
 
 def test_shell_stiffness_formula() -> None:

@@ -272,6 +272,18 @@ def _tex(**weights: float) -> dict[str, float]:
     return {k: float(v) for k, v in weights.items()}
 
 
+SOLID_ELASTOMER_MAX_STRAIN = 0.9
+"""Saturating strain [-] of solid, nearly incompressible soft objects (rubber, gels, food).
+
+A solid elastomer does not densify like a foam: squeezed, it flows sideways and keeps
+giving way roughly in proportion to the load, so a softer object closes the gripper
+further (the press videos' silicone, ``shore_videos.SILICONE_MAX_STRAIN``, rests on the
+same argument). The foundation's cap ``delta_o <= l_o eps_o`` is kept only so that two
+fingers never meet: ``l_o < L/2``, so 0.9 leaves at least a tenth of the object between
+them. The earlier 0.5 made every object below ~1e5 Pa bottom out before the first stored
+frame, so its force, width, estimates and images all looked like a 1e5-1e6 Pa rubber's
+(docs/synthetic.md, "Soft against hard objects")."""
+
 MATERIALS: dict[str, MaterialModel] = {
     m.name: m
     for m in (
@@ -282,7 +294,7 @@ MATERIALS: dict[str, MaterialModel] = {
             0.15,
             {"Irregular": 56, "Sphere": 20, "Cylinder": 13, "Rectangular": 11},
             _tex(rubbery=60, matte=20, smooth=12, organic=8),
-            max_strain=0.5,
+            max_strain=SOLID_ELASTOMER_MAX_STRAIN,
             object_spread_dex=0.03,
             one_off_share=0.46,
             one_off_range_pa=(1.3e4, 7e6),
@@ -380,7 +392,7 @@ MATERIALS: dict[str, MaterialModel] = {
             0.20,
             {"Irregular": 65, "Sphere": 23, "Cylinder": 12},
             _tex(organic=70, rubbery=15, smooth=15),
-            max_strain=0.5,
+            max_strain=SOLID_ELASTOMER_MAX_STRAIN,
             object_spread_dex=0.05,
             one_off_share=0.80,
             one_off_range_pa=(3e4, 3.3e6),
