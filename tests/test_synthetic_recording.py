@@ -25,7 +25,7 @@ def test_recording_matches_the_stored_frames_up_to_noise(finger: int) -> None:
     result, recording = render_recording(ctx, 0, finger)
     assert result.samples, "this grasp is accepted by the frame selection"
     assert recording.shape == (result.timeline.force_n.size, *SIZE, 3)
-    video = result.selection.video if finger == 0 else result.selection.video_markers
+    video = result.selection.fingers[finger]
     stored = result.samples[0].rgb if finger == 0 else result.samples[0].rgb_markers
     other = result.samples[0].rgb_markers if finger == 0 else result.samples[0].rgb
     same = _correlation(recording[video], stored)

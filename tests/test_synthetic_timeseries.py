@@ -61,10 +61,10 @@ def test_selection_rules_on_a_known_ramp() -> None:
     assert i_end == i_peak + 5
     sel = select_frames(forces, depth, depth, label_pa=1e6)
     assert sel is not None
-    np.testing.assert_array_equal(sel.video, np.linspace(i_start, i_peak - 1, 3).astype(int))
-    np.testing.assert_array_equal(sel.force, sel.video)
+    np.testing.assert_array_equal(sel.fingers[0], np.linspace(i_start, i_peak - 1, 3).astype(int))
+    np.testing.assert_array_equal(sel.force, sel.fingers[0])
     assert sel.num_aug == 5  # the hold keeps F >= 0.95 F_max for the next four frames
-    assert set(sel.frames_needed()) == {int(v) + k for v in sel.video for k in range(5)}
+    assert set(sel.frames_needed()) == {int(v) + k for v in sel.fingers[0] for k in range(5)}
 
 
 def test_selection_stops_augmenting_when_the_force_drops() -> None:

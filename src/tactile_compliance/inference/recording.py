@@ -17,9 +17,9 @@ robot (a callback ``timestamp_s -> (force_n, width_m)`` or a CSV of timestamped 
 
 as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen"):
 
-* the three frames: ``inference.streaming.select_frame_indices`` (first F >= 5 N to first
-  F >= 0.975 F_max); augmentation k = 0..4 shifts all three by +k while F stays
-  >= 0.95 F_max (:func:`augmented_indices`);
+* the three frames: ``data.frame_selection.select_frame_indices`` (first F >= 5 N to
+  first F >= 0.975 F_max); augmentation k = 0..4 shifts all three by +k while F stays
+  >= 0.95 F_max (:func:`augmented_indices`, the generator's rule too);
 * difference images ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5``
   (``data.image_ops.difference_images``), with the calibration's no-contact frame as
   reference, or the recording's first frame;
@@ -52,6 +52,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data.frame_selection import (
+    AUGMENTATION_FORCE_FRACTION,
+    MAX_AUGMENTATIONS,
+    augment_selection,
+)
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.object_table import (
     LABEL_COLUMN,
@@ -68,7 +73,7 @@ from tactile_compliance.inference.sensors import (
     FrameSourceBase,
     iter_frames,
 )
-from tactile_compliance.inference.streaming import MIN_PEAK_FORCE_N, select_frame_indices
+from tactile_compliance.inference.streaming import MIN_PEAK_FORCE_N
 from tactile_compliance.outputs import atomic_file
 from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
 from tactile_compliance.physics.estimators import analytical_estimator
@@ -89,19 +94,6 @@ __all__ = [
     "write_grasp",
     "write_readings_csv",
 ]
-
-MAX_AUGMENTATIONS = 5
-"""Augmentations per grasp at most (k = 0..4), as in the dataset."""
-
-AUGMENTATION_FORCE_FRACTION = 0.95
-"""Augmentation k exists while the force at the shifted last frame is >= 0.95 F_max."""
-
-HARD_OBJECT_PA = 5e5
-"""Objects at least this stiff [Pa] stop augmenting once the first frame is nearly as deep
-as the last (the published code's rule)."""
-
-HARD_DEPTH_RATIO = 0.8
-"""... 'nearly as deep': first frame's maximum depth >= 0.8 x the last frame's."""
 
 ESTIMATE_FILES = ("elastic_estimate.pkl", "hertz_estimate.pkl")
 """The analytical estimates' files; left out where the fit failed, as in the dataset."""
@@ -394,8 +386,9 @@ def augmented_indices(
 ) -> list[tuple[int, int, int]]:
     """The dataset's three frames of each augmentation k = 0, 1, ... (frame indices).
 
-    Augmentation 0 is ``streaming.select_frame_indices`` (the frames ``live`` uses), in
-    time when ``timestamps_s`` (s, one per frame) are given, as ``live`` does.
+    The dataset's rule, ``data.frame_selection.augment_selection`` (the generator uses
+    the same function). Augmentation 0 is ``select_frame_indices`` (the frames ``live``
+    uses), in time when ``timestamps_s`` (s, one per frame) are given, as ``live`` does.
     Augmentation k shifts all three by +k while the force at the shifted last frame stays
     >= 0.95 F_max (``DATA_FORMATS.md``; F_max over the published clip
     ``[i_start, i_peak + 1 + max_aug)``). The published code also capped the count, and
@@ -409,7 +402,16 @@ def augmented_indices(
             fewer than three frames between contact and peak).
     """
     f = np.asarray(force_n, dtype=np.float64).reshape(-1)
-    selection = select_frame_indices(f, timestamps_s=timestamps_s)
+    # One frame set per augmentation for every finger and the readings (what
+    # write_grasp stores), so no per-finger contact shift.
+    selection = augment_selection(
+        f,
+        timestamps_s=timestamps_s,
+        max_depth_mm=max_depth_mm,
+        modulus_pa=modulus_pa,
+        max_aug=max_aug,
+        contact_shift=False,
+    )
     if selection is None:
         peak = float(f.max()) if f.size else 0.0
         raise ValueError(
@@ -417,31 +419,7 @@ def augmented_indices(
             f"(it needs a frame >= 5 N, a peak >= {MIN_PEAK_FORCE_N:g} N and three frames "
             f"from contact to peak)"
         )
-    base = np.asarray(selection.indices)
-    clip_end = min(selection.peak + 1 + max_aug, f.size)
-    f_max = float(f[selection.onset : clip_end].max())
-    count = 1
-    for k in range(1, max_aug):
-        last = int(base[-1]) + k
-        if last >= clip_end or f[last] < AUGMENTATION_FORCE_FRACTION * f_max:
-            break
-        count += 1
-    count = min(count, max(int(base[1] - base[0]), 2))
-    if base[-1] - base[0] < len(base):
-        count = 1
-    hard = modulus_pa is not None and modulus_pa >= HARD_OBJECT_PA
-    for k in range(1, count):
-        if base[-1] + k >= clip_end:
-            count = k
-            break
-        if (
-            hard
-            and max_depth_mm
-            and all(d[base[0] + k] >= HARD_DEPTH_RATIO * d[base[-1] + k] for d in max_depth_mm)
-        ):
-            count = k
-            break
-    return [tuple(int(i) + k for i in base) for k in range(count)]  # type: ignore[misc]
+    return selection.augmentations()
 
 
 # ---------------------------------------------------------------------- writing

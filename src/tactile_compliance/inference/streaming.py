@@ -7,6 +7,8 @@ The dataset's three frames were chosen after the grasp, from the whole recording
 * ``i_peak`` = first frame with F >= 0.975 F_max;
 * the three frames = ``i_start + floor(linspace(0, i_peak - i_start, 3))``.
 
+The rule itself, :func:`select_frame_indices`, lives in ``data.frame_selection`` (the
+synthetic generator and ``inference.recording`` use it too) and is re-exported here.
 A live stream does not know F_max yet. :class:`StreamingEstimator` applies the same rule to
 the frames received so far (F_max = the largest force *so far*). While the gripper
 loads, ``i_peak`` is the newest frame, so every new frame gives a new selection and a
@@ -54,6 +56,15 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from tactile_compliance.data.frame_selection import (
+    MIN_PEAK_FORCE_N,
+    ONSET_FORCE_N,
+    PEAK_FRACTION,
+    FrameSelection,
+    check_window,
+    check_window_s,
+    select_frame_indices,
+)
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.store import frames_to_uint8
 from tactile_compliance.models import NUM_FRAMES
@@ -64,6 +75,7 @@ if TYPE_CHECKING:
     from tactile_compliance.inference.base import BaseEstimator, Prediction
 
 __all__ = [
+    "MIN_PEAK_FORCE_N",
     "ONSET_FORCE_N",
     "PEAK_FRACTION",
     "FrameSelection",
@@ -74,65 +86,7 @@ __all__ = [
     "select_frame_indices",
 ]
 
-ONSET_FORCE_N = 5.0
-"""Contact onset: first frame with F >= 5 N (the dataset's rule)."""
-
-PEAK_FRACTION = 0.975
-"""End of the selection: first frame with F >= 0.975 F_max (the dataset's rule)."""
-
-MIN_PEAK_FORCE_N = 10.0
-"""Grasps whose peak force stays below 10 N were skipped in the dataset."""
-
 FrameKind = Literal["difference", "raw"]
-
-#: Two frame times closer than this (s) to a target are equally near: the earlier frame
-#: is taken, as the index rule's ``floor`` does. Far below any frame period (>= 1 ms) and
-#: above the rounding of float64 timestamps on an epoch clock (~2e-7 s).
-TIME_TOLERANCE_S = 1e-6
-
-
-def _check_window(window: int | None) -> int | None:
-    """A window length (None: the whole trajectory); three frames need at least three."""
-    if window is not None and (isinstance(window, bool) or int(window) < NUM_FRAMES):
-        raise ValueError(f"window must be None or an integer >= {NUM_FRAMES}, got {window!r}")
-    return None if window is None else int(window)
-
-
-def _check_window_s(window_s: float | None) -> float | None:
-    """A window length in seconds (None: the whole trajectory); must be positive."""
-    if window_s is None:
-        return None
-    try:
-        value = float(window_s)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"window_s must be None or a duration in s, got {window_s!r}") from err
-    if not np.isfinite(value) or value <= 0 or isinstance(window_s, bool):
-        raise ValueError(f"window_s must be None or a positive duration in s, got {window_s!r}")
-    return value
-
-
-def _check_timestamps(times_s: Any, n_frames: int) -> np.ndarray:
-    """(T,) finite, strictly increasing frame times in s, one per force reading."""
-    times = np.asarray(times_s, dtype=np.float64).reshape(-1)
-    if times.size != n_frames:
-        raise ValueError(f"{n_frames} force readings but {times.size} timestamps")
-    if not np.all(np.isfinite(times)):
-        raise ValueError("timestamps_s must be finite (s)")
-    steps = np.diff(times)
-    if np.any(steps <= 0):
-        bad = int(np.flatnonzero(steps <= 0)[0]) + 1
-        raise ValueError(
-            f"timestamps_s must increase: frame {bad} is at {times[bad]:.6f} s, frame "
-            f"{bad - 1} at {times[bad - 1]:.6f} s"
-        )
-    return times
-
-
-def _nearest_in_time(times_s: np.ndarray, start: int, stop: int, target_s: float) -> int:
-    """Index in ``[start, stop]`` of the frame nearest to ``target_s``; a tie (within
-    ``TIME_TOLERANCE_S``) goes to the earlier frame, like the index rule's ``floor``."""
-    distance = np.abs(times_s[start : stop + 1] - target_s)
-    return start + int(np.flatnonzero(distance <= distance.min() + TIME_TOLERANCE_S)[0])
 
 
 def _check_frame_kind(frame_kind: str) -> FrameKind:
@@ -175,91 +129,6 @@ def difference_image(frame: np.ndarray, reference: np.ndarray) -> np.ndarray:
             f"{frame.dtype} and {reference.dtype}"
         )
     return frames_to_uint8(difference_images(frame[None], reference)[0])
-
-
-@dataclass(frozen=True)
-class FrameSelection:
-    """The three frames chosen by the force rule (indices into the force sequence).
-
-    Attributes:
-        indices: the three frame indices, in time order.
-        onset: ``i_start``, first frame with F >= the onset force.
-        peak: ``i_peak``, first frame with F >= peak_fraction x F_max.
-        window_start: first frame the three frames are spread over (``onset`` unless a
-            window cuts it).
-        times_s: timestamps (s) of the three frames when the selection was made in time,
-            else None.
-    """
-
-    indices: tuple[int, int, int]
-    onset: int
-    peak: int
-    window_start: int
-    times_s: tuple[float, float, float] | None = None
-
-
-def select_frame_indices(
-    forces_n: Any,
-    *,
-    window: int | None = None,
-    timestamps_s: Any = None,
-    window_s: float | None = None,
-    onset_force_n: float = ONSET_FORCE_N,
-    peak_fraction: float = PEAK_FRACTION,
-    min_peak_force_n: float = MIN_PEAK_FORCE_N,
-) -> FrameSelection | None:
-    """The dataset's three-frame selection on a force sequence (N), or None if not yet possible.
-
-    None when no frame reaches ``onset_force_n``, the peak is below ``min_peak_force_n``,
-    or fewer than three distinct frames lie between the window start and the peak.
-    With ``window=n`` the frames are spread over the last ``n`` frames up to the peak.
-
-    With ``timestamps_s`` ((T,) s, increasing) the three frames are the frames nearest in
-    time to ``linspace(t_start, t_peak, 3)`` (see the module docstring); ``window_s``
-    (s, needs timestamps) spreads them over the last ``window_s`` seconds up to the peak.
-    """
-    f = np.asarray(forces_n, dtype=np.float64).reshape(-1)
-    window = _check_window(window)
-    window_s = _check_window_s(window_s)
-    if window is not None and window_s is not None:
-        raise ValueError("give window (frames) or window_s (seconds), not both")
-    times = None if timestamps_s is None else _check_timestamps(timestamps_s, f.size)
-    if window_s is not None and times is None:
-        raise ValueError("window_s (a window in seconds) needs the frames' timestamps_s")
-    above = np.flatnonzero(f >= onset_force_n)
-    if above.size == 0:
-        return None
-    onset = int(above[0])
-    f_max = float(f[onset:].max())
-    if f_max < min_peak_force_n:
-        return None
-    # Searching from the onset keeps i_peak >= i_start even for peaks just above 5 N.
-    peak = onset + int(np.argmax(f[onset:] >= peak_fraction * f_max))
-    start = onset if window is None else max(onset, peak - window + 1)
-    if window_s is not None:
-        assert times is not None
-        inside = np.flatnonzero(times[: peak + 1] >= times[peak] - window_s - TIME_TOLERANCE_S)
-        start = max(onset, int(inside[0]))
-    if peak - start < NUM_FRAMES - 1:
-        return None
-    if times is None:
-        # Same arithmetic as the published selection: offset + truncated linspace.
-        offsets = np.linspace(0, peak - start, NUM_FRAMES, endpoint=True).astype(int)
-        indices = tuple(int(start + o) for o in offsets)
-        chosen_times = None
-    else:
-        # An interior frame is always nearer the middle moment than either end, so the
-        # three indices are distinct whenever three frames exist.
-        targets = np.linspace(times[start], times[peak], NUM_FRAMES, endpoint=True)
-        indices = tuple(_nearest_in_time(times, start, peak, float(t)) for t in targets)
-        chosen_times = tuple(float(times[i]) for i in indices)
-    return FrameSelection(
-        indices=indices,  # type: ignore[arg-type]
-        onset=onset,
-        peak=peak,
-        window_start=start,
-        times_s=chosen_times,  # type: ignore[arg-type]
-    )
 
 
 @dataclass(frozen=True)
@@ -393,8 +262,8 @@ class StreamingEstimator:
         release_fraction: float = 0.5,
         max_frames: int = 900,
     ) -> None:
-        self.window = _check_window(window)
-        self.window_s = _check_window_s(window_s)
+        self.window = check_window(window)
+        self.window_s = check_window_s(window_s)
         if self.window is not None and self.window_s is not None:
             raise ValueError("give window (frames) or window_s (seconds), not both")
         self.frame_kind = _check_frame_kind(frame_kind)

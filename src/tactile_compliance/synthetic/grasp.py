@@ -28,6 +28,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from tactile_compliance.data.frame_selection import AugmentedSelection
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 from tactile_compliance.physics.dataset_estimates import (
@@ -59,7 +60,6 @@ from tactile_compliance.synthetic.render import (
 from tactile_compliance.synthetic.rng import stream
 from tactile_compliance.synthetic.textures import texture_canvas, texture_window
 from tactile_compliance.synthetic.timeseries import (
-    FrameSelection,
     GraspTimeline,
     select_frames,
     selection_window,
@@ -188,7 +188,7 @@ class GraspResult:
 
     samples: list[GraspSample]
     timeline: GraspTimeline
-    selection: FrameSelection | None
+    selection: AugmentedSelection | None
     skipped_reason: str = ""
 
 
@@ -401,7 +401,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     # Full resolution, stored frames only.
     tex_rng = stream(*key, "texture")
     rendered = []
-    for f, video in enumerate((selection.video, selection.video_markers)):
+    for f, video in enumerate(selection.fingers):
         idx = np.unique((video[:, None] + np.arange(selection.num_aug)).ravel())
         diff, depth = _render_full_size(
             ctx, grasp, f, timeline.approach_mm[f, idx], render_sags[f], obj, tex_rng
@@ -410,7 +410,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     samples = []
     for k in range(selection.num_aug):
         parts = []
-        for f, video in enumerate((selection.video, selection.video_markers)):
+        for f, video in enumerate(selection.fingers):
             idx, diff, depth = rendered[f]
             pos = np.searchsorted(idx, video + k)
             parts.append((diff[pos], depth[pos]))

@@ -18,10 +18,11 @@ compliance ``K_f ~ logU(1e5, 6e5)`` N/m), plus, in a third of the grasps, 0.2-1.
 frames (stair steps). Measured force: ``F x N(1, 0.02) + N(0, 0.15) N offset +
 N(0, 0.05) N noise``, 0-40 ms late.
 
-Frame selection and the estimator's sequence follow the published preprocessing
-(DATA_FORMATS.md section 1): ``i_start`` = first F >= 5 N, ``i_peak`` = first
-F >= 0.975 F_max (+1), three indices by ``linspace``, contact shifts from the 7.5 %
-depth rule, augmentations while ``F >= 0.95 F_max``; for the estimates the sequence is
+Frame selection follows the published preprocessing (DATA_FORMATS.md section 1) with
+the one implementation of the rule, ``data.frame_selection`` (also used when recording
+real grasps): ``i_start`` = first F >= 5 N, ``i_peak`` = first F >= 0.975 F_max,
+three indices by ``linspace``, contact shifts from the 7.5 % depth rule, augmentations
+while ``F >= 0.95 F_max``; for the estimates (``synthetic.grasp``) the sequence is
 clipped to the press (2.5 N, 90 % of peak), to the first frame with 7.5 % of the peak
 depth, and stair-stepped widths are linearly interpolated.
 """
@@ -32,13 +33,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tactile_compliance.data.frame_selection import (
+    MAX_AUGMENTATIONS,
+    AugmentedSelection,
+    augment_selection,
+    selection_window,
+)
 from tactile_compliance.synthetic.mechanics import ContactCurve
 
 __all__ = [
     "FPS",
-    "FrameSelection",
     "GraspTimeline",
     "select_frames",
+    "selection_window",
     "simulate_timeline",
 ]
 
@@ -50,9 +57,6 @@ CLOSING_SPEED_M_S = 0.0375
 
 OPEN_WIDTH_M = 0.08
 """Gripper width when the grasp starts [m]."""
-
-SELECTION_FORCE_N = 5.0
-"""First-frame force threshold of the frame selection [N]."""
 
 
 @dataclass
@@ -197,57 +201,15 @@ def simulate_timeline(
     )
 
 
-@dataclass(frozen=True)
-class FrameSelection:
-    """Frames stored for a grasp (indices into the whole recording).
-
-    Attributes:
-        video: three frame indices of the markerless finger (augmentation 0).
-        video_markers: three frame indices of the marker finger.
-        force: three indices for forces / widths.
-        num_aug: number of augmentations (shift k = 0 .. num_aug - 1).
-    """
-
-    video: np.ndarray
-    video_markers: np.ndarray
-    force: np.ndarray
-    num_aug: int
-
-    def frames_needed(self) -> np.ndarray:
-        """All frame indices that some augmentation stores (either finger)."""
-        shifts = np.arange(self.num_aug)
-        idx = np.concatenate(
-            [(self.video[:, None] + shifts).ravel(), (self.video_markers[:, None] + shifts).ravel()]
-        )
-        return np.unique(idx)
-
-
-def selection_window(forces_n: np.ndarray, max_aug: int = 5) -> tuple[int, int, int] | None:
-    """``(i_start, i_peak, i_end)`` of the published selection, or None if skipped.
-
-    ``i_peak`` is the first frame with F >= 0.975 F_max, plus one; the clip keeps
-    ``[i_start, i_peak + max_aug)``. Grasps with a peak below 10 N or fewer than three
-    frames between start and peak are skipped, as in the original preprocessing.
-    """
-    f = np.asarray(forces_n, dtype=np.float64)
-    if f.max() < 10.0:
-        return None
-    i_start = int(np.argmax(f >= SELECTION_FORCE_N))
-    i_peak = int(np.argmax(f >= 0.975 * f.max())) + 1
-    if i_peak - i_start + 1 < 3:
-        return None
-    return i_start, i_peak, min(i_peak + max_aug, f.size)
-
-
 def select_frames(
     forces_n: np.ndarray,
     max_depth_mm: np.ndarray,
     max_depth_markers_mm: np.ndarray,
     label_pa: float,
-    n_frames: int = 3,
-    max_aug: int = 5,
-) -> FrameSelection | None:
-    """The published three-frame selection and time-shift augmentations.
+    max_aug: int = MAX_AUGMENTATIONS,
+) -> AugmentedSelection | None:
+    """The published three-frame selection and time-shift augmentations of a simulated
+    grasp (``data.frame_selection.augment_selection``, on the generator's two fingers).
 
     Args:
         forces_n: measured force of the whole recording [N].
@@ -256,56 +218,15 @@ def select_frames(
         max_depth_markers_mm: the same for the marker finger [mm].
         label_pa: the object's label; the original code stops augmenting objects of
             >= 5e5 Pa whose first frame is already >= 80 % as deep as the last.
-        n_frames: frames per sample.
         max_aug: maximum number of augmentations.
+
+    Returns:
+        ``fingers`` = (markerless, marker) frames of augmentation 0, or None when the
+        grasp has no selection.
     """
-    window = selection_window(forces_n, max_aug)
-    if window is None:
-        return None
-    i_start, i_peak, i_end = window
-    f = np.asarray(forces_n, dtype=np.float64)[i_start:i_end]
-    d = np.asarray(max_depth_mm, dtype=np.float64)[i_start:i_end]
-    dm = np.asarray(max_depth_markers_mm, dtype=np.float64)[i_start:i_end]
-    base = np.linspace(0, i_peak - i_start - 1, n_frames, endpoint=True).astype(int)
-    video, video_m, force_idx = base.copy(), base.copy(), base.copy()
-    num_aug = 1
-    for i in range(1, max_aug):
-        j = force_idx[-1] + i
-        if j < f.size and f[j] >= 0.95 * f.max():
-            num_aug += 1
-        else:
-            break
-
-    def contact_shift(depths: np.ndarray) -> int:
-        peak = depths.max() if depths.size else 0.0
-        for i in range(min(max_aug, depths.size)):
-            if depths[i] >= 0.075 * peak:
-                return i
-        return 0
-
-    shift, shift_m = contact_shift(d), contact_shift(dm)
-    force_idx[0] += min(shift, shift_m)
-    video[0] += shift
-    video_m[0] += shift_m
-    num_aug = min(num_aug, max(video[1] - video[0], video_m[1] - video_m[0], 2))
-    if min(video[-1] - video[0], video_m[-1] - video_m[0]) < n_frames:
-        num_aug = 1
-    # Original rule: stop when the first frame is nearly as deep as the last (hard objects).
-    last_valid = f.size - 1
-    for i in range(1, num_aug):
-        if max(video[-1], video_m[-1], force_idx[-1]) + i > last_valid:
-            num_aug = i
-            break
-        if (
-            label_pa >= 5e5
-            and d[video[0] + i] >= 0.8 * d[video[-1] + i]
-            and dm[video_m[0] + i] >= 0.8 * dm[video_m[-1] + i]
-        ):
-            num_aug = i
-            break
-    return FrameSelection(
-        video=video + i_start,
-        video_markers=video_m + i_start,
-        force=force_idx + i_start,
-        num_aug=int(num_aug),
+    return augment_selection(
+        forces_n,
+        max_depth_mm=(max_depth_mm, max_depth_markers_mm),
+        modulus_pa=label_pa,
+        max_aug=max_aug,
     )
