@@ -356,6 +356,41 @@ def test_live_with_several_checkpoints_gives_an_interval(grasp, tmp_path):
     assert "90% interval" in format_live_event(final)
 
 
+def test_live_differences_each_frame_once(grasp, tmp_path, monkeypatch):
+    """One difference image per frame, shared by every member's stream (and, for ALL
+    inputs, the depth map), not recomputed for each selection and member."""
+    from tactile_compliance.inference import live, streaming
+
+    differenced: list[int] = []
+    frames_read: list[int] = []
+
+    def counting(module):
+        original = module.difference_images
+
+        def wrapper(frames, reference):
+            differenced.append(len(frames))
+            return original(frames, reference)
+
+        monkeypatch.setattr(module, "difference_images", wrapper)
+
+    counting(live)
+    counting(streaming)
+    original_iter = live.iter_frames
+
+    def counting_iter(source, on_error=None):
+        for item in original_iter(source, on_error):
+            frames_read.append(1)
+            yield item
+
+    monkeypatch.setattr(live, "iter_frames", counting_iter)
+    paths = [_checkpoint(tmp_path / f"m{seed}.pt", seed=seed) for seed in (0, 1)]
+    readings = Readings.from_csv(grasp["readings"])
+    with open_source(f"video:{grasp['video']}") as source:
+        events = list(live.live_estimates(live.load_members(paths), source, readings))
+    assert len(events) >= 3 and events[-1]["final"]  # provisional selections, then the final
+    assert len(frames_read) > 10 and sum(differenced) == len(frames_read)
+
+
 def test_two_sensors_write_both_fingers(grasp, tmp_path):
     readings = Readings.from_csv(grasp["readings"])
     info = ObjectInfo(grasp["name"], grasp["modulus_pa"])

@@ -2,11 +2,12 @@
 
 :func:`live_estimates` is the library side of ``tactile-compliance live``. Every good frame
 of the source is paired with the robot's reading at its time (``recording.Readings`` or
-any ``timestamp_s -> (force_n, width_m)`` callback) and fed to
-:class:`~tactile_compliance.inference.streaming.StreamingEstimator` as a raw BGR camera
-frame (``frame_kind="raw"``, ``channel_order="BGR"``), differenced against the
-calibration's no-contact frame or the grasp's first frame. Checkpoints that use the
-analytical estimates get them computed on the fly from each frame's depth map
+any ``timestamp_s -> (force_n, width_m)`` callback), differenced once against the
+calibration's no-contact frame or the grasp's first frame, and fed to
+:class:`~tactile_compliance.inference.streaming.StreamingEstimator` as a BGR difference
+image in the store's encoding (``frame_kind="difference"``, ``channel_order="BGR"``;
+what ``frame_kind="raw"`` would compute). Checkpoints that use the analytical estimates
+get them computed on the fly from the same difference image's depth map
 (``data.photometric.reconstruct_depth``, the reconstruction ``record`` stores) with the
 estimator the checkpoint records. So a grasp recorded with ``record`` and predicted after
 ``import burgess`` gets the estimate ``live`` gives on the same frames and readings.
@@ -31,12 +32,18 @@ import numpy as np
 
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
+from tactile_compliance.data.store import frames_to_uint8
 from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.ensemble import EnsembleEstimator
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.inference.recording import ReadingError, ReadingsCallback, checked_reading
-from tactile_compliance.inference.sensors import FrameError, FrameSourceBase, iter_frames
+from tactile_compliance.inference.sensors import (
+    FrameError,
+    FrameSizeError,
+    FrameSourceBase,
+    iter_frames,
+)
 from tactile_compliance.inference.streaming import StreamEstimate, StreamingEstimator
 
 __all__ = ["format_live_event", "live_estimates", "load_members"]
@@ -89,19 +96,14 @@ def live_estimates(
         raise ValueError("give at least one estimator")
     ensemble = EnsembleEstimator(list(members), level=level, scale=scale)
     reference = None if calibration is None else calibration.reference
+    # Each frame is differenced once, here: the depth map and every member's stream
+    # (``frame_kind="difference"``) take the same difference image.
     streams = [
-        StreamingEstimator(
-            member,
-            window=window,
-            frame_kind="raw",
-            channel_order="BGR",
-            reference=reference,
-        )
+        StreamingEstimator(member, window=window, frame_kind="difference", channel_order="BGR")
         for member in members
     ]
     needs_depth = "estimates" in ensemble.required_inputs
     skipped: list[FrameError] = []
-    depth_reference = reference
     for timestamp_s, frame in iter_frames(source, skipped.append):
         while skipped:
             yield {"event": "skipped", "reason": str(skipped.pop(0))}
@@ -110,14 +112,19 @@ def live_estimates(
         except ReadingError as err:
             yield {"event": "skipped", "reason": f"frame at {timestamp_s:.4f} s: {err}"}
             continue
-        depth = None
-        if needs_depth:
-            if depth_reference is None:
-                depth_reference = frame  # the streams' default reference: the first frame
-            diff = difference_images(frame[None], depth_reference)
-            depth = reconstruct_depth(diff)[0]
+        if reference is None:
+            reference = frame  # a recording's first frame shows the gel without contact
+        if reference.shape != frame.shape:
+            raise FrameSizeError(
+                f"the reference frame is {reference.shape}, the source's frames {frame.shape}"
+            )
+        diff = difference_images(frame[None], reference)
+        depth = reconstruct_depth(diff)[0] if needs_depth else None
+        # Quantised like the store (and like StreamingEstimator's raw frames), so the
+        # models see the training frames' encoding.
+        model_frame = frames_to_uint8(diff[0])
         emitted = [
-            stream.update(frame, force_n, width_m, depth_mm=depth, timestamp_s=timestamp_s)
+            stream.update(model_frame, force_n, width_m, depth_mm=depth, timestamp_s=timestamp_s)
             for stream in streams
         ]
         if any(e is not None for e in emitted):
