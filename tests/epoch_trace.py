@@ -16,7 +16,10 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
 import textwrap
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 TRACE_VARIABLE = "TACTILE_TEST_EPOCH_TRACE"
@@ -96,6 +99,34 @@ def committed_epochs(run_dir: Path) -> int:
         return 0
     checkpoint = torch.load(path, weights_only=True, mmap=True)
     return int(checkpoint["callbacks"]["tactile_compliance.EpochState"]["epochs_done"])
+
+
+def wait_until_midway(
+    proc: subprocess.Popen,
+    trace: Path,
+    one_finished: Callable[[], bool],
+    *,
+    timeout_s: float,
+    what: str,
+) -> Path:
+    """Poll until one run has finished (``one_finished()``) and another is midway, and
+    return the midway run's directory: its epoch 1 has started (so epoch 0 is committed
+    to ``last.ckpt``) and it has no ``metrics.json`` yet.
+
+    The kill tests interrupt the command at that moment. Fails (with the command's
+    stderr) when ``proc`` ends first, or after ``timeout_s`` seconds; ``what`` names the
+    command in those messages.
+    """
+    deadline = time.monotonic() + timeout_s
+    while True:
+        assert proc.poll() is None, f"{what} ended first: {proc.communicate()[1][-3000:]}"
+        assert time.monotonic() < deadline, f"{what} never got midway"
+        finished = one_finished()
+        started = {run_dir for _, epoch, run_dir in read_trace(trace) if epoch >= 1}
+        unfinished = [d for d in started if not (d / "metrics.json").exists()]
+        if finished and unfinished:
+            return unfinished[0]
+        time.sleep(0.02)
 
 
 def default_sigint() -> None:

@@ -17,7 +17,13 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from epoch_trace import committed_epochs, default_sigint, read_trace, traced_env
+from epoch_trace import (
+    committed_epochs,
+    default_sigint,
+    read_trace,
+    traced_env,
+    wait_until_midway,
+)
 from tactile_compliance.config import ConfigError, load_config, save_config
 from tactile_compliance.runs.results import ResultsStore
 from tactile_compliance.training.experiment import (
@@ -453,19 +459,14 @@ def test_interrupted_driver_resumes_and_ends_as_if_uninterrupted(
     grid, store = kill_setup
     out, results, trace = tmp_path / "out", tmp_path / "results", tmp_path / "trace"
     proc = _experiment(grid, store, out, trace)
-    midway: Path | None = None
     try:
-        deadline = time.monotonic() + 240
-        while midway is None:
-            assert proc.poll() is None, f"the grid ended first: {proc.communicate()[1][-3000:]}"
-            assert time.monotonic() < deadline, "the grid never got midway"
-            done = _rows(results) if (results / "rows").is_dir() else {}
-            # Epoch 1 of an unfinished cell has started, so its epoch 0 is committed.
-            started = {run_dir for _, epoch, run_dir in read_trace(trace) if epoch >= 1}
-            unfinished = [d for d in started if not (d / "metrics.json").exists()]
-            if done and unfinished:
-                midway = unfinished[0]
-            time.sleep(0.02)
+        midway = wait_until_midway(
+            proc,
+            trace,
+            lambda: (results / "rows").is_dir() and bool(_rows(results)),
+            timeout_s=240,
+            what="the grid",
+        )
     finally:
         os.killpg(proc.pid, signum)
         _, err = proc.communicate(timeout=120)

@@ -6,7 +6,6 @@ import json
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -18,7 +17,13 @@ pytest.importorskip("smac")
 
 from torch import nn
 
-from epoch_trace import committed_epochs, default_sigint, read_trace, traced_env
+from epoch_trace import (
+    committed_epochs,
+    default_sigint,
+    read_trace,
+    traced_env,
+    wait_until_midway,
+)
 from tactile_compliance.config import config_to_dict, load_config
 from tactile_compliance.models import (
     InputStrategy,
@@ -432,19 +437,14 @@ def test_interrupted_tune_resumes_without_training_a_finished_trial_again(
     reference_out = uninterrupted_tune
     out, trace = tmp_path / "tune", tmp_path / "trace"
     proc = _tune_command(small_store, out, trace)
-    midway: Path | None = None
     try:
-        deadline = time.monotonic() + 300
-        while midway is None:
-            assert proc.poll() is None, f"tune ended first: {proc.communicate()[1][-3000:]}"
-            assert time.monotonic() < deadline, "no trial got midway"
-            done = list((out / "trials").glob("*/metrics.json")) if out.exists() else []
-            # Epoch 1 of an unfinished trial has started, so its epoch 0 is committed.
-            started = {run_dir for _, epoch, run_dir in read_trace(trace) if epoch >= 1}
-            unfinished = [d for d in started if not (d / "metrics.json").exists()]
-            if done and unfinished:
-                midway = unfinished[0]
-            time.sleep(0.02)
+        midway = wait_until_midway(
+            proc,
+            trace,
+            lambda: out.exists() and any((out / "trials").glob("*/metrics.json")),
+            timeout_s=300,
+            what="tune",
+        )
     finally:
         proc.send_signal(signum)
         _, err = proc.communicate(timeout=120)
