@@ -279,3 +279,32 @@ def test_tensorboard_without_package_is_a_clear_error(toy_store, tmp_path):
     )
     with pytest.raises(ValueError, match="pip install tensorboard"):
         train(cfg, progress=False)
+
+
+@pytest.mark.parametrize(
+    "size, origin",
+    [(None, "the store's frames are 32x32"), ("[48,64]", "data.image_size is 48x64")],
+)
+def test_frames_too_small_for_the_model_fail_before_the_run_directory(
+    toy_store, tmp_path, size, origin
+):
+    """Top10NN's five unpadded convolutions need 65 px (its backbone class declares it):
+    `train` says so in one line and leaves no run directory, not a half run from a
+    failure in Lightning's first step."""
+    from tactile_compliance.models import create_model
+
+    minimum = create_model("top10nn").min_image_size
+    assert minimum == 65
+    out = tmp_path / "runs"
+    args = ["train", "--set", f"data.store={toy_store.path}", "--set", f"output_dir={out}"]
+    args += ["--set", "model.name=top10nn", "--set", "training.max_epochs=1"]
+    if size is not None:
+        args += ["--set", f"data.image_size={size}"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert errors == [
+        f"error: top10nn needs frames of at least {minimum}x{minimum} px, but {origin}: set "
+        f"data.image_size to [{minimum}, {minimum}] or larger"
+    ], result.output
+    assert not out.exists() or not any(out.iterdir())

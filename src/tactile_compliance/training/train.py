@@ -151,6 +151,26 @@ def prepare_data(cfg: ExperimentConfig, recommended_size: tuple[int, int] | None
     )
 
 
+def check_frame_size(cfg: ExperimentConfig, model: torch.nn.Module, size: tuple[int, int]) -> None:
+    """Fail before a run starts when its frames ((H, W) px) are smaller than the model's
+    backbone accepts (``TactileModel.min_image_size``, declared by the backbone class,
+    e.g. 65 px for Top10NN's unpadded convolutions), instead of in Lightning's first step.
+
+    Raises:
+        ValueError: one line naming the model, the size and the setting to change.
+    """
+    minimum = int(getattr(model, "min_image_size", 1))
+    height, width = (int(n) for n in size)
+    if min(height, width) >= minimum:
+        return
+    origin = "data.image_size is" if cfg.data.image_size else "the store's frames are"
+    raise ValueError(
+        f"{cfg.model.name} needs frames of at least {minimum}x{minimum} px, but {origin} "
+        f"{height}x{width}: set data.image_size to [{max(height, minimum)}, "
+        f"{max(width, minimum)}] or larger"
+    )
+
+
 def build_model(cfg: ExperimentConfig) -> torch.nn.Module:
     """The configured model; a frozen random backbone is initialised from a fixed seed."""
     model_kwargs: dict[str, Any] = {"inputs": cfg.inputs, **cfg.model.hparams}
@@ -689,6 +709,7 @@ def _train(
         L.seed_everything(cfg.seed, workers=True, verbose=False)
         model = build_model(cfg)
         data = prepare_data(cfg, getattr(model, "recommended_image_size", None))
+        check_frame_size(cfg, model, data.image_size or data.store.image_size)
         if not locked:
             claim_output_dir(run_dir, RUN_KIND, option="--run-dir")
             stack.enter_context(lock_directory(run_dir))
