@@ -115,6 +115,118 @@ def analytical_within_decade(samples) -> dict[str, float]:  # type: ignore[no-un
     }
 
 
+def _cross_val_predict(
+    x: np.ndarray, y: np.ndarray, groups: np.ndarray, folds: int, seed: int, per_sample: bool
+) -> np.ndarray:
+    """Out-of-fold gradient-boosting predictions of ``y`` (log10 Pa).
+
+    ``per_sample`` folds are the paper's Seen split (shuffled samples: an object's other
+    grasps and augmentations sit in training); otherwise folds are grouped by object
+    (UnSeen).
+    """
+    from sklearn.ensemble import HistGradientBoostingRegressor
+    from sklearn.model_selection import GroupKFold, KFold
+
+    splitter = (
+        KFold(n_splits=folds, shuffle=True, random_state=seed).split(x)
+        if per_sample
+        else GroupKFold(n_splits=folds).split(x, y, groups)
+    )
+    out = np.empty_like(y)
+    for train, test in splitter:
+        model = HistGradientBoostingRegressor(random_state=seed).fit(x[train], y[train])
+        out[test] = model.predict(x[test])
+    return out
+
+
+def soft_hard_probes(  # type: ignore[no-untyped-def]
+    samples, frames: np.ndarray, folds: int = 5, seed: int = 0, draws: int = 3
+) -> dict:
+    """The paper's two measures of "objects softer than the sensor are easier".
+
+    * **Margin share** (the paper's Fig. 5): the share of soft (< 0.275 MPa) and of hard
+      test samples whose squared normalised error is below the probe's pooled N-MSE,
+      and their N-MSE, for the Seen per-sample split the paper used and for UnSeen.
+    * **Rolling windows** (Fig. 6): the probe trained and tested inside each 3-decade
+      window ``(lo, hi]`` of ``data.splits.rolling_windows``, every window undersampled
+      to the smallest one's sample count (``draws`` random draws, mean N-MSE), UnSeen and
+      per-sample. The paper finds the N-MSE rising from the windows above ~1e6 Pa on.
+    """
+    from tactile_compliance.data.normalisation import normalise_modulus
+    from tactile_compliance.data.splits import rolling_windows
+    from tactile_compliance.runs.metrics import compute_metrics, soft_hard_labels
+
+    y = np.log10(samples["modulus_pa"].to_numpy(dtype=np.float64))
+    groups = samples["object"].to_numpy()
+    fwe = force_width_estimate_features(samples)
+    inputs = {
+        "F, W, log10 E": fwe,
+        "F, W, E + image features": np.concatenate([fwe, image_features(frames)], axis=1),
+    }
+    soft = soft_hard_labels(10.0**y) == "soft"
+    margin: dict[str, dict[str, dict[str, float]]] = {}
+    for split, per_sample in (("seen per-sample", True), ("unseen", False)):
+        for name, x in inputs.items():
+            pred = _cross_val_predict(x, y, groups, folds, seed, per_sample)
+            se = (normalise_modulus(10.0**pred) - normalise_modulus(10.0**y)) ** 2
+            pooled = float(se.mean())
+            margin.setdefault(split, {})[name] = {
+                "nmse": pooled,
+                "soft_nmse": float(se[soft].mean()),
+                "hard_nmse": float(se[~soft].mean()),
+                "soft_in_margin": float((se[soft] < pooled).mean()),
+                "hard_in_margin": float((se[~soft] < pooled).mean()),
+            }
+    windows = rolling_windows()
+    members = [np.flatnonzero((y > np.log10(lo)) & (y <= np.log10(hi))) for lo, hi in windows]
+    size = min(len(m) for m in members)
+    rng = np.random.default_rng(seed)
+    rolling: dict[str, dict[str, list[float]]] = {}
+    for split, per_sample in (("seen per-sample", True), ("unseen", False)):
+        for name, x in inputs.items():
+            row = []
+            for idx in members:
+                scores = []
+                for _ in range(draws):
+                    sub = np.sort(rng.choice(idx, size, replace=False))
+                    pred = _cross_val_predict(x[sub], y[sub], groups[sub], folds, seed, per_sample)
+                    scores.append(compute_metrics(10.0 ** y[sub], 10.0**pred)["nmse"])
+                row.append(float(np.mean(scores)))
+            rolling.setdefault(split, {})[name] = row
+    return {
+        "margin": margin,
+        "rolling_windows": [[float(lo), float(hi)] for lo, hi in windows],
+        "rolling_samples_per_window": int(size),
+        "rolling_nmse": rolling,
+    }
+
+
+def format_soft_hard(result: dict) -> str:
+    """:func:`soft_hard_probes` as two markdown tables."""
+    lines = [
+        "| split | probe | soft N-MSE | hard N-MSE | soft in margin | hard in margin |",
+        "|---|---|---|---|---|---|",
+    ]
+    for split, probes in result["margin"].items():
+        for name, m in probes.items():
+            lines.append(
+                f"| {split} | {name} | {m['soft_nmse']:.4f} | {m['hard_nmse']:.4f} "
+                f"| {m['soft_in_margin']:.3f} | {m['hard_in_margin']:.3f} |"
+            )
+    heads = [f"1e{np.log10(lo):.0f}-1e{np.log10(hi):.0f}" for lo, hi in result["rolling_windows"]]
+    lines += [
+        "",
+        f"Rolling windows, N-MSE ({result['rolling_samples_per_window']} samples per window):",
+        "",
+        "| split | probe | " + " | ".join(heads) + " |",
+        "|---|---|" + "---|" * len(heads),
+    ]
+    for split, probes in result["rolling_nmse"].items():
+        for name, row in probes.items():
+            lines.append(f"| {split} | {name} | " + " | ".join(f"{v:.4f}" for v in row) + " |")
+    return "\n".join(lines)
+
+
 def run_probes(samples, frames: np.ndarray, folds: int = 5, seed: int = 0) -> dict:  # type: ignore[no-untyped-def]
     """All probes on one set of samples (a DataFrame of the store) and their uint8 frames."""
     from sklearn.ensemble import HistGradientBoostingRegressor
@@ -244,10 +356,13 @@ def main(argv: list[str] | None = None) -> None:
     frames = store.read_block(0, len(store))[rows]
     # Unknown-ground-truth objects stay in (the probe measures the generator, not the paper).
     result = run_probes(samples, frames, folds=args.folds, seed=args.seed)
+    result["soft_hard"] = soft_hard_probes(samples, frames, folds=args.folds, seed=args.seed)
     result["store"] = str(args.store)
     result["finger"] = args.finger
     result["seconds"] = round(time.perf_counter() - start, 1)
     print(format_table(result))
+    print()
+    print(format_soft_hard(result["soft_hard"]))
     if args.json:
         args.json.write_text(json.dumps(result, indent=2))
 
