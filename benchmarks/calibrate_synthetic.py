@@ -90,31 +90,6 @@ def force_width_estimate_features(samples) -> np.ndarray:  # type: ignore[no-unt
     return np.concatenate([f, w, log_e], axis=1)
 
 
-def analytical_within_decade(samples) -> dict[str, float]:  # type: ignore[no-untyped-def]
-    """Share of samples whose analytical estimate is within one decade of the label."""
-    from tactile_compliance.physics.contact import object_modulus_from_effective_pa
-
-    label = np.log10(samples["modulus_pa"].to_numpy(dtype=np.float64))
-    elastic = samples["elastic_estimate_pa"].to_numpy(dtype=np.float64)
-    hertz_star = samples["hertz_estimate_pa"].to_numpy(dtype=np.float64)
-    valid = np.isfinite(hertz_star) & (hertz_star > 0)
-    hertz = np.full_like(hertz_star, np.nan)
-    hertz[valid] = object_modulus_from_effective_pa(hertz_star[valid])
-
-    def within(e: np.ndarray) -> np.ndarray:
-        ok = np.isfinite(e) & (e > 0)
-        hit = np.zeros(e.shape, dtype=bool)
-        hit[ok] = np.abs(np.log10(e[ok]) - label[ok]) <= 1.0
-        return hit
-
-    hit_e, hit_h = within(elastic), within(hertz)
-    return {
-        "elastic": float(hit_e.mean()),
-        "hertz_as_e": float(hit_h.mean()),
-        "either": float((hit_e | hit_h).mean()),
-    }
-
-
 def _cross_val_predict(
     x: np.ndarray, y: np.ndarray, groups: np.ndarray, folds: int, seed: int, per_sample: bool
 ) -> np.ndarray:
@@ -233,6 +208,7 @@ def run_probes(samples, frames: np.ndarray, folds: int = 5, seed: int = 0) -> di
     from sklearn.model_selection import GroupKFold
 
     from tactile_compliance.runs.metrics import compute_metrics, soft_hard_labels
+    from tactile_compliance.synthetic.ladder import analytical_within_decade
 
     y = np.log10(samples["modulus_pa"].to_numpy(dtype=np.float64))
     groups = samples["object"].to_numpy()
@@ -279,7 +255,7 @@ def run_probes(samples, frames: np.ndarray, folds: int = 5, seed: int = 0) -> di
         "objects": int(np.unique(groups).size),
         "probes": rows,
         "by_stiffness": by_stiffness,
-        "analytical_within_one_decade": analytical_within_decade(samples),
+        "analytical_within_one_decade": analytical_within_decade(samples),  # synthetic.ladder
     }
 
 
