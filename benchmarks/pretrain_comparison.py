@@ -123,6 +123,8 @@ def _cells(
     return [c for c in plan.cells if c.cfg.model.name in models and c.cfg.inputs in inputs]
 
 
+#: Version of :func:`_feature_probes`' output, kept next to a run's cached probes.
+PROBES_VERSION = 1
 #: Regularisation grid of every probe (ridge alpha), chosen by cross-validation by object.
 PROBE_ALPHAS = np.logspace(0, 7, 15)
 
@@ -249,6 +251,27 @@ def _feature_probes(cfg: Any, run_dir: Path) -> dict[str, float]:
     return result
 
 
+def _cached_probes(cfg: Any, run_dir: Path, threads: int) -> dict[str, float]:
+    """:func:`_feature_probes` of a finished run, kept in ``RUN/probes.json`` (keyed by
+    :data:`PROBES_VERSION`) so that a re-run of the comparison reuses them."""
+    from threadpoolctl import threadpool_limits
+
+    from tactile_compliance.outputs import atomic_file
+
+    path = run_dir / "probes.json"
+    if path.exists():
+        stored = json.loads(path.read_text())
+        if stored.get("version") == PROBES_VERSION:
+            return stored["probes"]
+    # One BLAS thread, like torch: on a shared CPU more threads only contend (measured:
+    # 4-8x slower probes at load 9).
+    with threadpool_limits(threads):
+        probes = _feature_probes(cfg, run_dir)
+    with atomic_file(path) as handle:
+        handle.write(json.dumps({"version": PROBES_VERSION, "probes": probes}) + "\n")
+    return probes
+
+
 def _summary(values: list[float], digits: int = 4) -> str:
     """Mean ± sample standard deviation (the mean alone for one value; "-" for none)."""
     if not values:
@@ -262,7 +285,6 @@ def _summary(values: list[float], digits: int = 4) -> str:
 def main() -> None:
     args = _parse()
     import torch
-    from threadpoolctl import threadpool_limits
 
     from tactile_compliance.config import apply_overrides
     from tactile_compliance.outputs import claim_output_dir
@@ -346,10 +368,7 @@ def main() -> None:
             reference = result.get("reference", {})
             probe_key = (cell.cfg.model.name, variant, cell.cfg.seed)
             if variant != "finetuned" and probe_key not in probes:
-                # One BLAS thread, like torch: on a shared CPU more threads only contend
-                # (measured: 4-6x slower probes at load 9).
-                with threadpool_limits(args.threads or 1):
-                    probes[probe_key] = _feature_probes(cfg, run_dir)
+                probes[probe_key] = _cached_probes(cfg, run_dir, args.threads or 1)
             rows.append(
                 {
                     "model": cell.cfg.model.name,
