@@ -18,22 +18,32 @@ run. Every run also
 scores the gradient-boosting scalar reference on its own split (``runs.metrics``,
 ``scalar_gbr``: F, W, log10 E; strategies with scalar inputs only) and the median.
 
-Prints a markdown table of test N-MSE (mean +- sd over the seeds), the change of the
-pretrained backbone against the random one, a probe of the frozen features themselves
-(test N-MSE of a ridge regression from the cached image features to the label, fitted on
-the run's training objects: free of the noise of a few epochs of head training), and the
-pretraining cost per seed (s), and
-writes every number to ``OUT/comparison.json``. The issue's goal: a frozen pretrained
-Res-Tf beats the frozen random one by >= 15 % in UnSeen N-MSE (mean of 3 seeds).
+Prints two markdown tables and writes every number to ``OUT/comparison.json``:
 
-Usage (the whole comparison: about 30-60 min on a quiet 2-core CPU)::
+- test N-MSE (mean +- sd over the seeds), the change of the pretrained backbone against
+  the random one, and the pretraining cost per seed (s);
+- linear probes of the frozen cached features of the random and the pretrained backbone,
+  fitted on each run's training objects and scored on its test objects
+  (:func:`_feature_probes`): E (ridge N-MSE, free of the noise of a few epochs of head
+  training), the material and shape classes (accuracy, and the majority class's), each
+  frame's maximum indentation and contact area (R²: the contact geometry pretraining
+  learns), and the E ridge from the *true* geometry instead of the features.
 
-    python benchmarks/pretrain_comparison.py --out /tmp/pretrain-cmp
-    python benchmarks/pretrain_comparison.py --out /tmp/pretrain-cmp --models res_tf vgg_lstm
-    python benchmarks/pretrain_comparison.py --out /tmp/pretrain-cmp --finetune
+The issue's goal: a frozen pretrained Res-Tf beats the frozen random one by >= 15 % in
+UnSeen N-MSE (mean of 3 seeds).
+
+Usage (Res-Tf: about 20 min on the shared 2-core CPU; VGG16's pretraining alone takes
+6-17 min per seed at 5 epochs)::
+
+    python benchmarks/pretrain_comparison.py --out /tmp/pcmp
+    python benchmarks/pretrain_comparison.py --out /tmp/pcmp --finetune
+    python benchmarks/pretrain_comparison.py --out /tmp/pcmp --models vgg_lstm --pretrain-epochs 5
+    python benchmarks/pretrain_comparison.py --out /tmp/pcmp --models res_tf vgg_lstm --finetune res_tf
 
 Reduced form (minutes): ``--seeds 1 --pretrain-epochs 5``. Re-running reuses the
-generated tree, the store, the weights files and finished runs in ``OUT``.
+generated tree, the store, the weights files, finished runs and their probes in ``OUT``
+(an existing weights file is reused whatever ``--pretrain-*`` says), so a comparison can be
+run in pieces (``--models``, ``--inputs``, ``--seeds``) and assembled by a last call.
 """
 
 from __future__ import annotations
