@@ -1,4 +1,4 @@
-"""Frozen random vs frozen depth-pretrained backbones on UnSeen objects (issue 15).
+r"""Frozen random vs frozen depth-pretrained backbones on UnSeen objects (issue 15).
 
 Research script: on the demo-size synthetic store (``demo.PLANS["full"]``; ``--objects``,
 ``--grasps``, ``--size`` change it), for each seed the backbone of each model is pretrained
@@ -38,7 +38,8 @@ Usage (Res-Tf: about 20 min on the shared 2-core CPU; VGG16's pretraining alone 
     python benchmarks/pretrain_comparison.py --out /tmp/pcmp
     python benchmarks/pretrain_comparison.py --out /tmp/pcmp --finetune
     python benchmarks/pretrain_comparison.py --out /tmp/pcmp --models vgg_lstm --pretrain-epochs 5
-    python benchmarks/pretrain_comparison.py --out /tmp/pcmp --models res_tf vgg_lstm --finetune res_tf
+    python benchmarks/pretrain_comparison.py --out /tmp/pcmp --models res_tf vgg_lstm \
+        --finetune res_tf
 
 Reduced form (minutes): ``--seeds 1 --pretrain-epochs 5``. Re-running reuses the
 generated tree, the store, the weights files, finished runs and their probes in ``OUT``
