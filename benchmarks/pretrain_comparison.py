@@ -90,6 +90,11 @@ def _parse() -> argparse.Namespace:
         default=[],
         help="config override applied to every run and pretraining (repeatable)",
     )
+    parser.add_argument(
+        "--only-finished",
+        action="store_true",
+        help="assemble the tables from what OUT holds: pretrain and train nothing new",
+    )
     parser.add_argument("--size", default=None, help="frame size HxW of the store (default: demo)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default 1)")
     return parser.parse_args()
@@ -299,6 +304,7 @@ def main() -> None:
 
     from tactile_compliance.config import apply_overrides
     from tactile_compliance.outputs import claim_output_dir
+    from tactile_compliance.runs.layout import RESULT_FILE
     from tactile_compliance.training.pretrain import PretrainSettings, pretrain
     from tactile_compliance.training.train import train
 
@@ -320,6 +326,8 @@ def main() -> None:
             continue
         backbone = BACKBONE_OF[key[0]]
         path = out / "weights" / f"{backbone}-seed{key[1]}.pt"
+        if args.only_finished and not path.exists():
+            continue
         path.parent.mkdir(exist_ok=True)
         augment = "false" if args.no_pretrain_augment else "true"
         # The pretraining's own augmentation; freeze_backbone is the downstream run's
@@ -360,7 +368,9 @@ def main() -> None:
     # (model, variant, seed) -> the probes of that frozen backbone's cached features
     probes: dict[tuple[str, str, int], dict[str, float]] = {}
     for cell in cells:
-        path = weights[(cell.cfg.model.name, cell.cfg.seed)]
+        path = weights.get((cell.cfg.model.name, cell.cfg.seed))
+        if path is None:  # --only-finished: not pretrained
+            continue
         for variant in variants:
             if variant == "finetuned" and cell.cfg.model.name not in finetuned:
                 continue
@@ -375,6 +385,8 @@ def main() -> None:
                 / "runs"
                 / f"{cell.cfg.model.name}-{cell.cfg.inputs}-{variant}-seed{cell.cfg.seed}"
             )
+            if args.only_finished and not (run_dir / RESULT_FILE).exists():
+                continue
             result = train(cfg, run_dir=run_dir, progress=False)
             reference = result.get("reference", {})
             probe_key = (cell.cfg.model.name, variant, cell.cfg.seed)
@@ -408,16 +420,20 @@ def main() -> None:
             selected = [r for r in rows if r["model"] == model and r["inputs"] == inputs]
             if not selected:
                 continue
-            random_mean = np.mean([r["test_nmse"] for r in selected if r["variant"] == "random"])
+            random_of = {r["seed"]: r["test_nmse"] for r in selected if r["variant"] == "random"}
             gbr = [r["scalar_gbr_nmse"] for r in selected if r["variant"] == "random"]
             median = [r["median_nmse"] for r in selected if r["variant"] == "random"]
             for variant in variants:
                 values = [r["test_nmse"] for r in selected if r["variant"] == variant]
+                seeds = [r["seed"] for r in selected if r["variant"] == variant]
                 if not values:
                     continue
+                # Against the random backbone on the same seeds (all, unless a piece is
+                # missing: then the row names its seeds).
+                same = [random_of[seed] for seed in seeds if seed in random_of]
                 change = (
-                    f"{100 * (np.mean(values) / random_mean - 1):+.1f} %"
-                    if variant != "random"
+                    f"{100 * (np.mean(values) / np.mean(same) - 1):+.1f} %"
+                    if variant != "random" and len(same) == len(values)
                     else ""
                 )
                 cost = _summary(pretrain_cost.get(model, []), 0) if variant != "random" else ""
@@ -428,6 +444,8 @@ def main() -> None:
                     if r["variant"] == variant and r["feature_probe_nmse"] is not None
                 ]
                 label = "fine-tuned pretrained" if variant == "finetuned" else f"frozen {variant}"
+                if len(values) < args.seeds:
+                    label += f" (seeds {', '.join(map(str, seeds))})"
                 lines.append(
                     f"| {model} | {inputs} | {label} | {_summary(values)} | {change} | "
                     f"{_summary(probe)} | {gbr_text} | "
