@@ -1,4 +1,4 @@
-"""Frozen random vs frozen depth-pretrained backbones on UnSeen objects (issue 15).
+r"""Frozen random vs frozen depth-pretrained backbones on UnSeen objects (issue 15).
 
 Research script: on the demo-size synthetic store (``demo.PLANS["full"]``; ``--objects``,
 ``--grasps``, ``--size`` change it), for each seed the backbone of each model is pretrained
@@ -18,22 +18,33 @@ run. Every run also
 scores the gradient-boosting scalar reference on its own split (``runs.metrics``,
 ``scalar_gbr``: F, W, log10 E; strategies with scalar inputs only) and the median.
 
-Prints a markdown table of test N-MSE (mean +- sd over the seeds), the change of the
-pretrained backbone against the random one, a probe of the frozen features themselves
-(test N-MSE of a ridge regression from the cached image features to the label, fitted on
-the run's training objects: free of the noise of a few epochs of head training), and the
-pretraining cost per seed (s), and
-writes every number to ``OUT/comparison.json``. The issue's goal: a frozen pretrained
-Res-Tf beats the frozen random one by >= 15 % in UnSeen N-MSE (mean of 3 seeds).
+Prints two markdown tables and writes every number to ``OUT/comparison.json``:
 
-Usage (the whole comparison: about 30-60 min on a quiet 2-core CPU)::
+- test N-MSE (mean +- sd over the seeds), the change of the pretrained backbone against
+  the random one, and the pretraining cost per seed (s);
+- linear probes of the frozen cached features of the random and the pretrained backbone,
+  fitted on each run's training objects and scored on its test objects
+  (:func:`_feature_probes`): E (ridge N-MSE, free of the noise of a few epochs of head
+  training), the material and shape classes (accuracy, and the majority class's), each
+  frame's maximum indentation and contact area (R²: the contact geometry pretraining
+  learns), and the E ridge from the *true* geometry instead of the features.
 
-    python benchmarks/pretrain_comparison.py --out /tmp/pretrain-cmp
-    python benchmarks/pretrain_comparison.py --out /tmp/pretrain-cmp --models res_tf vgg_lstm
-    python benchmarks/pretrain_comparison.py --out /tmp/pretrain-cmp --finetune
+The issue's goal: a frozen pretrained Res-Tf beats the frozen random one by >= 15 % in
+UnSeen N-MSE (mean of 3 seeds).
+
+Usage (Res-Tf: about 20 min on the shared 2-core CPU; VGG16's pretraining alone takes
+6-17 min per seed at 5 epochs)::
+
+    python benchmarks/pretrain_comparison.py --out /tmp/pcmp
+    python benchmarks/pretrain_comparison.py --out /tmp/pcmp --finetune
+    python benchmarks/pretrain_comparison.py --out /tmp/pcmp --models vgg_lstm --pretrain-epochs 5
+    python benchmarks/pretrain_comparison.py --out /tmp/pcmp --models res_tf vgg_lstm \
+        --finetune res_tf
 
 Reduced form (minutes): ``--seeds 1 --pretrain-epochs 5``. Re-running reuses the
-generated tree, the store, the weights files and finished runs in ``OUT``.
+generated tree, the store, the weights files, finished runs and their probes in ``OUT``
+(an existing weights file is reused whatever ``--pretrain-*`` says), so a comparison can be
+run in pieces (``--models``, ``--inputs``, ``--seeds``) and assembled by a last call.
 """
 
 from __future__ import annotations
@@ -64,13 +75,25 @@ def _parse() -> argparse.Namespace:
     parser.add_argument(
         "--no-pretrain-augment", action="store_true", help="pretrain without augmentation"
     )
-    parser.add_argument("--finetune", action="store_true", help="also train end to end")
+    parser.add_argument(
+        "--finetune",
+        nargs="*",
+        default=None,
+        choices=sorted(BACKBONE_OF),
+        metavar="MODEL",
+        help="also train end to end (all --models, or only the MODELs named)",
+    )
     parser.add_argument(
         "--set",
         dest="overrides",
         action="append",
         default=[],
         help="config override applied to every run and pretraining (repeatable)",
+    )
+    parser.add_argument(
+        "--only-finished",
+        action="store_true",
+        help="assemble the tables from what OUT holds: pretrain and train nothing new",
     )
     parser.add_argument("--size", default=None, help="frame size HxW of the store (default: demo)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default 1)")
@@ -116,13 +139,49 @@ def _cells(
     return [c for c in plan.cells if c.cfg.model.name in models and c.cfg.inputs in inputs]
 
 
-def _feature_probe(cfg: Any, run_dir: Path) -> float:
-    """Test N-MSE of a ridge regression from a run's cached frozen image features (the
-    three frames' vectors, standardised) to the normalised label, fitted on the run's
-    training ids (alpha by 5-fold cross-validation by object on them): what the features
-    carry, without the noise of training a head for a few epochs."""
-    from sklearn.linear_model import Ridge
+#: Version of :func:`_feature_probes`' output, kept next to a run's cached probes.
+PROBES_VERSION = 1
+#: Regularisation grid of every probe (ridge alpha), chosen by cross-validation by object.
+PROBE_ALPHAS = np.logspace(0, 7, 15)
+
+
+def _fit_probe(make: Any, x: np.ndarray, y: np.ndarray, objects: np.ndarray, error: Any) -> Any:
+    """``make(alpha)`` (a standardising linear pipeline) fitted on ``x, y`` with the alpha
+    of least ``error(true, predicted)`` in 5-fold cross-validation by object: samples of
+    one object share a label, so a per-sample CV would reward memorising objects and pick
+    too little regularisation."""
     from sklearn.model_selection import GroupKFold
+
+    def cv_error(alpha: float) -> float:
+        folds = GroupKFold(n_splits=5).split(x, y, objects)
+        return float(
+            np.mean([error(y[h], make(alpha).fit(x[f], y[f]).predict(x[h])) for f, h in folds])
+        )
+
+    return make(min(PROBE_ALPHAS, key=cv_error)).fit(x, y)
+
+
+def _feature_probes(cfg: Any, run_dir: Path) -> dict[str, float]:
+    """Linear probes of a run's cached frozen image features, fitted on the run's training
+    ids and scored on its test ids (UnSeen: test objects never seen by the probe):
+
+    - ``e_nmse``: test N-MSE of a ridge regression from the three frames' vectors
+      (standardised, concatenated) to the normalised label: what the features carry for
+      E, without the noise of training a head for a few epochs;
+    - ``material_accuracy`` / ``shape_accuracy``: test accuracy of a ridge classifier
+      (one-vs-rest) from the same vectors to the object's material / shape class, next
+      to ``*_majority``, the accuracy of always answering the training objects' most
+      frequent class;
+    - ``depth_max_r2`` / ``contact_area_r2``: test R² of a ridge regression from *each*
+      frame's vector to that frame's contact geometry: its maximum indentation (mm, the
+      store's ``depth_max_mm_*``) and its contact area (share of the stored depth map
+      pressed in >= ``CONTACT_THRESHOLD_MM``), the targets depth pretraining learns;
+    - ``geometry_e_nmse``: the E ridge from the *true* geometry (those two numbers of the
+      three frames) instead of the features: what a backbone that encodes the contact
+      geometry perfectly, and nothing else, could give a linear head.
+    """
+    from sklearn.linear_model import Ridge, RidgeClassifier
+    from sklearn.metrics import r2_score
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
@@ -131,6 +190,7 @@ def _feature_probe(cfg: Any, run_dir: Path) -> float:
     from tactile_compliance.data.splits import Split
     from tactile_compliance.data.store import GraspStore
     from tactile_compliance.runs.metrics import nmse
+    from tactile_compliance.training.pretrain import CONTACT_THRESHOLD_MM
     from tactile_compliance.training.train import build_model
 
     store = GraspStore.open(cfg.data.store)
@@ -138,27 +198,94 @@ def _feature_probe(cfg: Any, run_dir: Path) -> float:
     size = tuple(cfg.data.image_size) if cfg.data.image_size else None
     features = cached_features(store, build_model(cfg).backbone, size, constants, progress=False)
     split = Split.load(run_dir / "split.json")
+    train_ids, test_ids = split.train_ids, split.test_ids
+    samples = store.samples
+    objects = samples["object"].to_numpy()[train_ids]
 
-    def matrix(ids: np.ndarray) -> np.ndarray:
+    def ridge(alpha: float) -> Any:
+        return make_pipeline(StandardScaler(), Ridge(alpha=alpha))
+
+    def classifier(alpha: float) -> Any:
+        return make_pipeline(StandardScaler(), RidgeClassifier(alpha=alpha))
+
+    def squared(true: np.ndarray, predicted: np.ndarray) -> float:
+        return float(np.mean((predicted - true) ** 2))
+
+    def misclassified(true: np.ndarray, predicted: np.ndarray) -> float:
+        return float(np.mean(predicted != true))
+
+    def joined(ids: np.ndarray) -> np.ndarray:  # (n, 3 * feature_dim): a grasp's frames
         return np.asarray(features[ids], dtype=np.float64).reshape(len(ids), -1)
 
+    def frames(ids: np.ndarray) -> np.ndarray:  # (3 n, feature_dim): one row per frame
+        return np.asarray(features[ids], dtype=np.float64).reshape(3 * len(ids), -1)
+
+    result: dict[str, float] = {}
     moduli = store.moduli_pa()
-    x, y = matrix(split.train_ids), normalise_modulus(moduli[split.train_ids], constants)
-    objects = store.samples["object"].to_numpy()[split.train_ids]
+    probe = _fit_probe(
+        ridge, joined(train_ids), normalise_modulus(moduli[train_ids], constants), objects, squared
+    )
+    predicted = np.clip(probe.predict(joined(test_ids)), 0.0, 1.0)
+    result["e_nmse"] = nmse(moduli[test_ids], denormalise_modulus(predicted, constants), constants)
+    for column in ("material", "shape"):
+        labels = samples[column].astype(str).to_numpy()
+        train_labels, test_labels = labels[train_ids], labels[test_ids]
+        probe = _fit_probe(classifier, joined(train_ids), train_labels, objects, misclassified)
+        result[f"{column}_accuracy"] = float(
+            np.mean(probe.predict(joined(test_ids)) == test_labels)
+        )
+        values, counts = np.unique(train_labels, return_counts=True)
+        result[f"{column}_majority"] = float(np.mean(test_labels == values[np.argmax(counts)]))
 
-    def object_cv_error(alpha: float) -> float:
-        # Folds by object: samples of one object share a label, so a per-sample CV
-        # would reward memorising objects and pick too little regularisation.
-        errors = []
-        for fit, held in GroupKFold(n_splits=5).split(x, y, objects):
-            model = make_pipeline(StandardScaler(), Ridge(alpha=alpha)).fit(x[fit], y[fit])
-            errors.append(float(np.mean((model.predict(x[held]) - y[held]) ** 2)))
-        return float(np.mean(errors))
+    depth_max = samples[[f"depth_max_mm_{k}" for k in range(3)]].to_numpy(dtype=np.float64)
+    depth = store.read_depth(np.arange(len(store))).reshape(len(store), 3, -1)
+    with np.errstate(invalid="ignore"):  # a frame without a depth map: NaN, left out
+        pressed = np.where(np.isnan(depth), np.nan, depth >= CONTACT_THRESHOLD_MM)
+        contact_area = np.nanmean(pressed, axis=2) if depth.shape[2] else depth[..., 0]
+    frame_objects = np.repeat(objects, 3)
+    for name, target in (("depth_max_r2", depth_max), ("contact_area_r2", contact_area)):
+        y_train, y_test = target[train_ids].reshape(-1), target[test_ids].reshape(-1)
+        fit, score = ~np.isnan(y_train), ~np.isnan(y_test)
+        probe = _fit_probe(ridge, frames(train_ids)[fit], y_train[fit], frame_objects[fit], squared)
+        result[name] = float(r2_score(y_test[score], probe.predict(frames(test_ids)[score])))
 
-    alpha = min(np.logspace(0, 7, 15), key=object_cv_error)
-    probe = make_pipeline(StandardScaler(), Ridge(alpha=alpha)).fit(x, y)
-    predicted = np.clip(probe.predict(matrix(split.test_ids)), 0.0, 1.0)
-    return nmse(moduli[split.test_ids], denormalise_modulus(predicted, constants), constants)
+    # What perfect geometry would give: the same ridge from the *true* max depth and
+    # contact area of the three frames (6 numbers) to E. The best a backbone that encodes
+    # the contact geometry, and nothing else, could do.
+    geometry = np.nan_to_num(np.concatenate([depth_max, contact_area], axis=1))
+    probe = _fit_probe(
+        ridge,
+        geometry[train_ids],
+        normalise_modulus(moduli[train_ids], constants),
+        objects,
+        squared,
+    )
+    predicted = np.clip(probe.predict(geometry[test_ids]), 0.0, 1.0)
+    result["geometry_e_nmse"] = nmse(
+        moduli[test_ids], denormalise_modulus(predicted, constants), constants
+    )
+    return result
+
+
+def _cached_probes(cfg: Any, run_dir: Path, threads: int) -> dict[str, float]:
+    """:func:`_feature_probes` of a finished run, kept in ``RUN/probes.json`` (keyed by
+    :data:`PROBES_VERSION`) so that a re-run of the comparison reuses them."""
+    from threadpoolctl import threadpool_limits
+
+    from tactile_compliance.outputs import atomic_file
+
+    path = run_dir / "probes.json"
+    if path.exists():
+        stored = json.loads(path.read_text())
+        if stored.get("version") == PROBES_VERSION:
+            return stored["probes"]
+    # One BLAS thread, like torch: on a shared CPU more threads only contend (measured:
+    # 4-8x slower probes at load 9).
+    with threadpool_limits(threads):
+        probes = _feature_probes(cfg, run_dir)
+    with atomic_file(path) as handle:
+        handle.write(json.dumps({"version": PROBES_VERSION, "probes": probes}) + "\n")
+    return probes
 
 
 def _summary(values: list[float], digits: int = 4) -> str:
@@ -177,6 +304,7 @@ def main() -> None:
 
     from tactile_compliance.config import apply_overrides
     from tactile_compliance.outputs import claim_output_dir
+    from tactile_compliance.runs.layout import RESULT_FILE
     from tactile_compliance.training.pretrain import PretrainSettings, pretrain
     from tactile_compliance.training.train import train
 
@@ -198,6 +326,8 @@ def main() -> None:
             continue
         backbone = BACKBONE_OF[key[0]]
         path = out / "weights" / f"{backbone}-seed{key[1]}.pt"
+        if args.only_finished and not path.exists():
+            continue
         path.parent.mkdir(exist_ok=True)
         augment = "false" if args.no_pretrain_augment else "true"
         # The pretraining's own augmentation; freeze_backbone is the downstream run's
@@ -232,12 +362,18 @@ def main() -> None:
             f" -> {record['final_depth_loss_mm2']:.4g} mm² in {record['seconds']:.0f} s"
         )
 
-    variants = ["random", "pretrained"] + (["finetuned"] if args.finetune else [])
+    finetuned = set(args.models if args.finetune == [] else args.finetune or [])
+    variants = ["random", "pretrained"] + (["finetuned"] if finetuned else [])
     rows: list[dict[str, Any]] = []
-    probes: dict[tuple[str, str, int], float] = {}  # (model, variant, seed) -> N-MSE
+    # (model, variant, seed) -> the probes of that frozen backbone's cached features
+    probes: dict[tuple[str, str, int], dict[str, float]] = {}
     for cell in cells:
-        path = weights[(cell.cfg.model.name, cell.cfg.seed)]
+        path = weights.get((cell.cfg.model.name, cell.cfg.seed))
+        if path is None:  # --only-finished: not pretrained
+            continue
         for variant in variants:
+            if variant == "finetuned" and cell.cfg.model.name not in finetuned:
+                continue
             overrides = {
                 "random": [],
                 "pretrained": [f"model.backbone_weights={path}"],
@@ -249,11 +385,13 @@ def main() -> None:
                 / "runs"
                 / f"{cell.cfg.model.name}-{cell.cfg.inputs}-{variant}-seed{cell.cfg.seed}"
             )
+            if args.only_finished and not (run_dir / RESULT_FILE).exists():
+                continue
             result = train(cfg, run_dir=run_dir, progress=False)
             reference = result.get("reference", {})
             probe_key = (cell.cfg.model.name, variant, cell.cfg.seed)
             if variant != "finetuned" and probe_key not in probes:
-                probes[probe_key] = _feature_probe(cfg, run_dir)
+                probes[probe_key] = _cached_probes(cfg, run_dir, args.threads or 1)
             rows.append(
                 {
                     "model": cell.cfg.model.name,
@@ -263,7 +401,7 @@ def main() -> None:
                     "test_nmse": result["test"]["nmse"],
                     "median_nmse": reference.get("median", {}).get("nmse"),
                     "scalar_gbr_nmse": reference.get("scalar_gbr", {}).get("nmse"),
-                    "feature_probe_nmse": probes.get(probe_key),
+                    "feature_probe_nmse": probes.get(probe_key, {}).get("e_nmse"),
                     "wall_time_s": result["wall_time_s"],
                 }
             )
@@ -282,14 +420,20 @@ def main() -> None:
             selected = [r for r in rows if r["model"] == model and r["inputs"] == inputs]
             if not selected:
                 continue
-            random_mean = np.mean([r["test_nmse"] for r in selected if r["variant"] == "random"])
+            random_of = {r["seed"]: r["test_nmse"] for r in selected if r["variant"] == "random"}
             gbr = [r["scalar_gbr_nmse"] for r in selected if r["variant"] == "random"]
             median = [r["median_nmse"] for r in selected if r["variant"] == "random"]
             for variant in variants:
                 values = [r["test_nmse"] for r in selected if r["variant"] == variant]
+                seeds = [r["seed"] for r in selected if r["variant"] == variant]
+                if not values:
+                    continue
+                # Against the random backbone on the same seeds (all, unless a piece is
+                # missing: then the row names its seeds).
+                same = [random_of[seed] for seed in seeds if seed in random_of]
                 change = (
-                    f"{100 * (np.mean(values) / random_mean - 1):+.1f} %"
-                    if variant != "random"
+                    f"{100 * (np.mean(values) / np.mean(same) - 1):+.1f} %"
+                    if variant != "random" and len(same) == len(values)
                     else ""
                 )
                 cost = _summary(pretrain_cost.get(model, []), 0) if variant != "random" else ""
@@ -300,11 +444,35 @@ def main() -> None:
                     if r["variant"] == variant and r["feature_probe_nmse"] is not None
                 ]
                 label = "fine-tuned pretrained" if variant == "finetuned" else f"frozen {variant}"
+                if len(values) < args.seeds:
+                    label += f" (seeds {', '.join(map(str, seeds))})"
                 lines.append(
                     f"| {model} | {inputs} | {label} | {_summary(values)} | {change} | "
                     f"{_summary(probe)} | {gbr_text} | "
                     f"{_summary([m for m in median if m is not None])} | {cost} |"
                 )
+    lines += [
+        "",
+        "| model | frozen backbone | E ridge N-MSE | material accuracy (majority) "
+        "| shape accuracy (majority) | max depth R² | contact area R² "
+        "| E ridge from true geometry |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for model in args.models:
+        for variant in ("random", "pretrained"):
+            found = [v for (m, b, _), v in sorted(probes.items()) if m == model and b == variant]
+            if not found:
+                continue
+
+            def column(name: str, found: list = found) -> str:
+                return _summary([v[name] for v in found], 3)
+
+            lines.append(
+                f"| {model} | {variant} | {column('e_nmse')} | {column('material_accuracy')} "
+                f"({column('material_majority')}) | {column('shape_accuracy')} "
+                f"({column('shape_majority')}) | {column('depth_max_r2')} "
+                f"| {column('contact_area_r2')} | {column('geometry_e_nmse')} |"
+            )
     table = "\n".join(lines)
     print()
     print(table)
@@ -316,6 +484,10 @@ def main() -> None:
                 "arguments": {k: str(v) for k, v in vars(args).items()},
                 "rows": rows,
                 "pretraining": pretrain_records,
+                "probes": [
+                    {"model": m, "backbone": b, "seed": seed, **v}
+                    for (m, b, seed), v in sorted(probes.items())
+                ],
                 "table": table,
                 "seconds": total,
             },
