@@ -356,6 +356,25 @@ def test_live_with_several_checkpoints_gives_an_interval(grasp, tmp_path):
     assert "90% interval" in format_live_event(final)
 
 
+def test_live_runs_an_exported_directory_with_a_window_in_seconds(grasp, tmp_path):
+    """``live`` takes what ``export --safetensors`` writes, and ``--window-s`` is
+    ``--window`` in time: n frames at a constant rate are (n - 1) / fps seconds."""
+    ckpt = _checkpoint(tmp_path / "m.pt")
+    exported = tmp_path / "model-dir"
+    _cli("export", ckpt, "--safetensors", exported)
+    source = ["--source", f"video:{grasp['video']}", "--readings", grasp["readings"], "--json"]
+    by_frames = _json_lines(_cli("live", ckpt, *source, "--window", 6))[-1]
+    by_time = _json_lines(_cli("live", exported, *source, "--window-s", 5 / FPS))[-1]
+    whole = _json_lines(_cli("live", exported, *source))[-1]
+    assert by_frames["final"] and by_time["final"]
+    assert by_time["frame_indices"] == by_frames["frame_indices"] != whole["frame_indices"]
+    assert by_time["log10_modulus_pa"] == pytest.approx(by_frames["log10_modulus_pa"], abs=1e-5)
+    both = runner.invoke(
+        app, ["live", str(ckpt), *map(str, source), "--window", "6", "--window-s", "0.2"]
+    )
+    assert both.exit_code != 0 and "not both" in both.output
+
+
 def test_live_differences_each_frame_once(grasp, tmp_path, monkeypatch):
     """One difference image per frame, shared by every member's stream (and, for ALL
     inputs, the depth map), not recomputed for each selection and member."""

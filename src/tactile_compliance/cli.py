@@ -1043,7 +1043,10 @@ def record(
 def live(
     checkpoints: Annotated[
         list[Path],
-        typer.Argument(help="best.pt or run directory; several give an ensemble interval."),
+        typer.Argument(
+            help="best.pt, a run directory or an `export --safetensors` directory; several "
+            "give an ensemble interval."
+        ),
     ],
     source: Annotated[str, typer.Option("--source", help=SOURCE_HELP)],
     readings: Annotated[
@@ -1058,6 +1061,14 @@ def live(
     window: Annotated[
         Optional[int],  # noqa: UP045
         typer.Option("--window", help="Estimate from the last N frames (default: all)."),
+    ] = None,
+    window_s: Annotated[
+        Optional[float],  # noqa: UP045
+        typer.Option(
+            "--window-s",
+            help="Estimate from the last S seconds before the peak, by the frames' timestamps "
+            "(not with --window; the same at any frame rate).",
+        ),
     ] = None,
     level: Annotated[float, typer.Option(help="Ensemble interval coverage.")] = 0.8,
     fps: FolderFpsOption = None,
@@ -1076,7 +1087,13 @@ def live(
     with frames:
         table = _readings(readings, frames)
         for event in live_estimates(
-            members, frames, table, calibration=sensor, window=window, level=level
+            members,
+            frames,
+            table,
+            calibration=sensor,
+            window=window,
+            window_s=window_s,
+            level=level,
         ):
             final = final or bool(event.get("final"))
             typer.echo(json.dumps(event) if as_json else format_live_event(event))

@@ -37,6 +37,7 @@ from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.ensemble import EnsembleEstimator
 from tactile_compliance.inference.estimator import ComplianceEstimator
+from tactile_compliance.inference.pretrained import WEIGHTS_FILE
 from tactile_compliance.inference.recording import ReadingError, ReadingsCallback, checked_reading
 from tactile_compliance.inference.sensors import (
     FrameError,
@@ -55,11 +56,16 @@ def load_members(
     device: str = "cpu",
     backbone_weights: str | Path | None = None,
 ) -> list[ComplianceEstimator]:
-    """Estimators of the given checkpoints (files or run directories)."""
+    """Estimators of the given models: checkpoints (``best.pt`` or a run directory) or
+    directories written by ``export --safetensors`` (holding ``model.safetensors``)."""
     if not checkpoints:
         raise ValueError("give at least one checkpoint")
     return [
-        ComplianceEstimator.from_checkpoint(p, device=device, backbone_weights=backbone_weights)
+        ComplianceEstimator.from_pretrained(p, device=device)
+        if (Path(p) / WEIGHTS_FILE).is_file()
+        else ComplianceEstimator.from_checkpoint(
+            p, device=device, backbone_weights=backbone_weights
+        )
         for p in checkpoints
     ]
 
@@ -71,6 +77,7 @@ def live_estimates(
     *,
     calibration: SensorCalibration | None = None,
     window: int | None = None,
+    window_s: float | None = None,
     level: float = 0.8,
     scale: float = 1.0,
 ) -> Iterator[dict[str, Any]]:
@@ -89,7 +96,8 @@ def live_estimates(
         readings: ``timestamp_s -> (force_n, width_m)``.
         calibration: its reference frame is the no-contact frame (default: the first
             frame).
-        window: ``StreamingEstimator``'s window (None: the whole trajectory).
+        window: ``StreamingEstimator``'s window in frames (None: the whole trajectory).
+        window_s: the same in seconds, from the source's timestamps (not with ``window``).
         level, scale: the ensemble interval (``EnsembleEstimator``).
     """
     if not members:
@@ -99,7 +107,9 @@ def live_estimates(
     # Each frame is differenced once, here: the depth map and every member's stream
     # (``frame_kind="difference"``) take the same difference image.
     streams = [
-        StreamingEstimator(member, window=window, frame_kind="difference", channel_order="BGR")
+        StreamingEstimator(
+            member, window=window, window_s=window_s, frame_kind="difference", channel_order="BGR"
+        )
         for member in members
     ]
     needs_depth = "estimates" in ensemble.required_inputs
