@@ -115,7 +115,7 @@ def _cross_val_predict(
 
 
 def soft_hard_probes(  # type: ignore[no-untyped-def]
-    samples, frames: np.ndarray, folds: int = 5, seed: int = 0, draws: int = 3
+    samples, image: np.ndarray, folds: int = 5, seed: int = 0, draws: int = 3
 ) -> dict:
     """The paper's two measures of "objects softer than the sensor are easier".
 
@@ -126,6 +126,8 @@ def soft_hard_probes(  # type: ignore[no-untyped-def]
       window ``(lo, hi]`` of ``data.splits.rolling_windows``, every window undersampled
       to the smallest one's sample count (``draws`` random draws, mean N-MSE), UnSeen and
       per-sample. The paper finds the N-MSE rising from the windows above ~1e6 Pa on.
+
+    ``image`` holds the samples' :func:`image_features` (computed once by the caller).
     """
     from tactile_compliance.data.normalisation import normalise_modulus
     from tactile_compliance.data.splits import rolling_windows
@@ -136,7 +138,7 @@ def soft_hard_probes(  # type: ignore[no-untyped-def]
     fwe = force_width_estimate_features(samples)
     inputs = {
         "F, W, log10 E": fwe,
-        "F, W, E + image features": np.concatenate([fwe, image_features(frames)], axis=1),
+        "F, W, E + image features": np.concatenate([fwe, image], axis=1),
     }
     soft = soft_hard_labels(10.0**y) == "soft"
     margin: dict[str, dict[str, dict[str, float]]] = {}
@@ -202,8 +204,11 @@ def format_soft_hard(result: dict) -> str:
     return "\n".join(lines)
 
 
-def run_probes(samples, frames: np.ndarray, folds: int = 5, seed: int = 0) -> dict:  # type: ignore[no-untyped-def]
-    """All probes on one set of samples (a DataFrame of the store) and their uint8 frames."""
+def run_probes(  # type: ignore[no-untyped-def]
+    samples, frames: np.ndarray, folds: int = 5, seed: int = 0, image: np.ndarray | None = None
+) -> dict:
+    """All probes on one set of samples (a DataFrame of the store) and their uint8 frames
+    (``image``: their :func:`image_features`, when the caller has them already)."""
     from sklearn.ensemble import HistGradientBoostingRegressor
     from sklearn.model_selection import GroupKFold
 
@@ -214,7 +219,7 @@ def run_probes(samples, frames: np.ndarray, folds: int = 5, seed: int = 0) -> di
     groups = samples["object"].to_numpy()
     from tactile_compliance.synthetic.ladder import image_statistics
 
-    img = image_features(frames)
+    img = image_features(frames) if image is None else image
     texture = np.concatenate(
         [image_statistics(frames[i : i + 256]) for i in range(0, len(frames), 256)]
     )
@@ -331,8 +336,9 @@ def main(argv: list[str] | None = None) -> None:
     samples = samples.iloc[rows].reset_index(drop=True)
     frames = store.read_block(0, len(store))[rows]
     # Unknown-ground-truth objects stay in (the probe measures the generator, not the paper).
-    result = run_probes(samples, frames, folds=args.folds, seed=args.seed)
-    result["soft_hard"] = soft_hard_probes(samples, frames, folds=args.folds, seed=args.seed)
+    image = image_features(frames)  # once, for both sets of probes
+    result = run_probes(samples, frames, folds=args.folds, seed=args.seed, image=image)
+    result["soft_hard"] = soft_hard_probes(samples, image, folds=args.folds, seed=args.seed)
     result["store"] = str(args.store)
     result["finger"] = args.finger
     result["seconds"] = round(time.perf_counter() - start, 1)

@@ -138,27 +138,27 @@ def references(frame: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def by_input(frame: pd.DataFrame) -> str:
-    lines = ["| condition | " + " | ".join(INPUTS) + " |", "|---|" + "---|" * len(INPUTS)]
-    for cond in CONDITIONS.values():
-        part = frame[frame["cond"] == cond]
+def _mean_nmse_table(
+    frame: pd.DataFrame, row_key: str, rows: list[str], col_key: str, cols: list[str]
+) -> str:
+    """Mean test N-MSE per (row, column) as a markdown table; rows without runs left out."""
+    lines = [f"| {row_key} | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
+    for row in rows:
+        part = frame[frame[row_key] == row]
         if part.empty:
             continue
-        means = [part[part["inputs"] == i]["test_nmse"].mean() for i in INPUTS]
-        lines.append(f"| {cond} | " + " | ".join(f"{m:.4f}" for m in means) + " |")
+        means = [part[part[col_key] == c]["test_nmse"].mean() for c in cols]
+        lines.append(f"| {row} | " + " | ".join(f"{m:.4f}" for m in means) + " |")
     return "\n".join(lines)
+
+
+def by_input(frame: pd.DataFrame) -> str:
+    table = _mean_nmse_table(frame, "cond", list(CONDITIONS.values()), "inputs", list(INPUTS))
+    return table.replace("| cond |", "| condition |", 1)
 
 
 def seen_unseen(frame: pd.DataFrame) -> str:
-    conds = list(CONDITIONS.values())
-    lines = ["| model | " + " | ".join(conds) + " |", "|---|" + "---|" * len(conds)]
-    for model in MODELS:
-        part = frame[frame["model"] == model]
-        if part.empty:
-            continue
-        means = [part[part["cond"] == c]["test_nmse"].mean() for c in conds]
-        lines.append(f"| {model} | " + " | ".join(f"{m:.4f}" for m in means) + " |")
-    return "\n".join(lines)
+    return _mean_nmse_table(frame, "model", list(MODELS), "cond", list(CONDITIONS.values()))
 
 
 def stiffness(frame: pd.DataFrame) -> str:

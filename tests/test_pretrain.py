@@ -333,22 +333,15 @@ def test_top10nn_takes_a_pretrained_encoder(tmp_path):
         create_model("top10nn", backbone_weights="imagenet")
 
 
+def _pretrain_args(store, out, *extra):
+    """``tactile-compliance pretrain STORE --backbone resnet18 --out OUT`` (+ extra)."""
+    return ["pretrain", str(store.path), "--backbone", "resnet18", "--out", str(out), *extra]
+
+
 def test_pretrain_train_predict_through_the_cli(depth_store, tmp_path):
     weights = tmp_path / "w.pt"
     result = runner.invoke(
-        app,
-        [
-            "pretrain",
-            str(depth_store.path),
-            "--backbone",
-            "resnet18",
-            "--out",
-            str(weights),
-            "--epochs",
-            "1",
-            "--batch-size",
-            "32",
-        ],
+        app, _pretrain_args(depth_store, weights, "--epochs", "1", "--batch-size", "32")
     )
     assert result.exit_code == 0, result.output
     assert "model.backbone_weights=" in result.output
@@ -374,16 +367,6 @@ def test_pretrain_train_predict_through_the_cli(depth_store, tmp_path):
     assert result.exit_code == 0, result.output
     # A file that is not a weights file is never replaced.
     (tmp_path / "notes.pt").write_text("mine")
-    result = runner.invoke(
-        app,
-        [
-            "pretrain",
-            str(depth_store.path),
-            "--backbone",
-            "resnet18",
-            "--out",
-            str(tmp_path / "notes.pt"),
-        ],
-    )
+    result = runner.invoke(app, _pretrain_args(depth_store, tmp_path / "notes.pt"))
     assert result.exit_code == 2 and result.output.count("error:") == 1
     assert (tmp_path / "notes.pt").read_text() == "mine"

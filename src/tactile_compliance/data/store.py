@@ -612,6 +612,14 @@ class GraspStore:
         """Size (h, w) px of the stored depth maps, or None when the store has none."""
         return self.header.depth_size
 
+    def require_depth(self) -> None:
+        """Raise :class:`StoreError` (saying how to get them) when the store has no depth maps."""
+        if self.depth is None or self.header.depth_size is None:
+            raise StoreError(
+                f"{self.path}: the store holds no depth maps; re-import it with "
+                "`tactile-compliance import burgess SRC --out STORE --depth`"
+            )
+
     def read_depth(self, indices: int | Sequence[int] | np.ndarray) -> np.ndarray:
         """Depth maps of the given sample ids in mm, float32 (n, 3, h, w); NaN = none.
 
@@ -619,11 +627,7 @@ class GraspStore:
             StoreError: the store holds no depth maps (imported with ``--no-depth`` or
                 before depth was kept: re-import it).
         """
-        if self.depth is None:
-            raise StoreError(
-                f"{self.path}: the store holds no depth maps; re-import it with "
-                "`tactile-compliance import burgess SRC --out STORE --depth`"
-            )
+        self.require_depth()
         idx = np.atleast_1d(np.asarray(indices, dtype=np.int64))
         if idx.size and (idx.min() < 0 or idx.max() >= len(self)):
             raise IndexError(f"sample ids out of range (store has {len(self)})")

@@ -26,6 +26,7 @@
 See ``docs/inference.md``.
 """
 
+from tactile_compliance.data.frame_selection import select_frame_indices
 from tactile_compliance.inference.base import BaseEstimator, Prediction
 from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.ensemble import EnsembleEstimator, EnsemblePrediction
@@ -49,7 +50,6 @@ from tactile_compliance.inference.streaming import (
     StreamEstimate,
     StreamingEstimator,
     predict_trajectory,
-    select_frame_indices,
 )
 
 __all__ = [

@@ -55,6 +55,7 @@ import pandas as pd
 from tactile_compliance.data.frame_selection import (
     AUGMENTATION_FORCE_FRACTION,
     MAX_AUGMENTATIONS,
+    MIN_PEAK_FORCE_N,
     augment_selection,
 )
 from tactile_compliance.data.image_ops import difference_images
@@ -73,7 +74,6 @@ from tactile_compliance.inference.sensors import (
     FrameSourceBase,
     iter_frames,
 )
-from tactile_compliance.inference.streaming import MIN_PEAK_FORCE_N
 from tactile_compliance.outputs import atomic_file
 from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
 from tactile_compliance.physics.estimators import analytical_estimator

@@ -75,15 +75,10 @@ if TYPE_CHECKING:
     from tactile_compliance.inference.base import BaseEstimator, Prediction
 
 __all__ = [
-    "MIN_PEAK_FORCE_N",
-    "ONSET_FORCE_N",
-    "PEAK_FRACTION",
-    "FrameSelection",
     "StreamEstimate",
     "StreamingEstimator",
     "difference_image",
     "predict_trajectory",
-    "select_frame_indices",
 ]
 
 FrameKind = Literal["difference", "raw"]

@@ -60,7 +60,7 @@ from tactile_compliance.data.dataset import prepare_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split, make_split_from_config
-from tactile_compliance.data.store import SAMPLES_FILE, GraspStore, StoreError
+from tactile_compliance.data.store import SAMPLES_FILE, GraspStore
 from tactile_compliance.models import get_model_class
 from tactile_compliance.models.backbones import PRETRAIN_KEY, create_backbone, file_sha256
 from tactile_compliance.models.top10nn import TOP10_BACKBONE, Top10Encoder
@@ -434,11 +434,8 @@ def pretrain(
     if cfg.data.store is None:
         raise ValueError("no store: pass STORE (data.store)")
     store = GraspStore.open(cfg.data.store)
-    if not store.has_depth or store.depth_size is None:
-        raise StoreError(
-            f"{store.path}: the store holds no depth maps; re-import it with "
-            "`tactile-compliance import burgess SRC --out STORE --depth`"
-        )
+    store.require_depth()
+    assert store.depth_size is not None  # require_depth checked it (for type checkers)
     split, split_record = _split_of(store, cfg, Path(split_file) if split_file else None)
     train_ids, val_ids, no_depth = _pretrain_parts(store, split, settings.val_fraction, cfg.seed)
     recommended = get_model_class(PRETRAIN_BACKBONES[settings.backbone]).recommended_image_size
