@@ -971,6 +971,130 @@ def calibrate(
     )
 
 
+@app.command("calibrate-depth")
+def calibrate_depth_command(
+    presses: Annotated[
+        list[str],
+        typer.Argument(
+            help="Images (or folders of images) of a ball pressed into the gel, one place "
+            "each; with --frames, one live source spec instead."
+        ),
+    ],
+    ball_radius_mm: Annotated[
+        float, typer.Option("--ball-radius-mm", help="Radius of the ball in mm.")
+    ],
+    px_per_mm: Annotated[
+        float, typer.Option("--px-per-mm", help="Pixel density of the sensor frames, px/mm.")
+    ],
+    out: Annotated[
+        Path, typer.Option("--out", help="Calibration JSON to write (depth model inside).")
+    ],
+    reference: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option(
+            "--reference",
+            help="No-contact frame (an image). Default: --calibration's reference, else the "
+            "per-pixel median of the presses.",
+        ),
+    ] = None,
+    calibration: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option(
+            "--calibration",
+            help="A calibration from `calibrate` to extend: its geometry and reference carry "
+            "over to --out.",
+        ),
+    ] = None,
+    circles: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option(
+            "--circles",
+            help="Given contact circles, lines 'NAME (x, y) r' or 'NAME,x,y,r' in px; "
+            "presses not listed are found automatically.",
+        ),
+    ] = None,
+    frames: Annotated[
+        Optional[int],  # noqa: UP045
+        typer.Option("--frames", help="Take this many presses from the live source PRESSES names."),
+    ] = None,
+    fps: FolderFpsOption = None,
+    timestamps: FolderTimesOption = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Fit your sensor's depth model from presses of a ball of known radius (as GelSight's
+    SDK and Taxim calibrate): colour and position -> surface slope, checked press by press.
+    `record`, `live` and `depth` then use it with --calibration OUT."""
+    from tactile_compliance.inference.calibration import (
+        SensorCalibration,
+        calibrate_depth,
+        capture_presses,
+        is_calibration_file,
+        read_circles,
+        read_press_images,
+    )
+    from tactile_compliance.outputs import check_output_file
+
+    check_output_file(out, "sensor calibration", is_calibration_file, option="--out")
+    sensor = SensorCalibration.load(calibration) if calibration is not None else None
+    ref = None
+    if reference is not None:
+        ref = read_press_images([reference])[0][1]
+    if frames is not None:
+        if len(presses) != 1:
+            raise typer.BadParameter("--frames takes one live source spec as PRESSES")
+        images = capture_presses(
+            presses[0], frames, sensor=sensor, reference=ref, fps=fps, timestamps_csv=timestamps
+        )
+    else:
+        images = read_press_images(presses)
+    result = calibrate_depth(
+        images,
+        ball_radius_mm=ball_radius_mm,
+        px_per_mm=px_per_mm,
+        reference=ref,
+        sensor=sensor,
+        circles=read_circles(circles) if circles is not None else None,
+        source=" ".join(presses),
+    )
+    result.calibration.save(out)
+    if as_json:
+        typer.echo(json.dumps(result.calibration.depth_model.report, indent=2))
+        return
+    typer.echo(result.format())
+    typer.echo(f"Calibration {out}: depth model and {px_per_mm:g} px/mm")
+
+
+@app.command()
+def depth(
+    frames: Annotated[list[Path], typer.Argument(help="Images (or folders of images).")],
+    out: Annotated[Path, typer.Option("--out", help="Directory to write STEM.npy into.")],
+    calibration: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option(
+            "--calibration",
+            help="Calibration with a depth model (`calibrate-depth`); without one, the "
+            "public dataset's heuristic.",
+        ),
+    ] = None,
+    reference: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option("--reference", help="No-contact frame (default: the calibration's)."),
+    ] = None,
+    png: Annotated[bool, typer.Option("--png", help="Also write a coloured STEM.png.")] = False,
+) -> None:
+    """Depth maps of tactile frames: DIR/STEM.npy, float32 (H, W) in mm, positive into the gel."""
+    from tactile_compliance.inference.calibration import SensorCalibration, read_press_images
+    from tactile_compliance.inference.depth_maps import write_depth_maps
+
+    sensor = SensorCalibration.load(calibration) if calibration is not None else None
+    ref = read_press_images([reference])[0][1] if reference is not None else None
+    written = write_depth_maps(
+        read_press_images(frames), out, sensor=sensor, reference=ref, png=png
+    )
+    for path, peak in written:
+        typer.echo(f"{path}: peak {peak:.3f} mm")
+
+
 @app.command()
 def record(
     source: SourceArg,

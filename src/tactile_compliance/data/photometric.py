@@ -28,12 +28,20 @@ and their gradients filled from the neighbourhood before integration, as the ori
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Protocol
 
 import cv2
 import numpy as np
 import scipy.fft
 
-__all__ = ["CALIBRATION_WIDTH_PX", "DEPTH_TO_MM", "reconstruct_depth"]
+__all__ = [
+    "CALIBRATION_WIDTH_PX",
+    "DEPTH_MODELS",
+    "DEPTH_TO_MM",
+    "DepthModel",
+    "poisson_depth",
+    "reconstruct_depth",
+]
 
 DEPTH_TO_MM = 21.5
 """Scale of the Poisson solution [mm per unit] of the real pipeline at 0.0875 mm/px."""
@@ -97,8 +105,12 @@ def _fill_markers(grad: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarra
     return out
 
 
-def _poisson(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
-    """Integrate per-pixel gradients (n, H, W) with zero depth on the border (DST-I)."""
+def poisson_depth(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """Integrate per-pixel gradients (n, H, W) with zero depth on the border (DST-I).
+
+    ``gx`` / ``gy`` are depth steps per pixel along columns / rows; the depth comes out in
+    their unit (mm per pixel in, mm out). Every depth model integrates with this solver.
+    """
     n, h, w = gx.shape
     # Divergence with forward differences on the interior, as in the original solver.
     f = np.zeros((n, h, w), dtype=np.float32)
@@ -127,8 +139,21 @@ def _resize_stack(stack: np.ndarray, size: tuple[int, int], interpolation: int) 
     return out
 
 
+class DepthModel(Protocol):
+    """A calibrated depth model (``data.depth_model.CalibratedDepthModel``)."""
+
+    def depth_mm(self, diff: np.ndarray) -> np.ndarray: ...
+
+
+DEPTH_MODELS = ("dataset",)
+"""Depth models known by name; a calibrated one is passed as an object."""
+
+
 def reconstruct_depth(
-    diff_bgr: np.ndarray, markers: bool = False, solve_scale: float = 1.0
+    diff_bgr: np.ndarray,
+    markers: bool = False,
+    solve_scale: float = 1.0,
+    model: str | DepthModel = "dataset",
 ) -> np.ndarray:
     """Depth maps [mm] (n, H, W) from difference images (n, H, W, 3) BGR in [0, 1].
 
@@ -138,10 +163,18 @@ def reconstruct_depth(
         solve_scale: resolution of the Poisson solve relative to the image (1: as the
             original; 0.5: gradients averaged 2x2, solved, upsampled bilinearly - 4x
             cheaper, loses only detail finer than two pixels).
+        model: ``"dataset"``, the public dataset's heuristic (this module, bit for bit as
+            the stored depths), or a sensor's calibrated model
+            (``data.depth_model.CalibratedDepthModel``, ``tactile-compliance
+            calibrate-depth``), which ignores ``markers`` and ``solve_scale``.
     """
     diff = np.asarray(diff_bgr, dtype=np.float32)
     if diff.ndim == 3:
         diff = diff[None]
+    if not isinstance(model, str):
+        return model.depth_mm(diff)
+    if model != "dataset":
+        raise ValueError(f"unknown depth model {model!r}; give 'dataset' or a calibrated model")
     n, h, w, _ = diff.shape
     # gx = G - (B + R) / 2, gy = B - R and the channel sum B + G + R, in one SIMD pass
     # per frame (the channel-interleaved layout makes per-channel numpy ops strided).
@@ -174,7 +207,7 @@ def reconstruct_depth(
         sigma = max(0.25 / _pixel_size_mm(gx.shape[2]), 1.0)
         gx = _fill_markers(gx, marker_mask, sigma)
         gy = _fill_markers(gy, marker_mask, sigma)
-    depth = _poisson(gx, gy)
+    depth = poisson_depth(gx, gy)
     if solve_scale < 1.0:
         depth = _resize_stack(depth, (h, w), cv2.INTER_LINEAR)
     depth *= np.float32(scale)

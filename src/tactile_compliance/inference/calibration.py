@@ -1,13 +1,17 @@
-"""Calibration to your own sensor: its frame geometry and its no-contact reference frame.
+"""Calibration to your own sensor: frame geometry, no-contact reference, pixel pitch, depth.
 
 A :class:`SensorCalibration` is one JSON file (``tactile-compliance calibrate SOURCE --out
-sensor.json``) holding
+sensor.json``, extended by ``tactile-compliance calibrate-depth``) holding
 
 * ``geometry``: the warp / crop / resize (:class:`~.sensors.FrameGeometry`) that turns the
   camera frame into the sensor frame, with the camera frame size it was made for;
 * ``reference_png_base64``: the no-contact reference frame (after the geometry), the
   per-pixel median of ``n_frames`` frames recorded with nothing touching the gel, as a
   lossless PNG (BGR, uint8) inside the JSON, so one file travels with nothing to lose;
+* ``px_per_mm``: the sensor frames' pixel density [px/mm] (None: not calibrated, the
+  public dataset's Wedge value 16.40 is assumed, as its estimator does);
+* ``depth_model``: the sensor's own colour-to-slope model fitted on ball presses
+  (:func:`calibrate_depth`, ``data.depth_model``); None: the dataset heuristic;
 * what it was recorded from (``source``, ``n_frames``, ``created_utc``).
 
 Difference images are ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5``
@@ -21,6 +25,9 @@ from __future__ import annotations
 
 import base64
 import json
+import math
+import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -29,9 +36,19 @@ from typing import Any
 import cv2
 import numpy as np
 
+from tactile_compliance.data.depth_model import (
+    BallPress,
+    CalibratedDepthModel,
+    ContactCircle,
+    find_contact_circle,
+    fit_depth_model,
+)
+from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.inference.sensors import (
     FrameError,
     FrameGeometry,
+    FrameSizeError,
     FrameSourceBase,
     SensorError,
     iter_frames,
@@ -39,7 +56,15 @@ from tactile_compliance.inference.sensors import (
 )
 from tactile_compliance.outputs import atomic_file, check_output_file
 
-__all__ = ["CALIBRATION_FORMAT", "SensorCalibration", "calibrate"]
+__all__ = [
+    "CALIBRATION_FORMAT",
+    "DepthCalibration",
+    "SensorCalibration",
+    "calibrate",
+    "calibrate_depth",
+    "read_circles",
+    "read_press_images",
+]
 
 CALIBRATION_FORMAT = "tactile-compliance-sensor-calibration"
 CALIBRATION_VERSION = 1
@@ -55,6 +80,8 @@ class SensorCalibration:
         reference: no-contact frame (H, W, 3) uint8 BGR, after the geometry.
         source: the source spec it was recorded from.
         n_frames: frames whose per-pixel median is the reference.
+        px_per_mm: pixel density [px/mm] of the sensor frames; None: not calibrated.
+        depth_model: the sensor's calibrated depth model; None: the dataset heuristic.
         created_utc: ISO 8601 time of the recording.
     """
 
@@ -62,6 +89,8 @@ class SensorCalibration:
     reference: np.ndarray
     source: str = ""
     n_frames: int = 0
+    px_per_mm: float | None = None
+    depth_model: CalibratedDepthModel | None = None
     created_utc: str = field(
         default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds")
     )
@@ -73,6 +102,33 @@ class SensorCalibration:
                 f"the reference frame must be uint8 (H, W, 3), got {ref.dtype} {ref.shape}"
             )
         self.reference = ref
+        if self.px_per_mm is not None and not (
+            math.isfinite(self.px_per_mm) and 0 < self.px_per_mm < 1000
+        ):
+            raise ValueError(f"px_per_mm must be in (0, 1000) px/mm, got {self.px_per_mm}")
+        if self.depth_model is not None:
+            if self.depth_model.frame_size != self.frame_size:
+                raise ValueError(
+                    f"the depth model is for {self.depth_model.frame_size} px frames, the "
+                    f"reference is {self.frame_size}"
+                )
+            if self.px_per_mm is None:
+                self.px_per_mm = self.depth_model.px_per_mm
+            elif not math.isclose(self.px_per_mm, self.depth_model.px_per_mm, rel_tol=1e-6):
+                raise ValueError(
+                    f"px_per_mm {self.px_per_mm} differs from the depth model's "
+                    f"{self.depth_model.px_per_mm}"
+                )
+
+    @property
+    def depth(self) -> str | CalibratedDepthModel:
+        """The depth model for ``data.photometric.reconstruct_depth``."""
+        return "dataset" if self.depth_model is None else self.depth_model
+
+    @property
+    def depth_name(self) -> str:
+        """``"dataset"`` or ``"calibrated"``: what stores and checkpoints record."""
+        return "dataset" if self.depth_model is None else "calibrated"
 
     @property
     def frame_size(self) -> tuple[int, int]:
@@ -93,13 +149,15 @@ class SensorCalibration:
             "source": self.source,
             "n_frames": int(self.n_frames),
             "created_utc": self.created_utc,
+            "px_per_mm": self.px_per_mm,
+            "depth_model": None if self.depth_model is None else self.depth_model.to_dict(),
         }
 
     def save(self, path: str | Path) -> Path:
         """Write the JSON file (atomically; refuses to replace a file that is not a
         sensor calibration)."""
         path = Path(path)
-        check_output_file(path, "sensor calibration", _is_calibration, option="--out")
+        check_output_file(path, "sensor calibration", is_calibration_file, option="--out")
         with atomic_file(path, "w") as handle:
             json.dump(self.to_dict(), handle, indent=2)
             handle.write("\n")
@@ -126,12 +184,18 @@ class SensorCalibration:
             if reference is None:
                 raise ValueError("the reference frame is not a PNG")
             geometry = FrameGeometry.from_dict(data["geometry"])
+            px_per_mm = data.get("px_per_mm")
+            depth_model = data.get("depth_model")
             return cls(
                 geometry=geometry,
                 reference=reference,
                 source=str(data.get("source", "")),
                 n_frames=int(data.get("n_frames", 0)),
                 created_utc=str(data.get("created_utc", "")),
+                px_per_mm=None if px_per_mm is None else float(px_per_mm),
+                depth_model=(
+                    None if depth_model is None else CalibratedDepthModel.from_dict(depth_model)
+                ),
             )
         except (KeyError, TypeError, ValueError, base64.binascii.Error) as err:  # type: ignore[attr-defined]
             raise ValueError(f"{path}: damaged sensor calibration ({err})") from err
@@ -141,7 +205,7 @@ class SensorCalibration:
         return open_source(spec, geometry=self.geometry, **options)
 
 
-def _is_calibration(path: Path) -> bool:
+def is_calibration_file(path: Path) -> bool:
     try:
         return json.loads(path.read_text(encoding="utf-8")).get("format") == CALIBRATION_FORMAT
     except (ValueError, AttributeError, UnicodeDecodeError):
@@ -175,7 +239,7 @@ def calibrate(
     if n_frames < 1:
         raise ValueError(f"n_frames must be >= 1, got {n_frames}")
     if out is not None:  # refuse a bad --out before touching the sensor
-        check_output_file(Path(out), "sensor calibration", _is_calibration, option="--out")
+        check_output_file(Path(out), "sensor calibration", is_calibration_file, option="--out")
     skipped: list[FrameError] = []
     frames: list[np.ndarray] = []
     with open_source(spec, geometry=geometry, **options) as source:
@@ -205,3 +269,250 @@ def _camera_size(source: FrameSourceBase) -> tuple[int, int] | None:
     """The raw camera frame size a source last delivered, when it can tell."""
     size = getattr(source, "last_raw_size", None)
     return None if size is None else (int(size[0]), int(size[1]))
+
+
+# ---------------------------------------------------------------------- depth calibration
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+"""Image files ``calibrate-depth`` and ``depth`` read from a folder."""
+
+_CIRCLE_LINE = re.compile(
+    r"^\s*(?P<name>[^\s,]+)[\s,]+\(?\s*(?P<x>[-\d.eE+]+)\s*,\s*(?P<y>[-\d.eE+]+)\s*\)?"
+    r"[\s,]+(?P<r>[-\d.eE+]+)\s*$"
+)
+
+
+def _natural_key(path: Path) -> list[Any]:
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
+
+
+def read_press_images(paths: Sequence[str | Path]) -> list[tuple[str, np.ndarray]]:
+    """``(file name, uint8 BGR frame)`` of image files, folders expanded in natural order.
+
+    Raises:
+        ValueError: a file that is not an image, or no image at all.
+        OSError: a path that does not exist.
+    """
+    files: list[Path] = []
+    for item in paths:
+        path = Path(item)
+        if path.is_dir():
+            found = [p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+            files.extend(sorted(found, key=_natural_key))
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise FileNotFoundError(f"{path}: no such image file or folder")
+    if not files:
+        raise ValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in {list(map(str, paths))}")
+    images = []
+    for path in files:
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise ValueError(f"{path}: not an image OpenCV can read")
+        images.append((path.name, image))
+    return images
+
+
+def read_circles(path: str | Path) -> dict[str, ContactCircle]:
+    """Given contact circles by image file name: lines ``NAME (x, y) r`` (the format of the
+    RA-L 2022 sphere presses' labels) or ``NAME,x,y,r``; pixels; ``#`` starts a comment.
+
+    Raises:
+        ValueError: a line in neither format, or a radius that is not positive.
+    """
+    circles: dict[str, ContactCircle] = {}
+    for number, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
+        text = line.split("#", 1)[0].strip()
+        if not text or text.lower().startswith("file"):
+            continue
+        match = _CIRCLE_LINE.match(text)
+        if match is None:
+            raise ValueError(f"{path}:{number}: expected 'NAME (x, y) r' or 'NAME,x,y,r'")
+        radius = float(match["r"])
+        if not (math.isfinite(radius) and radius > 0):
+            raise ValueError(f"{path}:{number}: the radius must be > 0 px")
+        circles[Path(match["name"]).name] = ContactCircle(
+            float(match["x"]), float(match["y"]), radius
+        )
+    return circles
+
+
+@dataclass
+class DepthCalibration:
+    """What :func:`calibrate_depth` fitted, and how each press came out.
+
+    Attributes:
+        calibration: the sensor calibration carrying the depth model and ``px_per_mm``.
+        presses: one row per press: ``name``, ``x_px``, ``y_px``, ``radius_px``,
+            ``radius_mm``, ``circle`` ("given" or "found"), ``cap_depth_mm`` (the
+            spherical cap's depth implied by the circle, NaN when the circle is as wide as
+            the ball) and ``peak_depth_mm`` (the fitted model's depth at the press).
+    """
+
+    calibration: SensorCalibration
+    presses: list[dict[str, Any]]
+
+    def format(self) -> str:
+        """A few lines for the terminal: the fit's residuals and each press."""
+        model = self.calibration.depth_model
+        assert model is not None
+        rep = model.report
+        lines = [
+            f"Depth model fitted on {rep['presses']} presses "
+            f"({rep['contact_pixels']} contact + {rep['background_pixels']} background px); "
+            f"slope RMSE {rep['slope_rmse_contact']:.3f} in contact, "
+            f"{rep['slope_rmse_background']:.3f} outside; noise level {model.noise_level:.3f}",
+            "press                        circle (x, y, r px)      r [mm]  cap [mm]  peak [mm]",
+        ]
+        for row in self.presses:
+            lines.append(
+                f"{row['name'][:28]:28s} {row['circle']:5s} ({row['x_px']:6.1f}, "
+                f"{row['y_px']:6.1f}, {row['radius_px']:5.1f})  {row['radius_mm']:6.2f}"
+                f"  {row['cap_depth_mm']:8.3f}  {row['peak_depth_mm']:9.3f}"
+            )
+        return "\n".join(lines)
+
+
+def calibrate_depth(
+    presses: Sequence[tuple[str, np.ndarray]],
+    *,
+    ball_radius_mm: float,
+    px_per_mm: float,
+    reference: np.ndarray | None = None,
+    sensor: SensorCalibration | None = None,
+    circles: dict[str, ContactCircle] | None = None,
+    source: str = "",
+    epochs: int = 40,
+    seed: int = 0,
+) -> DepthCalibration:
+    """Fit a sensor's depth model on presses of a ball of known radius.
+
+    Args:
+        presses: ``(name, uint8 BGR frame)`` sensor frames (after the geometry), each with
+            the ball pressed somewhere (:func:`read_press_images`, :func:`capture_presses`).
+        ball_radius_mm: the ball's radius [mm].
+        px_per_mm: the sensor frames' pixel density [px/mm].
+        reference: the no-contact frame; default the ``sensor``'s reference, else the
+            per-pixel median of the presses (right when the ball is elsewhere in each).
+        sensor: a calibration (``calibrate``) to extend: its geometry and reference carry
+            over.
+        circles: given contact circles by press name; the others are found.
+        source: what the presses came from (kept in the calibration).
+        epochs, seed: of the regressor fit.
+
+    Raises:
+        ValueError: bad radius or pitch, frames of another size than the reference, a press
+            without a visible contact, a circle far wider than the ball.
+    """
+    if not (math.isfinite(ball_radius_mm) and 0 < ball_radius_mm < 100):
+        raise ValueError(f"--ball-radius-mm must be in (0, 100) mm, got {ball_radius_mm}")
+    if not (math.isfinite(px_per_mm) and 0 < px_per_mm < 1000):
+        raise ValueError(f"--px-per-mm must be in (0, 1000) px/mm, got {px_per_mm}")
+    if len(presses) < 2:
+        raise ValueError(f"need at least 2 ball presses, got {len(presses)}")
+    shapes = {frame.shape for _, frame in presses}
+    if len(shapes) != 1:
+        raise ValueError(f"the presses have different sizes: {sorted(shapes)}")
+    frames = np.stack([frame for _, frame in presses])
+    if reference is None:
+        reference = sensor.reference if sensor is not None else None
+    if reference is None:
+        reference = np.median(frames, axis=0).round().astype(np.uint8)
+    if reference.shape != frames.shape[1:]:
+        raise ValueError(
+            f"the reference frame is {reference.shape[1]}x{reference.shape[0]} px, the presses "
+            f"{frames.shape[2]}x{frames.shape[1]} px"
+        )
+    diffs = difference_images(frames, reference)
+    given = circles or {}
+    fitted: list[BallPress] = []
+    for (name, _), diff in zip(presses, diffs, strict=True):
+        try:
+            circle = given.get(name) or find_contact_circle(diff)
+        except ValueError as err:
+            raise ValueError(f"{name}: {err}") from err
+        fitted.append(BallPress(diff, circle, name))
+    model = fit_depth_model(fitted, ball_radius_mm, px_per_mm, epochs=epochs, seed=seed)
+    rows = []
+    depths = reconstruct_depth(diffs, model=model)
+    for press, depth in zip(fitted, depths, strict=True):
+        c = press.circle
+        a_mm = c.radius_px / px_per_mm
+        cap = (
+            ball_radius_mm - math.sqrt(ball_radius_mm**2 - a_mm**2)
+            if a_mm < ball_radius_mm
+            else math.nan
+        )
+        rows.append(
+            {
+                "name": press.name,
+                "circle": "given" if press.name in given else "found",
+                "x_px": c.x_px,
+                "y_px": c.y_px,
+                "radius_px": c.radius_px,
+                "radius_mm": a_mm,
+                "cap_depth_mm": cap,
+                "peak_depth_mm": float(depth.max()),
+            }
+        )
+    geometry = sensor.geometry if sensor is not None else FrameGeometry()
+    calibration = SensorCalibration(
+        geometry=geometry,
+        reference=np.ascontiguousarray(reference),
+        source=sensor.source if sensor is not None else source,
+        n_frames=sensor.n_frames if sensor is not None else 0,
+        px_per_mm=float(px_per_mm),
+        depth_model=model,
+    )
+    model.report["press_checks"] = rows
+    return DepthCalibration(calibration, rows)
+
+
+def capture_presses(
+    spec: str,
+    n_presses: int,
+    *,
+    sensor: SensorCalibration | None = None,
+    reference: np.ndarray | None = None,
+    max_frames: int = 10_000,
+    **options: Any,
+) -> list[tuple[str, np.ndarray]]:
+    """Frames of a live source that show a new ball press, until ``n_presses`` are taken.
+
+    A frame counts as a press when a contact region is found against the reference and its
+    centre is more than one contact radius away from every press taken so far (a press
+    held still gives one frame, not many).
+
+    Raises:
+        ValueError: no reference (give ``sensor`` or ``reference``).
+        SensorError: the source ends before ``n_presses`` presses.
+    """
+    if reference is None:
+        if sensor is None:
+            raise ValueError("a live source needs a reference: give --calibration or --reference")
+        reference = sensor.reference
+    taken: list[tuple[str, np.ndarray]] = []
+    centres: list[ContactCircle] = []
+    opened = sensor.open(spec, **options) if sensor is not None else open_source(spec, **options)
+    with opened as frames:
+        for index, (_, frame) in enumerate(iter_frames(frames, lambda err: None)):
+            if index >= max_frames or len(taken) >= n_presses:
+                break
+            if frame.shape != reference.shape:
+                raise FrameSizeError(
+                    f"frame {frame.shape} differs from the reference {reference.shape}"
+                )
+            try:
+                circle = find_contact_circle(difference_images(frame[None], reference)[0], 5.0)
+            except ValueError:
+                continue
+            if any(
+                math.hypot(circle.x_px - c.x_px, circle.y_px - c.y_px) < c.radius_px
+                for c in centres
+            ):
+                continue
+            centres.append(circle)
+            taken.append((f"{spec}#{index}", frame))
+    if len(taken) < n_presses:
+        raise SensorError(f"{spec}: only {len(taken)} of {n_presses} presses seen")
+    return taken

@@ -95,7 +95,8 @@ def live_estimates(
         source: an open frame source (open it with the calibration's geometry).
         readings: ``timestamp_s -> (force_n, width_m)``.
         calibration: its reference frame is the no-contact frame (default: the first
-            frame).
+            frame); its depth model and pixel density make the depth maps and the
+            analytical estimates (default: the dataset heuristic at 16.40 px/mm).
         window: ``StreamingEstimator``'s window in frames (None: the whole trajectory).
         window_s: the same in seconds, from the source's timestamps (not with ``window``).
         level, scale: the ensemble interval (``EnsembleEstimator``).
@@ -104,11 +105,18 @@ def live_estimates(
         raise ValueError("give at least one estimator")
     ensemble = EnsembleEstimator(list(members), level=level, scale=scale)
     reference = None if calibration is None else calibration.reference
+    depth_model = "dataset" if calibration is None else calibration.depth
+    px_per_mm = None if calibration is None else calibration.px_per_mm
     # Each frame is differenced once, here: the depth map and every member's stream
     # (``frame_kind="difference"``) take the same difference image.
     streams = [
         StreamingEstimator(
-            member, window=window, window_s=window_s, frame_kind="difference", channel_order="BGR"
+            member,
+            window=window,
+            window_s=window_s,
+            frame_kind="difference",
+            channel_order="BGR",
+            px_per_mm=px_per_mm,
         )
         for member in members
     ]
@@ -129,7 +137,7 @@ def live_estimates(
                 f"the reference frame is {reference.shape}, the source's frames {frame.shape}"
             )
         diff = difference_images(frame[None], reference)
-        depth = reconstruct_depth(diff)[0] if needs_depth else None
+        depth = reconstruct_depth(diff, model=depth_model)[0] if needs_depth else None
         # Quantised like the store (and like StreamingEstimator's raw frames), so the
         # models see the training frames' encoding.
         model_frame = frames_to_uint8(diff[0])

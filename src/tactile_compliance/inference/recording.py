@@ -23,10 +23,12 @@ as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen")
 * difference images ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5``
   (``data.image_ops.difference_images``), with the calibration's no-contact frame as
   reference, or the recording's first frame;
-* depth maps: ``data.photometric.reconstruct_depth`` (the marker sensor with its markers
-  masked);
+* depth maps: ``data.photometric.reconstruct_depth`` with the calibration's depth model
+  (``calibrate-depth``), or the dataset heuristic without one (the marker sensor with its
+  markers masked);
 * the analytical estimates: ``physics.dataset_estimates.dataset_estimates_pa`` on the
-  whole recording (it clips the press itself), as the dataset's own code did.
+  whole recording (it clips the press itself), as the dataset's own code did, at the
+  calibration's pixel density (the Wedge's 16.40 px/mm without one).
 
 The grasp number is the next free one; a grasp directory is written under a hidden name
 and renamed into place, so nothing existing is ever overwritten and an interrupted
@@ -75,7 +77,6 @@ from tactile_compliance.inference.sensors import (
     iter_frames,
 )
 from tactile_compliance.outputs import atomic_file
-from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
 from tactile_compliance.physics.estimators import analytical_estimator
 
 __all__ = [
@@ -605,6 +606,8 @@ def write_grasp(
     markers_reference: np.ndarray | None = None,
     max_aug: int = MAX_AUGMENTATIONS,
     estimator: str = "dataset",
+    sensor: SensorCalibration | None = None,
+    markers_sensor: SensorCalibration | None = None,
 ) -> RecordedGrasp:
     """Write a captured grasp as ``OUT/{object}/grasp={next}/augmentation={k}/``.
 
@@ -617,6 +620,10 @@ def write_grasp(
         max_aug: augmentations at most.
         estimator: the analytical estimator (``physics.estimators``): ``dataset`` makes
             the values the public dataset stored.
+        sensor: the sensor's calibration: its depth model and pixel density make the
+            depth maps and the estimates (None: the dataset heuristic and the Wedge's
+            16.40 px/mm); its reference is used where ``reference`` is None.
+        markers_sensor: the same for the marker sensor.
 
     Raises:
         ValueError: the grasp has no frame selection (nothing is written), or the object
@@ -625,6 +632,10 @@ def write_grasp(
     # No selection: fail before any work.
     augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
     frames = captured.frames
+    if reference is None and sensor is not None:
+        reference = sensor.reference
+    if markers_reference is None and markers_sensor is not None:
+        markers_reference = markers_sensor.reference
     ref = frames[0] if reference is None else np.asarray(reference)
     if ref.shape != frames.shape[1:]:
         raise FrameSizeError(
@@ -632,14 +643,15 @@ def write_grasp(
         )
     # Every frame's depth: the dataset's estimator clips the press out of the whole series.
     diff = difference_images(frames, ref)
-    depth = reconstruct_depth(diff)
+    depth = reconstruct_depth(diff, model="dataset" if sensor is None else sensor.depth)
     fingers = [("RGB.pkl", "depth.pkl", diff, depth)]
     marker_depth = None
     if captured.markers_frames is not None:
         markers = captured.markers_frames
         mref = markers[0] if markers_reference is None else np.asarray(markers_reference)
         mdiff = difference_images(markers, mref)
-        marker_depth = reconstruct_depth(mdiff, markers=True)
+        marker_model = "dataset" if markers_sensor is None else markers_sensor.depth
+        marker_depth = reconstruct_depth(mdiff, markers=True, model=marker_model)
         fingers.append(("RGB_markers.pkl", "depth_markers.pkl", mdiff, marker_depth))
     depth_maxima = [depth.reshape(len(depth), -1).max(axis=1)]
     if marker_depth is not None:
@@ -651,11 +663,12 @@ def write_grasp(
         max_depth_mm=depth_maxima,
         timestamps_s=captured.timestamp_s,
     )
-    estimate_fn = analytical_estimator(estimator)
+    px_per_mm = None if sensor is None else sensor.px_per_mm
+    estimate_fn = analytical_estimator(estimator, px_per_mm)
     try:
         if estimator == "dataset" and marker_depth is not None:
             # The original took the earlier depth onset of the two fingers.
-            values = dataset_estimates_pa(
+            values = estimate_fn(
                 captured.force_n, captured.width_m, depth, marker_depths_mm=marker_depth
             )
         else:
@@ -725,7 +738,8 @@ def record_grasp(
         out_dir: the dataset directory.
         info: the object.
         calibration: its reference frame is the no-contact frame (default: the first
-            recorded frame).
+            recorded frame); its depth model and pixel density make the depth maps and
+            the analytical estimates (default: the dataset heuristic, 16.40 px/mm).
         markers_source, markers_calibration: a second sensor (the marker finger).
         max_frames, stop_on_release: when the capture stops (see :func:`capture_grasp`).
     """
@@ -740,9 +754,9 @@ def record_grasp(
         captured,
         out_dir,
         info,
-        reference=None if calibration is None else calibration.reference,
-        markers_reference=None if markers_calibration is None else markers_calibration.reference,
         max_aug=max_aug,
+        sensor=calibration,
+        markers_sensor=markers_calibration,
     )
 
 

@@ -233,6 +233,8 @@ class StreamingEstimator:
         analytical_estimator: name of the estimator computing E from ``depth_mm``
             (``"dataset"`` or ``"contact"``); default the one the checkpoint records, so
             live values follow the training data's distribution.
+        px_per_mm: pixel density [px/mm] of ``depth_mm`` (a calibrated sensor's); None:
+            the estimator's own (the public dataset's Wedge).
         onset_force_n, peak_fraction, min_peak_force_n: the selection rule (dataset values).
         release_fraction: the grasp ends (final estimate) when, after reaching the minimum
             peak force, the force falls below this fraction of F_max.
@@ -251,6 +253,7 @@ class StreamingEstimator:
         channel_order: str = "RGB",
         estimates_pa: Any = None,
         analytical_estimator: str | None = None,
+        px_per_mm: float | None = None,
         onset_force_n: float = ONSET_FORCE_N,
         peak_fraction: float = PEAK_FRACTION,
         min_peak_force_n: float = MIN_PEAK_FORCE_N,
@@ -275,7 +278,7 @@ class StreamingEstimator:
         self.estimator = estimator
         #: Name of the estimator computing E from depth maps (``physics.estimators``).
         self.analytical_estimator = analytical_estimator or estimator.analytical_estimator
-        self._estimate_fn = physics_estimator(self.analytical_estimator)
+        self._estimate_fn = physics_estimator(self.analytical_estimator, px_per_mm)
         self.channel_order = channel_order
         self.onset_force_n = float(onset_force_n)
         self.peak_fraction = float(peak_fraction)

@@ -1,0 +1,455 @@
+"""A sensor's own depth model, calibrated from presses of a ball of known radius.
+
+The dataset's heuristic (``data.photometric``, ``model="dataset"``) maps colour to slope with
+constants fitted once on one Wedge. Any other GelSight-type sensor has other lights, another
+gel and another pixel pitch, so, as GelSight's own SDK and Taxim do, this module learns the
+map from presses of a ball whose shape is known:
+
+1. For each press, the contact circle (found automatically, :func:`find_contact_circle`, or
+   given) and the ball radius give the surface slope of every pixel inside it: the
+   spherical cap ``depth = sqrt(R^2 - rho^2) - sqrt(R^2 - a^2)`` has slope
+   ``-x / sqrt(R^2 - rho^2)`` along x (and likewise y). Pixels far from the contact have slope 0.
+2. A small multilayer perceptron (5 -> 32 -> 32 -> 2, ReLU) maps a pixel's difference-image
+   colour (B, G, R, centred on 0) and its position (x, y in [-1, 1]) to the two slopes.
+   Position is an input because the lights fall off across the gel (vignetting), so one
+   colour means different slopes in the corner and the centre.
+3. At use, slopes are kept only inside the *contact mask* (pixels whose colour change is
+   above the noise measured on the presses' untouched pixels, grown by a margin), and
+   integrated with the same Poisson solver as the dataset heuristic. Outside the mask the
+   slope and the depth are exactly 0, so drift, vignetting changes and noise cannot
+   integrate into bowls.
+
+The model works on the project's difference images (``data.image_ops.difference_images``),
+so ``record`` and ``live`` feed it what they already compute. It is plain numbers (a few
+thousand floats) and serialises to JSON (:meth:`CalibratedDepthModel.to_dict`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from tactile_compliance.data.photometric import poisson_depth
+
+__all__ = [
+    "DEPTH_MODEL_FORMAT",
+    "BallPress",
+    "CalibratedDepthModel",
+    "ContactCircle",
+    "contact_magnitude",
+    "find_contact_circle",
+    "fit_depth_model",
+    "sphere_slopes",
+]
+
+DEPTH_MODEL_FORMAT = "tactile-compliance-depth-model"
+DEPTH_MODEL_VERSION = 1
+
+_HIDDEN = (32, 32)
+"""Hidden widths of the slope regressor: enough for the colour wheel's nonlinearity (a
+lookup table over colour alone, as the 2018 GelSight code used, cannot see vignetting)."""
+
+_MAGNITUDE_SIGMA_PX = 2.0
+"""Gaussian blur [px] of the colour-change magnitude: removes pixel noise, keeps the edge."""
+
+_CIRCLE_FRACTION = 0.5
+"""The contact circle is where the colour change exceeds this fraction of its peak. Chosen on
+the one sensor with hand-labelled circles (thusight, 22 presses: mean radius error +0.8 px at
+0.5, +4.6 px at 0.4, +9.3 px at 0.3); the visibly deformed area is wider than the contact."""
+
+_CONTACT_SAFETY = 0.95
+"""Train on slopes inside this fraction of the contact radius (the rim is uncertain)."""
+
+_MAX_TRAIN_TO_BALL = 0.9
+"""...and inside this fraction of the ball radius (the cap's slope is 2.1 there, 64 deg)."""
+
+_MAX_CONTACT_TO_BALL = 1.5
+"""A contact circle wider than this many ball radii means wrong radius or pixel pitch."""
+
+_BACKGROUND_GAP = 2.0
+"""Pixels farther than this many contact radii from the centre are untouched (slope 0)."""
+
+_NOISE_QUANTILE = 99.5
+"""The no-contact noise level is this percentile [%] of the colour-change magnitude on the
+presses' untouched pixels; the contact mask starts above it."""
+
+_MASK_GROW_MM = 0.3
+"""The contact mask is grown by this margin [mm]: the gel's slope fades to 0 outside the
+contact while the colour change is already below the noise there."""
+
+
+@dataclass(frozen=True)
+class ContactCircle:
+    """A contact circle in pixels: centre (``x_px`` column, ``y_px`` row) and radius."""
+
+    x_px: float
+    y_px: float
+    radius_px: float
+
+
+@dataclass(frozen=True)
+class BallPress:
+    """One press: its difference image (H, W, 3) BGR float centred on 0.5 and its circle."""
+
+    diff: np.ndarray
+    circle: ContactCircle
+    name: str = ""
+
+
+def contact_magnitude(diff: np.ndarray) -> np.ndarray:
+    """Colour-change magnitude (H, W) of one difference image: the blurred norm of its
+    deviation from 0.5 over the three channels (a unitless intensity fraction)."""
+    dev = np.asarray(diff, dtype=np.float32) - 0.5
+    dev = cv2.GaussianBlur(dev, (0, 0), _MAGNITUDE_SIGMA_PX)
+    return np.sqrt((dev * dev).sum(axis=2))
+
+
+def find_contact_circle(diff: np.ndarray, min_radius_px: float = 3.0) -> ContactCircle:
+    """The contact circle of a ball press in one difference image (H, W, 3).
+
+    The largest connected region where the colour change exceeds half its peak; its
+    centroid is the centre and its equivalent-area radius the radius.
+
+    Raises:
+        ValueError: no region of at least ``min_radius_px`` (nothing presses the gel).
+    """
+    mag = contact_magnitude(diff)
+    peak = float(np.percentile(mag, 99.9))
+    mask = (mag > _CIRCLE_FRACTION * peak).astype(np.uint8)
+    count, _, stats, centroids = cv2.connectedComponentsWithStats(mask)
+    if count < 2:
+        raise ValueError("no contact region found (the frame looks like the reference)")
+    k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    radius = math.sqrt(stats[k, cv2.CC_STAT_AREA] / math.pi)
+    if radius < min_radius_px:
+        raise ValueError(
+            f"the largest contact region is {radius:.1f} px in radius (< {min_radius_px} px)"
+        )
+    return ContactCircle(float(centroids[k][0]), float(centroids[k][1]), radius)
+
+
+def sphere_slopes(
+    shape: tuple[int, int], circle: ContactCircle, ball_radius_mm: float, px_per_mm: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Surface slopes of a ball's spherical cap pressed into the gel.
+
+    Returns ``(slope_x, slope_y, inside)``: d depth / d x and d depth / d y [mm/mm] of
+    ``depth = sqrt(R^2 - rho^2) - sqrt(R^2 - a^2)`` (positive into the gel) on an (H, W)
+    grid, x along columns and y along rows, and the mask of pixels inside the contact.
+
+    Raises:
+        ValueError: the contact circle is not smaller than the ball.
+    """
+    a_mm = circle.radius_px / px_per_mm
+    if a_mm >= ball_radius_mm:
+        raise ValueError(
+            f"contact radius {a_mm:.2f} mm is not below the ball radius {ball_radius_mm} mm: "
+            "check --ball-radius-mm and --px-per-mm"
+        )
+    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float32)
+    x_mm = (cols - circle.x_px) / px_per_mm
+    y_mm = (rows - circle.y_px) / px_per_mm
+    rho2 = x_mm * x_mm + y_mm * y_mm
+    inside = rho2 < a_mm * a_mm
+    height = np.sqrt(np.maximum(ball_radius_mm**2 - rho2, 1e-12))
+    slope_x = np.where(inside, -x_mm / height, 0.0).astype(np.float32)
+    slope_y = np.where(inside, -y_mm / height, 0.0).astype(np.float32)
+    return slope_x, slope_y, inside
+
+
+def cap_depth_mm(
+    shape: tuple[int, int], circle: ContactCircle, ball_radius_mm: float, px_per_mm: float
+) -> np.ndarray:
+    """The spherical cap's depth [mm] (H, W), positive into the gel, 0 outside the contact."""
+    a_mm = circle.radius_px / px_per_mm
+    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float64)
+    rho2 = ((cols - circle.x_px) ** 2 + (rows - circle.y_px) ** 2) / px_per_mm**2
+    cap = np.sqrt(np.maximum(ball_radius_mm**2 - rho2, 0.0)) - math.sqrt(
+        ball_radius_mm**2 - a_mm**2
+    )
+    return np.maximum(cap, 0.0).astype(np.float32)
+
+
+def _features(diff: np.ndarray) -> np.ndarray:
+    """Per-pixel regressor inputs (n, H, W, 5): colour change (B, G, R) and position."""
+    diff = np.asarray(diff, dtype=np.float32)
+    if diff.ndim == 3:
+        diff = diff[None]
+    n, h, w, _ = diff.shape
+    feats = np.empty((n, h, w, 5), dtype=np.float32)
+    feats[..., :3] = diff - 0.5
+    feats[..., 3] = np.linspace(-1.0, 1.0, w, dtype=np.float32)[None, None, :]
+    feats[..., 4] = np.linspace(-1.0, 1.0, h, dtype=np.float32)[None, :, None]
+    return feats
+
+
+@dataclass
+class CalibratedDepthModel:
+    """A sensor's colour-and-position -> slope regressor, and how to integrate it.
+
+    Attributes:
+        px_per_mm: the sensor's pixel density [px/mm] (of the frames the model is used on).
+        frame_size: (H, W) px of those frames.
+        ball_radius_mm: radius [mm] of the calibration ball.
+        noise_level: colour-change magnitude (unitless) of untouched pixels; the contact
+            mask starts above it.
+        layers: the regressor's (weight (in, out), bias (out,)) pairs, float32.
+        input_scale: per-feature scale applied before the first layer.
+        report: how the fit went (residuals, presses used), for the JSON and the docs.
+    """
+
+    px_per_mm: float
+    frame_size: tuple[int, int]
+    ball_radius_mm: float
+    noise_level: float
+    layers: list[tuple[np.ndarray, np.ndarray]]
+    input_scale: np.ndarray
+    report: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.px_per_mm) and 0 < self.px_per_mm < 1000):
+            raise ValueError(f"px_per_mm must be in (0, 1000) px/mm, got {self.px_per_mm}")
+        if not (math.isfinite(self.noise_level) and 0 <= self.noise_level < 1):
+            raise ValueError(f"noise_level must be in [0, 1), got {self.noise_level}")
+        h, w = (int(v) for v in self.frame_size)
+        if not (8 <= h <= 4096 and 8 <= w <= 4096):
+            raise ValueError(f"frame_size must be 8..4096 px a side, got {self.frame_size}")
+        self.frame_size = (h, w)
+        for weight, bias in self.layers:
+            if not (np.all(np.isfinite(weight)) and np.all(np.isfinite(bias))):
+                raise ValueError("the depth model's weights are not finite")
+
+    # -- use -------------------------------------------------------------------------
+
+    def slopes(self, diff: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Raw regressor slopes ``(d depth/dx, d depth/dy)`` [mm/mm], each (n, H, W)."""
+        feats = _features(diff)
+        n, h, w, _ = feats.shape
+        hidden = feats.reshape(-1, 5) * self.input_scale
+        for k, (weight, bias) in enumerate(self.layers):
+            hidden = hidden @ weight + bias
+            if k < len(self.layers) - 1:
+                np.maximum(hidden, 0.0, out=hidden)
+        out = hidden.reshape(n, h, w, 2)
+        return out[..., 0], out[..., 1]
+
+    def contact_mask(self, diff: np.ndarray) -> np.ndarray:
+        """Pixels (n, H, W) whose colour change is above the noise, grown by 0.3 mm."""
+        diff = np.asarray(diff, dtype=np.float32)
+        if diff.ndim == 3:
+            diff = diff[None]
+        grow = max(1, round(_MASK_GROW_MM * self.px_per_mm))
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
+        masks = np.empty(diff.shape[:3], dtype=bool)
+        for k in range(diff.shape[0]):
+            above = (contact_magnitude(diff[k]) > self.noise_level).astype(np.uint8)
+            masks[k] = cv2.dilate(above, kernel) > 0
+        return masks
+
+    def depth_mm(self, diff: np.ndarray) -> np.ndarray:
+        """Depth maps [mm] (n, H, W), positive into the gel, from difference images
+        (n, H, W, 3) BGR centred on 0.5 of this sensor.
+
+        Raises:
+            ValueError: frames of another size than the model was calibrated on.
+        """
+        diff = np.asarray(diff, dtype=np.float32)
+        if diff.ndim == 3:
+            diff = diff[None]
+        if tuple(diff.shape[1:3]) != self.frame_size:
+            raise ValueError(
+                f"frames are {diff.shape[1]}x{diff.shape[2]} px, the depth model was "
+                f"calibrated on {self.frame_size[0]}x{self.frame_size[1]} px"
+            )
+        slope_x, slope_y = self.slopes(diff)
+        mask = self.contact_mask(diff)
+        mm_per_px = np.float32(1.0 / self.px_per_mm)
+        gx = np.where(mask, slope_x, 0.0).astype(np.float32) * mm_per_px
+        gy = np.where(mask, slope_y, 0.0).astype(np.float32) * mm_per_px
+        depth = poisson_depth(gx, gy)
+        # Where no pixel shows contact nothing touches: the Poisson solution's leak there
+        # (the fitted slopes are not exactly integrable) is not depth.
+        depth *= mask
+        return depth
+
+    # -- files -----------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON document."""
+        return {
+            "format": DEPTH_MODEL_FORMAT,
+            "format_version": DEPTH_MODEL_VERSION,
+            "px_per_mm": float(self.px_per_mm),
+            "frame_size": list(self.frame_size),
+            "ball_radius_mm": float(self.ball_radius_mm),
+            "noise_level": float(self.noise_level),
+            "input_scale": [float(v) for v in self.input_scale],
+            "layers": [
+                {"weight": weight.tolist(), "bias": bias.tolist()} for weight, bias in self.layers
+            ],
+            "report": self.report,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Any) -> CalibratedDepthModel:
+        """Read :meth:`to_dict`'s document.
+
+        Raises:
+            ValueError: not a depth model, another version, or damaged values.
+        """
+        if not isinstance(data, dict) or data.get("format") != DEPTH_MODEL_FORMAT:
+            raise ValueError(f"not a depth model (no format {DEPTH_MODEL_FORMAT})")
+        if data.get("format_version") != DEPTH_MODEL_VERSION:
+            raise ValueError(
+                f"depth model format_version {data.get('format_version')!r} is not "
+                f"{DEPTH_MODEL_VERSION}; calibrate again with this version"
+            )
+        try:
+            layers = []
+            width = 5
+            for layer in data["layers"]:
+                weight = np.asarray(layer["weight"], dtype=np.float32)
+                bias = np.asarray(layer["bias"], dtype=np.float32)
+                if weight.ndim != 2 or weight.shape[0] != width or bias.shape != weight.shape[1:]:
+                    raise ValueError(f"layer shapes {weight.shape} / {bias.shape} do not chain")
+                width = weight.shape[1]
+                layers.append((weight, bias))
+            if width != 2 or not layers:
+                raise ValueError("the regressor must end in 2 slopes")
+            scale = np.asarray(data["input_scale"], dtype=np.float32)
+            if scale.shape != (5,) or not np.all(np.isfinite(scale)):
+                raise ValueError("input_scale must be 5 finite numbers")
+            return cls(
+                px_per_mm=float(data["px_per_mm"]),
+                frame_size=(int(data["frame_size"][0]), int(data["frame_size"][1])),
+                ball_radius_mm=float(data["ball_radius_mm"]),
+                noise_level=float(data["noise_level"]),
+                layers=layers,
+                input_scale=scale,
+                report=dict(data.get("report") or {}),
+            )
+        except (KeyError, TypeError, IndexError) as err:
+            raise ValueError(f"damaged depth model ({err!r})") from err
+
+
+def _noise_level(presses: list[BallPress]) -> float:
+    """Colour-change magnitude of untouched pixels: a high percentile over every press's
+    pixels farther than ``_BACKGROUND_GAP`` contact radii (and at least 2 mm) away."""
+    values = []
+    for press in presses:
+        mag = contact_magnitude(press.diff)
+        far = _far_mask(mag.shape, press.circle)
+        values.append(mag[far])
+    return float(np.percentile(np.concatenate(values), _NOISE_QUANTILE))
+
+
+def _far_mask(shape: tuple[int, int], circle: ContactCircle) -> np.ndarray:
+    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
+    dist = np.hypot(cols - circle.x_px, rows - circle.y_px)
+    return dist > _BACKGROUND_GAP * circle.radius_px
+
+
+def fit_depth_model(
+    presses: list[BallPress],
+    ball_radius_mm: float,
+    px_per_mm: float,
+    *,
+    epochs: int = 40,
+    seed: int = 0,
+    background_per_press: int = 4000,
+) -> CalibratedDepthModel:
+    """Fit the colour-and-position -> slope regressor on ball presses.
+
+    Args:
+        presses: difference images of one sensor, all the same size, with their circles.
+        ball_radius_mm: the ball's radius [mm].
+        px_per_mm: the sensor's pixel density [px/mm].
+        epochs: passes of Adam over the training pixels.
+        seed: for the initial weights, the background sample and the batch order.
+        background_per_press: untouched pixels (slope 0) sampled from each press.
+
+    Raises:
+        ValueError: no presses, frames of different sizes, or a circle as large as the ball.
+    """
+    import torch
+
+    if not presses:
+        raise ValueError("no ball presses to fit")
+    shape = presses[0].diff.shape[:2]
+    if any(p.diff.shape[:2] != shape for p in presses):
+        raise ValueError("all presses must have the same frame size")
+    rng = np.random.default_rng(seed)
+    inputs, targets, in_contact = [], [], []
+    for press in presses:
+        feats = _features(press.diff)[0]
+        radius_mm = press.circle.radius_px / px_per_mm
+        if radius_mm > _MAX_CONTACT_TO_BALL * ball_radius_mm:
+            raise ValueError(
+                f"{press.name or 'a press'}: contact radius {radius_mm:.2f} mm is far above "
+                f"the ball radius {ball_radius_mm} mm: check --ball-radius-mm and --px-per-mm"
+            )
+        # A deep press can show a contact as wide as the ball; train where the cap's slope
+        # is still finite and the circle certain.
+        train_px = min(_CONTACT_SAFETY * radius_mm, _MAX_TRAIN_TO_BALL * ball_radius_mm)
+        safe = ContactCircle(press.circle.x_px, press.circle.y_px, train_px * px_per_mm)
+        slope_x, slope_y, inside = sphere_slopes(shape, safe, ball_radius_mm, px_per_mm)
+        far = np.flatnonzero(_far_mask(shape, press.circle))
+        far = rng.choice(far, size=min(background_per_press, far.size), replace=False)
+        for idx, contact in ((np.flatnonzero(inside), True), (far, False)):
+            inputs.append(feats.reshape(-1, 5)[idx])
+            targets.append(np.stack([slope_x.ravel()[idx], slope_y.ravel()[idx]], axis=1))
+            in_contact.append(np.full(len(idx), contact))
+    x = np.concatenate(inputs)
+    y = np.concatenate(targets).astype(np.float32)
+    input_scale = (1.0 / np.maximum(x.std(axis=0), 1e-3)).astype(np.float32)
+
+    torch.manual_seed(seed)
+    sizes = (5, *_HIDDEN, 2)
+    net = torch.nn.Sequential()
+    for k in range(len(sizes) - 1):
+        net.append(torch.nn.Linear(sizes[k], sizes[k + 1]))
+        if k < len(sizes) - 2:
+            net.append(torch.nn.ReLU())
+    xt = torch.from_numpy(x * input_scale)
+    yt = torch.from_numpy(y)
+    optimiser = torch.optim.Adam(net.parameters(), lr=3e-3)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=epochs)
+    generator = torch.Generator().manual_seed(seed)
+    batch = 1024
+    for _ in range(epochs):
+        order = torch.randperm(len(xt), generator=generator)
+        for start in range(0, len(xt), batch):
+            idx = order[start : start + batch]
+            loss = torch.nn.functional.mse_loss(net(xt[idx]), yt[idx])
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+        schedule.step()
+    with torch.no_grad():
+        residual = (net(xt) - yt).numpy()
+    layers = [
+        (m.weight.detach().numpy().T.copy(), m.bias.detach().numpy().copy())
+        for m in net
+        if isinstance(m, torch.nn.Linear)
+    ]
+    contact = np.concatenate(in_contact)
+    report = {
+        "presses": len(presses),
+        "contact_pixels": int(contact.sum()),
+        "background_pixels": int((~contact).sum()),
+        "slope_rmse_contact": float(np.sqrt(np.mean(residual[contact] ** 2))),
+        "slope_rmse_background": float(np.sqrt(np.mean(residual[~contact] ** 2))),
+    }
+    return CalibratedDepthModel(
+        px_per_mm=float(px_per_mm),
+        frame_size=(int(shape[0]), int(shape[1])),
+        ball_radius_mm=float(ball_radius_mm),
+        noise_level=_noise_level(presses),
+        layers=layers,
+        input_scale=input_scale,
+        report=report,
+    )

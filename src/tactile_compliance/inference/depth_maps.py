@@ -1,0 +1,79 @@
+"""``tactile-compliance depth``: depth maps of tactile frames, as files a user can open.
+
+Each frame becomes ``OUT/<stem>.npy`` (float32 (H, W), mm, positive into the gel) and, on
+request, ``OUT/<stem>.png``: the depth in a perceptual colour map (matplotlib's viridis
+order from OpenCV), 0 mm black-blue to the frame's peak yellow, with the peak written in
+the corner so two pictures are never compared by colour alone.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.photometric import reconstruct_depth
+from tactile_compliance.inference.calibration import SensorCalibration
+from tactile_compliance.outputs import claim_output_dir
+
+__all__ = ["depth_picture", "write_depth_maps"]
+
+
+def depth_picture(depth_mm: np.ndarray) -> np.ndarray:
+    """A uint8 BGR picture of one depth map (H, W) [mm], its peak written in the corner."""
+    peak = float(np.max(depth_mm))
+    scaled = np.clip(depth_mm / peak, 0.0, 1.0) if peak > 0 else np.zeros_like(depth_mm)
+    picture = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
+    cv2.putText(
+        picture, f"peak {peak:.2f} mm", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255)
+    )
+    return picture
+
+
+def write_depth_maps(
+    frames: Sequence[tuple[str, np.ndarray]],
+    out_dir: str | Path,
+    *,
+    sensor: SensorCalibration | None = None,
+    reference: np.ndarray | None = None,
+    png: bool = False,
+) -> list[tuple[Path, float]]:
+    """Write each frame's depth map; returns ``(npy path, peak depth [mm])`` per frame.
+
+    Args:
+        frames: ``(file name, uint8 BGR frame)``, sensor frames of the reference's size.
+        out_dir: a new directory, or one this command wrote before.
+        sensor: its depth model (None: the dataset heuristic) and its reference.
+        reference: the no-contact frame, replacing the sensor's.
+        png: also write the coloured picture.
+
+    Raises:
+        ValueError: no reference, a frame of another size, two frames with one stem.
+    """
+    if reference is None:
+        if sensor is None:
+            raise ValueError("give --reference (a no-contact frame) or --calibration")
+        reference = sensor.reference
+    stems = [Path(name).stem for name, _ in frames]
+    if len(set(stems)) != len(stems):
+        raise ValueError("two frames share a file name stem; their depth maps would collide")
+    for name, frame in frames:
+        if frame.shape != reference.shape:
+            raise ValueError(
+                f"{name} is {frame.shape[1]}x{frame.shape[0]} px, the reference "
+                f"{reference.shape[1]}x{reference.shape[0]} px"
+            )
+    model = "dataset" if sensor is None else sensor.depth
+    out = claim_output_dir(out_dir, "depth")
+    written = []
+    for stem, (_, frame) in zip(stems, frames, strict=True):
+        depth = reconstruct_depth(difference_images(frame[None], reference), model=model)[0]
+        path = out / f"{stem}.npy"
+        np.save(path, depth.astype(np.float32))
+        if png:
+            cv2.imwrite(str(out / f"{stem}.png"), depth_picture(depth))
+        written.append((path, float(depth.max())))
+    return written
