@@ -283,12 +283,16 @@ def _json_lines(output):
     return [json.loads(line) for line in output.splitlines() if line.startswith("{")]
 
 
-def run_end_to_end(grasp, tmp_path, inputs, size):
-    """calibrate -> record -> import burgess -> predict, and live on the same video."""
+def run_end_to_end(grasp, tmp_path, inputs, size, extend_sensor=None):
+    """calibrate -> record -> import burgess -> predict, and live on the same video.
+
+    ``extend_sensor(path)`` may change the calibration file before it is used."""
     ckpt = _checkpoint(tmp_path / "m.pt", inputs=inputs, size=size)
     sensor, data, store = tmp_path / "sensor.json", tmp_path / "data", tmp_path / "store"
     common = ["--readings", grasp["readings"], "--calibration", sensor]
     _cli("calibrate", f"video:{grasp['still']}", "--out", sensor, "--frames", 5)
+    if extend_sensor is not None:
+        extend_sensor(sensor)
     recorded = json.loads(
         _cli(
             "record",
@@ -436,6 +440,74 @@ def test_end_to_end_with_estimates_at_the_datasets_frame_size(tmp_path):
     data = make_grasp(tmp_path / "grasp", (250, 350))
     events, rows = run_end_to_end(data, tmp_path, "ALL", (72, 72))
     assert np.isfinite(rows[0]["pred_pa"]) and events[-1]["final"]
+
+
+def _depth_model_for(reference, px_per_mm, seed=0):
+    """A depth model fitted on ball presses rendered by the generator at the frame size."""
+    from tactile_compliance.data.depth_model import BallPress, find_contact_circle, fit_depth_model
+    from tactile_compliance.synthetic.render import render_frames, sample_sensor_look
+
+    rng = np.random.default_rng(seed)
+    look = sample_sensor_look(rng, markers=False)
+    h, w = reference.shape[:2]
+    rows, cols = np.mgrid[0:h, 0:w]
+    ball_mm = 4.0
+    presses = []
+    own_reference = render_frames(np.zeros((1, h, w), np.float32), look, rng)[0]
+    for k in range(6):
+        x, y, d = rng.uniform(0.3 * w, 0.7 * w), rng.uniform(0.3 * h, 0.7 * h), 0.6
+        rho2 = ((cols - x) ** 2 + (rows - y) ** 2) / px_per_mm**2
+        cap = np.maximum(np.sqrt(np.maximum(ball_mm**2 - rho2, 0)) - (ball_mm - d), 0)
+        frame = render_frames(cap[None].astype(np.float32), look, rng)
+        diff = difference_images(frame, own_reference)[0]
+        presses.append(BallPress(diff, find_contact_circle(diff), str(k)))
+    return fit_depth_model(presses, ball_mm, px_per_mm, epochs=10)
+
+
+def test_a_calibrated_sensor_gives_depth_and_estimates_in_its_units(grasp, tmp_path):
+    """With a depth model and a pixel density in the calibration, `record` stores that
+    model's depth maps and the estimates at that density, and `live` computes the same."""
+    from tactile_compliance.inference.calibration import SensorCalibration
+    from tactile_compliance.physics.dataset_estimates import DATASET_CONSTANTS
+    from tactile_compliance.synthetic.render import pixel_size_mm
+
+    px_per_mm = 1.0 / pixel_size_mm(SIZE)  # the renderer's density: 2.7 px/mm, not 16.40
+    models = []
+
+    def extend(path):
+        base = SensorCalibration.load(path)
+        model = _depth_model_for(base.reference, px_per_mm)
+        models.append(model)
+        SensorCalibration(base.geometry, base.reference, depth_model=model).save(path)
+
+    events, rows = run_end_to_end(grasp, tmp_path, "ALL", (72, 72), extend_sensor=extend)
+    assert np.isfinite(rows[0]["pred_pa"]) and events[-1]["final"]
+    sample = tmp_path / "data" / grasp["name"] / "grasp=0"
+    recorded = json.loads((tmp_path / "sensor.json").read_text())
+    assert recorded["px_per_mm"] == pytest.approx(px_per_mm)
+    sensor = SensorCalibration.load(tmp_path / "sensor.json")
+    n_frames = events[-1]["frames_seen"]
+    frames = decoded(grasp["video"])[:n_frames]
+    depth = models[0].depth_mm(difference_images(frames, sensor.reference))
+    idx = list(events[-1]["frame_indices"])
+    np.testing.assert_array_equal(
+        load_numpy_pickle(sample / "augmentation=0" / "depth.pkl"), depth[idx]
+    )
+    from dataclasses import replace
+
+    expected = dataset_estimates_pa(
+        grasp["force"][:n_frames],
+        grasp["width"][:n_frames],
+        depth,
+        replace(DATASET_CONSTANTS, px_per_mm=px_per_mm),
+    )
+    stored = [
+        float(load_numpy_pickle(sample / "augmentation=0" / name))
+        for name in ("elastic_estimate.pkl", "hertz_estimate.pkl")
+    ]
+    np.testing.assert_allclose(stored, expected, rtol=1e-9)
+    wedge = dataset_estimates_pa(grasp["force"][:n_frames], grasp["width"][:n_frames], depth)
+    assert not np.allclose(stored, wedge, equal_nan=True)  # the density matters
 
 
 def test_bad_sources_are_one_line_errors_in_the_cli(grasp, tmp_path):
