@@ -26,6 +26,7 @@ from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.safe_pickle import load_numpy_pickle
+from tactile_compliance.data.store import GraspStore
 from tactile_compliance.inference.live import format_live_event
 from tactile_compliance.inference.recording import (
     ObjectInfo,
@@ -97,11 +98,19 @@ def grasp(tmp_path_factory):
     return make_grasp(tmp_path_factory.mktemp("grasp"), SIZE)
 
 
-def _checkpoint(path, inputs="ImageFW", seed=0, size=(72, 72)):
+def _checkpoint(path, inputs="ImageFW", seed=0, size=(72, 72), sensor_units=None):
     torch.manual_seed(seed)
     model = create_model("top10nn", inputs=inputs)
     constants = NormalisationConstants()
-    return save_checkpoint(path, model, constants=constants, image_size=size, config={}, seed=0)
+    return save_checkpoint(
+        path,
+        model,
+        constants=constants,
+        image_size=size,
+        config={},
+        seed=0,
+        sensor_units=sensor_units,
+    )
 
 
 # ---------------------------------------------------------------------- readings
@@ -283,11 +292,12 @@ def _json_lines(output):
     return [json.loads(line) for line in output.splitlines() if line.startswith("{")]
 
 
-def run_end_to_end(grasp, tmp_path, inputs, size, extend_sensor=None):
+def run_end_to_end(grasp, tmp_path, inputs, size, extend_sensor=None, sensor_units=None):
     """calibrate -> record -> import burgess -> predict, and live on the same video.
 
-    ``extend_sensor(path)`` may change the calibration file before it is used."""
-    ckpt = _checkpoint(tmp_path / "m.pt", inputs=inputs, size=size)
+    ``extend_sensor(path)`` may change the calibration file before it is used; the
+    checkpoint was trained on estimates in ``sensor_units`` (default the Wedge's)."""
+    ckpt = _checkpoint(tmp_path / "m.pt", inputs=inputs, size=size, sensor_units=sensor_units)
     sensor, data, store = tmp_path / "sensor.json", tmp_path / "data", tmp_path / "store"
     common = ["--readings", grasp["readings"], "--calibration", sensor]
     _cli("calibrate", f"video:{grasp['still']}", "--out", sensor, "--frames", 5)
@@ -480,8 +490,12 @@ def test_a_calibrated_sensor_gives_depth_and_estimates_in_its_units(grasp, tmp_p
         models.append(model)
         SensorCalibration(base.geometry, base.reference, depth_model=model).save(path)
 
-    events, rows = run_end_to_end(grasp, tmp_path, "ALL", (72, 72), extend_sensor=extend)
+    units = {"depth_model": "calibrated", "px_per_mm": px_per_mm}
+    events, rows = run_end_to_end(
+        grasp, tmp_path, "ALL", (72, 72), extend_sensor=extend, sensor_units=units
+    )
     assert np.isfinite(rows[0]["pred_pa"]) and events[-1]["final"]
+    assert GraspStore.open(tmp_path / "store").sensor_units.to_dict() == units
     sample = tmp_path / "data" / grasp["name"] / "grasp=0"
     recorded = json.loads((tmp_path / "sensor.json").read_text())
     assert recorded["px_per_mm"] == pytest.approx(px_per_mm)
@@ -508,6 +522,29 @@ def test_a_calibrated_sensor_gives_depth_and_estimates_in_its_units(grasp, tmp_p
     np.testing.assert_allclose(stored, expected, rtol=1e-9)
     wedge = dataset_estimates_pa(grasp["force"][:n_frames], grasp["width"][:n_frames], depth)
     assert not np.allclose(stored, wedge, equal_nan=True)  # the density matters
+
+    # Estimates in other units are refused, never mixed: a Wedge-trained ALL checkpoint on
+    # this store or this sensor, and an uncalibrated grasp into this dataset.
+    wedge_ckpt = _checkpoint(tmp_path / "wedge.pt", inputs="ALL")
+    for args in (
+        ["predict", wedge_ckpt, tmp_path / "store"],
+        ["live", wedge_ckpt, "--source", f"video:{grasp['video']}",
+         "--readings", grasp["readings"], "--calibration", tmp_path / "sensor.json"],
+    ):  # fmt: skip
+        result = runner.invoke(app, [str(a) for a in args])
+        assert result.exit_code == 2 and "other units" in result.output, result.output
+        assert len(result.output.strip().splitlines()) == 1  # one line, no estimate
+    with (
+        open_source(f"video:{grasp['video']}") as source,
+        pytest.raises(ValueError, match=r"calibrated depth model at 2\.7"),
+    ):
+        record_grasp(
+            source,
+            Readings.from_csv(grasp["readings"]),
+            tmp_path / "data",
+            ObjectInfo(grasp["name"], grasp["modulus_pa"]),
+        )
+    assert sorted(p.name for p in sample.parent.iterdir()) == ["grasp=0", "metadata.json"]
 
 
 def test_bad_sources_are_one_line_errors_in_the_cli(grasp, tmp_path):

@@ -52,6 +52,7 @@ from tactile_compliance.data.safe_pickle import (
     peek_array_shape,
 )
 from tactile_compliance.data.store import FRAMES_PER_SAMPLE, GraspStoreWriter, depth_size_for
+from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
 from tactile_compliance.progress import progress_bar
 
 FingerChoice = Literal["markerless", "markers", "both"]
@@ -320,6 +321,29 @@ def _tree_estimator(src: Path) -> str:
     return str(recorded) if recorded else "contact"
 
 
+RECORDING_UNITS_FILE = "recording.json"
+"""What ``record`` writes next to its object table: the depth model and pixel density of its
+grasps (``physics.estimators.SensorUnits``)."""
+
+
+def recorded_units(src: Path) -> dict[str, Any]:
+    """The units of a tree's estimates: what ``record`` wrote (in ``src`` or up to two
+    directories above, so an object or grasp directory of a recording finds it), else the
+    dataset's Wedge.
+
+    Raises:
+        ValueError: a damaged record (its estimates' units would be unknown).
+    """
+    found = [d / RECORDING_UNITS_FILE for d in (src, *src.resolve().parents[:2])]
+    path = next((p for p in found if p.is_file()), None)
+    if path is None:
+        return WEDGE_UNITS.to_dict()
+    try:
+        return SensorUnits.from_dict(json.loads(path.read_text(encoding="utf-8"))).to_dict()
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: cannot read the recording's units ({err})") from err
+
+
 def import_burgess(
     src_dir: str | Path,
     out_dir: str | Path,
@@ -382,6 +406,7 @@ def import_burgess(
             samples.extend((label, g, k, d) for g, k, d in _sample_dirs(object_dir, report))
     image_files = [FINGER_FILES[finger][0] for finger in finger_names]
     source_hw, sizes = majority_frame_size(samples, image_files, progress)
+    units = recorded_units(src)  # before anything is written: a damaged record stops here
 
     def store_depth_size() -> tuple[int, int] | None:
         size = image_size or source_hw
@@ -402,6 +427,7 @@ def import_burgess(
                 "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
                 "frame_kind": "difference",
                 "analytical_estimator": _tree_estimator(src),
+                "sensor": units,
                 "depth": bool(depth),
             },
             overwrite=overwrite,

@@ -68,6 +68,7 @@ from tactile_compliance.data.plausibility import (
     dtype_problem,
 )
 from tactile_compliance.outputs import MARKER_NAME, output_kind
+from tactile_compliance.physics.estimators import SensorUnits
 
 FORMAT_VERSION = 1
 #: Written into every store by :class:`GraspStoreWriter`; ``--overwrite`` replaces only a
@@ -601,6 +602,12 @@ class GraspStore:
         if recorded:
             return str(recorded)
         return {"burgess": "dataset", "synthetic": "contact"}.get(self.header.source)
+
+    @property
+    def sensor_units(self) -> SensorUnits:
+        """Depth model and pixel density of the stored analytical estimates (what ``record``
+        calibrated); stores of the public dataset and the generator are the Wedge's."""
+        return SensorUnits.from_dict(self.header.creation_parameters.get("sensor"))
 
     @property
     def has_depth(self) -> bool:

@@ -27,7 +27,7 @@ import torch
 from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
 from tactile_compliance.inference.inputs import PreparedInputs, prepare_inputs, required_inputs
 from tactile_compliance.models import InputStrategy
-from tactile_compliance.physics.estimators import DEFAULT_ANALYTICAL_ESTIMATOR
+from tactile_compliance.physics.estimators import DEFAULT_ANALYTICAL_ESTIMATOR, SensorUnits
 
 __all__ = ["MIN_FRAME_SIDE_PX", "BaseEstimator", "Prediction", "to_plain"]
 
@@ -119,6 +119,12 @@ class BaseEstimator(ABC):
         predates the record and gets ``DEFAULT_ANALYTICAL_ESTIMATOR``.
         """
         return str(self.meta.get("analytical_estimator") or DEFAULT_ANALYTICAL_ESTIMATOR)
+
+    @property
+    def sensor_units(self) -> SensorUnits:
+        """Depth model and pixel density of the training data's analytical estimates
+        (``physics.estimators.SensorUnits``; the Wedge's where none is recorded)."""
+        return SensorUnits.from_dict(self.meta.get("sensor_units"))
 
     @property
     def required_inputs(self) -> tuple[str, ...]:

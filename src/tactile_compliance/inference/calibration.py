@@ -55,6 +55,7 @@ from tactile_compliance.inference.sensors import (
     open_source,
 )
 from tactile_compliance.outputs import atomic_file, check_output_file
+from tactile_compliance.physics.estimators import SensorUnits
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -129,6 +130,11 @@ class SensorCalibration:
     def depth_name(self) -> str:
         """``"dataset"`` or ``"calibrated"``: what stores and checkpoints record."""
         return "dataset" if self.depth_model is None else "calibrated"
+
+    @property
+    def units(self) -> SensorUnits:
+        """The units its analytical estimates come out in (recorded by stores)."""
+        return SensorUnits(self.depth_name, self.px_per_mm)
 
     @property
     def frame_size(self) -> tuple[int, int]:

@@ -46,6 +46,7 @@ from tactile_compliance.inference.sensors import (
     iter_frames,
 )
 from tactile_compliance.inference.streaming import StreamEstimate, StreamingEstimator
+from tactile_compliance.physics.estimators import WEDGE_UNITS
 
 __all__ = ["format_live_event", "live_estimates", "load_members"]
 
@@ -121,6 +122,12 @@ def live_estimates(
         for member in members
     ]
     needs_depth = "estimates" in ensemble.required_inputs
+    if needs_depth:
+        units = WEDGE_UNITS if calibration is None else calibration.units
+        for member in members:
+            member.sensor_units.check_same(
+                units, trained=f"checkpoint {member.source}", used="this sensor"
+            )
     skipped: list[FrameError] = []
     for timestamp_s, frame in iter_frames(source, skipped.append):
         while skipped:

@@ -14,6 +14,7 @@ robot (a callback ``timestamp_s -> (force_n, width_m)`` or a CSV of timestamped 
                                                 (absent where the fit failed, as in the dataset)
                                             RGB_markers.pkl, depth_markers.pkl (second sensor)
     OUT/dataset_objects_and_compliance.csv           the object table, one row per object
+    OUT/recording.json                               depth model and px/mm of every grasp
 
 as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen"):
 
@@ -77,7 +78,7 @@ from tactile_compliance.inference.sensors import (
     iter_frames,
 )
 from tactile_compliance.outputs import atomic_file
-from tactile_compliance.physics.estimators import analytical_estimator
+from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits, analytical_estimator
 
 __all__ = [
     "AUGMENTATION_FORCE_FRACTION",
@@ -98,6 +99,10 @@ __all__ = [
 
 ESTIMATE_FILES = ("elastic_estimate.pkl", "hertz_estimate.pkl")
 """The analytical estimates' files; left out where the fit failed, as in the dataset."""
+
+UNITS_FILE = "recording.json"
+"""Next to the object table: the depth model and pixel density every grasp was recorded with
+(``physics.estimators.SensorUnits``); ``import burgess`` copies it into the store."""
 
 OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
 """The object table written next to the object directories (the dataset's file name)."""
@@ -597,6 +602,27 @@ def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
     return path
 
 
+def _check_units(out_dir: Path, units: SensorUnits) -> None:
+    """Record ``units`` for the dataset, or refuse a grasp in other units than its grasps.
+
+    Raises:
+        ValueError: the dataset's grasps were recorded with another depth model or pixel
+            density (their estimates would mix units).
+    """
+    path = out_dir / UNITS_FILE
+    if path.is_file():
+        try:
+            recorded = SensorUnits.from_dict(json.loads(path.read_text(encoding="utf-8")))
+        except ValueError as err:
+            raise ValueError(f"{path}: damaged ({err})") from err
+        recorded.check_same(units, trained=f"{out_dir} (its earlier grasps)", used="this recording")
+        return
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with atomic_file(path, "w") as handle:
+        json.dump(units.to_dict(), handle, indent=2)
+        handle.write("\n")
+
+
 def write_grasp(
     captured: CapturedGrasp,
     out_dir: str | Path,
@@ -678,6 +704,7 @@ def write_grasp(
         estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps
 
     out = Path(out_dir)
+    _check_units(out, WEDGE_UNITS if sensor is None else sensor.units)
     object_dir = out / info.name
     object_dir.mkdir(parents=True, exist_ok=True)
     _write_metadata(object_dir, info)

@@ -33,6 +33,7 @@ from tactile_compliance.data.burgess import (
     load_estimate,
     load_frames,
     load_vector,
+    recorded_units,
 )
 from tactile_compliance.data.image_ops import resize_frames
 from tactile_compliance.data.store import (
@@ -45,6 +46,7 @@ from tactile_compliance.data.store import (
     frames_to_uint8,
 )
 from tactile_compliance.data.yuan import read_video_frames, select_press_frames
+from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
 from tactile_compliance.runs.metrics import compute_metrics
 
 __all__ = [
@@ -82,6 +84,7 @@ class GraspBatch:
         frame_kind: ``difference`` or ``raw`` (videos and Shore-hardness stores).
         unreadable: raw sample directories that could not be read (``grasp``,
             ``augmentation``, ``source_path``, ``reason``); skipped like the importer does.
+        sensor_units: depth model and pixel density of ``estimates_pa``.
     """
 
     frames: np.ndarray | StoreFrames
@@ -92,6 +95,7 @@ class GraspBatch:
     kind: SourceKind
     frame_kind: str
     unreadable: list[dict[str, Any]] = field(default_factory=list)
+    sensor_units: SensorUnits = WEDGE_UNITS
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -152,6 +156,7 @@ def read_store(path: str | Path, ids: np.ndarray | list[int] | None = None) -> G
         rows=rows,
         kind="store",
         frame_kind=str(store.header.creation_parameters.get("frame_kind", "difference")),
+        sensor_units=store.sensor_units,
     )
 
 
@@ -290,6 +295,7 @@ def read_grasp_dir(
         kind="grasp_dir",
         frame_kind="difference",
         unreadable=unreadable,
+        sensor_units=SensorUnits.from_dict(recorded_units(Path(root))),
     )
 
 
@@ -437,6 +443,10 @@ def predict_path(
             f"{path}: a video carries no force, width or estimates, but checkpoint "
             f"{estimator.source} (inputs={estimator.inputs.value}) needs {', '.join(needed)}; "
             f"use an Image checkpoint"
+        )
+    if "estimates" in needed:
+        estimator.sensor_units.check_same(
+            source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
         )
     scalars = source.scalars()
     usable = np.ones(len(source), dtype=bool)

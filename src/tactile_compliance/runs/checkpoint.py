@@ -172,6 +172,7 @@ def save_checkpoint(
     backbone_weights_file: dict[str, Any] | None = None,
     store_image_size: tuple[int, int] | None = None,
     analytical_estimator: str | None = None,
+    sensor_units: dict[str, Any] | None = None,
     store: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``model`` and its description to ``path`` (atomically: see
@@ -192,6 +193,9 @@ def save_checkpoint(
     ``analytical_estimator``: the name (``physics.estimators``) of the estimator that made
     the training store's analytical estimates, so estimates computed at inference come
     from the same one.
+
+    ``sensor_units``: the training store's ``SensorUnits.to_dict()`` (depth model and
+    pixel density of its estimates), so inference on another sensor's units is refused.
 
     ``store``: the training store's provenance (its path and ``header.json``: source,
     creation time and parameters, package version), so a model card can say what the
@@ -216,6 +220,7 @@ def save_checkpoint(
         "image_size": list(image_size) if image_size is not None else None,
         "store_image_size": list(store_image_size) if store_image_size is not None else None,
         "analytical_estimator": analytical_estimator,
+        "sensor_units": sensor_units,
         "store": store,
         "config": config,
         "seed": int(seed),

@@ -819,6 +819,7 @@ def _fit_and_evaluate(
             frozen_backbone=frozen_backbone,
             store_image_size=data.store.image_size,
             analytical_estimator=data.store.analytical_estimator,
+            sensor_units=data.store.sensor_units.to_dict(),
             store={"path": str(Path(data.store.path).resolve()), **data.store.header.to_dict()},
         )
 
