@@ -20,14 +20,21 @@ it is recognisably an output of the same kind. Every file a command writes goes 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import secrets
+import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
 from tactile_compliance import __version__
+
+try:
+    import fcntl
+except ImportError:  # Windows: no flock
+    fcntl = None  # type: ignore[assignment]
 
 __all__ = [
     "MARKER_NAME",
@@ -35,6 +42,7 @@ __all__ = [
     "atomic_file",
     "check_output_file",
     "claim_output_dir",
+    "exclusive_lock",
     "fsync_directory",
     "output_kind",
 ]
@@ -181,3 +189,39 @@ def atomic_file(
             tmp.unlink()
         raise
     fsync_directory(path.parent)
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: str | Path, what: str = "this directory") -> Iterator[None]:
+    """Hold an exclusive ``flock`` on ``path`` (created if needed), waiting until it is free.
+
+    For short critical sections that several processes may enter at once (a feature
+    cache computed once, a dataset's object table updated by concurrent ``record``s). The
+    kernel releases the lock when its holder dies, however it dies. The lock file is never
+    deleted: unlinking it while another process waits on the old inode would let a third
+    process lock a new file and enter at the same time.
+
+    Where ``flock`` is unavailable (Windows, a file system that refuses it) the block runs
+    unlocked, as before the lock existed, with a warning naming ``what`` is unprotected.
+    """
+    if fcntl is None:
+        yield
+        return
+    with open(path, "a+b") as handle:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+        except OSError as err:
+            if err.errno not in (errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOLCK):
+                raise
+            # Some cluster file systems (Lustre mounted without -o flock) refuse locks.
+            warnings.warn(
+                f"{Path(path).parent}: the file system does not support flock ({err}); "
+                f"writing {what} without a lock (do not write it from two processes)",
+                stacklevel=3,
+            )
+            yield
+            return
+        try:
+            yield
+        finally:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
