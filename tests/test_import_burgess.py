@@ -133,7 +133,7 @@ def test_a_modulus_that_is_not_a_json_number_is_never_cast(tmp_path, value, kind
     meta = tmp_path / "src" / "rubber_ball" / "metadata.json"
     meta.write_text('{"youngs_modulus": ' + value + ', "material": "Rubber"}')
     report = _import(tmp_path / "src", tmp_path / "store")
-    assert [r for _, r in report.problems if "invalid modulus" in r][0].endswith(
+    assert next(r for _, r in report.problems if "invalid modulus" in r).endswith(
         f"is {kind}, not a JSON number (text and booleans are never cast)"
     )
     assert report.objects_imported == 2
