@@ -42,6 +42,7 @@ __all__ = [
     "atomic_file",
     "check_output_file",
     "claim_output_dir",
+    "exchange_directories",
     "exclusive_lock",
     "fsync_directory",
     "output_kind",
@@ -80,6 +81,7 @@ def claim_output_dir(
     *,
     recognise: Callable[[Path], bool] | None = None,
     option: str = "--out",
+    create: bool = True,
 ) -> Path:
     """Make ``path`` the output directory of a ``kind`` command, or refuse.
 
@@ -88,6 +90,8 @@ def claim_output_dir(
         kind: what writes it ("report", "experiment", "demo", ...).
         recognise: tells an output of this kind written before markers existed (adopted).
         option: the command-line option that names ``path``, for the error message.
+        create: False only checks (the same refusals) and creates nothing, for a command
+            that must read its inputs before it may create its output.
 
     Returns:
         ``path`` as a Path, existing and marked.
@@ -112,6 +116,8 @@ def claim_output_dir(
                 f"{out} is not empty and was not created by tactile-compliance {kind}; "
                 f"nothing was changed: choose a new or empty directory for {option}"
             )
+    if not create:
+        return out
     out.mkdir(parents=True, exist_ok=True)
     _write_marker(out, kind)
     return out
@@ -189,6 +195,40 @@ def atomic_file(
             tmp.unlink()
         raise
     fsync_directory(path.parent)
+
+
+def exchange_directories(first: str | Path, second: str | Path) -> None:
+    """Swap two directories' names at once (Linux ``renameat2(RENAME_EXCHANGE)``).
+
+    A reader, or a process started after a kill, sees one directory or the other under
+    each name, never a mix of their files. Where the exchange is not available (another
+    OS, an old kernel or file system) two renames are used: a kill between them leaves
+    ``first`` under a hidden ``.NAME.old-PID`` name next to it (nothing is lost).
+    """
+    first, second = Path(first), Path(second)
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        renameat2 = None
+    if renameat2 is not None:
+        at_fdcwd, rename_exchange = -100, 2
+        if (
+            renameat2(at_fdcwd, os.fsencode(first), at_fdcwd, os.fsencode(second), rename_exchange)
+            == 0
+        ):
+            fsync_directory(first.parent)
+            return
+        code = ctypes.get_errno()
+        if code not in (errno.ENOSYS, errno.EINVAL, errno.EOPNOTSUPP):
+            raise OSError(code, os.strerror(code), str(first))
+    aside = first.with_name(f".{first.name}.old-{os.getpid()}")
+    os.rename(first, aside)
+    os.rename(second, first)
+    os.rename(aside, second)
+    fsync_directory(first.parent)
 
 
 @contextlib.contextmanager

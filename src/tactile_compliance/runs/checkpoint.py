@@ -36,6 +36,7 @@ import torch
 
 from tactile_compliance import __version__
 from tactile_compliance.data.features import weights_fingerprint
+from tactile_compliance.data.image_ops import check_size
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.backbones import no_downloads, weights_file_record
@@ -318,9 +319,42 @@ def load_checkpoint(
         raise ValueError(f"{path}: not a readable tactile-compliance checkpoint ({err})") from err
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{path}: not a tactile-compliance model checkpoint")
-    if int(payload.get("format_version", 0)) > CHECKPOINT_VERSION:
+    version = payload.get("format_version", 0)
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise ValueError(f"{path}: format_version {version!r} is not an integer")
+    if version > CHECKPOINT_VERSION:
         raise ValueError(f"{path}: checkpoint format is newer than this package; upgrade it")
     return rebuild_model(path, payload, device, backbone_weights=backbone_weights)
+
+
+def check_state_dict(source: str | Path, state_dict: Any) -> None:
+    """Refuse weights that cannot be a trained model's: a tensor that is not floating point
+    (int8, bool: ``load_state_dict`` would cast it silently), NaN or inf values, or a
+    weight matrix or kernel (>= 2 dimensions) that is all zero (a dead layer: the model
+    predicts a constant). BatchNorm's ``num_batches_tracked`` counters are integers.
+
+    Raises:
+        ValueError: one line naming the file and the first bad tensor.
+    """
+    if not isinstance(state_dict, dict) or not state_dict:
+        raise ValueError(f"{source}: holds no weights (an empty or missing state dict)")
+    for name, tensor in state_dict.items():
+        if not isinstance(tensor, torch.Tensor):
+            raise ValueError(f"{source}: weight {name!r} is not a tensor")
+        if name.endswith("num_batches_tracked"):
+            continue
+        if not tensor.is_floating_point():
+            raise ValueError(
+                f"{source}: weight {name!r} is {tensor.dtype}, not floating point; the file "
+                f"was altered or is not a trained model's"
+            )
+        if not bool(torch.isfinite(tensor).all()):
+            raise ValueError(f"{source}: weight {name!r} holds NaN or infinite values")
+        if tensor.dim() >= 2 and tensor.numel() and not bool(tensor.any()):
+            raise ValueError(
+                f"{source}: weight {name!r} {tuple(tensor.shape)} is all zero (a dead layer); "
+                f"the file was altered or is not a trained model's"
+            )
 
 
 def rebuild_model(
@@ -348,6 +382,16 @@ def rebuild_model(
         ValueError: weights that do not fit the described model.
     """
     path = Path(source)
+    # Every loaded number is checked before it is used: a tampered or damaged file fails
+    # here with one line instead of predicting NaN, a constant or 9e256 Pa.
+    try:
+        constants = NormalisationConstants.from_dict(payload["normalisation"])
+    except (TypeError, ValueError, AttributeError) as err:
+        raise ValueError(f"{path}: invalid normalisation constants: {err}") from err
+    image_size = payload.get("image_size")
+    if image_size is not None:
+        image_size = check_size(image_size, f"{path}: image_size")
+    check_state_dict(path, payload["state_dict"])
     if payload.get("backbone") is not None:
         model = _rebuild_with_frozen_backbone(path, payload, backbone_weights)
     else:
@@ -362,12 +406,11 @@ def rebuild_model(
             ) from err
     model.backbone_weights = payload.get("backbone_weights", "none")
     model.to(device).eval()
-    image_size = payload.get("image_size")
     meta = {k: v for k, v in payload.items() if k != "state_dict"}
     return LoadedModel(
         model=model,
-        constants=NormalisationConstants.from_dict(payload["normalisation"]),
-        image_size=tuple(image_size) if image_size else None,
+        constants=constants,
+        image_size=image_size,
         inputs=payload["inputs"],
         meta=meta,
     )
