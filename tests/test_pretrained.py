@@ -197,7 +197,7 @@ def test_from_pretrained_errors(tmp_path, top10nn_run, monkeypatch):
     with pytest.raises(ValueError, match="do not fit 'top10nn'"):
         ComplianceEstimator.from_pretrained(broken)
     (broken / WEIGHTS_FILE).write_bytes(b"not safetensors")
-    with pytest.raises(ValueError, match="sha256 .* is not the .* that config.json records"):
+    with pytest.raises(ValueError, match=r"sha256 .* is not the .* that config\.json records"):
         ComplianceEstimator.from_pretrained(broken)
     config["weights_sha256"] = hashlib.sha256(b"not safetensors").hexdigest()
     (broken / CONFIG_FILE).write_text(json.dumps(config))
