@@ -231,6 +231,7 @@ def write_pretrained(
             f"{estimator.model_name} needs frames of at least {minimum}x{minimum} px; "
             f"{size[0]}x{size[1]} would write an export that cannot load (nothing written)"
         )
+    created = not Path(out).exists()
     out = claim_output_dir(out, OUTPUT_KIND, option="--safetensors")
     # The three files are written into a hidden sibling directory, then the two
     # directories swap names at once: a reader or a kill sees the old export or the new
@@ -250,6 +251,8 @@ def write_pretrained(
         exchange_directories(out, staging)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
+        if created:  # leave no empty export behind (a full disk, Ctrl-C)
+            shutil.rmtree(out, ignore_errors=True)
         raise
     # ``staging`` now holds the previous export: keep the files a user added to it.
     ours = {WEIGHTS_FILE, CONFIG_FILE, CARD_FILE, MARKER_NAME}

@@ -25,9 +25,11 @@ came from (store, split, epochs, depth loss).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -226,9 +228,26 @@ def save_checkpoint(
         "state_dict": state,
     }
     # Temp file, fsync, rename: a full disk or a kill leaves the old file and no temp file.
-    with atomic_file(path, "wb") as handle:
+    with atomic_file(path, "wb") as handle, torch_write_errors(path):
         torch.save(payload, handle)
     return path
+
+
+@contextlib.contextmanager
+def torch_write_errors(path: str | Path) -> Iterator[None]:
+    """Let a failed ``torch.save`` raise the ``OSError`` it is.
+
+    torch's zip writer reports a failed write (a full disk) as ``RuntimeError('[enforce
+    fail at inline_container.cc] unexpected pos ...')`` with the ``OSError`` only as its
+    context; the CLI turns an ``OSError`` into one line (a full disk: exit code 1).
+    """
+    try:
+        yield
+    except RuntimeError as err:
+        cause = err.__context__
+        if not isinstance(cause, OSError):
+            raise
+        raise OSError(cause.errno, f"cannot write {path}: {cause.strerror}") from err
 
 
 def _rebuild_with_frozen_backbone(
