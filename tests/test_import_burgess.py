@@ -125,6 +125,21 @@ def test_bad_input_is_skipped_and_reported(tmp_path):
     assert "Skipped" in report.format()
 
 
+@pytest.mark.parametrize(
+    ("value", "kind"), [('"1e6"', "text"), ("true", "a boolean"), ("[1e6]", "list")]
+)
+def test_a_modulus_that_is_not_a_json_number_is_never_cast(tmp_path, value, kind):
+    write_tree(tmp_path / "src")
+    meta = tmp_path / "src" / "rubber_ball" / "metadata.json"
+    meta.write_text('{"youngs_modulus": ' + value + ', "material": "Rubber"}')
+    report = _import(tmp_path / "src", tmp_path / "store")
+    assert next(r for _, r in report.problems if "invalid modulus" in r).endswith(
+        f"is {kind}, not a JSON number (text and booleans are never cast)"
+    )
+    assert report.objects_imported == 2
+    assert "rubber_ball" not in set(GraspStore.open(tmp_path / "store").samples["object"])
+
+
 def test_missing_modulus_in_metadata(tmp_path):
     write_tree(tmp_path / "src")
     (tmp_path / "src" / "rubber_ball" / "metadata.json").write_text('{"material": "Rubber"}')

@@ -6,6 +6,7 @@ inputs; the card is checked against the run's own ``metrics.json``.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 from pathlib import Path
@@ -196,6 +197,10 @@ def test_from_pretrained_errors(tmp_path, top10nn_run, monkeypatch):
     with pytest.raises(ValueError, match="do not fit 'top10nn'"):
         ComplianceEstimator.from_pretrained(broken)
     (broken / WEIGHTS_FILE).write_bytes(b"not safetensors")
+    with pytest.raises(ValueError, match=r"sha256 .* is not the .* that config\.json records"):
+        ComplianceEstimator.from_pretrained(broken)
+    config["weights_sha256"] = hashlib.sha256(b"not safetensors").hexdigest()
+    (broken / CONFIG_FILE).write_text(json.dumps(config))
     with pytest.raises(ValueError, match="not a readable safetensors file"):
         ComplianceEstimator.from_pretrained(broken)
     # No safetensors package: a clear error, also from the CLI (one line, exit 2).

@@ -12,9 +12,10 @@ import typer
 
 from tactile_compliance import __version__
 
-#: Exit codes: 0 done; 1 a run failed (cells of a grid, a demo step); 2 bad input (a
-#: path, a file's content, a config key, an option), which includes click's usage errors;
-#: 130 interrupted (Ctrl-C; re-run to continue).
+#: Exit codes: 0 done; 1 a run failed (cells of a grid, a demo step) or writing failed
+#: although the input was fine (a full disk or quota, in every command); 2 bad input (a
+#: path, a file's content, a config key, an option), which includes click's usage
+#: errors; 130 interrupted (Ctrl-C; re-run to continue).
 EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 1, 2, 130
 
 _debug = False  # --debug: let errors raise with their traceback
@@ -53,6 +54,21 @@ def _write_failures() -> tuple[type[BaseException], ...]:
     return (ImportWriteError, StoreWriteError)
 
 
+def _disk_full(err: BaseException) -> bool:
+    """Whether ``err`` (or what caused it) is a full disk or quota (ENOSPC, EDQUOT): the
+    input was fine, writing failed, so exit code 1 whichever command it was."""
+    import errno
+
+    seen: BaseException | None = err
+    for _ in range(8):  # a short chain: the library wraps an OSError at most twice
+        if seen is None:
+            return False
+        if isinstance(seen, OSError) and seen.errno in (errno.ENOSPC, errno.EDQUOT):
+            return True
+        seen = seen.__cause__ or seen.__context__
+    return False
+
+
 def _one_line_errors(command: Any) -> Any:
     """Wrap a command so that expected errors print one line and exit with code 2."""
 
@@ -68,7 +84,8 @@ def _one_line_errors(command: Any) -> Any:
         except Exception as err:
             if _debug or not isinstance(err, _expected_errors()):
                 raise
-            code = EXIT_FAILED if isinstance(err, _write_failures()) else EXIT_BAD_INPUT
+            failed = isinstance(err, _write_failures()) or _disk_full(err)
+            code = EXIT_FAILED if failed else EXIT_BAD_INPUT
             _fail(str(err) or type(err).__name__, code)
 
     return run

@@ -38,6 +38,7 @@ from typing import Any, Literal, get_args, get_origin
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from tactile_compliance.data.image_ops import check_size
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.preprocess import FilterRules
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS
@@ -117,7 +118,9 @@ class DataConfig(_Section):
             or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in v)
         ):
             raise ValueError(f"must be null, a positive int or [height, width], got {v!r}")
-        return v
+        # The cap (data.image_ops.MAX_FRAME_SIDE_PX) is checked here, before a run
+        # directory is claimed or a frame is resized.
+        return v if v is None else check_size(v, "image_size")
 
     @field_validator("fingers")
     @classmethod

@@ -20,14 +20,21 @@ it is recognisably an output of the same kind. Every file a command writes goes 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import secrets
+import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
 from tactile_compliance import __version__
+
+try:
+    import fcntl
+except ImportError:  # Windows: no flock
+    fcntl = None  # type: ignore[assignment]
 
 __all__ = [
     "MARKER_NAME",
@@ -35,6 +42,8 @@ __all__ = [
     "atomic_file",
     "check_output_file",
     "claim_output_dir",
+    "exchange_directories",
+    "exclusive_lock",
     "fsync_directory",
     "output_kind",
 ]
@@ -72,6 +81,7 @@ def claim_output_dir(
     *,
     recognise: Callable[[Path], bool] | None = None,
     option: str = "--out",
+    create: bool = True,
 ) -> Path:
     """Make ``path`` the output directory of a ``kind`` command, or refuse.
 
@@ -80,6 +90,8 @@ def claim_output_dir(
         kind: what writes it ("report", "experiment", "demo", ...).
         recognise: tells an output of this kind written before markers existed (adopted).
         option: the command-line option that names ``path``, for the error message.
+        create: False only checks (the same refusals) and creates nothing, for a command
+            that must read its inputs before it may create its output.
 
     Returns:
         ``path`` as a Path, existing and marked.
@@ -104,6 +116,8 @@ def claim_output_dir(
                 f"{out} is not empty and was not created by tactile-compliance {kind}; "
                 f"nothing was changed: choose a new or empty directory for {option}"
             )
+    if not create:
+        return out
     out.mkdir(parents=True, exist_ok=True)
     _write_marker(out, kind)
     return out
@@ -181,3 +195,73 @@ def atomic_file(
             tmp.unlink()
         raise
     fsync_directory(path.parent)
+
+
+def exchange_directories(first: str | Path, second: str | Path) -> None:
+    """Swap two directories' names at once (Linux ``renameat2(RENAME_EXCHANGE)``).
+
+    A reader, or a process started after a kill, sees one directory or the other under
+    each name, never a mix of their files. Where the exchange is not available (another
+    OS, an old kernel or file system) two renames are used: a kill between them leaves
+    ``first`` under a hidden ``.NAME.old-PID`` name next to it (nothing is lost).
+    """
+    first, second = Path(first), Path(second)
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        renameat2 = None
+    if renameat2 is not None:
+        at_fdcwd, rename_exchange = -100, 2
+        if (
+            renameat2(at_fdcwd, os.fsencode(first), at_fdcwd, os.fsencode(second), rename_exchange)
+            == 0
+        ):
+            fsync_directory(first.parent)
+            return
+        code = ctypes.get_errno()
+        if code not in (errno.ENOSYS, errno.EINVAL, errno.EOPNOTSUPP):
+            raise OSError(code, os.strerror(code), str(first))
+    aside = first.with_name(f".{first.name}.old-{os.getpid()}")
+    os.rename(first, aside)
+    os.rename(second, first)
+    os.rename(aside, second)
+    fsync_directory(first.parent)
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: str | Path, what: str = "this directory") -> Iterator[None]:
+    """Hold an exclusive ``flock`` on ``path`` (created if needed), waiting until it is free.
+
+    For short critical sections that several processes may enter at once (a feature
+    cache computed once, a dataset's object table updated by concurrent ``record``s). The
+    kernel releases the lock when its holder dies, however it dies. The lock file is never
+    deleted: unlinking it while another process waits on the old inode would let a third
+    process lock a new file and enter at the same time.
+
+    Where ``flock`` is unavailable (Windows, a file system that refuses it) the block runs
+    unlocked, as before the lock existed, with a warning naming ``what`` is unprotected.
+    """
+    if fcntl is None:
+        yield
+        return
+    with open(path, "a+b") as handle:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
+        except OSError as err:
+            if err.errno not in (errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOLCK):
+                raise
+            # Some cluster file systems (Lustre mounted without -o flock) refuse locks.
+            warnings.warn(
+                f"{Path(path).parent}: the file system does not support flock ({err}); "
+                f"writing {what} without a lock (do not write it from two processes)",
+                stacklevel=3,
+            )
+            yield
+            return
+        try:
+            yield
+        finally:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)

@@ -233,6 +233,16 @@ def _object_label(
             report.problem(metadata_path, "corrupt metadata.json: not a JSON object")
             return None
         modulus = metadata.get("youngs_modulus")
+        # JSON has numbers: text ("1e6") and booleans (true) are never cast to one.
+        if isinstance(modulus, bool) or not isinstance(modulus, (int, float)):
+            kind = "null" if modulus is None else type(modulus).__name__
+            kind = {"str": "text", "bool": "a boolean"}.get(kind, kind)
+            report.problem(
+                object_dir,
+                f"invalid modulus: {modulus!r} is {kind}, not a JSON number "
+                f"(text and booleans are never cast)",
+            )
+            return None
         material = metadata.get("material", "")
         shape = metadata.get("shape", "")
         for field_name, text in (("material", material), ("shape", shape)):

@@ -30,13 +30,9 @@ when both are requested.
 
 from __future__ import annotations
 
-import contextlib
-import errno
 import hashlib
 import json
 import os
-import warnings
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +42,7 @@ import torch
 from tactile_compliance.data.dataset import prepare_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.store import GraspStore
+from tactile_compliance.outputs import exclusive_lock
 from tactile_compliance.progress import progress_bar
 
 FEATURES_DIR = "features"
@@ -53,40 +50,6 @@ FEATURES_FILE = "features.f16"
 META_FILE = "meta.json"
 PROGRESS_FILE = "progress.json"
 LOCK_FILE = "lock"
-
-try:
-    import fcntl
-except ImportError:  # Windows: no flock
-    fcntl = None  # type: ignore[assignment]
-
-
-@contextlib.contextmanager
-def _exclusive_lock(path: Path) -> Iterator[None]:
-    """Hold an exclusive ``flock`` on ``path`` (created if needed), blocking until free."""
-    if fcntl is None:
-        yield
-        return
-    # The lock file is never deleted: unlinking it while another process waits on the
-    # old inode would let a third process lock a new file and compute concurrently.
-    with open(path, "a+b") as handle:
-        try:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
-        except OSError as err:
-            if err.errno not in (errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOLCK):
-                raise
-            # Some cluster file systems (Lustre mounted without -o flock) refuse locks:
-            # computing unlocked is what happened before the lock existed, not an error.
-            warnings.warn(
-                f"{path.parent}: the file system does not support flock ({err}); computing "
-                f"the feature cache without a lock (do not compute it in two processes)",
-                stacklevel=4,
-            )
-            yield
-            return
-        try:
-            yield
-        finally:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
 
 
 def weights_fingerprint(module: torch.nn.Module) -> str:
@@ -136,7 +99,7 @@ def cached_features(
         return np.memmap(final, dtype=np.float16, mode="r", shape=shape)
 
     directory.mkdir(parents=True, exist_ok=True)
-    with _exclusive_lock(directory / LOCK_FILE):
+    with exclusive_lock(directory / LOCK_FILE, what="the feature cache"):
         # Another process may have finished the cache while this one waited for the lock.
         if not (final.exists() and meta_path.exists()):
             _compute(

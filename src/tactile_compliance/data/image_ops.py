@@ -5,9 +5,45 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+#: The largest frame side (px) any command resizes, warps, crops to or reads from a file.
+#: The dataset's frames are 250 x 350 px and a GelSight Mini camera gives 3280 x 2464; a
+#: 4096 x 4096 frame is 50 MB as uint8, 200 MB as float32. Larger sizes are typos (or
+#: attacks) that would allocate tens of GB before failing, so they are refused first.
+MAX_FRAME_SIDE_PX = 4096
+
+
+def check_size(size: object, what: str = "size") -> tuple[int, int]:
+    """``size`` as (height, width) px: two integers in ``[1, MAX_FRAME_SIDE_PX]``.
+
+    Refuses floats (72.7), booleans, text and negative or huge sides with one line, before
+    anything is allocated.
+
+    Raises:
+        ValueError: naming ``what`` and the value.
+    """
+    if (
+        isinstance(size, (str, bytes))
+        or not hasattr(size, "__len__")
+        or len(size) != 2  # type: ignore[arg-type]
+        or not all(
+            isinstance(n, (int, np.integer)) and not isinstance(n, bool)
+            for n in size  # type: ignore[union-attr]
+        )
+    ):
+        raise ValueError(f"{what} must be [height, width] in whole pixels, got {size!r}")
+    height, width = (int(n) for n in size)  # type: ignore[union-attr]
+    if not (1 <= height <= MAX_FRAME_SIDE_PX and 1 <= width <= MAX_FRAME_SIDE_PX):
+        raise ValueError(
+            f"{what} {height}x{width} px is out of range: each side must lie in "
+            f"[1, {MAX_FRAME_SIDE_PX}] px"
+        )
+    return height, width
+
 
 def parse_size(text: str | None) -> tuple[int, int] | None:
-    """Parse ``"HxW"`` (pixels, e.g. ``"250x350"``) into (height, width); None passes through."""
+    """Parse ``"HxW"`` (pixels, e.g. ``"250x350"``) into (height, width); None passes through.
+
+    Each side must lie in ``[1, MAX_FRAME_SIDE_PX]`` (:func:`check_size`)."""
     if text is None or text == "":
         return None
     parts = text.lower().replace(" ", "").split("x")
@@ -15,7 +51,7 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
         raise ValueError(
             f"size must look like HxW with positive integers (e.g. 250x350), got {text!r}"
         )
-    return int(parts[0]), int(parts[1])
+    return check_size((int(parts[0]), int(parts[1])))
 
 
 def resize_frames(frames: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:

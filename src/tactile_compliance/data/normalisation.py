@@ -37,6 +37,8 @@ from typing import Any, TypeVar
 import numpy as np
 import torch
 
+from tactile_compliance.data.plausibility import MODULUS
+
 ArrayT = TypeVar("ArrayT", np.ndarray, torch.Tensor)
 
 #: Per-channel mean of the dataset's difference images in [0, 1], **BGR order**, as
@@ -49,7 +51,12 @@ PUBLISHED_IMAGE_MEAN_BGR: tuple[float, float, float] = (0.49638007, 0.49770336, 
 #: Per-channel standard deviation, same source and order as :data:`PUBLISHED_IMAGE_MEAN_BGR`.
 PUBLISHED_IMAGE_STD_BGR: tuple[float, float, float] = (0.04634926, 0.06181679, 0.07152624)
 
+#: The label range (log10 Pa) a model may be trained on: 1 Pa (softer than any object a
+#: gripper can hold) to ``plausibility.MODULUS.high`` (1e13 Pa, beyond diamond).
+LABEL_LOG10_BOUNDS: tuple[float, float] = (0.0, math.log10(MODULUS.high))
+
 __all__ = [
+    "LABEL_LOG10_BOUNDS",
     "PUBLISHED_IMAGE_MEAN_BGR",
     "PUBLISHED_IMAGE_STD_BGR",
     "NormalisationConstants",
@@ -99,25 +106,42 @@ class NormalisationConstants:
     image_std: tuple[float, float, float] = PUBLISHED_IMAGE_STD_BGR[::-1]
 
     def __post_init__(self) -> None:
+        # Every constant is checked here, so a tampered or careless checkpoint, config.json
+        # or configuration (NaN, inf, text, a label range of 1e400 Pa) is refused where it
+        # is read, before it can turn into a NaN or a 9e256 Pa estimate.
+        for name in ("label_log10_min", "label_log10_max", "estimate_log10_min"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+        for name in ("estimate_log10_span", "force_scale_n", "width_scale_m"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name), positive=True))
         # Coerce lists (from JSON/YAML) to tuples so instances stay hashable and comparable.
-        for name in ("estimate_clamp_pa", "image_mean", "image_std"):
-            object.__setattr__(self, name, tuple(float(v) for v in getattr(self, name)))
+        for name, length in (("estimate_clamp_pa", 2), ("image_mean", 3), ("image_std", 3)):
+            object.__setattr__(self, name, _finite_tuple(name, getattr(self, name), length))
         if not self.label_log10_max > self.label_log10_min:
             raise ValueError(
                 f"label_log10_max ({self.label_log10_max}) must exceed "
                 f"label_log10_min ({self.label_log10_min})"
             )
+        low, high = LABEL_LOG10_BOUNDS
+        if self.label_log10_min < low or self.label_log10_max > high:
+            raise ValueError(
+                f"the label range 1e{self.label_log10_min:g}..1e{self.label_log10_max:g} Pa "
+                f"lies outside the plausible moduli 1e{low:g}..1e{high:g} Pa "
+                f"(label_log10_min/max)"
+            )
         lo, hi = self.estimate_clamp_pa
-        if len(self.estimate_clamp_pa) != 2 or not 0 < lo < hi:
+        if not 0 < lo < hi:
             raise ValueError(f"estimate_clamp_pa must be (lo, hi) with 0 < lo < hi, got {lo, hi}")
-        if self.estimate_log10_span <= 0:
-            raise ValueError("estimate_log10_span must be positive")
-        if self.force_scale_n <= 0 or self.width_scale_m <= 0:
-            raise ValueError("force_scale_n and width_scale_m must be positive")
-        if len(self.image_mean) != 3 or len(self.image_std) != 3:
-            raise ValueError("image_mean and image_std need one value per channel (3)")
-        if min(self.image_std) <= 0:
-            raise ValueError("image_std values must be positive")
+        if min(self.image_std) <= 0 or max(self.image_std) > 1:
+            raise ValueError(
+                f"image_std values must be positive and at most 1 (difference images in "
+                f"[0, 1]), got "
+                f"{list(self.image_std)}"
+            )
+        if min(self.image_mean) < 0 or max(self.image_mean) > 1:
+            raise ValueError(
+                f"image_mean values must lie in [0, 1] (difference images), got "
+                f"{list(self.image_mean)}"
+            )
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -163,6 +187,28 @@ class NormalisationConstants:
 
 
 # ---------------------------------------------------------------------- helpers
+def _finite(name: str, value: Any, *, positive: bool = False) -> float:
+    """``value`` as a float: a real, finite number (> 0 with ``positive``), never text or
+    a boolean (those are not cast)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"normalisation constant {name} must be a number, got {value!r}")
+    number = float(value)
+    if not math.isfinite(number) or (positive and number <= 0):
+        need = "a finite number > 0" if positive else "a finite number"
+        raise ValueError(f"normalisation constant {name} must be {need}, got {number}")
+    return number
+
+
+def _finite_tuple(name: str, values: Any, length: int) -> tuple[float, ...]:
+    if (
+        isinstance(values, (str, bytes))
+        or not hasattr(values, "__len__")
+        or (len(values) != length)
+    ):
+        raise ValueError(f"normalisation constant {name} needs {length} numbers, got {values!r}")
+    return tuple(_finite(name, v) for v in values)
+
+
 def _as_array(x: Any) -> np.ndarray | torch.Tensor:
     if isinstance(x, torch.Tensor):
         return x

@@ -43,7 +43,7 @@ from tactile_compliance.data.depth_model import (
     find_contact_circle,
     fit_depth_model,
 )
-from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.image_ops import check_size, difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.inference.sensors import (
     FrameError,
@@ -102,6 +102,9 @@ class SensorCalibration:
             raise ValueError(
                 f"the reference frame must be uint8 (H, W, 3), got {ref.dtype} {ref.shape}"
             )
+        problem = reference_problem(ref)
+        if problem:
+            raise ValueError(problem)
         self.reference = ref
         if self.px_per_mm is not None and not (
             math.isfinite(self.px_per_mm) and 0 < self.px_per_mm < 1000
@@ -182,15 +185,28 @@ class SensorCalibration:
             data = json.loads(path.read_text(encoding="utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as err:
             raise ValueError(f"{path}: not a sensor calibration (not JSON: {err})") from err
+        except RecursionError:
+            raise ValueError(f"{path}: not a sensor calibration (JSON nested too deeply)") from None
         if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
             raise ValueError(f"{path}: not a sensor calibration (no format {CALIBRATION_FORMAT})")
         try:
-            png = np.frombuffer(base64.b64decode(data["reference_png_base64"]), np.uint8)
-            reference = cv2.imdecode(png, cv2.IMREAD_COLOR)
+            geometry = FrameGeometry.from_dict(data["geometry"])
+            raw = base64.b64decode(data["reference_png_base64"])
+            # The header first: a 20000 x 20000 PNG would take 1.2 GB to decode.
+            size = check_size(_png_size(raw), "the reference frame")
+            if geometry.output_size is not None and size != geometry.output_size:
+                raise ValueError(
+                    f"the reference frame is {size[0]}x{size[1]} px, the geometry's "
+                    f"output_size {geometry.output_size[0]}x{geometry.output_size[1]}"
+                )
+            reference = cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_COLOR)
             if reference is None:
                 raise ValueError("the reference frame is not a PNG")
-            geometry = FrameGeometry.from_dict(data["geometry"])
             px_per_mm = data.get("px_per_mm")
+            if px_per_mm is not None and (
+                isinstance(px_per_mm, bool) or not isinstance(px_per_mm, (int, float))
+            ):
+                raise ValueError(f"px_per_mm must be a number, got {px_per_mm!r}")
             depth_model = data.get("depth_model")
             return cls(
                 geometry=geometry,
@@ -203,12 +219,55 @@ class SensorCalibration:
                     None if depth_model is None else CalibratedDepthModel.from_dict(depth_model)
                 ),
             )
-        except (KeyError, TypeError, ValueError, base64.binascii.Error) as err:  # type: ignore[attr-defined]
+        except (KeyError, TypeError, ValueError, AttributeError, base64.binascii.Error) as err:  # type: ignore[attr-defined]
             raise ValueError(f"{path}: damaged sensor calibration ({err})") from err
 
     def open(self, spec: str, **options: Any) -> FrameSourceBase:
         """Open ``spec`` (see ``sensors.open_source``) with this calibration's geometry."""
         return open_source(spec, geometry=self.geometry, **options)
+
+
+#: A reference whose grey levels vary by less than this (standard deviation over the
+#: pixels) is uniform: no lit gel looks like that (a GelSight pad shows its LED gradients
+#: and the gel's texture; the synthetic sensor's reference varies by tens of levels).
+MIN_REFERENCE_STD = 2.0
+#: A reference with more than this share of saturated (255 in every channel) pixels is
+#: overexposed: contact cannot brighten those pixels, so difference images lose it.
+MAX_SATURATED_SHARE = 0.5
+
+
+def reference_problem(reference: np.ndarray) -> str | None:
+    """Why a no-contact reference (H, W, 3) uint8 cannot be a lit sensor's, or None.
+
+    A uniform (grey, black) or overexposed (white) reference gives difference images that
+    are the frames themselves or clipped: the model then estimates from garbage (6e8 Pa
+    became 2.7e8 Pa, a white one 8.7e11 Pa), so it is refused, naming the consequence.
+    """
+    grey = reference.astype(np.float32).mean(axis=2)
+    std = float(grey.std())
+    if std < MIN_REFERENCE_STD:
+        return (
+            f"the reference frame is uniform (grey-level std {std:.2f} < {MIN_REFERENCE_STD:g}, "
+            f"mean {float(grey.mean()):.0f}): not a lit sensor with nothing touching it; "
+            f"difference images against it would be wrong and so would every estimate "
+            f"(record the calibration again)"
+        )
+    saturated = float((reference == 255).all(axis=2).mean())
+    if saturated > MAX_SATURATED_SHARE:
+        return (
+            f"the reference frame is overexposed ({100 * saturated:.0f}% of its pixels are "
+            f"white): contact cannot show there and every estimate would be wrong (lower the "
+            f"camera's exposure and record the calibration again)"
+        )
+    return None
+
+
+def _png_size(png: bytes) -> tuple[int, int]:
+    """(H, W) px from a PNG's header, read before the image is decoded."""
+    if len(png) < 24 or png[:8] != b"\x89PNG\r\n\x1a\n" or png[12:16] != b"IHDR":
+        raise ValueError("the reference frame is not a PNG")
+    width, height = int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
+    return height, width
 
 
 def is_calibration_file(path: Path) -> bool:

@@ -376,7 +376,8 @@ def export_safetensors(
     """
     # Refused (a user's directory, safetensors missing) before the checkpoint is read.
     require_safetensors()
-    claim_output_dir(out, OUTPUT_KIND, option="--safetensors")
+    # Checked, not created: a missing checkpoint must not leave an empty OUT behind.
+    claim_output_dir(out, OUTPUT_KIND, option="--safetensors", create=False)
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
     if image_size is not None:
         estimator.image_size = (int(image_size[0]), int(image_size[1]))

@@ -24,18 +24,28 @@ function that also rebuilds ``best.pt`` checkpoints: there is one way to make a 
 
 from __future__ import annotations
 
+import errno
 import json
 import math
+import os
+import secrets
+import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import torch
 
 from tactile_compliance import __version__
+from tactile_compliance.data.image_ops import check_size
 from tactile_compliance.inference.inputs import required_inputs
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.models.backbones import file_sha256
-from tactile_compliance.outputs import atomic_file, claim_output_dir
+from tactile_compliance.outputs import (
+    MARKER_NAME,
+    atomic_file,
+    claim_output_dir,
+    exchange_directories,
+)
 from tactile_compliance.runs.checkpoint import LoadedModel, rebuild_model
 
 if TYPE_CHECKING:
@@ -214,18 +224,60 @@ def write_pretrained(
         # so a 0.5 GB backbone is not held twice.
         tensors[name] = value.clone() if storage in storages else value
         storages.add(storage)
+    size = check_size(config["image_size"], "image_size")
+    minimum = int(getattr(model, "min_image_size", 1))
+    if min(size) < minimum:
+        raise ValueError(
+            f"{estimator.model_name} needs frames of at least {minimum}x{minimum} px; "
+            f"{size[0]}x{size[1]} would write an export that cannot load (nothing written)"
+        )
+    created = not Path(out).exists()
     out = claim_output_dir(out, OUTPUT_KIND, option="--safetensors")
-    with atomic_file(out / WEIGHTS_FILE, "wb") as handle:
-        # Written straight to the temp file by name (no copy of the weights in memory);
-        # atomic_file then fsyncs it and renames it into place.
-        st.save_file(tensors, handle.name, metadata={"format": "pt"})
-    config["weights_sha256"] = file_sha256(out / WEIGHTS_FILE)
-    with atomic_file(out / CONFIG_FILE) as handle:
-        handle.write(json.dumps(config, indent=2) + "\n")
-    with atomic_file(out / CARD_FILE) as handle:
-        handle.write(model_card(config, parameters=sum(t.numel() for t in tensors.values())))
+    # The three files are written into a hidden sibling directory, then the two
+    # directories swap names at once: a reader or a kill sees the old export or the new
+    # one, never run B's weights with run A's config.
+    staging = out.parent / f".{out.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
+    claim_output_dir(staging, OUTPUT_KIND, option="--safetensors")
+    try:
+        with atomic_file(staging / WEIGHTS_FILE, "wb") as handle:
+            # Written straight to the temp file by name (no copy of the weights in
+            # memory); atomic_file then fsyncs it and renames it into place.
+            _save_tensors(st, tensors, handle.name)
+        config["weights_sha256"] = file_sha256(staging / WEIGHTS_FILE)
+        with atomic_file(staging / CONFIG_FILE) as handle:
+            handle.write(json.dumps(config, indent=2) + "\n")
+        with atomic_file(staging / CARD_FILE) as handle:
+            handle.write(model_card(config, parameters=sum(t.numel() for t in tensors.values())))
+        exchange_directories(out, staging)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        if created:  # leave no empty export behind (a full disk, Ctrl-C)
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    # ``staging`` now holds the previous export: keep the files a user added to it.
+    ours = {WEIGHTS_FILE, CONFIG_FILE, CARD_FILE, MARKER_NAME}
+    for child in staging.iterdir():
+        if child.name not in ours and not (out / child.name).exists():
+            os.rename(child, out / child.name)
+    shutil.rmtree(staging)
     files = {name: (out / name).stat().st_size for name in (WEIGHTS_FILE, CONFIG_FILE, CARD_FILE)}
     return {"out": str(out), "files": files, "config": config}
+
+
+def _save_tensors(st: Any, tensors: dict[str, torch.Tensor], path: str) -> None:
+    """``safetensors.torch.save_file``, its write errors (a full disk) as ``OSError``."""
+    try:
+        st.save_file(tensors, path, metadata={"format": "pt"})
+    except OSError:
+        raise
+    except Exception as err:  # safetensors' own error type wraps the I/O error's text
+        text = str(err)
+        full = "StorageFull" in text or "os error 28" in text or "code: 28" in text
+        raise OSError(
+            errno.ENOSPC if full else errno.EIO,
+            f"cannot write {WEIGHTS_FILE}: {'no space left on device' if full else text}",
+            path,
+        ) from err
 
 
 def load_pretrained(path: str | Path, device: str | torch.device = "cpu") -> LoadedModel:
@@ -248,20 +300,15 @@ def load_pretrained(path: str | Path, device: str | torch.device = "cpu") -> Loa
             f"`tactile-compliance export CHECKPOINT --safetensors DIR` holds {WEIGHTS_FILE}, "
             f"{CONFIG_FILE} and {CARD_FILE}"
         )
-    try:
-        config = json.loads((directory / CONFIG_FILE).read_text(encoding="utf-8"))
-    except ValueError as err:
-        raise ValueError(f"{directory / CONFIG_FILE}: not valid JSON ({err})") from err
-    if not isinstance(config, dict) or config.get("format") != PRETRAINED_FORMAT:
+    config = _read_config(directory / CONFIG_FILE)
+    weights = directory / WEIGHTS_FILE
+    actual = file_sha256(weights)
+    if actual != config["weights_sha256"]:
         raise ValueError(
-            f"{directory / CONFIG_FILE}: not a tactile-compliance model config "
-            f"(format {PRETRAINED_FORMAT!r} expected)"
+            f"{weights}: its sha256 {actual[:16]}... is not the {config['weights_sha256'][:16]}"
+            f"... that {CONFIG_FILE} records: the weights were replaced or damaged, or belong "
+            f"to another export; export the checkpoint again"
         )
-    if int(config.get("format_version", 0)) > PRETRAINED_VERSION:
-        raise ValueError(f"{directory / CONFIG_FILE}: format is newer than this package; upgrade")
-    missing_keys = [k for k in ("model_name", "inputs", "normalisation") if k not in config]
-    if missing_keys:
-        raise ValueError(f"{directory / CONFIG_FILE}: missing {', '.join(missing_keys)}")
     st = require_safetensors()
     try:
         tensors = st.load_file(str(directory / WEIGHTS_FILE), device="cpu")
@@ -275,6 +322,37 @@ def load_pretrained(path: str | Path, device: str | torch.device = "cpu") -> Loa
         raise ValueError(
             f"{directory / CONFIG_FILE}: cannot rebuild {config['model_name']!r} from it: {err}"
         ) from err
+
+
+def _read_config(path: Path) -> dict[str, Any]:
+    """``config.json``, its fields' types checked (one line for any problem)."""
+    try:
+        config = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, RecursionError) as err:  # RecursionError: absurdly deep nesting
+        reason = "nested too deeply" if isinstance(err, RecursionError) else str(err)
+        raise ValueError(f"{path}: not valid JSON ({reason})") from None
+    if not isinstance(config, dict) or config.get("format") != PRETRAINED_FORMAT:
+        raise ValueError(
+            f"{path}: not a tactile-compliance model config (format {PRETRAINED_FORMAT!r} expected)"
+        )
+    version = config.get("format_version", 0)
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise ValueError(f"{path}: format_version {version!r} is not an integer")
+    if version > PRETRAINED_VERSION:
+        raise ValueError(f"{path}: format is newer than this package; upgrade")
+    required = {
+        "model_name": str,
+        "inputs": str,
+        "normalisation": dict,
+        "weights_sha256": str,
+    }
+    missing_keys = [k for k in required if k not in config]
+    if missing_keys:
+        raise ValueError(f"{path}: missing {', '.join(missing_keys)}")
+    for key, kind in {**required, "hparams": dict}.items():
+        if key in config and not isinstance(config[key], kind):
+            raise ValueError(f"{path}: {key} must be a JSON {kind.__name__}, got {config[key]!r}")
+    return config
 
 
 # ---------------------------------------------------------------------- the model card

@@ -33,13 +33,30 @@ as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen")
 
 The grasp number is the next free one; a grasp directory is written under a hidden name
 and renamed into place, so nothing existing is ever overwritten and an interrupted
-recording leaves no half grasp that the importer would read. A frame without a reading
+recording leaves no half grasp that the importer would read.
+
+What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps"):
+
+* ``OUT`` is claimed with ``outputs.claim_output_dir`` (kind ``record``): a new or empty
+  directory, or one ``record`` wrote; a GraspStore, a run directory or a directory of
+  other files is refused before the capture starts;
+* the write (grasp number, ``metadata.json``, the grasp, the object table) runs under an
+  exclusive lock on ``OUT/.record.lock``, so concurrent ``record``s into one dataset
+  each get their own grasp number and every object keeps its row; the table is replaced
+  atomically (``outputs.atomic_file``);
+* the table's row follows ``metadata.json`` (its modulus, material and shape);
+* when writing fails (a full disk), the grasp's temporary directory and a
+  ``metadata.json`` this call created are removed: no object without grasps is left;
+* object names are letters, digits and ``_ . + -`` only (no control characters), and
+  the saved forces and widths must be plausible (``data.plausibility``): a width in
+  millimetres (17.4 "m") is refused before anything is written. A frame without a reading
 in range, of the wrong size or with a time going backwards is skipped and reported
 (:attr:`RecordedGrasp.skipped`); the capture goes on.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -69,6 +86,7 @@ from tactile_compliance.data.object_table import (
     SHAPE_COLUMN,
 )
 from tactile_compliance.data.photometric import reconstruct_depth
+from tactile_compliance.data.plausibility import FORCE, MODULUS, WIDTH
 from tactile_compliance.data.safe_pickle import dump_numpy_pickle
 from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.sensors import (
@@ -77,13 +95,14 @@ from tactile_compliance.inference.sensors import (
     FrameSourceBase,
     iter_frames,
 )
-from tactile_compliance.outputs import atomic_file
+from tactile_compliance.outputs import atomic_file, claim_output_dir, exclusive_lock
 from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits, analytical_estimator
 
 __all__ = [
     "AUGMENTATION_FORCE_FRACTION",
     "MAX_AUGMENTATIONS",
     "OBJECT_TABLE_FILE",
+    "OUTPUT_KIND",
     "CapturedGrasp",
     "FollowedReadings",
     "ObjectInfo",
@@ -92,6 +111,7 @@ __all__ = [
     "RecordedGrasp",
     "augmented_indices",
     "capture_grasp",
+    "claim_dataset_dir",
     "record_grasp",
     "write_grasp",
     "write_readings_csv",
@@ -108,7 +128,14 @@ OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
 """The object table written next to the object directories (the dataset's file name)."""
 
 TRIALS_COLUMN = "Trials Recorded?"
-_OBJECT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+# Matched with fullmatch: "$" would also accept a trailing newline.
+_OBJECT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
+
+OUTPUT_KIND = "record"
+"""The ``outputs.claim_output_dir`` kind of a dataset directory that ``record`` writes."""
+
+LOCK_FILE = ".record.lock"
+"""``flock``-ed while one ``record`` writes into the dataset (see the module)."""
 
 ReadingsCallback = Callable[[float], tuple[float, float]]
 """``timestamp_s -> (force_n, width_m)``; raise :class:`ReadingError` for no reading."""
@@ -450,13 +477,22 @@ class ObjectInfo:
     shore_d: float | None = None
 
     def __post_init__(self) -> None:
-        if not _OBJECT_NAME.match(self.name):
+        if not isinstance(self.name, str) or not _OBJECT_NAME.fullmatch(self.name):
             raise ValueError(
                 f"object name {self.name!r}: use letters, digits and _ . + - "
                 f"(it names a directory), starting with a letter or digit"
             )
         if not (math.isfinite(float(self.modulus_pa)) and float(self.modulus_pa) > 0):
             raise ValueError(f"modulus_pa must be a finite number > 0 Pa, got {self.modulus_pa}")
+        problem = MODULUS.violation(float(self.modulus_pa))
+        if problem:
+            raise ValueError(f"object {self.name}: {problem}")
+        for what, text in (("material", self.material), ("shape", self.shape)):
+            if any(not ch.isprintable() for ch in text):
+                raise ValueError(
+                    f"object {self.name}: the {what} {text!r} holds a control character "
+                    f"(newline, tab, ...); it would break the object table"
+                )
 
     def metadata(self) -> dict[str, Any]:
         """The ``metadata.json`` fields of the dataset."""
@@ -529,8 +565,12 @@ def _next_grasp(object_dir: Path) -> int:
     return max(taken, default=-1) + 1
 
 
-def _write_metadata(object_dir: Path, info: ObjectInfo) -> None:
-    """Create ``metadata.json``, or check an existing one names the same label."""
+def _write_metadata(object_dir: Path, info: ObjectInfo) -> bool:
+    """Create ``metadata.json``, or check an existing one names the same label.
+
+    Returns:
+        whether this call created it (so a failed grasp write can remove it again).
+    """
     path = object_dir / "metadata.json"
     if path.exists():
         try:
@@ -543,14 +583,20 @@ def _write_metadata(object_dir: Path, info: ObjectInfo) -> None:
                 f"{path} gives {info.name} a modulus of {modulus:.6g} Pa, not "
                 f"{info.modulus_pa:.6g}; nothing written (use another object name)"
             )
-        return
+        return False
     with atomic_file(path, "w") as handle:
         json.dump(info.metadata(), handle, indent=2, sort_keys=True)
         handle.write("\n")
+    return True
 
 
 def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
-    """Add the object to the table (or update its trial count), keeping other columns."""
+    """Add the object to the table, or update its row, keeping other columns and rows.
+
+    The row follows ``metadata.json`` (which :func:`_write_metadata` has just written or
+    checked against ``info``): an object recorded again with another modulus after its
+    directory was deleted gets the new modulus, never keeps the old one. The caller holds
+    the dataset's lock; the file is replaced atomically."""
     path = out_dir / OBJECT_TABLE_FILE
     if path.exists():
         try:
@@ -593,7 +639,10 @@ def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
     }
     match = table.index[table[LABEL_COLUMN].str.strip() == info.name]
     if len(match):
-        table.loc[match[0], TRIALS_COLUMN] = str(grasps)
+        for column, value in row.items():
+            # Keep what the user wrote into the table where this recording says nothing.
+            if column in table.columns and (value or column == MODULUS_COLUMN):
+                table.loc[match[0], column] = value
     else:
         new = {c: row.get(c, "") for c in table.columns}
         table = pd.concat([table, pd.DataFrame([new], dtype=str)], ignore_index=True)
@@ -655,8 +704,9 @@ def write_grasp(
         ValueError: the grasp has no frame selection (nothing is written), or the object
             exists with another modulus.
     """
-    # No selection: fail before any work.
-    augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
+    # No selection or implausible readings: fail before any work.
+    first = augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
+    _check_readings(captured, sorted({i for idx in first for i in idx}))
     frames = captured.frames
     if reference is None and sensor is not None:
         reference = sensor.reference
@@ -703,15 +753,64 @@ def write_grasp(
     except ValueError:
         estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps
 
-    out = Path(out_dir)
-    _check_units(out, WEDGE_UNITS if sensor is None else sensor.units)
+    _check_readings(captured, sorted({i for idx in indices for i in idx}))
+    out = claim_dataset_dir(out_dir)
+    with exclusive_lock(out / LOCK_FILE, what=f"the dataset {out}"):
+        _check_units(out, WEDGE_UNITS if sensor is None else sensor.units)
+        return _write_locked(captured, out, info, indices, fingers, estimates)
+
+
+def _check_readings(captured: CapturedGrasp, frames: Sequence[int]) -> None:
+    """Refuse implausible saved readings (``data.plausibility``), before anything is written."""
+    for rule, values in ((FORCE, captured.force_n), (WIDTH, captured.width_m)):
+        problem = rule.violation(np.asarray(values)[list(frames)])
+        if problem:
+            raise ValueError(
+                f"the readings of the selected frames are implausible: {problem}; nothing "
+                f"written (are the widths in millimetres? --readings needs metres)"
+            )
+
+
+def claim_dataset_dir(out_dir: str | Path) -> Path:
+    """Make ``out_dir`` a dataset directory of ``record`` (``outputs.claim_output_dir``).
+
+    Accepted: a new or empty directory, one ``record`` marked, and one written by
+    ``record`` before the marker existed (the object table and object directories with
+    ``metadata.json``, nothing else). Refused with ``OutputExistsError``: a GraspStore, a
+    run directory, any other command's output or a directory of other files.
+    """
+    return claim_output_dir(out_dir, OUTPUT_KIND, recognise=_is_unmarked_recording)
+
+
+def _is_unmarked_recording(path: Path) -> bool:
+    if not (path / OBJECT_TABLE_FILE).is_file():
+        return False
+    for child in path.iterdir():
+        if child.name in (OBJECT_TABLE_FILE, LOCK_FILE, UNITS_FILE):
+            continue
+        if not (child.is_dir() and (child / "metadata.json").is_file()):
+            return False
+    return True
+
+
+def _write_locked(
+    captured: CapturedGrasp,
+    out: Path,
+    info: ObjectInfo,
+    indices: list[tuple[int, int, int]],
+    fingers: list[tuple[str, str, np.ndarray, np.ndarray]],
+    estimates: tuple[float, float],
+) -> RecordedGrasp:
+    """The write of :func:`write_grasp`, under the dataset's lock."""
     object_dir = out / info.name
+    new_object = not object_dir.exists()
     object_dir.mkdir(parents=True, exist_ok=True)
-    _write_metadata(object_dir, info)
     grasp = _next_grasp(object_dir)
     partial = object_dir / f".partial-grasp={grasp}-{os.getpid()}"
     final = object_dir / f"grasp={grasp}"
+    created_metadata = False
     try:
+        created_metadata = _write_metadata(object_dir, info)
         for k, idx in enumerate(indices):
             directory = partial / f"augmentation={k}"
             directory.mkdir(parents=True)
@@ -729,6 +828,12 @@ def write_grasp(
         os.rename(partial, final)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
+        # A full disk or Ctrl-C: leave no labelled object without grasps behind.
+        if created_metadata:
+            (object_dir / "metadata.json").unlink(missing_ok=True)
+        if new_object:
+            with contextlib.suppress(OSError):  # only when empty
+                object_dir.rmdir()
         raise
     grasps = sum(1 for c in object_dir.iterdir() if re.match(r"^grasp=\d+$", c.name))
     table = _update_object_table(out, info, grasps)
@@ -769,7 +874,13 @@ def record_grasp(
             the analytical estimates (default: the dataset heuristic, 16.40 px/mm).
         markers_source, markers_calibration: a second sensor (the marker finger).
         max_frames, stop_on_release: when the capture stops (see :func:`capture_grasp`).
+
+    Raises:
+        OutputExistsError: ``out_dir`` exists and is not a dataset ``record`` wrote
+            (checked before the capture starts).
     """
+    if Path(out_dir).exists():
+        claim_dataset_dir(out_dir)  # refuse a store or a run directory before the grasp
     captured = capture_grasp(
         source,
         readings,

@@ -47,6 +47,7 @@ Presets (every step a documented parameter of :class:`FrameGeometry`):
 from __future__ import annotations
 
 import csv
+import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, replace
@@ -57,7 +58,7 @@ from typing import Any, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from tactile_compliance.data.image_ops import resize_frames
+from tactile_compliance.data.image_ops import check_size, resize_frames
 
 __all__ = [
     "MINI_GEOMETRY",
@@ -134,23 +135,41 @@ class FrameGeometry:
     output_size: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
+        # Types and sizes are checked here, before a frame is warped or resized: a size is
+        # whole pixels within data.image_ops.MAX_FRAME_SIDE_PX (a 40000 x 40000 output
+        # would allocate 4.8 GB per frame), crop_px an integer, never text.
         for name in ("input_size", "warp_size", "output_size"):
             size = getattr(self, name)
             if size is not None:
-                if len(size) != 2 or min(int(v) for v in size) < 1:
-                    raise ValueError(f"{name} must be (height, width) px > 0, got {size!r}")
-                object.__setattr__(self, name, (int(size[0]), int(size[1])))
+                object.__setattr__(self, name, check_size(size, name))
         if (self.warp_corners is None) != (self.warp_size is None):
             raise ValueError("warp_corners and warp_size go together (both or neither)")
         if self.warp_corners is not None:
-            corners = tuple((float(x), float(y)) for x, y in self.warp_corners)
-            if len(corners) != 4:
-                raise ValueError(f"warp_corners must be four (x, y) points, got {corners!r}")
-            object.__setattr__(self, "warp_corners", corners)
+            object.__setattr__(self, "warp_corners", _checked_corners(self.warp_corners))
+            if self.input_size is not None:
+                height, width = self.input_size
+                outside = [
+                    (x, y)
+                    for x, y in self.warp_corners
+                    if not (-0.5 <= x <= width - 0.5 and -0.5 <= y <= height - 0.5)
+                ]
+                if outside:
+                    raise ValueError(
+                        f"warp corner(s) {outside} lie outside the {height}x{width} px camera "
+                        f"frame (x in [0, {width - 1}], y in [0, {height - 1}]); the warped "
+                        f"image would be black there"
+                    )
+        if isinstance(self.crop_px, bool) or not isinstance(self.crop_px, (int, np.integer)):
+            raise ValueError(f"crop_px must be a whole number of pixels, got {self.crop_px!r}")
         if int(self.crop_px) < 0:
             raise ValueError(f"crop_px must be >= 0, got {self.crop_px}")
-        if not 0.0 <= float(self.crop_fraction) < 0.5:
-            raise ValueError(f"crop_fraction must be in [0, 0.5), got {self.crop_fraction}")
+        object.__setattr__(self, "crop_px", int(self.crop_px))
+        fraction = self.crop_fraction
+        if isinstance(fraction, bool) or not isinstance(fraction, (int, float, np.number)):
+            raise ValueError(f"crop_fraction must be a number, got {fraction!r}")
+        if not 0.0 <= float(fraction) < 0.5:
+            raise ValueError(f"crop_fraction must be in [0, 0.5), got {fraction}")
+        object.__setattr__(self, "crop_fraction", float(fraction))
 
     def cropped_size(self, size: tuple[int, int]) -> tuple[int, int]:
         """(H, W) px left after warp and crop of a camera frame of ``size``."""
@@ -214,6 +233,38 @@ class FrameGeometry:
         if values.get("warp_corners") is not None:
             values["warp_corners"] = tuple(tuple(p) for p in values["warp_corners"])
         return cls(**values)
+
+
+def _checked_corners(points: Any) -> Corners:
+    """Four finite (x, y) px points spanning a convex quadrilateral of area >= 1 px².
+
+    Collinear or crossed corners make a degenerate perspective transform: the warped
+    "reference" would be a smear or all zero, and every difference image wrong.
+    """
+    try:
+        corners = tuple((float(x), float(y)) for x, y in points)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"warp_corners must be four (x, y) points, got {points!r}") from err
+    if len(corners) != 4 or not all(math.isfinite(v) for p in corners for v in p):
+        raise ValueError(f"warp_corners must be four finite (x, y) points, got {corners!r}")
+    # Cross products of consecutive edges: one sign all round = convex, in order.
+    turns = []
+    for i in range(4):
+        (x0, y0), (x1, y1), (x2, y2) = corners[i], corners[(i + 1) % 4], corners[(i + 2) % 4]
+        turns.append((x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1))
+    area = 0.5 * abs(
+        sum(
+            corners[i][0] * corners[(i + 1) % 4][1] - corners[(i + 1) % 4][0] * corners[i][1]
+            for i in range(4)
+        )
+    )
+    if area < 1.0 or not (all(t > 0 for t in turns) or all(t < 0 for t in turns)):
+        raise ValueError(
+            f"warp_corners {[list(p) for p in corners]} do not span a convex quadrilateral "
+            f"(collinear, repeated or crossed points; area {area:.3g} px²): give the pad's "
+            f"corners in the order top-left, top-right, bottom-right, bottom-left"
+        )
+    return corners  # type: ignore[return-value]
 
 
 PLAIN_GEOMETRY = FrameGeometry()

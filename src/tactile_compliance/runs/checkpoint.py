@@ -25,9 +25,11 @@ came from (store, split, epochs, depth loss).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +38,7 @@ import torch
 
 from tactile_compliance import __version__
 from tactile_compliance.data.features import weights_fingerprint
+from tactile_compliance.data.image_ops import check_size
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.backbones import no_downloads, weights_file_record
@@ -230,9 +233,26 @@ def save_checkpoint(
         "state_dict": state,
     }
     # Temp file, fsync, rename: a full disk or a kill leaves the old file and no temp file.
-    with atomic_file(path, "wb") as handle:
+    with atomic_file(path, "wb") as handle, torch_write_errors(path):
         torch.save(payload, handle)
     return path
+
+
+@contextlib.contextmanager
+def torch_write_errors(path: str | Path) -> Iterator[None]:
+    """Let a failed ``torch.save`` raise the ``OSError`` it is.
+
+    torch's zip writer reports a failed write (a full disk) as ``RuntimeError('[enforce
+    fail at inline_container.cc] unexpected pos ...')`` with the ``OSError`` only as its
+    context; the CLI turns an ``OSError`` into one line (a full disk: exit code 1).
+    """
+    try:
+        yield
+    except RuntimeError as err:
+        cause = err.__context__
+        if not isinstance(cause, OSError):
+            raise
+        raise OSError(cause.errno, f"cannot write {path}: {cause.strerror}") from err
 
 
 def _rebuild_with_frozen_backbone(
@@ -323,9 +343,42 @@ def load_checkpoint(
         raise ValueError(f"{path}: not a readable tactile-compliance checkpoint ({err})") from err
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{path}: not a tactile-compliance model checkpoint")
-    if int(payload.get("format_version", 0)) > CHECKPOINT_VERSION:
+    version = payload.get("format_version", 0)
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise ValueError(f"{path}: format_version {version!r} is not an integer")
+    if version > CHECKPOINT_VERSION:
         raise ValueError(f"{path}: checkpoint format is newer than this package; upgrade it")
     return rebuild_model(path, payload, device, backbone_weights=backbone_weights)
+
+
+def check_state_dict(source: str | Path, state_dict: Any) -> None:
+    """Refuse weights that cannot be a trained model's: a tensor that is not floating point
+    (int8, bool: ``load_state_dict`` would cast it silently), NaN or inf values, or a
+    weight matrix or kernel (>= 2 dimensions) that is all zero (a dead layer: the model
+    predicts a constant). BatchNorm's ``num_batches_tracked`` counters are integers.
+
+    Raises:
+        ValueError: one line naming the file and the first bad tensor.
+    """
+    if not isinstance(state_dict, dict) or not state_dict:
+        raise ValueError(f"{source}: holds no weights (an empty or missing state dict)")
+    for name, tensor in state_dict.items():
+        if not isinstance(tensor, torch.Tensor):
+            raise ValueError(f"{source}: weight {name!r} is not a tensor")
+        if name.endswith("num_batches_tracked"):
+            continue
+        if not tensor.is_floating_point():
+            raise ValueError(
+                f"{source}: weight {name!r} is {tensor.dtype}, not floating point; the file "
+                f"was altered or is not a trained model's"
+            )
+        if not bool(torch.isfinite(tensor).all()):
+            raise ValueError(f"{source}: weight {name!r} holds NaN or infinite values")
+        if tensor.dim() >= 2 and tensor.numel() and not bool(tensor.any()):
+            raise ValueError(
+                f"{source}: weight {name!r} {tuple(tensor.shape)} is all zero (a dead layer); "
+                f"the file was altered or is not a trained model's"
+            )
 
 
 def rebuild_model(
@@ -353,6 +406,16 @@ def rebuild_model(
         ValueError: weights that do not fit the described model.
     """
     path = Path(source)
+    # Every loaded number is checked before it is used: a tampered or damaged file fails
+    # here with one line instead of predicting NaN, a constant or 9e256 Pa.
+    try:
+        constants = NormalisationConstants.from_dict(payload["normalisation"])
+    except (TypeError, ValueError, AttributeError) as err:
+        raise ValueError(f"{path}: invalid normalisation constants: {err}") from err
+    image_size = payload.get("image_size")
+    if image_size is not None:
+        image_size = check_size(image_size, f"{path}: image_size")
+    check_state_dict(path, payload["state_dict"])
     if payload.get("backbone") is not None:
         model = _rebuild_with_frozen_backbone(path, payload, backbone_weights)
     else:
@@ -367,12 +430,11 @@ def rebuild_model(
             ) from err
     model.backbone_weights = payload.get("backbone_weights", "none")
     model.to(device).eval()
-    image_size = payload.get("image_size")
     meta = {k: v for k, v in payload.items() if k != "state_dict"}
     return LoadedModel(
         model=model,
-        constants=NormalisationConstants.from_dict(payload["normalisation"]),
-        image_size=tuple(image_size) if image_size else None,
+        constants=constants,
+        image_size=image_size,
         inputs=payload["inputs"],
         meta=meta,
     )

@@ -41,7 +41,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
@@ -57,6 +59,7 @@ from tactile_compliance import __version__
 from tactile_compliance.config import ExperimentConfig
 from tactile_compliance.data.augment import GraspAugmentation
 from tactile_compliance.data.dataset import prepare_frames
+from tactile_compliance.data.image_ops import check_size
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split, make_split_from_config
@@ -66,6 +69,7 @@ from tactile_compliance.models.backbones import PRETRAIN_KEY, create_backbone, f
 from tactile_compliance.models.top10nn import TOP10_BACKBONE, Top10Encoder
 from tactile_compliance.outputs import atomic_file, check_output_file
 from tactile_compliance.progress import progress_bar
+from tactile_compliance.runs.checkpoint import torch_write_errors
 
 __all__ = [
     "CONTACT_THRESHOLD_MM",
@@ -262,6 +266,31 @@ def _is_state_file(path: Path) -> bool:
     return isinstance(loaded, Mapping) and loaded.get("kind") == STATE_KIND
 
 
+def _set_aside_corrupt_state(path: Path) -> None:
+    """Move a damaged state file of an interrupted run (a truncated torch archive, e.g.
+    after a full disk or a crash of the file system) to ``NAME.corrupt``, never deleted,
+    with a warning, so the re-run starts afresh instead of being blocked; as ``train``
+    does with its checkpoints. A file that is no torch archive is left for
+    ``check_output_file`` to refuse (it may be the user's)."""
+    if not path.is_file():
+        return
+    try:
+        _is_state_file(path)
+        return  # readable: ours or not, the callers decide
+    except Exception as err:  # truncated, not a zip, unpickling failed
+        problem = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
+    with open(path, "rb") as handle:
+        head = handle.read(512)
+    if not (head.startswith(b"PK\x03\x04") and b"data.pkl" in head):
+        return  # no torch archive: not ours
+    aside = path.with_name(path.name + ".corrupt")
+    os.replace(path, aside)
+    warnings.warn(
+        f"{path} is corrupt ({problem}); moved it to {aside.name} and starting from epoch 0",
+        stacklevel=3,
+    )
+
+
 # ============================================================================ data
 def _split_of(
     store: GraspStore, cfg: ExperimentConfig, split_file: Path | None
@@ -428,6 +457,7 @@ def pretrain(
     started = time.perf_counter()
     out = check_output_file(out, "pretrained backbone", is_pretrained_weights_file)
     state_path = out.with_name(out.name + STATE_SUFFIX)
+    _set_aside_corrupt_state(state_path)
     check_output_file(state_path, "pretrain state", _is_state_file)
     if out.exists() and not overwrite:
         return PretrainResult(out=out, provenance=dict(_load(out)[PRETRAIN_KEY]), existing=True)
@@ -442,8 +472,16 @@ def pretrain(
     image_size = tuple(
         settings.image_size or cfg.data.image_size or recommended or store.image_size
     )
+    image_size = check_size(image_size, "the pretraining frame size")
+    minimum = int(getattr(pretrain_backbone(settings.backbone), "min_input_size", 1))
+    if min(image_size) < minimum:
+        raise ValueError(
+            f"{settings.backbone} needs frames of at least {minimum}x{minimum} px, got "
+            f"{image_size[0]}x{image_size[1]}: pass --size {max(image_size[0], minimum)}x"
+            f"{max(image_size[1], minimum)} or larger"
+        )
     constants = cfg.normalisation_constants()
-    arguments = _arguments(settings, store, split_record, image_size, cfg)  # type: ignore[arg-type]
+    arguments = _arguments(settings, store, split_record, image_size, cfg)
 
     # The depth scale: the training part's depth spread (recorded; a fixed unit per file).
     sample_depth = store.read_depth(train_ids[:: max(1, len(train_ids) // 256)])
@@ -544,7 +582,7 @@ def pretrain(
             else:
                 bad_epochs += 1
             stopped = settings.patience > 0 and bad_epochs >= settings.patience
-            with atomic_file(state_path, "wb") as handle:
+            with atomic_file(state_path, "wb") as handle, torch_write_errors(state_path):
                 torch.save(
                     {
                         "kind": STATE_KIND,
@@ -603,7 +641,7 @@ def pretrain(
         "package_version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
     }
-    with atomic_file(out, "wb") as handle:
+    with atomic_file(out, "wb") as handle, torch_write_errors(out):
         torch.save({"state_dict": best_state, PRETRAIN_KEY: provenance}, handle)
     state_path.unlink(missing_ok=True)
     return PretrainResult(

@@ -77,6 +77,7 @@ from tactile_compliance.runs.checkpoint import (
     frozen_backbone_record,
     load_checkpoint,
     save_checkpoint,
+    torch_write_errors,
 )
 from tactile_compliance.runs.forward import predict_dataset
 from tactile_compliance.runs.layout import (
@@ -341,7 +342,8 @@ class _EpochState(Checkpoint):
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         # Lightning counts the epoch as completed only after this hook.
         self.epochs_done = trainer.current_epoch + 1
-        trainer.save_checkpoint(self.staged)
+        with torch_write_errors(self.staged):
+            trainer.save_checkpoint(self.staged)
         self._has_staged = True
 
     def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
