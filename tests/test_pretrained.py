@@ -234,3 +234,31 @@ def test_frozen_vgg_lstm_export_is_self_contained(tmp_path):
     expected = _predict(ComplianceEstimator.from_checkpoint(checkpoint), inputs)
     loaded = ComplianceEstimator.from_pretrained(tmp_path / "model")
     np.testing.assert_allclose(_predict(loaded, inputs), expected, rtol=0, atol=1e-5)
+
+
+def test_the_units_of_the_estimates_travel_into_the_export(tmp_path):
+    """A model trained on a calibrated sensor's estimates says so in config.json, and
+    `from_pretrained` reads it back (live compares it with the sensor's calibration)."""
+    import torch
+
+    from tactile_compliance.models import create_model
+    from tactile_compliance.physics.estimators import SensorUnits
+
+    torch.manual_seed(0)
+    units = {"depth_model": "calibrated", "px_per_mm": 12.5}
+    save_checkpoint(
+        tmp_path / "best.pt",
+        create_model("top10nn", inputs="ALL"),
+        constants=NormalisationConstants(),
+        image_size=(72, 72),
+        config={},
+        seed=0,
+        sensor_units=units,
+    )
+    assert ComplianceEstimator.from_checkpoint(tmp_path / "best.pt").sensor_units == (
+        SensorUnits("calibrated", 12.5)
+    )
+    export_safetensors(tmp_path / "best.pt", tmp_path / "model")
+    assert json.loads((tmp_path / "model" / CONFIG_FILE).read_text())["sensor_units"] == units
+    loaded = ComplianceEstimator.from_pretrained(tmp_path / "model")
+    assert loaded.sensor_units == SensorUnits("calibrated", 12.5)

@@ -205,6 +205,7 @@ class ComplianceEstimator(BaseEstimator):
             "seed": self.meta.get("seed"),
             "package_version": self.meta.get("package_version"),
             "analytical_estimator": self.analytical_estimator,
+            "sensor_units": self.sensor_units.to_dict(),
             "device": str(self.device),
         }
 

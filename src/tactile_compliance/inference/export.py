@@ -304,6 +304,7 @@ def _write_metadata(
         "seed": estimator.meta.get("seed"),
         "package_version": estimator.meta.get("package_version"),
         "analytical_estimator": estimator.analytical_estimator,
+        "sensor_units": estimator.sensor_units.to_dict(),
     }
     entry = proto.metadata_props.add()
     entry.key = ONNX_METADATA_KEY

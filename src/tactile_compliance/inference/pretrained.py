@@ -142,6 +142,7 @@ def pretrained_config(
         "normalisation": estimator.constants.to_dict(),
         "label_range_pa": list(estimator.constants.label_range_pa),
         "analytical_estimator": estimator.analytical_estimator,
+        "sensor_units": estimator.sensor_units.to_dict(),
         "backbone_weights": str(meta.get("backbone_weights", "none")),
         # Provenance only: the weights file holds the backbone's tensors.
         "frozen_backbone": (
@@ -175,6 +176,7 @@ def _payload(config: dict[str, Any], state_dict: dict[str, torch.Tensor]) -> dic
         "image_size": config.get("image_size"),
         "store_image_size": config.get("store_image_size"),
         "analytical_estimator": config.get("analytical_estimator"),
+        "sensor_units": config.get("sensor_units"),
         "backbone_weights": config.get("backbone_weights", "none"),
         "backbone": None,  # the state dict is whole (see the module docstring)
         "seed": checkpoint.get("seed"),
