@@ -1,8 +1,9 @@
 """What `pip install -e .` asks for: a torch range that keeps a torch the user already has
-(README.md, "Which torch")."""
+(README.md, "Which torch"), and every module cli.py imports declared."""
 
 from __future__ import annotations
 
+import ast
 import sys
 from pathlib import Path
 
@@ -58,3 +59,21 @@ def test_the_apis_behind_the_lower_bound_exist() -> None:
     assert callable(torch.get_autocast_dtype)
     assert torch.is_autocast_enabled("cpu") is False
     assert "dynamo" in inspect.signature(torch.onnx.export).parameters
+
+
+def _top_level_imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def test_every_third_party_module_of_the_cli_is_declared() -> None:
+    declared = {Requirement(r).name.replace("-", "_") for r in PROJECT["dependencies"]}
+    third_party = _top_level_imports(REPO / "src" / "tactile_compliance" / "cli.py")
+    third_party -= {*sys.stdlib_module_names, "tactile_compliance", "__future__"}
+    assert third_party <= declared, f"cli.py imports undeclared {third_party - declared}"
