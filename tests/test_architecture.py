@@ -28,6 +28,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("training", "evaluation", "inference"),
     ("demo",),
     ("cli",),
+    ("__main__",),  # `python -m tactile_compliance`: runs the cli
 )
 
 #: Circles between modules that are harmless (each side imports the other only inside a

@@ -107,7 +107,7 @@ def test_simulate_then_import(tmp_path):
     assert videos.exit_code == 0, videos.output
     assert len(list((tmp_path / "v").glob("*.avi"))) == 2
     bad = runner.invoke(app, ["simulate", "--out", str(raw), "--kind", "lidar"])
-    assert bad.exit_code != 0 and "gelsight or shore-videos" in bad.output
+    assert bad.exit_code == 2 and "'lidar' is not one of 'gelsight', 'shore-videos'" in bad.output
 
 
 def test_search_commands_pass_their_options_and_fail_in_one_line(tmp_path):

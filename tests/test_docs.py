@@ -13,13 +13,19 @@ blocks that run.
   namespace, in order, like a notebook, that starts with one grasp's ``frames``, ``force``,
   ``width`` and ``estimates``. An illustrative Python block still compiles and its imports
   still run, so a documented name that disappears fails here too.
+* A runnable block reads only what it or the sandbox made: it names no path outside its
+  working directory (``/tmp/...``, ``~``, ``$HOME``, ``..``), and it runs with a fresh
+  ``HOME`` and ``TMPDIR``, so a block that passes only where someone ran earlier steps by
+  hand fails here.
 """
 
 from __future__ import annotations
 
 import ast
+import os
 import re
 import shlex
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -196,17 +202,36 @@ def _grasp(store) -> dict:
     }
 
 
+def _fresh_home_and_tmp(monkeypatch: pytest.MonkeyPatch, root: Path) -> None:
+    """Point HOME and TMPDIR (and Python's cached temporary directory) at new empty
+    folders under ``root``: nothing a block reads may come from an earlier session."""
+    for name in ("HOME", "TMPDIR"):
+        folder = root / f".{name.lower()}"
+        folder.mkdir()
+        monkeypatch.setenv(name, str(folder))
+    for name in ("XDG_CACHE_HOME", "XDG_CONFIG_HOME", "XDG_DATA_HOME"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(tempfile, "tempdir", None)  # gettempdir() re-reads TMPDIR
+
+
 @pytest.fixture(scope="module")
 def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The docs' names, standing for tiny data: stores (one toy store), trained runs (one
     epoch each: Top10NN ALL as ``runs/RUN``, also what the report's Fig. 5 needs, and two
     Top10NN ImageFW seeds for the ensemble example), a config file and a results store of
     those runs."""
+    root = tmp_path_factory.mktemp("docs-sandbox")
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        _fresh_home_and_tmp(monkeypatch, root)
+        _build_sandbox(root)
+    return root
+
+
+def _build_sandbox(root: Path) -> None:
     from tactile_compliance.config import load_config, save_config
     from tactile_compliance.runs.results import ResultsStore, result_row
     from tactile_compliance.training.train import train
 
-    root = tmp_path_factory.mktemp("docs-sandbox")
     store = make_toy_store(root / "data" / "toy", n_objects=8, grasps=2, size=(72, 72))
     (root / "stores").mkdir()
     for name in ("ym", "quick", "synthetic"):
@@ -221,18 +246,25 @@ def sandbox(tmp_path_factory: pytest.TempPathFactory) -> Path:
         if inputs == "ALL":
             (runs / "RUN").symlink_to(result["run_dir"])
     save_config(load_config("default"), runs / "my.yaml")
-    return root
 
 
 @pytest.fixture
 def workdir(sandbox: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A fresh working directory with the sandbox's names (what a block writes stays here,
-    but under runs/ and results/, which are shared)."""
+    but under runs/ and results/, which are shared), and a fresh HOME and TMPDIR."""
     for entry in sandbox.iterdir():
-        if entry.name != "data":
+        if entry.name not in ("data", ".home", ".tmpdir"):
             (tmp_path / entry.name).symlink_to(entry)
+    _fresh_home_and_tmp(monkeypatch, tmp_path)
     monkeypatch.chdir(tmp_path)
     return tmp_path
+
+
+def test_the_blocks_run_with_a_fresh_home_and_tmpdir(workdir: Path) -> None:
+    for folder in (Path(os.environ["HOME"]), Path(os.environ["TMPDIR"])):
+        assert folder.is_relative_to(workdir) and not any(folder.iterdir())
+    assert Path(tempfile.gettempdir()).is_relative_to(workdir)
+    assert Path("~").expanduser().is_relative_to(workdir)
 
 
 def _pages(blocks: list[Block]) -> dict[str, list[Block]]:
@@ -275,6 +307,44 @@ def _shell_commands(block: Block) -> list[str]:
 
 
 RUNNABLE_SHELL_BLOCKS = [b for b in SHELL_BLOCKS if b.illustrative is None]
+
+#: The start of a path that only something outside a block's working directory can have
+#: made: absolute, in a home directory, in TMPDIR, or above the working directory.
+OUTSIDE = re.compile(r"^(/|~|\$\{?HOME\b|\$\{?TMPDIR\b|\.\.(/|$))")
+
+
+def _outside_paths(block: Block) -> list[str]:
+    """The words of a block (shell words, ``--option=value`` and ``key=value`` values, Python
+    string constants) that name a path outside the block's working directory."""
+    if block.language == "python":
+        tree = ast.parse(block.body, filename=block.id)
+        words = [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)]
+        words = [word for word in words if isinstance(word, str)]
+    else:
+        words = [word for command in _shell_commands(block) for word in shlex.split(command)]
+    values = [part for word in words for part in [word, *word.split("=")[1:]]]
+    return [value for value in values if OUTSIDE.match(value)]
+
+
+def test_the_outside_path_check_finds_outside_paths() -> None:
+    bash = "```bash\ntactile-compliance info /tmp/shore/store\n"
+    bash += "tactile-compliance train --set data.store=~/stores/ym --out=../runs\n```\n"
+    python = '```python\nopen("/tmp/x.csv")\nPath("stores/ym")\n```\n'
+    found = [_outside_paths(block) for block in _parse_blocks(bash + python)]
+    assert found == [["/tmp/shore/store", "~/stores/ym", "../runs"], ["/tmp/x.csv"]]
+
+
+RUNNABLE = [b for b in [*SHELL_BLOCKS, *PYTHON] if b.illustrative is None]
+
+
+@pytest.mark.parametrize("block", RUNNABLE, ids=[b.id for b in RUNNABLE])
+def test_no_runnable_block_reads_outside_its_directory(block: Block) -> None:
+    outside = _outside_paths(block)
+    assert not outside, (
+        f"{block.id}: names {outside}, which exist only where someone made them by hand; "
+        "make them in the block, under its working directory, or mark the block "
+        "<!-- illustrative: REASON -->"
+    )
 
 
 @pytest.mark.parametrize("block", RUNNABLE_SHELL_BLOCKS, ids=[b.id for b in RUNNABLE_SHELL_BLOCKS])

@@ -106,6 +106,8 @@ ATTEMPTS_FILE = "attempts.json"
 EXPERIMENT_FILE = "experiment.json"
 #: Metrics shown in the summary (mean +- std over seeds).
 SUMMARY_METRICS = ("test_log10_accuracy", "test_nmse")
+#: What a finished run keeps (``keep_checkpoints``): best.pt, + last.ckpt, nothing.
+KEEP_CHECKPOINTS = ("best", "all", "none")
 
 
 class ExperimentError(RuntimeError):
@@ -532,8 +534,11 @@ def run_experiment(
         ExperimentError: a store is missing, or another driver holds the results store.
         KeyboardInterrupt: after cancelling the pending cells (finished rows are kept).
     """
-    if keep_checkpoints not in ("best", "all", "none"):
-        raise ConfigError(f"keep_checkpoints must be best, all or none, got {keep_checkpoints!r}")
+    if keep_checkpoints not in KEEP_CHECKPOINTS:
+        raise ConfigError(
+            f"keep_checkpoints must be one of {', '.join(KEEP_CHECKPOINTS)}, "
+            f"got {keep_checkpoints!r}"
+        )
     started = time.perf_counter()
     plan = plan_experiment(preset_or_path, **plan_options)
     if not plan.cells:
