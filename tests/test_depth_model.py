@@ -227,3 +227,37 @@ def test_real_presses_of_a_known_sphere_are_recovered():
         assert np.sqrt(np.mean((depth[inner] - cap) ** 2)) <= 0.15
         assert depth.max() == pytest.approx(nominal, rel=0.35)
         assert np.percentile(np.abs(depth[dist_px > 2 * contact_px]), 99) <= 0.08
+
+
+def test_calibrate_depth_takes_presses_from_a_live_source(presses, tmp_path):
+    """--frames N: a stream's frames that show the ball somewhere new; a held press and
+    frames without contact are not presses."""
+    reference, items = presses
+    stream = tmp_path / "stream"
+    stream.mkdir()
+    # Three presses at least 40 px apart (each contact is ~10-16 px in radius).
+    far = [items[0]]
+    for item in items[1:]:
+        if all(np.hypot(item[1] - f[1], item[2] - f[2]) > 40 for f in far):
+            far.append(item)
+    first, second, third = (f[0] for f in far[:3])
+    sequence = [reference, first, first, reference, second, third]
+    for k, frame in enumerate(sequence):
+        cv2.imwrite(str(stream / f"f{k:03d}.png"), frame)
+    cv2.imwrite(str(tmp_path / "reference.png"), reference)
+    output = _cli(
+        "calibrate-depth", f"folder:{stream}", "--frames", 3, "--fps", 10,
+        "--reference", tmp_path / "reference.png", "--ball-radius-mm", BALL_RADIUS_MM,
+        "--px-per-mm", PX_PER_MM, "--out", tmp_path / "sensor.json",
+    )  # fmt: skip
+    assert [line.split()[0] for line in output.splitlines() if "#" in line] == [
+        f"folder:{stream}#1"[-28:],
+        f"folder:{stream}#4"[-28:],
+        f"folder:{stream}#5"[-28:],
+    ]
+    output = _cli(
+        "calibrate-depth", f"folder:{stream}", "--frames", 4, "--fps", 10,
+        "--reference", tmp_path / "reference.png", "--ball-radius-mm", BALL_RADIUS_MM,
+        "--px-per-mm", PX_PER_MM, "--out", tmp_path / "more.json", code=2,
+    )  # fmt: skip
+    assert "only 3 of 4 presses" in output and not (tmp_path / "more.json").exists()

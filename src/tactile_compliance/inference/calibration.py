@@ -431,7 +431,7 @@ class DepthCalibration:
         ]
         for row in self.presses:
             lines.append(
-                f"{row['name'][:28]:28s} {row['circle']:5s} ({row['x_px']:6.1f}, "
+                f"{row['name'][-28:]:28s} {row['circle']:5s} ({row['x_px']:6.1f}, "
                 f"{row['y_px']:6.1f}, {row['radius_px']:5.1f})  {row['radius_mm']:6.2f}"
                 f"  {row['cap_depth_mm']:8.3f}  {row['peak_depth_mm']:9.3f}"
             )
