@@ -13,6 +13,7 @@ difference images), so only float32 round-off of batched kernels (5 samples at o
 from __future__ import annotations
 
 import json
+import time
 
 import cv2
 import numpy as np
@@ -36,7 +37,7 @@ from tactile_compliance.inference.recording import (
     record_grasp,
     write_readings_csv,
 )
-from tactile_compliance.inference.sensors import open_source
+from tactile_compliance.inference.sensors import FrameSourceBase, open_source
 from tactile_compliance.models import create_model
 from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
 from tactile_compliance.runs.checkpoint import save_checkpoint
@@ -643,3 +644,52 @@ def test_readings_are_followed_while_the_robot_writes_them(tmp_path):
     path.write_text("timestamp_s,force_n,width_m\n0.0,x,0.05\n0.1,1,0.05\n")
     with pytest.raises(ValueError, match="row 1 holds a value that is not a number"):
         FollowedReadings(path)
+
+
+class _PacedVideo(FrameSourceBase):
+    """A replayed video served like a live camera: frame k arrives at k / fps seconds
+    after the first, stamped with the time it is read (as a live device stamps it)."""
+
+    live = True
+
+    def __init__(self, frames, fps):
+        super().__init__()
+        self.frames, self.fps, self.k, self.t0 = frames, fps, 0, None
+        self.name = "paced video"
+
+    def _grab(self):
+        if self.k >= len(self.frames):
+            return None
+        if self.t0 is None:
+            self.t0 = time.monotonic()
+        time.sleep(max(0.0, self.t0 + self.k / self.fps - time.monotonic()))
+        self.k += 1
+        return time.monotonic() - self.t0, self.frames[self.k - 1]
+
+
+def test_a_slow_estimator_on_a_live_sensor_pairs_every_frame_with_its_force(grasp, tmp_path):
+    """A model slower than the frame period (0.2 s per estimate against 67 ms per frame)
+    still gets each frame stamped on arrival: the final estimate is the replay's."""
+    from tactile_compliance.inference.live import live_estimates, load_members
+
+    ckpt = _checkpoint(tmp_path / "m.pt", inputs="ImageFW")
+    readings = Readings.from_csv(grasp["readings"])
+    with open_source(f"video:{grasp['video']}") as replay:
+        replayed = list(live_estimates(load_members([ckpt]), replay, readings))
+    slow = load_members([ckpt])
+    original = slow[0].predict
+
+    def sluggish(*args, **kwargs):
+        time.sleep(0.2)
+        return original(*args, **kwargs)
+
+    slow[0].predict = sluggish
+    with _PacedVideo(decoded(grasp["video"]), FPS) as camera:
+        lived = list(live_estimates(slow, camera, readings))
+    final, expected = lived[-1], replayed[-1]
+    assert final["final"] and expected["final"]
+    assert final["frame_indices"] == expected["frame_indices"]
+    assert final["log10_modulus_pa"] == pytest.approx(expected["log10_modulus_pa"], abs=0.01)
+    # Behind the sensor, the loop skipped provisional estimates instead of frames.
+    assert final["frames_seen"] == expected["frames_seen"]
+    assert len(lived) < len(replayed)

@@ -1348,6 +1348,14 @@ def live(
         ),
     ] = None,
     level: Annotated[float, typer.Option(help="Ensemble interval coverage.")] = 0.8,
+    readings_offset_s: Annotated[
+        float,
+        typer.Option(
+            "--readings-offset-s",
+            help="Seconds added to a frame's time to find its reading: the readings' clock "
+            "minus the sensor's (0 when the robot logs time.monotonic() on this machine).",
+        ),
+    ] = 0.0,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
@@ -1372,6 +1380,7 @@ def live(
             window=window,
             window_s=window_s,
             level=level,
+            readings_offset_s=readings_offset_s,
         ):
             final = final or bool(event.get("final"))
             typer.echo(json.dumps(event) if as_json else format_live_event(event))

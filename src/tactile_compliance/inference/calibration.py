@@ -46,6 +46,7 @@ from tactile_compliance.data.depth_model import (
 from tactile_compliance.data.image_ops import check_size, difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.inference.sensors import (
+    IMAGE_SUFFIXES,
     FrameError,
     FrameGeometry,
     FrameSizeError,
@@ -337,9 +338,6 @@ def _camera_size(source: FrameSourceBase) -> tuple[int, int] | None:
 
 
 # ---------------------------------------------------------------------- depth calibration
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-"""Image files ``calibrate-depth`` and ``depth`` read from a folder."""
-
 _CIRCLE_LINE = re.compile(
     r"^\s*(?P<name>[^\s,]+)[\s,]+\(?\s*(?P<x>[-\d.eE+]+)\s*,\s*(?P<y>[-\d.eE+]+)\s*\)?"
     r"[\s,]+(?P<r>[-\d.eE+]+)\s*$"

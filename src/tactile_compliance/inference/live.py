@@ -24,6 +24,7 @@ and the loop goes on.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -43,6 +44,7 @@ from tactile_compliance.inference.sensors import (
     FrameError,
     FrameSizeError,
     FrameSourceBase,
+    StampedOnArrival,
     iter_frames,
 )
 from tactile_compliance.inference.streaming import StreamEstimate, StreamingEstimator
@@ -81,6 +83,7 @@ def live_estimates(
     window_s: float | None = None,
     level: float = 0.8,
     scale: float = 1.0,
+    readings_offset_s: float = 0.0,
 ) -> Iterator[dict[str, Any]]:
     """Run ``source`` through streaming estimators; yield one dict per event.
 
@@ -101,9 +104,37 @@ def live_estimates(
         window: ``StreamingEstimator``'s window in frames (None: the whole trajectory).
         window_s: the same in seconds, from the source's timestamps (not with ``window``).
         level, scale: the ensemble interval (``EnsembleEstimator``).
+        readings_offset_s: added to a frame's time to find its reading: the readings'
+            clock minus the source's (``docs/inference.md``, "Clocks").
+
+    A live device is read by a background thread (:class:`~.sensors.StampedOnArrival`), so
+    every frame is stamped when it arrives, however long the estimate of the previous one
+    takes; while frames wait, the loop skips provisional estimates (never frames), so the
+    final estimate is the one a replay of the same frames gives.
     """
+    if not math.isfinite(readings_offset_s):
+        raise ValueError(
+            f"--readings-offset-s must be a finite number of s, got {readings_offset_s}"
+        )
     if not members:
         raise ValueError("give at least one estimator")
+    if source.live and not isinstance(source, StampedOnArrival):
+        reader = StampedOnArrival(source)
+        try:
+            yield from live_estimates(
+                members,
+                reader,
+                readings,
+                calibration=calibration,
+                window=window,
+                window_s=window_s,
+                level=level,
+                scale=scale,
+                readings_offset_s=readings_offset_s,
+            )
+        finally:
+            reader.stop()  # the caller owns ``source`` and closes it
+        return
     ensemble = EnsembleEstimator(list(members), level=level, scale=scale)
     reference = None if calibration is None else calibration.reference
     depth_model = "dataset" if calibration is None else calibration.depth
@@ -128,12 +159,16 @@ def live_estimates(
             member.sensor_units.check_same(
                 units, trained=f"checkpoint {member.source}", used="this sensor"
             )
+
+    def pending() -> int:
+        return source.pending if isinstance(source, StampedOnArrival) else 0
+
     skipped: list[FrameError] = []
     for timestamp_s, frame in iter_frames(source, skipped.append):
         while skipped:
             yield {"event": "skipped", "reason": str(skipped.pop(0))}
         try:
-            force_n, width_m = checked_reading(readings, timestamp_s)
+            force_n, width_m = checked_reading(readings, timestamp_s + readings_offset_s)
         except ReadingError as err:
             yield {"event": "skipped", "reason": f"frame at {timestamp_s:.4f} s: {err}"}
             continue
@@ -148,8 +183,16 @@ def live_estimates(
         # Quantised like the store (and like StreamingEstimator's raw frames), so the
         # models see the training frames' encoding.
         model_frame = frames_to_uint8(diff[0])
+        provisional = not pending()
         emitted = [
-            stream.update(model_frame, force_n, width_m, depth_mm=depth, timestamp_s=timestamp_s)
+            stream.update(
+                model_frame,
+                force_n,
+                width_m,
+                depth_mm=depth,
+                timestamp_s=timestamp_s,
+                provisional=provisional,
+            )
             for stream in streams
         ]
         if any(e is not None for e in emitted):

@@ -48,6 +48,8 @@ from __future__ import annotations
 
 import csv
 import math
+import queue
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, replace
@@ -72,6 +74,7 @@ __all__ = [
     "FrameSource",
     "FrameSourceBase",
     "SensorError",
+    "StampedOnArrival",
     "TimestampError",
     "VideoCaptureSource",
     "gelsight_mini",
@@ -406,6 +409,76 @@ def iter_frames(
         if item is None:
             return
         yield item
+
+
+class StampedOnArrival(FrameSourceBase):
+    """A live source read by a background thread, so each frame is stamped when it arrives.
+
+    A live device stamps a frame with ``time.monotonic()`` when it is read. A loop that
+    spends longer on a frame than the frame period (the estimator: ~175 ms per frame on a
+    2-core CPU against a GelSight Mini's ~55 ms) would read frames late, stamp them late
+    and pair them with the wrong force. Here a thread reads the device as fast as it
+    delivers, keeping every frame and its arrival time in a queue; the consumer takes them
+    in order, however slow it is. :attr:`pending` tells the consumer how far behind it is
+    (``live`` then skips provisional estimates, never frames or their times).
+
+    Args:
+        inner: the source to read (its geometry applies, its own stamps are the times).
+        max_pending: frames held at most; a consumer further behind gets a
+            :class:`SensorError` (memory is bounded: 2,000 Mini frames are 460 MB).
+    """
+
+    def __init__(self, inner: FrameSourceBase, max_pending: int = 2000) -> None:
+        super().__init__(inner.geometry)
+        self.inner = inner
+        self.name = inner.name
+        self.live = inner.live
+        self.max_pending = int(max_pending)
+        self._queue: queue.Queue[tuple[float, np.ndarray] | BaseException | None] = queue.Queue()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"read {self.name}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                item = self.inner._grab()
+                if item is None or self._queue.qsize() >= self.max_pending:
+                    if item is not None:
+                        item = SensorError(
+                            f"{self.name}: {self.max_pending} frames wait to be processed; "
+                            "the estimator cannot keep up with the sensor"
+                        )
+                    self._queue.put(item)
+                    return
+                self._queue.put(item)
+        except BaseException as err:  # handed to the consumer, raised there
+            self._queue.put(err)
+
+    @property
+    def pending(self) -> int:
+        """Frames read from the device and not yet taken by the consumer."""
+        return self._queue.qsize()
+
+    def _grab(self) -> tuple[float, np.ndarray] | None:
+        if self._stop.is_set() and self._queue.empty():
+            return None
+        item = self._queue.get()
+        if isinstance(item, BaseException):
+            self._stop.set()
+            raise item
+        if item is None:
+            self._stop.set()
+        return item
+
+    def stop(self) -> None:
+        """Stop the reader thread; the inner source stays open (its owner closes it)."""
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+    def close(self) -> None:
+        self.stop()
+        self.inner.close()
 
 
 class VideoCaptureSource(FrameSourceBase):

@@ -380,6 +380,7 @@ class StreamingEstimator:
         estimates_pa: Any = None,
         depth_mm: Any = None,
         timestamp_s: float | None = None,
+        provisional: bool = True,
     ) -> StreamEstimate | None:
         """Add one frame and its readings; returns a new estimate or None.
 
@@ -398,6 +399,8 @@ class StreamingEstimator:
                 forward (e.g. ``time.monotonic()`` or the camera's); give it with every
                 frame or never. With timestamps the frames are selected in time, not by
                 index (see the module docstring).
+            provisional: False adds the frame without a provisional estimate (a consumer
+                that is behind its sensor catches up); the final estimate is the same.
 
         Raises:
             ValueError: a bad frame or reading, or a timestamp that does not increase. The
@@ -448,7 +451,7 @@ class StreamingEstimator:
         overflow = onset.size > 0 and len(forces) - int(onset[0]) >= self.max_frames
         if released or overflow:
             return self.finish()
-        return self._estimate(final=False)
+        return self._estimate(final=False) if provisional else None
 
     def _check_timestamp(self, timestamp_s: Any) -> float | None:
         """The frame's time in s, checked against the stream's (nothing is changed)."""
