@@ -29,7 +29,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from tactile_compliance.data.image_ops import check_size
+from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.inference.sensors import (
     FrameError,
     FrameGeometry,
