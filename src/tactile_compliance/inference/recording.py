@@ -32,7 +32,8 @@ The grasp number is the next free one; a grasp directory is written under a hidd
 and renamed into place, so nothing existing is ever overwritten and an interrupted
 recording leaves no half grasp that the importer would read.
 
-What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps"):
+What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps: what
+``record`` guarantees"):
 
 * ``OUT`` is claimed with ``outputs.claim_output_dir`` (kind ``record``): a new or empty
   directory, or one ``record`` wrote; a GraspStore, a run directory or a directory of
