@@ -335,3 +335,12 @@ def test_store_header_nested_too_deeply(tmp_path):
     store = make_toy_store(tmp_path / "store", n_objects=2, grasps=1)
     (store.path / "header.json").write_text('{"a": ' * DEEP + "1" + "}" * DEEP)
     _one_line_failure(runner.invoke(app, ["info", str(store.path)]))
+
+
+def test_a_model_that_outputs_nan_gives_no_estimate(files, monkeypatch):
+    """The last line of defence, should a broken model pass every check."""
+    estimator = ComplianceEstimator.from_checkpoint(files["checkpoint"])
+    monkeypatch.setattr(estimator.model, "forward", lambda *a, **k: torch.full((1,), NAN))
+    frames = np.full((3, 72, 72, 3), 0.5, np.float32)
+    with pytest.raises(ValueError, match="non-finite output"):
+        estimator.predict(frames)
