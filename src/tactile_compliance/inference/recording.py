@@ -30,7 +30,9 @@ as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen")
 
 The grasp number is the next free one; a grasp directory is written under a hidden name
 and renamed into place, so nothing existing is ever overwritten and an interrupted
-recording leaves no half grasp that the importer would read.
+recording leaves no half grasp that the importer would read. A frame without a reading
+in range, of the wrong size or with a time going backwards is skipped and reported
+(:attr:`RecordedGrasp.skipped`); the capture goes on.
 
 What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps: what
 ``record`` guarantees"):
@@ -47,9 +49,7 @@ What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own gras
   ``metadata.json`` this call created are removed: no object without grasps is left;
 * object names are letters, digits and ``_ . + -`` only (no control characters), and
   the saved forces and widths must be plausible (``data.plausibility``): a width in
-  millimetres (17.4 "m") is refused before anything is written. A frame without a reading
-in range, of the wrong size or with a time going backwards is skipped and reported
-(:attr:`RecordedGrasp.skipped`); the capture goes on.
+  millimetres (17.4 "m") is refused before anything is written.
 """
 
 from __future__ import annotations
@@ -673,8 +673,8 @@ def write_grasp(
             exists with another modulus.
     """
     # No selection or implausible readings: fail before any work.
-    first = augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
-    _check_readings(captured, sorted({i for idx in first for i in idx}))
+    selection = augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
+    _check_readings(captured, sorted({i for idx in selection for i in idx}))
     frames = captured.frames
     ref = frames[0] if reference is None else np.asarray(reference)
     if ref.shape != frames.shape[1:]:
