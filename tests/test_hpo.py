@@ -515,3 +515,54 @@ def test_tune_fails_fast_without_a_store(tmp_path):
         hpo.tune("top10nn", store=tmp_path / "nowhere", output_dir=tmp_path / "t", progress=False)
     with pytest.raises(hpo.ConfigError, match="tunable"):
         hpo.search_space("resnet")
+
+
+# A search through run_smac with a cheap, deterministic objective (a hash of the
+# configuration's values), printed as JSON: what SMAC proposes, trial by trial.
+_SEARCH_SCRIPT = """
+import hashlib, json, sys
+import smac
+from ConfigSpace import Categorical, ConfigurationSpace
+from tactile_compliance.training.hpo.smac_run import run_smac
+
+space = ConfigurationSpace(seed=0)
+space.add([
+    Categorical("lr", [1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3]),
+    Categorical("batch_size", [8, 16, 32, 64, 128]),
+    Categorical("dropout", [0.0, 0.1, 0.2, 0.3, 0.4]),
+])
+scenario = smac.Scenario(space, name="s", output_directory=sys.argv[1], deterministic=True,
+                         seed=0, n_trials=12, min_budget=1, max_budget=1)
+
+def objective(config, seed=0, budget=1):
+    values = repr(sorted((k, float(v)) for k, v in dict(config).items()))
+    return int(hashlib.sha256(values.encode()).hexdigest()[:8], 16) % 1000 / 1000 + 0.01
+
+facade, _ = run_smac(smac.MultiFidelityFacade, scenario, objective,
+                     intensifier=smac.MultiFidelityFacade.get_intensifier(scenario, eta=3),
+                     client=None, overwrite=True, progress=False, label="s", trials=12)
+configs = [facade.runhistory.ids_config[k.config_id] for k in facade.runhistory]
+print(json.dumps([{k: float(v) for k, v in dict(c).items()} for c in configs]))
+"""
+
+
+def test_the_search_does_not_depend_on_pythons_string_hashing(tmp_path):
+    """SMAC's local search orders its start points by hash (a set of configurations): the
+    proposals after the initial design changed with PYTHONHASHSEED, i.e. from one `tune`
+    process to the next. The same seed and costs must give the same search."""
+    import os
+
+    searches = []
+    for hash_seed in ("1", "2", "3"):
+        env = {**os.environ, "PYTHONHASHSEED": hash_seed, "OMP_NUM_THREADS": "1"}
+        done = subprocess.run(
+            [sys.executable, "-c", _SEARCH_SCRIPT, str(tmp_path / hash_seed)],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert done.returncode == 0, done.stderr[-3000:]
+        searches.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    assert len(searches[0]) == 12
+    assert searches[1] == searches[0] and searches[2] == searches[0]

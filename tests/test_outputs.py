@@ -189,3 +189,26 @@ def test_a_file_is_replaced_only_when_it_is_ours(tmp_path: Path) -> None:
         check_output_file(theirs, "split", recognise)
     with pytest.raises(OutputExistsError, match="is a directory"):
         check_output_file(tmp_path, "split", recognise)
+
+
+@pytest.mark.parametrize("exchange", ["renameat2", "two renames"])
+def test_exchange_directories_swaps_two_directories_whole(tmp_path, monkeypatch, exchange):
+    import ctypes
+
+    from tactile_compliance.outputs import exchange_directories
+
+    old, new = tmp_path / "model", tmp_path / ".model.partial"
+    for directory, text in ((old, "old"), (new, "new")):
+        directory.mkdir()
+        (directory / "weights").write_text(text)
+        (directory / "config").write_text(text)
+    if exchange == "two renames":  # no renameat2 (another OS, an old C library)
+
+        def no_libc(*args, **kwargs):
+            raise OSError("no C library")
+
+        monkeypatch.setattr(ctypes, "CDLL", no_libc)
+    exchange_directories(old, new)
+    assert {p.name: p.read_text() for p in old.iterdir()} == {"weights": "new", "config": "new"}
+    assert {p.name: p.read_text() for p in new.iterdir()} == {"weights": "old", "config": "old"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".model.partial", "model"]

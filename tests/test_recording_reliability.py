@@ -62,16 +62,23 @@ def test_record_refuses_a_store_a_run_directory_and_foreign_files(tmp_path):
 
 
 # ---------------------------------------------------------------------- concurrency
-def _writer(out: str, name: str, barrier) -> None:
+def _writer(out: str, name: str, barrier) -> None:  # barrier: a multiprocessing.Barrier
     barrier.wait()
-    write_grasp(captured(seed=len(name)), out, ObjectInfo(name, 1e5))
+    try:
+        write_grasp(captured(seed=len(name)), out, ObjectInfo(name, 1e5))
+    except BaseException:
+        import traceback
+
+        Path(out).with_name(f"{Path(out).name}-{name}.error").write_text(traceback.format_exc())
+        raise
 
 
 def test_four_concurrent_records_keep_every_row(tmp_path):
-    out = tmp_path / "data"
+    """Four processes record four objects at once: into a new dataset (they race to
+    create it) and again into the same one; every row and every grasp survives."""
     names = ["a", "bb", "ccc", "dddd"]
     context = multiprocessing.get_context("fork")
-    for trial in range(2):
+    for out, trial in [(tmp_path / "data", 0), (tmp_path / "data", 1), (tmp_path / "new", 0)]:
         barrier = context.Barrier(len(names))
         workers = [
             context.Process(target=_writer, args=(str(out), name, barrier)) for name in names
@@ -80,11 +87,13 @@ def test_four_concurrent_records_keep_every_row(tmp_path):
             worker.start()
         for worker in workers:
             worker.join(120)
-        assert [w.exitcode for w in workers] == [0] * len(names)
+        errors = [p.read_text() for p in tmp_path.glob("*.error")]
+        assert [w.exitcode for w in workers] == [0] * len(names), errors
         rows = table(out).set_index("Label")
         assert sorted(rows.index) == sorted(names)
         assert all(rows.loc[n, "Trials Recorded?"] == str(trial + 1) for n in names)
-    assert not list(out.glob("*.tmp")) and not list(out.glob("*/.partial*"))
+        assert all(len(list((out / n).glob("grasp=*"))) == trial + 1 for n in names)
+        assert not list(out.glob("*.tmp")) and not list(out.glob("*/.partial*"))
 
 
 # ---------------------------------------------------------------------- labels

@@ -306,3 +306,41 @@ def test_calibration(files, name, change):
     if name == "huge reference PNG":  # refused by its header, before decoding 1.2 GB
         assert "20000x20000 px is out of range" in str(err.value)
     _one_line_failure(_live(files, files["export"], path))
+
+
+# ---------------------------------------------------------------------- stores
+STORE_HEADERS: list[tuple[str, Callable[[dict[str, Any]], None]]] = [
+    ("image_size swapped", lambda h: h.update(image_size=h["image_size"][::-1])),
+    ("image_size floats", lambda h: h.update(image_size=[72.7, 72.2])),
+    ("image_size negative", lambda h: h.update(image_size=[-5, 10])),
+    ("format_version list", lambda h: h.update(format_version=[1])),
+    ("num_samples text", lambda h: h.update(num_samples="10")),
+]
+
+
+@pytest.mark.parametrize(("name", "change"), STORE_HEADERS, ids=[c[0] for c in STORE_HEADERS])
+def test_store_header(files, tmp_path, name, change):
+    store = make_toy_store(tmp_path / "store", n_objects=2, grasps=1, size=(32, 48))
+    header = json.loads((store.path / "header.json").read_text())
+    change(header)
+    (store.path / "header.json").write_text(json.dumps(header))
+    result = runner.invoke(app, ["info", str(store.path)])
+    _one_line_failure(result)
+    if name == "image_size swapped":  # the same byte count: only the checksum tells
+        assert "frame_shape_sha256 differs" in result.output
+    _one_line_failure(runner.invoke(app, ["predict", str(files["checkpoint"]), str(store.path)]))
+
+
+def test_store_header_nested_too_deeply(tmp_path):
+    store = make_toy_store(tmp_path / "store", n_objects=2, grasps=1)
+    (store.path / "header.json").write_text('{"a": ' * DEEP + "1" + "}" * DEEP)
+    _one_line_failure(runner.invoke(app, ["info", str(store.path)]))
+
+
+def test_a_model_that_outputs_nan_gives_no_estimate(files, monkeypatch):
+    """The last line of defence, should a broken model pass every check."""
+    estimator = ComplianceEstimator.from_checkpoint(files["checkpoint"])
+    monkeypatch.setattr(estimator.model, "forward", lambda *a, **k: torch.full((1,), NAN))
+    frames = np.full((3, 72, 72, 3), 0.5, np.float32)
+    with pytest.raises(ValueError, match="non-finite output"):
+        estimator.predict(frames)

@@ -38,8 +38,8 @@ from typing import Any, Literal, get_args, get_origin
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from tactile_compliance.data.image_ops import check_size
 from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import FilterRules
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS
 from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
@@ -118,7 +118,7 @@ class DataConfig(_Section):
             or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in v)
         ):
             raise ValueError(f"must be null, a positive int or [height, width], got {v!r}")
-        # The cap (data.image_ops.MAX_FRAME_SIDE_PX) is checked here, before a run
+        # The cap (data.plausibility.MAX_FRAME_SIDE_PX) is checked here, before a run
         # directory is claimed or a frame is resized.
         return v if v is None else check_size(v, "image_size")
 

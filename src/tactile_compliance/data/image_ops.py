@@ -5,39 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-#: The largest frame side (px) any command resizes, warps, crops to or reads from a file.
-#: The dataset's frames are 250 x 350 px and a GelSight Mini camera gives 3280 x 2464; a
-#: 4096 x 4096 frame is 50 MB as uint8, 200 MB as float32. Larger sizes are typos (or
-#: attacks) that would allocate tens of GB before failing, so they are refused first.
-MAX_FRAME_SIDE_PX = 4096
-
-
-def check_size(size: object, what: str = "size") -> tuple[int, int]:
-    """``size`` as (height, width) px: two integers in ``[1, MAX_FRAME_SIDE_PX]``.
-
-    Refuses floats (72.7), booleans, text and negative or huge sides with one line, before
-    anything is allocated.
-
-    Raises:
-        ValueError: naming ``what`` and the value.
-    """
-    if (
-        isinstance(size, (str, bytes))
-        or not hasattr(size, "__len__")
-        or len(size) != 2  # type: ignore[arg-type]
-        or not all(
-            isinstance(n, (int, np.integer)) and not isinstance(n, bool)
-            for n in size  # type: ignore[union-attr]
-        )
-    ):
-        raise ValueError(f"{what} must be [height, width] in whole pixels, got {size!r}")
-    height, width = (int(n) for n in size)  # type: ignore[union-attr]
-    if not (1 <= height <= MAX_FRAME_SIDE_PX and 1 <= width <= MAX_FRAME_SIDE_PX):
-        raise ValueError(
-            f"{what} {height}x{width} px is out of range: each side must lie in "
-            f"[1, {MAX_FRAME_SIDE_PX}] px"
-        )
-    return height, width
+from tactile_compliance.data.plausibility import check_size
 
 
 def parse_size(text: str | None) -> tuple[int, int] | None:

@@ -34,12 +34,14 @@ __all__ = [
     "ESTIMATE",
     "FORCE",
     "FRAME",
+    "MAX_FRAME_SIDE_PX",
     "MODULUS",
     "NUMERIC_KINDS",
     "RULES",
     "WIDTH",
     "PlausibleRange",
     "as_real_number",
+    "check_size",
     "dtype_problem",
     "format_number",
 ]
@@ -315,3 +317,38 @@ def as_real_number(value: Any) -> float:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise ValueError(f"expected a number, got {type(value).__name__} {value!r}")
     return float(value)
+
+
+#: The largest frame side (px) any command resizes, warps, crops to or reads from a file.
+#: The dataset's frames are 250 x 350 px and a GelSight Mini camera gives 3280 x 2464; a
+#: 4096 x 4096 frame is 50 MB as uint8, 200 MB as float32. Larger sizes are typos (or
+#: attacks) that would allocate tens of GB before failing, so they are refused first.
+MAX_FRAME_SIDE_PX = 4096
+
+
+def check_size(size: object, what: str = "size") -> tuple[int, int]:
+    """``size`` as (height, width) px: two integers in ``[1, MAX_FRAME_SIDE_PX]``.
+
+    Refuses floats (72.7), booleans, text and negative or huge sides with one line, before
+    anything is allocated.
+
+    Raises:
+        ValueError: naming ``what`` and the value.
+    """
+    if (
+        isinstance(size, (str, bytes))
+        or not hasattr(size, "__len__")
+        or len(size) != 2  # type: ignore[arg-type]
+        or not all(
+            isinstance(n, (int, np.integer)) and not isinstance(n, bool)
+            for n in size  # type: ignore[union-attr]
+        )
+    ):
+        raise ValueError(f"{what} must be [height, width] in whole pixels, got {size!r}")
+    height, width = (int(n) for n in size)  # type: ignore[union-attr]
+    if not (1 <= height <= MAX_FRAME_SIDE_PX and 1 <= width <= MAX_FRAME_SIDE_PX):
+        raise ValueError(
+            f"{what} {height}x{width} px is out of range: each side must lie in "
+            f"[1, {MAX_FRAME_SIDE_PX}] px"
+        )
+    return height, width

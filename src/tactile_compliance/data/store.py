@@ -40,6 +40,7 @@ rules the importers and the estimator apply too).
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import re
@@ -65,6 +66,7 @@ from tactile_compliance.data.plausibility import (
     WIDTH,
     PlausibleRange,
     as_real_number,
+    check_size,
     dtype_problem,
 )
 from tactile_compliance.outputs import MARKER_NAME, output_kind
@@ -435,6 +437,30 @@ class StoreHeader:
     creation_parameters: dict[str, Any]
     #: (h, w) px of the stored depth maps (``depth.f16``), or None: no depth maps.
     depth_size: tuple[int, int] | None = None
+    #: ``frame_shape_sha256`` as read from ``header.json`` (None: written before it
+    #: existed); :meth:`frame_shape_problem` compares it with the header's sizes.
+    recorded_shape_check: str | None = None
+
+    @property
+    def shape_check(self) -> str:
+        """A checksum of the frame and depth shapes: an ``image_size`` edited in
+        ``header.json`` (e.g. swapped to [88, 64], the same byte count) no longer matches
+        it, while the byte count alone cannot tell."""
+        shape = [self.num_samples, FRAMES_PER_SAMPLE, *self.image_size, 3]
+        if self.depth_size is not None:
+            shape += [*self.depth_size]
+        return hashlib.sha256(json.dumps(shape).encode()).hexdigest()[:16]
+
+    def frame_shape_problem(self) -> str | None:
+        """Why the header's sizes are not the ones the store was written with, or None."""
+        if self.recorded_shape_check is None or self.recorded_shape_check == self.shape_check:
+            return None
+        height, width = self.image_size
+        return (
+            f"{HEADER_FILE}: image_size {height}x{width} (or num_samples, depth_size) is not "
+            f"what the store was written with (frame_shape_sha256 differs): the header was "
+            f"edited; frames read with the wrong shape would be garbage"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         depth = (
@@ -461,25 +487,34 @@ class StoreHeader:
             "package_version": self.package_version,
             "creation_parameters": self.creation_parameters,
             **depth,
+            "frame_shape_sha256": self.shape_check,
         }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> StoreHeader:
+        if not isinstance(data, dict):
+            raise StoreError(f"{HEADER_FILE} is malformed: not a JSON object")
+        for key in ("format_version", "num_samples"):
+            value = data.get(key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise StoreError(f"{HEADER_FILE} is malformed: {key} {value!r} is not an integer")
         try:
+            check = data.get("frame_shape_sha256")
             return cls(
                 format_version=int(data["format_version"]),
                 num_samples=int(data["num_samples"]),
-                image_size=(int(data["image_size"][0]), int(data["image_size"][1])),
+                image_size=check_size(data["image_size"], "image_size"),
                 channel_order=str(data["channel_order"]),
                 source=str(data["source"]),
                 created=str(data.get("created", "")),
                 package_version=str(data.get("package_version", "")),
                 creation_parameters=dict(data.get("creation_parameters", {})),
                 depth_size=(
-                    (int(data["depth_size"][0]), int(data["depth_size"][1]))
+                    check_size(data["depth_size"], "depth_size")
                     if data.get("depth_size") is not None
                     else None
                 ),
+                recorded_shape_check=None if check is None else str(check),
             )
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise StoreError(f"{HEADER_FILE} is malformed: {err!r}") from err
@@ -551,6 +586,11 @@ class GraspStore:
             header = StoreHeader.from_dict(json.loads(header_path.read_text()))
         except json.JSONDecodeError as err:
             raise StoreError(f"{header_path}: invalid JSON ({err})") from err
+        except RecursionError:
+            raise StoreError(f"{header_path}: invalid JSON (nested too deeply)") from None
+        problem = header.frame_shape_problem()
+        if problem:
+            raise StoreError(f"{path}: {problem}")
         if header.format_version > FORMAT_VERSION:
             raise StoreError(
                 f"{path}: store format {header.format_version} is newer than this package "

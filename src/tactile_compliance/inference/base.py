@@ -74,6 +74,13 @@ class Prediction:
     ) -> Prediction:
         """Read model outputs ``y`` (B,) back to Pa with the checkpoint's constants."""
         y = np.asarray(y, dtype=np.float64)
+        if not np.all(np.isfinite(y)):
+            # The last line of defence: loaded weights and constants are checked, inputs
+            # too; a NaN here means a broken model, and no NaN may leave as an estimate.
+            raise ValueError(
+                f"the model produced {int(np.sum(~np.isfinite(y)))} non-finite output(s) "
+                f"(NaN or inf); its weights or inputs are broken, no estimate is given"
+            )
         modulus = np.asarray(denormalise_modulus(y, constants), dtype=np.float64)
         log10 = np.log10(modulus)
         if single:

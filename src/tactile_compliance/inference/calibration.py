@@ -43,8 +43,9 @@ from tactile_compliance.data.depth_model import (
     find_contact_circle,
     fit_depth_model,
 )
-from tactile_compliance.data.image_ops import check_size, difference_images
+from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
+from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.inference.sensors import (
     IMAGE_SUFFIXES,
     FrameError,

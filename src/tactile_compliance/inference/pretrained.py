@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 
 from tactile_compliance import __version__
-from tactile_compliance.data.image_ops import check_size
+from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.inference.inputs import required_inputs
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.models.backbones import file_sha256

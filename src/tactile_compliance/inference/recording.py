@@ -33,9 +33,12 @@ as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen")
 
 The grasp number is the next free one; a grasp directory is written under a hidden name
 and renamed into place, so nothing existing is ever overwritten and an interrupted
-recording leaves no half grasp that the importer would read.
+recording leaves no half grasp that the importer would read. A frame without a reading
+in range, of the wrong size or with a time going backwards is skipped and reported
+(:attr:`RecordedGrasp.skipped`); the capture goes on.
 
-What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps"):
+What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps: what
+``record`` guarantees"):
 
 * ``OUT`` is claimed with ``outputs.claim_output_dir`` (kind ``record``): a new or empty
   directory, or one ``record`` wrote; a GraspStore, a run directory or a directory of
@@ -49,9 +52,7 @@ What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own gras
   ``metadata.json`` this call created are removed: no object without grasps is left;
 * object names are letters, digits and ``_ . + -`` only (no control characters), and
   the saved forces and widths must be plausible (``data.plausibility``): a width in
-  millimetres (17.4 "m") is refused before anything is written. A frame without a reading
-in range, of the wrong size or with a time going backwards is skipped and reported
-(:attr:`RecordedGrasp.skipped`); the capture goes on.
+  millimetres (17.4 "m") is refused before anything is written.
 """
 
 from __future__ import annotations
@@ -95,7 +96,13 @@ from tactile_compliance.inference.sensors import (
     FrameSourceBase,
     iter_frames,
 )
-from tactile_compliance.outputs import atomic_file, claim_output_dir, exclusive_lock
+from tactile_compliance.outputs import (
+    MARKER_NAME,
+    atomic_file,
+    claim_output_dir,
+    exclusive_lock,
+    output_kind,
+)
 from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits, analytical_estimator
 
 __all__ = [
@@ -705,8 +712,8 @@ def write_grasp(
             exists with another modulus.
     """
     # No selection or implausible readings: fail before any work.
-    first = augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
-    _check_readings(captured, sorted({i for idx in first for i in idx}))
+    selection = augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
+    _check_readings(captured, sorted({i for idx in selection for i in idx}))
     frames = captured.frames
     if reference is None and sensor is not None:
         reference = sensor.reference
@@ -754,8 +761,12 @@ def write_grasp(
         estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps
 
     _check_readings(captured, sorted({i for idx in indices for i in idx}))
-    out = claim_dataset_dir(out_dir)
+    # Checked before anything is created; claimed (the marker written) under the lock, so
+    # concurrent recordings into a new dataset never see each other's half-made marker.
+    out = claim_dataset_dir(out_dir, create=False)
+    out.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(out / LOCK_FILE, what=f"the dataset {out}"):
+        claim_dataset_dir(out)
         _check_units(out, WEDGE_UNITS if sensor is None else sensor.units)
         return _write_locked(captured, out, info, indices, fingers, estimates)
 
@@ -771,18 +782,26 @@ def _check_readings(captured: CapturedGrasp, frames: Sequence[int]) -> None:
             )
 
 
-def claim_dataset_dir(out_dir: str | Path) -> Path:
+def claim_dataset_dir(out_dir: str | Path, *, create: bool = True) -> Path:
     """Make ``out_dir`` a dataset directory of ``record`` (``outputs.claim_output_dir``).
 
     Accepted: a new or empty directory, one ``record`` marked, and one written by
     ``record`` before the marker existed (the object table and object directories with
     ``metadata.json``, nothing else). Refused with ``OutputExistsError``: a GraspStore, a
     run directory, any other command's output or a directory of other files.
+    ``create=False`` only checks.
     """
-    return claim_output_dir(out_dir, OUTPUT_KIND, recognise=_is_unmarked_recording)
+    return claim_output_dir(out_dir, OUTPUT_KIND, recognise=_is_unmarked_recording, create=create)
 
 
 def _is_unmarked_recording(path: Path) -> bool:
+    names = {child.name for child in path.iterdir()}
+    if names <= {LOCK_FILE, MARKER_NAME}:
+        return True  # another record is creating this dataset (its lock, its marker)
+    # Read again after the listing: a concurrent record that created an object directory
+    # had finished its marker before, though the first read may have caught it half written.
+    if output_kind(path) == OUTPUT_KIND:
+        return True
     if not (path / OBJECT_TABLE_FILE).is_file():
         return False
     for child in path.iterdir():
@@ -879,8 +898,7 @@ def record_grasp(
         OutputExistsError: ``out_dir`` exists and is not a dataset ``record`` wrote
             (checked before the capture starts).
     """
-    if Path(out_dir).exists():
-        claim_dataset_dir(out_dir)  # refuse a store or a run directory before the grasp
+    claim_dataset_dir(out_dir, create=False)  # refuse a store or a run directory first
     captured = capture_grasp(
         source,
         readings,

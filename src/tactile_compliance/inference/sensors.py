@@ -60,7 +60,8 @@ from typing import Any, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from tactile_compliance.data.image_ops import check_size, resize_frames
+from tactile_compliance.data.image_ops import resize_frames
+from tactile_compliance.data.plausibility import check_size
 
 __all__ = [
     "MINI_GEOMETRY",
@@ -139,7 +140,7 @@ class FrameGeometry:
 
     def __post_init__(self) -> None:
         # Types and sizes are checked here, before a frame is warped or resized: a size is
-        # whole pixels within data.image_ops.MAX_FRAME_SIDE_PX (a 40000 x 40000 output
+        # whole pixels within data.plausibility.MAX_FRAME_SIDE_PX (a 40000 x 40000 output
         # would allocate 4.8 GB per frame), crop_px an integer, never text.
         for name in ("input_size", "warp_size", "output_size"):
             size = getattr(self, name)

@@ -38,8 +38,8 @@ import torch
 
 from tactile_compliance import __version__
 from tactile_compliance.data.features import weights_fingerprint
-from tactile_compliance.data.image_ops import check_size
 from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.backbones import no_downloads, weights_file_record
 from tactile_compliance.outputs import atomic_file

@@ -59,8 +59,8 @@ from tactile_compliance import __version__
 from tactile_compliance.config import ExperimentConfig
 from tactile_compliance.data.augment import GraspAugmentation
 from tactile_compliance.data.dataset import prepare_frames
-from tactile_compliance.data.image_ops import check_size
 from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split, make_split_from_config
 from tactile_compliance.data.store import SAMPLES_FILE, GraspStore

@@ -16,6 +16,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from tactile_compliance.outputs import atomic_file
@@ -211,6 +212,7 @@ def run_smac(
     kwargs["initial_design"] = facade_cls.get_initial_design(
         scenario, n_configs=_initial_design_size(scenario), max_ratio=1.0
     )
+    kwargs["acquisition_maximizer"] = _hash_independent_maximizer(facade_cls, scenario)
     with progress_bar(
         label,
         trials,
@@ -235,6 +237,30 @@ def run_smac(
     if incumbent is None:
         raise TuneError(f"{label}: no trial finished; see {scenario.output_directory}")
     return facade, incumbent
+
+
+def _hash_independent_maximizer(facade_cls: Any, scenario: Any) -> Any:
+    """The facade's acquisition maximizer, made independent of Python's string hashing.
+
+    SMAC's local search (2.4) collects its start points in a ``set`` of configurations and
+    lists it: their order, and so every configuration proposed after the initial design,
+    then depends on ``PYTHONHASHSEED``, which Python draws anew for every process. Three
+    identical ``tune`` runs proposed different configurations from trial 4 on. Sorting the
+    start points by their vector makes the search a function of the seed and the trial
+    costs only (checked with three hash seeds in tests/test_hpo.py).
+    """
+    maximizer = facade_cls.get_acquisition_maximizer(scenario)
+    local_search = getattr(maximizer, "_local_search", None)
+    collect = getattr(local_search, "_get_init_points_from_previous_configs", None)
+    if collect is None:  # another SMAC version: nothing to fix (or it changed)
+        return maximizer
+
+    def ordered(*args: Any, **kwargs: Any) -> list[Any]:
+        points = collect(*args, **kwargs)
+        return sorted(points, key=lambda c: tuple(np.nan_to_num(c.get_array(), nan=-1.0)))
+
+    local_search._get_init_points_from_previous_configs = ordered
+    return maximizer
 
 
 # =========================================================================== results
