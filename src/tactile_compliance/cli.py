@@ -50,7 +50,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
     Imported when an error happens, so that the command starts fast."""
     from tactile_compliance.data.import_report import DataImportError
     from tactile_compliance.data.store import StoreError
-    from tactile_compliance.inference.pretrained import SafetensorsMissingError
+    from tactile_compliance.inference.pretrained import OptionalDependencyError
     from tactile_compliance.models.backbones import BackboneWeightsError
     from tactile_compliance.training.experiment import ExperimentError
     from tactile_compliance.training.hpo import TuneError
@@ -65,7 +65,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
         ExperimentError,
         TuneError,
         BackboneWeightsError,
-        SafetensorsMissingError,
+        OptionalDependencyError,  # the message says what to pip install
     )
 
 
@@ -90,10 +90,17 @@ def _one_line_errors(command: Any) -> Any:
             typer.secho("interrupted; re-run the same command to continue", err=True)
             raise typer.Exit(EXIT_INTERRUPTED) from None
         except Exception as err:
-            if _debug or not isinstance(err, _expected_errors()):
+            if _debug:
                 raise
-            code = EXIT_FAILED if isinstance(err, _write_failures()) else EXIT_BAD_INPUT
-            _fail(str(err) or type(err).__name__, code)
+            # ValueError and OSError are bad input, never a write failure: decided without
+            # importing the library's error classes (which load torch), so that a config
+            # typo is reported at once.
+            if not isinstance(err, (ValueError, OSError)):
+                if not isinstance(err, _expected_errors()):
+                    raise
+                if isinstance(err, _write_failures()):
+                    _fail(str(err) or type(err).__name__, EXIT_FAILED)
+            _fail(str(err) or type(err).__name__, EXIT_BAD_INPUT)
 
     return run
 
@@ -278,6 +285,7 @@ def simulate(
         Optional[int],  # noqa: UP045
         typer.Option(
             "--objects",
+            min=1,
             help="Number of objects (default: 286 like the real table; "
             "40 silicone samples for shore-videos).",
         ),
@@ -292,15 +300,18 @@ def simulate(
     ] = None,
     grasps_per_object: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option("--grasps-per-object", help="Grasps (presses for videos) per object."),
+        typer.Option("--grasps-per-object", min=1, help="Grasps (presses for videos) per object."),
     ] = None,
-    seed: Annotated[int, typer.Option(help="Base seed; same seed, byte-identical output.")] = 0,
+    seed: Annotated[
+        int, typer.Option(min=0, help="Base seed; same seed, byte-identical output.")
+    ] = 0,
     size: Annotated[str, typer.Option("--size", help="Frame size HxW in pixels.")] = "250x350",
     dtype: Annotated[PickleDtype, typer.Option(help="Pickle dtype of images and depths.")] = (
         "float16"
     ),
     workers: Annotated[
-        Optional[int], typer.Option(help="Processes (default: all CPUs).")  # noqa: UP045
+        Optional[int],  # noqa: UP045
+        typer.Option(min=1, help="Processes (default: all CPUs)."),
     ] = None,
 ) -> None:
     """Generate a physically grounded synthetic dataset in the real raw layout.
@@ -528,7 +539,7 @@ def split(
         Grouping,
         typer.Option(help="How seen splits: by grasp, or per_sample (the paper's, leaks)."),
     ] = "grasp",
-    seed: Annotated[int, typer.Option(help="Random seed of the split.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Random seed of the split.")] = 0,
     config: Annotated[
         str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
     ] = "default",
@@ -575,16 +586,25 @@ def train(
         Optional[Path], typer.Option("--run-dir", help="Run directory (default: output_dir/NAME).")  # noqa: UP045
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Retrain a finished run.")] = False,
+    verbose: Annotated[
+        bool,
+        typer.Option(
+            "--verbose",
+            "-v",
+            help="Also show Lightning's start-up messages (GPU available, tips, checkpoint "
+            "loading) and its deprecation and housekeeping warnings.",
+        ),
+    ] = False,
 ) -> None:
     """Train one configuration and evaluate its best epoch on the test split.
 
     Writes a run directory (config, split, checkpoints, per-epoch log, predictions,
     metrics.json). Re-running resumes an interrupted run or returns a finished one.
     """
+    cfg = _load_config(config, overrides)  # first: a typo is reported before torch loads
     from tactile_compliance.training.train import train as train_run
 
-    cfg = _load_config(config, overrides)
-    result = train_run(cfg, run_dir=run_dir, overwrite=overwrite)  # type: ignore[arg-type]
+    result = train_run(cfg, run_dir=run_dir, overwrite=overwrite, verbose=verbose)  # type: ignore[arg-type]
     test, median = result["test"], result["reference"]["median"]
     typer.echo(
         f"{result['run_name']}: best epoch {result['best_epoch']}, "
@@ -609,15 +629,19 @@ def pretrain(
         Condition,
         typer.Option(help="Without --split: draw this condition's split (unseen: by object)."),
     ] = "unseen",
-    seed: Annotated[int, typer.Option(help="Seed of the split (without --split) and init.")] = 0,
+    seed: Annotated[
+        int, typer.Option(min=0, help="Seed of the split (without --split) and init.")
+    ] = 0,
     config: Annotated[
         str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
     ] = "default",
     overrides: SetOption = None,
-    epochs: Annotated[int, typer.Option(help="Maximum epochs.")] = 30,
-    batch_size: Annotated[int, typer.Option(help="Samples (3 frames each) per batch.")] = 16,
-    lr: Annotated[float, typer.Option(help="AdamW learning rate.")] = 1e-3,
-    patience: Annotated[int, typer.Option(help="Early-stopping patience (epochs, 0: off).")] = 4,
+    epochs: Annotated[int, typer.Option(min=1, help="Maximum epochs.")] = 30,
+    batch_size: Annotated[int, typer.Option(min=1, help="Samples (3 frames each) per batch.")] = 16,
+    lr: Annotated[float, typer.Option(min=0, help="AdamW learning rate.")] = 1e-3,
+    patience: Annotated[
+        int, typer.Option(min=0, help="Early-stopping patience (epochs, 0: off).")
+    ] = 4,
     size: Annotated[
         Optional[str],  # noqa: UP045
         typer.Option(
@@ -635,11 +659,11 @@ def pretrain(
     The result loads with --set model.backbone_weights=OUT. Re-running resumes after the
     last finished epoch.
     """
+    extra = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
+    cfg = _load_config(config, [*extra, *(overrides or [])])  # before torch loads
     from tactile_compliance.training.pretrain import PretrainSettings
     from tactile_compliance.training.pretrain import pretrain as run_pretrain
 
-    extra = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
-    cfg = _load_config(config, [*extra, *(overrides or [])])
     settings = PretrainSettings(
         backbone=backbone,
         epochs=epochs,
@@ -703,7 +727,9 @@ def evaluate(
     typer.echo(evaluation.groups.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
 
 
-WorkersOption = Annotated[int, typer.Option("--workers", "-w", help="Local Dask worker processes.")]
+WorkersOption = Annotated[
+    int, typer.Option("--workers", "-w", min=1, help="Local Dask worker processes.")
+]
 SchedulerOption = Annotated[
     Optional[str],  # noqa: UP045
     typer.Option(
@@ -725,7 +751,7 @@ QuickOption = Annotated[
 ]
 ThreadsOption = Annotated[
     Optional[int],  # noqa: UP045
-    typer.Option(help="Torch threads per run (default 1: one run per worker and core)."),
+    typer.Option(min=1, help="Torch threads per run (default 1: one run per worker and core)."),
 ]
 ConditionOption = Annotated[
     Optional[Condition],  # noqa: UP045
@@ -746,7 +772,8 @@ def experiment(
     preset: Annotated[str, typer.Argument(help="Experiment preset (see `presets`) or YAML file.")],
     quick: QuickOption = False,
     seeds: Annotated[
-        Optional[int], typer.Option(help="Number of seeds (0..N-1); default: the preset's.")  # noqa: UP045
+        Optional[int],  # noqa: UP045
+        typer.Option(min=1, help="Number of seeds (0..N-1); default: the preset's."),
     ] = None,
     store: StoreOption = None,
     overrides: SetOption = None,
@@ -827,13 +854,13 @@ def tune(
     quick: QuickOption = False,
     store: StoreOption = None,
     overrides: SetOption = None,
-    trials: Annotated[int, typer.Option(help="SMAC trials.")] = 132,
-    min_epochs: Annotated[int, typer.Option(help="Smallest Hyperband budget (epochs).")] = 5,
-    max_epochs: Annotated[int, typer.Option(help="Largest Hyperband budget (epochs).")] = 50,
-    eta: Annotated[int, typer.Option(help="Hyperband's reduction factor.")] = 3,
+    trials: Annotated[int, typer.Option(min=1, help="SMAC trials.")] = 132,
+    min_epochs: Annotated[int, typer.Option(min=1, help="Smallest Hyperband budget (epochs).")] = 5,
+    max_epochs: Annotated[int, typer.Option(min=1, help="Largest Hyperband budget (epochs).")] = 50,
+    eta: Annotated[int, typer.Option(min=2, help="Hyperband's reduction factor.")] = 3,
     objective: ObjectiveOption = "last",
     condition: ConditionOption = None,
-    seed: Annotated[int, typer.Option(help="SMAC seed.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="SMAC seed.")] = 0,
     workers: WorkersOption = 1,
     scheduler: SchedulerOption = None,
     threads: ThreadsOption = None,
@@ -859,11 +886,13 @@ def tune_balance(
     overrides: SetOption = None,
     epochs: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option(help="Epochs per model and trial.", show_default="10; 50 with --paper-budget"),
+        typer.Option(
+            min=1, help="Epochs per model and trial.", show_default="10; 50 with --paper-budget"
+        ),
     ] = None,
     trials: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option(help="SMAC trials.", show_default="30; 132 with --paper-budget"),
+        typer.Option(min=1, help="SMAC trials.", show_default="30; 132 with --paper-budget"),
     ] = None,
     paper_budget: Annotated[
         bool,
@@ -881,7 +910,7 @@ def tune_balance(
     condition: Annotated[
         Condition, typer.Option(help="Split condition (unseen: by object).")
     ] = "seen",
-    seed: Annotated[int, typer.Option(help="SMAC seed.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="SMAC seed.")] = 0,
     workers: WorkersOption = 1,
     scheduler: SchedulerOption = None,
     threads: ThreadsOption = None,
@@ -976,6 +1005,10 @@ def export(
 
     if onnx is None and safetensors is None:
         raise typer.BadParameter("give --onnx FILE, --safetensors DIR or both")
+    if onnx is not None:
+        from tactile_compliance.inference.export import require_onnx
+
+        require_onnx()  # before the safetensors directory is written
     if safetensors is not None:
         written = export_safetensors(
             checkpoint, safetensors, image_size=_size_option(size), backbone_weights=weights
@@ -1002,7 +1035,11 @@ CalibrationOption = Annotated[
 ]
 FolderFpsOption = Annotated[
     Optional[float],  # noqa: UP045
-    typer.Option("--fps", help="Frame rate of a folder of frames (or give --timestamps)."),
+    typer.Option(
+        "--fps",
+        min=0,
+        help="Frame rate of a folder of frames (or give --timestamps).",
+    ),
 ]
 FolderTimesOption = Annotated[
     Optional[Path],  # noqa: UP045
@@ -1015,7 +1052,16 @@ def _readings(path: Path, source: Any) -> Any:
     live device (each frame waits up to 1 s for its reading)."""
     from tactile_compliance.inference.recording import FollowedReadings, Readings
 
-    return FollowedReadings(path) if source.live else Readings.from_csv(path)
+    if source.live:  # the robot may create the file after the start; its folder must exist
+        if not path.parent.is_dir():
+            raise ValueError(f"--readings {path}: no such folder: {path.parent}")
+        return FollowedReadings(path)
+    if not path.is_file():
+        raise ValueError(f"--readings {path}: no such file")
+    try:
+        return Readings.from_csv(path)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"--readings: {err}") from err
 
 
 def _open_source(
@@ -1036,7 +1082,9 @@ def _open_source(
 def calibrate(
     source: SourceArg,
     out: Annotated[Path, typer.Option("--out", help="Calibration JSON to write.")],
-    frames: Annotated[int, typer.Option("--frames", help="Frames to take the median of.")] = 30,
+    frames: Annotated[
+        int, typer.Option("--frames", min=1, help="Frames to take the median of.")
+    ] = 30,
     corners: Annotated[
         Optional[str],  # noqa: UP045
         typer.Option(
@@ -1051,7 +1099,7 @@ def calibrate(
     ] = None,
     crop_px: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option("--crop-px", help="Pixels cropped per side after the warp."),
+        typer.Option("--crop-px", min=0, help="Pixels cropped per side after the warp."),
     ] = None,
     crop_fraction: Annotated[
         Optional[float],  # noqa: UP045
@@ -1134,7 +1182,7 @@ def record(
     ] = None,
     max_frames: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option("--max-frames", help="Stop after this many frames (default: release)."),
+        typer.Option("--max-frames", min=1, help="Stop after this many frames (default: release)."),
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
@@ -1196,17 +1244,21 @@ def live(
     calibration: CalibrationOption = None,
     window: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option("--window", help="Estimate from the last N frames (default: all)."),
+        typer.Option("--window", min=3, help="Estimate from the last N frames (default: all)."),
     ] = None,
     window_s: Annotated[
         Optional[float],  # noqa: UP045
         typer.Option(
             "--window-s",
+            min=0,
             help="Estimate from the last S seconds before the peak, by the frames' timestamps "
             "(not with --window; the same at any frame rate).",
         ),
     ] = None,
-    level: Annotated[float, typer.Option(help="Ensemble interval coverage.")] = 0.8,
+    level: Annotated[
+        float,
+        typer.Option(min=0, max=1, help="Ensemble interval coverage."),
+    ] = 0.8,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
@@ -1218,6 +1270,12 @@ def live(
     Provisional estimates while the gripper closes, the final one on release."""
     from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
 
+    if window is not None and window_s is not None:
+        raise typer.BadParameter("give --window (frames) or --window-s (seconds), not both")
+    if window_s is not None and window_s <= 0:
+        raise typer.BadParameter(f"--window-s must be > 0 s, got {window_s}")
+    if not 0 < level < 1:
+        raise typer.BadParameter(f"--level must lie between 0 and 1 (exclusive), got {level}")
     members = load_members(checkpoints, device=device, backbone_weights=weights)
     frames, sensor = _open_source(source, calibration, fps, timestamps)
     final = False
@@ -1278,7 +1336,7 @@ def demo(
     ] = "full",
     workers: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option(help="Dask worker processes for the grids (default: CPUs, at most 4)."),
+        typer.Option(min=1, help="Dask worker processes for the grids (default: CPUs, at most 4)."),
     ] = None,
 ) -> None:
     """Run the whole system on built-in synthetic data (the main job).

@@ -32,6 +32,7 @@ the same averaging written as two fixed matrix products for the checkpoint's fra
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import os
@@ -54,6 +55,7 @@ from tactile_compliance.inference.onnx import (
 )
 from tactile_compliance.inference.pretrained import (
     OUTPUT_KIND,
+    OptionalDependencyError,
     require_safetensors,
     write_pretrained,
 )
@@ -164,6 +166,25 @@ def _is_our_onnx(path: Path) -> bool:
     return any(prop.key == ONNX_METADATA_KEY for prop in model.metadata_props)
 
 
+class OnnxMissingError(OptionalDependencyError):
+    """``onnx`` or ``onnxruntime`` (the ``export`` extra) is not installed."""
+
+
+def require_onnx() -> None:
+    """Check that ``onnx`` and ``onnxruntime`` import, before anything is written."""
+    missing = []
+    for name in ("onnx", "onnxruntime"):
+        try:
+            __import__(name)
+        except ImportError:
+            missing.append(name)
+    if missing:
+        raise OnnxMissingError(
+            f"{' and '.join(missing)} {'is' if len(missing) == 1 else 'are'} not installed: "
+            f"pip install 'tactile-compliance[export]' (or pip install {' '.join(missing)})"
+        )
+
+
 def export_onnx(
     checkpoint: str | Path,
     out: str | Path,
@@ -193,8 +214,10 @@ def export_onnx(
         ``opset``, ``exporter``, ``max_abs_diff``, ``parity_ok``, versions, file size.
 
     Raises:
+        OnnxMissingError: onnx or onnxruntime is not installed (nothing is written).
         ValueError: no frame size known; RuntimeError: parity worse than ``atol``.
     """
+    require_onnx()
     out = check_output_file(out, "ONNX model", _is_our_onnx, option="--onnx")
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
     size = tuple(image_size) if image_size is not None else estimator.image_size
@@ -208,6 +231,9 @@ def export_onnx(
     model = estimator.model.cpu().eval()
     example = _example_inputs(names, 2, (height, width))
     wrapper = _ExportWrapper(_exportable(model, names, example), names).eval()
+    # The folders this export creates (deepest first): removed again if it fails, so a
+    # failed export leaves no empty folder behind.
+    created = [folder for folder in (out.parent, *out.parent.parents) if not folder.exists()]
     out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
     os.close(fd)
@@ -230,6 +256,12 @@ def export_onnx(
             )
         _write_metadata(tmp, estimator, (height, width), names)
         tmp.replace(out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        for folder in created:
+            with contextlib.suppress(OSError):  # not empty: something else wrote there
+                folder.rmdir()
+        raise
     finally:
         tmp.unlink(missing_ok=True)
 

@@ -74,7 +74,12 @@ _REAL_SOURCES = {"burgess": "real (Burgess et al. dataset layout)", "yuan": "rea
 _UNITS = {"force": "N", "width": "m", "estimates": "Pa"}
 
 
-class SafetensorsMissingError(ImportError):
+class OptionalDependencyError(ImportError):
+    """An optional package (an extra of ``pyproject.toml``) that a feature needs is not
+    installed; the message says what to ``pip install``."""
+
+
+class SafetensorsMissingError(OptionalDependencyError):
     """The optional ``safetensors`` package is not installed."""
 
 

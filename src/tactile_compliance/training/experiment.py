@@ -124,17 +124,15 @@ def _quiet_training_warnings() -> None:
     # logs readable (errors and real warnings still show).
     import logging
 
+    from tactile_compliance.training.train import LIGHTNING_LOGGERS, quiet_lightning_warnings
+
     global _QUIETED
     if _QUIETED:  # once per worker process, not once per cell
         return
     _QUIETED = True
-    for name in ("lightning.pytorch", "lightning.fabric"):
+    for name in LIGHTNING_LOGGERS:
         logging.getLogger(name).setLevel(logging.WARNING)
-    warnings.filterwarnings("ignore", category=DeprecationWarning, module="lightning.*")
-    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
-    warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
-    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
-    warnings.filterwarnings("ignore", message=".*number of training batches.*")
+    quiet_lightning_warnings()
     warnings.filterwarnings("ignore", message=".*cached image features.*")
     warnings.filterwarnings("ignore", message=".*augmentation is ignored with freeze_backbone.*")
 

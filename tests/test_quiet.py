@@ -1,0 +1,49 @@
+"""`train` is quiet by default: Lightning's start-up messages (GPU available, the
+litlogger tip, batch limits, "`weights_only` was not set") and its deprecation warnings
+show only with `--verbose`; the run's own result line always shows."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from toy_store import make_toy_store
+
+REPO = Path(__file__).resolve().parents[1]
+NOISE = ("GPU available", "litlogger", "weights_only", "LeafSpec", "limit_train_batches")
+
+
+def _train(store: Path, runs: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    # A subprocess: Lightning's log handlers and warnings write to the real stderr.
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(REPO / "src"), *sys.path]),
+        "OMP_NUM_THREADS": "1",
+    }
+    args = [
+        *("--set", f"data.store={store}", "--set", f"output_dir={runs}"),
+        *("--set", "training.max_epochs=1", "--set", "data.image_size=[72,72]"),
+        *("--set", "training.batch_size=16", "--set", "augmentation.enabled=false"),
+    ]
+    return subprocess.run(
+        [sys.executable, "-m", "tactile_compliance", "train", *args, *extra],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+        check=False,
+    )
+
+
+def test_train_is_quiet_by_default_and_verbose_on_request(tmp_path: Path) -> None:
+    store = make_toy_store(tmp_path / "store", n_objects=6, grasps=2, size=(72, 72)).path
+    quiet = _train(store, tmp_path / "runs")
+    assert quiet.returncode == 0, quiet.stderr
+    assert "best epoch" in quiet.stdout and "Run directory" in quiet.stdout
+    assert quiet.stderr.strip() == "", quiet.stderr
+    verbose = _train(store, tmp_path / "runs", "--overwrite", "--verbose")
+    assert verbose.returncode == 0, verbose.stderr
+    shown = [text for text in NOISE if text in verbose.stderr]
+    assert {"GPU available", "litlogger", "weights_only"} <= set(shown), verbose.stderr
