@@ -107,6 +107,14 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             ["--window-s must be > 0"],
             ["window_s"],
         ),
+        "an experiment on a missing store": (
+            [
+                *("experiment", "table1", "--quick", "--store", str(tmp / "no-store")),
+                *("--output-dir", str(tmp / "runs"), "--results", str(tmp / "results")),
+            ],
+            ["store not found", "no-store"],
+            [],
+        ),
         "a config key typo": (
             ["train", "--set", "training.lrr=1e-3", "--set", f"output_dir={tmp / 'runs'}"],
             ["training.lrr", "valid keys in 'training'"],
@@ -128,7 +136,8 @@ def test_a_mistake_gives_one_line_naming_its_cause(label: str, files: dict[str, 
         assert text in line, (label, line)
     for text in never:
         assert text not in line, (label, line)
-    assert not (files["tmp"] / "runs").exists() and not (files["tmp"] / "sim").exists()
+    for name in ("runs", "results", "sim", "data"):  # a failed command creates no folder
+        assert not (files["tmp"] / name).exists(), (label, name)
 
 
 def test_export_without_onnx_says_what_to_install_and_leaves_no_folder(

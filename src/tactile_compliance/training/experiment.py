@@ -550,6 +550,10 @@ def run_experiment(
         workers=scheduler or ("client" if client is not None else workers),
         keys=[c.key for c in plan.cells],
     )
+    if not remote and not Path(plan.results_path).exists():
+        # A fresh experiment runs every cell: a missing store is reported before the
+        # output folders are created, so the failed command leaves nothing behind.
+        _check_stores(plan.cells)
     claim_output_dir(
         plan.output_dir,
         "experiment",
