@@ -115,6 +115,11 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             ["store not found", "no-store"],
             [],
         ),
+        "an option under its new and its old name": (
+            ["train", "--out", str(tmp / "a"), "--run-dir", str(tmp / "b")],
+            ["give --out only (--run-dir is its old name)"],
+            [],
+        ),
         "a config key typo": (
             ["train", "--set", "training.lrr=1e-3", "--set", f"output_dir={tmp / 'runs'}"],
             ["training.lrr", "valid keys in 'training'"],

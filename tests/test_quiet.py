@@ -1,6 +1,7 @@
 """`train` is quiet by default: Lightning's start-up messages (GPU available, the
 litlogger tip, batch limits, "`weights_only` was not set") and its deprecation warnings
-show only with `--verbose`; the run's own result line always shows."""
+show only with `--verbose`; the run's own result line always shows. `--keep-checkpoints
+best` keeps best.pt only."""
 
 from __future__ import annotations
 
@@ -37,13 +38,24 @@ def _train(store: Path, runs: Path, *extra: str) -> subprocess.CompletedProcess[
     )
 
 
-def test_train_is_quiet_by_default_and_verbose_on_request(tmp_path: Path) -> None:
+def _run_dir(stdout: str) -> Path:
+    return Path(stdout.split("Run directory: ", 1)[1].strip())
+
+
+def test_train_is_quiet_by_default_and_keeps_what_it_is_told(tmp_path: Path) -> None:
     store = make_toy_store(tmp_path / "store", n_objects=6, grasps=2, size=(72, 72)).path
     quiet = _train(store, tmp_path / "runs")
     assert quiet.returncode == 0, quiet.stderr
     assert "best epoch" in quiet.stdout and "Run directory" in quiet.stdout
     assert quiet.stderr.strip() == "", quiet.stderr
-    verbose = _train(store, tmp_path / "runs", "--overwrite", "--verbose")
+    run_dir = _run_dir(quiet.stdout)
+    assert (run_dir / "best.pt").is_file() and (run_dir / "checkpoints" / "last.ckpt").is_file()
+
+    verbose = _train(
+        store, tmp_path / "runs", "--overwrite", "--verbose", "--keep-checkpoints", "best"
+    )
     assert verbose.returncode == 0, verbose.stderr
     shown = [text for text in NOISE if text in verbose.stderr]
     assert {"GPU available", "litlogger", "weights_only"} <= set(shown), verbose.stderr
+    assert _run_dir(verbose.stdout) == run_dir
+    assert (run_dir / "best.pt").is_file() and not (run_dir / "checkpoints").exists()

@@ -35,7 +35,7 @@ Condition = Literal["seen", "unseen"]  # config.SplitConfig.condition
 Grouping = Literal["grasp", "per_sample"]  # config.SplitConfig.grouping
 Inputs = Literal["Image", "ImageF", "ImageFW", "ALL"]  # models.inputs.InputStrategy
 Objective = Literal["last", "best"]  # training.hpo.objectives.OBJECTIVES
-KeepCheckpoints = Literal["best", "all", "none"]  # training.experiment.KEEP_CHECKPOINTS
+KeepCheckpoints = Literal["all", "best", "none"]  # runs.layout.KEEP_CHECKPOINTS
 Backbone = Literal[  # training.pretrain.PRETRAIN_BACKBONES
     "resnet18", "resnet34", "resnet50", "vgg16", "top10nn-cnn"
 ]
@@ -237,6 +237,16 @@ app.add_typer(import_app, name="import")
 def _fail(message: str, code: int = EXIT_FAILED) -> None:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code)
+
+
+def _renamed(value: Any, old_value: Any, name: str, old_name: str) -> Any:
+    """An option's value given under its name or its old name (a hidden alias kept for one
+    release after a rename to the scheme in docs/cli.md)."""
+    if old_value is None:
+        return value
+    if value is not None and value != old_value:
+        raise typer.BadParameter(f"give {name} only ({old_name} is its old name)")
+    return old_value
 
 
 def _size_option(size: str | None) -> tuple[int, int] | None:
@@ -570,9 +580,14 @@ def split_summary(
     store: Annotated[Path, typer.Argument(help="The store the split was drawn from.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
-    """Show what a saved split contains (counts, materials, shapes, leakage checks)."""
+    """Show what a saved split contains (counts, materials, shapes, leakage checks).
+
+    The split (a file) and the store (a directory) may come in either order."""
     from tactile_compliance.data.splits import Split, summarise_split
     from tactile_compliance.data.store import GraspStore
+
+    if split_file.is_dir() and store.is_file():  # given as STORE SPLIT: tell them apart
+        split_file, store = store, split_file
 
     summary = summarise_split(GraspStore.open(store).samples, Split.load(split_file))
     typer.echo(json.dumps(summary.to_dict(), indent=2, default=str) if as_json else str(summary))
@@ -583,9 +598,23 @@ def train(
     config: ConfigArg = "default",
     overrides: SetOption = None,
     run_dir: Annotated[
-        Optional[Path], typer.Option("--run-dir", help="Run directory (default: output_dir/NAME).")  # noqa: UP045
+        Optional[Path],  # noqa: UP045
+        typer.Option(
+            "--out", help="Run directory to write (default: the config's output_dir/NAME)."
+        ),
+    ] = None,
+    run_dir_alias: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option("--run-dir", hidden=True, help="The old name of --out."),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Retrain a finished run.")] = False,
+    keep_checkpoints: Annotated[
+        KeepCheckpoints,
+        typer.Option(
+            help="What the finished run keeps: all (best.pt + checkpoints/last.ckpt, which "
+            "only resumes an interrupted run), best (best.pt) or none."
+        ),
+    ] = "all",
     verbose: Annotated[
         bool,
         typer.Option(
@@ -601,10 +630,14 @@ def train(
     Writes a run directory (config, split, checkpoints, per-epoch log, predictions,
     metrics.json). Re-running resumes an interrupted run or returns a finished one.
     """
+    run_dir = _renamed(run_dir, run_dir_alias, "--out", "--run-dir")
     cfg = _load_config(config, overrides)  # first: a typo is reported before torch loads
     from tactile_compliance.training.train import train as train_run
 
     result = train_run(cfg, run_dir=run_dir, overwrite=overwrite, verbose=verbose)  # type: ignore[arg-type]
+    from tactile_compliance.runs.layout import prune_checkpoints
+
+    prune_checkpoints(result["run_dir"], keep_checkpoints)
     test, median = result["test"], result["reference"]["median"]
     typer.echo(
         f"{result['run_name']}: best epoch {result['best_epoch']}, "
@@ -744,7 +777,11 @@ StoreOption = Annotated[
 ]
 OutputDirOption = Annotated[
     Optional[Path],  # noqa: UP045
-    typer.Option("--output-dir", help="Where run directories go."),
+    typer.Option("--out", help="Where run directories go.", show_default="the preset's"),
+]
+OutputDirAlias = Annotated[
+    Optional[Path],  # noqa: UP045
+    typer.Option("--output-dir", hidden=True, help="The old name of --out."),
 ]
 QuickOption = Annotated[
     bool, typer.Option("--quick", help="The preset's small variant for a 2-core CPU.")
@@ -788,6 +825,7 @@ def experiment(
     workers: WorkersOption = 1,
     scheduler: SchedulerOption = None,
     output_dir: OutputDirOption = None,
+    output_dir_alias: OutputDirAlias = None,
     results: Annotated[
         Optional[Path],  # noqa: UP045
         typer.Option("--results", help="Results store directory (default: runs/results)."),
@@ -815,6 +853,7 @@ def experiment(
         run_experiment,
     )
 
+    output_dir = _renamed(output_dir, output_dir_alias, "--out", "--output-dir")
     common = dict(
         quick=quick,
         seeds=seeds,
@@ -865,6 +904,7 @@ def tune(
     scheduler: SchedulerOption = None,
     threads: ThreadsOption = None,
     output_dir: OutputDirOption = None,
+    output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
 ) -> None:
     """Tune a model's hyperparameters with SMAC3 (Hyperband over epochs, val N-MSE).
@@ -915,6 +955,7 @@ def tune_balance(
     scheduler: SchedulerOption = None,
     threads: ThreadsOption = None,
     output_dir: OutputDirOption = None,
+    output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
 ) -> None:
     """Tune the balance threshold t_balance in [0, 1] with SMAC3.
@@ -938,6 +979,8 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
     from tactile_compliance.training import hpo
 
     options["overrides"] = options["overrides"] or []
+    alias = options.pop("output_dir_alias")
+    options["output_dir"] = _renamed(options["output_dir"], alias, "--out", "--output-dir")
     result = getattr(hpo, name)(**options)
     typer.echo(result.format())
 
@@ -990,6 +1033,14 @@ def export(
         ),
     ] = None,
     weights: BackboneWeightsOption = None,
+    license: Annotated[
+        str,
+        typer.Option(
+            "--license",
+            help="The model card's licence for --safetensors (an SPDX id such as mit or "
+            "cc-by-4.0); other: the weights follow the licence of their training data.",
+        ),
+    ] = "other",
 ) -> None:
     """Export a checkpoint to ONNX (dynamic batch size) and/or a safetensors directory.
 
@@ -1011,7 +1062,11 @@ def export(
         require_onnx()  # before the safetensors directory is written
     if safetensors is not None:
         written = export_safetensors(
-            checkpoint, safetensors, image_size=_size_option(size), backbone_weights=weights
+            checkpoint,
+            safetensors,
+            image_size=_size_option(size),
+            backbone_weights=weights,
+            license=license,
         )
         typer.echo(format_safetensors_report(written))
     if onnx is not None:

@@ -177,6 +177,39 @@ class ComplianceEstimator(BaseEstimator):
         )
         return estimator
 
+    def save_pretrained(self, path: str | Path, *, license: str = "other") -> dict[str, Any]:
+        """Write this model as a safetensors directory that :meth:`from_pretrained` loads:
+        ``model.safetensors``, ``config.json`` and a model card ``README.md`` (what
+        ``tactile-compliance export CHECKPOINT --safetensors DIR`` writes).
+
+        ``path`` must be new, empty or an earlier export (never a folder of other files).
+        The estimator must come from a file (:meth:`from_checkpoint` or
+        :meth:`from_pretrained`), whose sha256 the card records. ``license``: the card's
+        licence (an SPDX identifier; ``other``: the weights follow the licence of their
+        training data).
+
+        Returns:
+            ``out``, ``files`` (name -> bytes), ``config`` (what ``config.json`` holds).
+        """
+        from tactile_compliance.inference.pretrained import (
+            WEIGHTS_FILE,
+            run_evaluation,
+            write_pretrained,
+        )
+
+        source = Path(self.source)
+        checkpoint = source / WEIGHTS_FILE if source.is_dir() else source
+        if not checkpoint.is_file():
+            raise ValueError(
+                f"{self.source}: an estimator not loaded from a file cannot be saved "
+                "(its checkpoint is recorded); use from_checkpoint or from_pretrained"
+            )
+        # A run's best.pt: the card shows the run's metrics.
+        evaluation = run_evaluation(checkpoint) if checkpoint.suffix == ".pt" else None
+        return write_pretrained(
+            self, path, checkpoint=checkpoint, evaluation=evaluation, license=license
+        )
+
     # ------------------------------------------------------------------ description
     @property
     def model_name(self) -> str:

@@ -54,13 +54,14 @@ from tactile_compliance.inference.onnx import (
     onnx_input_names,
 )
 from tactile_compliance.inference.pretrained import (
+    DEFAULT_LICENSE,
     OUTPUT_KIND,
     OptionalDependencyError,
     require_safetensors,
+    run_evaluation,
     write_pretrained,
 )
 from tactile_compliance.outputs import check_output_file, claim_output_dir
-from tactile_compliance.runs.layout import RESULT_FILE
 
 # The runtime names are defined in ``onnx`` (the file's reader); they stay importable from
 # here, where export and runtime lived together before.
@@ -371,21 +372,13 @@ def format_export_report(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _run_evaluation(checkpoint: Path) -> dict[str, Any] | None:
-    """The run's ``metrics.json`` next to ``checkpoint`` (test/val metrics), if any."""
-    try:
-        result = json.loads((checkpoint.parent / RESULT_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return result if isinstance(result, dict) and "test" in result else None
-
-
 def export_safetensors(
     checkpoint: str | Path,
     out: str | Path,
     *,
     image_size: tuple[int, int] | None = None,
     backbone_weights: str | Path | None = None,
+    license: str = DEFAULT_LICENSE,
 ) -> dict[str, Any]:
     """Write a checkpoint as ``model.safetensors`` + ``config.json`` + a model card ``README.md``.
 
@@ -402,6 +395,8 @@ def export_safetensors(
         image_size: (H, W) px; only needed when the checkpoint does not record its frame
             size and its training store is gone.
         backbone_weights: see ``ComplianceEstimator.from_checkpoint``.
+        license: the model card's licence (an SPDX identifier such as ``mit``; default
+            ``other``: the weights follow the licence of their training data).
 
     Returns:
         ``out``, ``files`` (name -> bytes), ``config`` (what ``config.json`` holds).
@@ -413,7 +408,9 @@ def export_safetensors(
     if image_size is not None:
         estimator.image_size = (int(image_size[0]), int(image_size[1]))
     file = Path(estimator.source)
-    return write_pretrained(estimator, out, checkpoint=file, evaluation=_run_evaluation(file))
+    return write_pretrained(
+        estimator, out, checkpoint=file, evaluation=run_evaluation(file), license=license
+    )
 
 
 def format_safetensors_report(report: dict[str, Any]) -> str:

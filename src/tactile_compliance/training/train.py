@@ -721,7 +721,7 @@ def train(
     """
     run_dir = Path(run_dir) if run_dir is not None else Path(cfg.output_dir) / run_name(cfg)
     if run_dir.is_dir():  # a run directory of ours, never a directory of someone's files
-        claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir, option="--run-dir")
+        claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir, option="--out")
     if not overwrite and (finished := _finished_result(run_dir)) is not None:
         return finished
     try:
@@ -749,7 +749,7 @@ def _train(
         data = prepare_data(cfg, getattr(model, "recommended_image_size", None))
         check_frame_size(cfg, model, data.image_size or data.store.image_size)
         if not locked:
-            claim_output_dir(run_dir, RUN_KIND, option="--run-dir")
+            claim_output_dir(run_dir, RUN_KIND, option="--out")
             stack.enter_context(lock_directory(run_dir))
         # Another process may have finished this run while this one prepared its data.
         if not overwrite and (finished := _finished_result(run_dir)) is not None:
