@@ -200,3 +200,20 @@ def test_a_config_typo_is_reported_before_torch_is_imported(tmp_path: Path) -> N
         result = _run("-c", CHECK_WITHOUT_TORCH, *args)
         assert result.stdout.strip() == "2 []", (args, result)
         assert len(result.stderr.strip().splitlines()) == 1, (args, result.stderr)
+
+
+def test_device_auto_is_the_gpu_when_there_is_one_and_cuda_without_one_is_one_line(
+    tmp_path: Path,
+) -> None:
+    from tactile_compliance.runs.forward import resolve_device
+
+    assert resolve_device("auto") == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert resolve_device("cpu") == "cpu"
+    if torch.cuda.is_available():
+        return
+    (tmp_path / "best.pt").write_text("not read: the device is checked first")
+    result = runner.invoke(
+        app, ["predict", str(tmp_path / "best.pt"), str(tmp_path), "--device", "cuda"]
+    )
+    assert result.exit_code == 2, result.output
+    assert "sees no CUDA GPU; use auto or cpu" in _one_error_line(result)

@@ -513,6 +513,10 @@ def _load_config(config: str, overrides: list[str] | None) -> object:
 ConfigArg = Annotated[
     str, typer.Option("--config", "-c", help="YAML config file or packaged preset name.")
 ]
+DeviceOption = Annotated[
+    str,
+    typer.Option(help="auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda or cuda:N."),
+]
 SetOption = Annotated[
     Optional[list[str]],  # noqa: UP045
     typer.Option(
@@ -608,6 +612,16 @@ def train(
         typer.Option("--run-dir", hidden=True, help="The old name of --out."),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Retrain a finished run.")] = False,
+    size: Annotated[
+        Optional[str],  # noqa: UP045
+        typer.Option(
+            "--size",
+            help="Frame size HxW the model sees (data.image_size; a --set of it wins).",
+        ),
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the run's result (metrics.json) as JSON.")
+    ] = False,
     keep_checkpoints: Annotated[
         KeepCheckpoints,
         typer.Option(
@@ -631,13 +645,25 @@ def train(
     metrics.json). Re-running resumes an interrupted run or returns a finished one.
     """
     run_dir = _renamed(run_dir, run_dir_alias, "--out", "--run-dir")
-    cfg = _load_config(config, overrides)  # first: a typo is reported before torch loads
+    image_size = _size_option(size)
+    sized = [f"data.image_size=[{image_size[0]},{image_size[1]}]"] if image_size else []
+    # The config first, before torch loads: a typo is reported at once.
+    cfg = _load_config(config, [*sized, *(overrides or [])])
     from tactile_compliance.training.train import train as train_run
 
-    result = train_run(cfg, run_dir=run_dir, overwrite=overwrite, verbose=verbose)  # type: ignore[arg-type]
+    result = train_run(  # --json: stdout holds the JSON only, so no progress bar
+        cfg,  # type: ignore[arg-type]
+        run_dir=run_dir,
+        overwrite=overwrite,
+        verbose=verbose,
+        progress=not as_json,
+    )
     from tactile_compliance.runs.layout import prune_checkpoints
 
     prune_checkpoints(result["run_dir"], keep_checkpoints)
+    if as_json:
+        typer.echo(json.dumps(result, indent=2, default=str))
+        return
     test, median = result["test"], result["reference"]["median"]
     typer.echo(
         f"{result['run_name']}: best epoch {result['best_epoch']}, "
@@ -682,9 +708,7 @@ def pretrain(
         ),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a pretrained weights file.")] = False,
-    device: Annotated[
-        str, typer.Option(help="auto (a GPU if torch sees one), cpu or cuda.")
-    ] = "auto",
+    device: DeviceOption = "auto",
 ) -> None:
     """Pretrain a backbone to predict depth maps and contact masks from the difference images.
 
@@ -995,7 +1019,7 @@ def predict(
     fingers: Annotated[
         Fingers, typer.Option(help="Which finger's images of a raw directory.")
     ] = "both",
-    device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
+    device: DeviceOption = "auto",
     weights: BackboneWeightsOption = None,
 ) -> None:
     """Estimate Young's modulus for every grasp of a store, raw directory or video."""
@@ -1317,7 +1341,7 @@ def live(
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
-    device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
+    device: DeviceOption = "auto",
     weights: BackboneWeightsOption = None,
 ) -> None:
     """Stream a sensor (or a replayed video) through the estimator.

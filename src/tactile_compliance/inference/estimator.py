@@ -29,7 +29,7 @@ from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.inference.base import MIN_FRAME_SIDE_PX, BaseEstimator, Prediction
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.checkpoint import load_checkpoint
-from tactile_compliance.runs.forward import forward_batch
+from tactile_compliance.runs.forward import forward_batch, resolve_device
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.streaming import StreamingEstimator
@@ -99,7 +99,7 @@ class ComplianceEstimator(BaseEstimator):
         device: str | torch.device = "cpu",
         source: str | None = None,
     ) -> None:
-        self.device = torch.device(device)
+        self.device = torch.device(resolve_device(device))
         self.model = model.to(self.device).eval()
         self.constants = constants
         self.image_size = tuple(image_size) if image_size is not None else None
@@ -128,6 +128,7 @@ class ComplianceEstimator(BaseEstimator):
         torch.hub cache); ``backbone_weights`` names a local copy of that file instead.
         """
         file = resolve_checkpoint(path)
+        device = resolve_device(device)  # "auto": a GPU when torch sees one
         loaded = load_checkpoint(file, device=device, backbone_weights=backbone_weights)
         store_size = _training_store_size(loaded.meta)
         estimator = cls(
@@ -162,6 +163,7 @@ class ComplianceEstimator(BaseEstimator):
         """
         from tactile_compliance.inference.pretrained import load_pretrained
 
+        device = resolve_device(device)  # "auto": a GPU when torch sees one
         loaded = load_pretrained(path, device=device)
         estimator = cls(
             loaded.model,
