@@ -205,3 +205,16 @@ def test_debug_shows_the_traceback(tmp_path):
     result = runner.invoke(app, ["--debug", *args])
     assert result.exit_code != 0 and result.exception is not None
     assert not isinstance(result.exception, SystemExit)
+
+
+def test_split_summary_takes_the_split_and_the_store_in_either_order(tmp_path):
+    from toy_store import make_toy_store
+
+    store = tmp_path / "store"
+    make_toy_store(store, n_objects=6, grasps=2, size=(8, 8))
+    split = tmp_path / "split.json"
+    assert runner.invoke(app, ["split", str(store), "--out", str(split)]).exit_code == 0
+    given = runner.invoke(app, ["split-summary", str(split), str(store), "--json"])
+    swapped = runner.invoke(app, ["split-summary", str(store), str(split), "--json"])
+    assert given.exit_code == 0 and swapped.exit_code == 0, swapped.output
+    assert json.loads(swapped.output) == json.loads(given.output)

@@ -90,8 +90,8 @@ def test_the_choices_are_the_library_vocabularies() -> None:
     from tactile_compliance.demo import PLANS
     from tactile_compliance.inference import sources
     from tactile_compliance.models.inputs import InputStrategy
+    from tactile_compliance.runs.layout import KEEP_CHECKPOINTS
     from tactile_compliance.synthetic.writer import ALLOWED_DTYPES
-    from tactile_compliance.training.experiment import KEEP_CHECKPOINTS
     from tactile_compliance.training.hpo.objectives import OBJECTIVES
     from tactile_compliance.training.pretrain import PRETRAIN_BACKBONES
 
@@ -174,3 +174,19 @@ def test_python_dash_m_runs_the_command() -> None:
     wrong = _subprocess("-m", "tactile_compliance", "predict", "a", "b", "--fingers", "x")
     assert wrong.returncode == 2 and len(wrong.stderr.strip().splitlines()) == 1, wrong
     assert wrong.stdout == "", wrong
+
+
+def test_outputs_are_out_and_the_old_names_are_hidden_aliases() -> None:
+    """docs/cli.md: what a command writes is --out; --run-dir and --output-dir still parse
+    for one release but are not shown."""
+    for command, old in (
+        ("train", "--run-dir"),
+        ("experiment", "--output-dir"),
+        ("tune", "--output-dir"),
+        ("tune-balance", "--output-dir"),
+    ):
+        text = runner.invoke(app, [command, "--help"], env=WIDE).output
+        assert "--out " in text and old not in text, command
+        click_command = dict((tuple(p), c) for p, c in COMMANDS)[(command,)]
+        hidden = [p for p in click_command.params if old in p.opts]
+        assert hidden and hidden[0].hidden, command

@@ -262,3 +262,50 @@ def test_the_units_of_the_estimates_travel_into_the_export(tmp_path):
     assert json.loads((tmp_path / "model" / CONFIG_FILE).read_text())["sensor_units"] == units
     loaded = ComplianceEstimator.from_pretrained(tmp_path / "model")
     assert loaded.sensor_units == SensorUnits("calibrated", 12.5)
+
+
+def _strings(value) -> list[str]:  # type: ignore[no-untyped-def]
+    if isinstance(value, dict):
+        return [s for item in value.values() for s in _strings(item)]
+    if isinstance(value, list):
+        return [s for item in value for s in _strings(item)]
+    return [value] if isinstance(value, str) else []
+
+
+def test_an_export_holds_no_local_path_and_a_licence(tmp_path, top10nn_run):
+    runner.invoke(app, ["export", str(top10nn_run), "--safetensors", str(tmp_path / "m")])
+    config = json.loads((tmp_path / "m" / CONFIG_FILE).read_text())
+    card = (tmp_path / "m" / CARD_FILE).read_text()
+    # The run and its store lie under the test's temporary folder: no path to it is kept.
+    root = str(top10nn_run.parents[1])
+    assert not [s for s in _strings(config) if s.startswith("/")], config
+    assert root not in json.dumps(config) and root not in card
+    assert config["training_store"]["path"] == "store"  # the store's folder name
+    assert config["license"] == "other" and "\nlicense: other\n" in card
+    result = runner.invoke(
+        app, ["export", str(top10nn_run), "--safetensors", str(tmp_path / "m"), "--license", "mit"]
+    )
+    assert result.exit_code == 0, result.output
+    assert "\nlicense: mit\n" in (tmp_path / "m" / CARD_FILE).read_text()
+
+
+def test_save_pretrained_writes_what_from_pretrained_loads(tmp_path, top10nn_run):
+    reference = ComplianceEstimator.from_checkpoint(top10nn_run)
+    report = reference.save_pretrained(tmp_path / "saved", license="cc-by-4.0")
+    assert sorted(report["files"]) == sorted([WEIGHTS_FILE, CONFIG_FILE, CARD_FILE])
+    loaded = ComplianceEstimator.from_pretrained(tmp_path / "saved")
+    inputs = _inputs()
+    np.testing.assert_allclose(
+        _predict(loaded, inputs), _predict(reference, inputs), rtol=0, atol=1e-5
+    )
+    card = (tmp_path / "saved" / CARD_FILE).read_text()
+    assert "\nlicense: cc-by-4.0\n" in card and "| model, test split" in card  # run metrics
+    # From a loaded export too, and never into a folder of someone's files.
+    loaded.save_pretrained(tmp_path / "again")
+    assert ComplianceEstimator.from_pretrained(tmp_path / "again").inputs == reference.inputs
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    with pytest.raises(OutputExistsError):
+        reference.save_pretrained(mine)
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"]

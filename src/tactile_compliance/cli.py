@@ -36,7 +36,7 @@ Condition = Literal["seen", "unseen"]  # config.SplitConfig.condition
 Grouping = Literal["grasp", "per_sample"]  # config.SplitConfig.grouping
 Inputs = Literal["Image", "ImageF", "ImageFW", "ALL"]  # models.inputs.InputStrategy
 Objective = Literal["last", "best"]  # training.hpo.objectives.OBJECTIVES
-KeepCheckpoints = Literal["best", "all", "none"]  # training.experiment.KEEP_CHECKPOINTS
+KeepCheckpoints = Literal["all", "best", "none"]  # runs.layout.KEEP_CHECKPOINTS
 Backbone = Literal[  # training.pretrain.PRETRAIN_BACKBONES
     "resnet18", "resnet34", "resnet50", "vgg16", "top10nn-cnn"
 ]
@@ -51,7 +51,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
     Imported when an error happens, so that the command starts fast."""
     from tactile_compliance.data.import_report import DataImportError
     from tactile_compliance.data.store import StoreError
-    from tactile_compliance.inference.pretrained import SafetensorsMissingError
+    from tactile_compliance.inference.pretrained import OptionalDependencyError
     from tactile_compliance.models.backbones import BackboneWeightsError
     from tactile_compliance.training.experiment import ExperimentError
     from tactile_compliance.training.hpo import TuneError
@@ -66,7 +66,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
         ExperimentError,
         TuneError,
         BackboneWeightsError,
-        SafetensorsMissingError,
+        OptionalDependencyError,  # the message says what to pip install
     )
 
 
@@ -106,10 +106,17 @@ def _one_line_errors(command: Any) -> Any:
             typer.secho("interrupted; re-run the same command to continue", err=True)
             raise typer.Exit(EXIT_INTERRUPTED) from None
         except Exception as err:
-            if _debug or not isinstance(err, _expected_errors()):
+            if _debug:
                 raise
-            failed = isinstance(err, _write_failures()) or _disk_full(err)
-            code = EXIT_FAILED if failed else EXIT_BAD_INPUT
+            # ValueError and OSError are bad input unless the disk is full: decided without
+            # importing the library's error classes (which load torch), so that a config
+            # typo is reported at once.
+            if not isinstance(err, (ValueError, OSError)):
+                if not isinstance(err, _expected_errors()):
+                    raise
+                if isinstance(err, _write_failures()):
+                    _fail(str(err) or type(err).__name__, EXIT_FAILED)
+            code = EXIT_FAILED if _disk_full(err) else EXIT_BAD_INPUT
             _fail(str(err) or type(err).__name__, code)
 
     return run
@@ -249,6 +256,16 @@ def _fail(message: str, code: int = EXIT_FAILED) -> None:
     raise typer.Exit(code)
 
 
+def _renamed(value: Any, old_value: Any, name: str, old_name: str) -> Any:
+    """An option's value given under its name or its old name (a hidden alias kept for one
+    release after a rename to the scheme in docs/cli.md)."""
+    if old_value is None:
+        return value
+    if value is not None and value != old_value:
+        raise typer.BadParameter(f"give {name} only ({old_name} is its old name)")
+    return old_value
+
+
 def _size_option(size: str | None) -> tuple[int, int] | None:
     from tactile_compliance.data.image_ops import parse_size
 
@@ -295,6 +312,7 @@ def simulate(
         Optional[int],  # noqa: UP045
         typer.Option(
             "--objects",
+            min=1,
             help="Number of objects (default: 286 like the real table; "
             "40 silicone samples for shore-videos).",
         ),
@@ -309,15 +327,18 @@ def simulate(
     ] = None,
     grasps_per_object: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option("--grasps-per-object", help="Grasps (presses for videos) per object."),
+        typer.Option("--grasps-per-object", min=1, help="Grasps (presses for videos) per object."),
     ] = None,
-    seed: Annotated[int, typer.Option(help="Base seed; same seed, byte-identical output.")] = 0,
+    seed: Annotated[
+        int, typer.Option(min=0, help="Base seed; same seed, byte-identical output.")
+    ] = 0,
     size: Annotated[str, typer.Option("--size", help="Frame size HxW in pixels.")] = "250x350",
     dtype: Annotated[PickleDtype, typer.Option(help="Pickle dtype of images and depths.")] = (
         "float16"
     ),
     workers: Annotated[
-        Optional[int], typer.Option(help="Processes (default: all CPUs).")  # noqa: UP045
+        Optional[int],  # noqa: UP045
+        typer.Option(min=1, help="Processes (default: all CPUs)."),
     ] = None,
 ) -> None:
     """Generate a physically grounded synthetic dataset in the real raw layout.
@@ -509,6 +530,10 @@ def _load_config(config: str, overrides: list[str] | None) -> object:
 ConfigArg = Annotated[
     str, typer.Option("--config", "-c", help="YAML config file or packaged preset name.")
 ]
+DeviceOption = Annotated[
+    str,
+    typer.Option(help="auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda or cuda:N."),
+]
 SetOption = Annotated[
     Optional[list[str]],  # noqa: UP045
     typer.Option(
@@ -545,7 +570,7 @@ def split(
         Grouping,
         typer.Option(help="How seen splits: by grasp, or per_sample (the paper's, leaks)."),
     ] = "grasp",
-    seed: Annotated[int, typer.Option(help="Random seed of the split.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Random seed of the split.")] = 0,
     config: Annotated[
         str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
     ] = "default",
@@ -576,9 +601,14 @@ def split_summary(
     store: Annotated[Path, typer.Argument(help="The store the split was drawn from.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
-    """Show what a saved split contains (counts, materials, shapes, leakage checks)."""
+    """Show what a saved split contains (counts, materials, shapes, leakage checks).
+
+    The split (a file) and the store (a directory) may come in either order."""
     from tactile_compliance.data.splits import Split, summarise_split
     from tactile_compliance.data.store import GraspStore
+
+    if split_file.is_dir() and store.is_file():  # given as STORE SPLIT: tell them apart
+        split_file, store = store, split_file
 
     summary = summarise_split(GraspStore.open(store).samples, Split.load(split_file))
     typer.echo(json.dumps(summary.to_dict(), indent=2, default=str) if as_json else str(summary))
@@ -589,19 +619,68 @@ def train(
     config: ConfigArg = "default",
     overrides: SetOption = None,
     run_dir: Annotated[
-        Optional[Path], typer.Option("--run-dir", help="Run directory (default: output_dir/NAME).")  # noqa: UP045
+        Optional[Path],  # noqa: UP045
+        typer.Option(
+            "--out", help="Run directory to write (default: the config's output_dir/NAME)."
+        ),
+    ] = None,
+    run_dir_alias: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option("--run-dir", hidden=True, help="The old name of --out."),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Retrain a finished run.")] = False,
+    size: Annotated[
+        Optional[str],  # noqa: UP045
+        typer.Option(
+            "--size",
+            help="Frame size HxW the model sees (data.image_size; a --set of it wins).",
+        ),
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the run's result (metrics.json) as JSON.")
+    ] = False,
+    keep_checkpoints: Annotated[
+        KeepCheckpoints,
+        typer.Option(
+            help="What the finished run keeps: all (best.pt + checkpoints/last.ckpt, which "
+            "only resumes an interrupted run), best (best.pt) or none."
+        ),
+    ] = "all",
+    verbose: Annotated[
+        bool,
+        typer.Option(
+            "--verbose",
+            "-v",
+            help="Also show Lightning's start-up messages (GPU available, tips, checkpoint "
+            "loading) and its deprecation and housekeeping warnings.",
+        ),
+    ] = False,
 ) -> None:
     """Train one configuration and evaluate its best epoch on the test split.
 
     Writes a run directory (config, split, checkpoints, per-epoch log, predictions,
     metrics.json). Re-running resumes an interrupted run or returns a finished one.
     """
+    run_dir = _renamed(run_dir, run_dir_alias, "--out", "--run-dir")
+    image_size = _size_option(size)
+    sized = [f"data.image_size=[{image_size[0]},{image_size[1]}]"] if image_size else []
+    # The config first, before torch loads: a typo is reported at once.
+    cfg = _load_config(config, [*sized, *(overrides or [])])
     from tactile_compliance.training.train import train as train_run
 
-    cfg = _load_config(config, overrides)
-    result = train_run(cfg, run_dir=run_dir, overwrite=overwrite)  # type: ignore[arg-type]
+    result = train_run(  # --json: stdout holds the JSON only, so no progress bar
+        cfg,  # type: ignore[arg-type]
+        run_dir=run_dir,
+        overwrite=overwrite,
+        verbose=verbose,
+        progress=not as_json,
+    )
+    from tactile_compliance.runs.layout import prune_checkpoints
+
+    prune_checkpoints(result["run_dir"], keep_checkpoints)
+    if as_json:
+        typer.echo(json.dumps(result, indent=2, default=str))
+        return
     test, median = result["test"], result["reference"]["median"]
     typer.echo(
         f"{result['run_name']}: best epoch {result['best_epoch']}, "
@@ -626,15 +705,19 @@ def pretrain(
         Condition,
         typer.Option(help="Without --split: draw this condition's split (unseen: by object)."),
     ] = "unseen",
-    seed: Annotated[int, typer.Option(help="Seed of the split (without --split) and init.")] = 0,
+    seed: Annotated[
+        int, typer.Option(min=0, help="Seed of the split (without --split) and init.")
+    ] = 0,
     config: Annotated[
         str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
     ] = "default",
     overrides: SetOption = None,
-    epochs: Annotated[int, typer.Option(help="Maximum epochs.")] = 30,
-    batch_size: Annotated[int, typer.Option(help="Samples (3 frames each) per batch.")] = 16,
-    lr: Annotated[float, typer.Option(help="AdamW learning rate.")] = 1e-3,
-    patience: Annotated[int, typer.Option(help="Early-stopping patience (epochs, 0: off).")] = 4,
+    epochs: Annotated[int, typer.Option(min=1, help="Maximum epochs.")] = 30,
+    batch_size: Annotated[int, typer.Option(min=1, help="Samples (3 frames each) per batch.")] = 16,
+    lr: Annotated[float, typer.Option(min=0, help="AdamW learning rate.")] = 1e-3,
+    patience: Annotated[
+        int, typer.Option(min=0, help="Early-stopping patience (epochs, 0: off).")
+    ] = 4,
     size: Annotated[
         Optional[str],  # noqa: UP045
         typer.Option(
@@ -642,9 +725,7 @@ def pretrain(
         ),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a pretrained weights file.")] = False,
-    device: Annotated[
-        str, typer.Option(help="auto (a GPU if torch sees one), cpu or cuda.")
-    ] = "auto",
+    device: DeviceOption = "auto",
 ) -> None:
     """Pretrain a backbone to predict depth maps and contact masks from the difference images.
 
@@ -652,11 +733,11 @@ def pretrain(
     The result loads with --set model.backbone_weights=OUT. Re-running resumes after the
     last finished epoch.
     """
+    extra = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
+    cfg = _load_config(config, [*extra, *(overrides or [])])  # before torch loads
     from tactile_compliance.training.pretrain import PretrainSettings
     from tactile_compliance.training.pretrain import pretrain as run_pretrain
 
-    extra = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
-    cfg = _load_config(config, [*extra, *(overrides or [])])
     settings = PretrainSettings(
         backbone=backbone,
         epochs=epochs,
@@ -720,7 +801,9 @@ def evaluate(
     typer.echo(evaluation.groups.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
 
 
-WorkersOption = Annotated[int, typer.Option("--workers", "-w", help="Local Dask worker processes.")]
+WorkersOption = Annotated[
+    int, typer.Option("--workers", "-w", min=1, help="Local Dask worker processes.")
+]
 SchedulerOption = Annotated[
     Optional[str],  # noqa: UP045
     typer.Option(
@@ -735,14 +818,18 @@ StoreOption = Annotated[
 ]
 OutputDirOption = Annotated[
     Optional[Path],  # noqa: UP045
-    typer.Option("--output-dir", help="Where run directories go."),
+    typer.Option("--out", help="Where run directories go.", show_default="the preset's"),
+]
+OutputDirAlias = Annotated[
+    Optional[Path],  # noqa: UP045
+    typer.Option("--output-dir", hidden=True, help="The old name of --out."),
 ]
 QuickOption = Annotated[
     bool, typer.Option("--quick", help="The preset's small variant for a 2-core CPU.")
 ]
 ThreadsOption = Annotated[
     Optional[int],  # noqa: UP045
-    typer.Option(help="Torch threads per run (default 1: one run per worker and core)."),
+    typer.Option(min=1, help="Torch threads per run (default 1: one run per worker and core)."),
 ]
 ConditionOption = Annotated[
     Optional[Condition],  # noqa: UP045
@@ -763,7 +850,8 @@ def experiment(
     preset: Annotated[str, typer.Argument(help="Experiment preset (see `presets`) or YAML file.")],
     quick: QuickOption = False,
     seeds: Annotated[
-        Optional[int], typer.Option(help="Number of seeds (0..N-1); default: the preset's.")  # noqa: UP045
+        Optional[int],  # noqa: UP045
+        typer.Option(min=1, help="Number of seeds (0..N-1); default: the preset's."),
     ] = None,
     store: StoreOption = None,
     overrides: SetOption = None,
@@ -778,6 +866,7 @@ def experiment(
     workers: WorkersOption = 1,
     scheduler: SchedulerOption = None,
     output_dir: OutputDirOption = None,
+    output_dir_alias: OutputDirAlias = None,
     results: Annotated[
         Optional[Path],  # noqa: UP045
         typer.Option("--results", help="Results store directory (default: runs/results)."),
@@ -805,6 +894,7 @@ def experiment(
         run_experiment,
     )
 
+    output_dir = _renamed(output_dir, output_dir_alias, "--out", "--output-dir")
     common = dict(
         quick=quick,
         seeds=seeds,
@@ -844,17 +934,18 @@ def tune(
     quick: QuickOption = False,
     store: StoreOption = None,
     overrides: SetOption = None,
-    trials: Annotated[int, typer.Option(help="SMAC trials.")] = 132,
-    min_epochs: Annotated[int, typer.Option(help="Smallest Hyperband budget (epochs).")] = 5,
-    max_epochs: Annotated[int, typer.Option(help="Largest Hyperband budget (epochs).")] = 50,
-    eta: Annotated[int, typer.Option(help="Hyperband's reduction factor.")] = 3,
+    trials: Annotated[int, typer.Option(min=1, help="SMAC trials.")] = 132,
+    min_epochs: Annotated[int, typer.Option(min=1, help="Smallest Hyperband budget (epochs).")] = 5,
+    max_epochs: Annotated[int, typer.Option(min=1, help="Largest Hyperband budget (epochs).")] = 50,
+    eta: Annotated[int, typer.Option(min=2, help="Hyperband's reduction factor.")] = 3,
     objective: ObjectiveOption = "last",
     condition: ConditionOption = None,
-    seed: Annotated[int, typer.Option(help="SMAC seed.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="SMAC seed.")] = 0,
     workers: WorkersOption = 1,
     scheduler: SchedulerOption = None,
     threads: ThreadsOption = None,
     output_dir: OutputDirOption = None,
+    output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
 ) -> None:
     """Tune a model's hyperparameters with SMAC3 (Hyperband over epochs, val N-MSE).
@@ -876,11 +967,13 @@ def tune_balance(
     overrides: SetOption = None,
     epochs: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option(help="Epochs per model and trial.", show_default="10; 50 with --paper-budget"),
+        typer.Option(
+            min=1, help="Epochs per model and trial.", show_default="10; 50 with --paper-budget"
+        ),
     ] = None,
     trials: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option(help="SMAC trials.", show_default="30; 132 with --paper-budget"),
+        typer.Option(min=1, help="SMAC trials.", show_default="30; 132 with --paper-budget"),
     ] = None,
     paper_budget: Annotated[
         bool,
@@ -898,11 +991,12 @@ def tune_balance(
     condition: Annotated[
         Condition, typer.Option(help="Split condition (unseen: by object).")
     ] = "seen",
-    seed: Annotated[int, typer.Option(help="SMAC seed.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="SMAC seed.")] = 0,
     workers: WorkersOption = 1,
     scheduler: SchedulerOption = None,
     threads: ThreadsOption = None,
     output_dir: OutputDirOption = None,
+    output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
 ) -> None:
     """Tune the balance threshold t_balance in [0, 1] with SMAC3.
@@ -926,6 +1020,8 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
     from tactile_compliance.training import hpo
 
     options["overrides"] = options["overrides"] or []
+    alias = options.pop("output_dir_alias")
+    options["output_dir"] = _renamed(options["output_dir"], alias, "--out", "--output-dir")
     result = getattr(hpo, name)(**options)
     typer.echo(result.format())
 
@@ -940,7 +1036,7 @@ def predict(
     fingers: Annotated[
         Fingers, typer.Option(help="Which finger's images of a raw directory.")
     ] = "both",
-    device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
+    device: DeviceOption = "auto",
     weights: BackboneWeightsOption = None,
 ) -> None:
     """Estimate Young's modulus for every grasp of a store, raw directory or video."""
@@ -978,6 +1074,14 @@ def export(
         ),
     ] = None,
     weights: BackboneWeightsOption = None,
+    license: Annotated[
+        str,
+        typer.Option(
+            "--license",
+            help="The model card's licence for --safetensors (an SPDX id such as mit or "
+            "cc-by-4.0); other: the weights follow the licence of their training data.",
+        ),
+    ] = "other",
 ) -> None:
     """Export a checkpoint to ONNX (dynamic batch size) and/or a safetensors directory.
 
@@ -993,9 +1097,17 @@ def export(
 
     if onnx is None and safetensors is None:
         raise typer.BadParameter("give --onnx FILE, --safetensors DIR or both")
+    if onnx is not None:
+        from tactile_compliance.inference.export import require_onnx
+
+        require_onnx()  # before the safetensors directory is written
     if safetensors is not None:
         written = export_safetensors(
-            checkpoint, safetensors, image_size=_size_option(size), backbone_weights=weights
+            checkpoint,
+            safetensors,
+            image_size=_size_option(size),
+            backbone_weights=weights,
+            license=license,
         )
         typer.echo(format_safetensors_report(written))
     if onnx is not None:
@@ -1019,7 +1131,11 @@ CalibrationOption = Annotated[
 ]
 FolderFpsOption = Annotated[
     Optional[float],  # noqa: UP045
-    typer.Option("--fps", help="Frame rate of a folder of frames (or give --timestamps)."),
+    typer.Option(
+        "--fps",
+        min=0,
+        help="Frame rate of a folder of frames (or give --timestamps).",
+    ),
 ]
 FolderTimesOption = Annotated[
     Optional[Path],  # noqa: UP045
@@ -1032,7 +1148,16 @@ def _readings(path: Path, source: Any) -> Any:
     live device (each frame waits up to 1 s for its reading)."""
     from tactile_compliance.inference.recording import FollowedReadings, Readings
 
-    return FollowedReadings(path) if source.live else Readings.from_csv(path)
+    if source.live:  # the robot may create the file after the start; its folder must exist
+        if not path.parent.is_dir():
+            raise ValueError(f"--readings {path}: no such folder: {path.parent}")
+        return FollowedReadings(path)
+    if not path.is_file():
+        raise ValueError(f"--readings {path}: no such file")
+    try:
+        return Readings.from_csv(path)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"--readings: {err}") from err
 
 
 def _open_source(
@@ -1053,7 +1178,9 @@ def _open_source(
 def calibrate(
     source: SourceArg,
     out: Annotated[Path, typer.Option("--out", help="Calibration JSON to write.")],
-    frames: Annotated[int, typer.Option("--frames", help="Frames to take the median of.")] = 30,
+    frames: Annotated[
+        int, typer.Option("--frames", min=1, help="Frames to take the median of.")
+    ] = 30,
     corners: Annotated[
         Optional[str],  # noqa: UP045
         typer.Option(
@@ -1068,7 +1195,7 @@ def calibrate(
     ] = None,
     crop_px: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option("--crop-px", help="Pixels cropped per side after the warp."),
+        typer.Option("--crop-px", min=0, help="Pixels cropped per side after the warp."),
     ] = None,
     crop_fraction: Annotated[
         Optional[float],  # noqa: UP045
@@ -1275,7 +1402,7 @@ def record(
     ] = None,
     max_frames: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option("--max-frames", help="Stop after this many frames (default: release)."),
+        typer.Option("--max-frames", min=1, help="Stop after this many frames (default: release)."),
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
@@ -1337,17 +1464,21 @@ def live(
     calibration: CalibrationOption = None,
     window: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option("--window", help="Estimate from the last N frames (default: all)."),
+        typer.Option("--window", min=3, help="Estimate from the last N frames (default: all)."),
     ] = None,
     window_s: Annotated[
         Optional[float],  # noqa: UP045
         typer.Option(
             "--window-s",
+            min=0,
             help="Estimate from the last S seconds before the peak, by the frames' timestamps "
             "(not with --window; the same at any frame rate).",
         ),
     ] = None,
-    level: Annotated[float, typer.Option(help="Ensemble interval coverage.")] = 0.8,
+    level: Annotated[
+        float,
+        typer.Option(min=0, max=1, help="Ensemble interval coverage."),
+    ] = 0.8,
     readings_offset_s: Annotated[
         float,
         typer.Option(
@@ -1359,7 +1490,7 @@ def live(
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
-    device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
+    device: DeviceOption = "auto",
     weights: BackboneWeightsOption = None,
 ) -> None:
     """Stream a sensor (or a replayed video) through the estimator.
@@ -1367,6 +1498,12 @@ def live(
     Provisional estimates while the gripper closes, the final one on release."""
     from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
 
+    if window is not None and window_s is not None:
+        raise typer.BadParameter("give --window (frames) or --window-s (seconds), not both")
+    if window_s is not None and window_s <= 0:
+        raise typer.BadParameter(f"--window-s must be > 0 s, got {window_s}")
+    if not 0 < level < 1:
+        raise typer.BadParameter(f"--level must lie between 0 and 1 (exclusive), got {level}")
     members = load_members(checkpoints, device=device, backbone_weights=weights)
     frames, sensor = _open_source(source, calibration, fps, timestamps)
     final = False
@@ -1428,7 +1565,7 @@ def demo(
     ] = "full",
     workers: Annotated[
         Optional[int],  # noqa: UP045
-        typer.Option(help="Dask worker processes for the grids (default: CPUs, at most 4)."),
+        typer.Option(min=1, help="Dask worker processes for the grids (default: CPUs, at most 4)."),
     ] = None,
 ) -> None:
     """Run the whole system on built-in synthetic data (the main job).

@@ -30,16 +30,34 @@ synchronisation inside training loops); numpy inputs are.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
-import torch
 
 from tactile_compliance.data.plausibility import MODULUS
 
-ArrayT = TypeVar("ArrayT", np.ndarray, torch.Tensor)
+if TYPE_CHECKING:
+    import torch
+
+# torch is not imported here: config.py imports this module, and the command line loads
+# the config (to report a typo at once) before anything imports torch. Where a tensor
+# exists torch is already imported, so the tensor branches take it from sys.modules.
+ArrayT = TypeVar("ArrayT", np.ndarray, "torch.Tensor")
+
+
+def _torch() -> Any:
+    """The torch module; only called with a tensor in hand, so it is already imported."""
+    return sys.modules["torch"]
+
+
+def _is_tensor(x: Any) -> bool:
+    """Whether ``x`` is a torch tensor, without importing torch (none exists without it)."""
+    torch = sys.modules.get("torch")
+    return torch is not None and isinstance(x, torch.Tensor)
+
 
 #: Per-channel mean of the dataset's difference images in [0, 1], **BGR order**, as
 #: published by Kuhlmann et al. (mfkuhlmann/youngs-modulus-estimation,
@@ -210,17 +228,17 @@ def _finite_tuple(name: str, values: Any, length: int) -> tuple[float, ...]:
 
 
 def _as_array(x: Any) -> np.ndarray | torch.Tensor:
-    if isinstance(x, torch.Tensor):
+    if _is_tensor(x):
         return x
     return np.asarray(x, dtype=np.float64)
 
 
 def _log10(x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-    return torch.log10(x) if isinstance(x, torch.Tensor) else np.log10(x)
+    return _torch().log10(x) if _is_tensor(x) else np.log10(x)
 
 
 def _pow10(x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-    return torch.pow(10.0, x) if isinstance(x, torch.Tensor) else np.power(10.0, x)
+    return _torch().pow(10.0, x) if _is_tensor(x) else np.power(10.0, x)
 
 
 def _unwrap_scalar(x: Any, original: Any) -> Any:
@@ -262,7 +280,7 @@ def normalise_estimates(estimate_pa: Any, c: NormalisationConstants | None = Non
     lo, hi = c.estimate_clamp_pa
     x = _as_array(estimate_pa)
     # np.clip / torch.clamp keep NaN, so a missing estimate stays visibly missing.
-    clamped = torch.clamp(x, lo, hi) if isinstance(x, torch.Tensor) else np.clip(x, lo, hi)
+    clamped = _torch().clamp(x, lo, hi) if _is_tensor(x) else np.clip(x, lo, hi)
     y = (_log10(clamped) - c.estimate_log10_min) / c.estimate_log10_span
     return _unwrap_scalar(y, estimate_pa)
 
@@ -291,7 +309,8 @@ def _channel_stats(
         )
     shape = [1] * ndim
     shape[axis] = 3
-    if isinstance(x, torch.Tensor):
+    if _is_tensor(x):
+        torch = _torch()
         dtype = x.dtype if x.is_floating_point() else torch.float32
         mean = torch.tensor(c.image_mean, dtype=dtype, device=x.device).reshape(shape)
         std = torch.tensor(c.image_std, dtype=dtype, device=x.device).reshape(shape)
@@ -314,11 +333,11 @@ def normalise_images(
             channels-last ``(n, 3 frames, H, W, 3)``, ``-3`` for the model's ``(B, T, C, H, W)``.
     """
     c = c or NormalisationConstants()
-    x = images if isinstance(images, torch.Tensor) else np.asarray(images)
+    x = images if _is_tensor(images) else np.asarray(images)
     if isinstance(x, np.ndarray) and x.dtype == np.uint8:
         # uint8 would be normalised as if 0..255 were in [0, 1]: a silent 255x error.
         raise ValueError("normalise_images expects float images in [0, 1], got uint8")
-    if isinstance(x, torch.Tensor) and x.dtype == torch.uint8:
+    if _is_tensor(x) and x.dtype == _torch().uint8:
         raise ValueError("normalise_images expects float images in [0, 1], got uint8")
     mean, std = _channel_stats(x, c, channel_axis)
     out = x - mean
@@ -331,6 +350,6 @@ def denormalise_images(
 ) -> ArrayT:
     """Inverse of :func:`normalise_images` (for visualisation): ``x * std + mean``."""
     c = c or NormalisationConstants()
-    x = images if isinstance(images, torch.Tensor) else np.asarray(images)
+    x = images if _is_tensor(images) else np.asarray(images)
     mean, std = _channel_stats(x, c, channel_axis)
     return x * std + mean

@@ -367,3 +367,62 @@ def dump_numpy_pickle(path: str | Path, array: np.ndarray) -> None:
     """
     with open(path, "wb") as handle:
         pickle.dump(np.require(array, requirements="C"), handle, protocol=PICKLE_PROTOCOL)
+
+
+class UnreadableTorchFileError(ValueError):
+    """A file ``torch.load(weights_only=True)`` cannot read, with the reason in one line
+    (``reason``: the part after the file name)."""
+
+    def __init__(self, path: Path, what: str, reason: str) -> None:
+        super().__init__(f"{path}: not a readable {what}: {reason}")
+        self.reason = reason
+
+
+def load_torch_file(
+    path: str | Path, what: str, *, map_location: Any = "cpu", mmap: bool = False
+) -> Any:
+    """``torch.load(path, weights_only=True)`` (never executes pickled code), whose errors
+    say in one line what the file is instead of torch's several lines, which end by
+    advising ``weights_only=False``, the unsafe load this project never does.
+
+    Args:
+        path: the file.
+        what: what the caller expected, for the message ("checkpoint", "backbone weights").
+        map_location: as for ``torch.load``.
+        mmap: map the tensors instead of reading them (zip-format files only).
+
+    Raises:
+        UnreadableTorchFileError: not a file of ``torch.save``, a damaged one, or one that
+            holds Python objects beyond tensors and plain containers.
+    """
+    import zipfile
+
+    import torch
+
+    path = Path(path)
+    mappable = mmap and zipfile.is_zipfile(path)  # an old-format file cannot be mapped
+    try:
+        return torch.load(path, map_location=map_location, weights_only=True, mmap=mappable)
+    except Exception as err:  # torch raises several types for foreign or damaged files
+        raise UnreadableTorchFileError(path, what, _torch_file_problem(path, err)) from err
+
+
+def _torch_file_problem(path: Path, err: BaseException) -> str:
+    """Why a file did not load, from its first bytes and torch's error."""
+    with open(path, "rb") as handle:
+        start = handle.read(64)
+    # "ignore": the 64 bytes may end inside a character; binary bytes leave control
+    # characters, which fail the test below.
+    text = start.decode("utf-8", errors="ignore")
+    if text.strip() and all(c.isprintable() or c in "\r\n\t" for c in text):
+        first = text.strip().splitlines()[0][:40]
+        return f"a text file (it starts with {first!r}), not a file written by torch.save"
+    if "weights_only" in str(err) or "WeightsUnpickler" in str(err):
+        return (
+            "it holds Python objects other than tensors and plain containers, which the "
+            "safe load refuses (tactile-compliance never writes such files)"
+        )
+    if not start.startswith(b"PK"):  # torch.save writes a zip archive
+        return "not a file written by torch.save (not a zip archive)"
+    lines = [line for line in str(err).splitlines() if line.strip()]
+    return f"a damaged or incomplete torch file ({lines[0] if lines else type(err).__name__})"

@@ -29,7 +29,7 @@ from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.inference.base import MIN_FRAME_SIDE_PX, BaseEstimator, Prediction
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.checkpoint import load_checkpoint
-from tactile_compliance.runs.forward import forward_batch
+from tactile_compliance.runs.forward import forward_batch, resolve_device
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.streaming import StreamingEstimator
@@ -99,7 +99,7 @@ class ComplianceEstimator(BaseEstimator):
         device: str | torch.device = "cpu",
         source: str | None = None,
     ) -> None:
-        self.device = torch.device(device)
+        self.device = torch.device(resolve_device(device))
         self.model = model.to(self.device).eval()
         self.constants = constants
         self.image_size = tuple(image_size) if image_size is not None else None
@@ -128,6 +128,7 @@ class ComplianceEstimator(BaseEstimator):
         torch.hub cache); ``backbone_weights`` names a local copy of that file instead.
         """
         file = resolve_checkpoint(path)
+        device = resolve_device(device)  # "auto": a GPU when torch sees one
         loaded = load_checkpoint(file, device=device, backbone_weights=backbone_weights)
         store_size = _training_store_size(loaded.meta)
         estimator = cls(
@@ -162,6 +163,7 @@ class ComplianceEstimator(BaseEstimator):
         """
         from tactile_compliance.inference.pretrained import load_pretrained
 
+        device = resolve_device(device)  # "auto": a GPU when torch sees one
         loaded = load_pretrained(path, device=device)
         estimator = cls(
             loaded.model,
@@ -176,6 +178,39 @@ class ComplianceEstimator(BaseEstimator):
             (int(store_size[0]), int(store_size[1])) if store_size else None
         )
         return estimator
+
+    def save_pretrained(self, path: str | Path, *, license: str = "other") -> dict[str, Any]:
+        """Write this model as a safetensors directory that :meth:`from_pretrained` loads:
+        ``model.safetensors``, ``config.json`` and a model card ``README.md`` (what
+        ``tactile-compliance export CHECKPOINT --safetensors DIR`` writes).
+
+        ``path`` must be new, empty or an earlier export (never a folder of other files).
+        The estimator must come from a file (:meth:`from_checkpoint` or
+        :meth:`from_pretrained`), whose sha256 the card records. ``license``: the card's
+        licence (an SPDX identifier; ``other``: the weights follow the licence of their
+        training data).
+
+        Returns:
+            ``out``, ``files`` (name -> bytes), ``config`` (what ``config.json`` holds).
+        """
+        from tactile_compliance.inference.pretrained import (
+            WEIGHTS_FILE,
+            run_evaluation,
+            write_pretrained,
+        )
+
+        source = Path(self.source)
+        checkpoint = source / WEIGHTS_FILE if source.is_dir() else source
+        if not checkpoint.is_file():
+            raise ValueError(
+                f"{self.source}: an estimator not loaded from a file cannot be saved "
+                "(its checkpoint is recorded); use from_checkpoint or from_pretrained"
+            )
+        # A run's best.pt: the card shows the run's metrics.
+        evaluation = run_evaluation(checkpoint) if checkpoint.suffix == ".pt" else None
+        return write_pretrained(
+            self, path, checkpoint=checkpoint, evaluation=evaluation, license=license
+        )
 
     # ------------------------------------------------------------------ description
     @property

@@ -32,6 +32,7 @@ the same averaging written as two fixed matrix products for the checkpoint's fra
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import os
@@ -53,12 +54,14 @@ from tactile_compliance.inference.onnx import (
     onnx_input_names,
 )
 from tactile_compliance.inference.pretrained import (
+    DEFAULT_LICENSE,
     OUTPUT_KIND,
+    OptionalDependencyError,
     require_safetensors,
+    run_evaluation,
     write_pretrained,
 )
 from tactile_compliance.outputs import check_output_file, claim_output_dir
-from tactile_compliance.runs.layout import RESULT_FILE
 
 # The runtime names are defined in ``onnx`` (the file's reader); they stay importable from
 # here, where export and runtime lived together before.
@@ -164,6 +167,25 @@ def _is_our_onnx(path: Path) -> bool:
     return any(prop.key == ONNX_METADATA_KEY for prop in model.metadata_props)
 
 
+class OnnxMissingError(OptionalDependencyError):
+    """``onnx`` or ``onnxruntime`` (the ``export`` extra) is not installed."""
+
+
+def require_onnx() -> None:
+    """Check that ``onnx`` and ``onnxruntime`` import, before anything is written."""
+    missing = []
+    for name in ("onnx", "onnxruntime"):
+        try:
+            __import__(name)
+        except ImportError:
+            missing.append(name)
+    if missing:
+        raise OnnxMissingError(
+            f"{' and '.join(missing)} {'is' if len(missing) == 1 else 'are'} not installed: "
+            f"pip install 'tactile-compliance[export]' (or pip install {' '.join(missing)})"
+        )
+
+
 def export_onnx(
     checkpoint: str | Path,
     out: str | Path,
@@ -193,8 +215,10 @@ def export_onnx(
         ``opset``, ``exporter``, ``max_abs_diff``, ``parity_ok``, versions, file size.
 
     Raises:
+        OnnxMissingError: onnx or onnxruntime is not installed (nothing is written).
         ValueError: no frame size known; RuntimeError: parity worse than ``atol``.
     """
+    require_onnx()
     out = check_output_file(out, "ONNX model", _is_our_onnx, option="--onnx")
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
     size = tuple(image_size) if image_size is not None else estimator.image_size
@@ -208,6 +232,9 @@ def export_onnx(
     model = estimator.model.cpu().eval()
     example = _example_inputs(names, 2, (height, width))
     wrapper = _ExportWrapper(_exportable(model, names, example), names).eval()
+    # The folders this export creates (deepest first): removed again if it fails, so a
+    # failed export leaves no empty folder behind.
+    created = [folder for folder in (out.parent, *out.parent.parents) if not folder.exists()]
     out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
     os.close(fd)
@@ -230,6 +257,12 @@ def export_onnx(
             )
         _write_metadata(tmp, estimator, (height, width), names)
         tmp.replace(out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        for folder in created:
+            with contextlib.suppress(OSError):  # not empty: something else wrote there
+                folder.rmdir()
+        raise
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -340,21 +373,13 @@ def format_export_report(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _run_evaluation(checkpoint: Path) -> dict[str, Any] | None:
-    """The run's ``metrics.json`` next to ``checkpoint`` (test/val metrics), if any."""
-    try:
-        result = json.loads((checkpoint.parent / RESULT_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return result if isinstance(result, dict) and "test" in result else None
-
-
 def export_safetensors(
     checkpoint: str | Path,
     out: str | Path,
     *,
     image_size: tuple[int, int] | None = None,
     backbone_weights: str | Path | None = None,
+    license: str = DEFAULT_LICENSE,
 ) -> dict[str, Any]:
     """Write a checkpoint as ``model.safetensors`` + ``config.json`` + a model card ``README.md``.
 
@@ -371,6 +396,8 @@ def export_safetensors(
         image_size: (H, W) px; only needed when the checkpoint does not record its frame
             size and its training store is gone.
         backbone_weights: see ``ComplianceEstimator.from_checkpoint``.
+        license: the model card's licence (an SPDX identifier such as ``mit``; default
+            ``other``: the weights follow the licence of their training data).
 
     Returns:
         ``out``, ``files`` (name -> bytes), ``config`` (what ``config.json`` holds).
@@ -383,7 +410,9 @@ def export_safetensors(
     if image_size is not None:
         estimator.image_size = (int(image_size[0]), int(image_size[1]))
     file = Path(estimator.source)
-    return write_pretrained(estimator, out, checkpoint=file, evaluation=_run_evaluation(file))
+    return write_pretrained(
+        estimator, out, checkpoint=file, evaluation=run_evaluation(file), license=license
+    )
 
 
 def format_safetensors_report(report: dict[str, Any]) -> str:

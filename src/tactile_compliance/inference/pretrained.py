@@ -47,6 +47,7 @@ from tactile_compliance.outputs import (
     exchange_directories,
 )
 from tactile_compliance.runs.checkpoint import LoadedModel, rebuild_model
+from tactile_compliance.runs.layout import RESULT_FILE
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.base import BaseEstimator
@@ -84,7 +85,12 @@ _REAL_SOURCES = {"burgess": "real (Burgess et al. dataset layout)", "yuan": "rea
 _UNITS = {"force": "N", "width": "m", "estimates": "Pa"}
 
 
-class SafetensorsMissingError(ImportError):
+class OptionalDependencyError(ImportError):
+    """An optional package (an extra of ``pyproject.toml``) that a feature needs is not
+    installed; the message says what to ``pip install``."""
+
+
+class SafetensorsMissingError(OptionalDependencyError):
     """The optional ``safetensors`` package is not installed."""
 
 
@@ -101,19 +107,55 @@ def require_safetensors() -> Any:
 
 
 # ---------------------------------------------------------------------- config.json
+#: The model card's licence when none is given: the weights follow the licence of the data
+#: they were trained on, which the exporter cannot know (Hugging Face's "other").
+DEFAULT_LICENSE = "other"
+
+
+def run_evaluation(checkpoint: Path) -> dict[str, Any] | None:
+    """The run's ``metrics.json`` next to ``checkpoint`` (test/val metrics), if any."""
+    try:
+        result = json.loads((checkpoint.parent / RESULT_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return result if isinstance(result, dict) and "test" in result else None
+
+
+def _without_local_paths(value: Any) -> Any:
+    """``value`` with every absolute path (a string such as ``/home/me/stores/ym``) cut to
+    its last part (``ym``): an export is shared, the folders of the machine that made it
+    are not. Relative paths and other strings stay."""
+    if isinstance(value, dict):
+        return {key: _without_local_paths(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_without_local_paths(item) for item in value]
+    if isinstance(value, str) and (value.startswith(("/", "~")) or _is_windows_path(value)):
+        return Path(value).name or value
+    return value
+
+
+def _is_windows_path(value: str) -> bool:
+    """Whether ``value`` looks like an absolute Windows path (``C:\\...``, ``C:/...``)."""
+    return len(value) > 2 and value[0].isalpha() and value[1] == ":" and value[2] in "\\/"
+
+
 def pretrained_config(
     estimator: BaseEstimator,
     *,
     checkpoint: str | Path,
     evaluation: dict[str, Any] | None = None,
+    license: str = DEFAULT_LICENSE,
 ) -> dict[str, Any]:
-    """The ``config.json`` of an exported model (plain JSON values only).
+    """The ``config.json`` of an exported model (plain JSON values only), without the
+    exporting machine's absolute paths (store, dataset and run folders: their last part).
 
     Args:
         estimator: the loaded checkpoint (a ``ComplianceEstimator``); its ``meta`` is the
             checkpoint's description.
         checkpoint: the checkpoint file it was loaded from (hashed).
         evaluation: the run's ``metrics.json`` (test/val metrics, split sizes), if any.
+        license: the model card's licence (an SPDX identifier such as ``mit``, or
+            ``other``).
     """
     meta = estimator.meta
     if estimator.image_size is None:
@@ -129,6 +171,7 @@ def pretrained_config(
         "format": PRETRAINED_FORMAT,
         "format_version": PRETRAINED_VERSION,
         "library_name": "tactile-compliance",
+        "license": license,
         "package_version": __version__,
         "model_name": estimator.model_name,
         "hparams": dict(meta.get("hparams") or {}),
@@ -162,7 +205,7 @@ def pretrained_config(
         "evaluation": evaluation,
     }
     # Through JSON once: the dict returned is exactly what config.json will hold.
-    return json.loads(json.dumps(config))
+    return _without_local_paths(json.loads(json.dumps(config)))
 
 
 def _payload(config: dict[str, Any], state_dict: dict[str, torch.Tensor]) -> dict[str, Any]:
@@ -196,6 +239,7 @@ def write_pretrained(
     *,
     checkpoint: str | Path,
     evaluation: dict[str, Any] | None = None,
+    license: str = DEFAULT_LICENSE,
 ) -> dict[str, Any]:
     """Write ``estimator``'s model as a safetensors directory (claimed, never a user's).
 
@@ -204,6 +248,7 @@ def write_pretrained(
         out: the directory; new, empty, or an earlier export (its files are replaced).
         checkpoint: the checkpoint file (its sha256 goes into ``config.json``).
         evaluation: the run's ``metrics.json``, for the card.
+        license: the model card's licence (see :func:`pretrained_config`).
 
     Returns:
         A report: ``out``, ``files`` (name -> bytes), ``config`` (the written config).
@@ -216,7 +261,9 @@ def write_pretrained(
     model = getattr(estimator, "model", None)
     if model is None:
         raise ValueError(f"{estimator.source}: only PyTorch estimators can be exported")
-    config = pretrained_config(estimator, checkpoint=checkpoint, evaluation=evaluation)
+    config = pretrained_config(
+        estimator, checkpoint=checkpoint, evaluation=evaluation, license=license
+    )
     tensors: dict[str, torch.Tensor] = {}
     storages: set[int] = set()
     for name, value in model.state_dict().items():
@@ -490,6 +537,7 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
     lines = [
         "---",
         "library_name: tactile-compliance",
+        f"license: {config.get('license') or DEFAULT_LICENSE}",
         "tags:",
         "- tactile-sensing",
         "- gelsight",

@@ -46,6 +46,7 @@ Presets (every step a documented parameter of :class:`FrameGeometry`):
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import queue
@@ -482,6 +483,20 @@ class StampedOnArrival(FrameSourceBase):
         self.inner.close()
 
 
+@contextlib.contextmanager
+def _opencv_quiet() -> Iterator[None]:
+    """OpenCV's log at ERROR level inside: opening a missing camera makes its backends
+    print WARN lines (V4L2 "can't open camera by index", FFMPEG "configured with
+    libavdevice") to stderr before the one-line SensorError that says the cause."""
+    logging = cv2.utils.logging
+    level = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_ERROR)
+    try:
+        yield
+    finally:
+        logging.setLogLevel(level)
+
+
 class VideoCaptureSource(FrameSourceBase):
     """An OpenCV ``VideoCapture``: a camera index, a device path, a video file or a URL.
 
@@ -525,7 +540,8 @@ class VideoCaptureSource(FrameSourceBase):
             raise SensorError(f"{text}: no such device (is the sensor plugged in?)")
         self.live = not self.is_file
         self.use_video_time = timestamps == "video" or (timestamps == "auto" and self.is_file)
-        self._capture = cv2.VideoCapture(int(text) if is_index else text)
+        with _opencv_quiet():  # its warnings on a failed open say less than the error below
+            self._capture = cv2.VideoCapture(int(text) if is_index else text)
         if not self._capture.isOpened():
             self._capture.release()
             what = "camera" if is_index else "stream" if is_url else "video"

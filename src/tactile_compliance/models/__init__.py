@@ -8,30 +8,49 @@ with ``paper_settings(name, inputs)`` / ``search_dimensions(name, inputs)``.
 
 from __future__ import annotations
 
-from tactile_compliance.models.backbones import (
-    BACKBONE_WEIGHTS_URLS,
-    create_backbone,
-    list_backbones,
-)
-from tactile_compliance.models.base import NUM_FRAMES, FusionModel, TactileModel
-from tactile_compliance.models.inputs import InputStrategy
-from tactile_compliance.models.registry import (
-    create_model,
-    get_model_class,
-    list_models,
-    model_hyperparameters,
-    register_model,
-)
+import importlib
+from typing import Any
 
-# Importing the model modules registers them.
-from tactile_compliance.models.res_tf import ResTf
-from tactile_compliance.models.settings import (
-    SearchDimension,
-    paper_settings,
-    search_dimensions,
-)
-from tactile_compliance.models.top10nn import Top10NN
-from tactile_compliance.models.vgg_lstm import VggLstm
+# InputStrategy is torch-free and needed by config.py, which the command line loads to
+# check a config before anything heavy: the rest (torch, the networks) loads on first
+# use of a name below (PEP 562), and that first use imports the three model modules,
+# which registers them.
+from tactile_compliance.models.inputs import InputStrategy
+
+#: Public name -> the module of this package that defines it.
+_LAZY = {
+    "BACKBONE_WEIGHTS_URLS": "backbones",
+    "create_backbone": "backbones",
+    "list_backbones": "backbones",
+    "NUM_FRAMES": "base",
+    "FusionModel": "base",
+    "TactileModel": "base",
+    "create_model": "registry",
+    "get_model_class": "registry",
+    "list_models": "registry",
+    "model_hyperparameters": "registry",
+    "register_model": "registry",
+    "ResTf": "res_tf",
+    "SearchDimension": "settings",
+    "paper_settings": "settings",
+    "search_dimensions": "settings",
+    "Top10NN": "top10nn",
+    "VggLstm": "vgg_lstm",
+}
+#: Importing these modules registers the built-in models.
+_MODEL_MODULES = ("res_tf", "top10nn", "vgg_lstm")
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    for model_module in _MODEL_MODULES:
+        importlib.import_module(f"{__name__}.{model_module}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "BACKBONE_WEIGHTS_URLS",

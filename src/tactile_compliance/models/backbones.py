@@ -42,6 +42,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from tactile_compliance.data.safe_pickle import UnreadableTorchFileError, load_torch_file
+
 __all__ = [
     "BACKBONE_WEIGHTS_URLS",
     "PRETRAIN_KEY",
@@ -397,11 +399,11 @@ def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
                 f"incomplete; download it again (or rename it if it is a different file)."
             )
     try:
-        loaded = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises several types for unreadable/unsafe files
+        loaded = load_torch_file(path, "backbone weights file")
+    except UnreadableTorchFileError as exc:
         raise BackboneWeightsError(
-            f"cannot read backbone weights from {path}: {exc}. Expected a state dict saved "
-            f"with torch.save (tensors only)."
+            f"cannot read backbone weights from {path}: {exc.reason}. Expected a state dict "
+            f"saved with torch.save (tensors only)."
         ) from exc
     # Accept checkpoints that wrap the state dict (Lightning and many training scripts).
     if (

@@ -40,6 +40,7 @@ from tactile_compliance import __version__
 from tactile_compliance.data.features import weights_fingerprint
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import check_size
+from tactile_compliance.data.safe_pickle import load_torch_file
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.backbones import no_downloads, weights_file_record
 from tactile_compliance.outputs import atomic_file
@@ -337,10 +338,7 @@ def load_checkpoint(
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
-    try:
-        payload = torch.load(path, map_location=device, weights_only=True)
-    except Exception as err:  # torch raises several types for foreign/corrupt files
-        raise ValueError(f"{path}: not a readable tactile-compliance checkpoint ({err})") from err
+    payload = load_torch_file(path, "tactile-compliance checkpoint", map_location=device)
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{path}: not a tactile-compliance model checkpoint")
     version = payload.get("format_version", 0)

@@ -17,6 +17,18 @@ from tactile_compliance.data.dataset import GraspDataset, batch_loader, prepare_
 from tactile_compliance.data.normalisation import NormalisationConstants
 
 
+def resolve_device(device: str | torch.device) -> str | torch.device:
+    """``auto``: a CUDA GPU when torch sees one, else the CPU. A CUDA device without a GPU
+    is a ValueError naming it (torch would fail later, less clearly)."""
+    if isinstance(device, str) and device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if str(device).startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(
+            f"device {device}, but torch {torch.__version__} sees no CUDA GPU; use auto or cpu"
+        )
+    return device
+
+
 def forward_batch(
     model: torch.nn.Module,
     batch: Mapping[str, torch.Tensor],

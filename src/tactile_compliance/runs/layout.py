@@ -171,6 +171,31 @@ def lock_directory(
 #: The kind of a run directory in its ``outputs`` marker.
 RUN_KIND = "run"
 
+#: What a finished run keeps (``--keep-checkpoints``): ``best.pt`` and ``checkpoints/``
+#: (all), ``best.pt`` only (best), nothing of either (none: the metrics and predictions).
+KEEP_CHECKPOINTS = ("all", "best", "none")
+
+
+def prune_checkpoints(run_dir: str | Path, keep: str) -> None:
+    """Delete the checkpoints of a finished run that ``keep`` does not keep.
+
+    ``checkpoints/last.ckpt`` only serves to resume an interrupted run, and with a
+    fine-tuned VGG16 backbone it weighs over half a gigabyte (more with optimizer state; a
+    frozen one is left out): a finished run does not need it. ``best.pt`` is what
+    ``evaluate`` and inference load. Deletes only these files of the run's own layout.
+    """
+    if keep not in KEEP_CHECKPOINTS:
+        raise ValueError(
+            f"keep_checkpoints must be one of {', '.join(KEEP_CHECKPOINTS)}, got {keep!r}"
+        )
+    if keep == "all":
+        return
+    import shutil
+
+    shutil.rmtree(Path(run_dir) / CHECKPOINT_DIR, ignore_errors=True)
+    if keep == "none":
+        (Path(run_dir) / BEST_FILE).unlink(missing_ok=True)
+
 
 def is_legacy_run_dir(path: Path) -> bool:
     """Whether ``path`` is a run directory written before markers existed: it holds a

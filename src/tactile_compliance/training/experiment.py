@@ -65,10 +65,12 @@ from tactile_compliance.config import (
 from tactile_compliance.outputs import atomic_file, claim_output_dir
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.layout import (
+    KEEP_CHECKPOINTS,
     RUN_KIND,
     DirectoryLockedError,
     is_legacy_run_dir,
     lock_directory,
+    prune_checkpoints,
 )
 from tactile_compliance.runs.results import (
     ROWS_DIR,
@@ -106,8 +108,6 @@ ATTEMPTS_FILE = "attempts.json"
 EXPERIMENT_FILE = "experiment.json"
 #: Metrics shown in the summary (mean +- std over seeds).
 SUMMARY_METRICS = ("test_log10_accuracy", "test_nmse")
-#: What a finished run keeps (``keep_checkpoints``): best.pt, + last.ckpt, nothing.
-KEEP_CHECKPOINTS = ("best", "all", "none")
 
 
 class ExperimentError(RuntimeError):
@@ -124,17 +124,15 @@ def _quiet_training_warnings() -> None:
     # logs readable (errors and real warnings still show).
     import logging
 
+    from tactile_compliance.training.train import LIGHTNING_LOGGERS, quiet_lightning_warnings
+
     global _QUIETED
     if _QUIETED:  # once per worker process, not once per cell
         return
     _QUIETED = True
-    for name in ("lightning.pytorch", "lightning.fabric"):
+    for name in LIGHTNING_LOGGERS:
         logging.getLogger(name).setLevel(logging.WARNING)
-    warnings.filterwarnings("ignore", category=DeprecationWarning, module="lightning.*")
-    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
-    warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
-    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
-    warnings.filterwarnings("ignore", message=".*number of training batches.*")
+    quiet_lightning_warnings()
     warnings.filterwarnings("ignore", message=".*cached image features.*")
     warnings.filterwarnings("ignore", message=".*augmentation is ignored with freeze_backbone.*")
 
@@ -221,23 +219,6 @@ def _attempts(run_dir: Path) -> int:
         return 1
 
 
-def _prune(run_dir: Path, keep_checkpoints: str) -> None:
-    """Delete the checkpoints of a finished run that ``keep_checkpoints`` does not keep.
-
-    ``last.ckpt`` only serves to resume an interrupted run, and with a fine-tuned VGG16
-    backbone it weighs over half a gigabyte (more with optimizer state; a frozen one is
-    left out): a finished run does not need it. ``best.pt`` is what ``evaluate`` and
-    inference load.
-    """
-    if keep_checkpoints == "all":
-        return
-    import shutil
-
-    shutil.rmtree(run_dir / "checkpoints", ignore_errors=True)
-    if keep_checkpoints == "none":
-        (run_dir / "best.pt").unlink(missing_ok=True)
-
-
 def run_cell(
     cfg_dict: dict[str, Any],
     key: str,
@@ -273,7 +254,7 @@ def run_cell(
     try:
         # train() resumes from the last finished epoch, or sets a damaged checkpoint aside.
         result = train(cfg, run_dir=run_dir, progress=False)
-        _prune(run_dir, keep_checkpoints)
+        prune_checkpoints(run_dir, keep_checkpoints)
         row = result_row(
             cfg,
             result,
@@ -452,7 +433,7 @@ def _locked(output_dir: Path) -> Iterator[None]:
     """Hold an exclusive lock on an experiment's output directory for one driver's lifetime."""
     output_dir.mkdir(parents=True, exist_ok=True)
     try:
-        with lock_directory(output_dir, what="experiment output directory (--output-dir)"):
+        with lock_directory(output_dir, what="experiment output directory (--out)"):
             yield
     except DirectoryLockedError as err:
         raise ExperimentError(str(err)) from None
@@ -552,11 +533,15 @@ def run_experiment(
         workers=scheduler or ("client" if client is not None else workers),
         keys=[c.key for c in plan.cells],
     )
+    if not remote and not Path(plan.results_path).exists():
+        # A fresh experiment runs every cell: a missing store is reported before the
+        # output folders are created, so the failed command leaves nothing behind.
+        _check_stores(plan.cells)
     claim_output_dir(
         plan.output_dir,
         "experiment",
         recognise=lambda path: (path / EXPERIMENT_FILE).is_file(),
-        option="--output-dir",
+        option="--out",
     )
     claim_output_dir(
         plan.results_path,

@@ -70,6 +70,7 @@ from tactile_compliance.models.top10nn import TOP10_BACKBONE, Top10Encoder
 from tactile_compliance.outputs import atomic_file, check_output_file
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.checkpoint import torch_write_errors
+from tactile_compliance.runs.forward import resolve_device
 
 __all__ = [
     "CONTACT_THRESHOLD_MM",
@@ -512,10 +513,7 @@ def pretrain(
     )
     history: list[dict[str, float]] = []
     best_loss, best_epoch, bad_epochs = float("inf"), -1, 0
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device {device}, but torch sees no CUDA GPU; use auto or cpu")
+    device = str(resolve_device(device))
     net.to(device)
     best_state = _cpu_copy(net.backbone)
     first_epoch, seconds_before = 0, 0.0

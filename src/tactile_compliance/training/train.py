@@ -40,7 +40,7 @@ import threading
 import time
 import warnings
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -663,12 +663,47 @@ def _finished_result(run_dir: Path) -> dict[str, Any] | None:
         return None
 
 
+#: Lightning's loggers: its start-up and housekeeping messages ("GPU available", the
+#: litlogger tip, the batch limits, "`weights_only` was not set", "fit stopped") are INFO.
+LIGHTNING_LOGGERS = ("lightning.pytorch", "lightning.fabric")
+
+
+def quiet_lightning_warnings() -> None:
+    """Ignore the warnings about Lightning's own code and advice that say nothing about a
+    run (deprecations inside Lightning, loader workers, logging intervals, a checkpoint
+    folder that exists because the run resumes). Adds to the current warning filters."""
+    warnings.filterwarnings("ignore", category=DeprecationWarning, module="lightning.*")
+    warnings.filterwarnings("ignore", message=".*LeafSpec.*")
+    warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
+    warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+    warnings.filterwarnings("ignore", message=".*number of training batches.*")
+
+
+@contextlib.contextmanager
+def lightning_messages(verbose: bool) -> Iterator[None]:
+    """Lightning's INFO messages and housekeeping warnings inside only when ``verbose``;
+    warnings about the run itself and errors show either way."""
+    loggers = [logging.getLogger(name) for name in LIGHTNING_LOGGERS]
+    levels = [logger.level for logger in loggers]
+    with warnings.catch_warnings():
+        if not verbose:
+            quiet_lightning_warnings()
+        for logger in loggers:
+            logger.setLevel(logging.INFO if verbose else logging.WARNING)
+        try:
+            yield
+        finally:
+            for logger, level in zip(loggers, levels, strict=True):
+                logger.setLevel(level)
+
+
 def train(
     cfg: ExperimentConfig,
     *,
     run_dir: str | Path | None = None,
     progress: bool = True,
     overwrite: bool = False,
+    verbose: bool = False,
 ) -> dict[str, Any]:
     """Train and evaluate one configuration; returns the metrics dict (also metrics.json).
 
@@ -679,6 +714,8 @@ def train(
         run_dir: where to write; default ``cfg.output_dir / run_name(cfg)``.
         progress: show progress bars.
         overwrite: retrain even when the run directory holds a finished result.
+        verbose: show Lightning's start-up messages and its housekeeping warnings
+            (:func:`lightning_messages`).
 
     Raises:
         DirectoryLockedError: another process is training in ``run_dir``.
@@ -686,11 +723,12 @@ def train(
     """
     run_dir = Path(run_dir) if run_dir is not None else Path(cfg.output_dir) / run_name(cfg)
     if run_dir.is_dir():  # a run directory of ours, never a directory of someone's files
-        claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir, option="--run-dir")
+        claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir, option="--out")
     if not overwrite and (finished := _finished_result(run_dir)) is not None:
         return finished
     try:
-        return _train(cfg, run_dir, progress=progress, overwrite=overwrite)
+        with lightning_messages(verbose):
+            return _train(cfg, run_dir, progress=progress, overwrite=overwrite)
     finally:
         release_memory()
 
@@ -713,7 +751,7 @@ def _train(
         data = prepare_data(cfg, getattr(model, "recommended_image_size", None))
         check_frame_size(cfg, model, data.image_size or data.store.image_size)
         if not locked:
-            claim_output_dir(run_dir, RUN_KIND, option="--run-dir")
+            claim_output_dir(run_dir, RUN_KIND, option="--out")
             stack.enter_context(lock_directory(run_dir))
         # Another process may have finished this run while this one prepared its data.
         if not overwrite and (finished := _finished_result(run_dir)) is not None:
@@ -830,8 +868,6 @@ def _fit_and_evaluate(
     callbacks: list[Callback] = [best, epoch_state]
     if cfg.training.patience > 0:
         callbacks.append(EarlyStopping("val_nmse", patience=cfg.training.patience, mode="min"))
-    # Before the Trainer exists: it prints its start-up messages when created.
-    logging.getLogger("lightning.pytorch").setLevel(logging.INFO if progress else logging.WARNING)
     accelerator = _accelerator(cfg.training.device)
     loggers = _loggers(run_dir, earlier_rows, tensorboard)
     trainer = L.Trainer(
