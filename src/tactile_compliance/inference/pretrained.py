@@ -286,8 +286,8 @@ def write_pretrained(
     # directories swap names at once: a reader or a kill sees the old export or the new
     # one, never run B's weights with run A's config.
     staging = out.parent / f".{out.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
-    claim_output_dir(staging, OUTPUT_KIND, option="--safetensors")
     try:
+        claim_output_dir(staging, OUTPUT_KIND, option="--safetensors")
         with atomic_file(staging / WEIGHTS_FILE, "wb") as handle:
             # Written straight to the temp file by name (no copy of the weights in
             # memory); atomic_file then fsyncs it and renames it into place.
