@@ -1,0 +1,169 @@
+"""The generator held against the real Wedge rig: how far the gripper closes at each force.
+
+Reads the readings of the real grasps in ``../shared/reference-data/real/wedge-grasps/``
+(``timestamp_s,force_n,width_m`` per frame) and simulates the same five objects with their
+rows of the real object table (E, shape, material; the elastic balls' 25 mm radius, the
+golf ball's 21.3 mm), three grasps each, with the generator as `simulate --object-table`
+runs it. For every grasp it prints:
+
+* ``F_peak``: the peak force [N];
+* ``contact W``: the width [mm] at contact (the first frame 1 N above the first frames'
+  median force, so an unzeroed baseline does not count);
+* ``close@10N`` and ``close@peak``: how far the width closed [mm] from contact to the first
+  frame at 10 N above the baseline, and to the peak;
+* ``k``: the apparent stiffness [N/mm] of the rig and the object in series, the slope of a
+  line through (closure, force) between 2 N and 90 % of the peak.
+
+For the golf ball (850 MPa) the object barely deforms, so its closure is the rig's own:
+gel, fingers, mount and the width reading.
+
+    python benchmarks/real_vs_synthetic.py              # ~1 min
+    python benchmarks/real_vs_synthetic.py --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+REFERENCE = Path(__file__).resolve().parents[2] / "shared/reference-data"
+OBJECTS = {  # file prefix -> (label in the object table, radius [m] or None)
+    "foam_brick": ("foam_brick", None),
+    "golf_ball": ("golf_ball", 0.0213),
+    "green_ball_softer": ("green_elastic_ball", 0.025),
+    "orange_ball_softest": ("orange_elastic_ball", 0.025),
+    "purple_ball_hardest": ("purple_elastic_ball", 0.025),
+}
+
+
+def closure_stats(force_n: np.ndarray, width_m: np.ndarray) -> dict[str, float]:
+    """Peak force, contact width and closures of one grasp (see the module docstring)."""
+    base = float(np.median(force_n[:3]))
+    above = force_n - base
+    contact = int(np.flatnonzero(above >= 1.0)[0])
+    peak = int(np.argmax(force_n))
+    at10 = np.flatnonzero(above >= 10.0)
+    closure_mm = (width_m[contact] - width_m) * 1e3
+    window = np.arange(contact, peak + 1)
+    window = window[(above[window] >= 2.0) & (above[window] <= 0.9 * above[peak])]
+    slope = (
+        float(np.polyfit(closure_mm[window], above[window], 1)[0]) if window.size > 2 else np.nan
+    )
+    return {
+        "F_peak_n": float(force_n[peak]),
+        "contact_width_mm": float(width_m[contact] * 1e3),
+        "closure_10n_mm": float(closure_mm[at10[0]]) if at10.size else float("nan"),
+        "closure_peak_mm": float(closure_mm[peak]),
+        "stiffness_n_per_mm": slope,
+        "curve_closure_mm": closure_mm[contact : peak + 1].round(3).tolist(),
+        "curve_force_n": above[contact : peak + 1].round(3).tolist(),
+    }
+
+
+def real_grasps(folder: Path) -> dict[str, list[dict[str, float]]]:
+    out: dict[str, list[dict[str, float]]] = {}
+    for prefix, (label, _) in OBJECTS.items():
+        for path in sorted(folder.glob(f"{prefix}_[0-9]_readings.csv")):
+            data = np.loadtxt(path, delimiter=",", skiprows=1)
+            out.setdefault(label, []).append(closure_stats(data[:, 1], data[:, 2]))
+    return out
+
+
+def simulated_grasps(table: Path, seed: int) -> dict[str, list[dict[str, float]]]:
+    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, render_recording
+    from tactile_compliance.synthetic.objects import objects_from_table
+
+    with open(table, newline="", encoding="utf-8") as handle:
+        rows = list(csv.DictReader(handle))
+    radius = {label: r for label, r in OBJECTS.values()}
+    chosen = [dict(r) for r in rows if r["Label"] in radius]
+    for row in chosen:
+        if radius[row["Label"]] is not None:
+            row["Radius [m]"] = str(radius[row["Label"]])
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "five.csv"
+        with open(path, "w", newline="", encoding="utf-8") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(chosen[0]))
+            writer.writeheader()
+            writer.writerows(chosen)
+        specs, _ = objects_from_table(path, seed=seed, grasps_per_object=3)
+    out: dict[str, list[dict[str, float]]] = {}
+    for spec in specs:
+        ctx = make_context(spec, seed, SimulationOptions(image_size=(125, 175)))
+        for grasp in range(spec.n_grasps):
+            result, _ = render_recording(ctx, grasp)
+            timeline = result.timeline
+            out.setdefault(spec.name, []).append(
+                closure_stats(np.asarray(timeline.force_n), np.asarray(timeline.width_m))
+            )
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--real", type=Path, default=REFERENCE / "real/wedge-grasps/2023-12-06")
+    parser.add_argument(
+        "--table", type=Path, default=REFERENCE / "dataset_objects_and_compliance.csv"
+    )
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path)
+    parser.add_argument("--figure", type=Path, help="Draw force against closure (PNG).")
+    args = parser.parse_args()
+    if not args.real.is_dir():
+        raise SystemExit(f"no real grasps at {args.real}")
+    results = {"real": real_grasps(args.real), "generator": simulated_grasps(args.table, args.seed)}
+    keys = [
+        "F_peak_n",
+        "contact_width_mm",
+        "closure_10n_mm",
+        "closure_peak_mm",
+        "stiffness_n_per_mm",
+    ]
+    print(
+        "object                source     F_peak [N]  contact W [mm]  close@10N [mm]"
+        "  close@peak [mm]  k [N/mm]"
+    )
+    for label, _ in OBJECTS.values():
+        for source in ("real", "generator"):
+            rows = results[source].get(label, [])
+            means = [np.nanmean([r[k] for r in rows]) if rows else np.nan for k in keys]
+            print(f"{label:21s} {source:9s} " + "  ".join(f"{v:13.1f}" for v in means))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
+    if args.figure:
+        draw(results, args.figure)
+
+
+def draw(results: dict, path: Path) -> None:
+    """One panel per object: force above baseline against closure, real vs generator."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(OBJECTS), figsize=(15, 3.2), sharey=True)
+    for ax, (label, _) in zip(axes, OBJECTS.values(), strict=True):
+        for source, style in (("real", "-"), ("generator", "--")):
+            for k, row in enumerate(results[source].get(label, [])):
+                ax.plot(
+                    row["curve_closure_mm"],
+                    row["curve_force_n"],
+                    style,
+                    color="C0" if source == "real" else "C1",
+                    label=source if k == 0 else None,
+                )
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("closure since contact [mm]")
+    axes[0].set_ylabel("force above baseline [N]")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+
+
+if __name__ == "__main__":
+    main()
