@@ -218,3 +218,19 @@ def test_split_summary_takes_the_split_and_the_store_in_either_order(tmp_path):
     swapped = runner.invoke(app, ["split-summary", str(store), str(split), "--json"])
     assert given.exit_code == 0 and swapped.exit_code == 0, swapped.output
     assert json.loads(swapped.output) == json.loads(given.output)
+
+
+def test_split_json_holds_the_filter_report_and_the_split(tmp_path):
+    from toy_store import make_toy_store
+
+    store = tmp_path / "store"
+    make_toy_store(store, n_objects=6, grasps=2, size=(8, 8))
+    split = tmp_path / "split.json"
+    result = runner.invoke(app, ["split", str(store), "--out", str(split), "--json"])
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.output)
+    assert payload["out"] == str(split) and split.is_file()
+    assert payload["split"] == json.loads(
+        runner.invoke(app, ["split-summary", str(split), str(store), "--json"]).output
+    )
+    assert payload["filter"]["rules"]

@@ -558,6 +558,9 @@ def split(
         str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
     ] = "default",
     overrides: SetOption = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the filter report and the split as JSON.")
+    ] = False,
 ) -> None:
     """Filter a store and draw a train/val/test split; print what it contains."""
     from tactile_compliance.data.preprocess import filter_samples
@@ -572,10 +575,14 @@ def split(
     ]
     cfg = _load_config(config, [*extra, *(overrides or [])])
     samples, report = filter_samples(GraspStore.open(store).samples, cfg)
-    typer.echo(str(report))
     drawn = make_split_from_config(samples, cfg)
     drawn.save(out)
-    typer.echo(f"\n{summarise_split(samples, drawn)}\n\nSplit written to {out}")
+    summary = summarise_split(samples, drawn)
+    if as_json:
+        payload = {"filter": report.to_dict(), "split": summary.to_dict(), "out": str(out)}
+        typer.echo(json.dumps(payload, indent=2, default=str))
+        return
+    typer.echo(f"{report}\n\n{summary}\n\nSplit written to {out}")
 
 
 @app.command("split-summary")
@@ -1065,6 +1072,9 @@ def export(
             "cc-by-4.0); other: the weights follow the licence of their training data.",
         ),
     ] = "other",
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print what was written (files, sizes, checks) as JSON.")
+    ] = False,
 ) -> None:
     """Export a checkpoint to ONNX (dynamic batch size) and/or a safetensors directory.
 
@@ -1084,6 +1094,7 @@ def export(
         from tactile_compliance.inference.export import require_onnx
 
         require_onnx()  # before the safetensors directory is written
+    reports: dict[str, Any] = {}
     if safetensors is not None:
         written = export_safetensors(
             checkpoint,
@@ -1092,7 +1103,9 @@ def export(
             backbone_weights=weights,
             license=license,
         )
-        typer.echo(format_safetensors_report(written))
+        reports["safetensors"] = {k: v for k, v in written.items() if k != "config"}
+        if not as_json:
+            typer.echo(format_safetensors_report(written))
     if onnx is not None:
         try:
             result = export_onnx(
@@ -1100,7 +1113,11 @@ def export(
             )
         except RuntimeError as err:  # the graph does not match PyTorch: the export failed
             _fail(str(err))
-        typer.echo(format_export_report(result))
+        reports["onnx"] = result
+        if not as_json:
+            typer.echo(format_export_report(result))
+    if as_json:
+        typer.echo(json.dumps(reports, indent=2, default=str))
 
 
 SOURCE_HELP = (
