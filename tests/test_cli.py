@@ -234,3 +234,20 @@ def test_split_json_holds_the_filter_report_and_the_split(tmp_path):
         runner.invoke(app, ["split-summary", str(split), str(store), "--json"]).output
     )
     assert payload["filter"]["rules"]
+
+
+def test_simulate_and_import_print_their_reports_as_json(tmp_path):
+    raw = tmp_path / "raw"
+    args = ["simulate", "--out", str(raw), "--objects", "2", "--grasps-per-object", "1"]
+    simulated = runner.invoke(app, [*args, "--size", "40x56", "--workers", "1", "--json"])
+    assert simulated.exit_code == 0, simulated.output
+    assert json.loads(simulated.stdout)["objects_total"] == 2  # progress goes to stderr
+    imported = runner.invoke(
+        app,
+        [
+            *("import", "burgess", str(raw), "--out", str(tmp_path / "s"), "--json"),
+            *("--report", str(tmp_path / "r.json")),
+        ],
+    )
+    assert imported.exit_code == 0, imported.output
+    assert json.loads(imported.stdout) == json.loads((tmp_path / "r.json").read_text())

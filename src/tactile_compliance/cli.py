@@ -323,6 +323,7 @@ def simulate(
         Optional[int],  # noqa: UP045
         typer.Option(min=1, help="Processes (default: all CPUs)."),
     ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
 ) -> None:
     """Generate a physically grounded synthetic dataset in the real raw layout.
 
@@ -354,6 +355,9 @@ def simulate(
             seed=seed,
             image_size=image_size,
         )
+    if as_json:
+        typer.echo(json.dumps(report.to_dict(), indent=2, default=str))
+        return
     typer.echo(report.format())
     importer = "burgess" if kind == "gelsight" else "yuan"
     typer.echo(f"Next: tactile-compliance import {importer} {out} --out STORE")
@@ -412,13 +416,13 @@ def _is_import_report(path: Path) -> bool:
     return isinstance(data, dict) and {"source_dir", "samples_imported"} <= data.keys()
 
 
-def _run_import(run: object, report_json: Path | None) -> None:
+def _run_import(run: object, report_json: Path | None, as_json: bool = False) -> None:
     from tactile_compliance.outputs import check_output_file
 
     if report_json is not None:  # checked first: a refused path must cost no import
         check_output_file(report_json, "import report", _is_import_report, option="--report")
     report = run()  # type: ignore[operator]
-    typer.echo(report.format())
+    typer.echo(json.dumps(report.to_dict(), indent=2) if as_json else report.format())
     if report_json is not None:
         report_json.write_text(json.dumps(report.to_dict(), indent=2) + "\n")
 
@@ -434,6 +438,9 @@ ReportOption = Annotated[
     typer.Option("--report", help="Also write the import report as JSON."),
 ]
 OutOption = Annotated[Path, typer.Option("--out", help="Store directory to create.")]
+ImportJsonOption = Annotated[
+    bool, typer.Option("--json", help="Print the import report as JSON (as --report writes it).")
+]
 
 
 @import_app.command("burgess")
@@ -464,6 +471,7 @@ def import_burgess_command(
             "about 4 % more disk), the target of `pretrain`."
         ),
     ] = True,
+    as_json: ImportJsonOption = False,
 ) -> None:
     """Import the GelSight Young's-modulus dataset layout (real or simulated)."""
     from tactile_compliance.data.burgess import import_burgess
@@ -481,6 +489,7 @@ def import_burgess_command(
             depth=depth,
         ),
         report_json,
+        as_json,
     )
 
 
@@ -492,6 +501,7 @@ def import_yuan_command(
     strict: StrictOption = False,
     overwrite: OverwriteOption = False,
     report_json: ReportOption = None,
+    as_json: ImportJsonOption = False,
 ) -> None:
     """Import the Shore-hardness press videos (Yuan et al. 2017)."""
     from tactile_compliance.data.yuan import import_yuan
@@ -500,6 +510,7 @@ def import_yuan_command(
     _run_import(
         lambda: import_yuan(src, out, image_size=image_size, strict=strict, overwrite=overwrite),
         report_json,
+        as_json,
     )
 
 
