@@ -250,6 +250,8 @@ def _renamed(value: Any, old_value: Any, name: str, old_name: str) -> Any:
 
 
 def _size_option(size: str | None) -> tuple[int, int] | None:
+    if size is None:  # no import: image_ops loads OpenCV, which `train` does not need yet
+        return None
     from tactile_compliance.data.image_ops import parse_size
 
     try:
