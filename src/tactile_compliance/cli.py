@@ -1220,6 +1220,10 @@ def calibrate(
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help="Print the calibration (without its reference image) as JSON."),
+    ] = False,
 ) -> None:
     """Record a sensor's no-contact reference frame and its crop/warp.
 
@@ -1257,6 +1261,11 @@ def calibrate(
         fps=fps,
         timestamps_csv=timestamps,
     )
+    if as_json:
+        document = result.to_dict()
+        document.pop("reference_png_base64")  # the image is in the file, not on screen
+        typer.echo(json.dumps({"out": str(out), **document}, indent=2))
+        return
     height, width = result.frame_size
     typer.echo(
         f"Calibration {out}: reference = median of {result.n_frames} frames, "
@@ -1423,6 +1432,9 @@ def report(
         Optional[list[Path]],  # noqa: UP045
         typer.Option("--store", help="Extra GraspStore to draw in Fig. 1 (repeatable)."),
     ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print what was written and skipped as JSON.")
+    ] = False,
 ) -> None:
     """Build the paper's tables and figures from a results store (Markdown, HTML, LaTeX).
 
@@ -1432,6 +1444,20 @@ def report(
     from tactile_compliance.evaluation.report import build_report
 
     summary = build_report(results, out, formats=formats, stores=stores or ())
+    if as_json:
+        payload = {
+            "results_dir": str(summary.results_dir),
+            "out_dir": str(summary.out_dir),
+            "documents": {k: str(v) for k, v in summary.documents.items()},
+            "figures": {k: str(v) for k, v in summary.figures.items()},
+            "tables": sorted(summary.tables),
+            "notes": summary.notes,
+            "rows": summary.n_rows,
+            "complete": summary.n_complete,
+            "failed": summary.n_failed,
+        }
+        typer.echo(json.dumps(payload, indent=2))
+        return
     typer.echo(str(summary))
 
 
