@@ -218,3 +218,36 @@ def test_split_summary_takes_the_split_and_the_store_in_either_order(tmp_path):
     swapped = runner.invoke(app, ["split-summary", str(store), str(split), "--json"])
     assert given.exit_code == 0 and swapped.exit_code == 0, swapped.output
     assert json.loads(swapped.output) == json.loads(given.output)
+
+
+def test_split_json_holds_the_filter_report_and_the_split(tmp_path):
+    from toy_store import make_toy_store
+
+    store = tmp_path / "store"
+    make_toy_store(store, n_objects=6, grasps=2, size=(8, 8))
+    split = tmp_path / "split.json"
+    result = runner.invoke(app, ["split", str(store), "--out", str(split), "--json"])
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.output)
+    assert payload["out"] == str(split) and split.is_file()
+    assert payload["split"] == json.loads(
+        runner.invoke(app, ["split-summary", str(split), str(store), "--json"]).output
+    )
+    assert payload["filter"]["rules"]
+
+
+def test_simulate_and_import_print_their_reports_as_json(tmp_path):
+    raw = tmp_path / "raw"
+    args = ["simulate", "--out", str(raw), "--objects", "2", "--grasps-per-object", "1"]
+    simulated = runner.invoke(app, [*args, "--size", "40x56", "--workers", "1", "--json"])
+    assert simulated.exit_code == 0, simulated.output
+    assert json.loads(simulated.stdout)["objects_total"] == 2  # progress goes to stderr
+    imported = runner.invoke(
+        app,
+        [
+            *("import", "burgess", str(raw), "--out", str(tmp_path / "s"), "--json"),
+            *("--report", str(tmp_path / "r.json")),
+        ],
+    )
+    assert imported.exit_code == 0, imported.output
+    assert json.loads(imported.stdout) == json.loads((tmp_path / "r.json").read_text())

@@ -190,3 +190,26 @@ def test_outputs_are_out_and_the_old_names_are_hidden_aliases() -> None:
         click_command = dict((tuple(p), c) for p, c in COMMANDS)[(command,)]
         hidden = [p for p in click_command.params if old in p.opts]
         assert hidden and hidden[0].hidden, command
+
+
+def _table_rows() -> dict[str, list[str]]:
+    """docs/cli.md's table: command path -> its cells."""
+    text = (REPO / "docs" / "cli.md").read_text(encoding="utf-8")
+    rows: dict[str, list[str]] = {}
+    for line in text.splitlines():
+        if not line.startswith("| `"):
+            continue
+        cells = [cell.strip() for cell in line.strip("|").split("|")]
+        rows[re.findall(r"`([a-z -]+)`", cells[0])[0]] = cells
+    return rows
+
+
+def test_the_docs_table_of_commands_is_the_command_line() -> None:
+    rows = _table_rows()
+    commands = {" ".join(p): c for p, c in COMMANDS if p and not hasattr(c, "commands")}
+    assert set(rows) == set(commands)
+    for name, cells in rows.items():
+        options = {o for param in commands[name].params for o in param.opts}
+        for option in re.findall(r"`(--[a-z-]+)", " ".join(cells[1:])):
+            assert option in options, f"docs/cli.md: {name} has no {option}"
+        assert cells[4].startswith("yes") == ("--json" in options), f"{name}: --json column"

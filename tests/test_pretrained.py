@@ -309,3 +309,12 @@ def test_save_pretrained_writes_what_from_pretrained_loads(tmp_path, top10nn_run
     with pytest.raises(OutputExistsError):
         reference.save_pretrained(mine)
     assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+
+
+def test_export_json_says_what_was_written(tmp_path, top10nn_run):
+    args = ["export", str(top10nn_run), "--safetensors", str(tmp_path / "m"), "--json"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    written = json.loads(result.output)["safetensors"]
+    assert written["out"] == str(tmp_path / "m")
+    assert written["files"][WEIGHTS_FILE] == (tmp_path / "m" / WEIGHTS_FILE).stat().st_size

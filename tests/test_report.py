@@ -9,6 +9,7 @@ returned DataFrames *and* with the cells of the Markdown report.
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from pathlib import Path
@@ -751,5 +752,10 @@ def test_report_command(fake: FakeResults, tmp_path: Path) -> None:
     )
     assert result.exit_code == 0, result.output
     assert {p.name for p in out.iterdir()} >= {"report.md", "report.html", "report.tex"}
+    again = CliRunner().invoke(app, ["report", str(fake.results.path), "--out", str(out), "--json"])
+    assert again.exit_code == 0, again.output
+    written = json.loads(again.stdout)
+    assert written["documents"] == {"md": str(out / "report.md"), "html": str(out / "report.html")}
+    assert all(Path(png).is_file() for png in written["figures"].values())
     missing = CliRunner().invoke(app, ["report", str(tmp_path / "nothing")])
     assert missing.exit_code == 2 and "error" in missing.output

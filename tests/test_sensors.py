@@ -5,6 +5,7 @@ Videos and frames are made here with OpenCV, a few small frames each.
 
 from __future__ import annotations
 
+import json
 import sys
 
 import cv2
@@ -221,6 +222,22 @@ def test_calibration_records_the_median_reference_and_round_trips(tmp_path):
     assert other.read_text() == '{"mine": 1}'
     with pytest.raises(ValueError, match="not a sensor calibration"):
         SensorCalibration.load(other)
+
+
+def test_calibrate_json_describes_what_it_wrote(tmp_path):
+    from typer.testing import CliRunner
+
+    from tactile_compliance.cli import app
+
+    write_video(tmp_path / "v.avi", _frames(3, (96, 128)), 25)
+    out = tmp_path / "sensor.json"
+    args = ["calibrate", f"video:{tmp_path / 'v.avi'}", "--out", str(out), "--frames", "3"]
+    result = CliRunner().invoke(app, [*args, "--json"])
+    assert result.exit_code == 0, result.output
+    shown = json.loads(result.stdout)
+    written = json.loads(out.read_text())
+    assert shown.pop("out") == str(out) and "reference_png_base64" not in shown
+    assert shown == {k: v for k, v in written.items() if k != "reference_png_base64"}
 
 
 def test_calibration_needs_enough_frames(tmp_path):

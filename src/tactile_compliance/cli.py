@@ -267,6 +267,8 @@ def _renamed(value: Any, old_value: Any, name: str, old_name: str) -> Any:
 
 
 def _size_option(size: str | None) -> tuple[int, int] | None:
+    if size is None:  # no import: image_ops loads OpenCV, which `train` does not need yet
+        return None
     from tactile_compliance.data.image_ops import parse_size
 
     try:
@@ -340,6 +342,7 @@ def simulate(
         Optional[int],  # noqa: UP045
         typer.Option(min=1, help="Processes (default: all CPUs)."),
     ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
 ) -> None:
     """Generate a physically grounded synthetic dataset in the real raw layout.
 
@@ -371,6 +374,9 @@ def simulate(
             seed=seed,
             image_size=image_size,
         )
+    if as_json:
+        typer.echo(json.dumps(report.to_dict(), indent=2, default=str))
+        return
     typer.echo(report.format())
     importer = "burgess" if kind == "gelsight" else "yuan"
     typer.echo(f"Next: tactile-compliance import {importer} {out} --out STORE")
@@ -429,13 +435,13 @@ def _is_import_report(path: Path) -> bool:
     return isinstance(data, dict) and {"source_dir", "samples_imported"} <= data.keys()
 
 
-def _run_import(run: object, report_json: Path | None) -> None:
+def _run_import(run: object, report_json: Path | None, as_json: bool = False) -> None:
     from tactile_compliance.outputs import check_output_file
 
     if report_json is not None:  # checked first: a refused path must cost no import
         check_output_file(report_json, "import report", _is_import_report, option="--report")
     report = run()  # type: ignore[operator]
-    typer.echo(report.format())
+    typer.echo(json.dumps(report.to_dict(), indent=2) if as_json else report.format())
     if report_json is not None:
         report_json.write_text(json.dumps(report.to_dict(), indent=2) + "\n")
 
@@ -451,6 +457,9 @@ ReportOption = Annotated[
     typer.Option("--report", help="Also write the import report as JSON."),
 ]
 OutOption = Annotated[Path, typer.Option("--out", help="Store directory to create.")]
+ImportJsonOption = Annotated[
+    bool, typer.Option("--json", help="Print the import report as JSON (as --report writes it).")
+]
 
 
 @import_app.command("burgess")
@@ -481,6 +490,7 @@ def import_burgess_command(
             "about 4 % more disk), the target of `pretrain`."
         ),
     ] = True,
+    as_json: ImportJsonOption = False,
 ) -> None:
     """Import the GelSight Young's-modulus dataset layout (real or simulated)."""
     from tactile_compliance.data.burgess import import_burgess
@@ -498,6 +508,7 @@ def import_burgess_command(
             depth=depth,
         ),
         report_json,
+        as_json,
     )
 
 
@@ -509,6 +520,7 @@ def import_yuan_command(
     strict: StrictOption = False,
     overwrite: OverwriteOption = False,
     report_json: ReportOption = None,
+    as_json: ImportJsonOption = False,
 ) -> None:
     """Import the Shore-hardness press videos (Yuan et al. 2017)."""
     from tactile_compliance.data.yuan import import_yuan
@@ -517,6 +529,7 @@ def import_yuan_command(
     _run_import(
         lambda: import_yuan(src, out, image_size=image_size, strict=strict, overwrite=overwrite),
         report_json,
+        as_json,
     )
 
 
@@ -575,6 +588,9 @@ def split(
         str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
     ] = "default",
     overrides: SetOption = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the filter report and the split as JSON.")
+    ] = False,
 ) -> None:
     """Filter a store and draw a train/val/test split; print what it contains."""
     from tactile_compliance.data.preprocess import filter_samples
@@ -589,10 +605,14 @@ def split(
     ]
     cfg = _load_config(config, [*extra, *(overrides or [])])
     samples, report = filter_samples(GraspStore.open(store).samples, cfg)
-    typer.echo(str(report))
     drawn = make_split_from_config(samples, cfg)
     drawn.save(out)
-    typer.echo(f"\n{summarise_split(samples, drawn)}\n\nSplit written to {out}")
+    summary = summarise_split(samples, drawn)
+    if as_json:
+        payload = {"filter": report.to_dict(), "split": summary.to_dict(), "out": str(out)}
+        typer.echo(json.dumps(payload, indent=2, default=str))
+        return
+    typer.echo(f"{report}\n\n{summary}\n\nSplit written to {out}")
 
 
 @app.command("split-summary")
@@ -1082,6 +1102,9 @@ def export(
             "cc-by-4.0); other: the weights follow the licence of their training data.",
         ),
     ] = "other",
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print what was written (files, sizes, checks) as JSON.")
+    ] = False,
 ) -> None:
     """Export a checkpoint to ONNX (dynamic batch size) and/or a safetensors directory.
 
@@ -1101,6 +1124,7 @@ def export(
         from tactile_compliance.inference.export import require_onnx
 
         require_onnx()  # before the safetensors directory is written
+    reports: dict[str, Any] = {}
     if safetensors is not None:
         written = export_safetensors(
             checkpoint,
@@ -1109,7 +1133,9 @@ def export(
             backbone_weights=weights,
             license=license,
         )
-        typer.echo(format_safetensors_report(written))
+        reports["safetensors"] = {k: v for k, v in written.items() if k != "config"}
+        if not as_json:
+            typer.echo(format_safetensors_report(written))
     if onnx is not None:
         try:
             result = export_onnx(
@@ -1117,7 +1143,11 @@ def export(
             )
         except RuntimeError as err:  # the graph does not match PyTorch: the export failed
             _fail(str(err))
-        typer.echo(format_export_report(result))
+        reports["onnx"] = result
+        if not as_json:
+            typer.echo(format_export_report(result))
+    if as_json:
+        typer.echo(json.dumps(reports, indent=2, default=str))
 
 
 SOURCE_HELP = (
@@ -1207,6 +1237,10 @@ def calibrate(
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help="Print the calibration (without its reference image) as JSON."),
+    ] = False,
 ) -> None:
     """Record a sensor's no-contact reference frame and its crop/warp.
 
@@ -1244,6 +1278,11 @@ def calibrate(
         fps=fps,
         timestamps_csv=timestamps,
     )
+    if as_json:
+        document = result.to_dict()
+        document.pop("reference_png_base64")  # the image is in the file, not on screen
+        typer.echo(json.dumps({"out": str(out), **document}, indent=2))
+        return
     height, width = result.frame_size
     typer.echo(
         f"Calibration {out}: reference = median of {result.n_frames} frames, "
@@ -1543,6 +1582,9 @@ def report(
         Optional[list[Path]],  # noqa: UP045
         typer.Option("--store", help="Extra GraspStore to draw in Fig. 1 (repeatable)."),
     ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print what was written and skipped as JSON.")
+    ] = False,
 ) -> None:
     """Build the paper's tables and figures from a results store (Markdown, HTML, LaTeX).
 
@@ -1552,6 +1594,20 @@ def report(
     from tactile_compliance.evaluation.report import build_report
 
     summary = build_report(results, out, formats=formats, stores=stores or ())
+    if as_json:
+        payload = {
+            "results_dir": str(summary.results_dir),
+            "out_dir": str(summary.out_dir),
+            "documents": {k: str(v) for k, v in summary.documents.items()},
+            "figures": {k: str(v) for k, v in summary.figures.items()},
+            "tables": sorted(summary.tables),
+            "notes": summary.notes,
+            "rows": summary.n_rows,
+            "complete": summary.n_complete,
+            "failed": summary.n_failed,
+        }
+        typer.echo(json.dumps(payload, indent=2))
+        return
     typer.echo(str(summary))
 
 
