@@ -172,6 +172,10 @@ def test_calibrate_depth_and_depth_commands(presses, tmp_path):
     assert depth.max() == pytest.approx(items[-1][3], rel=0.2)
     assert cv2.imread(str(out / "held_out.png")).shape == (*SIZE, 3)
     assert re.search(r"peak \d\.\d{3} mm", output)
+    rows = json.loads(
+        _cli("depth", tmp_path / "held_out.png", "--calibration", cal, "--out", out, "--json")
+    )
+    assert rows[0]["peak_depth_mm"] == pytest.approx(float(depth.max()))
 
     # Never replaces what it did not write; a wrong pitch is named.
     notes = tmp_path / "notes.txt"

@@ -1400,6 +1400,7 @@ def depth(
         typer.Option("--reference", help="No-contact frame (default: the calibration's)."),
     ] = None,
     png: Annotated[bool, typer.Option("--png", help="Also write a coloured STEM.png.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """Depth maps of tactile frames: DIR/STEM.npy, float32 (H, W) in mm, positive into the gel."""
     from tactile_compliance.inference.calibration import SensorCalibration, read_press_images
@@ -1410,6 +1411,10 @@ def depth(
     written = write_depth_maps(
         read_press_images(frames), out, sensor=sensor, reference=ref, png=png
     )
+    if as_json:
+        rows = [{"depth_npy": str(path), "peak_depth_mm": peak} for path, peak in written]
+        typer.echo(json.dumps(rows, indent=2))
+        return
     for path, peak in written:
         typer.echo(f"{path}: peak {peak:.3f} mm")
 
