@@ -1436,6 +1436,14 @@ def record(
     material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
     shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
     calibration: CalibrationOption = None,
+    reference: Annotated[
+        Optional[Path],  # noqa: UP045
+        typer.Option(
+            "--reference",
+            help="A no-contact frame (image file: a camera frame, or one already cut to the "
+            "sensor frame); replaces the calibration's reference and the first frame.",
+        ),
+    ] = None,
     markers_source: Annotated[
         Optional[str],  # noqa: UP045
         typer.Option("--markers-source", help="A second sensor (the marker finger)."),
@@ -1458,9 +1466,14 @@ def record(
     OUT/dataset_objects_and_compliance.csv; `import burgess OUT` reads it."""
     from contextlib import ExitStack
 
-    from tactile_compliance.inference.recording import ObjectInfo, record_grasp
+    from tactile_compliance.inference.recording import (
+        ObjectInfo,
+        read_reference_image,
+        record_grasp,
+    )
 
     info = ObjectInfo(object_name, modulus, material, shape)
+    no_contact = None if reference is None else read_reference_image(reference)
     with ExitStack() as stack:
         frames, sensor = _open_source(source, calibration, fps, timestamps)
         stack.enter_context(frames)
@@ -1475,6 +1488,7 @@ def record(
             out,
             info,
             calibration=sensor,
+            reference=no_contact,
             markers_source=markers,
             markers_calibration=marker_sensor,
             max_frames=max_frames,

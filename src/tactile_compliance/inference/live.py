@@ -19,7 +19,10 @@ refines its estimate the members' latest estimates are combined with
 ``EnsembleEstimator.combine`` (mean and interval in decades).
 
 Bad frames and frames without a reading are reported as ``{"event": "skipped", ...}``
-and the loop goes on.
+and the loop goes on. What ``record`` warns about is reported as ``{"event": "warning",
+...}`` (``recording.check_recording``, at the first frame: a start in contact while the
+reference is that frame, a baseline beyond +-0.5 N, a reference unlike the frames), and
+so is every force spike the readings replaced, when it is found.
 """
 
 from __future__ import annotations
@@ -39,7 +42,13 @@ from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.ensemble import EnsembleEstimator
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.inference.pretrained import WEIGHTS_FILE
-from tactile_compliance.inference.recording import ReadingError, ReadingsCallback, checked_reading
+from tactile_compliance.inference.recording import (
+    ReadingError,
+    ReadingsCallback,
+    check_recording,
+    checked_reading,
+    same_replay,
+)
 from tactile_compliance.inference.sensors import (
     FrameError,
     FrameSizeError,
@@ -164,6 +173,9 @@ def live_estimates(
         return source.pending if isinstance(source, StampedOnArrival) else 0
 
     skipped: list[FrameError] = []
+    reported: set[int] = set()  # force spikes reported (a followed log finds them late)
+    first = True
+    kind = "first frame" if reference is None else "calibration"
     for timestamp_s, frame in iter_frames(source, skipped.append):
         while skipped:
             yield {"event": "skipped", "reason": str(skipped.pop(0))}
@@ -173,11 +185,30 @@ def live_estimates(
             yield {"event": "skipped", "reason": f"frame at {timestamp_s:.4f} s: {err}"}
             continue
         if reference is None:
-            reference = frame  # a recording's first frame shows the gel without contact
+            reference = frame  # right if the grasp starts without contact (checked below)
         if reference.shape != frame.shape:
             raise FrameSizeError(
                 f"the reference frame is {reference.shape}, the source's frames {frame.shape}"
             )
+        if first:
+            first = False
+            warnings, checks = check_recording(
+                readings,
+                np.array([timestamp_s]),
+                np.array([force_n]),
+                frame,
+                reference,
+                kind,
+                reference_from_start=kind == "calibration" and same_replay(calibration, source),
+                remedy="a --calibration recorded before the grasp",
+            )
+            reported.update(s["index"] for s in checks["spikes"])
+            for warning in warnings:
+                yield {"event": "warning", "reason": warning}
+        for spike in getattr(readings, "spikes", None) or ():
+            if spike.index not in reported:
+                reported.add(spike.index)
+                yield {"event": "warning", "reason": spike.describe()}
         diff = difference_images(frame[None], reference)
         depth = reconstruct_depth(diff, model=depth_model)[0] if needs_depth else None
         # Quantised like the store (and like StreamingEstimator's raw frames), so the
@@ -236,8 +267,8 @@ def _combine(
 
 def format_live_event(event: dict[str, Any]) -> str:
     """One human-readable line per event (what ``live`` prints without ``--json``)."""
-    if event["event"] == "skipped":
-        return f"skipped     {event['reason']}"
+    if event["event"] != "estimate":  # skipped, warning
+        return f"{event['event']:<11} {event['reason']}"
     kind = "final      " if event["final"] else "provisional"
     when = "" if event["timestamp_s"] is None else f" t={event['timestamp_s']:.3f} s"
     line = (

@@ -73,6 +73,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data.force_readings import (
+    BASELINE_WARN_N,
+    ForceBaseline,
+    ForceSpike,
+    find_force_spikes,
+    force_baseline,
+)
 from tactile_compliance.data.frame_selection import (
     AUGMENTATION_FORCE_FRACTION,
     MAX_AUGMENTATIONS,
@@ -91,6 +98,7 @@ from tactile_compliance.data.plausibility import FORCE, MODULUS, WIDTH
 from tactile_compliance.data.safe_pickle import dump_numpy_pickle
 from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.sensors import (
+    SPEC_KINDS,
     FrameError,
     FrameSizeError,
     FrameSourceBase,
@@ -118,8 +126,12 @@ __all__ = [
     "RecordedGrasp",
     "augmented_indices",
     "capture_grasp",
+    "check_recording",
     "claim_dataset_dir",
+    "read_reference_image",
     "record_grasp",
+    "reference_frame",
+    "same_replay",
     "write_grasp",
     "write_readings_csv",
 ]
@@ -157,18 +169,28 @@ class ReadingError(ValueError):
 class Readings:
     """Timestamped force and width readings from the robot, interpolated to frame times.
 
+    Real logs are checked as they are read (``data.force_readings``): single-frame force
+    spikes are replaced by the median of their neighbours and listed in :attr:`spikes`,
+    and the no-contact baseline is estimated (:attr:`baseline`) but not subtracted.
+
     Attributes:
         timestamp_s: (N,) reading times in s, strictly increasing, on the frames' clock.
-        force_n: (N,) normal force in N.
+        force_n: (N,) normal force in N (spikes replaced).
         width_m: (N,) gripper width in m.
         tolerance_s: how far outside ``[timestamp_s[0], timestamp_s[-1]]`` a frame may lie
             and still take the nearest reading (default 0: none).
+        raw_force_n: (N,) the force as given, spikes included.
+        spikes: the readings replaced as single-frame spikes.
+        baseline: the no-contact force level and its noise.
     """
 
     timestamp_s: np.ndarray
     force_n: np.ndarray
     width_m: np.ndarray
     tolerance_s: float = 0.0
+    raw_force_n: np.ndarray = field(init=False, repr=False)
+    spikes: list[ForceSpike] = field(init=False)
+    baseline: ForceBaseline = field(init=False)
 
     def __post_init__(self) -> None:
         self.timestamp_s = np.asarray(self.timestamp_s, dtype=np.float64).reshape(-1)
@@ -189,6 +211,18 @@ class Readings:
                 f"readings: timestamps must increase; reading {i} at "
                 f"{self.timestamp_s[i]:.4f} s follows {self.timestamp_s[i - 1]:.4f} s"
             )
+        self.raw_force_n = self.force_n
+        self.force_n, self.spikes = find_force_spikes(self.raw_force_n, self.timestamp_s)
+        # The baseline is reported, not subtracted. The public dataset chose its frames
+        # (first F >= 5 N, first F >= 0.975 F_max) and fitted its estimator constants on
+        # this rig's unzeroed readings, and the generator reproduces such offsets (sd
+        # 0.15 N); subtracting would select frames by another rule than the data the
+        # models learned from. On the 15 real grasps subtracting the estimated baseline
+        # (-0.12..+0.16 N) moves one selection by one frame, and the estimate is itself
+        # uncertain by about as much as it is large (where a grasp starts and ends with an
+        # empty gripper, its two ends differ by 0.02-0.14 N). Beyond +-0.5 N record warns
+        # (BASELINE_WARN_N).
+        self.baseline = force_baseline(self.force_n)
 
     @classmethod
     def from_csv(cls, path: str | Path, tolerance_s: float = 0.0) -> Readings:
@@ -283,6 +317,17 @@ class FollowedReadings:
         if n:
             arrays = (values[c].to_numpy()[:n] for c in columns)
             self.readings = Readings(*arrays, tolerance_s=self.tolerance_s)
+
+    @property
+    def spikes(self) -> list[ForceSpike]:
+        """Spikes replaced in the log so far (the newest reading is judged once the next
+        one is there: a spike needs a neighbour on each side)."""
+        return [] if self.readings is None else self.readings.spikes
+
+    @property
+    def baseline(self) -> ForceBaseline | None:
+        """The no-contact baseline of the log so far (None before the first reading)."""
+        return None if self.readings is None else self.readings.baseline
 
     def __call__(self, timestamp_s: float) -> tuple[float, float]:
         """(force_n, width_m) at ``timestamp_s``, waiting for the robot's log to reach it."""
@@ -525,6 +570,10 @@ class RecordedGrasp:
         estimates_pa: (elastic E, Hertz E*) in Pa, NaN where not estimable.
         n_frames: frames captured; skipped: frames left out, with the reason.
         object_table: the object table written or updated.
+        warnings: what looked wrong in the readings or the reference (force spikes
+            replaced, a baseline beyond +-0.5 N, a first frame in contact, a reference
+            that does not fit); the grasp is written all the same.
+        checks: the numbers behind them (:func:`check_recording`).
     """
 
     path: Path
@@ -534,6 +583,8 @@ class RecordedGrasp:
     n_frames: int
     skipped: list[str]
     object_table: Path
+    warnings: list[str] = field(default_factory=list)
+    checks: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict."""
@@ -546,6 +597,8 @@ class RecordedGrasp:
             "n_frames": self.n_frames,
             "skipped": self.skipped,
             "object_table": str(self.object_table),
+            "warnings": self.warnings,
+            "checks": self.checks,
         }
 
     def format(self) -> str:
@@ -560,6 +613,10 @@ class RecordedGrasp:
         ]
         if self.skipped:
             lines.append(f"Skipped     {len(self.skipped)} frames; first: {self.skipped[0]}")
+        baseline = self.checks.get("baseline_text")
+        if baseline:
+            lines.append(f"Force       {baseline}")
+        lines.extend(f"Warning     {w}" for w in self.warnings)
         return "\n".join(lines)
 
 
@@ -867,6 +924,174 @@ def _write_locked(
     )
 
 
+# ---------------------------------------------------------------------- checks
+REFERENCE_MISMATCH_GREY = 8.0
+"""A reference whose mean |difference| from the first frame exceeds this (grey levels of
+0..255) is not a no-contact frame of this sensor session: first frames of the 15 real
+grasps differ from each other by 0.8-3.5, from the rig's ``init_frame_unwarped.png`` by
+26-28 (it is from another session, with red and blue swapped)."""
+
+
+def reference_frame(image: np.ndarray, geometry: Any, frame_shape: tuple[int, ...]) -> np.ndarray:
+    """A no-contact image as a reference for frames of ``frame_shape`` (H, W, 3).
+
+    The image is either a camera frame, which the source's ``geometry``
+    (``sensors.FrameGeometry``: warp, crop, resize) turns into a sensor frame, or already a
+    sensor frame of ``frame_shape``.
+
+    Raises:
+        FrameSizeError: it is neither.
+    """
+    image = np.asarray(image)
+    if image.shape == tuple(frame_shape):
+        return image
+    try:
+        frame = geometry.apply(image)
+    except FrameSizeError:
+        frame = None
+    if frame is None or frame.shape != tuple(frame_shape):
+        camera = getattr(geometry, "input_size", None)
+        camera_text = "" if camera is None else f" of {camera[0]}x{camera[1]} px"
+        raise FrameSizeError(
+            f"the reference image is {image.shape[0]}x{image.shape[1]} px: give a camera "
+            f"frame{camera_text} (the sensor geometry cuts it to "
+            f"{frame_shape[0]}x{frame_shape[1]}) or a sensor frame of "
+            f"{frame_shape[0]}x{frame_shape[1]} px"
+        )
+    return frame
+
+
+def read_reference_image(path: str | Path) -> np.ndarray:
+    """An image file as a uint8 BGR array (OpenCV's order, like the frames).
+
+    Raises:
+        ValueError: not an image OpenCV can read. OSError: no such file.
+    """
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such reference image")
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"{path}: not an image file OpenCV can read")
+    return image
+
+
+def _frame_of_reading(readings: Any, index: int, frame_times: np.ndarray) -> int | None:
+    """The captured frame nearest in time to reading ``index`` among those interpolated
+    from it (None when no captured frame lies between its neighbouring readings)."""
+    # A FollowedReadings holds the log read so far as a Readings.
+    times = getattr(getattr(readings, "readings", readings), "timestamp_s", None)
+    if times is None or frame_times.size == 0:
+        return None
+    lo = times[index - 1] if index > 0 else -np.inf
+    hi = times[index + 1] if index + 1 < len(times) else np.inf
+    inside = np.flatnonzero((frame_times > lo) & (frame_times < hi))
+    if inside.size == 0:
+        return None
+    return int(inside[np.argmin(np.abs(frame_times[inside] - times[index]))])
+
+
+def same_replay(calibration: SensorCalibration | None, source: FrameSourceBase) -> bool:
+    """Whether ``calibration`` was recorded from the file ``source`` replays (so its
+    reference is this recording's first frames)."""
+    if calibration is None or source.live or not calibration.source:
+        return False
+    kind, sep, target = calibration.source.partition(":")
+    if not (sep and kind in SPEC_KINDS):
+        target = calibration.source
+    return bool(target) and source.name.endswith(target)
+
+
+def check_recording(
+    readings: Any,
+    frame_times_s: np.ndarray,
+    force_n: np.ndarray,
+    first_frame: np.ndarray,
+    reference: np.ndarray,
+    reference_kind: str,
+    reference_from_start: bool = False,
+    remedy: str = "--reference IMAGE, or a --calibration recorded before the grasp",
+) -> tuple[list[str], dict[str, Any]]:
+    """Warnings about a recording's readings and reference, and the numbers behind them.
+
+    * every force spike the readings replaced (``Readings.spikes``), with its frame;
+    * a no-contact baseline beyond +-``BASELINE_WARN_N`` (``Readings.baseline``);
+    * a first frame in contact (its force above the baseline; ``ForceBaseline.contact_n``)
+      while the reference was taken from the start of this recording (its first frame,
+      or a calibration of the same replayed file);
+    * a reference unlike the first frame (another session or lighting, or red and blue
+      swapped).
+
+    Args:
+        readings: a :class:`Readings` (or any callback; one without ``spikes`` and
+            ``baseline`` is not checked).
+        frame_times_s, force_n: (T,) the captured frames' times [s] and forces [N].
+        first_frame, reference: (H, W, 3) uint8 BGR.
+        reference_kind: where the reference came from: ``first frame``,
+            ``calibration`` or ``--reference``.
+        reference_from_start: the reference was taken from this recording's first
+            frames (always so for ``first frame``).
+        remedy: what to give instead, in the warning (``record``'s options by default).
+    """
+    warnings: list[str] = []
+    checks: dict[str, Any] = {"reference": reference_kind}
+    frame_times = np.asarray(frame_times_s, dtype=np.float64)
+    spikes = list(getattr(readings, "spikes", None) or [])
+    checks["spikes"] = []
+    for spike in spikes:
+        frame = _frame_of_reading(readings, spike.index, frame_times)
+        checks["spikes"].append({**spike.to_dict(), "frame": frame})
+        warnings.append(spike.describe(frame))
+    baseline: ForceBaseline | None = getattr(readings, "baseline", None)
+    contact = None
+    if baseline is not None:
+        checks["baseline"] = baseline.to_dict()
+        checks["baseline_text"] = baseline.describe()
+        if baseline.baseline_n is not None and abs(baseline.baseline_n) > BASELINE_WARN_N:
+            warnings.append(
+                f"{baseline.describe()}: beyond +-{BASELINE_WARN_N:g} N it moves the 5 N "
+                f"contact onset; zero the force sensor with the gripper empty"
+            )
+        contact = baseline.contact_n(float(force_n[0])) if len(force_n) else None
+    checks["first_frame_contact_n"] = contact
+    first = np.asarray(first_frame, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    difference = float(np.mean(np.abs(first - ref)))
+    checks["reference_vs_first_frame_grey"] = difference
+    if contact is not None:
+        start = (
+            f"the recording starts in contact: {float(force_n[0]):.2f} N at its first frame, "
+            f"{contact:.2f} N above the no-contact level {baseline.level_n:+.2f} N"  # type: ignore[union-attr]
+        )
+        if reference_kind == "first frame" or reference_from_start:
+            which = (
+                "that frame is the reference"
+                if reference_kind == "first frame"
+                else "the calibration was taken from this recording's first frames"
+            )
+            warnings.append(
+                f"{start}; {which}, so the difference images and depth maps miss this "
+                f"contact: give a frame with nothing touching the gel ({remedy})"
+            )
+    if difference > REFERENCE_MISMATCH_GREY:
+        text = (
+            f"the reference ({reference_kind}) differs from the first frame by "
+            f"{difference:.1f} grey levels on average (frames of one session differ by a "
+            f"few): is it from another session, lighting or sensor?"
+        )
+        swapped = float(np.mean(np.abs(first - ref[..., ::-1])))
+        checks["reference_swapped_vs_first_frame_grey"] = swapped
+        if swapped < 0.7 * difference:
+            text += (
+                f" With red and blue swapped it differs by {swapped:.1f}: it may be stored "
+                f"as RGB (frames are BGR)"
+            )
+        warnings.append(text)
+    return warnings, checks
+
+
 def record_grasp(
     source: FrameSourceBase,
     readings: ReadingsCallback,
@@ -874,6 +1099,7 @@ def record_grasp(
     info: ObjectInfo,
     *,
     calibration: SensorCalibration | None = None,
+    reference: np.ndarray | None = None,
     markers_source: FrameSourceBase | None = None,
     markers_calibration: SensorCalibration | None = None,
     max_frames: int | None = None,
@@ -881,6 +1107,9 @@ def record_grasp(
     max_aug: int = MAX_AUGMENTATIONS,
 ) -> RecordedGrasp:
     """Capture one grasp from ``source`` with ``readings`` and write it (see the module).
+
+    What looks wrong is reported in the result's ``warnings`` (see
+    :func:`check_recording`), never silently used and never fatal.
 
     Args:
         source: an open frame source (``sensors.open_source``; with a calibration, open
@@ -891,6 +1120,9 @@ def record_grasp(
         calibration: its reference frame is the no-contact frame (default: the first
             recorded frame); its depth model and pixel density make the depth maps and
             the analytical estimates (default: the dataset heuristic, 16.40 px/mm).
+        reference: a no-contact image (uint8 BGR), a camera frame (the source's geometry
+            is applied) or a sensor frame; replaces the calibration's reference (for a
+            recording whose first frames already show contact).
         markers_source, markers_calibration: a second sensor (the marker finger).
         max_frames, stop_on_release: when the capture stops (see :func:`capture_grasp`).
 
@@ -899,6 +1131,8 @@ def record_grasp(
             (checked before the capture starts).
     """
     claim_dataset_dir(out_dir, create=False)  # refuse a store or a run directory first
+    if reference is not None and calibration is not None:  # a bad size: fail before capturing
+        reference = reference_frame(reference, source.geometry, (*calibration.frame_size, 3))
     captured = capture_grasp(
         source,
         readings,
@@ -906,14 +1140,37 @@ def record_grasp(
         max_frames=max_frames,
         stop_on_release=stop_on_release,
     )
-    return write_grasp(
+    if reference is not None:
+        kind = "--reference"
+        used = reference_frame(reference, source.geometry, captured.frames.shape[1:])
+    elif calibration is not None:
+        used, kind = calibration.reference, "calibration"
+    else:
+        used, kind = captured.frames[0], "first frame"
+    if used.shape != captured.frames.shape[1:]:  # write_grasp refuses it with the sizes
+        warnings, checks = [], {"reference": kind}
+    else:
+        warnings, checks = check_recording(
+            readings,
+            captured.timestamp_s,
+            captured.force_n,
+            captured.frames[0],
+            used,
+            kind,
+            reference_from_start=kind == "calibration" and same_replay(calibration, source),
+        )
+    result = write_grasp(
         captured,
         out_dir,
         info,
+        reference=used,
+        markers_reference=None if markers_calibration is None else markers_calibration.reference,
         max_aug=max_aug,
         sensor=calibration,
         markers_sensor=markers_calibration,
     )
+    result.warnings, result.checks = warnings, checks
+    return result
 
 
 def write_readings_csv(path: str | Path, timestamp_s: Any, force_n: Any, width_m: Any) -> Path:

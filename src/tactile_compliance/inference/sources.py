@@ -418,8 +418,9 @@ def predict_path(
 ) -> dict[str, Any]:
     """Predict every grasp under ``path`` with ``checkpoint``: the ``predict`` command.
 
-    ``backbone_weights``: a local copy of a frozen backbone's weights file (see
-    ``ComplianceEstimator.from_checkpoint``).
+    ``checkpoint``: ``best.pt``, its run directory, or a directory written by ``export
+    --safetensors`` (as ``live`` takes). ``backbone_weights``: a local copy of a frozen
+    backbone's weights file (see ``ComplianceEstimator.from_checkpoint``).
 
     Samples missing an input the checkpoint needs (e.g. NaN estimates in a store) are
     skipped and listed with the reason; everything else is predicted in batches.
@@ -432,10 +433,14 @@ def predict_path(
         predicted sample has a known modulus).
     """
     from tactile_compliance.inference.estimator import ComplianceEstimator
+    from tactile_compliance.inference.pretrained import WEIGHTS_FILE
 
-    estimator = ComplianceEstimator.from_checkpoint(
-        checkpoint, device=device, backbone_weights=backbone_weights
-    )
+    if (Path(checkpoint) / WEIGHTS_FILE).is_file():  # an exported directory
+        estimator = ComplianceEstimator.from_pretrained(checkpoint, device=device)
+    else:
+        estimator = ComplianceEstimator.from_checkpoint(
+            checkpoint, device=device, backbone_weights=backbone_weights
+        )
     source = read_source(path, fingers=fingers, image_size=estimator.store_image_size)
     needed = estimator.required_inputs
     if source.kind == "video" and needed:
