@@ -693,3 +693,46 @@ def test_a_slow_estimator_on_a_live_sensor_pairs_every_frame_with_its_force(gras
     # Behind the sensor, the loop skipped provisional estimates instead of frames.
     assert final["frames_seen"] == expected["frames_seen"]
     assert len(lived) < len(replayed)
+
+
+def test_a_grasp_without_estimates_warns_which_models_it_cannot_serve(grasp, tmp_path):
+    """At 60 x 84 px and the Wedge's 16.40 px/mm the dataset's estimator finds too little
+    contact area: the grasp is written, and `record` says at once that ALL models will
+    skip it (before, `predict` only counted 'Skipped 4 samples')."""
+    info = ObjectInfo(grasp["name"], grasp["modulus_pa"])
+    with open_source(f"video:{grasp['video']}") as source:
+        result = record_grasp(source, Readings.from_csv(grasp["readings"]), tmp_path / "d", info)
+    assert not np.isfinite(result.estimates_pa).any()
+    assert any("ALL models will skip it" in w for w in result.warnings)
+    assert "Warning     no elastic or Hertz analytical estimate" in result.format()
+
+
+def test_live_without_an_estimate_names_the_real_cause(grasp, tmp_path):
+    """One line, exit 2, and the cause: estimates that cannot be computed (an ALL model at
+    60 x 84 px, where an ImageFW model selects frames), readings on another clock, a
+    grasp too weak for the selection."""
+    all_ckpt = _checkpoint(tmp_path / "all.pt", inputs="ALL")
+    fw_ckpt = _checkpoint(tmp_path / "fw.pt", inputs="ImageFW")
+    video = f"video:{grasp['video']}"
+    weak = write_readings_csv(
+        tmp_path / "weak.csv",
+        np.arange(len(grasp["force"])) / FPS,
+        np.asarray(grasp["force"]) * 0.1,
+        grasp["width"],
+    )
+    cases = [
+        (all_ckpt, grasp["readings"], [], "analytical estimates (ALL inputs) could not be"),
+        (fw_ckpt, grasp["readings"], ["--readings-offset-s", "100"], "--readings-offset-s"),
+        (fw_ckpt, weak, [], "never reached the frame selection"),
+    ]
+    for ckpt, readings, extra, cause in cases:
+        result = runner.invoke(
+            app, [str(a) for a in ["live", ckpt, "--source", video, "--readings", readings, *extra]]
+        )
+        assert result.exit_code == 2, result.output
+        errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+        assert len(errors) == 1 and cause in errors[0], result.output
+    ok = runner.invoke(
+        app, ["live", str(fw_ckpt), "--source", video, "--readings", str(grasp["readings"])]
+    )
+    assert ok.exit_code == 0 and "final" in ok.output

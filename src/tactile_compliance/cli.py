@@ -1577,14 +1577,12 @@ def live(
             level=level,
             readings_offset_s=readings_offset_s,
         ):
+            if event["event"] == "no_estimate":
+                _fail(f"no estimate: {event['reason']}", EXIT_BAD_INPUT)
             final = final or bool(event.get("final"))
             typer.echo(json.dumps(event) if as_json else format_live_event(event))
-    if not final:
-        _fail(
-            "no estimate: the grasp never reached the frame selection (a frame >= 5 N, "
-            "a peak >= 10 N, three frames from contact to peak)",
-            EXIT_BAD_INPUT,
-        )
+    if not final:  # pragma: no cover - live_estimates ends with a final or a no_estimate
+        _fail("no estimate", EXIT_BAD_INPUT)
 
 
 @app.command()

@@ -96,7 +96,8 @@ def live_estimates(
 ) -> Iterator[dict[str, Any]]:
     """Run ``source`` through streaming estimators; yield one dict per event.
 
-    Events: ``{"event": "estimate", ...}`` (a provisional or the final estimate:
+    Events: ``{"event": "no_estimate", "reason": ...}`` (the stream ended without one, and
+    why), ``{"event": "estimate", ...}`` (a provisional or the final estimate:
     ``StreamEstimate.to_dict()`` plus ``timestamp_s``; with several members also
     ``std_decades``, ``interval_pa``, ``level`` and ``members_log10``) and
     ``{"event": "skipped", "reason": ...}`` (a frame left out). The loop ends after the
@@ -176,13 +177,16 @@ def live_estimates(
     reported: set[int] = set()  # force spikes reported (a followed log finds them late)
     first = True
     kind = "first frame" if reference is None else "calibration"
+    skips: list[str] = []  # every skip's reason, for the cause of a missing estimate
     for timestamp_s, frame in iter_frames(source, skipped.append):
         while skipped:
-            yield {"event": "skipped", "reason": str(skipped.pop(0))}
+            skips.append(str(skipped.pop(0)))
+            yield {"event": "skipped", "reason": skips[-1]}
         try:
             force_n, width_m = checked_reading(readings, timestamp_s + readings_offset_s)
         except ReadingError as err:
-            yield {"event": "skipped", "reason": f"frame at {timestamp_s:.4f} s: {err}"}
+            skips.append(f"frame at {timestamp_s:.4f} s: {err}")
+            yield {"event": "skipped", "reason": skips[-1]}
             continue
         if reference is None:
             reference = frame  # right if the grasp starts without contact (checked below)
@@ -230,15 +234,45 @@ def live_estimates(
             event = _combine(ensemble, streams, timestamp_s)
             if event is not None:
                 yield event
+                if event["final"]:
+                    return
         if all(stream.state == "done" for stream in streams):
-            return
+            break  # released without a final estimate: say why below
     while skipped:
-        yield {"event": "skipped", "reason": str(skipped.pop(0))}
+        skips.append(str(skipped.pop(0)))
+        yield {"event": "skipped", "reason": skips[-1]}
     finals = [stream.finish() for stream in streams]
     if any(f is not None for f in finals):
         event = _combine(ensemble, streams, None)
         if event is not None:
             yield event
+            return
+    yield {"event": "no_estimate", "reason": _no_estimate_reason(streams[0], skips, needs_depth)}
+
+
+def _no_estimate_reason(stream: StreamingEstimator, skips: list[str], needs_depth: bool) -> str:
+    """Why a stream ended without an estimate, the real cause first."""
+    if stream.frames_seen == 0:
+        reason = f"every frame was skipped ({len(skips)})"
+        if skips:
+            reason += f"; first: {skips[0]}"
+        if any("reading" in s for s in skips):
+            reason += " (are the readings on the frames' clock? see --readings-offset-s)"
+        return reason
+    if not stream.has_selection:
+        return (
+            f"the grasp never reached the frame selection (a frame >= 5 N, a peak >= 10 N, "
+            f"three frames from contact to peak): peak force {stream.peak_force_n:.1f} N "
+            f"over {stream.frames_seen} frames"
+        )
+    if needs_depth:
+        return (
+            "the frames were selected, but the analytical estimates (ALL inputs) could not "
+            "be computed from the depth maps: too little contact area or depth at this frame "
+            "size and pixel density (calibrate the sensor's px/mm, docs/sensors.md), or use "
+            "an Image, ImageF or ImageFW checkpoint"
+        )
+    return f"the stream ended without a final estimate after {stream.frames_seen} frames"
 
 
 def _combine(

@@ -1169,6 +1169,20 @@ def record_grasp(
         sensor=calibration,
         markers_sensor=markers_calibration,
     )
+    missing = [
+        name
+        for name, value in zip(("elastic", "Hertz"), result.estimates_pa, strict=True)
+        if not math.isfinite(value)
+    ]
+    if missing:
+        # The grasp is written (the dataset has such grasps too), but an ALL model will
+        # skip it: say so now rather than at `predict`, which only counts skipped samples.
+        warnings = [
+            *warnings,
+            f"no {' or '.join(missing)} analytical estimate for this grasp (too little "
+            "contact area or depth at this frame size and pixel density): ALL models will "
+            "skip it; Image, ImageF and ImageFW models can use it",
+        ]
     result.warnings, result.checks = warnings, checks
     return result
 

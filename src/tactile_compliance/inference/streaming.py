@@ -520,6 +520,16 @@ class StreamingEstimator:
         pressed = np.flatnonzero(forces >= DATASET_PRESS_FORCE_N)
         return max(int(pressed[0]) - 1, 0) if pressed.size else None
 
+    @property
+    def has_selection(self) -> bool:
+        """Whether the frames so far meet the selection rule (three frames chosen)."""
+        return bool(self._buffer.forces) and self._select() is not None
+
+    @property
+    def peak_force_n(self) -> float:
+        """The highest force [N] of the grasp so far (NaN before the first frame)."""
+        return float(max(self._buffer.forces)) if self._buffer.forces else float("nan")
+
     def finish(self) -> StreamEstimate | None:
         """End the grasp now: the final estimate (None if the grasp never had enough data)."""
         if self._done:
