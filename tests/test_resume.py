@@ -441,3 +441,16 @@ def test_a_best_checkpoint_pending_for_the_resumed_epoch_becomes_best_pt(tmp_pat
     found = find_resume_point(tmp_path)
     assert found is not None and (found.epochs_done, found.best_epoch) == (3, 2)
     assert (tmp_path / BEST_FILE).is_file() and not (directory / PENDING_BEST).exists()
+
+
+def test_a_pre_release_training_checkpoint_is_set_aside_naming_the_version(tmp_path):
+    from tactile_compliance.runs.layout import CHECKPOINT_DIR, LAST_CHECKPOINT
+    from tactile_compliance.training.resume import find_resume_point
+
+    last = tmp_path / CHECKPOINT_DIR / LAST_CHECKPOINT
+    last.parent.mkdir()
+    # A Lightning checkpoint without this package's epoch state (pre-release runs).
+    torch.save({"state_dict": {}, "loops": {}, "epoch": 3, "callbacks": {}}, last)
+    with pytest.warns(RuntimeWarning, match=r"version before 0\.1\.0.*starting the run over"):
+        assert find_resume_point(tmp_path) is None
+    assert not last.exists() and last.with_name(LAST_CHECKPOINT + ".corrupt").is_file()

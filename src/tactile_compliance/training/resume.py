@@ -364,11 +364,13 @@ def _inspect_checkpoint(path: Path) -> tuple[ResumePoint | None, str]:
     callbacks = checkpoint.get("callbacks") or {}
     state = callbacks.get(EPOCH_STATE_KEY) or {}
     best = callbacks.get(BEST_STATE_KEY) or {}
+    if "epochs_done" not in state:
+        # Pre-release runs saved last.ckpt without the epoch state: it cannot resume exactly.
+        return None, "no epoch state (a training checkpoint of a version before 0.1.0)"
     return (
         ResumePoint(
             path=path,
-            # Older runs saved last.ckpt only at the end, within the last epoch.
-            epochs_done=int(state.get("epochs_done", int(checkpoint["epoch"]) + 1)),
+            epochs_done=int(state["epochs_done"]),
             best_epoch=int(best.get("best_epoch", -1)),
         ),
         "",
