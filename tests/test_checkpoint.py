@@ -252,17 +252,15 @@ def test_finetuned_run_keeps_the_backbone_in_its_checkpoint(toy_store, tmp_path)
     )
 
 
-def test_format_1_checkpoints_still_load(tmp_path):
+def test_pre_release_format_1_checkpoints_are_refused_naming_the_version(tmp_path):
     model = create_model("res_tf", inputs="ALL", num_layers=1, embedding_dim=64, output_dim=64)
-    model.eval()
     path = _save(tmp_path / "v2.pt", model)
     payload = torch.load(path, weights_only=True)
     payload["format_version"] = 1
     del payload["backbone"]  # format 1 had no backbone record: always the whole model
     torch.save(payload, tmp_path / "v1.pt")
-    loaded = load_checkpoint(tmp_path / "v1.pt").model
-    with torch.no_grad():
-        assert torch.equal(loaded(*_inputs((32, 32))), model(*_inputs((32, 32))))
+    with pytest.raises(ValueError, match=r"format_version 1 is a pre-release format.*format 2"):
+        load_checkpoint(tmp_path / "v1.pt")
 
 
 def test_native_size_checkpoint_records_the_store_frame_size(tmp_path):

@@ -297,6 +297,10 @@ def test_table1_paper_settings_equal_the_published_values(tmp_path):
         ("seeds: 0\n", "seeds must be"),
         ("rules:\n  - when: {model.name: top10nn}\n", "changes nothing"),
         ("rules:\n  - when: {model.nam: x}\n    set: {seed: 1}\n", "model.nam"),
+        # The config's YAML reader: a repeated key would silently drop one of the two.
+        ("set: {training.lr: 1.0e-3}\nset: {training.lr: 3.0e-4}\n", "duplicate key"),
+        ("extends: bad.yaml\n", "circular 'extends' chain"),
+        ("extends: [table1]\n", "'extends' must be an experiment name or path"),
     ],
 )
 def test_bad_experiment_files_fail_before_running(tmp_path, text, message):

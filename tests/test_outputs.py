@@ -8,6 +8,9 @@ and exit code 2, and leave every byte as it was.
 from __future__ import annotations
 
 import hashlib
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -20,6 +23,8 @@ from tactile_compliance.outputs import (
     check_output_file,
     claim_output_dir,
     output_kind,
+    process_alive,
+    process_start,
 )
 
 runner = CliRunner()
@@ -212,3 +217,15 @@ def test_exchange_directories_swaps_two_directories_whole(tmp_path, monkeypatch,
     assert {p.name: p.read_text() for p in old.iterdir()} == {"weights": "new", "config": "new"}
     assert {p.name: p.read_text() for p in new.iterdir()} == {"weights": "old", "config": "old"}
     assert sorted(p.name for p in tmp_path.iterdir()) == [".model.partial", "model"]
+
+
+def test_process_alive_tells_a_running_process_from_a_gone_or_reused_one() -> None:
+    me = os.getpid()
+    assert process_alive(me)
+    start = process_start(me)
+    assert process_alive(me, start)
+    if start is not None:  # Linux: a pid reused by another process is not the owner
+        assert not process_alive(me, start + "1")
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()  # reaped: its pid names no process now
+    assert not process_alive(child.pid)

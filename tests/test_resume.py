@@ -420,3 +420,37 @@ def test_result_rows_follow_the_umask(tmp_path):
         "k22.json",
         "k77.json",
     ]
+
+
+def test_a_best_checkpoint_pending_for_the_resumed_epoch_becomes_best_pt(tmp_path):
+    """Killed between committing last.ckpt and renaming its best epoch's weights."""
+    from tactile_compliance.runs.layout import BEST_FILE, CHECKPOINT_DIR, LAST_CHECKPOINT
+    from tactile_compliance.training.resume import (
+        BEST_STATE_KEY,
+        EPOCH_STATE_KEY,
+        PENDING_BEST,
+        find_resume_point,
+    )
+
+    directory = tmp_path / CHECKPOINT_DIR
+    directory.mkdir()
+    callbacks = {EPOCH_STATE_KEY: {"epochs_done": 3}, BEST_STATE_KEY: {"best_epoch": 2}}
+    state = {"state_dict": {}, "loops": {}, "epoch": 2, "callbacks": callbacks}
+    torch.save(state, directory / LAST_CHECKPOINT)
+    torch.save({"metrics": {"best_epoch": 2}}, directory / PENDING_BEST)
+    found = find_resume_point(tmp_path)
+    assert found is not None and (found.epochs_done, found.best_epoch) == (3, 2)
+    assert (tmp_path / BEST_FILE).is_file() and not (directory / PENDING_BEST).exists()
+
+
+def test_a_pre_release_training_checkpoint_is_set_aside_naming_the_version(tmp_path):
+    from tactile_compliance.runs.layout import CHECKPOINT_DIR, LAST_CHECKPOINT
+    from tactile_compliance.training.resume import find_resume_point
+
+    last = tmp_path / CHECKPOINT_DIR / LAST_CHECKPOINT
+    last.parent.mkdir()
+    # A Lightning checkpoint without this package's epoch state (pre-release runs).
+    torch.save({"state_dict": {}, "loops": {}, "epoch": 3, "callbacks": {}}, last)
+    with pytest.warns(RuntimeWarning, match=r"version before 0\.1\.0.*starting the run over"):
+        assert find_resume_point(tmp_path) is None
+    assert not last.exists() and last.with_name(LAST_CHECKPOINT + ".corrupt").is_file()

@@ -31,7 +31,7 @@ import copy
 import importlib.resources
 import re
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, get_args, get_origin
 
@@ -58,10 +58,12 @@ __all__ = [
     "TrainingConfig",
     "apply_overrides",
     "check_config_against_samples",
+    "compose_yaml",
     "config_from_dict",
     "config_to_dict",
     "list_presets",
     "load_config",
+    "parse_yaml",
     "preset_path",
     "save_config",
 ]
@@ -406,7 +408,12 @@ _Loader.add_implicit_resolver(
 )
 
 
-def _parse_yaml(text: str, origin: str) -> Any:
+def parse_yaml(text: str, origin: str) -> Any:
+    """Parse the YAML of a config or experiment file (``origin`` names it in errors).
+
+    The one YAML reader of configuration: a duplicate key is an error (it would silently
+    drop a setting) and ``1e-4`` is a float.
+    """
     try:
         # _Loader derives from SafeLoader: no arbitrary Python objects are constructed.
         return yaml.load(text, Loader=_Loader)
@@ -460,7 +467,7 @@ def _read_source(
     else:
         preset_path(text)  # raises: names the presets
         raise AssertionError("unreachable")
-    data = _parse_yaml(body, origin)
+    data = parse_yaml(body, origin)
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -478,19 +485,45 @@ def _deep_merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str,
     return out
 
 
-def _resolve_raw(
-    ref: str | Path, relative_to: Path | None = None, stack: tuple[str, ...] = ()
+#: Reads a reference (relative to a directory, or None): mapping, origin, its directory.
+YamlReader = Callable[[str | Path, Path | None], tuple[dict[str, Any], str, Path | None]]
+#: Puts a file's mapping over its parent's.
+YamlMerge = Callable[[Mapping[str, Any], Mapping[str, Any]], dict[str, Any]]
+
+
+def compose_yaml(
+    ref: str | Path,
+    read: YamlReader,
+    merge: YamlMerge,
+    key: str,
+    what: str,
+    relative_to: Path | None = None,
+    stack: tuple[str, ...] = (),
 ) -> tuple[dict[str, Any], str]:
-    data, origin, directory = _read_source(ref, relative_to)
+    """A YAML file composed over the parent it names under ``key``: the one composition.
+
+    Config files name theirs with ``base:``, experiment files with ``extends:``; the
+    parent is read relative to the child's directory, composed the same way first, and
+    ``merge`` puts the child over it. ``what`` says what the key must name (for the
+    error). Returns the mapping (without ``key``) and the origin of ``ref``.
+
+    Raises:
+        ConfigError: a circular chain, or a parent that is not a string.
+    """
+    data, origin, directory = read(ref, relative_to)
     if origin in stack:
-        raise ConfigError(f"circular 'base' chain: {' -> '.join((*stack, origin))}")
-    base_ref = data.pop("base", None)
-    if base_ref is None:
+        raise ConfigError(f"circular {key!r} chain: {' -> '.join((*stack, origin))}")
+    parent = data.pop(key, None)
+    if parent is None:
         return data, origin
-    if not isinstance(base_ref, str):
-        raise ConfigError(f"{origin}: 'base' must be a preset name or a path, got {base_ref!r}")
-    base, _ = _resolve_raw(base_ref, directory, (*stack, origin))
-    return _deep_merge(base, data), origin
+    if not isinstance(parent, str):
+        raise ConfigError(f"{origin}: {key!r} must be {what}, got {parent!r}")
+    base, _ = compose_yaml(parent, read, merge, key, what, directory, (*stack, origin))
+    return merge(base, data), origin
+
+
+def _resolve_raw(ref: str | Path) -> tuple[dict[str, Any], str]:
+    return compose_yaml(ref, _read_source, _deep_merge, "base", "a preset name or a path")
 
 
 # =========================================================================== overrides
@@ -528,7 +561,7 @@ def _parse_override(item: str) -> tuple[str, Any]:
     key = key.strip()
     if not re.fullmatch(r"[A-Za-z_][\w-]*(\.[\w-]+)*", key):
         raise ConfigError(f"override {item!r}: {key!r} is not a dotted key")
-    value = _parse_yaml(text, f"override {item!r}") if text.strip() else None
+    value = parse_yaml(text, f"override {item!r}") if text.strip() else None
     return key, value
 
 

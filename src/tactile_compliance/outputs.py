@@ -46,6 +46,8 @@ __all__ = [
     "exclusive_lock",
     "fsync_directory",
     "output_kind",
+    "process_alive",
+    "process_start",
 ]
 
 MARKER_NAME = ".tactile-compliance.json"
@@ -53,6 +55,31 @@ MARKER_NAME = ".tactile-compliance.json"
 
 class OutputExistsError(FileExistsError):
     """An output path holds something this kind of command did not create."""
+
+
+def process_start(pid: int) -> str | None:
+    """The start time of process ``pid`` (Linux: /proc/PID/stat field 22), or None."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()[19]
+    except (OSError, IndexError):
+        return None
+
+
+def process_alive(pid: int, start: str | None = None) -> bool:
+    """Whether process ``pid`` still runs (and is the same one, when its ``start`` is known).
+
+    The one liveness check of the stale-lock and leftover-writer rules: a process that
+    cannot be probed (someone else's, an impossible pid) counts as alive, so nothing that
+    may still be in use is taken over.
+    """
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (OSError, OverflowError, ValueError):  # e.g. EPERM: it exists, someone else's
+        return True
+    current = process_start(pid)
+    return start is None or current is None or current == start
 
 
 def output_kind(path: str | Path) -> str | None:

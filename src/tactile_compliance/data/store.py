@@ -69,7 +69,7 @@ from tactile_compliance.data.plausibility import (
     check_size,
     dtype_problem,
 )
-from tactile_compliance.outputs import MARKER_NAME, output_kind
+from tactile_compliance.outputs import MARKER_NAME, output_kind, process_alive, process_start
 from tactile_compliance.physics.estimators import SensorUnits
 
 FORMAT_VERSION = 1
@@ -336,28 +336,6 @@ def store_kind_hint(path: str | Path) -> str:
 
 
 # ------------------------------------------------------------- leftovers of killed writers
-def _process_start(pid: int) -> str | None:
-    """The start time of process ``pid`` (Linux: /proc/PID/stat field 22), or None."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()[19]
-    except (OSError, IndexError):
-        return None
-
-
-def _process_alive(pid: int, start: str | None) -> bool:
-    """Whether process ``pid`` still runs (and is the same process, when ``start`` is known)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process: assume it is the owner
-        return True
-    except (OSError, OverflowError, ValueError):
-        return True
-    current = _process_start(pid)
-    return start is None or current is None or current == start
-
-
 def _partial_owner_gone(partial: Path) -> bool:
     """Whether ``partial`` is a writer's temporary directory whose process is gone."""
     if partial.is_symlink() or not partial.is_dir():
@@ -369,7 +347,7 @@ def _partial_owner_gone(partial: Path) -> bool:
         return False  # not written by a writer (or by one killed before the marker)
     if owner.get("kind") != STORE_KIND or host != socket.gethostname():
         return False  # another machine's (shared file system): cannot tell, keep it
-    return not _process_alive(pid, owner.get("start"))
+    return not process_alive(pid, owner.get("start"))
 
 
 def recover_interrupted_writes(path: str | Path) -> list[Path]:
@@ -400,7 +378,7 @@ def recover_interrupted_writes(path: str | Path) -> list[Path]:
             shutil.rmtree(entry, ignore_errors=True)
             touched.append(entry)
         match = backup.match(entry.name)
-        if match and is_store_dir(entry) and not _process_alive(int(match[1]), None):
+        if match and is_store_dir(entry) and not process_alive(int(match[1]), None):
             try:
                 if os.path.lexists(path):
                     shutil.rmtree(entry)
@@ -917,7 +895,7 @@ class GraspStoreWriter:
                     "kind": STORE_KIND,
                     "pid": os.getpid(),
                     "host": socket.gethostname(),
-                    "start": _process_start(os.getpid()),
+                    "start": process_start(os.getpid()),
                     "created": time.time(),
                 },
             )

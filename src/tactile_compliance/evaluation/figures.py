@@ -32,12 +32,12 @@ from tactile_compliance.evaluation.loading import (
 from tactile_compliance.evaluation.parts import ReportParts, safe_name
 from tactile_compliance.evaluation.render import Cell, Heading, Table
 from tactile_compliance.evaluation.tables import (
-    MODEL_ORDER,
     PRESET_HINTS,
     SETTING_PREFERENCE,
     SHAPE_ORDER,
     describe_runs,
     model_label,
+    model_order,
     ordered,
     protocol_label,
     subset_summary_table,
@@ -165,7 +165,7 @@ def _best_panels(
     panels: list[plots.ScatterPanel | str] = []
     body: list[list[Cell]] = []
     tidy: list[dict[str, Any]] = []
-    models = ordered(rows["model"], MODEL_ORDER)
+    models = ordered(rows["model"], model_order())
     for inp in inputs:
         for model in models:
             cand = rows[(rows["model"] == model) & (rows["inputs"] == inp)]
@@ -297,7 +297,7 @@ def fig5(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Pa
     out = plots.plot_prediction_panels(
         panels,
         fig_dir / "fig5_material_scatter.png",
-        ncols=len(ordered(rows["model"], MODEL_ORDER)),
+        ncols=len(ordered(rows["model"], model_order())),
         suptitle="Predicted vs true Young's modulus per material (lowest-N-MSE seed)",
     )
     used = rows[rows["run_dir"].isin(tidy["run_dir"])]
@@ -393,7 +393,7 @@ class _SubsetFigure:
 
 
 def _model_key(models: pd.Series) -> pd.Series:
-    order = {m: i for i, m in enumerate(MODEL_ORDER)}
+    order = {m: i for i, m in enumerate(model_order())}
     return models.map(lambda m: order.get(m, len(order)))
 
 
@@ -427,7 +427,7 @@ def _window_layout(part: pd.DataFrame) -> _BoxLayout:
 def _shape_layout(part: pd.DataFrame) -> _BoxLayout:
     """Shapes along x in paper order; one series per model; one panel per input strategy."""
     shapes = ordered(part["subset_value"], SHAPE_ORDER)
-    models = ordered(part["model"], MODEL_ORDER)
+    models = ordered(part["model"], model_order())
     data = part.assign(_x=part["subset_value"], _series=[model_label(m) for m in part["model"]])
     return _BoxLayout(
         data,
@@ -540,7 +540,7 @@ def learning_curves(
     for column in ("train_loss", "val_nmse"):
         if column not in curves.columns:
             curves[column] = np.nan
-    models = ordered(curves["panel"], MODEL_ORDER)
+    models = ordered(curves["panel"], model_order())
     out = plots.plot_learning_curves(
         curves,
         fig_dir / "learning_curves.png",

@@ -27,7 +27,7 @@ check numbers without parsing Markdown.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,8 +53,6 @@ from tactile_compliance.runs.results import (
 )
 
 __all__ = [
-    "MODEL_LABELS",
-    "MODEL_ORDER",
     "PRESET_HINTS",
     "PROTOCOL_LABELS",
     "REFERENCE_LABELS",
@@ -67,6 +65,7 @@ __all__ = [
     "failed_table",
     "group_metric_tables",
     "model_label",
+    "model_order",
     "ordered",
     "paper_tables",
     "protocol_label",
@@ -77,9 +76,6 @@ __all__ = [
     "window_label",
 ]
 
-#: Paper order and spelling of the models (registry names -> display names).
-MODEL_ORDER: tuple[str, ...] = ("top10nn", "vgg_lstm", "res_tf")
-MODEL_LABELS: dict[str, str] = {"top10nn": "Top10NN", "vgg_lstm": "VGG-LSTM", "res_tf": "Res-Tf"}
 #: References that depend on the input strategy: one table row per strategy.
 _PER_STRATEGY_REFERENCES = frozenset({"scalar_gbr"})
 #: Row labels of the reference predictors (``ref_{name}_*`` columns of the results rows).
@@ -131,8 +127,22 @@ HIGHER_IS_BETTER = frozenset({"log10_accuracy", "r2", "within_half_decade"})
 
 
 # ============================================================================ helpers
+def _display_names() -> dict[str, str]:
+    # Imported on use: the registry loads torch and the networks, which the report's
+    # modules otherwise never need (the names and order are the model classes' own).
+    from tactile_compliance.models import model_display_names
+
+    return model_display_names()
+
+
+def model_order() -> tuple[str, ...]:
+    """Registered model names in display order (the paper's: Top10NN, VGG-LSTM, Res-Tf)."""
+    return tuple(_display_names())
+
+
 def model_label(name: Any) -> str:
-    return MODEL_LABELS.get(str(name), str(name))
+    """The display name of a model (``VGG-LSTM`` for ``vgg_lstm``); unknown names as given."""
+    return _display_names().get(str(name), str(name))
 
 
 def protocol_label(protocol: Any) -> str:
@@ -205,7 +215,7 @@ def describe_weights(frame: pd.DataFrame) -> str:
     if "backbone_weights" not in frame.columns or frame.empty:
         return "not recorded"
     parts = []
-    for model in ordered(frame["model"], MODEL_ORDER):
+    for model in ordered(frame["model"], model_order()):
         rows = frame[frame["model"] == model]
         weights = sorted({str(w) for w in rows["backbone_weights"].dropna()}) or ["not recorded"]
         text = "/".join(
@@ -272,6 +282,65 @@ def _best_mask(values: Sequence[float], metric: str, digits: int) -> list[bool]:
 
 def _label_for(text: str) -> str:
     return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-").lower()
+
+
+@dataclass
+class _Pivot:
+    """A table body's number cells row by row, the runs behind each row, the tidy rows."""
+
+    cells: list[list[Cell]]
+    runs: list[list[int]]
+    tidy: list[dict[str, Any]]
+
+
+def _pivot(
+    stats: pd.DataFrame,
+    rows: Sequence[Mapping[str, Any]],
+    columns: Sequence[Mapping[str, Any]],
+    *,
+    head: Mapping[str, Any],
+    digits: int,
+    bold: bool,
+) -> _Pivot:
+    """Lay :func:`summarise` records out as rows x columns: the one layout of every table.
+
+    A cell shows the record whose grouping fields and ``metric`` equal those of its row
+    and its column (a column may carry more fields, for the tidy rows only); a missing
+    record shows ``–``. With ``bold``, each column's best mean over the rows is bold and
+    the tidy rows carry ``bold``. A tidy row is ``head``, the row's and the column's
+    fields, then the numbers.
+    """
+    fields = [c for c in stats.columns if c not in ("mean", "std", "n", "seeds")]
+    lookup = {tuple(getattr(r, f) for f in fields): r for r in stats.itertuples(index=False)}
+    found = [
+        [lookup.get(tuple({**row, **column}[f] for f in fields)) for column in columns]
+        for row in rows
+    ]
+    best = [
+        _best_mask(
+            [math.nan if line[j] is None else line[j].mean for line in found],
+            column["metric"],
+            digits,
+        )
+        if bold
+        else [False] * len(rows)
+        for j, column in enumerate(columns)
+    ]
+    out = _Pivot([], [], [])
+    for i, (row, line) in enumerate(zip(rows, found, strict=True)):
+        cells: list[Cell] = []
+        runs: list[int] = []
+        for j, (column, rec) in enumerate(zip(columns, line, strict=True)):
+            if rec is None:
+                cells.append(Cell(text="–"))
+                continue
+            cells.append(Cell(rec.mean, rec.std, bold=best[j][i], digits=digits))
+            runs.append(rec.n)
+            flag = {"bold": best[j][i]} if bold else {}
+            out.tidy.append({**head, **row, **column, **_stat_fields(rec), **flag})
+        out.cells.append(cells)
+        out.runs.append(runs)
+    return out
 
 
 # ============================================================================ Tables I / II
@@ -361,9 +430,21 @@ def paper_tables(
             p: {"protocol": p, "condition": r.condition, "grouping": r.grouping}
             for p, r in part.drop_duplicates("protocol").set_index("protocol").iterrows()
         }
-        models = ordered(part["model"], MODEL_ORDER)
+        models = ordered(part["model"], model_order())
         inputs = ordered(part["inputs"], InputStrategy.names())
         body_keys = [(m, i) for m in models for i in inputs]
+        pivot = _pivot(
+            stats,
+            [{"model": m, "inputs": i} for m, i in body_keys],
+            [
+                {**split_fields[protocol], "metric": metric.removeprefix("test_")}
+                for protocol in protocols
+                for metric in _PAPER_METRICS
+            ],
+            head={"table": number, "preset": preset, "store": store},
+            digits=digits,
+            bold=True,
+        )
         columns = ["Model", "Input"]
         group_header: list[tuple[str, int]] = [("", 2)]
         latex_columns = ["Model", "Input"]
@@ -377,53 +458,12 @@ def paper_tables(
         latex_columns.append("runs")
         group_header.append(("", 1))
 
-        lookup = {
-            (r.model, r.inputs, r.protocol, r.metric): r for r in stats.itertuples(index=False)
-        }
-        tidy: list[dict[str, Any]] = []
-        # Bold per column over the model rows.
-        bold: dict[tuple[str, str], list[bool]] = {}
-        for protocol in protocols:
-            for metric in _PAPER_METRICS:
-                name = metric.removeprefix("test_")
-                means = [
-                    lookup[(m, i, protocol, name)].mean
-                    if (m, i, protocol, name) in lookup
-                    else math.nan
-                    for m, i in body_keys
-                ]
-                bold[(protocol, name)] = _best_mask(means, name, digits)
-
+        tidy = pivot.tidy
         body: list[list[Cell]] = []
         rules: set[int] = set()
         for index, (model, inp) in enumerate(body_keys):
-            line = [Cell(text=model_label(model)), Cell(text=str(inp))]
-            runs: list[int] = []
-            for protocol in protocols:
-                for metric in _PAPER_METRICS:
-                    name = metric.removeprefix("test_")
-                    rec = lookup.get((model, inp, protocol, name))
-                    if rec is None:
-                        line.append(Cell(text="–"))
-                        continue
-                    is_bold = bold[(protocol, name)][index]
-                    line.append(Cell(rec.mean, rec.std, bold=is_bold, digits=digits))
-                    runs.append(rec.n)
-                    tidy.append(
-                        {
-                            "table": number,
-                            "preset": preset,
-                            "store": store,
-                            "model": model,
-                            "inputs": inp,
-                            **split_fields[protocol],
-                            "metric": name,
-                            **_stat_fields(rec),
-                            "bold": is_bold,
-                        }
-                    )
-            line.append(Cell(text=_runs_text(runs)))
-            body.append(line)
+            line = [Cell(text=model_label(model)), Cell(text=str(inp)), *pivot.cells[index]]
+            body.append([*line, Cell(text=_runs_text(pivot.runs[index]))])
             if index + 1 < len(body_keys) and body_keys[index + 1][0] != model:
                 rules.add(index)
         rules.add(len(body) - 1)  # a rule between the models and the references (if any)
@@ -550,10 +590,9 @@ def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> P
     stats = summarise(rows, keys, metrics, ddof)
     settings = stats[keys].drop_duplicates()
     settings = settings.assign(
-        _m=[ordered(rows["model"], MODEL_ORDER).index(m) for m in settings["model"]],
+        _m=[ordered(rows["model"], model_order()).index(m) for m in settings["model"]],
         _p=[_protocol_rank(p) for p in settings["protocol"]],
     ).sort_values(["preset", "_m", "inputs", "_p", "sampling"])
-    lookup = {(*(getattr(r, k) for k in keys), r.metric): r for r in stats.itertuples(index=False)}
     show_preset = settings["preset"].nunique() > 1 or settings["store"].nunique() > 1
     columns = (["Preset"] if show_preset else []) + [
         "Model",
@@ -571,48 +610,25 @@ def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> P
         "$R^2$",
         "runs",
     ]
-    setting_keys = [tuple(s) for s in settings[keys].itertuples(index=False)]
-    bold = {
-        name: _best_mask(
-            [lookup[(*s, name)].mean if (*s, name) in lookup else math.nan for s in setting_keys],
-            name,
-            digits,
-        )
-        for name in ("nmse", "r2")
-    }
+    setting_rows = [dict(zip(keys, s, strict=True)) for s in settings[keys].itertuples(index=False)]
+    pivot = _pivot(
+        stats,
+        setting_rows,
+        [{"metric": "nmse"}, {"metric": "r2"}],
+        head={"table": "III"},
+        digits=digits,
+        bold=True,
+    )
     body: list[list[Cell]] = []
-    tidy: list[dict[str, Any]] = []
-    for index, setting in enumerate(setting_keys):
-        preset, store, model, inp, protocol, sampling = setting
-        line = [Cell(text=str(preset))] if show_preset else []
+    for index, setting in enumerate(setting_rows):
+        line = [Cell(text=str(setting["preset"]))] if show_preset else []
         line += [
-            Cell(text=model_label(model)),
-            Cell(text=str(inp)),
-            Cell(text=f"{protocol_label(protocol)}, {sampling}"),
+            Cell(text=model_label(setting["model"])),
+            Cell(text=str(setting["inputs"])),
+            Cell(text=f"{protocol_label(setting['protocol'])}, {setting['sampling']}"),
+            *pivot.cells[index],
+            Cell(text=_runs_text(pivot.runs[index])),
         ]
-        runs = []
-        for name in ("nmse", "r2"):
-            rec = lookup.get((*setting, name))
-            if rec is None:
-                line.append(Cell(text="–"))
-                continue
-            line.append(Cell(rec.mean, rec.std, bold=bold[name][index], digits=digits))
-            runs.append(rec.n)
-            tidy.append(
-                {
-                    "table": "III",
-                    "preset": preset,
-                    "store": store,
-                    "model": model,
-                    "inputs": inp,
-                    "protocol": protocol,
-                    "sampling": sampling,
-                    "metric": name,
-                    **_stat_fields(rec),
-                    "bold": bold[name][index],
-                }
-            )
-        line.append(Cell(text=_runs_text(runs)))
         body.append(line)
     table = Table(
         title="Table III — Shore-hardness data",
@@ -625,7 +641,7 @@ def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> P
         label="table3",
         latex_columns=latex_columns,
     )
-    return PaperTable(table, pd.DataFrame(tidy))
+    return PaperTable(table, pd.DataFrame(pivot.tidy))
 
 
 # ============================================================================ subsets
@@ -654,46 +670,31 @@ def subset_summary_table(
         return None
     rows = rows.assign(subset_key=rows["subset_value"].astype(object))
     stats = summarise(rows, ["model", "inputs", "subset_key"], ["test_nmse"], ddof)
+    stats = stats.rename(columns={"subset_key": "subset"})
     if kind == "window":
         subsets = [k for k in range(N_ROLLING_WINDOWS) if k in set(rows["subset_key"])]
     else:
         subsets = ordered(rows["subset_key"], SHAPE_ORDER)
     keys = [
         (m, i)
-        for m in ordered(rows["model"], MODEL_ORDER)
+        for m in ordered(rows["model"], model_order())
         for i in ordered(rows["inputs"], InputStrategy.names())
         if ((rows["model"] == m) & (rows["inputs"] == i)).any()
     ]
-    lookup = {(r.model, r.inputs, r.subset_key): r for r in stats.itertuples(index=False)}
-    body: list[list[Cell]] = []
-    tidy: list[dict[str, Any]] = []
-    bold = {
-        s: _best_mask(
-            [lookup[(m, i, s)].mean if (m, i, s) in lookup else math.nan for m, i in keys],
-            "nmse",
-            digits,
-        )
-        for s in subsets
-    }
-    for index, (model, inp) in enumerate(keys):
-        line = [Cell(text=model_label(model)), Cell(text=str(inp))]
-        for subset in subsets:
-            rec = lookup.get((model, inp, subset))
-            if rec is None:
-                line.append(Cell(text="–"))
-                continue
-            line.append(Cell(rec.mean, rec.std, bold=bold[subset][index], digits=digits))
-            tidy.append(
-                {
-                    "table": label,
-                    "model": model,
-                    "inputs": inp,
-                    "subset": subset,
-                    "metric": "nmse",
-                    **_stat_fields(rec),
-                }
-            )
-        body.append(line)
+    pivot = _pivot(
+        stats,
+        [{"model": m, "inputs": i} for m, i in keys],
+        [{"subset": s, "metric": "nmse"} for s in subsets],
+        head={"table": label},
+        digits=digits,
+        bold=True,
+    )
+    # Bold in the cells only: these tidy rows never carried a ``bold`` column.
+    tidy = [{k: v for k, v in row.items() if k != "bold"} for row in pivot.tidy]
+    body = [
+        [Cell(text=model_label(model)), Cell(text=str(inp)), *cells]
+        for (model, inp), cells in zip(keys, pivot.cells, strict=True)
+    ]
     columns = ["Model", "Input"] + [_subset_label(kind, s) for s in subsets]
     table = Table(
         title=title,
@@ -718,45 +719,33 @@ def softhard_subset_table(
     metrics = ("test_log10_accuracy", "test_nmse")
     stats = summarise(
         rows, ["model", "inputs", "protocol", "sampling", "subset_key"], metrics, ddof
-    )
-    body: list[list[Cell]] = []
-    tidy: list[dict[str, Any]] = []
+    ).rename(columns={"subset_key": "subset"})
     settings = stats[["model", "inputs", "protocol", "sampling"]].drop_duplicates()
-    order = ordered(rows["model"], MODEL_ORDER)
+    order = ordered(rows["model"], model_order())
     settings = settings.assign(
         _m=[order.index(m) for m in settings["model"]],
         _p=[_protocol_rank(p) for p in settings["protocol"]],
     ).sort_values(["_m", "inputs", "_p", "sampling"])
-    lookup = {
-        (r.model, r.inputs, r.protocol, r.sampling, r.subset_key, r.metric): r
-        for r in stats.itertuples(index=False)
-    }
-    for setting in settings[["model", "inputs", "protocol", "sampling"]].itertuples(index=False):
-        line = [
-            Cell(text=model_label(setting.model)),
-            Cell(text=str(setting.inputs)),
-            Cell(text=f"{protocol_label(setting.protocol)}, {setting.sampling}"),
+    setting_rows = [
+        s._asdict() for s in settings[["model", "inputs", "protocol", "sampling"]].itertuples()
+    ]
+    pivot = _pivot(
+        stats,
+        [{k: s[k] for k in ("model", "inputs", "protocol", "sampling")} for s in setting_rows],
+        [{"subset": s, "metric": m} for s in ("soft", "hard") for m in ("log10_accuracy", "nmse")],
+        head={"table": "softhard-subsets"},
+        digits=digits,
+        bold=False,
+    )
+    body = [
+        [
+            Cell(text=model_label(s["model"])),
+            Cell(text=str(s["inputs"])),
+            Cell(text=f"{protocol_label(s['protocol'])}, {s['sampling']}"),
+            *cells,
         ]
-        for subset in ("soft", "hard"):
-            for metric in ("log10_accuracy", "nmse"):
-                rec = lookup.get((*setting, subset, metric))
-                if rec is None:
-                    line.append(Cell(text="–"))
-                    continue
-                line.append(Cell(rec.mean, rec.std, digits=digits))
-                tidy.append(
-                    {
-                        "table": "softhard-subsets",
-                        "model": setting.model,
-                        "inputs": setting.inputs,
-                        "protocol": setting.protocol,
-                        "sampling": setting.sampling,
-                        "subset": subset,
-                        "metric": metric,
-                        **_stat_fields(rec),
-                    }
-                )
-        body.append(line)
+        for s, cells in zip(setting_rows, pivot.cells, strict=True)
+    ]
     table = Table(
         title="Soft / hard training subsets",
         columns=["Model", "Input", "Split", "log₁₀ accuracy", "N-MSE", "log₁₀ accuracy", "N-MSE"],
@@ -766,7 +755,7 @@ def softhard_subset_table(
         provenance=describe_runs(rows, _ddof_text(ddof)),
         label="softhard-subsets",
     )
-    return PaperTable(table, pd.DataFrame(tidy))
+    return PaperTable(table, pd.DataFrame(pivot.tidy))
 
 
 # ============================================================================ per-group
@@ -798,7 +787,7 @@ def group_metric_tables(
         inputs = ["Image", "ALL"]
     keys = [
         (m, i)
-        for m in ordered(data["model"], MODEL_ORDER)
+        for m in ordered(data["model"], model_order())
         for i in inputs
         if ((data["model"] == m) & (data["inputs"] == i)).any()
     ]
@@ -813,32 +802,24 @@ def group_metric_tables(
         if metric not in data.columns:
             continue
         stats = summarise(data, ["grouping", "group", "model", "inputs"], [metric], ddof)
-        lookup = {(r.grouping, str(r.group), r.model, r.inputs): r for r in stats.itertuples()}
+        # Group names as the row labels spell them (groups.csv may read them as numbers).
+        stats = stats.assign(group=stats["group"].astype(str))
         n_test = data.groupby(["grouping", "group"])["n"].mean()
+        pivot = _pivot(
+            stats,
+            [{"grouping": grouping, "group": group} for grouping, group in group_order],
+            [{"model": m, "inputs": i, "metric": metric} for m, i in keys],
+            head={"table": f"groups-{metric}"},
+            digits=digits,
+            bold=False,
+        )
+        tidy = pivot.tidy
         body: list[list[Cell]] = []
-        tidy: list[dict[str, Any]] = []
         rules: set[int] = set()
         for index, (grouping, group) in enumerate(group_order):
             label = {"soft_hard": "stiffness"}.get(grouping, grouping)
             line = [Cell(text=f"{label}: {group}"), Cell(text=f"{n_test[(grouping, group)]:.0f}")]
-            for model, inp in keys:
-                rec = lookup.get((grouping, group, model, inp))
-                if rec is None:
-                    line.append(Cell(text="–"))
-                    continue
-                line.append(Cell(rec.mean, rec.std, digits=digits))
-                tidy.append(
-                    {
-                        "table": f"groups-{metric}",
-                        "grouping": grouping,
-                        "group": group,
-                        "model": model,
-                        "inputs": inp,
-                        "metric": metric,
-                        **_stat_fields(rec),
-                    }
-                )
-            body.append(line)
+            body.append([*line, *pivot.cells[index]])
             if index + 1 < len(group_order) and group_order[index + 1][0] != grouping:
                 rules.add(index)
         name = METRIC_LABELS[metric]

@@ -18,7 +18,6 @@ evaluation path.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -57,25 +56,15 @@ def resolve_checkpoint(path: str | Path) -> Path:
 
 
 def _training_store_size(meta: dict[str, Any]) -> tuple[int, int] | None:
-    """Frame size of the store a checkpoint was trained on, when that store is still there.
+    """Frame size of the store a checkpoint was trained on (``store_image_size``), or None.
 
     A checkpoint without ``image_size`` was trained at its store's native resolution;
     inputs of another size are resized to it instead of silently being fed at the wrong
-    scale. Checkpoints record that size (``store_image_size``); older ones only name the
-    store, whose header is read when it is still there.
+    scale. Pre-release checkpoints without the record are not looked up in their store:
+    they need an explicit size where one is required (``export``, ONNX).
     """
     recorded = meta.get("store_image_size")
-    if recorded:
-        return int(recorded[0]), int(recorded[1])
-    store = (meta.get("config") or {}).get("data", {}).get("store")
-    if not store:
-        return None
-    header = Path(store) / "header.json"
-    try:
-        size = json.loads(header.read_text())["image_size"]
-        return int(size[0]), int(size[1])
-    except (OSError, ValueError, KeyError, TypeError, IndexError):
-        return None
+    return (int(recorded[0]), int(recorded[1])) if recorded else None
 
 
 class ComplianceEstimator(BaseEstimator):

@@ -129,6 +129,9 @@ class TactileModel(nn.Module):
       are the paper settings (``models.settings.search_dimensions``).
     * ``recommended_image_size``: ``(H, W)`` the frames should be resized to, or None.
     * ``pretrained_backbone``: whether the constructor takes ``backbone_weights``.
+    * ``display_name`` / ``display_order``: how and where the report lists the model
+      (empty name: the registry name; lower order first).
+    * ``pretrain_backbones``: the backbone names ``pretrain`` can train for this model.
 
     ``models.settings.paper_settings(name, inputs)`` reads the paper settings as the
     dotted overrides that experiment presets apply.
@@ -141,6 +144,9 @@ class TactileModel(nn.Module):
     hpo_space: ClassVar[tuple[SearchDimension, ...]] = TRAINING_SPACE
     recommended_image_size: ClassVar[tuple[int, int] | None] = None
     pretrained_backbone: ClassVar[bool] = False
+    display_name: ClassVar[str] = ""
+    display_order: ClassVar[int] = 1_000_000
+    pretrain_backbones: ClassVar[tuple[str, ...]] = ()
 
     backbone: nn.Module
 

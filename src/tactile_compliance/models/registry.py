@@ -16,9 +16,11 @@ from torch import nn
 from tactile_compliance.models.inputs import InputStrategy
 
 __all__ = [
+    "backbone_models",
     "create_model",
     "get_model_class",
     "list_models",
+    "model_display_names",
     "model_hyperparameters",
     "register_model",
 ]
@@ -60,6 +62,37 @@ def register_model(name: str) -> Callable[[ModelT], ModelT]:
 def list_models() -> list[str]:
     """Registered model names, sorted."""
     return sorted(_REGISTRY)
+
+
+def model_display_names() -> dict[str, str]:
+    """Registered name -> display name, in display order (the paper's for the built-ins).
+
+    Read from each class's ``display_name`` and ``display_order`` (``TactileModel``), so
+    the report's tables and figures need no list of their own. Only the registered models
+    are listed: call it through ``tactile_compliance.models``, which registers the
+    built-in ones first.
+    """
+    ranked = sorted(_REGISTRY.items(), key=lambda item: (_display_order(item[1]), item[0]))
+    return {name: getattr(cls, "display_name", "") or name for name, cls in ranked}
+
+
+def _display_order(cls: type[nn.Module]) -> int:
+    # Classes that declare no order come after the declared ones (then by name).
+    return int(getattr(cls, "display_order", 1_000_000))
+
+
+def backbone_models() -> dict[str, str]:
+    """Pretrainable backbone name -> the registered model that uses it.
+
+    Read from each class's ``pretrain_backbones``, so ``pretrain`` takes a new model's
+    backbone without a map of its own (registered models by name, each class's backbones
+    in its own order).
+    """
+    return {
+        backbone: name
+        for name in list_models()
+        for backbone in getattr(_REGISTRY[name], "pretrain_backbones", ())
+    }
 
 
 def get_model_class(name: str) -> type[nn.Module]:

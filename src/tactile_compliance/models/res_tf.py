@@ -122,6 +122,9 @@ class ResTf(FusionModel):
         SearchDimension.hparam("output_dim", DIM_CHOICES),
     )
     pretrained_backbone: ClassVar[bool] = True
+    display_name: ClassVar[str] = "Res-Tf"
+    display_order: ClassVar[int] = 2
+    pretrain_backbones: ClassVar[tuple[str, ...]] = ("resnet18", "resnet34", "resnet50")
 
     def __init__(
         self,

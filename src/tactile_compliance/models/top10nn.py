@@ -110,6 +110,9 @@ class Top10NN(FusionModel):
     )
     default_training: ClassVar[dict[str, Any]] = {"lr": 3e-6, "batch_size": 32, "gamma": None}
     pretrained_backbone: ClassVar[bool] = True
+    display_name: ClassVar[str] = "Top10NN"
+    display_order: ClassVar[int] = 0
+    pretrain_backbones: ClassVar[tuple[str, ...]] = (TOP10_BACKBONE,)
     hpo_space: ClassVar[tuple[SearchDimension, ...]] = (
         *FusionModel.hpo_space,
         SearchDimension.hparam("image_dropout", DROPOUT_CHOICES),

@@ -167,6 +167,9 @@ class VggLstm(TactileModel):
     )
     recommended_image_size: ClassVar[tuple[int, int] | None] = (224, 224)
     pretrained_backbone: ClassVar[bool] = True
+    display_name: ClassVar[str] = "VGG-LSTM"
+    display_order: ClassVar[int] = 1
+    pretrain_backbones: ClassVar[tuple[str, ...]] = ("vgg16",)
 
     def __init__(
         self,

@@ -332,7 +332,7 @@ def load_checkpoint(
 
     Raises:
         FileNotFoundError: no checkpoint, or the backbone's weights file is not available.
-        ValueError: not a checkpoint, a newer format, or a rebuilt backbone whose
+        ValueError: not a checkpoint, another format version, or a rebuilt backbone whose
             fingerprint differs from the recorded one.
     """
     path = Path(path)
@@ -346,6 +346,13 @@ def load_checkpoint(
         raise ValueError(f"{path}: format_version {version!r} is not an integer")
     if version > CHECKPOINT_VERSION:
         raise ValueError(f"{path}: checkpoint format is newer than this package; upgrade it")
+    if version < CHECKPOINT_VERSION:
+        # Formats before 2 never shipped (0.1.0 writes 2): one format is read, not a history.
+        raise ValueError(
+            f"{path}: checkpoint format_version {version} is a pre-release format; "
+            f"tactile-compliance {__version__} reads format {CHECKPOINT_VERSION} only: "
+            "train the run again"
+        )
     return rebuild_model(path, payload, device, backbone_weights=backbone_weights)
 
 

@@ -30,6 +30,7 @@ from pathlib import Path
 from tactile_compliance.config import ExperimentConfig, config_to_dict
 from tactile_compliance.data.splits import is_split_file
 from tactile_compliance.data.store import SAMPLE_COLUMNS
+from tactile_compliance.outputs import process_alive
 
 try:
     import fcntl
@@ -87,16 +88,6 @@ def _holder_record() -> str:
     return f"pid {os.getpid()} on {socket.gethostname()} since {since}"
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # e.g. EPERM: it exists, owned by someone else
-        return True
-    return True
-
-
 def _held_by_other_process(record: str) -> bool:
     """For file systems without ``flock``: whether ``record`` names a live other process."""
     match = re.match(r"pid (\d+) on (\S+)", record)
@@ -105,7 +96,7 @@ def _held_by_other_process(record: str) -> bool:
     pid, host = int(match.group(1)), match.group(2)
     if host != socket.gethostname():
         return True  # cannot tell from here: treat as held (the message says what to do)
-    return pid != os.getpid() and _pid_alive(pid)
+    return pid != os.getpid() and process_alive(pid)
 
 
 @contextlib.contextmanager

@@ -70,10 +70,12 @@ import yaml
 from tactile_compliance.config import (
     ConfigError,
     ExperimentConfig,
+    compose_yaml,
     config_from_dict,
     config_to_dict,
     list_presets,
     load_config,
+    parse_yaml,
 )
 from tactile_compliance.models import paper_settings
 from tactile_compliance.runs.layout import config_hash, run_name
@@ -216,10 +218,8 @@ def experiment_preset_descriptions(quick: bool = False) -> dict[str, str]:
 
 # =========================================================================== loading
 def _read_yaml(path: Path | Any, origin: str) -> Any:
-    try:
-        return yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{origin}: invalid YAML: {exc}") from exc
+    # The config's reader: duplicate keys are errors here too.
+    return parse_yaml(path.read_text(encoding="utf-8"), origin)
 
 
 def is_experiment_file(data: Any) -> bool:
@@ -330,15 +330,26 @@ def _absolutise(raw: dict[str, Any], directory: Path | None) -> dict[str, Any]:
     return raw
 
 
-def _resolve_raw(
-    ref: str | Path, relative_to: Path | None = None, stack: tuple[str, ...] = ()
-) -> tuple[dict[str, Any], str, str]:
+def _resolve_raw(ref: str | Path) -> tuple[dict[str, Any], str, str]:
     """Raw experiment mapping (``extends`` resolved), its origin and its name."""
+    names: list[str] = []
+
+    def read(ref: str | Path, relative_to: Path | None) -> tuple[dict[str, Any], str, Path | None]:
+        data, origin, directory, name = _read_spec(ref, relative_to)
+        names.append(name)
+        return data, origin, directory
+
+    data, origin = compose_yaml(ref, read, _merge_spec, "extends", "an experiment name or path")
+    return data, origin, names[0]
+
+
+def _read_spec(
+    ref: str | Path, relative_to: Path | None
+) -> tuple[dict[str, Any], str, Path | None, str]:
+    """One experiment file's raw mapping (``extends`` not resolved), origin, directory, name."""
     file, origin, directory, name = _locate(ref, relative_to)
-    if origin in stack:
-        raise ConfigError(f"circular 'extends' chain: {' -> '.join((*stack, origin))}")
     if file is None:  # a bare config preset name, e.g. "default": one cell
-        return {"config": str(ref)}, origin, name
+        return {"config": str(ref)}, origin, directory, name
     data = _read_yaml(file, origin)
     if data is None:
         data = {}
@@ -346,21 +357,14 @@ def _resolve_raw(
         raise ConfigError(f"{origin}: the top level must be a mapping, got {type(data).__name__}")
     if not is_experiment_file(data):
         # A plain config file (e.g. best.yaml from `tune`): one cell crossed with the seeds.
-        return {"config": str(Path(file).resolve())}, origin, name
+        return {"config": str(Path(file).resolve())}, origin, directory, name
     unknown = set(data) - SPEC_KEYS
     if unknown:
         raise ConfigError(
             f"{origin}: unknown key(s) {sorted(unknown)}; an experiment file has "
             f"{', '.join(sorted(SPEC_KEYS))} (config keys go under 'set' as dotted keys)"
         )
-    data = _absolutise(dict(data), directory)
-    parent = data.pop("extends", None)
-    if parent is None:
-        return data, origin, name
-    if not isinstance(parent, str):
-        raise ConfigError(f"{origin}: 'extends' must be an experiment name or path, got {parent!r}")
-    base, _, _ = _resolve_raw(parent, directory, (*stack, origin))
-    return _merge_spec(base, data), origin, name
+    return _absolutise(dict(data), directory), origin, directory, name
 
 
 def _parse_rule(raw: Any, where: str) -> Rule:

@@ -64,7 +64,7 @@ from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split, make_split_from_config
 from tactile_compliance.data.store import SAMPLES_FILE, GraspStore
-from tactile_compliance.models import get_model_class
+from tactile_compliance.models import backbone_models, get_model_class
 from tactile_compliance.models.backbones import PRETRAIN_KEY, create_backbone, file_sha256
 from tactile_compliance.models.top10nn import TOP10_BACKBONE, Top10Encoder
 from tactile_compliance.outputs import atomic_file, check_output_file
@@ -86,14 +86,9 @@ __all__ = [
 
 #: A pixel is in contact where the gel is pressed in at least this deep (mm).
 CONTACT_THRESHOLD_MM = 0.1
-#: Backbone name -> the model that uses it (whose frame size pretraining uses by default).
-PRETRAIN_BACKBONES: dict[str, str] = {
-    "resnet18": "res_tf",
-    "resnet34": "res_tf",
-    "resnet50": "res_tf",
-    "vgg16": "vgg_lstm",
-    TOP10_BACKBONE: "top10nn",
-}
+#: Backbone name -> the model that uses it (whose frame size pretraining uses by default);
+#: read from the registered models' ``pretrain_backbones``.
+PRETRAIN_BACKBONES: dict[str, str] = backbone_models()
 #: Format marker of the provenance record (``PRETRAIN_KEY``) in a weights file.
 PRETRAIN_FORMAT = "tactile-compliance-pretrained-backbone"
 STATE_KIND = "tactile-compliance-pretrain-state"
