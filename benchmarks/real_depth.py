@@ -44,7 +44,8 @@ from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.inference.calibration import (
     calibrate_depth,
     read_circles,
-    read_press_images,
+    read_image,
+    read_images,
 )
 from tactile_compliance.progress import progress_bar
 
@@ -97,11 +98,9 @@ def far_p99(depth: np.ndarray, x: float, y: float, a_px: float) -> float:
 
 def leave_one_out(sensor: Sensor, data: Path) -> list[dict]:
     folder = data / sensor.folder
-    presses = read_press_images(sorted(folder.glob(sensor.pattern)))
+    presses = read_images(sorted(folder.glob(sensor.pattern)))
     labels = read_circles(folder / sensor.circles) if sensor.circles else None
-    fixed_reference = (
-        read_press_images([folder / sensor.reference])[0][1] if sensor.reference else None
-    )
+    fixed_reference = read_image(folder / sensor.reference) if sensor.reference else None
     rows = []
     with progress_bar(f"{sensor.name} leave-one-out", len(presses)) as bar:
         for k in range(len(presses)):
@@ -152,9 +151,9 @@ def known_spheres(data: Path) -> list[dict]:
     """thusight's four presses of the 2.92 mm sphere to a nominal depth, centre (208, 166)."""
     sensor = SENSORS["thusight"]
     folder = data / sensor.folder
-    reference = read_press_images([folder / sensor.reference])[0][1]
+    reference = read_image(folder / sensor.reference)
     fit = calibrate_depth(
-        read_press_images(sorted(folder.glob(sensor.pattern))),
+        read_images(sorted(folder.glob(sensor.pattern))),
         ball_radius_mm=sensor.ball_radius_mm,
         px_per_mm=sensor.px_per_mm,
         reference=reference,
@@ -163,7 +162,7 @@ def known_spheres(data: Path) -> list[dict]:
     radius, px = sensor.ball_radius_mm, sensor.px_per_mm
     rows = []
     for nominal in (0.25, 0.5, 0.75, 1.0):
-        frame = read_press_images([folder / f"sphere_{nominal}_real.png"])[0][1]
+        frame = read_image(folder / f"sphere_{nominal}_real.png")
         diff = difference_images(frame[None], reference)
         a_px = math.sqrt(2 * radius * nominal - nominal**2) * px
         dist = _grid(frame.shape[:2], 208, 166)

@@ -7,8 +7,8 @@ golf ball's 21.3 mm), three grasps each, with the generator as `simulate --objec
 runs it. For every grasp it prints:
 
 * ``F_peak``: the peak force [N];
-* ``contact W``: the width [mm] at contact (the first frame 1 N above the first frames'
-  median force, so an unzeroed baseline does not count);
+* ``contact W``: the width [mm] at contact (the first frame 1 N above the no-contact level
+  of ``data.force_readings.force_baseline``, so an unzeroed baseline does not count);
 * ``close@10N`` and ``close@peak``: how far the width closed [mm] from contact to the first
   frame at 10 N above the baseline, and to the peak;
 * ``k``: the apparent stiffness [N/mm] of the rig and the object in series, the slope of a
@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tactile_compliance.data.force_readings import force_baseline
+
 REFERENCE = Path(__file__).resolve().parents[2] / "shared/reference-data"
 OBJECTS = {  # file prefix -> (label in the object table, radius [m] or None)
     "foam_brick": ("foam_brick", None),
@@ -43,7 +45,7 @@ OBJECTS = {  # file prefix -> (label in the object table, radius [m] or None)
 
 def closure_stats(force_n: np.ndarray, width_m: np.ndarray) -> dict[str, float]:
     """Peak force, contact width and closures of one grasp (see the module docstring)."""
-    base = float(np.median(force_n[:3]))
+    base = force_baseline(force_n).level_n  # the rule `record` reports baselines with
     above = force_n - base
     contact = int(np.flatnonzero(above >= 1.0)[0])
     peak = int(np.argmax(force_n))

@@ -204,7 +204,7 @@ def test_calibrate_depth_extends_a_sensor_calibration(presses, tmp_path):
     )  # fmt: skip
     full = SensorCalibration.load(tmp_path / "full.json")
     assert full.geometry == sensor.geometry and full.source == "camera:0"
-    assert full.depth_name == "calibrated"
+    assert full.units.depth_model == "calibrated"
 
 
 @pytest.mark.skipif(not (REAL / "thusight").is_dir(), reason="no real ball presses")

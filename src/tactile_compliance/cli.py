@@ -1349,7 +1349,8 @@ def calibrate_depth_command(
         capture_presses,
         is_calibration_file,
         read_circles,
-        read_press_images,
+        read_image,
+        read_images,
     )
     from tactile_compliance.outputs import check_output_file
 
@@ -1357,7 +1358,7 @@ def calibrate_depth_command(
     sensor = SensorCalibration.load(calibration) if calibration is not None else None
     ref = None
     if reference is not None:
-        ref = read_press_images([reference])[0][1]
+        ref = read_image(reference)
     if frames is not None:
         if len(presses) != 1:
             raise typer.BadParameter("--frames takes one live source spec as PRESSES")
@@ -1365,7 +1366,7 @@ def calibrate_depth_command(
             presses[0], frames, sensor=sensor, reference=ref, fps=fps, timestamps_csv=timestamps
         )
     else:
-        images = read_press_images(presses)
+        images = read_images(presses)
     result = calibrate_depth(
         images,
         ball_radius_mm=ball_radius_mm,
@@ -1403,14 +1404,16 @@ def depth(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """Depth maps of tactile frames: DIR/STEM.npy, float32 (H, W) in mm, positive into the gel."""
-    from tactile_compliance.inference.calibration import SensorCalibration, read_press_images
+    from tactile_compliance.inference.calibration import (
+        SensorCalibration,
+        read_image,
+        read_images,
+    )
     from tactile_compliance.inference.depth_maps import write_depth_maps
 
     sensor = SensorCalibration.load(calibration) if calibration is not None else None
-    ref = read_press_images([reference])[0][1] if reference is not None else None
-    written = write_depth_maps(
-        read_press_images(frames), out, sensor=sensor, reference=ref, png=png
-    )
+    ref = read_image(reference) if reference is not None else None
+    written = write_depth_maps(read_images(frames), out, sensor=sensor, reference=ref, png=png)
     if as_json:
         rows = [{"depth_npy": str(path), "peak_depth_mm": peak} for path, peak in written]
         typer.echo(json.dumps(rows, indent=2))
@@ -1466,14 +1469,11 @@ def record(
     OUT/dataset_objects_and_compliance.csv; `import burgess OUT` reads it."""
     from contextlib import ExitStack
 
-    from tactile_compliance.inference.recording import (
-        ObjectInfo,
-        read_reference_image,
-        record_grasp,
-    )
+    from tactile_compliance.inference.calibration import read_image
+    from tactile_compliance.inference.recording import ObjectInfo, record_grasp
 
     info = ObjectInfo(object_name, modulus, material, shape)
-    no_contact = None if reference is None else read_reference_image(reference)
+    no_contact = None if reference is None else read_image(reference)
     with ExitStack() as stack:
         frames, sensor = _open_source(source, calibration, fps, timestamps)
         stack.enter_context(frames)

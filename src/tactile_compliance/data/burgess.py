@@ -336,22 +336,34 @@ RECORDING_UNITS_FILE = "recording.json"
 grasps (``physics.estimators.SensorUnits``)."""
 
 
-def recorded_units(src: Path) -> dict[str, Any]:
+def read_units_file(directory: Path) -> SensorUnits | None:
+    """The units ``record`` wrote into ``directory`` (:data:`RECORDING_UNITS_FILE`), or None.
+
+    Raises:
+        ValueError: a damaged record (its estimates' units would be unknown).
+    """
+    path = Path(directory) / RECORDING_UNITS_FILE
+    if not path.is_file():
+        return None
+    try:
+        return SensorUnits.from_dict(json.loads(path.read_text(encoding="utf-8")))
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: cannot read the recording's units ({err})") from err
+
+
+def recorded_units(src: Path) -> SensorUnits:
     """The units of a tree's estimates: what ``record`` wrote (in ``src`` or up to two
     directories above, so an object or grasp directory of a recording finds it), else the
     dataset's Wedge.
 
     Raises:
-        ValueError: a damaged record (its estimates' units would be unknown).
+        ValueError: a damaged record.
     """
-    found = [d / RECORDING_UNITS_FILE for d in (src, *src.resolve().parents[:2])]
-    path = next((p for p in found if p.is_file()), None)
-    if path is None:
-        return WEDGE_UNITS.to_dict()
-    try:
-        return SensorUnits.from_dict(json.loads(path.read_text(encoding="utf-8"))).to_dict()
-    except (OSError, ValueError) as err:
-        raise ValueError(f"{path}: cannot read the recording's units ({err})") from err
+    for directory in (src, *src.resolve().parents[:2]):
+        units = read_units_file(directory)
+        if units is not None:
+            return units
+    return WEDGE_UNITS
 
 
 def import_burgess(
@@ -437,7 +449,7 @@ def import_burgess(
                 "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
                 "frame_kind": "difference",
                 "analytical_estimator": _tree_estimator(src),
-                "sensor": units,
+                "sensor": units.to_dict(),
                 "depth": bool(depth),
             },
             overwrite=overwrite,

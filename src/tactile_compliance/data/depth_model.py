@@ -170,19 +170,6 @@ def sphere_slopes(
     return slope_x, slope_y, inside
 
 
-def cap_depth_mm(
-    shape: tuple[int, int], circle: ContactCircle, ball_radius_mm: float, px_per_mm: float
-) -> np.ndarray:
-    """The spherical cap's depth [mm] (H, W), positive into the gel, 0 outside the contact."""
-    a_mm = circle.radius_px / px_per_mm
-    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float64)
-    rho2 = ((cols - circle.x_px) ** 2 + (rows - circle.y_px) ** 2) / px_per_mm**2
-    cap = np.sqrt(np.maximum(ball_radius_mm**2 - rho2, 0.0)) - math.sqrt(
-        ball_radius_mm**2 - a_mm**2
-    )
-    return np.maximum(cap, 0.0).astype(np.float32)
-
-
 def _features(diff: np.ndarray) -> np.ndarray:
     """Per-pixel regressor inputs (n, H, W, 5): colour change (B, G, R) and position."""
     diff = np.asarray(diff, dtype=np.float32)

@@ -24,7 +24,7 @@ same corrected forces and report the same findings.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -88,12 +88,7 @@ class ForceSpike:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict."""
-        return {
-            "index": self.index,
-            "timestamp_s": self.timestamp_s,
-            "force_n": self.force_n,
-            "replaced_n": self.replaced_n,
-        }
+        return asdict(self)
 
     def describe(self, frame: int | None = None) -> str:
         """One line: where, what was read and what is used instead."""

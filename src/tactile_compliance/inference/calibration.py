@@ -66,7 +66,8 @@ __all__ = [
     "calibrate",
     "calibrate_depth",
     "read_circles",
-    "read_press_images",
+    "read_image",
+    "read_images",
 ]
 
 CALIBRATION_FORMAT = "tactile-compliance-sensor-calibration"
@@ -132,14 +133,9 @@ class SensorCalibration:
         return "dataset" if self.depth_model is None else self.depth_model
 
     @property
-    def depth_name(self) -> str:
-        """``"dataset"`` or ``"calibrated"``: what stores and checkpoints record."""
-        return "dataset" if self.depth_model is None else "calibrated"
-
-    @property
     def units(self) -> SensorUnits:
         """The units its analytical estimates come out in (recorded by stores)."""
-        return SensorUnits(self.depth_name, self.px_per_mm)
+        return SensorUnits("dataset" if self.depth_model is None else "calibrated", self.px_per_mm)
 
     @property
     def frame_size(self) -> tuple[int, int]:
@@ -349,7 +345,22 @@ def _natural_key(path: Path) -> list[Any]:
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
 
 
-def read_press_images(paths: Sequence[str | Path]) -> list[tuple[str, np.ndarray]]:
+def read_image(path: str | Path) -> np.ndarray:
+    """One image file as a uint8 BGR array (OpenCV's order, like the frames).
+
+    Raises:
+        ValueError: not an image OpenCV can read. OSError: no such file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such image file")
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"{path}: not an image file OpenCV can read")
+    return image
+
+
+def read_images(paths: Sequence[str | Path]) -> list[tuple[str, np.ndarray]]:
     """``(file name, uint8 BGR frame)`` of image files, folders expanded in natural order.
 
     Raises:
@@ -368,13 +379,7 @@ def read_press_images(paths: Sequence[str | Path]) -> list[tuple[str, np.ndarray
             raise FileNotFoundError(f"{path}: no such image file or folder")
     if not files:
         raise ValueError(f"no image files ({', '.join(IMAGE_SUFFIXES)}) in {list(map(str, paths))}")
-    images = []
-    for path in files:
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is None:
-            raise ValueError(f"{path}: not an image OpenCV can read")
-        images.append((path.name, image))
-    return images
+    return [(path.name, read_image(path)) for path in files]
 
 
 def read_circles(path: str | Path) -> dict[str, ContactCircle]:
@@ -453,7 +458,7 @@ def calibrate_depth(
 
     Args:
         presses: ``(name, uint8 BGR frame)`` sensor frames (after the geometry), each with
-            the ball pressed somewhere (:func:`read_press_images`, :func:`capture_presses`).
+            the ball pressed somewhere (:func:`read_images`, :func:`capture_presses`).
         ball_radius_mm: the ball's radius [mm].
         px_per_mm: the sensor frames' pixel density [px/mm].
         reference: the no-contact frame; default the ``sensor``'s reference, else the

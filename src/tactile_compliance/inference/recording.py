@@ -73,6 +73,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data.burgess import RECORDING_UNITS_FILE, read_units_file
 from tactile_compliance.data.force_readings import (
     BASELINE_WARN_N,
     ForceBaseline,
@@ -128,7 +129,6 @@ __all__ = [
     "capture_grasp",
     "check_recording",
     "claim_dataset_dir",
-    "read_reference_image",
     "record_grasp",
     "reference_frame",
     "same_replay",
@@ -139,7 +139,7 @@ __all__ = [
 ESTIMATE_FILES = ("elastic_estimate.pkl", "hertz_estimate.pkl")
 """The analytical estimates' files; left out where the fit failed, as in the dataset."""
 
-UNITS_FILE = "recording.json"
+UNITS_FILE = RECORDING_UNITS_FILE
 """Next to the object table: the depth model and pixel density every grasp was recorded with
 (``physics.estimators.SensorUnits``); ``import burgess`` copies it into the store."""
 
@@ -720,18 +720,13 @@ def _check_units(out_dir: Path, units: SensorUnits) -> None:
 
     Raises:
         ValueError: the dataset's grasps were recorded with another depth model or pixel
-            density (their estimates would mix units).
+            density (their estimates would mix units), or its record is damaged.
     """
-    path = out_dir / UNITS_FILE
-    if path.is_file():
-        try:
-            recorded = SensorUnits.from_dict(json.loads(path.read_text(encoding="utf-8")))
-        except ValueError as err:
-            raise ValueError(f"{path}: damaged ({err})") from err
+    recorded = read_units_file(out_dir)
+    if recorded is not None:
         recorded.check_same(units, trained=f"{out_dir} (its earlier grasps)", used="this recording")
         return
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with atomic_file(path, "w") as handle:
+    with atomic_file(out_dir / UNITS_FILE, "w") as handle:
         json.dump(units.to_dict(), handle, indent=2)
         handle.write("\n")
 
@@ -959,23 +954,6 @@ def reference_frame(image: np.ndarray, geometry: Any, frame_shape: tuple[int, ..
             f"{frame_shape[0]}x{frame_shape[1]} px"
         )
     return frame
-
-
-def read_reference_image(path: str | Path) -> np.ndarray:
-    """An image file as a uint8 BGR array (OpenCV's order, like the frames).
-
-    Raises:
-        ValueError: not an image OpenCV can read. OSError: no such file.
-    """
-    import cv2
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such reference image")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise ValueError(f"{path}: not an image file OpenCV can read")
-    return image
 
 
 def _frame_of_reading(readings: Any, index: int, frame_times: np.ndarray) -> int | None:

@@ -295,7 +295,7 @@ def read_grasp_dir(
         kind="grasp_dir",
         frame_kind="difference",
         unreadable=unreadable,
-        sensor_units=SensorUnits.from_dict(recorded_units(Path(root))),
+        sensor_units=recorded_units(Path(root)),
     )
 
 
