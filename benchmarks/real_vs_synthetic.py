@@ -76,9 +76,10 @@ def real_grasps(folder: Path) -> dict[str, list[dict[str, float]]]:
     return out
 
 
-def simulated_grasps(table: Path, seed: int) -> dict[str, list[dict[str, float]]]:
+def simulated_grasps(table: Path, seed: int, rig: str) -> dict[str, list[dict[str, float]]]:
     from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, render_recording
     from tactile_compliance.synthetic.objects import objects_from_table
+    from tactile_compliance.synthetic.timeseries import RIGS
 
     with open(table, newline="", encoding="utf-8") as handle:
         rows = list(csv.DictReader(handle))
@@ -96,7 +97,7 @@ def simulated_grasps(table: Path, seed: int) -> dict[str, list[dict[str, float]]
         specs, _ = objects_from_table(path, seed=seed, grasps_per_object=3)
     out: dict[str, list[dict[str, float]]] = {}
     for spec in specs:
-        ctx = make_context(spec, seed, SimulationOptions(image_size=(125, 175)))
+        ctx = make_context(spec, seed, SimulationOptions(image_size=(125, 175), rig=RIGS[rig]))
         for grasp in range(spec.n_grasps):
             result, _ = render_recording(ctx, grasp)
             timeline = result.timeline
@@ -113,12 +114,16 @@ def main() -> None:
         "--table", type=Path, default=REFERENCE / "dataset_objects_and_compliance.csv"
     )
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--rig", default="dataset", help="the generator's rig (RIGS)")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="Draw force against closure (PNG).")
     args = parser.parse_args()
     if not args.real.is_dir():
         raise SystemExit(f"no real grasps at {args.real}")
-    results = {"real": real_grasps(args.real), "generator": simulated_grasps(args.table, args.seed)}
+    results = {
+        "real": real_grasps(args.real),
+        "generator": simulated_grasps(args.table, args.seed, args.rig),
+    }
     keys = [
         "F_peak_n",
         "contact_width_mm",

@@ -20,6 +20,7 @@ from tactile_compliance.synthetic import (
     generate_burgess_tree,
     generate_shore_videos,
 )
+from tactile_compliance.synthetic.timeseries import RIGS, GripperRig
 
 SMALL = (60, 80)
 PKL_FILES = {
@@ -261,3 +262,29 @@ def test_every_frame_size_of_at_least_32_px_works(tmp_path: Path, size: tuple[in
     ok, frame = capture.read()
     capture.release()
     assert ok and frame.shape[:2] == size
+
+
+def test_the_rig_sets_the_press_force_and_is_part_of_the_parameters(tmp_path: Path) -> None:
+    peak_n = {}
+    for rig in ("dataset", "wedge-2023"):
+        out = tmp_path / rig
+        _generate(out, rig=rig)
+        forces = [load_numpy_pickle(p) for p in out.glob("*/grasp=*/augmentation=0/forces.pkl")]
+        peak_n[rig] = max(float(np.max(f)) for f in forces)
+        assert json.loads((out / "generation.json").read_text())["options"]["rig"] == {
+            "peak_force_n": list(RIGS[rig].peak_force_n),
+            "finger_stiffness_n_per_m": list(RIGS[rig].finger_stiffness_n_per_m),
+        }
+    assert peak_n["dataset"] > 50.0 and peak_n["wedge-2023"] < 35.0
+    # Resuming a tree with another rig would mix two rigs in one dataset.
+    with pytest.raises(GenerationError, match="different parameters"):
+        _generate(tmp_path / "dataset", rig="wedge-2023")
+    with pytest.raises(GenerationError, match="unknown rig 'franka'"):
+        _generate(tmp_path / "other", rig="franka")
+
+
+def test_a_rig_must_be_physical() -> None:
+    with pytest.raises(ValueError, match="above 10 N"):
+        GripperRig(peak_force_n=(8.0, 1.0))
+    with pytest.raises(ValueError, match="finger stiffness"):
+        GripperRig(finger_stiffness_n_per_m=(5e3, 1e3))

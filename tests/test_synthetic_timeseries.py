@@ -16,13 +16,13 @@ from tactile_compliance.synthetic.timeseries import (
 )
 
 
-def _timeline(modulus_pa: float, seed: int = 0):  # type: ignore[no-untyped-def]
+def _timeline(modulus_pa: float, seed: int = 0, **kwargs: object):  # type: ignore[no-untyped-def]
     grid = PadGrid(0.5)
     spec = ShapeSpec("Sphere", {"radius_mm": 20.0}, 40.0)
     sag = sag_map(spec, grid, Pose((0.0, 0.0), 0.0, (0.0, 0.0)))
     obj = ObjectMechanics(modulus_pa, 0.45, 40.0, 0.6)
     curve = force_curve(sag, GelModel(), obj, grid)
-    return simulate_timeline((curve, curve), 0.040, 3e5, float("inf"), stream(seed, "t"))
+    return simulate_timeline((curve, curve), 0.040, 3e5, float("inf"), stream(seed, "t"), **kwargs)
 
 
 def test_force_ramp_hold_and_widths() -> None:
@@ -85,3 +85,8 @@ def test_timeline_is_deterministic(seed: int) -> None:
     a, b = _timeline(1e7, seed), _timeline(1e7, seed)
     np.testing.assert_array_equal(a.force_n, b.force_n)
     np.testing.assert_array_equal(a.width_m, b.width_m)
+
+
+def test_the_controller_presses_to_the_rig_s_force() -> None:
+    tl = _timeline(1e9, peak_force_n=(23.0, 0.0))
+    assert 22.0 < tl.force_true_n.max() < 24.0  # 23 N plus ~1 % ripple

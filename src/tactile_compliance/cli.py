@@ -43,6 +43,7 @@ Backbone = Literal[  # training.pretrain.PRETRAIN_BACKBONES
 DemoMode = Literal["full", "ci"]  # demo.PLANS
 SimulateKind = Literal["gelsight", "shore-videos"]  # the two generators of `simulate`
 PickleDtype = Literal["float16", "float32", "float64"]  # synthetic.writer.ALLOWED_DTYPES
+RigName = Literal["dataset", "wedge-2023"]  # synthetic.timeseries.RIGS
 
 
 def _expected_errors() -> tuple[type[BaseException], ...]:
@@ -342,6 +343,13 @@ def simulate(
         Optional[int],  # noqa: UP045
         typer.Option(min=1, help="Processes (default: all CPUs)."),
     ] = None,
+    rig: Annotated[
+        RigName,
+        typer.Option(
+            help="The gripper rig: dataset (the public dataset's, ~60 N presses) or wedge-2023 "
+            "(the lab's 2023 Wedge rig, ~23 N presses and a compliant mount; docs/synthetic.md)."
+        ),
+    ] = "dataset",
     as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
 ) -> None:
     """Generate a physically grounded synthetic dataset in the real raw layout.
@@ -354,7 +362,7 @@ def simulate(
     image_size = _size_option(size)
     assert image_size is not None
     if kind == "gelsight":
-        options = {"dtype": dtype} | ({"workers": workers} if workers else {})
+        options = {"dtype": dtype, "rig": rig} | ({"workers": workers} if workers else {})
         report = generate_burgess_tree(
             out,
             n_objects=objects,
@@ -367,6 +375,8 @@ def simulate(
     else:  # shore-videos
         if object_table is not None:
             raise typer.BadParameter("--object-table applies to --kind gelsight only")
+        if rig != "dataset":
+            raise typer.BadParameter("--rig applies to --kind gelsight only")
         report = generate_shore_videos(
             out,
             n_objects=objects or 40,

@@ -17,7 +17,7 @@ import os
 import shutil
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -34,6 +34,7 @@ from tactile_compliance.synthetic.objects import (
     default_objects,
     objects_from_table,
 )
+from tactile_compliance.synthetic.timeseries import RIGS
 from tactile_compliance.synthetic.writer import ALLOWED_DTYPES, PARTIAL_PREFIX, ObjectWriter
 
 __all__ = ["DEFAULT_N_OBJECTS", "GenerationError", "GenerationReport", "generate_burgess_tree"]
@@ -152,6 +153,10 @@ def _split_options(options: dict[str, Any]) -> tuple[SimulationOptions, str, int
         raise GenerationError(
             f"unknown option(s) {unknown}; known: {sorted(known | {'dtype', 'workers'})}"
         )
+    if isinstance(opts.get("rig"), str):
+        if opts["rig"] not in RIGS:
+            raise GenerationError(f"unknown rig {opts['rig']!r}; known: {', '.join(RIGS)}")
+        opts["rig"] = RIGS[opts["rig"]]
     return SimulationOptions(**opts), dtype, workers
 
 
@@ -201,7 +206,8 @@ def generate_burgess_tree(
         **options: ``dtype`` of the image/depth pickles (``float16`` default,
             ``float32``, ``float64``), ``workers`` (processes; default: all CPUs), and
             the fields of :class:`SimulationOptions` (``estimator_scale``,
-            ``n_sessions``, ``curve_cell_mm``, ``render_cell_mm``, ``max_aug``).
+            ``n_sessions``, ``curve_cell_mm``, ``render_cell_mm``, ``max_aug``, ``rig``: a
+            ``GripperRig`` or a name of ``timeseries.RIGS``).
 
     Returns:
         A :class:`GenerationReport` (counts, time, grasps/s).
@@ -223,7 +229,7 @@ def generate_burgess_tree(
     if height < 16 or width < 16:
         raise GenerationError(f"image_size must be at least 16 x 16 px, got {image_size}")
     sim_options, dtype, workers = _split_options(options)
-    sim_options = SimulationOptions(**{**asdict(sim_options), "image_size": (height, width)})
+    sim_options = replace(sim_options, image_size=(height, width))
     skipped_rows: list[str] = []
     if object_table is not None:
         specs, skipped_rows = objects_from_table(object_table, seed, grasps_per_object)
@@ -241,7 +247,10 @@ def generate_burgess_tree(
         "seed": seed,
         "source": source,
         "image_size": [height, width],
-        "options": {k: v for k, v in asdict(sim_options).items() if k != "image_size"},
+        # Through JSON, so tuples compare equal to the lists a resumed run reads back.
+        "options": json.loads(
+            json.dumps({k: v for k, v in asdict(sim_options).items() if k != "image_size"})
+        ),
         "dtype": dtype,
         "grasps_per_object": grasps_per_object,
         # Importers copy it into the store: checkpoints and live estimates follow it.

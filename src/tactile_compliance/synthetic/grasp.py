@@ -60,7 +60,9 @@ from tactile_compliance.synthetic.render import (
 from tactile_compliance.synthetic.rng import stream
 from tactile_compliance.synthetic.textures import texture_canvas, texture_window
 from tactile_compliance.synthetic.timeseries import (
+    DATASET_RIG,
     GraspTimeline,
+    GripperRig,
     select_frames,
     selection_window,
     simulate_timeline,
@@ -91,6 +93,8 @@ class SimulationOptions:
         max_aug: maximum number of time-shift augmentations.
         depth_solve_scale: resolution of the Poisson solve of the stored depth maps
             relative to the image [-] (see ``depth.reconstruct_depth``).
+        rig: the gripper and its controller (peak force, finger stiffness); the one
+            physical parameter set here, because it belongs to the set-up, not the object.
     """
 
     image_size: tuple[int, int] = FULL_SIZE
@@ -100,6 +104,7 @@ class SimulationOptions:
     n_sessions: int = 16
     max_aug: int = 5
     depth_solve_scale: float = 0.5
+    rig: GripperRig = DATASET_RIG
 
     @property
     def estimator_size(self) -> tuple[int, int]:
@@ -120,7 +125,7 @@ class Session:
 
 
 @lru_cache(maxsize=64)
-def _session(seed: int, session_id: int) -> Session:
+def _session(seed: int, session_id: int, rig: GripperRig) -> Session:
     rng = stream(seed, "session", session_id)
     gels = tuple(
         GelModel(
@@ -130,7 +135,7 @@ def _session(seed: int, session_id: int) -> Session:
         for _ in range(2)
     )
     looks = (sample_sensor_look(rng, markers=False), sample_sensor_look(rng, markers=True))
-    stiffness = float(10 ** rng.uniform(5.0, np.log10(6e5)))
+    stiffness = rig.draw_finger_stiffness_n_per_m(rng)
     return Session(gels, looks, stiffness)  # type: ignore[arg-type]
 
 
@@ -148,7 +153,7 @@ class ObjectContext:
 def make_context(spec: ObjectSpec, seed: int, options: SimulationOptions) -> ObjectContext:
     """Session assignment and texture canvases of an object."""
     sid = int(stream(seed, spec.name, "session").integers(0, max(options.n_sessions, 1)))
-    session = _session(seed, sid)
+    session = _session(seed, sid, options.rig)
     size = render_size(options.image_size)  # textures are cut at the rendered size
     px = pixel_size_mm(size)
     tex_rng = stream(seed, spec.name, "texture-canvas")
@@ -362,6 +367,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
         stream(*key, "timeline"),
         # A sphere cannot rotate into a more stable pose.
         settle_probability=0.1 if spec.geometry.kind == "Sphere" else 0.35,
+        peak_force_n=opt.rig.peak_force_n,
     )
     window = selection_window(timeline.force_n, opt.max_aug)
     if window is None:

@@ -5,14 +5,16 @@ Timeline of one grasp, recorded at 30 fps (frame times jittered by ~2 ms):
 * *approach*: the gripper closes at 0.0375 m/s from 0.08 m; the recording starts
   0.2-0.6 s before contact. Before contact ``W = 0.08 - 0.0375 t``.
 * *loading*: ``F(t) = F_t [1 - (1 - u)^q]``, ``u`` = time since contact / loading time,
-  ``q ~ U(1.5, 3)``, target ``F_t ~ N(60, 2)`` N; loading time = controller time
-  ``U(0.3, 0.7)`` s + closure / 0.0375 m/s, so soft objects (large closure) load longer.
+  ``q ~ U(1.5, 3)``, target ``F_t ~ N(60, 2)`` N (the rig's ``peak_force_n``); loading
+  time = controller time ``U(0.3, 0.7)`` s + closure / 0.0375 m/s, so soft objects
+  (large closure) load longer.
 * *hold*: 0.45-0.7 s at ``F_t`` with ~1 % ripple; then *release* (0.1-0.25 s) and a
   few frames after.
 
 Each finger's approach follows its force-approach curve, ``Delta_i(F)``; the true
 width is ``W = W_contact - Delta_1 - Delta_2 - F / K_f - 2 F / k_shell`` (finger/mount
-compliance ``K_f ~ logU(1e5, 6e5)`` N/m), plus, in a third of the grasps, 0.2-1.5 mm of
+compliance ``K_f ~ logU(1e5, 6e5)`` N/m per session, the rig's
+``finger_stiffness_n_per_m``), plus, in a third of the grasps, 0.2-1.5 mm of
 *seating* (the object rotates or beds in while the force rises). Measured width:
 ``W - 0.5 mm + N(0, 15 um)`` in 50 um encoder steps, 0-50 ms late, updated every 2-4
 frames (stair steps). Measured force: ``F x N(1, 0.02) + N(0, 0.15) N offset +
@@ -42,8 +44,12 @@ from tactile_compliance.data.frame_selection import (
 from tactile_compliance.synthetic.mechanics import ContactCurve
 
 __all__ = [
+    "DATASET_RIG",
     "FPS",
+    "RIGS",
+    "WEDGE_2023_RIG",
     "GraspTimeline",
+    "GripperRig",
     "select_frames",
     "selection_window",
     "simulate_timeline",
@@ -57,6 +63,50 @@ CLOSING_SPEED_M_S = 0.0375
 
 OPEN_WIDTH_M = 0.08
 """Gripper width when the grasp starts [m]."""
+
+
+@dataclass(frozen=True)
+class GripperRig:
+    """The gripper, its mount and its force controller: what a user knows of their rig
+    (the force the controller presses to) or measures on it (the stiffness, from a grasp
+    of any rigid object: its closure is the rig's own).
+
+    Attributes:
+        peak_force_n: mean and standard deviation of the target force ``F_t`` [N].
+        finger_stiffness_n_per_m: range of the finger/mount stiffness ``K_f`` [N/m]; each
+            recording session draws one, log-uniformly (equal bounds: one value).
+    """
+
+    peak_force_n: tuple[float, float] = (60.0, 2.0)
+    finger_stiffness_n_per_m: tuple[float, float] = (1e5, 6e5)
+
+    def __post_init__(self) -> None:
+        mean, sd = self.peak_force_n
+        lo, hi = self.finger_stiffness_n_per_m
+        if not (mean > 10.0 and sd >= 0.0):
+            # The published frame selection rejects grasps that never reach 10 N.
+            raise ValueError(f"peak force must be above 10 N with sd >= 0, got {mean} +- {sd} N")
+        if not 0.0 < lo <= hi:
+            raise ValueError(f"finger stiffness range must be 0 < lo <= hi N/m, got {lo}, {hi}")
+
+    def draw_finger_stiffness_n_per_m(self, rng: np.random.Generator) -> float:
+        lo, hi = self.finger_stiffness_n_per_m
+        return float(10 ** rng.uniform(np.log10(lo), np.log10(hi)))
+
+
+DATASET_RIG = GripperRig()
+"""The rig of the public dataset as the design notes describe it (~60 N presses)."""
+
+WEDGE_2023_RIG = GripperRig(peak_force_n=(23.0, 2.5), finger_stiffness_n_per_m=(3.0e3, 4.0e3))
+"""The GelSight Wedge rig of ``real/wedge-grasps`` (the lab's 2023 example grasps).
+
+Fitted on that development set, with nothing a user could not fit on their own rig:
+``peak_force_n`` from the recorded force peaks (16-25 N, the controller's target);
+``finger_stiffness_n_per_m`` from the golf ball's closure, the set's one near-rigid object
+(k = 2.2 N/mm in series with the gel; docs/synthetic.md, "Against real grasps")."""
+
+RIGS: dict[str, GripperRig] = {"dataset": DATASET_RIG, "wedge-2023": WEDGE_2023_RIG}
+"""Named rigs, as ``simulate --rig`` and ``sim2real --rig`` accept them."""
 
 
 @dataclass
@@ -89,6 +139,7 @@ def simulate_timeline(
     shell_stiffness_n_per_m: float,
     rng: np.random.Generator,
     settle_probability: float = 0.35,
+    peak_force_n: tuple[float, float] = DATASET_RIG.peak_force_n,
 ) -> GraspTimeline:
     """Simulate the force/width/approach time series of one grasp.
 
@@ -100,8 +151,9 @@ def simulate_timeline(
         rng: the grasp's time-series stream.
         settle_probability: probability that the object seats by 0.2-1.5 mm while
             loading (0 for a perfectly stable grasp, e.g. a sphere).
+        peak_force_n: mean and standard deviation of the controller's target force [N].
     """
-    target_n = float(rng.normal(60.0, 2.0))
+    target_n = float(rng.normal(*peak_force_n))
     q = float(rng.uniform(1.5, 3.0))
     shell_c = 0.0 if not np.isfinite(shell_stiffness_n_per_m) else 1.0 / shell_stiffness_n_per_m
     finger_c = 1.0 / finger_stiffness_n_per_m
