@@ -26,7 +26,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("config",),
     ("runs",),
     ("training", "evaluation", "inference"),
-    ("demo",),
+    ("demo", "sim2real"),
     ("cli",),
     ("__main__",),  # `python -m tactile_compliance`: runs the cli
 )

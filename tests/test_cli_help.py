@@ -200,7 +200,7 @@ def _table_rows() -> dict[str, list[str]]:
         if not line.startswith("| `"):
             continue
         cells = [cell.strip() for cell in line.strip("|").split("|")]
-        rows[re.findall(r"`([a-z -]+)`", cells[0])[0]] = cells
+        rows[re.findall(r"`([a-z0-9 -]+)`", cells[0])[0]] = cells
     return rows
 
 

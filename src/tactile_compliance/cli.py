@@ -40,7 +40,7 @@ KeepCheckpoints = Literal["all", "best", "none"]  # runs.layout.KEEP_CHECKPOINTS
 Backbone = Literal[  # training.pretrain.PRETRAIN_BACKBONES
     "resnet18", "resnet34", "resnet50", "vgg16", "top10nn-cnn"
 ]
-DemoMode = Literal["full", "ci"]  # demo.PLANS
+DemoMode = Literal["full", "ci"]  # demo.PLANS and sim2real.PLANS
 SimulateKind = Literal["gelsight", "shore-videos"]  # the two generators of `simulate`
 PickleDtype = Literal["float16", "float32", "float64"]  # synthetic.writer.ALLOWED_DTYPES
 RigName = Literal["dataset", "wedge-2023"]  # synthetic.timeseries.RIGS
@@ -1659,6 +1659,46 @@ def demo(
     from tactile_compliance.demo import run_demo
 
     summary = run_demo(out, mode=mode, workers=workers)
+    typer.echo(summary.format())
+
+
+@app.command()
+def sim2real(
+    out: Annotated[
+        Path, typer.Option("--out", help="Where the data, the run and DIR/best.pt go.")
+    ] = Path("sim2real-output"),
+    rig: Annotated[
+        RigName,
+        typer.Option(
+            help="The real rig the synthetic grasps imitate (`simulate --rig`): its press "
+            "force and stiffness."
+        ),
+    ] = "wedge-2023",
+    mode: Annotated[
+        DemoMode, typer.Option(help="full (about 25 minutes on 2 CPU cores) or ci (seconds, tiny).")
+    ] = "full",
+    seed: Annotated[int, typer.Option(min=0, help="Generation and training seed.")] = 0,
+    workers: Annotated[
+        Optional[int],  # noqa: UP045
+        typer.Option(min=1, help="Generator processes (default: all CPUs)."),
+    ] = None,
+    device: DeviceOption = "auto",
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+) -> None:
+    """Train a model for a real GelSight rig on synthetic grasps only.
+
+    Generates grasps with the generator set to the rig, imports them, trains the packaged
+    `sim2real` configuration and writes DIR/best.pt, which `predict` and `live` take.
+    Re-running continues where it stopped. How it transfers: docs/results.md, "Real grasps".
+    """
+    from tactile_compliance.sim2real import run_sim2real
+
+    summary = run_sim2real(
+        out, rig=rig, mode=mode, seed=seed, workers=workers, device=device, progress=not as_json
+    )
+    if as_json:
+        typer.echo(json.dumps(summary.to_dict(), indent=2))
+        return
     typer.echo(summary.format())
 
 

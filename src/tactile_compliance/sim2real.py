@@ -1,0 +1,161 @@
+"""sim2real: a model for a real GelSight rig, trained on synthetic grasps only.
+
+``tactile-compliance sim2real --out DIR`` generates grasps with the generator set to a
+real rig (``simulate --rig``: the controller's press force and the rig's stiffness),
+imports them, trains the packaged ``sim2real`` configuration and copies the best epoch to
+``DIR/best.pt``, which ``predict`` and ``live`` take like any checkpoint. Nothing in it
+sees a real grasp: the rig is the only thing fitted on real recordings, and with
+quantities a user measures on their own rig (docs/synthetic.md, "Against real grasps").
+How well it transfers is measured by ``benchmarks/real_grasps.py`` (docs/results.md).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+Sim2RealMode = Literal["full", "ci"]
+
+CONFIG = "sim2real"
+"""The packaged training configuration (``configs/sim2real.yaml``)."""
+
+
+@dataclass(frozen=True)
+class Sim2RealPlan:
+    """Sizes of one mode: the synthetic data and the training budget."""
+
+    n_objects: int
+    grasps_per_object: int
+    image_size: tuple[int, int]  # (height, width) px of the generated frames
+    overrides: tuple[str, ...] = ()
+
+
+PLANS: dict[str, Sim2RealPlan] = {
+    # ~25 minutes on 2 CPU cores (docs/results.md): many objects at a low resolution,
+    # because the model sees 65 x 65 px and unseen objects are what it must handle.
+    "full": Sim2RealPlan(n_objects=400, grasps_per_object=3, image_size=(64, 88)),
+    # The same path in seconds, for the test suite.
+    "ci": Sim2RealPlan(
+        n_objects=12, grasps_per_object=2, image_size=(48, 64), overrides=("training.max_epochs=1",)
+    ),
+}
+
+
+@dataclass
+class Sim2RealSummary:
+    """What ``sim2real`` wrote, how long each stage took and the synthetic test scores."""
+
+    out_dir: Path
+    checkpoint: Path
+    rig: str
+    mode: str
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    synthetic_test: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["out_dir"], data["checkpoint"] = str(self.out_dir), str(self.checkpoint)
+        return data
+
+    def format(self) -> str:
+        stages = ", ".join(f"{name} {sec:.0f} s" for name, sec in self.stage_seconds.items())
+        test = self.synthetic_test
+        scores = (
+            f"On unseen synthetic objects: N-MSE {test['nmse']:.4f}, "
+            f"log10 accuracy {test['log10_accuracy']:.2f}."
+            if test
+            else ""
+        )
+        return (
+            f"sim2real ({self.rig} rig) finished in {sum(self.stage_seconds.values()):.0f} s "
+            f"({stages}). {scores}\n"
+            f"Model: {self.checkpoint} (trained on synthetic grasps only).\n"
+            f"Next: tactile-compliance predict {self.checkpoint} STORE, or "
+            f"tactile-compliance live {self.checkpoint} SOURCE ..."
+        )
+
+
+def run_sim2real(
+    out_dir: str | Path,
+    *,
+    rig: str = "wedge-2023",
+    mode: Sim2RealMode = "full",
+    seed: int = 0,
+    workers: int | None = None,
+    device: str = "auto",
+    progress: bool = True,
+) -> Sim2RealSummary:
+    """Generate, import and train under ``out_dir``; the model is ``out_dir/best.pt``.
+
+    Args:
+        out_dir: created, or one that ``sim2real`` wrote before (it then continues:
+            generated objects, the store and a finished or interrupted run are kept).
+        rig: a rig of ``synthetic.timeseries.RIGS`` (``simulate --rig``).
+        mode: ``full`` or ``ci`` (a tiny run for tests).
+        seed: generation and training seed.
+        workers: generator processes (default: all CPUs).
+        device: training device (``auto``, ``cpu``, ``cuda``, ``cuda:N``).
+        progress: show progress bars.
+
+    Raises:
+        OutputExistsError: ``out_dir`` holds something ``sim2real`` did not write.
+        GenerationError: an unknown rig.
+    """
+    from tactile_compliance.config import load_config
+    from tactile_compliance.data.burgess import import_burgess
+    from tactile_compliance.outputs import atomic_file, claim_output_dir
+    from tactile_compliance.synthetic import generate_burgess_tree
+    from tactile_compliance.training.train import train
+
+    plan = PLANS[mode]
+    out = claim_output_dir(out_dir, "sim2real")
+    summary = Sim2RealSummary(out_dir=out, checkpoint=out / "best.pt", rig=rig, mode=mode)
+
+    start = time.perf_counter()
+    raw = out / "raw"
+    options: dict[str, Any] = {"rig": rig} | ({"workers": workers} if workers else {})
+    generate_burgess_tree(
+        raw,
+        n_objects=plan.n_objects,
+        grasps_per_object=plan.grasps_per_object,
+        seed=seed,
+        image_size=plan.image_size,
+        progress=progress,
+        **options,
+    )
+    summary.stage_seconds["generate"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    store = out / "store"
+    if not store.exists():
+        import_report = import_burgess(raw, store, progress=progress)
+        if progress:
+            print(import_report.format())
+    summary.stage_seconds["import"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    cfg = load_config(
+        CONFIG,
+        [
+            f"data.store={store}",
+            f"seed={seed}",
+            f"training.device={device}",
+            *plan.overrides,
+        ],
+    )
+    metrics = train(cfg, run_dir=out / "run", progress=progress)  # type: ignore[arg-type]
+    summary.stage_seconds["train"] = time.perf_counter() - start
+    summary.synthetic_test = dict(metrics.get("test", {}))
+
+    with (
+        atomic_file(summary.checkpoint, "wb") as handle,
+        open(out / "run" / "best.pt", "rb") as best,
+    ):
+        shutil.copyfileobj(best, handle)
+    with atomic_file(out / "sim2real.json", "w") as handle:
+        handle.write(json.dumps(summary.to_dict(), indent=2) + "\n")
+    return summary

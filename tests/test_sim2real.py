@@ -1,0 +1,61 @@
+"""`sim2real`: synthetic grasps of a real rig -> one model that `predict` takes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from tactile_compliance.cli import app
+from tactile_compliance.data.store import GraspStore
+from tactile_compliance.outputs import OutputExistsError
+from tactile_compliance.sim2real import run_sim2real
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def sim2real_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sim2real") / "out"
+    result = runner.invoke(app, ["sim2real", "--out", str(out), "--mode", "ci", "--json"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert summary["checkpoint"] == str(out / "best.pt") and summary["rig"] == "wedge-2023"
+    assert set(summary["stage_seconds"]) == {"generate", "import", "train"}
+    return out
+
+
+def test_the_data_comes_from_the_rig_and_the_model_from_the_preset(sim2real_dir: Path) -> None:
+    generation = json.loads((sim2real_dir / "raw" / "generation.json").read_text())
+    assert generation["options"]["rig"]["peak_force_n"] == [23.0, 2.5]
+    assert GraspStore.open(sim2real_dir / "store").forces_n().max() < 35.0  # not ~60 N
+    meta = torch.load(sim2real_dir / "best.pt", map_location="cpu", weights_only=False)
+    assert meta["inputs"] == "ImageFW" and meta["config"]["data"]["fingers"] == ["markerless"]
+
+
+def test_predict_takes_the_model(sim2real_dir: Path) -> None:
+    result = runner.invoke(
+        app, ["predict", str(sim2real_dir / "best.pt"), str(sim2real_dir / "store"), "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    predictions = json.loads(result.stdout)
+    assert predictions["summary"]["n_predicted"] > 0
+    assert all(p["pred_pa"] > 0 for p in predictions["predictions"])
+
+
+def test_rerunning_continues_and_foreign_folders_are_refused(
+    sim2real_dir: Path, tmp_path: Path
+) -> None:
+    before = (sim2real_dir / "best.pt").stat().st_mtime_ns
+    summary = run_sim2real(sim2real_dir, mode="ci", progress=False)
+    assert summary.stage_seconds["generate"] < 5.0  # every object was already there
+    assert (sim2real_dir / "best.pt").stat().st_mtime_ns >= before
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me")
+    with pytest.raises(OutputExistsError):
+        run_sim2real(foreign, mode="ci", progress=False)
+    assert (foreign / "notes.txt").read_text() == "keep me"
