@@ -17,8 +17,17 @@ runs it. For every grasp it prints:
 For the golf ball (850 MPa) the object barely deforms, so its closure is the rig's own:
 gel, fingers, mount and the width reading.
 
-    python benchmarks/real_vs_synthetic.py              # ~1 min
-    python benchmarks/real_vs_synthetic.py --json out.json
+With ``--real-store`` (the store ``benchmarks/real_grasps.py`` writes to ``OUT/work/store``)
+it also compares the difference images the models see: the third frame of each grasp's
+first augmentation, real against the same five objects simulated at 250 x 350 px with the
+same rig. Per object: the share of the frame in contact (any channel more than 15 grey
+levels from the reference), the 99th percentile of |difference| per channel (B, G, R;
+0.5 = 128 grey levels) and the median |difference| outside the contact (noise and
+drift).
+
+    python benchmarks/real_vs_synthetic.py              # ~10 s
+    python benchmarks/real_vs_synthetic.py --rig wedge-2023 --json out.json
+    python benchmarks/real_vs_synthetic.py --rig wedge-2023 --real-store real-out/work/store
 """
 
 from __future__ import annotations
@@ -76,11 +85,8 @@ def real_grasps(folder: Path) -> dict[str, list[dict[str, float]]]:
     return out
 
 
-def simulated_grasps(table: Path, seed: int, rig: str) -> dict[str, list[dict[str, float]]]:
-    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, render_recording
-    from tactile_compliance.synthetic.objects import objects_from_table
-    from tactile_compliance.synthetic.timeseries import RIGS
-
+def write_five_table(table: Path, path: Path) -> Path:
+    """The five objects' rows of the real object table, with the balls' known radii."""
     with open(table, newline="", encoding="utf-8") as handle:
         rows = list(csv.DictReader(handle))
     radius = {label: r for label, r in OBJECTS.values()}
@@ -88,12 +94,20 @@ def simulated_grasps(table: Path, seed: int, rig: str) -> dict[str, list[dict[st
     for row in chosen:
         if radius[row["Label"]] is not None:
             row["Radius [m]"] = str(radius[row["Label"]])
+    with open(path, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(chosen[0]))
+        writer.writeheader()
+        writer.writerows(chosen)
+    return path
+
+
+def simulated_grasps(table: Path, seed: int, rig: str) -> dict[str, list[dict[str, float]]]:
+    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, render_recording
+    from tactile_compliance.synthetic.objects import objects_from_table
+    from tactile_compliance.synthetic.timeseries import RIGS
+
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "five.csv"
-        with open(path, "w", newline="", encoding="utf-8") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(chosen[0]))
-            writer.writeheader()
-            writer.writerows(chosen)
+        path = write_five_table(table, Path(tmp) / "five.csv")
         specs, _ = objects_from_table(path, seed=seed, grasps_per_object=3)
     out: dict[str, list[dict[str, float]]] = {}
     for spec in specs:
@@ -107,6 +121,61 @@ def simulated_grasps(table: Path, seed: int, rig: str) -> dict[str, list[dict[st
     return out
 
 
+def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
+    """Difference-image statistics per object (see the module docstring)."""
+    from tactile_compliance.data.store import GraspStore
+
+    store = GraspStore.open(store_path)
+    samples = store.samples
+    chosen = samples[(samples.augmentation == 0) & (samples.finger == "markerless")]
+    out = {}
+    for label, rows in chosen.groupby("object"):
+        diff = store.load_frames(rows.sample_id.to_numpy())[:, 2] - 0.5  # (n, H, W, BGR)
+        contact = np.abs(diff).max(axis=-1) > 15 / 255
+        out[str(label)] = {
+            "contact_share": float(contact.mean()),
+            **{
+                f"p99_{c}": float(np.mean(np.percentile(np.abs(diff[..., i]), 99, axis=(1, 2))))
+                for i, c in enumerate("BGR")
+            },
+            "outside_median": float(np.median(np.abs(diff).max(axis=-1)[~contact])),
+        }
+    return out
+
+
+def simulated_store(table: Path, seed: int, rig: str, out: Path) -> Path:
+    """The five objects simulated at the real crop's 250 x 350 px and imported."""
+    from tactile_compliance.data.burgess import import_burgess
+    from tactile_compliance.synthetic import generate_burgess_tree
+
+    generate_burgess_tree(
+        out / "raw",
+        object_table=write_five_table(table, out / "five.csv"),
+        grasps_per_object=3,
+        seed=seed,
+        image_size=(250, 350),
+        progress=False,
+        rig=rig,
+    )
+    import_burgess(out / "raw", out / "store", progress=False)
+    return out / "store"
+
+
+def print_image_stats(results: dict[str, dict[str, dict[str, float]]]) -> None:
+    print(
+        "\nobject                source     contact share  p99 |d| B  p99 |d| G  p99 |d| R"
+        "  median |d| outside"
+    )
+    for label, _ in OBJECTS.values():
+        for source in ("real", "generator"):
+            row = results[source].get(label)
+            if row:
+                print(
+                    f"{label:21s} {source:9s} {row['contact_share']:13.3f}  {row['p99_B']:9.3f}"
+                    f"  {row['p99_G']:9.3f}  {row['p99_R']:9.3f}  {row['outside_median']:18.4f}"
+                )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--real", type=Path, default=REFERENCE / "real/wedge-grasps/2023-12-06")
@@ -115,6 +184,7 @@ def main() -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rig", default="dataset", help="the generator's rig (RIGS)")
+    parser.add_argument("--real-store", type=Path, help="store of the real grasps (images)")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="Draw force against closure (PNG).")
     args = parser.parse_args()
@@ -140,6 +210,14 @@ def main() -> None:
             rows = results[source].get(label, [])
             means = [np.nanmean([r[k] for r in rows]) if rows else np.nan for k in keys]
             print(f"{label:21s} {source:9s} " + "  ".join(f"{v:13.1f}" for v in means))
+    if args.real_store:
+        with tempfile.TemporaryDirectory() as tmp:
+            synthetic = simulated_store(args.table, args.seed, args.rig, Path(tmp))
+            results["images"] = {
+                "real": image_stats(args.real_store),
+                "generator": image_stats(synthetic),
+            }
+        print_image_stats(results["images"])
     if args.json:
         args.json.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
     if args.figure:
