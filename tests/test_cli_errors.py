@@ -91,7 +91,7 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             [
                 "live",
                 str(f["text"]),
-                *("--source", f"video:{f['video']}", "--readings", str(f["text"])),
+                *(f"video:{f['video']}", "--readings", str(f["text"])),
                 *("--window", "5", "--window-s", "1.0"),
             ],
             ["--window (frames) or --window-s (seconds)"],
@@ -101,7 +101,7 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             [
                 "live",
                 str(f["text"]),
-                *("--source", f"video:{f['video']}", "--readings", str(f["text"])),
+                *(f"video:{f['video']}", "--readings", str(f["text"])),
                 *("--window-s", "0"),
             ],
             ["--window-s must be > 0"],

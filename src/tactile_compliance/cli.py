@@ -191,11 +191,62 @@ def _main_with_one_line_errors(main: Any, *args: Any, **kwargs: Any) -> Any:
     sys.exit(code if isinstance(code, int) else 0)
 
 
+#: Options that became a command's last argument (docs/cli.md): command -> the old option,
+#: which still parses for one release, hidden. Not a declared option like the other old
+#: names (`_renamed`): the argument it fills follows a variadic one (`live CHECKPOINT...
+#: SOURCE`), which click could only parse with both arguments optional.
+_OPTIONS_NOW_ARGUMENTS = {"live": "--source"}
+
+
+def _option_as_last_argument(args: list[str], option: str, ctx: Any = None) -> list[str]:
+    """``args`` with ``option VALUE`` (or ``option=VALUE``) moved to the end as the last
+    positional argument; unchanged without the option."""
+    rest: list[str] = []
+    values: list[str] = []
+    remaining = iter(args)
+    for arg in remaining:
+        if arg == "--":  # everything after it is positional already
+            rest += [arg, *remaining]
+            break
+        if arg == option:
+            value = next(remaining, None)
+            if value is None:
+                raise _click_errors.UsageError(f"Option '{option}' requires an argument.", ctx)
+            values.append(value)
+        elif arg.startswith(f"{option}="):
+            values.append(arg[len(option) + 1 :])
+        else:
+            rest.append(arg)
+    if not values:
+        return args
+    if len(values) > 1:
+        raise _click_errors.UsageError(f"give the source once ({option} is its old name)", ctx)
+    return [*rest, values[0]] if "--" in rest else [*rest, "--", values[0]]
+
+
 class _Command(TyperCommand):
     """A command with the help display and the one-line usage errors above."""
 
     def get_params(self, ctx: Any) -> list[Any]:
         return _plain_params(super().get_params(ctx))
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        old = _OPTIONS_NOW_ARGUMENTS.get(self.name or "")
+        if old is None:
+            return super().parse_args(ctx, args)
+        try:
+            return super().parse_args(ctx, _option_as_last_argument(args, old, ctx))
+        except _click_errors.MissingParameter as err:
+            # One value only fills the last argument (the source), so click would name the
+            # variadic one before it as missing, where a source was probably forgotten.
+            param = err.param
+            if param is None or param.nargs != -1:
+                raise
+            raise _click_errors.UsageError(
+                f"give {param.display_name_raw}... and then SOURCE (the source is an "
+                f"argument now, no longer {old})",
+                ctx,
+            ) from None
 
     def main(self, *args: Any, **kwargs: Any) -> Any:
         return _main_with_one_line_errors(super().main, *args, **kwargs)
@@ -1510,7 +1561,7 @@ def live(
             "give an ensemble interval."
         ),
     ],
-    source: Annotated[str, typer.Option("--source", help=SOURCE_HELP)],
+    source: SourceArg,
     readings: Annotated[
         Path,
         typer.Option(
