@@ -6,6 +6,7 @@ error is one line, and the command starts as `tactile-compliance` and as
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -218,6 +219,17 @@ def test_live_takes_its_source_as_an_argument_and_the_old_option_still_parses(
         result = runner.invoke(app, ["live", *args])
         assert result.exit_code == 2, (args, result.output)
         assert cause in _one_error_line(result), (args, result.output)
+
+
+def test_every_command_has_json_and_presets_prints_it() -> None:
+    """docs/cli.md: --json on every command (each prints results)."""
+    for path, command in COMMANDS:
+        if path and not hasattr(command, "commands"):
+            assert "--json" in {o for p in command.params for o in p.opts}, path
+    result = runner.invoke(app, ["presets", "--json"])
+    assert result.exit_code == 0, result.output
+    listed = json.loads(result.stdout)
+    assert "table1" in listed["experiments"] and "default" in listed["configs"], listed
 
 
 def _table_rows() -> dict[str, list[str]]:

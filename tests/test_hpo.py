@@ -16,6 +16,7 @@ import yaml
 pytest.importorskip("smac")
 
 from torch import nn
+from typer.testing import CliRunner
 
 from epoch_trace import (
     committed_epochs,
@@ -24,6 +25,7 @@ from epoch_trace import (
     traced_env,
     wait_until_midway,
 )
+from tactile_compliance.cli import app
 from tactile_compliance.config import config_to_dict, load_config
 from tactile_compliance.models import (
     InputStrategy,
@@ -300,6 +302,17 @@ def test_tune_runs_a_few_trials_and_resumes(toy_store, tmp_path, monkeypatch):
     extended = hpo.tune("top10nn", "Image", trials=6, **kwargs)
     assert extended.trials == 6 and len(trained) == 2
     assert len(list((out / "smac").iterdir())) == 1  # one search, continued
+    # The command with --json: the same search (nothing trained), its result on stdout.
+    trained = _count_trainings(monkeypatch)
+    command = ["tune", "top10nn", "--inputs", "Image", "--store", str(toy_store.path)]
+    command += ["--out", str(out), "--trials", "6", "--min-epochs", "1", "--max-epochs", "3"]
+    command += [f"--set={override}" for override in TOP10]
+    printed = CliRunner().invoke(app, [*command, "--json"])
+    assert printed.exit_code == 0, printed.output
+    assert trained == []
+    document, expected = json.loads(printed.stdout), extended.to_dict()
+    assert document.pop("wall_time_s") >= 0 and expected.pop("wall_time_s") >= 0
+    assert document == expected and document["best"] == extended.best
     # 4. What it wrote is accepted by train/experiment directly.
     best = load_config(extended.config_path)
     assert best.model.name == "top10nn" and best.inputs == "Image"

@@ -609,12 +609,19 @@ SetOption = Annotated[
 ]
 
 
+JsonOption = Annotated[bool, typer.Option("--json", help="Print the result as JSON.")]
+
+
 @app.command()
-def presets() -> None:
+def presets(as_json: JsonOption = False) -> None:
     """List the packaged presets: experiment grids and training configurations."""
     from tactile_compliance.config import list_presets
     from tactile_compliance.training.grid import experiment_preset_descriptions
 
+    if as_json:
+        payload = {"experiments": experiment_preset_descriptions(), "configs": list_presets()}
+        typer.echo(json.dumps(payload, indent=2))
+        return
     typer.echo("Experiment presets (tactile-compliance experiment NAME [--quick]):")
     for name, description in experiment_preset_descriptions().items():
         typer.echo(f"  {name:<16} {description}")
@@ -797,6 +804,14 @@ def pretrain(
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a pretrained weights file.")] = False,
     device: DeviceOption = "auto",
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the weights file, its provenance (settings, split, losses per epoch) "
+            "and the train overrides that use it as JSON.",
+        ),
+    ] = False,
 ) -> None:
     """Pretrain a backbone to predict depth maps and contact masks from the difference images.
 
@@ -824,8 +839,25 @@ def pretrain(
         split_file=split_file,
         overwrite=overwrite,
         device=device,
+        progress=not as_json,
     )
     record = result.provenance
+    use = [
+        f"data.store={store}",
+        f"model.name={record['model']}",
+        f"model.backbone_weights={result.out}",
+        "model.freeze_backbone=true",
+    ]
+    if as_json:
+        payload = {
+            "out": str(result.out),
+            "existing": result.existing,
+            "resumed_from_epoch": result.resumed_from_epoch,
+            "provenance": record,
+            "train_overrides": use,
+        }
+        typer.echo(json.dumps(payload, indent=2, default=str))
+        return
     if result.existing:
         typer.echo(f"{out} is already pretrained (pass --overwrite to train it again).")
     typer.echo(
@@ -833,9 +865,8 @@ def pretrain(
         f"{record['n_train_samples']} samples of {record['n_train_objects']} training objects, "
         f"validation depth MSE {record['first_depth_loss_mm2']:.4g} -> "
         f"{record['final_depth_loss_mm2']:.4g} mm², {record['seconds']:.0f} s\n"
-        f"Weights: {result.out}\nUse them: tactile-compliance train --set data.store={store} "
-        f"--set model.name={record['model']} --set model.backbone_weights={result.out} "
-        f"--set model.freeze_backbone=true"
+        f"Weights: {result.out}\nUse them: tactile-compliance train "
+        + " ".join(f"--set {override}" for override in use)
     )
 
 
@@ -914,6 +945,10 @@ ObjectiveOption = Annotated[
     ),
 ]
 InputsOption = Annotated[Inputs, typer.Option(help="Input strategy whose search space is used.")]
+TuneJsonOption = Annotated[
+    bool,
+    typer.Option("--json", help="Print the best values, their cost and the files written as JSON."),
+]
 
 
 @app.command()
@@ -953,6 +988,14 @@ def experiment(
     dry_run: Annotated[
         bool, typer.Option("--dry-run", help="List the cells and their status; run nothing.")
     ] = False,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the summary (counts, failures, mean +- std per configuration) or, "
+            "with --dry-run, the cells as JSON.",
+        ),
+    ] = False,
 ) -> None:
     """Run an experiment grid (models x inputs x conditions x sampling x seeds) on Dask.
 
@@ -976,7 +1019,8 @@ def experiment(
         results=results,
     )
     if dry_run:
-        typer.echo(plan_experiment(preset, **common).format())  # type: ignore[arg-type]
+        plan = plan_experiment(preset, **common)  # type: ignore[arg-type]
+        typer.echo(json.dumps(plan.to_dict(), indent=2) if as_json else plan.format())
         return
     try:
         summary = run_experiment(
@@ -990,7 +1034,7 @@ def experiment(
         )
     except KeyboardInterrupt:  # the summary is already on stderr
         raise typer.Exit(EXIT_INTERRUPTED) from None
-    typer.echo(summary.format())
+    typer.echo(json.dumps(summary.to_dict(), indent=2) if as_json else summary.format())
     if summary.failed:
         _fail(f"{summary.failed} cell(s) failed (recorded with their errors); re-run to retry")
 
@@ -1018,6 +1062,7 @@ def tune(
     output_dir: OutputDirOption = None,
     output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
+    as_json: TuneJsonOption = False,
 ) -> None:
     """Tune a model's hyperparameters with SMAC3 (Hyperband over epochs, val N-MSE).
 
@@ -1069,6 +1114,7 @@ def tune_balance(
     output_dir: OutputDirOption = None,
     output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
+    as_json: TuneJsonOption = False,
 ) -> None:
     """Tune the balance threshold t_balance in [0, 1] with SMAC3.
 
@@ -1093,8 +1139,9 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
     options["overrides"] = options["overrides"] or []
     alias = options.pop("output_dir_alias")
     options["output_dir"] = _renamed(options["output_dir"], alias, "--out", "--output-dir")
+    as_json = options.pop("as_json")
     result = getattr(hpo, name)(**options)
-    typer.echo(result.format())
+    typer.echo(json.dumps(result.to_dict(), indent=2) if as_json else result.format())
 
 
 @app.command()
@@ -1691,6 +1738,14 @@ def demo(
         Optional[int],  # noqa: UP045
         typer.Option(min=1, help="Dask worker processes for the grids (default: CPUs, at most 4)."),
     ] = None,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the summary (stage times, import reports, grid summaries, the "
+            "report's path) as JSON; the stages' text goes to stderr.",
+        ),
+    ] = False,
 ) -> None:
     """Run the whole system on built-in synthetic data (the main job).
 
@@ -1699,7 +1754,11 @@ def demo(
     """
     from tactile_compliance.demo import run_demo
 
-    summary = run_demo(out, mode=mode, workers=workers)
+    if as_json:
+        summary = run_demo(out, mode=mode, workers=workers, echo=lambda t: typer.echo(t, err=True))
+        typer.echo(json.dumps(summary.to_dict(), indent=2, default=str))
+        return
+    summary = run_demo(out, mode=mode, workers=workers, echo=typer.echo)
     typer.echo(summary.format())
 
 
