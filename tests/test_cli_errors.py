@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+import typer.main
 from typer.testing import CliRunner
 
 from tactile_compliance.cli import app
@@ -205,7 +206,7 @@ def test_a_config_typo_is_reported_before_torch_is_imported(tmp_path: Path) -> N
 def test_device_auto_is_the_gpu_when_there_is_one_and_cuda_without_one_is_one_line(
     tmp_path: Path,
 ) -> None:
-    from tactile_compliance.runs.forward import resolve_device
+    from tactile_compliance.devices import resolve_device
 
     assert resolve_device("auto") == ("cuda" if torch.cuda.is_available() else "cpu")
     assert resolve_device("cpu") == "cpu"
@@ -217,3 +218,50 @@ def test_device_auto_is_the_gpu_when_there_is_one_and_cuda_without_one_is_one_li
     )
     assert result.exit_code == 2, result.output
     assert "sees no CUDA GPU; use auto or cpu" in _one_error_line(result)
+
+
+def test_every_device_default_is_the_one_default() -> None:
+    """Commands and Python entry points default to one device, ``auto`` (issue 29: it was
+    auto in pretrain but cpu in predict and live). Every parameter named ``device`` with a
+    default, in every module of the package, takes ``devices.DEFAULT_DEVICE`` (a camera's
+    device index aside)."""
+    import ast
+    import inspect
+
+    from tactile_compliance import devices
+    from tactile_compliance.cli import DEFAULT_DEVICE
+    from tactile_compliance.config import TrainingConfig
+    from tactile_compliance.inference import ComplianceEstimator, EnsembleEstimator
+
+    assert DEFAULT_DEVICE == devices.DEFAULT_DEVICE == "auto"
+    found = []
+    for path in sorted((REPO / "src" / "tactile_compliance").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            args = node.args
+            positional = [*args.posonlyargs, *args.args]
+            pairs = list(
+                zip(positional[len(positional) - len(args.defaults) :], args.defaults, strict=True)
+            )
+            pairs += [
+                (a, d)
+                for a, d in zip(args.kwonlyargs, args.kw_defaults, strict=True)
+                if d is not None
+            ]
+            for arg, default in pairs:
+                camera = isinstance(default, ast.Constant) and not isinstance(default.value, str)
+                if arg.arg == "device" and not camera:  # not a camera's index (sensors.py)
+                    found.append(f"{path.name}:{node.name}")
+                    assert ast.unparse(default) == "DEFAULT_DEVICE", (path, node.name)
+    assert len(found) >= 15, found  # estimators, loaders, predict_path, evaluate_run, cli, ...
+    for function in (ComplianceEstimator.from_pretrained, EnsembleEstimator.from_checkpoints):
+        assert inspect.signature(function).parameters["device"].default == "auto", function
+    assert TrainingConfig().device == "auto"
+    for name in ("pretrain", "evaluate", "predict", "live"):
+        command = dict(
+            (c.name, c)
+            for c in typer.main.get_command(app).commands.values()  # type: ignore[attr-defined]
+        )[name]
+        option = next(p for p in command.params if "--device" in p.opts)
+        assert option.default == "auto", name

@@ -14,6 +14,7 @@ import typer
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from tactile_compliance import __version__
+from tactile_compliance.devices import DEFAULT_DEVICE
 
 #: The exceptions of the click that typer's commands run on: typer vendors its own click
 #: (typer._click) in recent versions and used the click package before, so they are found
@@ -803,7 +804,7 @@ def pretrain(
         ),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a pretrained weights file.")] = False,
-    device: DeviceOption = "auto",
+    device: DeviceOption = DEFAULT_DEVICE,
     as_json: Annotated[
         bool,
         typer.Option(
@@ -888,11 +889,12 @@ def evaluate(
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     weights: BackboneWeightsOption = None,
+    device: DeviceOption = DEFAULT_DEVICE,
 ) -> None:
     """Recompute metrics (overall, per material, shape, soft/hard) from a run's checkpoint."""
     from tactile_compliance.evaluation.evaluate import evaluate_run
 
-    evaluation = evaluate_run(run_dir, store, backbone_weights=weights)
+    evaluation = evaluate_run(run_dir, store, backbone_weights=weights, device=device)
     if as_json:
         payload = {
             "metrics": evaluation.metrics,
@@ -1154,7 +1156,7 @@ def predict(
     fingers: Annotated[
         Fingers, typer.Option(help="Which finger's images of a raw directory.")
     ] = "both",
-    device: DeviceOption = "auto",
+    device: DeviceOption = DEFAULT_DEVICE,
     weights: BackboneWeightsOption = None,
 ) -> None:
     """Estimate Young's modulus for every grasp of a store, raw directory or video."""
@@ -1646,7 +1648,7 @@ def live(
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
-    device: DeviceOption = "auto",
+    device: DeviceOption = DEFAULT_DEVICE,
     weights: BackboneWeightsOption = None,
 ) -> None:
     """Stream a sensor (or a replayed video) through the estimator.

@@ -46,6 +46,7 @@ from tactile_compliance.data.store import (
     frames_to_uint8,
 )
 from tactile_compliance.data.yuan import read_video_frames, select_press_frames
+from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
 from tactile_compliance.runs.metrics import compute_metrics
 
@@ -411,7 +412,7 @@ def predict_path(
     checkpoint: str | Path,
     path: str | Path,
     *,
-    device: str = "cpu",
+    device: str = DEFAULT_DEVICE,
     fingers: FingerChoice = "both",
     batch_size: int = 64,
     backbone_weights: str | Path | None = None,

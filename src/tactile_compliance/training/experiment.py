@@ -165,20 +165,17 @@ def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None
     """
     from tactile_compliance.data.features import cached_features
     from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.devices import resolve_device
     from tactile_compliance.training.train import build_model
 
     limit_threads(threads)
     _quiet_training_warnings()
-    import torch
-
     done = 0
     for data in cfg_dicts:
         cfg = config_from_dict(data)
         model = build_model(cfg)
         size = cfg.data.image_size or getattr(model, "recommended_image_size", None)
-        device = cfg.training.device
-        if device == "auto":
-            device = "cuda" if torch.cuda.is_available() else "cpu"
+        device = str(resolve_device(cfg.training.device, name="training.device"))
         cached_features(
             GraspStore.open(cfg.data.store),
             model.backbone,
