@@ -1,6 +1,23 @@
 """Mistakes a new user makes, each answered by one line that names the real cause (the
 option, the file, what to install) and a non-zero exit, in the command's own process: no
-traceback, no third-party advice, no warnings before it, nothing left behind."""
+traceback, no third-party advice, no warnings before it, nothing left behind.
+
+Where each mistake of issue 29 is tested:
+
+- here, table-driven (``_cases``): a text file, a torch file of pickled objects and a
+  truncated file as a checkpoint; ``--readings /nonexistent.csv``; internal names
+  (``--objects 0``, ``--window`` with ``--window-s``); an option under its old and new
+  name; a config key typo; ``split-summary`` given two directories, a missing split or a
+  binary file (the swapped order is accepted: tests/test_cli.py);
+- here, one test each: ``export --onnx`` without onnx; ``calibrate camera:7`` without
+  OpenCV's warnings; a config typo reported before torch and Lightning load; ``--device
+  cuda`` without a GPU; every ``device`` default;
+- tests/test_cli_help.py: values outside the choices (``--fingers markeless``, ...),
+  unknown options, missing arguments; ``live --source`` and a forgotten source;
+- tests/test_recording.py: ``live`` without an estimate (estimates missing, frame size,
+  clock mismatch, too weak a grasp); ``record`` of a grasp without estimates;
+- tests/test_inference.py: ``predict`` where no sample has the checkpoint's inputs.
+"""
 
 from __future__ import annotations
 
@@ -120,6 +137,21 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             ["train", "--out", str(tmp / "a"), "--run-dir", str(tmp / "b")],
             ["give --out only (--run-dir is its old name)"],
             [],
+        ),
+        "split-summary given two directories": (
+            ["split-summary", str(tmp), str(tmp)],
+            ["takes a split JSON file and a store directory", "both directories"],
+            ["Errno"],
+        ),
+        "split-summary given a store and a missing split, in either order": (
+            ["split-summary", str(tmp), str(tmp / "split.json")],
+            ["split.json: no such split file"],
+            ["Errno", "store directory:"],
+        ),
+        "split-summary given a binary file as the split": (
+            ["split-summary", str(f["truncated"]), str(tmp)],
+            ["best.pt: not a split JSON (not a text file)"],
+            ["codec", "utf-8"],
         ),
         "a config key typo": (
             ["train", "--set", "training.lrr=1e-3", "--set", f"output_dir={tmp / 'runs'}"],

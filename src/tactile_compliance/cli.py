@@ -674,6 +674,20 @@ def split(
     typer.echo(f"{report}\n\n{summary}\n\nSplit written to {out}")
 
 
+def _split_and_store(first: Path, second: Path) -> tuple[Path, Path]:
+    """(split file, store directory) from `split-summary`'s two arguments, in either order;
+    a missing path or two of one kind is a ValueError naming them."""
+    usage = "split-summary takes a split JSON file and a store directory"
+    for path, other in ((first, second), (second, first)):
+        if not path.exists():
+            what = "store directory" if other.is_file() else "split file"
+            raise ValueError(f"{path}: no such {what} ({usage})")
+    if first.is_file() == second.is_file():
+        kind = "files" if first.is_file() else "directories"
+        raise ValueError(f"{usage}; {first} and {second} are both {kind}")
+    return (first, second) if first.is_file() else (second, first)
+
+
 @app.command("split-summary")
 def split_summary(
     split_file: Annotated[Path, typer.Argument(help="A split JSON (from `split` or a run).")],
@@ -686,10 +700,9 @@ def split_summary(
     from tactile_compliance.data.splits import Split, summarise_split
     from tactile_compliance.data.store import GraspStore
 
-    if split_file.is_dir() and store.is_file():  # given as STORE SPLIT: tell them apart
-        split_file, store = store, split_file
-
-    summary = summarise_split(GraspStore.open(store).samples, Split.load(split_file))
+    split_file, store = _split_and_store(split_file, store)
+    split = Split.load(split_file)  # the small file first: its mistakes are reported first
+    summary = summarise_split(GraspStore.open(store).samples, split)
     typer.echo(json.dumps(summary.to_dict(), indent=2, default=str) if as_json else str(summary))
 
 
