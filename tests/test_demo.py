@@ -323,11 +323,26 @@ def test_cli_predict_export_and_experiment_on_the_demo_output(demo, demo_run, tm
     assert len(ResultsStore(out / "results")) == 1  # a dry run trains nothing
     # A cell that fails at run time (Top10NN cannot take 8x8 frames) is recorded, and
     # the command says so with exit status 1.
-    failing = runner.invoke(
-        app,
-        [*grid, "--where", "inputs=Image", "--set", "data.image_size=[8,8]"],
-    )
+    failing_grid = [*grid, "--where", "inputs=Image", "--set", "data.image_size=[8,8]"]
+    failing = runner.invoke(app, failing_grid)
     assert failing.exit_code == 1, failing.output
     assert "1 failed" in failing.output and "cell(s) failed" in failing.output
+    # Re-run: the failed cell is retried (one more attempt, recorded again), the complete
+    # one is not touched (its row stays byte for byte); --no-retry-failed skips it.
+    before = {row["key"]: row for row in ResultsStore(out / "results").rows()}
+    retried = runner.invoke(app, [*failing_grid, "--json"])
+    assert retried.exit_code == 1, retried.output
+    summary = json.loads(retried.stdout)
+    assert (summary["cells"], summary["skipped"], summary["failed"]) == (1, 0, 1), summary
+    after = {row["key"]: row for row in ResultsStore(out / "results").rows()}
+    (failed_key,) = [k for k, row in after.items() if row["status"] == "failed"]
+    assert after[failed_key]["attempts"] == before[failed_key]["attempts"] + 1
+    assert {k: r for k, r in after.items() if k != failed_key} == {
+        k: r for k, r in before.items() if k != failed_key
+    }
+    skipping = runner.invoke(app, [*failing_grid, "--no-retry-failed", "--json"])
+    assert skipping.exit_code == 0, skipping.output
+    assert json.loads(skipping.stdout)["skipped"] == 1
+    assert ResultsStore(out / "results").get(failed_key) == after[failed_key]
     bad = runner.invoke(app, ["experiment", "no-such-preset"])
     assert bad.exit_code == 2 and "error" in bad.output
