@@ -1,6 +1,23 @@
 """Mistakes a new user makes, each answered by one line that names the real cause (the
 option, the file, what to install) and a non-zero exit, in the command's own process: no
-traceback, no third-party advice, no warnings before it, nothing left behind."""
+traceback, no third-party advice, no warnings before it, nothing left behind.
+
+Where each mistake of issue 29 is tested:
+
+- here, table-driven (``_cases``): a text file, a torch file of pickled objects and a
+  truncated file as a checkpoint; ``--readings /nonexistent.csv``; internal names
+  (``--objects 0``, ``--window`` with ``--window-s``); an option under its old and new
+  name; a config key typo; ``split-summary`` given two directories, a missing split or a
+  binary file (the swapped order is accepted: tests/test_cli.py);
+- here, one test each: ``export --onnx`` without onnx; ``calibrate camera:7`` without
+  OpenCV's warnings; a config typo reported before torch and Lightning load; ``--device
+  cuda`` without a GPU; every ``device`` default;
+- tests/test_cli_help.py: values outside the choices (``--fingers markeless``, ...),
+  unknown options, missing arguments; ``live --source`` and a forgotten source;
+- tests/test_recording.py: ``live`` without an estimate (estimates missing, frame size,
+  clock mismatch, too weak a grasp); ``record`` of a grasp without estimates;
+- tests/test_inference.py: ``predict`` where no sample has the checkpoint's inputs.
+"""
 
 from __future__ import annotations
 
@@ -14,6 +31,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+import typer.main
 from typer.testing import CliRunner
 
 from tactile_compliance.cli import app
@@ -91,7 +109,7 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             [
                 "live",
                 str(f["text"]),
-                *("--source", f"video:{f['video']}", "--readings", str(f["text"])),
+                *(f"video:{f['video']}", "--readings", str(f["text"])),
                 *("--window", "5", "--window-s", "1.0"),
             ],
             ["--window (frames) or --window-s (seconds)"],
@@ -101,7 +119,7 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             [
                 "live",
                 str(f["text"]),
-                *("--source", f"video:{f['video']}", "--readings", str(f["text"])),
+                *(f"video:{f['video']}", "--readings", str(f["text"])),
                 *("--window-s", "0"),
             ],
             ["--window-s must be > 0"],
@@ -119,6 +137,21 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             ["train", "--out", str(tmp / "a"), "--run-dir", str(tmp / "b")],
             ["give --out only (--run-dir is its old name)"],
             [],
+        ),
+        "split-summary given two directories": (
+            ["split-summary", str(tmp), str(tmp)],
+            ["takes a split JSON file and a store directory", "both directories"],
+            ["Errno"],
+        ),
+        "split-summary given a store and a missing split, in either order": (
+            ["split-summary", str(tmp), str(tmp / "split.json")],
+            ["split.json: no such split file"],
+            ["Errno", "store directory:"],
+        ),
+        "split-summary given a binary file as the split": (
+            ["split-summary", str(f["truncated"]), str(tmp)],
+            ["best.pt: not a split JSON (not a text file)"],
+            ["codec", "utf-8"],
         ),
         "a config key typo": (
             ["train", "--set", "training.lrr=1e-3", "--set", f"output_dir={tmp / 'runs'}"],
@@ -205,7 +238,7 @@ def test_a_config_typo_is_reported_before_torch_is_imported(tmp_path: Path) -> N
 def test_device_auto_is_the_gpu_when_there_is_one_and_cuda_without_one_is_one_line(
     tmp_path: Path,
 ) -> None:
-    from tactile_compliance.runs.forward import resolve_device
+    from tactile_compliance.devices import resolve_device
 
     assert resolve_device("auto") == ("cuda" if torch.cuda.is_available() else "cpu")
     assert resolve_device("cpu") == "cpu"
@@ -217,3 +250,50 @@ def test_device_auto_is_the_gpu_when_there_is_one_and_cuda_without_one_is_one_li
     )
     assert result.exit_code == 2, result.output
     assert "sees no CUDA GPU; use auto or cpu" in _one_error_line(result)
+
+
+def test_every_device_default_is_the_one_default() -> None:
+    """Commands and Python entry points default to one device, ``auto`` (issue 29: it was
+    auto in pretrain but cpu in predict and live). Every parameter named ``device`` with a
+    default, in every module of the package, takes ``devices.DEFAULT_DEVICE`` (a camera's
+    device index aside)."""
+    import ast
+    import inspect
+
+    from tactile_compliance import devices
+    from tactile_compliance.cli import DEFAULT_DEVICE
+    from tactile_compliance.config import TrainingConfig
+    from tactile_compliance.inference import ComplianceEstimator, EnsembleEstimator
+
+    assert DEFAULT_DEVICE == devices.DEFAULT_DEVICE == "auto"
+    found = []
+    for path in sorted((REPO / "src" / "tactile_compliance").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            args = node.args
+            positional = [*args.posonlyargs, *args.args]
+            pairs = list(
+                zip(positional[len(positional) - len(args.defaults) :], args.defaults, strict=True)
+            )
+            pairs += [
+                (a, d)
+                for a, d in zip(args.kwonlyargs, args.kw_defaults, strict=True)
+                if d is not None
+            ]
+            for arg, default in pairs:
+                camera = isinstance(default, ast.Constant) and not isinstance(default.value, str)
+                if arg.arg == "device" and not camera:  # not a camera's index (sensors.py)
+                    found.append(f"{path.name}:{node.name}")
+                    assert ast.unparse(default) == "DEFAULT_DEVICE", (path, node.name)
+    assert len(found) >= 15, found  # estimators, loaders, predict_path, evaluate_run, cli, ...
+    for function in (ComplianceEstimator.from_pretrained, EnsembleEstimator.from_checkpoints):
+        assert inspect.signature(function).parameters["device"].default == "auto", function
+    assert TrainingConfig().device == "auto"
+    for name in ("pretrain", "evaluate", "predict", "live"):
+        command = dict(
+            (c.name, c)
+            for c in typer.main.get_command(app).commands.values()  # type: ignore[attr-defined]
+        )[name]
+        option = next(p for p in command.params if "--device" in p.opts)
+        assert option.default == "auto", name

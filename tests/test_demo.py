@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import matplotlib.image
@@ -23,16 +26,36 @@ from tactile_compliance.cli import app
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.runs.results import ResultsStore
 
+REPO = Path(__file__).resolve().parents[1]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 SPAN_DECADES = 9.0  # the default label range, 1e3..1e12 Pa
 
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The demo as a user runs it, with --json: in its own process, so that stdout is
+    checked at the file descriptor, where a worker's or a library's print would land."""
     out = tmp_path_factory.mktemp("demo") / "demo"
-    result = CliRunner().invoke(app, ["demo", "--out", str(out), "--mode", "ci"])
-    assert result.exit_code == 0, result.output
-    assert "Demo finished" in result.output
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), *sys.path])}
+    command = [sys.executable, "-m", "tactile_compliance", "demo", "--out", str(out)]
+    result = subprocess.run(
+        [*command, "--mode", "ci", "--json"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=900,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    summary = json.loads(result.stdout)  # the summary and nothing else
+    assert summary["out_dir"] == str(out.resolve()) and Path(summary["report"]).is_file()
+    assert set(summary["stage_seconds"]) == {"generate", "import", "train", "report"}
+    assert [i["source"] for i in summary["imports"]] == ["synthetic", "yuan"]
+    assert [(e["cells"], e["completed"], e["failed"]) for e in summary["experiments"]] == [
+        (1, 1, 0)
+    ]
+    assert len(summary["experiments"][0]["summary"]) == 1  # one configuration's mean row
+    assert "Experiment table1-quick" in result.stderr  # the stages' text went to stderr
     return out
 
 
@@ -76,6 +99,7 @@ def test_demo_ci_mode_runs_every_layer(demo):
     # Re-running continues: nothing is retrained, the same rows stay.
     again = CliRunner().invoke(app, ["demo", "--out", str(demo), "--mode", "ci"])
     assert again.exit_code == 0, again.output
+    assert "1 already complete" in again.stdout and "Demo finished" in again.stdout
     assert len(ResultsStore(demo / "results")) == len(rows)
 
 
@@ -261,10 +285,13 @@ def test_cli_predict_export_and_experiment_on_the_demo_output(demo, demo_run, tm
             str(out / "runs"),
             "--results",
             str(out / "results"),
+            "--json",
         ],
     )
     assert again.exit_code == 0, again.output
-    assert "1 already complete" in again.output
+    summary = json.loads(again.stdout)
+    assert (summary["cells"], summary["skipped"], summary["completed"]) == (1, 1, 0)
+    assert summary["summary"][0]["model"] == "top10nn", summary
     grid = [
         "experiment",
         "table1",
@@ -289,14 +316,33 @@ def test_cli_predict_export_and_experiment_on_the_demo_output(demo, demo_run, tm
     planned = runner.invoke(app, [*grid, "--dry-run"])
     assert planned.exit_code == 0, planned.output
     assert planned.output.count("complete") == 1 and planned.output.count("todo") == 3
+    planned = runner.invoke(app, [*grid, "--dry-run", "--json"])
+    assert planned.exit_code == 0, planned.output
+    cells = json.loads(planned.stdout)["cells"]
+    assert sorted(c["status"] for c in cells) == ["complete", "todo", "todo", "todo"], cells
     assert len(ResultsStore(out / "results")) == 1  # a dry run trains nothing
     # A cell that fails at run time (Top10NN cannot take 8x8 frames) is recorded, and
     # the command says so with exit status 1.
-    failing = runner.invoke(
-        app,
-        [*grid, "--where", "inputs=Image", "--set", "data.image_size=[8,8]"],
-    )
+    failing_grid = [*grid, "--where", "inputs=Image", "--set", "data.image_size=[8,8]"]
+    failing = runner.invoke(app, failing_grid)
     assert failing.exit_code == 1, failing.output
     assert "1 failed" in failing.output and "cell(s) failed" in failing.output
+    # Re-run: the failed cell is retried (one more attempt, recorded again), the complete
+    # one is not touched (its row stays byte for byte); --no-retry-failed skips it.
+    before = {row["key"]: row for row in ResultsStore(out / "results").rows()}
+    retried = runner.invoke(app, [*failing_grid, "--json"])
+    assert retried.exit_code == 1, retried.output
+    summary = json.loads(retried.stdout)
+    assert (summary["cells"], summary["skipped"], summary["failed"]) == (1, 0, 1), summary
+    after = {row["key"]: row for row in ResultsStore(out / "results").rows()}
+    (failed_key,) = [k for k, row in after.items() if row["status"] == "failed"]
+    assert after[failed_key]["attempts"] == before[failed_key]["attempts"] + 1
+    assert {k: r for k, r in after.items() if k != failed_key} == {
+        k: r for k, r in before.items() if k != failed_key
+    }
+    skipping = runner.invoke(app, [*failing_grid, "--no-retry-failed", "--json"])
+    assert skipping.exit_code == 0, skipping.output
+    assert json.loads(skipping.stdout)["skipped"] == 1
+    assert ResultsStore(out / "results").get(failed_key) == after[failed_key]
     bad = runner.invoke(app, ["experiment", "no-such-preset"])
     assert bad.exit_code == 2 and "error" in bad.output

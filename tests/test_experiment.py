@@ -340,6 +340,7 @@ def _rows(results: Path) -> dict[str, dict]:
     return {row["key"]: row for row in ResultsStore(results).rows()}
 
 
+@pytest.mark.slow  # 108 s at load 6-8; its parts run by default in cheaper tests (docs/testing.md)
 def test_grid_survives_a_killed_worker_and_reruns_idempotently(tiny, tmp_path, toy_store):
     out = tmp_path / "out"
     stop, killed = threading.Event(), {}

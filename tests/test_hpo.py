@@ -16,6 +16,7 @@ import yaml
 pytest.importorskip("smac")
 
 from torch import nn
+from typer.testing import CliRunner
 
 from epoch_trace import (
     committed_epochs,
@@ -24,6 +25,7 @@ from epoch_trace import (
     traced_env,
     wait_until_midway,
 )
+from tactile_compliance.cli import app
 from tactile_compliance.config import config_to_dict, load_config
 from tactile_compliance.models import (
     InputStrategy,
@@ -278,10 +280,15 @@ def test_tune_runs_a_few_trials_and_resumes(toy_store, tmp_path, monkeypatch):
         output_dir=out,
         progress=False,
     )
-    # 1. Interrupted after 2 trials.
+    # The same search as the command line writes it.
+    command = ["tune", "top10nn", "--inputs", "Image", "--store", str(toy_store.path)]
+    command += ["--out", str(out), "--min-epochs", "1", "--max-epochs", "3"]
+    command += [f"--set={override}" for override in TOP10]
+    # 1. The command, interrupted after 2 trials (Ctrl-C): exit 130 and how to go on.
     trained = _count_trainings(monkeypatch, fail_after=2)
-    with pytest.raises(KeyboardInterrupt):
-        hpo.tune("top10nn", "Image", trials=4, **kwargs)
+    interrupted = CliRunner().invoke(app, [*command, "--trials", "4"])
+    assert interrupted.exit_code == 130, interrupted.output
+    assert "interrupted; re-run the same command to continue" in interrupted.output
     assert len(trained) == 2
     # 2. Resumed: SMAC's run history is reloaded, finished trials are not trained again.
     trained = _count_trainings(monkeypatch)
@@ -300,6 +307,14 @@ def test_tune_runs_a_few_trials_and_resumes(toy_store, tmp_path, monkeypatch):
     extended = hpo.tune("top10nn", "Image", trials=6, **kwargs)
     assert extended.trials == 6 and len(trained) == 2
     assert len(list((out / "smac").iterdir())) == 1  # one search, continued
+    # The command with --json: the same search (nothing trained), its result on stdout.
+    trained = _count_trainings(monkeypatch)
+    printed = CliRunner().invoke(app, [*command, "--trials", "6", "--json"])
+    assert printed.exit_code == 0, printed.output
+    assert trained == []
+    document, expected = json.loads(printed.stdout), extended.to_dict()
+    assert document.pop("wall_time_s") >= 0 and expected.pop("wall_time_s") >= 0
+    assert document == expected and document["best"] == extended.best
     # 4. What it wrote is accepted by train/experiment directly.
     best = load_config(extended.config_path)
     assert best.model.name == "top10nn" and best.inputs == "Image"
@@ -426,6 +441,7 @@ def uninterrupted_tune(small_store, tmp_path_factory) -> Path:
     return root / "tune"
 
 
+@pytest.mark.slow  # 84 s at load 6-8 with its reference search; cheaper tests: docs/testing.md
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
 def test_interrupted_tune_resumes_without_training_a_finished_trial_again(
     small_store, uninterrupted_tune, tmp_path, signum

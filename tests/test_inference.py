@@ -15,8 +15,10 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from typer.testing import CliRunner
 
 from burgess_tree import write_tree
+from tactile_compliance.cli import app
 from tactile_compliance.config import load_config
 from tactile_compliance.data.burgess import import_burgess
 from tactile_compliance.data.normalisation import NormalisationConstants
@@ -348,6 +350,19 @@ def test_predict_path_skips_samples_missing_an_input(runs, toy_store, tmp_path):
     assert [s["sample_id"] for s in report["skipped"]] == [1, 5]
     assert "missing estimates" in report["skipped"][0]["reason"]
     assert report["summary"]["n_predicted"] == len(samples) - 2
+    assert "(missing estimates (NaN): 2; see --json)" in format_predictions(report)
+    # No sample has its estimates (a recording where they could not be computed): one
+    # line naming the cause and the checkpoints that can, exit 2 (was: exit 0 and only
+    # "Skipped N samples").
+    samples["hertz_estimate_pa"] = np.nan
+    samples.to_parquet(store_copy / "samples.parquet", index=False)
+    result = CliRunner().invoke(app, ["predict", str(runs["top10nn_all"]), str(store_copy)])
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.output
+    assert f"none of its {len(samples)} samples can be predicted" in lines[0]
+    assert f"missing estimates (NaN): {len(samples)}" in lines[0]
+    assert "a checkpoint of Image or ImageF or ImageFW inputs can" in lines[0]
 
 
 def _write_video(path, size=(40, 48)):

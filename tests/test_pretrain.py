@@ -345,6 +345,16 @@ def test_pretrain_train_predict_through_the_cli(depth_store, tmp_path):
     )
     assert result.exit_code == 0, result.output
     assert "model.backbone_weights=" in result.output
+    # Again with --json: the file is already pretrained; its record alone on stdout.
+    again = runner.invoke(
+        app, _pretrain_args(depth_store, weights, "--epochs", "1", "--batch-size", "32", "--json")
+    )
+    assert again.exit_code == 0, again.output
+    document = json.loads(again.stdout)
+    assert document["existing"] and document["out"] == str(weights)
+    assert document["provenance"]["backbone"] == "resnet18"
+    assert document["provenance"]["epochs"] == len(document["provenance"]["history"]) == 1
+    assert f"model.backbone_weights={weights}" in document["train_overrides"]
     hparams = "{num_layers: 1, embedding_dim: 32, output_dim: 32, dim_feedforward: 64}"
     result = runner.invoke(
         app,

@@ -267,7 +267,7 @@ def test_live_on_a_real_video_equals_record_and_predict(wedge_grasps, tmp_path):
     predicted = json.loads(_cli("predict", ckpt, store, "--json"))
     rows = {p["augmentation"]: p for p in predicted["predictions"]}
     assert len(rows) == recorded["augmentations"]
-    events = _json_lines(_cli("live", ckpt, "--source", f"wedge:{video}", *common, "--json"))
+    events = _json_lines(_cli("live", ckpt, f"wedge:{video}", *common, "--json"))
     warnings = [e["reason"] for e in events if e["event"] == "warning"]
     assert any("starts in contact" in w for w in warnings)
     final = [e for e in events if e.get("final")]

@@ -322,9 +322,7 @@ def run_end_to_end(grasp, tmp_path, inputs, size, extend_sensor=None, sensor_uni
     predicted = json.loads(_cli("predict", ckpt, store, "--json"))
     rows = {p["augmentation"]: p for p in predicted["predictions"]}
     assert len(rows) == recorded["augmentations"]
-    events = _json_lines(
-        _cli("live", ckpt, "--source", f"video:{grasp['video']}", *common, "--json")
-    )
+    events = _json_lines(_cli("live", ckpt, f"video:{grasp['video']}", *common, "--json"))
     final = [e for e in events if e["final"]]
     assert len(final) == 1 and events[-1] is final[0]
     assert final[0]["frame_indices"] == recorded["frame_indices"][0]
@@ -377,7 +375,7 @@ def test_live_runs_an_exported_directory_with_a_window_in_seconds(grasp, tmp_pat
     ckpt = _checkpoint(tmp_path / "m.pt")
     exported = tmp_path / "model-dir"
     _cli("export", ckpt, "--safetensors", exported)
-    source = ["--source", f"video:{grasp['video']}", "--readings", grasp["readings"], "--json"]
+    source = [f"video:{grasp['video']}", "--readings", grasp["readings"], "--json"]
     by_frames = _json_lines(_cli("live", ckpt, *source, "--window", 6))[-1]
     by_time = _json_lines(_cli("live", exported, *source, "--window-s", 5 / FPS))[-1]
     whole = _json_lines(_cli("live", exported, *source))[-1]
@@ -529,7 +527,7 @@ def test_a_calibrated_sensor_gives_depth_and_estimates_in_its_units(grasp, tmp_p
     wedge_ckpt = _checkpoint(tmp_path / "wedge.pt", inputs="ALL")
     for args in (
         ["predict", wedge_ckpt, tmp_path / "store"],
-        ["live", wedge_ckpt, "--source", f"video:{grasp['video']}",
+        ["live", wedge_ckpt, f"video:{grasp['video']}",
          "--readings", grasp["readings"], "--calibration", tmp_path / "sensor.json"],
     ):  # fmt: skip
         result = runner.invoke(app, [str(a) for a in args])
@@ -551,7 +549,7 @@ def test_a_calibrated_sensor_gives_depth_and_estimates_in_its_units(grasp, tmp_p
 def test_bad_sources_are_one_line_errors_in_the_cli(grasp, tmp_path):
     ckpt = _checkpoint(tmp_path / "m.pt")
     cases = {
-        "no camera": ["live", ckpt, "--source", "camera:97", "--readings", grasp["readings"]],
+        "no camera": ["live", ckpt, "camera:97", "--readings", grasp["readings"]],
         "no device": [
             "record",
             "mini:/dev/v4l/by-id/usb-none-video-index0",
@@ -567,7 +565,6 @@ def test_bad_sources_are_one_line_errors_in_the_cli(grasp, tmp_path):
         "no press": [
             "live",
             ckpt,
-            "--source",
             f"video:{grasp['still']}",
             "--readings",
             grasp["readings"],
@@ -727,12 +724,10 @@ def test_live_without_an_estimate_names_the_real_cause(grasp, tmp_path):
     ]
     for ckpt, readings, extra, cause in cases:
         result = runner.invoke(
-            app, [str(a) for a in ["live", ckpt, "--source", video, "--readings", readings, *extra]]
+            app, [str(a) for a in ["live", ckpt, video, "--readings", readings, *extra]]
         )
         assert result.exit_code == 2, result.output
         errors = [line for line in result.output.splitlines() if line.startswith("error:")]
         assert len(errors) == 1 and cause in errors[0], result.output
-    ok = runner.invoke(
-        app, ["live", str(fw_ckpt), "--source", video, "--readings", str(grasp["readings"])]
-    )
+    ok = runner.invoke(app, ["live", str(fw_ckpt), video, "--readings", str(grasp["readings"])])
     assert ok.exit_code == 0 and "final" in ok.output

@@ -122,7 +122,7 @@ def _predict(files, checkpoint: Path):
 
 def _live(files, model: Path, calibration: Path | None = None):
     grasp = files["grasp"]
-    args = ["live", str(model), "--source", f"video:{grasp['video']}"]
+    args = ["live", str(model), f"video:{grasp['video']}"]
     args += ["--readings", str(grasp["readings"])]
     args += ["--calibration", str(calibration or files["calibration"])]
     return runner.invoke(app, args)

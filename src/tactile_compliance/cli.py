@@ -14,6 +14,7 @@ import typer
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from tactile_compliance import __version__
+from tactile_compliance.devices import DEFAULT_DEVICE
 
 #: The exceptions of the click that typer's commands run on: typer vendors its own click
 #: (typer._click) in recent versions and used the click package before, so they are found
@@ -192,11 +193,62 @@ def _main_with_one_line_errors(main: Any, *args: Any, **kwargs: Any) -> Any:
     sys.exit(code if isinstance(code, int) else 0)
 
 
+#: Options that became a command's last argument (docs/cli.md): command -> the old option,
+#: which still parses for one release, hidden. Not a declared option like the other old
+#: names (`_renamed`): the argument it fills follows a variadic one (`live CHECKPOINT...
+#: SOURCE`), which click could only parse with both arguments optional.
+_OPTIONS_NOW_ARGUMENTS = {"live": "--source"}
+
+
+def _option_as_last_argument(args: list[str], option: str, ctx: Any = None) -> list[str]:
+    """``args`` with ``option VALUE`` (or ``option=VALUE``) moved to the end as the last
+    positional argument; unchanged without the option."""
+    rest: list[str] = []
+    values: list[str] = []
+    remaining = iter(args)
+    for arg in remaining:
+        if arg == "--":  # everything after it is positional already
+            rest += [arg, *remaining]
+            break
+        if arg == option:
+            value = next(remaining, None)
+            if value is None:
+                raise _click_errors.UsageError(f"Option '{option}' requires an argument.", ctx)
+            values.append(value)
+        elif arg.startswith(f"{option}="):
+            values.append(arg[len(option) + 1 :])
+        else:
+            rest.append(arg)
+    if not values:
+        return args
+    if len(values) > 1:
+        raise _click_errors.UsageError(f"give the source once ({option} is its old name)", ctx)
+    return [*rest, values[0]] if "--" in rest else [*rest, "--", values[0]]
+
+
 class _Command(TyperCommand):
     """A command with the help display and the one-line usage errors above."""
 
     def get_params(self, ctx: Any) -> list[Any]:
         return _plain_params(super().get_params(ctx))
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        old = _OPTIONS_NOW_ARGUMENTS.get(self.name or "")
+        if old is None:
+            return super().parse_args(ctx, args)
+        try:
+            return super().parse_args(ctx, _option_as_last_argument(args, old, ctx))
+        except _click_errors.MissingParameter as err:
+            # One value only fills the last argument (the source), so click would name the
+            # variadic one before it as missing, where a source was probably forgotten.
+            param = err.param
+            if param is None or param.nargs != -1:
+                raise
+            raise _click_errors.UsageError(
+                f"give {param.display_name_raw}... and then SOURCE (the source is an "
+                f"argument now, no longer {old})",
+                ctx,
+            ) from None
 
     def main(self, *args: Any, **kwargs: Any) -> Any:
         return _main_with_one_line_errors(super().main, *args, **kwargs)
@@ -568,12 +620,19 @@ SetOption = Annotated[
 ]
 
 
+JsonOption = Annotated[bool, typer.Option("--json", help="Print the result as JSON.")]
+
+
 @app.command()
-def presets() -> None:
+def presets(as_json: JsonOption = False) -> None:
     """List the packaged presets: experiment grids and training configurations."""
     from tactile_compliance.config import list_presets
     from tactile_compliance.training.grid import experiment_preset_descriptions
 
+    if as_json:
+        payload = {"experiments": experiment_preset_descriptions(), "configs": list_presets()}
+        typer.echo(json.dumps(payload, indent=2))
+        return
     typer.echo("Experiment presets (tactile-compliance experiment NAME [--quick]):")
     for name, description in experiment_preset_descriptions().items():
         typer.echo(f"  {name:<16} {description}")
@@ -625,6 +684,20 @@ def split(
     typer.echo(f"{report}\n\n{summary}\n\nSplit written to {out}")
 
 
+def _split_and_store(first: Path, second: Path) -> tuple[Path, Path]:
+    """(split file, store directory) from `split-summary`'s two arguments, in either order;
+    a missing path or two of one kind is a ValueError naming them."""
+    usage = "split-summary takes a split JSON file and a store directory"
+    for path, other in ((first, second), (second, first)):
+        if not path.exists():
+            what = "store directory" if other.is_file() else "split file"
+            raise ValueError(f"{path}: no such {what} ({usage})")
+    if first.is_file() == second.is_file():
+        kind = "files" if first.is_file() else "directories"
+        raise ValueError(f"{usage}; {first} and {second} are both {kind}")
+    return (first, second) if first.is_file() else (second, first)
+
+
 @app.command("split-summary")
 def split_summary(
     split_file: Annotated[Path, typer.Argument(help="A split JSON (from `split` or a run).")],
@@ -637,10 +710,9 @@ def split_summary(
     from tactile_compliance.data.splits import Split, summarise_split
     from tactile_compliance.data.store import GraspStore
 
-    if split_file.is_dir() and store.is_file():  # given as STORE SPLIT: tell them apart
-        split_file, store = store, split_file
-
-    summary = summarise_split(GraspStore.open(store).samples, Split.load(split_file))
+    split_file, store = _split_and_store(split_file, store)
+    split = Split.load(split_file)  # the small file first: its mistakes are reported first
+    summary = summarise_split(GraspStore.open(store).samples, split)
     typer.echo(json.dumps(summary.to_dict(), indent=2, default=str) if as_json else str(summary))
 
 
@@ -755,7 +827,15 @@ def pretrain(
         ),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a pretrained weights file.")] = False,
-    device: DeviceOption = "auto",
+    device: DeviceOption = DEFAULT_DEVICE,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the weights file, its provenance (settings, split, losses per epoch) "
+            "and the train overrides that use it as JSON.",
+        ),
+    ] = False,
 ) -> None:
     """Pretrain a backbone to predict depth maps and contact masks from the difference images.
 
@@ -783,8 +863,25 @@ def pretrain(
         split_file=split_file,
         overwrite=overwrite,
         device=device,
+        progress=not as_json,
     )
     record = result.provenance
+    use = [
+        f"data.store={store}",
+        f"model.name={record['model']}",
+        f"model.backbone_weights={result.out}",
+        "model.freeze_backbone=true",
+    ]
+    if as_json:
+        payload = {
+            "out": str(result.out),
+            "existing": result.existing,
+            "resumed_from_epoch": result.resumed_from_epoch,
+            "provenance": record,
+            "train_overrides": use,
+        }
+        typer.echo(json.dumps(payload, indent=2, default=str))
+        return
     if result.existing:
         typer.echo(f"{out} is already pretrained (pass --overwrite to train it again).")
     typer.echo(
@@ -792,9 +889,8 @@ def pretrain(
         f"{record['n_train_samples']} samples of {record['n_train_objects']} training objects, "
         f"validation depth MSE {record['first_depth_loss_mm2']:.4g} -> "
         f"{record['final_depth_loss_mm2']:.4g} mm², {record['seconds']:.0f} s\n"
-        f"Weights: {result.out}\nUse them: tactile-compliance train --set data.store={store} "
-        f"--set model.name={record['model']} --set model.backbone_weights={result.out} "
-        f"--set model.freeze_backbone=true"
+        f"Weights: {result.out}\nUse them: tactile-compliance train "
+        + " ".join(f"--set {override}" for override in use)
     )
 
 
@@ -816,11 +912,12 @@ def evaluate(
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     weights: BackboneWeightsOption = None,
+    device: DeviceOption = DEFAULT_DEVICE,
 ) -> None:
     """Recompute metrics (overall, per material, shape, soft/hard) from a run's checkpoint."""
     from tactile_compliance.evaluation.evaluate import evaluate_run
 
-    evaluation = evaluate_run(run_dir, store, backbone_weights=weights)
+    evaluation = evaluate_run(run_dir, store, backbone_weights=weights, device=device)
     if as_json:
         payload = {
             "metrics": evaluation.metrics,
@@ -873,6 +970,10 @@ ObjectiveOption = Annotated[
     ),
 ]
 InputsOption = Annotated[Inputs, typer.Option(help="Input strategy whose search space is used.")]
+TuneJsonOption = Annotated[
+    bool,
+    typer.Option("--json", help="Print the best values, their cost and the files written as JSON."),
+]
 
 
 @app.command()
@@ -912,6 +1013,14 @@ def experiment(
     dry_run: Annotated[
         bool, typer.Option("--dry-run", help="List the cells and their status; run nothing.")
     ] = False,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the summary (counts, failures, mean +- std per configuration) or, "
+            "with --dry-run, the cells as JSON.",
+        ),
+    ] = False,
 ) -> None:
     """Run an experiment grid (models x inputs x conditions x sampling x seeds) on Dask.
 
@@ -935,7 +1044,8 @@ def experiment(
         results=results,
     )
     if dry_run:
-        typer.echo(plan_experiment(preset, **common).format())  # type: ignore[arg-type]
+        plan = plan_experiment(preset, **common)  # type: ignore[arg-type]
+        typer.echo(json.dumps(plan.to_dict(), indent=2) if as_json else plan.format())
         return
     try:
         summary = run_experiment(
@@ -949,7 +1059,7 @@ def experiment(
         )
     except KeyboardInterrupt:  # the summary is already on stderr
         raise typer.Exit(EXIT_INTERRUPTED) from None
-    typer.echo(summary.format())
+    typer.echo(json.dumps(summary.to_dict(), indent=2) if as_json else summary.format())
     if summary.failed:
         _fail(f"{summary.failed} cell(s) failed (recorded with their errors); re-run to retry")
 
@@ -977,6 +1087,7 @@ def tune(
     output_dir: OutputDirOption = None,
     output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
+    as_json: TuneJsonOption = False,
 ) -> None:
     """Tune a model's hyperparameters with SMAC3 (Hyperband over epochs, val N-MSE).
 
@@ -1028,6 +1139,7 @@ def tune_balance(
     output_dir: OutputDirOption = None,
     output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
+    as_json: TuneJsonOption = False,
 ) -> None:
     """Tune the balance threshold t_balance in [0, 1] with SMAC3.
 
@@ -1052,8 +1164,9 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
     options["overrides"] = options["overrides"] or []
     alias = options.pop("output_dir_alias")
     options["output_dir"] = _renamed(options["output_dir"], alias, "--out", "--output-dir")
+    as_json = options.pop("as_json")
     result = getattr(hpo, name)(**options)
-    typer.echo(result.format())
+    typer.echo(json.dumps(result.to_dict(), indent=2) if as_json else result.format())
 
 
 @app.command()
@@ -1066,7 +1179,7 @@ def predict(
     fingers: Annotated[
         Fingers, typer.Option(help="Which finger's images of a raw directory.")
     ] = "both",
-    device: DeviceOption = "auto",
+    device: DeviceOption = DEFAULT_DEVICE,
     weights: BackboneWeightsOption = None,
 ) -> None:
     """Estimate Young's modulus for every grasp of a store, raw directory or video."""
@@ -1520,7 +1633,7 @@ def live(
             "give an ensemble interval."
         ),
     ],
-    source: Annotated[str, typer.Option("--source", help=SOURCE_HELP)],
+    source: SourceArg,
     readings: Annotated[
         Path,
         typer.Option(
@@ -1558,7 +1671,7 @@ def live(
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
-    device: DeviceOption = "auto",
+    device: DeviceOption = DEFAULT_DEVICE,
     weights: BackboneWeightsOption = None,
 ) -> None:
     """Stream a sensor (or a replayed video) through the estimator.
@@ -1650,6 +1763,14 @@ def demo(
         Optional[int],  # noqa: UP045
         typer.Option(min=1, help="Dask worker processes for the grids (default: CPUs, at most 4)."),
     ] = None,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the summary (stage times, import reports, grid summaries, the "
+            "report's path) as JSON; the stages' text goes to stderr.",
+        ),
+    ] = False,
 ) -> None:
     """Run the whole system on built-in synthetic data (the main job).
 
@@ -1658,7 +1779,11 @@ def demo(
     """
     from tactile_compliance.demo import run_demo
 
-    summary = run_demo(out, mode=mode, workers=workers)
+    if as_json:
+        summary = run_demo(out, mode=mode, workers=workers, echo=lambda t: typer.echo(t, err=True))
+        typer.echo(json.dumps(summary.to_dict(), indent=2, default=str))
+        return
+    summary = run_demo(out, mode=mode, workers=workers, echo=typer.echo)
     typer.echo(summary.format())
 
 
@@ -1682,7 +1807,7 @@ def sim2real(
         Optional[int],  # noqa: UP045
         typer.Option(min=1, help="Generator processes (default: all CPUs)."),
     ] = None,
-    device: DeviceOption = "auto",
+    device: DeviceOption = DEFAULT_DEVICE,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
 ) -> None:
     """Train a model for a real GelSight rig on synthetic grasps only.
@@ -1694,7 +1819,15 @@ def sim2real(
     from tactile_compliance.sim2real import run_sim2real
 
     summary = run_sim2real(
-        out, rig=rig, mode=mode, seed=seed, workers=workers, device=device, progress=not as_json
+        out,
+        rig=rig,
+        mode=mode,
+        seed=seed,
+        workers=workers,
+        device=device,
+        # Lightning's bar writes to stdout, which --json keeps for the JSON (as `train`).
+        progress=not as_json,
+        echo=(lambda text: typer.echo(text, err=True)) if as_json else typer.echo,
     )
     if as_json:
         typer.echo(json.dumps(summary.to_dict(), indent=2))

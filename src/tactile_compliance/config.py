@@ -43,6 +43,7 @@ from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import FilterRules
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS
 from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
+from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.outputs import atomic_file
 
@@ -259,7 +260,7 @@ class TrainingConfig(_Section):
     precision: Literal["32", "bf16-mixed"] = "32"
     compile: bool = False
     num_workers: int = Field(0, ge=0)
-    device: str = "auto"
+    device: str = DEFAULT_DEVICE
     tensorboard: bool = Field(False, description="also log to TensorBoard (needs tensorboard)")
     limit_batches: int | None = Field(
         None, ge=1, description="at most this many train/val batches per epoch (smoke runs)"

@@ -9,9 +9,13 @@ the same path on a tiny dataset and a few grid cells, in seconds, for the test s
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Any, Literal
+
+if TYPE_CHECKING:
+    from tactile_compliance.data.import_report import ImportReport
 
 DemoMode = Literal["full", "ci"]
 
@@ -75,6 +79,10 @@ class DemoSummary:
     out_dir: Path
     report: Path | None
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    #: What each stage printed, as dictionaries: the import reports (stores imported by
+    #: this call) and the summaries of the experiment grids.
+    imports: list[dict[str, Any]] = field(default_factory=list)
+    experiments: list[dict[str, Any]] = field(default_factory=list)
 
     def format(self) -> str:
         stages = ", ".join(
@@ -86,6 +94,17 @@ class DemoSummary:
             f"Everything is in {self.out_dir}; open the report: {self.report}"
         )
 
+    def to_dict(self) -> dict[str, Any]:
+        """What the demo printed, for ``--json``."""
+        return {
+            "out_dir": str(self.out_dir),
+            "report": None if self.report is None else str(self.report),
+            "stage_seconds": {k: round(v, 2) for k, v in self.stage_seconds.items()},
+            "total_s": round(sum(self.stage_seconds.values()), 2),
+            "imports": self.imports,
+            "experiments": self.experiments,
+        }
+
 
 def run_demo(
     out_dir: str | Path = "demo-output",
@@ -93,6 +112,7 @@ def run_demo(
     mode: DemoMode = "full",
     workers: int | None = None,
     progress: bool = True,
+    echo: Callable[[str], None] = print,
 ) -> DemoSummary:
     """Generate, import, train the quick grids and build the report under ``out_dir``.
 
@@ -100,7 +120,9 @@ def run_demo(
     uses every available CPU up to 4 in ``full`` mode (independent runs scale almost
     linearly: 1.75x from 1 to 2 workers on 2 cores, docs/experiments.md) and one
     worker in ``ci`` mode. Re-running continues where a previous run stopped:
-    generated objects, stores and finished grid cells are kept.
+    generated objects, stores and finished grid cells are kept. Each import report and
+    grid summary is passed to ``echo`` as text when its stage ends (and kept in the
+    summary).
     """
     from tactile_compliance.data.burgess import import_burgess
     from tactile_compliance.data.yuan import import_yuan
@@ -123,6 +145,10 @@ def run_demo(
             time.perf_counter() - start
         )
 
+    def imported(report: ImportReport) -> None:
+        echo(report.format())
+        summary.imports.append(report.to_dict())
+
     start = time.perf_counter()
     generate_burgess_tree(
         out / "raw" / "gelsight",
@@ -144,9 +170,9 @@ def run_demo(
     start = time.perf_counter()
     gelsight_store, shore_store = out / "stores" / "gelsight", out / "stores" / "shore"
     if not gelsight_store.exists():
-        print(import_burgess(out / "raw" / "gelsight", gelsight_store, progress=progress).format())
+        imported(import_burgess(out / "raw" / "gelsight", gelsight_store, progress=progress))
     if not shore_store.exists():
-        print(import_yuan(out / "raw" / "shore", shore_store, progress=progress).format())
+        imported(import_yuan(out / "raw" / "shore", shore_store, progress=progress))
     stage("import", start)
 
     start = time.perf_counter()
@@ -167,7 +193,8 @@ def run_demo(
             results=results,
             progress=progress,
         )
-        print(experiment.format())
+        echo(experiment.format())
+        summary.experiments.append(experiment.to_dict())
     stage("train", start)
 
     start = time.perf_counter()

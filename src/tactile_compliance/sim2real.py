@@ -14,9 +14,12 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
+
+from tactile_compliance.devices import DEFAULT_DEVICE
 
 Sim2RealMode = Literal["full", "ci"]
 
@@ -86,8 +89,9 @@ def run_sim2real(
     mode: Sim2RealMode = "full",
     seed: int = 0,
     workers: int | None = None,
-    device: str = "auto",
+    device: str = DEFAULT_DEVICE,
     progress: bool = True,
+    echo: Callable[[str], None] = print,
 ) -> Sim2RealSummary:
     """Generate, import and train under ``out_dir``; the model is ``out_dir/best.pt``.
 
@@ -99,7 +103,8 @@ def run_sim2real(
         seed: generation and training seed.
         workers: generator processes (default: all CPUs).
         device: training device (``auto``, ``cpu``, ``cuda``, ``cuda:N``).
-        progress: show progress bars.
+        progress: show progress bars (on stderr).
+        echo: where the import report goes (``--json`` sends it to stderr).
 
     Raises:
         OutputExistsError: ``out_dir`` holds something ``sim2real`` did not write.
@@ -132,9 +137,7 @@ def run_sim2real(
     start = time.perf_counter()
     store = out / "store"
     if not store.exists():
-        import_report = import_burgess(raw, store, progress=progress)
-        if progress:
-            print(import_report.format())
+        echo(import_burgess(raw, store, progress=progress).format())
     summary.stage_seconds["import"] = time.perf_counter() - start
 
     start = time.perf_counter()

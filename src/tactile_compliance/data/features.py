@@ -42,6 +42,7 @@ import torch
 from tactile_compliance.data.dataset import prepare_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.store import GraspStore
+from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.outputs import exclusive_lock
 from tactile_compliance.progress import progress_bar
 
@@ -82,7 +83,7 @@ def cached_features(
     constants: NormalisationConstants,
     *,
     batch_size: int = 32,
-    device: str | torch.device = "cpu",
+    device: str | torch.device = DEFAULT_DEVICE,
     progress: bool = True,
 ) -> np.ndarray:
     """Features (N_store, 3, feature_dim) of every store sample, computed once and cached.
@@ -102,6 +103,7 @@ def cached_features(
     with exclusive_lock(directory / LOCK_FILE, what="the feature cache"):
         # Another process may have finished the cache while this one waited for the lock.
         if not (final.exists() and meta_path.exists()):
+            device = resolve_device(device)
             _compute(
                 store, backbone, size, constants, directory, shape, batch_size, device, progress
             )

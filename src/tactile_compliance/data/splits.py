@@ -257,6 +257,10 @@ class Split:
         path = Path(path)
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(f"{path}: no such split file") from exc
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{path}: not a split JSON (not a text file)") from exc
         except json.JSONDecodeError as exc:
             raise ValueError(f"{path}: not valid JSON ({exc})") from exc
         try:

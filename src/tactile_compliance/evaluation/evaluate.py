@@ -15,6 +15,7 @@ from tactile_compliance.data.normalisation import denormalise_modulus
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split
 from tactile_compliance.data.store import GraspStore
+from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.runs.forward import predict_dataset
 from tactile_compliance.runs.layout import BEST_FILE, PREDICTION_COLUMNS
@@ -36,6 +37,7 @@ def evaluate_run(
     *,
     batch_size: int = 64,
     backbone_weights: str | Path | None = None,
+    device: str = DEFAULT_DEVICE,
 ) -> Evaluation:
     """Metrics of a run's best checkpoint.
 
@@ -43,10 +45,11 @@ def evaluate_run(
     numbers in ``metrics.json``. With ``store``: on every sample of that store that passes
     the run's sample filter (e.g. a model trained on one dataset tested on another).
     ``backbone_weights``: a local copy of a frozen backbone's weights file (see
-    ``training.checkpoint.load_checkpoint``).
+    ``training.checkpoint.load_checkpoint``). ``device``: ``auto`` (a CUDA GPU when torch
+    sees one, else the CPU), ``cpu``, ``cuda`` or ``cuda:N``.
     """
     run_dir = Path(run_dir)
-    loaded = load_checkpoint(run_dir / BEST_FILE, backbone_weights=backbone_weights)
+    loaded = load_checkpoint(run_dir / BEST_FILE, device, backbone_weights=backbone_weights)
     cfg = config_from_dict(loaded.meta["config"])
     if store is None:
         if cfg.data.store is None:
@@ -59,7 +62,12 @@ def evaluate_run(
         ids = kept["sample_id"].to_numpy(dtype=np.int64)
     dataset = GraspDataset(grasp_store, ids, loaded.constants)
     predicted = predict_dataset(
-        loaded.model, dataset, loaded.constants, loaded.image_size, batch_size=batch_size
+        loaded.model,
+        dataset,
+        loaded.constants,
+        loaded.image_size,
+        batch_size=batch_size,
+        device=device,
     )
     predictions = grasp_store.samples.iloc[ids][list(PREDICTION_COLUMNS)].reset_index(drop=True)
     predictions["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), loaded.constants)

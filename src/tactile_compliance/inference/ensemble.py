@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.inference.base import BaseEstimator, to_plain
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.models import InputStrategy
@@ -164,7 +165,7 @@ class EnsembleEstimator:
         cls,
         paths: str | Path | Iterable[str | Path],
         *,
-        device: str = "cpu",
+        device: str = DEFAULT_DEVICE,
         level: float = 0.8,
         scale: float = 1.0,
         backbone_weights: str | Path | None = None,
@@ -245,7 +246,7 @@ def ensemble_calibration(
     *,
     store: str | Path | None = None,
     level: float = 0.8,
-    device: str = "cpu",
+    device: str = DEFAULT_DEVICE,
     batch_size: int = 64,
 ) -> dict[str, Any]:
     """Coverage of the ensemble interval on the runs' held-out test split.

@@ -25,10 +25,11 @@ import numpy as np
 import torch
 
 from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.inference.base import MIN_FRAME_SIDE_PX, BaseEstimator, Prediction
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.checkpoint import load_checkpoint
-from tactile_compliance.runs.forward import forward_batch, resolve_device
+from tactile_compliance.runs.forward import forward_batch
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.streaming import StreamingEstimator
@@ -85,7 +86,7 @@ class ComplianceEstimator(BaseEstimator):
         image_size: tuple[int, int] | None,
         *,
         meta: dict[str, Any] | None = None,
-        device: str | torch.device = "cpu",
+        device: str | torch.device = DEFAULT_DEVICE,
         source: str | None = None,
     ) -> None:
         self.device = torch.device(resolve_device(device))
@@ -105,7 +106,7 @@ class ComplianceEstimator(BaseEstimator):
     def from_checkpoint(
         cls,
         path: str | Path,
-        device: str | torch.device = "cpu",
+        device: str | torch.device = DEFAULT_DEVICE,
         *,
         backbone_weights: str | Path | None = None,
     ) -> ComplianceEstimator:
@@ -133,7 +134,7 @@ class ComplianceEstimator(BaseEstimator):
 
     @classmethod
     def from_pretrained(
-        cls, path: str | Path, device: str | torch.device = "cpu"
+        cls, path: str | Path, device: str | torch.device = DEFAULT_DEVICE
     ) -> ComplianceEstimator:
         """Load a directory written by ``tactile-compliance export CHECKPOINT --safetensors DIR``.
 

@@ -37,6 +37,7 @@ import numpy as np
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.store import frames_to_uint8
+from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.ensemble import EnsembleEstimator
@@ -65,7 +66,7 @@ __all__ = ["format_live_event", "live_estimates", "load_members"]
 def load_members(
     checkpoints: Sequence[str | Path],
     *,
-    device: str = "cpu",
+    device: str = DEFAULT_DEVICE,
     backbone_weights: str | Path | None = None,
 ) -> list[ComplianceEstimator]:
     """Estimators of the given models: checkpoints (``best.pt`` or a run directory) or

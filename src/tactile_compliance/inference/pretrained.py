@@ -37,6 +37,7 @@ import torch
 
 from tactile_compliance import __version__
 from tactile_compliance.data.plausibility import check_size
+from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.inference.inputs import required_inputs
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.models.backbones import file_sha256
@@ -329,7 +330,7 @@ def _save_tensors(st: Any, tensors: dict[str, torch.Tensor], path: str) -> None:
         ) from err
 
 
-def load_pretrained(path: str | Path, device: str | torch.device = "cpu") -> LoadedModel:
+def load_pretrained(path: str | Path, device: str | torch.device = DEFAULT_DEVICE) -> LoadedModel:
     """Rebuild the model of an exported directory (see the module docstring).
 
     Raises:

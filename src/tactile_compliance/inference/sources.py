@@ -46,6 +46,8 @@ from tactile_compliance.data.store import (
     frames_to_uint8,
 )
 from tactile_compliance.data.yuan import read_video_frames, select_press_frames
+from tactile_compliance.devices import DEFAULT_DEVICE
+from tactile_compliance.models import InputStrategy
 from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
 from tactile_compliance.runs.metrics import compute_metrics
 
@@ -411,7 +413,7 @@ def predict_path(
     checkpoint: str | Path,
     path: str | Path,
     *,
-    device: str = "cpu",
+    device: str = DEFAULT_DEVICE,
     fingers: FingerChoice = "both",
     batch_size: int = 64,
     backbone_weights: str | Path | None = None,
@@ -461,6 +463,8 @@ def predict_path(
         for i in np.flatnonzero(missing & usable):
             reasons[i] = f"missing {name} (NaN)"
         usable &= ~missing
+    if len(source) and not usable.any():
+        _refuse_when_nothing_is_usable(path, estimator.source, estimator.inputs, reasons)
     ids = np.flatnonzero(usable)
     pred_pa = np.full(len(source), np.nan)
     pred_log10 = np.full(len(source), np.nan)
@@ -514,6 +518,28 @@ def predict_path(
     }
 
 
+def _refuse_when_nothing_is_usable(
+    path: str | Path, checkpoint: str, inputs: InputStrategy, reasons: list[str]
+) -> None:
+    """A ValueError naming why no sample of ``path`` can be predicted, and which input
+    strategies could (before, `predict` printed only "Skipped N samples" and exit 0)."""
+    lacking = {name for name in inputs.needs if any(name in reason for reason in reasons)}
+    could = [s.value for s in InputStrategy if not lacking & set(s.needs)]
+    raise ValueError(
+        f"{path}: none of its {len(reasons)} samples can be predicted by {checkpoint} "
+        f"(inputs={inputs.value}): {skip_reasons([{'reason': r} for r in reasons])}; "
+        f"a checkpoint of {' or '.join(could)} inputs can"
+    )
+
+
+def skip_reasons(skipped: list[dict[str, Any]]) -> str:
+    """Why samples were skipped, most common first: ``"missing estimates (NaN): 4"``."""
+    counts: dict[str, int] = {}
+    for row in skipped:
+        counts[str(row.get("reason"))] = counts.get(str(row.get("reason")), 0) + 1
+    return ", ".join(f"{reason}: {n}" for reason, n in sorted(counts.items(), key=lambda c: -c[1]))
+
+
 def _plain(value: Any) -> Any:
     if isinstance(value, np.integer):
         return int(value)
@@ -561,5 +587,8 @@ def format_predictions(report: dict[str, Any], max_rows: int = 20) -> str:
             f"MAE {m['mae_decades']:.3f} decades"
         )
     if report["skipped"]:
-        lines.append(f"Skipped     {len(report['skipped'])} samples (missing inputs; see --json)")
+        lines.append(
+            f"Skipped     {len(report['skipped'])} samples ({skip_reasons(report['skipped'])}; "
+            "see --json)"
+        )
     return "\n".join(lines)

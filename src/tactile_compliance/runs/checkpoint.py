@@ -41,6 +41,7 @@ from tactile_compliance.data.features import weights_fingerprint
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.safe_pickle import load_torch_file
+from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.backbones import no_downloads, weights_file_record
 from tactile_compliance.outputs import atomic_file
@@ -319,7 +320,7 @@ def _rebuild_with_frozen_backbone(
 
 def load_checkpoint(
     path: str | Path,
-    device: str | torch.device = "cpu",
+    device: str | torch.device = DEFAULT_DEVICE,
     *,
     backbone_weights: str | os.PathLike[str] | None = None,
 ) -> LoadedModel:
@@ -336,6 +337,7 @@ def load_checkpoint(
             fingerprint differs from the recorded one.
     """
     path = Path(path)
+    device = resolve_device(device)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
     payload = load_torch_file(path, "tactile-compliance checkpoint", map_location=device)
@@ -389,7 +391,7 @@ def check_state_dict(source: str | Path, state_dict: Any) -> None:
 def rebuild_model(
     source: str | Path,
     payload: dict[str, Any],
-    device: str | torch.device = "cpu",
+    device: str | torch.device = DEFAULT_DEVICE,
     *,
     backbone_weights: str | os.PathLike[str] | None = None,
 ) -> LoadedModel:
@@ -404,7 +406,7 @@ def rebuild_model(
         payload: ``model_name``, ``inputs``, ``hparams``, ``normalisation``,
             ``image_size`` and ``state_dict``; ``backbone`` (a frozen backbone's record)
             when the state dict is the head only; everything else is kept as ``meta``.
-        device: where the model goes.
+        device: where the model goes (``auto``: a CUDA GPU when torch sees one).
         backbone_weights: see :func:`load_checkpoint`.
 
     Raises:
@@ -434,7 +436,7 @@ def rebuild_model(
                 f"recorded hyperparameters: {str(err).splitlines()[0]}"
             ) from err
     model.backbone_weights = payload.get("backbone_weights", "none")
-    model.to(device).eval()
+    model.to(resolve_device(device)).eval()
     meta = {k: v for k, v in payload.items() if k != "state_dict"}
     return LoadedModel(
         model=model,

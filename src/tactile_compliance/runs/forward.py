@@ -15,18 +15,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from tactile_compliance.data.dataset import GraspDataset, batch_loader, prepare_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
-
-
-def resolve_device(device: str | torch.device) -> str | torch.device:
-    """``auto``: a CUDA GPU when torch sees one, else the CPU. A CUDA device without a GPU
-    is a ValueError naming it (torch would fail later, less clearly)."""
-    if isinstance(device, str) and device == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if str(device).startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(
-            f"device {device}, but torch {torch.__version__} sees no CUDA GPU; use auto or cpu"
-        )
-    return device
+from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 
 
 def forward_batch(
@@ -52,9 +41,10 @@ def predict_dataset(
     image_size: tuple[int, int] | None,
     *,
     batch_size: int = 64,
-    device: str | torch.device = "cpu",
+    device: str | torch.device = DEFAULT_DEVICE,
 ) -> np.ndarray:
     """Normalised predictions for every item of ``dataset``, in order (eval mode)."""
+    device = resolve_device(device)
     was_training = model.training
     model.eval().to(device)
     outputs = []

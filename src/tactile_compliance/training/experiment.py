@@ -165,20 +165,17 @@ def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None
     """
     from tactile_compliance.data.features import cached_features
     from tactile_compliance.data.store import GraspStore
+    from tactile_compliance.devices import resolve_device
     from tactile_compliance.training.train import build_model
 
     limit_threads(threads)
     _quiet_training_warnings()
-    import torch
-
     done = 0
     for data in cfg_dicts:
         cfg = config_from_dict(data)
         model = build_model(cfg)
         size = cfg.data.image_size or getattr(model, "recommended_image_size", None)
-        device = cfg.training.device
-        if device == "auto":
-            device = "cuda" if torch.cuda.is_available() else "cpu"
+        device = str(resolve_device(cfg.training.device, name="training.device"))
         cached_features(
             GraspStore.open(cfg.data.store),
             model.backbone,
@@ -313,6 +310,20 @@ class ExperimentPlan:
             lines.append(f"  {status[cell.key]:<9} {cell.key}  {cell.label}")
         return "\n".join(lines)
 
+    def to_dict(self) -> dict[str, Any]:
+        """What :meth:`format` shows, for ``--dry-run --json``."""
+        status = self.status()
+        return {
+            "preset": self.preset,
+            "description": self.spec.description,
+            "output_dir": str(self.output_dir),
+            "results": str(self.results_path),
+            "cells": [
+                {"key": cell.key, "label": cell.label, "status": status[cell.key]}
+                for cell in self.cells
+            ],
+        }
+
 
 class PlanOptions(TypedDict, total=False):
     """Which cells of an experiment run and where they go (``run_experiment``'s Args)."""
@@ -391,6 +402,25 @@ class ExperimentSummary:
             with pd.option_context("display.width", 200, "display.max_rows", 200):
                 lines.append(summary.to_string(index=False))
         return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        """What :meth:`format` shows, for ``--json``: the counts, every failure with its
+        error, and the mean +- std rows (``aggregate_results``; a missing value is None)."""
+        summary = aggregate_results(self.table())
+        return {
+            "name": self.name,
+            "output_dir": str(self.output_dir),
+            "results": str(self.results_path),
+            "cells": self.cells,
+            "skipped": self.skipped,
+            "completed": self.completed,
+            "failed": self.failed,
+            "interrupted": self.interrupted,
+            "wall_time_s": round(self.wall_time_s, 2),
+            "workers": self.workers,
+            "failures": [{"cell": label, "error": error} for label, error in self.failures],
+            "summary": summary.astype(object).where(summary.notna(), None).to_dict("records"),
+        }
 
 
 def aggregate_results(table: pd.DataFrame) -> pd.DataFrame:

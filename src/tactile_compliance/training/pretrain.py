@@ -64,13 +64,13 @@ from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split, make_split_from_config
 from tactile_compliance.data.store import SAMPLES_FILE, GraspStore
+from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import backbone_models, get_model_class
 from tactile_compliance.models.backbones import PRETRAIN_KEY, create_backbone, file_sha256
 from tactile_compliance.models.top10nn import TOP10_BACKBONE, Top10Encoder
 from tactile_compliance.outputs import atomic_file, check_output_file
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.checkpoint import torch_write_errors
-from tactile_compliance.runs.forward import resolve_device
 
 __all__ = [
     "CONTACT_THRESHOLD_MM",
@@ -422,7 +422,7 @@ def pretrain(
     split_file: str | Path | None = None,
     progress: bool = True,
     overwrite: bool = False,
-    device: str = "auto",
+    device: str = DEFAULT_DEVICE,
 ) -> PretrainResult:
     """Pretrain ``settings.backbone`` on the depth maps of ``cfg.data.store``'s training
     objects and write its weights (+ provenance) to ``out``.
@@ -654,7 +654,7 @@ def _evaluate(
     constants: NormalisationConstants,
     image_size: tuple[int, int],
     batch_size: int,
-    device: str | torch.device = "cpu",
+    device: str | torch.device,
 ) -> dict[str, float]:
     """Mean losses over ``ids`` (eval mode, no augmentation), weighted by batch size."""
     net.eval()

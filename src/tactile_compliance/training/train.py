@@ -63,6 +63,7 @@ from tactile_compliance.data.normalisation import NormalisationConstants, denorm
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split_from_config
 from tactile_compliance.data.store import GraspStore
+from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.outputs import atomic_file, claim_output_dir
@@ -193,14 +194,8 @@ def build_model(cfg: ExperimentConfig) -> torch.nn.Module:
 
 def _accelerator(device: str) -> str:
     """Lightning's accelerator for ``training.device``; a missing GPU is a clear error."""
-    if device == "auto":
-        return "gpu" if torch.cuda.is_available() else "cpu"
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(
-            f"training.device={device}, but torch sees no CUDA GPU (torch "
-            f"{torch.__version__}); use training.device=auto or cpu"
-        )
-    return "gpu" if device.startswith("cuda") else device
+    resolved = str(resolve_device(device, name="training.device"))
+    return "gpu" if resolved.startswith("cuda") else resolved
 
 
 def _tensorboard_logger(run_dir: Path, tensorboard: bool) -> Any:
@@ -236,7 +231,7 @@ def evaluate_model(
     data: RunData,
     features: np.ndarray | None,
     batch_size: int,
-    device: str | torch.device = "cpu",
+    device: str | torch.device = DEFAULT_DEVICE,
     *,
     inputs: InputStrategy | str | None = None,
     seed: int = 0,

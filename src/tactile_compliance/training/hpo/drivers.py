@@ -113,6 +113,23 @@ class TuneResult:
         ]
         return "\n".join(lines)
 
+    def to_dict(self) -> dict[str, Any]:
+        """What :meth:`format` shows, for ``--json``."""
+        return {
+            "name": self.name,
+            "objective": self.objective,
+            "trials": self.trials,
+            "best": self.best,
+            "best_cost": self.best_cost,
+            "best_budget": self.best_budget,
+            "wall_time_s": round(self.wall_time_s, 2),
+            "output_dir": str(self.output_dir),
+            "config": str(self.config_path),
+            "tuned": str(self.tuned_path),
+            "trials_csv": str(self.trials_path),
+            "also": [str(p) for p in self.extra_paths],
+        }
+
 
 def _write_yaml(path: Path, header: str, data: Mapping[str, Any]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
