@@ -22,8 +22,9 @@ it also compares the difference images the models see: the third frame of each g
 first augmentation, real against the same five objects simulated at 250 x 350 px with the
 same rig. Per object: the share of the frame in contact (any channel more than 15 grey
 levels from the reference), the 99th percentile of |difference| per channel (B, G, R;
-0.5 = 128 grey levels) and the median |difference| outside the contact (noise and
-drift).
+0.5 = 128 grey levels), the median |difference| outside the contact (noise and
+drift), the stored depth map's peak [mm] and the contact share at each of the three
+selected frames against their force (contact area against force).
 
     python benchmarks/real_vs_synthetic.py              # ~10 s
     python benchmarks/real_vs_synthetic.py --rig wedge-2023 --json out.json
@@ -130,10 +131,17 @@ def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
     chosen = samples[(samples.augmentation == 0) & (samples.finger == "markerless")]
     out = {}
     for label, rows in chosen.groupby("object"):
-        diff = store.load_frames(rows.sample_id.to_numpy())[:, 2] - 0.5  # (n, H, W, BGR)
+        frames = store.load_frames(rows.sample_id.to_numpy()) - 0.5  # (n, 3, H, W, BGR)
+        shares = (np.abs(frames).max(axis=-1) > 15 / 255).mean(axis=(2, 3))  # (n, 3)
+        diff = frames[:, 2]
         contact = np.abs(diff).max(axis=-1) > 15 / 255
         out[str(label)] = {
             "contact_share": float(contact.mean()),
+            # Contact area against force over the three selected frames.
+            "contact_share_by_frame": shares.mean(axis=0).round(4).tolist(),
+            "force_by_frame_n": [float(rows[f"force_n_{i}"].mean()) for i in range(3)],
+            # The stored depth map's peak [mm] (record: the sensor's depth model).
+            "depth_max_mm": float(rows["depth_max_mm_2"].mean()),
             **{
                 f"p99_{c}": float(np.mean(np.percentile(np.abs(diff[..., i]), 99, axis=(1, 2))))
                 for i, c in enumerate("BGR")
@@ -164,15 +172,22 @@ def simulated_store(table: Path, seed: int, rig: str, out: Path) -> Path:
 def print_image_stats(results: dict[str, dict[str, dict[str, float]]]) -> None:
     print(
         "\nobject                source     contact share  p99 |d| B  p99 |d| G  p99 |d| R"
-        "  median |d| outside"
+        "  median |d| outside  depth max [mm]  contact share at F1/F2/F3 [N]"
     )
     for label, _ in OBJECTS.values():
         for source in ("real", "generator"):
             row = results[source].get(label)
             if row:
+                by_force = " ".join(
+                    f"{share:.3f}@{force:.0f}"
+                    for share, force in zip(
+                        row["contact_share_by_frame"], row["force_by_frame_n"], strict=True
+                    )
+                )
                 print(
                     f"{label:21s} {source:9s} {row['contact_share']:13.3f}  {row['p99_B']:9.3f}"
                     f"  {row['p99_G']:9.3f}  {row['p99_R']:9.3f}  {row['outside_median']:18.4f}"
+                    f"  {row['depth_max_mm']:14.2f}  {by_force}"
                 )
 
 
