@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tactile_compliance.inference import recording
+from tactile_compliance.data import raw_layout
 from tactile_compliance.inference.recording import (
     OBJECT_TABLE_FILE,
     CapturedGrasp,
@@ -139,7 +139,7 @@ def test_a_full_disk_leaves_no_metadata_and_no_partial_grasp(tmp_path, monkeypat
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(recording, "dump_numpy_pickle", full)
+    monkeypatch.setattr(raw_layout, "dump_numpy_pickle", full)
     with pytest.raises(OSError, match="No space left"):
         write_grasp(captured(), out, ObjectInfo("ball", 1e5))
     after = sorted(p.relative_to(out) for p in out.rglob("*") if p.name != ".record.lock")

@@ -31,7 +31,7 @@ _debug = False  # --debug: let errors raise with their traceback
 # The choices the parser checks and the help lists. Each is a vocabulary of the library,
 # written out here so that the command starts without importing the library (torch);
 # tests/test_cli_help.py checks each against its home, named in the comment.
-Fingers = Literal["markerless", "markers", "both"]  # data.burgess.FingerChoice
+Fingers = Literal["markerless", "markers", "both"]  # data.raw_layout.FingerChoice
 Condition = Literal["seen", "unseen"]  # config.SplitConfig.condition
 Grouping = Literal["grasp", "per_sample"]  # config.SplitConfig.grouping
 Inputs = Literal["Image", "ImageF", "ImageFW", "ALL"]  # models.inputs.InputStrategy
@@ -42,7 +42,7 @@ Backbone = Literal[  # training.pretrain.PRETRAIN_BACKBONES
 ]
 DemoMode = Literal["full", "ci"]  # demo.PLANS
 SimulateKind = Literal["gelsight", "shore-videos"]  # the two generators of `simulate`
-PickleDtype = Literal["float16", "float32", "float64"]  # synthetic.writer.ALLOWED_DTYPES
+PickleDtype = Literal["float16", "float32", "float64"]  # data.raw_layout.ALLOWED_DTYPES
 
 
 def _expected_errors() -> tuple[type[BaseException], ...]:

@@ -498,6 +498,36 @@ class StoreHeader:
             raise StoreError(f"{HEADER_FILE} is malformed: {err!r}") from err
 
 
+def read_store_header(path: str | Path) -> StoreHeader:
+    """A store's ``header.json`` alone: the report reads it where the frames are not copied.
+
+    Raises:
+        StoreError: no header, or a malformed one.
+    """
+    header_path = Path(path) / HEADER_FILE
+    if not header_path.is_file():
+        raise StoreError(f"{path}: not a GraspStore ({HEADER_FILE} missing)")
+    try:
+        return StoreHeader.from_dict(json.loads(header_path.read_text()))
+    except json.JSONDecodeError as err:
+        raise StoreError(f"{header_path}: invalid JSON ({err})") from err
+    except RecursionError:
+        raise StoreError(f"{header_path}: invalid JSON (nested too deeply)") from None
+
+
+def read_samples_table(path: str | Path) -> pd.DataFrame:
+    """A store's ``samples.parquet`` alone (not checked against the header).
+
+    Raises:
+        StoreError: missing, truncated or not parquet.
+    """
+    table = Path(path) / SAMPLES_FILE
+    try:
+        return pd.read_parquet(table)
+    except Exception as err:  # missing, truncated or not parquet (pyarrow's errors vary)
+        raise StoreError(f"{table}: cannot read the table ({err})") from err
+
+
 class GraspStore:
     """Read access to a store directory; frames stay on disk until indexed."""
 
@@ -557,15 +587,7 @@ class GraspStore:
         path = Path(path)
         if not path.is_dir():
             raise StoreError(f"{path}: no such store directory")
-        header_path = path / HEADER_FILE
-        if not header_path.is_file():
-            raise StoreError(f"{path}: not a GraspStore ({HEADER_FILE} missing)")
-        try:
-            header = StoreHeader.from_dict(json.loads(header_path.read_text()))
-        except json.JSONDecodeError as err:
-            raise StoreError(f"{header_path}: invalid JSON ({err})") from err
-        except RecursionError:
-            raise StoreError(f"{header_path}: invalid JSON (nested too deeply)") from None
+        header = read_store_header(path)
         problem = header.frame_shape_problem()
         if problem:
             raise StoreError(f"{path}: {problem}")
@@ -574,10 +596,7 @@ class GraspStore:
                 f"{path}: store format {header.format_version} is newer than this package "
                 f"supports ({FORMAT_VERSION}); upgrade tactile-compliance"
             )
-        try:
-            samples = pd.read_parquet(path / SAMPLES_FILE)
-        except Exception as err:  # missing, truncated or not parquet (pyarrow's errors vary)
-            raise StoreError(f"{path / SAMPLES_FILE}: cannot read the table ({err})") from err
+        samples = read_samples_table(path)
         if len(samples) != header.num_samples:
             raise StoreError(
                 f"{path}: {SAMPLES_FILE} has {len(samples)} rows, header says {header.num_samples}"

@@ -175,11 +175,11 @@ class _Builder:
                 lines.append(f"- Store `{store}`: header not reachable from here")
             else:
                 lines.append(
-                    f"- Store `{store}`: source {header.get('source')}, "
-                    f"{header.get('num_samples')} samples, frames "
-                    f"{'x'.join(map(str, header.get('image_size', [])))} px, created "
-                    f"{header.get('created', '?')} by tactile-compliance "
-                    f"{header.get('package_version', '?')}"
+                    f"- Store `{store}`: source {header.source}, "
+                    f"{header.num_samples} samples, frames "
+                    f"{'x'.join(map(str, header.image_size))} px, created "
+                    f"{header.created or '?'} by tactile-compliance "
+                    f"{header.package_version or '?'}"
                 )
         if not done.empty:
             lines.append(f"- Backbone weights: {describe_weights(done)}")

@@ -22,6 +22,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+from tactile_compliance.data.raw_layout import ALLOWED_DTYPES
 from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.synthetic.grasp import (
     ANALYTICAL_ESTIMATOR,
@@ -34,7 +35,7 @@ from tactile_compliance.synthetic.objects import (
     default_objects,
     objects_from_table,
 )
-from tactile_compliance.synthetic.writer import ALLOWED_DTYPES, PARTIAL_PREFIX, ObjectWriter
+from tactile_compliance.synthetic.writer import PARTIAL_PREFIX, ObjectWriter
 
 __all__ = ["DEFAULT_N_OBJECTS", "GenerationError", "GenerationReport", "generate_burgess_tree"]
 
