@@ -69,7 +69,13 @@ from tactile_compliance.data.plausibility import (
     check_size,
     dtype_problem,
 )
-from tactile_compliance.outputs import MARKER_NAME, output_kind, process_alive, process_start
+from tactile_compliance.outputs import (
+    MARKER_NAME,
+    commit_path,
+    output_kind,
+    process_alive,
+    process_start,
+)
 from tactile_compliance.physics.estimators import SensorUnits
 
 FORMAT_VERSION = 1
@@ -1083,26 +1089,11 @@ class GraspStoreWriter:
         return GraspStore.open(self.path)
 
     def _swap_into_place(self) -> None:
-        if not os.path.lexists(self.path):
-            try:
-                os.replace(self._tmp, self.path)
-            except OSError as err:
-                self._remove_everything()
-                raise self._write_error(err) from err
-            return
-        backup = self.path.with_name(f".{self.path.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
         try:
-            os.replace(self.path, backup)
+            commit_path(self._tmp, self.path, replace=True)
         except OSError as err:
             self._remove_everything()
             raise self._write_error(err) from err
-        try:
-            os.replace(self._tmp, self.path)
-        except OSError as err:
-            os.replace(backup, self.path)  # the old store goes back
-            self._remove_everything()
-            raise self._write_error(err) from err
-        shutil.rmtree(backup, ignore_errors=True)
 
     def abort(self) -> None:
         """Discard everything written so far."""

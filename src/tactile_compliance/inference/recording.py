@@ -115,8 +115,10 @@ from tactile_compliance.inference.sensors import (
 )
 from tactile_compliance.outputs import (
     MARKER_NAME,
+    PARTIAL_PREFIX,
     atomic_file,
     claim_output_dir,
+    commit_path,
     exclusive_lock,
     output_kind,
 )
@@ -873,7 +875,7 @@ def _write_locked(
     new_object = not object_dir.exists()
     object_dir.mkdir(parents=True, exist_ok=True)
     grasp = _next_grasp(object_dir)
-    partial = object_dir / f".partial-grasp={grasp}-{os.getpid()}"
+    partial = object_dir / f"{PARTIAL_PREFIX}grasp={grasp}-{os.getpid()}"
     final = grasp_dir(object_dir, grasp)
     created_metadata = False
     try:
@@ -890,9 +892,7 @@ def _write_locked(
                 captured.width_m[sel],
                 estimates,
             )
-        if final.exists():  # another recorder took the number meanwhile
-            raise FileExistsError(f"{final} exists; nothing was overwritten, record again")
-        os.rename(partial, final)
+        commit_path(partial, final)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         # A full disk or Ctrl-C: leave no labelled object without grasps behind.

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from tactile_compliance.data.raw_layout import ALLOWED_DTYPES
-from tactile_compliance.outputs import claim_output_dir
+from tactile_compliance.outputs import PARTIAL_PREFIX, claim_output_dir
 from tactile_compliance.synthetic.grasp import (
     ANALYTICAL_ESTIMATOR,
     SimulationOptions,
@@ -35,7 +35,7 @@ from tactile_compliance.synthetic.objects import (
     default_objects,
     objects_from_table,
 )
-from tactile_compliance.synthetic.writer import PARTIAL_PREFIX, ObjectWriter
+from tactile_compliance.synthetic.writer import ObjectWriter
 
 __all__ = ["DEFAULT_N_OBJECTS", "GenerationError", "GenerationReport", "generate_burgess_tree"]
 

@@ -14,7 +14,6 @@ that looks finished (and importers skip hidden directories).
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
@@ -25,12 +24,11 @@ from tactile_compliance.data.raw_layout import (
     write_metadata,
     write_sample,
 )
+from tactile_compliance.outputs import PARTIAL_PREFIX, commit_path
 from tactile_compliance.synthetic.grasp import GraspSample
 from tactile_compliance.synthetic.objects import ObjectSpec
 
-__all__ = ["PARTIAL_PREFIX", "ObjectWriter", "metadata_dict"]
-
-PARTIAL_PREFIX = ".partial-"
+__all__ = ["ObjectWriter", "metadata_dict"]
 
 
 def metadata_dict(spec: ObjectSpec) -> dict[str, object]:
@@ -76,9 +74,7 @@ class ObjectWriter:
 
     def commit(self) -> Path:
         """Rename the finished object into place (replacing nothing: it must not exist)."""
-        if self.final.exists():
-            raise FileExistsError(f"{self.final} already exists")
-        os.replace(self.partial, self.final)
+        commit_path(self.partial, self.final)
         return self.final
 
     def abort(self) -> None:

@@ -62,14 +62,18 @@ from tactile_compliance.config import (
     config_from_dict,
     config_to_dict,
 )
-from tactile_compliance.outputs import atomic_file, claim_output_dir
+from tactile_compliance.outputs import (
+    DirectoryLockedError,
+    atomic_file,
+    claim_output_dir,
+    exclusive_lock,
+)
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.layout import (
     KEEP_CHECKPOINTS,
+    LOCK_FILE,
     RUN_KIND,
-    DirectoryLockedError,
     is_legacy_run_dir,
-    lock_directory,
     prune_checkpoints,
 )
 from tactile_compliance.runs.results import (
@@ -433,7 +437,8 @@ def _locked(output_dir: Path) -> Iterator[None]:
     """Hold an exclusive lock on an experiment's output directory for one driver's lifetime."""
     output_dir.mkdir(parents=True, exist_ok=True)
     try:
-        with lock_directory(output_dir, what="experiment output directory (--out)"):
+        what = "experiment output directory (--out)"
+        with exclusive_lock(output_dir / LOCK_FILE, what, wait=False):
             yield
     except DirectoryLockedError as err:
         raise ExperimentError(str(err)) from None
