@@ -20,6 +20,7 @@ from tactile_compliance.cli import app
 from tactile_compliance.outputs import (
     MARKER_NAME,
     OutputExistsError,
+    check_format_version,
     check_output_file,
     claim_output_dir,
     commit_path,
@@ -269,3 +270,15 @@ def test_commit_path_puts_the_old_one_back_when_the_swap_fails(
         commit_path(tmp_path / "missing-partial", final, replace=True)
     assert (final / "old.txt").read_text() == "old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["store"]
+
+
+def test_one_format_version_per_file_kind() -> None:
+    check_format_version(2, 2, "x.pt: checkpoint")  # the one it reads
+    for found, match in [
+        (1, "x.pt: checkpoint format_version 1 is a pre-release format.*reads format 2 only"),
+        (None, "format_version None is not an integer"),
+        (True, "format_version True is not an integer"),
+        (3, "format_version 3 is newer than this package reads.*upgrade"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            check_format_version(found, 2, "x.pt: checkpoint")

@@ -53,12 +53,13 @@ def test_record_refuses_a_store_a_run_directory_and_foreign_files(tmp_path):
         with pytest.raises(OutputExistsError):
             write_grasp(captured(), out, ObjectInfo("ball", 1e5))
         assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
-    # A dataset that record wrote (also before the marker existed) is reused.
+    # A dataset that record wrote is reused; without its marker it is no one's.
     out = tmp_path / "data"
     write_grasp(captured(), out, ObjectInfo("ball", 1e5))
-    (out / ".tactile-compliance.json").unlink()
-    (out / ".record.lock").unlink()
     assert write_grasp(captured(), out, ObjectInfo("ball", 1e5)).grasp == 1
+    (out / ".tactile-compliance.json").unlink()
+    with pytest.raises(OutputExistsError):
+        write_grasp(captured(), out, ObjectInfo("ball", 1e5))
 
 
 # ---------------------------------------------------------------------- concurrency

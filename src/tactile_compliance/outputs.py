@@ -10,8 +10,9 @@ demo) *claims* it first with :func:`claim_output_dir`:
 * anything else (a directory of the user's files, another command's output) is refused
   with :class:`OutputExistsError`, before anything is written.
 
-Directories written by versions before the marker existed are recognised by their
-contents (``recognise``) and adopted. Single output files (a split, an ONNX model, a
+A directory without a marker is never adopted by its contents: the package never shipped
+a version that wrote none (``recognise`` is for a directory that a concurrent command of
+the same kind is creating). Single output files (a split, an ONNX model, a
 JSON report) go through :func:`check_output_file`: an existing file is replaced only when
 it is recognisably an output of the same kind. Every file a command writes goes through
 :func:`atomic_file`: a reader never sees half of it.
@@ -46,6 +47,7 @@ __all__ = [
     "DirectoryLockedError",
     "OutputExistsError",
     "atomic_file",
+    "check_format_version",
     "check_output_file",
     "claim_output_dir",
     "commit_path",
@@ -125,7 +127,8 @@ def claim_output_dir(
     Args:
         path: the directory the user named.
         kind: what writes it ("report", "experiment", "demo", ...).
-        recognise: tells an output of this kind written before markers existed (adopted).
+        recognise: tells an unmarked directory that a concurrent command of this kind is
+            creating (adopted).
         option: the command-line option that names ``path``, for the error message.
         create: False only checks (the same refusals) and creates nothing, for a command
             that must read its inputs before it may create its output.
@@ -158,6 +161,32 @@ def claim_output_dir(
     out.mkdir(parents=True, exist_ok=True)
     _write_marker(out, kind)
     return out
+
+
+def check_format_version(found: Any, supported: int, what: str) -> None:
+    """Refuse a file of another format version than the one this package writes.
+
+    The package never shipped another format of any file kind (0.1.0 is its first
+    release), so one version is read per kind, not a history: anything else is one line
+    naming both versions.
+
+    Args:
+        found: the ``format_version`` the file records.
+        supported: the one version this package reads and writes.
+        what: the file and its kind, for the message ("PATH: checkpoint").
+
+    Raises:
+        ValueError: ``found`` is not an integer, or not ``supported``.
+    """
+    if isinstance(found, bool) or not isinstance(found, int):
+        raise ValueError(f"{what} format_version {found!r} is not an integer")
+    if found != supported:
+        kind = "newer than this package reads" if found > supported else "a pre-release format"
+        raise ValueError(
+            f"{what} format_version {found} is {kind}; tactile-compliance {__version__} "
+            f"reads format {supported} only: "
+            + ("upgrade tactile-compliance" if found > supported else "write it again")
+        )
 
 
 def check_output_file(

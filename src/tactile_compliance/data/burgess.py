@@ -179,16 +179,21 @@ def _tree_estimator(src: Path) -> str:
 
     The public dataset's pickles come from its own code (``"dataset"``), and so does anything
     written in its layout by other tools. A generated tree names its estimator in its
-    manifest; trees generated before it did used ``"contact"``.
+    manifest.
+
+    Raises:
+        ImportPathError: a manifest that names none (a pre-release generator's tree).
     """
     manifest = src / SYNTHETIC_MANIFEST
     if not manifest.is_file():
         return "dataset"
     try:
-        recorded = json.loads(manifest.read_text()).get("analytical_estimator")
-    except (OSError, ValueError, AttributeError):
-        recorded = None
-    return str(recorded) if recorded else "contact"
+        return str(json.loads(manifest.read_text())["analytical_estimator"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ImportPathError(
+            f"{manifest}: names no analytical_estimator ({err!r}); a pre-release generator "
+            f"wrote it: generate the tree again"
+        ) from None
 
 
 def import_burgess(
@@ -253,7 +258,8 @@ def import_burgess(
             samples.extend((label, g, k, d) for g, k, d in _sample_dirs(object_dir, report))
     image_files = [FINGER_FILES[finger][0] for finger in finger_names]
     source_hw, sizes = majority_frame_size(samples, image_files, progress)
-    units = recorded_units(src)  # before anything is written: a damaged record stops here
+    # Before anything is written: a damaged record or manifest stops here.
+    units, estimator = recorded_units(src), _tree_estimator(src)
 
     def store_depth_size() -> tuple[int, int] | None:
         size = image_size or source_hw
@@ -273,7 +279,7 @@ def import_burgess(
                 "source_image_size": list(source_hw),
                 "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
                 "frame_kind": "difference",
-                "analytical_estimator": _tree_estimator(src),
+                "analytical_estimator": estimator,
                 "sensor": units.to_dict(),
                 "depth": bool(depth),
             },

@@ -71,6 +71,7 @@ from tactile_compliance.data.plausibility import (
 )
 from tactile_compliance.outputs import (
     MARKER_NAME,
+    check_format_version,
     commit_path,
     output_kind,
     process_alive,
@@ -80,8 +81,7 @@ from tactile_compliance.physics.estimators import SensorUnits
 
 FORMAT_VERSION = 1
 #: Written into every store by :class:`GraspStoreWriter`; ``--overwrite`` replaces only a
-#: directory that has it (or, for stores written before it existed, header.json +
-#: samples.parquet): see :func:`is_store_dir`.
+#: directory that has it: see :func:`is_store_dir`.
 #: The marker of every tactile-compliance output (``outputs.MARKER_NAME``), kind "store".
 STORE_MARKER = MARKER_NAME
 STORE_KIND = "store"
@@ -313,22 +313,10 @@ def is_store_dir(path: str | Path) -> bool:
     """Whether ``path`` is a GraspStore directory that may be replaced (``--overwrite``).
 
     A store is a real directory (not a link) holding the :data:`STORE_MARKER` file that
-    :class:`GraspStoreWriter` writes, or, for stores written before the marker existed,
-    a ``header.json`` with ``format_version`` and ``image_size`` next to
-    ``samples.parquet``. Nothing else is ever replaced.
+    :class:`GraspStoreWriter` writes. Nothing else is ever replaced.
     """
     path = Path(path)
-    if path.is_symlink() or not path.is_dir():
-        return False
-    try:
-        if (path / STORE_MARKER).is_file():
-            return output_kind(path) == STORE_KIND
-        if (path / HEADER_FILE).is_file() and (path / SAMPLES_FILE).is_file():
-            header = json.loads((path / HEADER_FILE).read_text())
-            return isinstance(header, dict) and {"format_version", "image_size"} <= set(header)
-    except (OSError, ValueError, AttributeError):
-        return False
-    return False
+    return not path.is_symlink() and path.is_dir() and output_kind(path) == STORE_KIND
 
 
 def store_kind_hint(path: str | Path) -> str:
@@ -338,7 +326,7 @@ def store_kind_hint(path: str | Path) -> str:
         return "a symbolic link"
     if not path.is_dir():
         return "not a directory"
-    return f"a directory without {STORE_MARKER}, nor {HEADER_FILE} + {SAMPLES_FILE}"
+    return f"a directory without {STORE_MARKER}"
 
 
 # ------------------------------------------------------------- leftovers of killed writers
@@ -421,9 +409,9 @@ class StoreHeader:
     creation_parameters: dict[str, Any]
     #: (h, w) px of the stored depth maps (``depth.f16``), or None: no depth maps.
     depth_size: tuple[int, int] | None = None
-    #: ``frame_shape_sha256`` as read from ``header.json`` (None: written before it
-    #: existed); :meth:`frame_shape_problem` compares it with the header's sizes.
-    recorded_shape_check: str | None = None
+    #: ``frame_shape_sha256`` as read from ``header.json``; :meth:`frame_shape_problem`
+    #: compares it with the header's sizes.
+    recorded_shape_check: str = ""
 
     @property
     def shape_check(self) -> str:
@@ -437,7 +425,7 @@ class StoreHeader:
 
     def frame_shape_problem(self) -> str | None:
         """Why the header's sizes are not the ones the store was written with, or None."""
-        if self.recorded_shape_check is None or self.recorded_shape_check == self.shape_check:
+        if self.recorded_shape_check == self.shape_check:
             return None
         height, width = self.image_size
         return (
@@ -483,7 +471,6 @@ class StoreHeader:
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise StoreError(f"{HEADER_FILE} is malformed: {key} {value!r} is not an integer")
         try:
-            check = data.get("frame_shape_sha256")
             return cls(
                 format_version=int(data["format_version"]),
                 num_samples=int(data["num_samples"]),
@@ -498,7 +485,7 @@ class StoreHeader:
                     if data.get("depth_size") is not None
                     else None
                 ),
-                recorded_shape_check=None if check is None else str(check),
+                recorded_shape_check=str(data["frame_shape_sha256"]),
             )
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise StoreError(f"{HEADER_FILE} is malformed: {err!r}") from err
@@ -597,11 +584,10 @@ class GraspStore:
         problem = header.frame_shape_problem()
         if problem:
             raise StoreError(f"{path}: {problem}")
-        if header.format_version > FORMAT_VERSION:
-            raise StoreError(
-                f"{path}: store format {header.format_version} is newer than this package "
-                f"supports ({FORMAT_VERSION}); upgrade tactile-compliance"
-            )
+        try:
+            check_format_version(header.format_version, FORMAT_VERSION, f"{path}: store")
+        except ValueError as err:
+            raise StoreError(str(err)) from None
         samples = read_samples_table(path)
         if len(samples) != header.num_samples:
             raise StoreError(
@@ -636,15 +622,11 @@ class GraspStore:
     def analytical_estimator(self) -> str | None:
         """Name of the estimator that made the stored analytical estimates, or None.
 
-        Importers record it (``creation_parameters["analytical_estimator"]``, a name of
-        ``physics.estimators``). Older stores are read by their source: the public dataset
-        was made with ``"dataset"``, the generator used ``"contact"`` before it recorded a
-        name, and Shore-hardness (``yuan``) stores have no estimates.
+        ``import burgess`` records it (``creation_parameters["analytical_estimator"]``, a
+        name of ``physics.estimators``); Shore-hardness (``yuan``) stores have no estimates.
         """
         recorded = self.header.creation_parameters.get("analytical_estimator")
-        if recorded:
-            return str(recorded)
-        return {"burgess": "dataset", "synthetic": "contact"}.get(self.header.source)
+        return str(recorded) if recorded else None
 
     @property
     def sensor_units(self) -> SensorUnits:

@@ -317,11 +317,7 @@ def build_report(
     wanted = _normalise_formats(formats)
     results = Path(results_dir)
     frame = load_results(results)
-    out = claim_output_dir(
-        Path(out_dir) if out_dir is not None else results / "report",
-        "report",
-        recognise=lambda path: (path / "report.json").is_file(),
-    )
+    out = claim_output_dir(Path(out_dir) if out_dir is not None else results / "report", "report")
     builder = _Builder(frame, results, out, ddof, [Path(s) for s in stores], strict)
     parts, fig_dir = builder.parts, builder.fig_dir
 

@@ -56,7 +56,7 @@ from tactile_compliance.inference.sensors import (
     iter_frames,
     open_source,
 )
-from tactile_compliance.outputs import atomic_file, check_output_file
+from tactile_compliance.outputs import atomic_file, check_format_version, check_output_file
 from tactile_compliance.physics.estimators import SensorUnits
 
 __all__ = [
@@ -187,6 +187,9 @@ class SensorCalibration:
             raise ValueError(f"{path}: not a sensor calibration (JSON nested too deeply)") from None
         if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
             raise ValueError(f"{path}: not a sensor calibration (no format {CALIBRATION_FORMAT})")
+        check_format_version(
+            data.get("format_version"), CALIBRATION_VERSION, f"{path}: calibration"
+        )
         try:
             geometry = FrameGeometry.from_dict(data["geometry"])
             raw = base64.b64decode(data["reference_png_base64"])

@@ -96,7 +96,6 @@ from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.plausibility import FORCE, MODULUS, WIDTH
 from tactile_compliance.data.raw_layout import (
     METADATA_FILE,
-    RECORDING_UNITS_FILE,
     augmentation_dir,
     grasp_dir,
     read_metadata,
@@ -835,31 +834,21 @@ def _check_readings(captured: CapturedGrasp, frames: Sequence[int]) -> None:
 def claim_dataset_dir(out_dir: str | Path, *, create: bool = True) -> Path:
     """Make ``out_dir`` a dataset directory of ``record`` (``outputs.claim_output_dir``).
 
-    Accepted: a new or empty directory, one ``record`` marked, and one written by
-    ``record`` before the marker existed (the object table and object directories with
-    ``metadata.json``, nothing else). Refused with ``OutputExistsError``: a GraspStore, a
-    run directory, any other command's output or a directory of other files.
+    Accepted: a new or empty directory, one ``record`` marked, and one that a concurrent
+    ``record`` is creating (its lock, its marker). Refused with ``OutputExistsError``: a
+    GraspStore, a run directory, any other command's output or a directory of other files.
     ``create=False`` only checks.
     """
     return claim_output_dir(out_dir, OUTPUT_KIND, recognise=_is_unmarked_recording, create=create)
 
 
 def _is_unmarked_recording(path: Path) -> bool:
-    names = {child.name for child in path.iterdir()}
-    if names <= {LOCK_FILE, MARKER_NAME}:
-        return True  # another record is creating this dataset (its lock, its marker)
+    """Whether another ``record`` is creating the dataset ``path`` (its marker not yet read)."""
+    if {child.name for child in path.iterdir()} <= {LOCK_FILE, MARKER_NAME}:
+        return True  # its lock, its marker being written
     # Read again after the listing: a concurrent record that created an object directory
     # had finished its marker before, though the first read may have caught it half written.
-    if output_kind(path) == OUTPUT_KIND:
-        return True
-    if not (path / OBJECT_TABLE_FILE).is_file():
-        return False
-    for child in path.iterdir():
-        if child.name in (OBJECT_TABLE_FILE, LOCK_FILE, RECORDING_UNITS_FILE):
-            continue
-        if not (child.is_dir() and (child / "metadata.json").is_file()):
-            return False
-    return True
+    return output_kind(path) == OUTPUT_KIND
 
 
 def _write_locked(

@@ -15,7 +15,6 @@ import json
 from pathlib import Path
 
 from tactile_compliance.config import ExperimentConfig, config_to_dict
-from tactile_compliance.data.splits import is_split_file
 from tactile_compliance.data.store import SAMPLE_COLUMNS
 
 RESULT_FILE = "metrics.json"
@@ -84,13 +83,3 @@ def prune_checkpoints(run_dir: str | Path, keep: str) -> None:
     shutil.rmtree(Path(run_dir) / CHECKPOINT_DIR, ignore_errors=True)
     if keep == "none":
         (Path(run_dir) / BEST_FILE).unlink(missing_ok=True)
-
-
-def is_legacy_run_dir(path: Path) -> bool:
-    """Whether ``path`` is a run directory written before markers existed: it holds a
-    ``split.json`` that is a saved split (what ``train`` writes first)."""
-    split = path / "split.json"
-    try:
-        return split.is_file() and is_split_file(split)
-    except (OSError, ValueError):
-        return False

@@ -229,9 +229,7 @@ def generate_shore_videos(
     height, width = (int(v) for v in image_size)
     if height % 2 or width % 2:  # the MJPG codec would silently drop the odd row/column
         raise GenerationError(f"image_size must be even for MJPG videos, got {height}x{width}")
-    out = claim_output_dir(
-        out_dir, "simulate shore-videos", recognise=lambda path: any(path.glob("*.avi"))
-    )
+    out = claim_output_dir(out_dir, "simulate shore-videos")
     for partial in out.glob(f"{PARTIAL_PREFIX}*"):  # leftovers of an interrupted run
         partial.unlink()
     # Unique (family, hardness) pairs: object i takes the i-th of a seeded permutation

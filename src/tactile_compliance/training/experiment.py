@@ -73,11 +73,9 @@ from tactile_compliance.runs.layout import (
     KEEP_CHECKPOINTS,
     LOCK_FILE,
     RUN_KIND,
-    is_legacy_run_dir,
     prune_checkpoints,
 )
 from tactile_compliance.runs.results import (
-    ROWS_DIR,
     STATUS_COMPLETE,
     STATUS_FAILED,
     ResultsStore,
@@ -210,7 +208,7 @@ def _count_attempt(run_dir: Path) -> int:
             "pid": os.getpid(),
         }
     )
-    claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir)
+    claim_output_dir(run_dir, RUN_KIND)
     with atomic_file(path, unique=True) as handle:
         handle.write(json.dumps({"attempts": len(history), "history": history}, indent=2) + "\n")
     return len(history)
@@ -542,18 +540,8 @@ def run_experiment(
         # A fresh experiment runs every cell: a missing store is reported before the
         # output folders are created, so the failed command leaves nothing behind.
         _check_stores(plan.cells)
-    claim_output_dir(
-        plan.output_dir,
-        "experiment",
-        recognise=lambda path: (path / EXPERIMENT_FILE).is_file(),
-        option="--out",
-    )
-    claim_output_dir(
-        plan.results_path,
-        "results",
-        recognise=lambda path: (path / ROWS_DIR).is_dir(),
-        option="--results",
-    )
+    claim_output_dir(plan.output_dir, "experiment", option="--out")
+    claim_output_dir(plan.results_path, "results", option="--results")
     with _locked(plan.output_dir):
         store_rows = ResultsStore(plan.results_path)
         skip = {STATUS_COMPLETE} if retry_failed else {STATUS_COMPLETE, STATUS_FAILED}

@@ -86,7 +86,6 @@ from tactile_compliance.runs.layout import (
     RESULT_FILE,
     RUN_KIND,
     config_hash,
-    is_legacy_run_dir,
     run_name,
 )
 from tactile_compliance.runs.metrics import (
@@ -358,7 +357,7 @@ def train(
     """
     run_dir = Path(run_dir) if run_dir is not None else Path(cfg.output_dir) / run_name(cfg)
     if run_dir.is_dir():  # a run directory of ours, never a directory of someone's files
-        claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir, option="--out")
+        claim_output_dir(run_dir, RUN_KIND, option="--out")
     if not overwrite and (finished := _finished_result(run_dir)) is not None:
         return finished
     try:
