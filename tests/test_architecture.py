@@ -22,7 +22,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("progress", "outputs"),
     ("physics",),
     ("data",),
-    ("synthetic", "models"),
+    ("synthetic", "models", "acquisition"),
     ("config",),
     ("runs",),
     ("training", "evaluation", "inference"),

@@ -17,13 +17,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tactile_compliance.data import raw_layout
-from tactile_compliance.inference.recording import (
+from tactile_compliance.acquisition.recording import (
     OBJECT_TABLE_FILE,
     CapturedGrasp,
     ObjectInfo,
     write_grasp,
 )
+from tactile_compliance.data import raw_layout
 from tactile_compliance.outputs import OutputExistsError, claim_output_dir
 from toy_store import make_toy_store
 

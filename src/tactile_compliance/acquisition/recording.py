@@ -72,6 +72,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.acquisition.calibration import SensorCalibration
+from tactile_compliance.acquisition.sensors import (
+    SPEC_KINDS,
+    FrameError,
+    FrameSizeError,
+    FrameSourceBase,
+    iter_frames,
+)
 from tactile_compliance.data.force_readings import (
     BASELINE_WARN_N,
     ForceBaseline,
@@ -103,14 +111,6 @@ from tactile_compliance.data.raw_layout import (
     write_metadata,
     write_sample,
     write_units_file,
-)
-from tactile_compliance.inference.calibration import SensorCalibration
-from tactile_compliance.inference.sensors import (
-    SPEC_KINDS,
-    FrameError,
-    FrameSizeError,
-    FrameSourceBase,
-    iter_frames,
 )
 from tactile_compliance.outputs import (
     MARKER_NAME,
