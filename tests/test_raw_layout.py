@@ -44,12 +44,13 @@ def test_writer_then_reader_round_trip(tmp_path: Path) -> None:
     widths = np.array([0.031, 0.030, 0.029])
     object_dir = tmp_path / "foam"
     object_dir.mkdir()
-    raw_layout.write_metadata(object_dir, {"object_name": "foam", "youngs_modulus": 4.2e4})
+    raw_layout.write_metadata(object_dir, "foam", 4.2e4, "Foam", "Cube", (12.0, None, None))
     directory = raw_layout.augmentation_dir(raw_layout.grasp_dir(object_dir, 2), 1)
     raw_layout.write_sample(directory, fingers, forces, widths, (3.0e4, float("nan")))
 
     assert raw_layout.sample_dirs(object_dir) == [(2, 1, directory)]
-    assert raw_layout.read_metadata(object_dir)["youngs_modulus"] == 4.2e4
+    metadata = raw_layout.read_metadata(object_dir)
+    assert metadata["youngs_modulus"] == 4.2e4 and metadata["shore_00_hardness"] == 12.0
     # A failed fit has no file, as in the public dataset; the reader gives NaN.
     assert not (directory / raw_layout.ESTIMATE_FILES[1]).exists()
     elastic, hertz = (raw_layout.load_estimate(directory, n) for n in raw_layout.ESTIMATE_FILES)

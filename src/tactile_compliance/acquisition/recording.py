@@ -548,18 +548,6 @@ class ObjectInfo:
                     f"(newline, tab, ...); it would break the object table"
                 )
 
-    def metadata(self) -> dict[str, Any]:
-        """The ``metadata.json`` fields of the dataset."""
-        return {
-            "object_name": self.name,
-            "youngs_modulus": float(self.modulus_pa),
-            "material": self.material,
-            "shape": self.shape,
-            "shore_00_hardness": self.shore_00,
-            "shore_A_hardness": self.shore_a,
-            "shore_D_hardness": self.shore_d,
-        }
-
 
 @dataclass
 class RecordedGrasp:
@@ -649,7 +637,8 @@ def _write_metadata(object_dir: Path, info: ObjectInfo) -> bool:
                 f"{info.modulus_pa:.6g}; nothing written (use another object name)"
             )
         return False
-    write_metadata(object_dir, info.metadata())
+    shore = (info.shore_00, info.shore_a, info.shore_d)
+    write_metadata(object_dir, info.name, info.modulus_pa, info.material, info.shape, shore)
     return True
 
 

@@ -9,7 +9,7 @@ Cache layout, next to the store (``STORE/features/KEY/``)::
 
     features.f16     float16 array (N_store, 3, feature_dim), C order
     meta.json        backbone class, weights fingerprint, image size, normalisation, shape
-    lock             empty; ``flock``-ed by the one process computing the cache
+    lock             ``outputs.exclusive_lock``-ed by the one process computing the cache
 
 ``KEY`` = backbone class + sha256 of the backbone's weights + image size + the image
 normalisation: a different backbone initialisation can never reuse stale features.

@@ -311,10 +311,36 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
         handle.write("\n")
 
 
-def write_metadata(object_dir: Path, metadata: dict[str, Any]) -> Path:
-    """Write an object's ``metadata.json`` (the dataset's fields: ``object_name``,
-    ``youngs_modulus`` in Pa, ``material``, ``shape``, Shore hardness)."""
+def write_metadata(
+    object_dir: Path,
+    name: str,
+    modulus_pa: float,
+    material: str,
+    shape: str,
+    shore: tuple[float | None, float | None, float | None],
+    **extra: Any,
+) -> Path:
+    """Write an object's ``metadata.json`` with the dataset's fields.
+
+    Args:
+        object_dir: the object's directory.
+        name: ``object_name``; modulus_pa: ``youngs_modulus``, Young's modulus E in Pa.
+        material, shape: as the dataset names them (``Rubber``, ``Sphere``, ...).
+        shore: Shore 00, A and D hardness, None where not measured.
+        extra: further fields (the generator's ``used_in_training``).
+    """
     path = object_dir / METADATA_FILE
+    shore_00, shore_a, shore_d = shore
+    metadata = {
+        "object_name": name,
+        "youngs_modulus": float(modulus_pa),
+        "material": material,
+        "shape": shape,
+        "shore_00_hardness": shore_00,
+        "shore_A_hardness": shore_a,
+        "shore_D_hardness": shore_d,
+        **extra,
+    }
     _write_json(path, metadata)
     return path
 

@@ -28,21 +28,7 @@ from tactile_compliance.outputs import PARTIAL_PREFIX, commit_path
 from tactile_compliance.synthetic.grasp import GraspSample
 from tactile_compliance.synthetic.objects import ObjectSpec
 
-__all__ = ["ObjectWriter", "metadata_dict"]
-
-
-def metadata_dict(spec: ObjectSpec) -> dict[str, object]:
-    """The ``metadata.json`` fields of the real dataset for an object."""
-    return {
-        "object_name": spec.name,
-        "youngs_modulus": float(spec.modulus_pa),
-        "material": spec.material,
-        "shape": spec.shape,
-        "shore_00_hardness": spec.shore_00,
-        "shore_A_hardness": spec.shore_a,
-        "shore_D_hardness": spec.shore_d,
-        "used_in_training": bool(spec.used_in_training),
-    }
+__all__ = ["ObjectWriter"]
 
 
 class ObjectWriter:
@@ -57,7 +43,15 @@ class ObjectWriter:
         if self.partial.exists():
             shutil.rmtree(self.partial)
         self.partial.mkdir(parents=True)
-        write_metadata(self.partial, metadata_dict(spec))
+        write_metadata(
+            self.partial,
+            spec.name,
+            spec.modulus_pa,
+            spec.material,
+            spec.shape,
+            (spec.shore_00, spec.shore_a, spec.shore_d),
+            used_in_training=bool(spec.used_in_training),
+        )
         self.samples = 0
 
     def add_grasp(self, grasp: int, samples: list[GraspSample]) -> None:
