@@ -18,8 +18,8 @@ Every ``.pkl`` is a pickled numpy array, read with the allow-list unpickler
 rule (:data:`FILE_RULES`). The importer (``import burgess``) and ``predict`` read with
 :func:`load_frames`, :func:`load_vector`, :func:`load_estimate` and :func:`load_depth`;
 the generator and ``record`` write with :func:`write_metadata` and :func:`write_sample`.
-:data:`VIDEO_SUFFIXES` is the one list of video files that the importers, ``predict`` and
-the live sources accept.
+:data:`VIDEO_SUFFIXES` is the one list of video files that ``import yuan`` and ``predict``
+accept.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
 
 FingerChoice = Literal["markerless", "markers", "both"]
 
-#: Video files (case-insensitive suffixes) for ``import yuan``, ``predict`` and ``live``.
+#: Video files (case-insensitive suffixes) that ``import yuan`` and ``predict`` accept.
 VIDEO_SUFFIXES = (
     ".avi",
     ".mp4",
