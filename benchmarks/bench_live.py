@@ -30,13 +30,13 @@ import cv2
 import numpy as np
 import torch
 
+from tactile_compliance.acquisition.recording import Readings
+from tactile_compliance.acquisition.sensors import MINI_GEOMETRY, WEDGE_GEOMETRY, open_source
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.inference.live import live_estimates
-from tactile_compliance.inference.recording import Readings
-from tactile_compliance.inference.sensors import MINI_GEOMETRY, WEDGE_GEOMETRY, open_source
 from tactile_compliance.models import create_model
 
 

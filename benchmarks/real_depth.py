@@ -2,7 +2,7 @@
 
 Reads the real presses of ``../shared/reference-data/real/ball-presses/`` (see its README)
 and, for each of the three sensors, fits the depth model with the code `calibrate-depth`
-runs (``inference.calibration.calibrate_depth``, default settings), leaving each press out
+runs (``acquisition.calibration.calibrate_depth``, default settings), leaving each press out
 in turn and scoring it:
 
 * ``circle err``: the automatically found contact radius against the hand-labelled one [px]
@@ -38,15 +38,15 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_compliance.data.depth_model import find_contact_circle
-from tactile_compliance.data.image_ops import difference_images
-from tactile_compliance.data.photometric import reconstruct_depth
-from tactile_compliance.inference.calibration import (
+from tactile_compliance.acquisition.calibration import (
     calibrate_depth,
     read_circles,
     read_image,
     read_images,
 )
+from tactile_compliance.data.depth_model import find_contact_circle
+from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.progress import progress_bar
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared/reference-data/real/ball-presses"

@@ -22,7 +22,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("progress", "outputs", "devices"),
     ("physics",),
     ("data",),
-    ("synthetic", "models"),
+    ("synthetic", "models", "acquisition"),
     ("config",),
     ("runs",),
     ("training", "evaluation", "inference"),

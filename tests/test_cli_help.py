@@ -87,19 +87,17 @@ def test_the_choices_are_the_library_vocabularies() -> None:
     """The CLI writes its choices out (so it starts without importing torch); each must be
     the vocabulary of its home in the library."""
     from tactile_compliance.config import SplitConfig
-    from tactile_compliance.data import burgess
+    from tactile_compliance.data import raw_layout
     from tactile_compliance.demo import PLANS
-    from tactile_compliance.inference import sources
     from tactile_compliance.models.inputs import InputStrategy
     from tactile_compliance.runs.layout import KEEP_CHECKPOINTS
-    from tactile_compliance.synthetic.writer import ALLOWED_DTYPES
     from tactile_compliance.training.hpo.objectives import OBJECTIVES
     from tactile_compliance.training.pretrain import PRETRAIN_BACKBONES
 
     def values(literal: typing.Any) -> set[str]:
         return set(typing.get_args(literal))
 
-    assert values(cli.Fingers) == values(burgess.FingerChoice) == values(sources.FingerChoice)
+    assert values(cli.Fingers) == values(raw_layout.FingerChoice)
     assert values(cli.Condition) == values(SplitConfig.model_fields["condition"].annotation)
     assert values(cli.Grouping) == values(SplitConfig.model_fields["grouping"].annotation)
     assert typing.get_args(cli.Inputs) == InputStrategy.names()
@@ -107,7 +105,7 @@ def test_the_choices_are_the_library_vocabularies() -> None:
     assert values(cli.KeepCheckpoints) == set(KEEP_CHECKPOINTS)
     assert values(cli.Backbone) == set(PRETRAIN_BACKBONES)
     assert values(cli.DemoMode) == set(PLANS)
-    assert values(cli.PickleDtype) == set(ALLOWED_DTYPES)
+    assert values(cli.PickleDtype) == set(raw_layout.ALLOWED_DTYPES)
 
 
 def test_tune_balance_help_keeps_its_budget_defaults() -> None:

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from tactile_compliance.acquisition.calibration import SensorCalibration, read_circles
+from tactile_compliance.acquisition.sensors import FrameGeometry
 from tactile_compliance.cli import app
 from tactile_compliance.data.depth_model import (
     BallPress,
@@ -26,8 +28,6 @@ from tactile_compliance.data.depth_model import (
 )
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
-from tactile_compliance.inference.calibration import SensorCalibration, read_circles
-from tactile_compliance.inference.sensors import FrameGeometry
 from tactile_compliance.synthetic.render import pixel_size_mm, render_frames, sample_sensor_look
 
 SIZE = (150, 210)

@@ -15,6 +15,20 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from tactile_compliance.acquisition.recording import (
+    ObjectInfo,
+    Readings,
+    capture_grasp,
+    record_grasp,
+    reference_frame,
+    write_readings_csv,
+)
+from tactile_compliance.acquisition.sensors import (
+    PLAIN_GEOMETRY,
+    FrameGeometry,
+    FrameSizeError,
+    FrameSourceBase,
+)
 from tactile_compliance.cli import app
 from tactile_compliance.data.force_readings import (
     CONTACT_MARGIN_N,
@@ -24,20 +38,6 @@ from tactile_compliance.data.force_readings import (
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.safe_pickle import load_numpy_pickle
 from tactile_compliance.inference.live import format_live_event, live_estimates
-from tactile_compliance.inference.recording import (
-    ObjectInfo,
-    Readings,
-    capture_grasp,
-    record_grasp,
-    reference_frame,
-    write_readings_csv,
-)
-from tactile_compliance.inference.sensors import (
-    PLAIN_GEOMETRY,
-    FrameGeometry,
-    FrameSizeError,
-    FrameSourceBase,
-)
 
 FPS = 30.0
 SIZE = (60, 84)

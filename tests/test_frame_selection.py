@@ -1,18 +1,18 @@
 """The one frame-selection/augmentation rule (data.frame_selection) and its two callers:
 the synthetic generator (synthetic.timeseries.select_frames) and recording your own
-grasps (inference.recording.augmented_indices)."""
+grasps (acquisition.recording.augmented_indices)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from tactile_compliance.acquisition.recording import augmented_indices
 from tactile_compliance.data.frame_selection import (
     augment_selection,
     select_frame_indices,
     selection_window,
 )
-from tactile_compliance.inference.recording import augmented_indices
 from tactile_compliance.synthetic.timeseries import select_frames
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from burgess_tree import OBJECTS, dump, write_tree
 from tactile_compliance.data.burgess import import_burgess
-from tactile_compliance.data.import_report import DataImportError
+from tactile_compliance.data.import_report import DataImportError, ImportPathError
 from tactile_compliance.data.store import GraspStore
 
 
@@ -206,9 +206,15 @@ def test_source_is_synthetic_for_generated_trees(tmp_path):
     write_tree(tmp_path / "src", grasps=1, augmentations=1)
     _import(tmp_path / "src", tmp_path / "real")
     assert GraspStore.open(tmp_path / "real").header.source == "burgess"
-    (tmp_path / "src" / "generation.json").write_text("{}")
+    (tmp_path / "src" / "generation.json").write_text('{"analytical_estimator": "contact"}')
     _import(tmp_path / "src", tmp_path / "generated")
-    assert GraspStore.open(tmp_path / "generated").header.source == "synthetic"
+    generated = GraspStore.open(tmp_path / "generated")
+    assert generated.header.source == "synthetic" and generated.analytical_estimator == "contact"
+    # A pre-release generator's manifest named no estimator: refused, nothing written.
+    (tmp_path / "src" / "generation.json").write_text("{}")
+    with pytest.raises(ImportPathError, match="names no analytical_estimator"):
+        _import(tmp_path / "src", tmp_path / "old")
+    assert not (tmp_path / "old").exists()
 
 
 def test_clipped_frame_values_are_counted_in_the_report(tmp_path):

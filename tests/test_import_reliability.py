@@ -83,11 +83,12 @@ def test_overwrite_replaces_stores_old_and_new(tmp_path):
     assert (tmp_path / "store" / store_module.STORE_MARKER).is_file()
     _import(tmp_path / "src", tmp_path / "store", overwrite=True)
     assert len(GraspStore.open(tmp_path / "store")) == 6
-    # A store written before the marker existed: recognised by header.json + samples.parquet.
-    (tmp_path / "store" / store_module.STORE_MARKER).unlink()
-    _import(tmp_path / "src", tmp_path / "store", fingers="markers", overwrite=True)
-    assert len(GraspStore.open(tmp_path / "store")) == 3
     assert sorted(p.name for p in tmp_path.iterdir()) == ["src", "store"]
+    # No version wrote a store without its marker: such a directory is not replaced.
+    (tmp_path / "store" / store_module.STORE_MARKER).unlink()
+    with pytest.raises(DataImportError, match="not a GraspStore"):
+        _import(tmp_path / "src", tmp_path / "store", fingers="markers", overwrite=True)
+    assert len(GraspStore.open(tmp_path / "store")) == 6
 
 
 def test_out_and_source_must_not_contain_each_other(tmp_path):

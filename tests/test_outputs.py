@@ -20,8 +20,10 @@ from tactile_compliance.cli import app
 from tactile_compliance.outputs import (
     MARKER_NAME,
     OutputExistsError,
+    check_format_version,
     check_output_file,
     claim_output_dir,
+    commit_path,
     output_kind,
     process_alive,
     process_start,
@@ -229,3 +231,54 @@ def test_process_alive_tells_a_running_process_from_a_gone_or_reused_one() -> No
     child = subprocess.Popen([sys.executable, "-c", "pass"])
     child.wait()  # reaped: its pid names no process now
     assert not process_alive(child.pid)
+
+
+def test_commit_path_never_overwrites_unless_asked(tmp_path: Path) -> None:
+    """The one atomic directory commit: the store replaces, the others never overwrite."""
+    final, partial = tmp_path / "obj", tmp_path / ".partial-obj"
+    partial.mkdir()
+    (partial / "new.txt").write_text("new")
+    commit_path(partial, final)
+    assert (final / "new.txt").read_text() == "new" and not partial.exists()
+
+    partial.mkdir()
+    (partial / "newer.txt").write_text("newer")
+    with pytest.raises(FileExistsError, match="nothing was overwritten"):
+        commit_path(partial, final)
+    assert sorted(p.name for p in final.iterdir()) == ["new.txt"]  # untouched
+
+    commit_path(partial, final, replace=True)
+    assert sorted(p.name for p in final.iterdir()) == ["newer.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["obj"]  # no partial, no old copy
+
+
+def test_commit_path_puts_the_old_one_back_when_the_swap_fails(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    final = tmp_path / "store"
+    final.mkdir()
+    (final / "old.txt").write_text("old")
+    real_replace = os.replace
+
+    def failing(src: object, dst: object) -> None:
+        if Path(str(src)).name == "missing-partial":
+            raise OSError(28, "No space left on device")
+        real_replace(src, dst)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(os, "replace", failing)
+    with pytest.raises(OSError, match="No space left"):
+        commit_path(tmp_path / "missing-partial", final, replace=True)
+    assert (final / "old.txt").read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["store"]
+
+
+def test_one_format_version_per_file_kind() -> None:
+    check_format_version(2, 2, "x.pt: checkpoint")  # the one it reads
+    for found, match in [
+        (1, "x.pt: checkpoint format_version 1 is a pre-release format.*reads format 2 only"),
+        (None, "format_version None is not an integer"),
+        (True, "format_version True is not an integer"),
+        (3, "format_version 3 is newer than this package reads.*upgrade"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            check_format_version(found, 2, "x.pt: checkpoint")

@@ -20,7 +20,7 @@ import pytest
 import torch
 
 from burgess_tree import dump, write_tree
-from tactile_compliance.data import burgess, plausibility, store
+from tactile_compliance.data import plausibility, raw_layout, store
 from tactile_compliance.data.burgess import import_burgess
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import RULES, PlausibleRange
@@ -58,8 +58,8 @@ def test_the_consumers_read_the_same_rules():
     assert store.COLUMN_RULES["modulus_pa"] is plausibility.MODULUS
     for column in (*store.FORCE_COLUMNS, *store.WIDTH_COLUMNS, *store.ESTIMATE_COLUMNS):
         assert store.COLUMN_RULES[column] in RULES.values()
-    assert burgess.FILE_RULES["forces.pkl"] is plausibility.FORCE
-    assert burgess.FILE_RULES["RGB.pkl"] is plausibility.FRAME
+    assert raw_layout.FILE_RULES["forces.pkl"] is plausibility.FORCE
+    assert raw_layout.FILE_RULES["RGB.pkl"] is plausibility.FRAME
 
 
 def test_bounds_and_nan():
@@ -257,7 +257,7 @@ def test_import_skips_exactly_that_sample_and_reports_it(tmp_path, name):
     assert Path(path) in (aug_dir, aug_dir / case.file)
     assert reason.startswith(f"{case.reason}: {case.file}"), reason
     if case.reason == "implausible value":  # the value, its unit and the allowed range
-        rule = burgess.FILE_RULES[case.file]
+        rule = raw_layout.FILE_RULES[case.file]
         assert f" {case.unit} is outside the plausible range {rule.interval()}" in reason
     else:  # the dtype, and what was expected instead
         assert f"in {case.unit})" in reason and "expected numbers" in reason

@@ -18,8 +18,8 @@ import pytest
 from typer.testing import CliRunner
 
 import real_grasps
+from tactile_compliance.acquisition.recording import ObjectInfo, Readings, record_grasp
 from tactile_compliance.cli import app
-from tactile_compliance.inference.recording import ObjectInfo, Readings, record_grasp
 from tactile_compliance.runs.metrics import nmse
 
 CORNERS = "46,87 439,121 446,368 52,425"
@@ -142,7 +142,7 @@ def _cli(*args):
 
 def test_a_force_spike_in_a_real_grasp_changes_nothing_but_is_reported(wedge_grasps, tmp_path):
     """-70 N in one frame of the hold: without the handling the capture would end there."""
-    from tactile_compliance.inference.calibration import SensorCalibration
+    from tactile_compliance.acquisition.calibration import SensorCalibration
 
     video = _session(wedge_grasps) / "golf_ball_1.avi"
     table = pd.read_csv(video.with_name("golf_ball_1_readings.csv"))
@@ -180,8 +180,8 @@ def test_a_force_spike_in_a_real_grasp_changes_nothing_but_is_reported(wedge_gra
 def test_a_long_real_recording_of_223_frames(wedge_grasps, tmp_path):
     """A real grasp after a long empty lead-in (223 frames in all, as long as the rig's
     longest): the same frames after the lead-in and the same analytical estimates."""
-    from tactile_compliance.inference.calibration import SensorCalibration
-    from tactile_compliance.inference.sensors import FrameSourceBase, iter_frames
+    from tactile_compliance.acquisition.calibration import SensorCalibration
+    from tactile_compliance.acquisition.sensors import FrameSourceBase, iter_frames
 
     video = _session(wedge_grasps) / "purple_ball_hardest_1.avi"
     readings_csv = video.with_name("purple_ball_hardest_1_readings.csv")

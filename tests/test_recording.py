@@ -22,14 +22,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from tactile_compliance.cli import app
-from tactile_compliance.data.image_ops import difference_images
-from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.data.photometric import reconstruct_depth
-from tactile_compliance.data.safe_pickle import load_numpy_pickle
-from tactile_compliance.data.store import GraspStore
-from tactile_compliance.inference.live import format_live_event
-from tactile_compliance.inference.recording import (
+from tactile_compliance.acquisition.recording import (
     ObjectInfo,
     ReadingError,
     Readings,
@@ -37,7 +30,14 @@ from tactile_compliance.inference.recording import (
     record_grasp,
     write_readings_csv,
 )
-from tactile_compliance.inference.sensors import FrameSourceBase, open_source
+from tactile_compliance.acquisition.sensors import FrameSourceBase, open_source
+from tactile_compliance.cli import app
+from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.data.photometric import reconstruct_depth
+from tactile_compliance.data.safe_pickle import load_numpy_pickle
+from tactile_compliance.data.store import GraspStore
+from tactile_compliance.inference.live import format_live_event
 from tactile_compliance.models import create_model
 from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
 from tactile_compliance.runs.checkpoint import save_checkpoint
@@ -476,7 +476,7 @@ def _depth_model_for(reference, px_per_mm, seed=0):
 def test_a_calibrated_sensor_gives_depth_and_estimates_in_its_units(grasp, tmp_path):
     """With a depth model and a pixel density in the calibration, `record` stores that
     model's depth maps and the estimates at that density, and `live` computes the same."""
-    from tactile_compliance.inference.calibration import SensorCalibration
+    from tactile_compliance.acquisition.calibration import SensorCalibration
     from tactile_compliance.physics.dataset_estimates import DATASET_CONSTANTS
     from tactile_compliance.synthetic.render import pixel_size_mm
 
@@ -583,7 +583,7 @@ def test_the_documented_robot_loop_runs(grasp, tmp_path, monkeypatch):
     and the gripper by the readings; it prints provisional estimates and the final one."""
     from pathlib import Path
 
-    from tactile_compliance.inference.calibration import calibrate
+    from tactile_compliance.acquisition.calibration import calibrate
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "inference.md").read_text()
     block = text.split("### A robot loop with a GelSight Mini")[1]
@@ -625,7 +625,7 @@ def test_the_documented_robot_loop_runs(grasp, tmp_path, monkeypatch):
 
 
 def test_readings_are_followed_while_the_robot_writes_them(tmp_path):
-    from tactile_compliance.inference.recording import FollowedReadings
+    from tactile_compliance.acquisition.recording import FollowedReadings
 
     path = tmp_path / "log.csv"
     follow = FollowedReadings(path, wait_s=0.05)  # the file does not exist yet

@@ -17,13 +17,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tactile_compliance.inference import recording
-from tactile_compliance.inference.recording import (
+from tactile_compliance.acquisition.recording import (
     OBJECT_TABLE_FILE,
     CapturedGrasp,
     ObjectInfo,
     write_grasp,
 )
+from tactile_compliance.data import raw_layout
 from tactile_compliance.outputs import OutputExistsError, claim_output_dir
 from toy_store import make_toy_store
 
@@ -53,12 +53,13 @@ def test_record_refuses_a_store_a_run_directory_and_foreign_files(tmp_path):
         with pytest.raises(OutputExistsError):
             write_grasp(captured(), out, ObjectInfo("ball", 1e5))
         assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
-    # A dataset that record wrote (also before the marker existed) is reused.
+    # A dataset that record wrote is reused; without its marker it is no one's.
     out = tmp_path / "data"
     write_grasp(captured(), out, ObjectInfo("ball", 1e5))
-    (out / ".tactile-compliance.json").unlink()
-    (out / ".record.lock").unlink()
     assert write_grasp(captured(), out, ObjectInfo("ball", 1e5)).grasp == 1
+    (out / ".tactile-compliance.json").unlink()
+    with pytest.raises(OutputExistsError):
+        write_grasp(captured(), out, ObjectInfo("ball", 1e5))
 
 
 # ---------------------------------------------------------------------- concurrency
@@ -139,7 +140,7 @@ def test_a_full_disk_leaves_no_metadata_and_no_partial_grasp(tmp_path, monkeypat
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(recording, "dump_numpy_pickle", full)
+    monkeypatch.setattr(raw_layout, "dump_numpy_pickle", full)
     with pytest.raises(OSError, match="No space left"):
         write_grasp(captured(), out, ObjectInfo("ball", 1e5))
     after = sorted(p.relative_to(out) for p in out.rglob("*") if p.name != ".record.lock")

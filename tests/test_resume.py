@@ -24,9 +24,14 @@ from typer.testing import CliRunner
 from epoch_trace import committed_epochs, default_sigint
 from tactile_compliance.cli import app
 from tactile_compliance.data.store import StoreError
-from tactile_compliance.outputs import MARKER_NAME, claim_output_dir
+from tactile_compliance.outputs import (
+    MARKER_NAME,
+    DirectoryLockedError,
+    claim_output_dir,
+    exclusive_lock,
+)
 from tactile_compliance.runs.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
-from tactile_compliance.runs.layout import RUN_KIND, DirectoryLockedError, lock_directory
+from tactile_compliance.runs.layout import LOCK_FILE, RUN_KIND
 from tactile_compliance.runs.results import ResultsStore
 from tactile_compliance.training import module
 from tactile_compliance.training.train import build_model, train
@@ -266,8 +271,9 @@ def test_a_run_that_stopped_early_does_not_train_on_when_resumed(toy_store, tmp_
 _HOLDER = textwrap.dedent(
     """
     import sys, time
-    from tactile_compliance.runs.layout import lock_directory
-    with lock_directory(sys.argv[1]):
+    from pathlib import Path
+    from tactile_compliance.outputs import exclusive_lock
+    with exclusive_lock(Path(sys.argv[1]) / ".lock", wait=False):
         print("locked", flush=True)
         time.sleep(120)
     """
@@ -309,13 +315,14 @@ def test_a_locked_run_directory_fails_at_once_and_a_dead_holders_lock_is_taken_o
     assert (run_dir / ".lock").read_text() == ""  # released
 
 
-def test_lock_directory_in_one_process(tmp_path):
-    with lock_directory(tmp_path) as path:
+def test_a_lock_that_does_not_wait_in_one_process(tmp_path):
+    with exclusive_lock(tmp_path / LOCK_FILE, wait=False) as path:
         assert path.read_text().startswith(f"pid {os.getpid()} on ")
-        second = lock_directory(tmp_path)
+        second = exclusive_lock(tmp_path / LOCK_FILE, "run directory", wait=False)
         with pytest.raises(DirectoryLockedError, match=f"held by pid {os.getpid()} "):
             second.__enter__()
-    with lock_directory(tmp_path):  # released: free again
+    assert (tmp_path / LOCK_FILE).read_text() == ""  # released: names nobody
+    with exclusive_lock(tmp_path / LOCK_FILE, wait=False):  # free again
         pass
 
 

@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tactile_compliance.inference.calibration import SensorCalibration, calibrate
-from tactile_compliance.inference.sensors import (
+from tactile_compliance.acquisition.calibration import SensorCalibration, calibrate
+from tactile_compliance.acquisition.sensors import (
     MINI_GEOMETRY,
     WEDGE_GEOMETRY,
     DigitSource,

@@ -170,6 +170,32 @@ def test_header_records_format(tmp_path):
     assert header["format_version"] == 1
 
 
+@pytest.mark.parametrize(
+    ("version", "match"),
+    [(0, "format_version 0 is a pre-release format"), (2, "format_version 2 is newer")],
+)
+def test_one_store_format_is_read(tmp_path, version, match):
+    """Pre-release formats are refused in one line naming the version, not read."""
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "test") as writer:
+        writer.append(np.zeros((3, 4, 5, 3)), _row(0))
+    header = json.loads((tmp_path / "s" / HEADER_FILE).read_text())
+    header["format_version"] = version
+    (tmp_path / "s" / HEADER_FILE).write_text(json.dumps(header))
+    with pytest.raises(StoreError, match=match) as caught:
+        GraspStore.open(tmp_path / "s")
+    assert "\n" not in str(caught.value) and "reads format 1 only" in str(caught.value)
+
+
+def test_a_header_without_its_shape_check_is_refused(tmp_path):
+    with GraspStoreWriter(tmp_path / "s", (4, 5), "test") as writer:
+        writer.append(np.zeros((3, 4, 5, 3)), _row(0))
+    header = json.loads((tmp_path / "s" / HEADER_FILE).read_text())
+    del header["frame_shape_sha256"]
+    (tmp_path / "s" / HEADER_FILE).write_text(json.dumps(header))
+    with pytest.raises(StoreError, match="frame_shape_sha256"):
+        GraspStore.open(tmp_path / "s")
+
+
 def test_read_sample_matches_memmap_and_survives_pickling(tmp_path):
     import pickle
 

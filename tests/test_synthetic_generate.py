@@ -82,7 +82,9 @@ def test_layout_matches_the_real_dataset(small_tree: Path) -> None:
         assert meta["object_name"] == obj.name and meta["youngs_modulus"] > 0
         for aug in obj.glob("grasp=*/augmentation=*"):
             assert re.fullmatch(r"grasp=\d+", aug.parent.name)
-            assert {p.name for p in aug.iterdir()} == PKL_FILES
+            names = {p.name for p in aug.iterdir()}
+            # A failed fit has no estimate file, as in the public dataset (raw_layout).
+            assert PKL_FILES - {"elastic_estimate.pkl", "hertz_estimate.pkl"} <= names <= PKL_FILES
             rgb = load_numpy_pickle(aug / "RGB.pkl")
             depth = load_numpy_pickle(aug / "depth_markers.pkl")
             assert rgb.shape == (3, *SMALL, 3) and rgb.dtype == np.float16
@@ -92,7 +94,8 @@ def test_layout_matches_the_real_dataset(small_tree: Path) -> None:
             assert forces.shape == widths.shape == (3,)
             assert forces[0] >= 4.0 and forces[-1] > forces[0]  # first frame at ~5 N
             assert 0 < widths[-1] <= widths[0] < 0.08
-            assert load_numpy_pickle(aug / "hertz_estimate.pkl").shape == ()
+            for estimate in names & {"elastic_estimate.pkl", "hertz_estimate.pkl"}:
+                assert np.isfinite(load_numpy_pickle(aug / estimate)[()])
     # No label in the names; no leftovers.
     assert not list(small_tree.glob(".partial-*"))
 

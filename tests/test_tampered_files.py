@@ -24,10 +24,10 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from tactile_compliance.acquisition.calibration import SensorCalibration, calibrate
 from tactile_compliance.cli import EXIT_BAD_INPUT, app
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.inference import ComplianceEstimator
-from tactile_compliance.inference.calibration import SensorCalibration, calibrate
 from tactile_compliance.inference.export import export_safetensors
 from tactile_compliance.inference.pretrained import CONFIG_FILE, WEIGHTS_FILE
 from tactile_compliance.models import create_model

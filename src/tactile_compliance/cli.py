@@ -32,7 +32,7 @@ _debug = False  # --debug: let errors raise with their traceback
 # The choices the parser checks and the help lists. Each is a vocabulary of the library,
 # written out here so that the command starts without importing the library (torch);
 # tests/test_cli_help.py checks each against its home, named in the comment.
-Fingers = Literal["markerless", "markers", "both"]  # data.burgess.FingerChoice
+Fingers = Literal["markerless", "markers", "both"]  # data.raw_layout.FingerChoice
 Condition = Literal["seen", "unseen"]  # config.SplitConfig.condition
 Grouping = Literal["grasp", "per_sample"]  # config.SplitConfig.grouping
 Inputs = Literal["Image", "ImageF", "ImageFW", "ALL"]  # models.inputs.InputStrategy
@@ -43,7 +43,7 @@ Backbone = Literal[  # training.pretrain.PRETRAIN_BACKBONES
 ]
 DemoMode = Literal["full", "ci"]  # demo.PLANS and sim2real.PLANS
 SimulateKind = Literal["gelsight", "shore-videos"]  # the two generators of `simulate`
-PickleDtype = Literal["float16", "float32", "float64"]  # synthetic.writer.ALLOWED_DTYPES
+PickleDtype = Literal["float16", "float32", "float64"]  # data.raw_layout.ALLOWED_DTYPES
 RigName = Literal["dataset", "wedge-2023"]  # synthetic.timeseries.RIGS
 
 
@@ -1299,7 +1299,7 @@ FolderTimesOption = Annotated[
 def _readings(path: Path, source: Any) -> Any:
     """The readings CSV: read once for a replay; followed while the robot writes it for a
     live device (each frame waits up to 1 s for its reading)."""
-    from tactile_compliance.inference.recording import FollowedReadings, Readings
+    from tactile_compliance.acquisition.recording import FollowedReadings, Readings
 
     if source.live:  # the robot may create the file after the start; its folder must exist
         if not path.parent.is_dir():
@@ -1317,8 +1317,8 @@ def _open_source(
     spec: str, calibration: Path | None, fps: float | None, timestamps: Path | None
 ) -> tuple[Any, Any]:
     """(source, calibration or None): the source opened with the calibration's geometry."""
-    from tactile_compliance.inference.calibration import SensorCalibration
-    from tactile_compliance.inference.sensors import open_source
+    from tactile_compliance.acquisition.calibration import SensorCalibration
+    from tactile_compliance.acquisition.sensors import open_source
 
     options = {"fps": fps, "timestamps_csv": timestamps}
     if calibration is None:
@@ -1370,8 +1370,8 @@ def calibrate(
     Nothing may touch the gel. Options replace the source preset's geometry step by step."""
     from dataclasses import replace
 
-    from tactile_compliance.inference.calibration import calibrate as run_calibration
-    from tactile_compliance.inference.sensors import open_source
+    from tactile_compliance.acquisition.calibration import calibrate as run_calibration
+    from tactile_compliance.acquisition.sensors import open_source
 
     with open_source(source, fps=fps, timestamps_csv=timestamps) as probe:
         geometry = probe.geometry  # the preset's steps, replaced below where given
@@ -1466,7 +1466,7 @@ def calibrate_depth_command(
     """Fit your sensor's depth model from presses of a ball of known radius (as GelSight's
     SDK and Taxim calibrate): colour and position -> surface slope, checked press by press.
     `record`, `live` and `depth` then use it with --calibration OUT."""
-    from tactile_compliance.inference.calibration import (
+    from tactile_compliance.acquisition.calibration import (
         SensorCalibration,
         calibrate_depth,
         capture_presses,
@@ -1527,7 +1527,7 @@ def depth(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """Depth maps of tactile frames: DIR/STEM.npy, float32 (H, W) in mm, positive into the gel."""
-    from tactile_compliance.inference.calibration import (
+    from tactile_compliance.acquisition.calibration import (
         SensorCalibration,
         read_image,
         read_images,
@@ -1592,8 +1592,8 @@ def record(
     OUT/dataset_objects_and_compliance.csv; `import burgess OUT` reads it."""
     from contextlib import ExitStack
 
-    from tactile_compliance.inference.calibration import read_image
-    from tactile_compliance.inference.recording import ObjectInfo, record_grasp
+    from tactile_compliance.acquisition.calibration import read_image
+    from tactile_compliance.acquisition.recording import ObjectInfo, record_grasp
 
     info = ObjectInfo(object_name, modulus, material, shape)
     no_contact = None if reference is None else read_image(reference)

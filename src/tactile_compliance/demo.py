@@ -135,9 +135,7 @@ def run_demo(
     plan = PLANS[mode]
     if workers is None:
         workers = 1 if mode == "ci" else min(available_cpus(), 4)
-    out = claim_output_dir(
-        out_dir, "demo", recognise=lambda path: (path / "raw" / "gelsight").is_dir()
-    )
+    out = claim_output_dir(out_dir, "demo")
     summary = DemoSummary(out_dir=out, report=None)
 
     def stage(name: str, start: float) -> None:

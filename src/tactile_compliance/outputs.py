@@ -10,8 +10,9 @@ demo) *claims* it first with :func:`claim_output_dir`:
 * anything else (a directory of the user's files, another command's output) is refused
   with :class:`OutputExistsError`, before anything is written.
 
-Directories written by versions before the marker existed are recognised by their
-contents (``recognise``) and adopted. Single output files (a split, an ONNX model, a
+A directory without a marker is never adopted by its contents: the package never shipped
+a version that wrote none (``recognise`` is for a directory that a concurrent command of
+the same kind is creating). Single output files (a split, an ONNX model, a
 JSON report) go through :func:`check_output_file`: an existing file is replaced only when
 it is recognisably an output of the same kind. Every file a command writes goes through
 :func:`atomic_file`: a reader never sees half of it.
@@ -23,9 +24,13 @@ import contextlib
 import errno
 import json
 import os
+import re
 import secrets
+import shutil
+import socket
 import warnings
 from collections.abc import Callable, Iterator
+from datetime import datetime
 from pathlib import Path
 from typing import IO, Any
 
@@ -38,10 +43,14 @@ except ImportError:  # Windows: no flock
 
 __all__ = [
     "MARKER_NAME",
+    "PARTIAL_PREFIX",
+    "DirectoryLockedError",
     "OutputExistsError",
     "atomic_file",
+    "check_format_version",
     "check_output_file",
     "claim_output_dir",
+    "commit_path",
     "exchange_directories",
     "exclusive_lock",
     "fsync_directory",
@@ -51,6 +60,9 @@ __all__ = [
 ]
 
 MARKER_NAME = ".tactile-compliance.json"
+PARTIAL_PREFIX = ".partial-"
+"""Hidden name prefix of what the generators and ``record`` write before :func:`commit_path`
+(importers skip hidden directories; a re-run removes its own leftovers)."""
 
 
 class OutputExistsError(FileExistsError):
@@ -115,7 +127,8 @@ def claim_output_dir(
     Args:
         path: the directory the user named.
         kind: what writes it ("report", "experiment", "demo", ...).
-        recognise: tells an output of this kind written before markers existed (adopted).
+        recognise: tells an unmarked directory that a concurrent command of this kind is
+            creating (adopted).
         option: the command-line option that names ``path``, for the error message.
         create: False only checks (the same refusals) and creates nothing, for a command
             that must read its inputs before it may create its output.
@@ -148,6 +161,32 @@ def claim_output_dir(
     out.mkdir(parents=True, exist_ok=True)
     _write_marker(out, kind)
     return out
+
+
+def check_format_version(found: Any, supported: int, what: str) -> None:
+    """Refuse a file of another format version than the one this package writes.
+
+    The package never shipped another format of any file kind (0.1.0 is its first
+    release), so one version is read per kind, not a history: anything else is one line
+    naming both versions.
+
+    Args:
+        found: the ``format_version`` the file records.
+        supported: the one version this package reads and writes.
+        what: the file and its kind, for the message ("PATH: checkpoint").
+
+    Raises:
+        ValueError: ``found`` is not an integer, or not ``supported``.
+    """
+    if isinstance(found, bool) or not isinstance(found, int):
+        raise ValueError(f"{what} format_version {found!r} is not an integer")
+    if found != supported:
+        kind = "newer than this package reads" if found > supported else "a pre-release format"
+        raise ValueError(
+            f"{what} format_version {found} is {kind}; tactile-compliance {__version__} "
+            f"reads format {supported} only: "
+            + ("upgrade tactile-compliance" if found > supported else "write it again")
+        )
 
 
 def check_output_file(
@@ -224,6 +263,45 @@ def atomic_file(
     fsync_directory(path.parent)
 
 
+def commit_path(partial: str | Path, final: str | Path, *, replace: bool = False) -> None:
+    """Rename a finished temporary directory (or file) ``partial`` to ``final``: the one
+    atomic commit of the store, the generators and ``record``.
+
+    Everything is written into ``partial`` (a hidden sibling of ``final``) first, so a
+    reader or a process started after a kill sees the whole of ``final`` or nothing.
+
+    Args:
+        partial: the complete temporary directory or file, next to ``final``.
+        final: where it goes.
+        replace: an existing ``final`` is moved aside (``.NAME.old-PID-RANDOM``), replaced
+            and then deleted; if the second rename fails it is put back. Without
+            ``replace`` an existing ``final`` is an error.
+
+    Raises:
+        FileExistsError: ``final`` exists and ``replace`` is False (``partial`` is left
+            for the caller to remove).
+        OSError: a rename failed; ``final`` is as it was.
+    """
+    partial, final = Path(partial), Path(final)
+    if not os.path.lexists(final):
+        os.rename(partial, final)
+    elif not replace:
+        raise FileExistsError(f"{final} already exists; nothing was overwritten")
+    else:
+        aside = final.with_name(f".{final.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
+        os.replace(final, aside)
+        try:
+            os.replace(partial, final)
+        except OSError:
+            os.replace(aside, final)  # the old one goes back
+            raise
+        if aside.is_dir() and not aside.is_symlink():
+            shutil.rmtree(aside, ignore_errors=True)
+        else:
+            aside.unlink(missing_ok=True)
+    fsync_directory(final.parent)
+
+
 def exchange_directories(first: str | Path, second: str | Path) -> None:
     """Swap two directories' names at once (Linux ``renameat2(RENAME_EXCHANGE)``).
 
@@ -258,37 +336,96 @@ def exchange_directories(first: str | Path, second: str | Path) -> None:
     fsync_directory(first.parent)
 
 
+class DirectoryLockedError(OSError):
+    """Another process holds a lock taken with ``wait=False`` (see :func:`exclusive_lock`)."""
+
+
+def _holder_record() -> str:
+    since = datetime.now().astimezone().isoformat(timespec="seconds")
+    return f"pid {os.getpid()} on {socket.gethostname()} since {since}"
+
+
+def _held_by_other_process(record: str) -> bool:
+    """For file systems without ``flock``: whether ``record`` names a live other process."""
+    match = re.match(r"pid (\d+) on (\S+)", record)
+    if match is None:
+        return False
+    pid, host = int(match.group(1)), match.group(2)
+    if host != socket.gethostname():
+        return True  # cannot tell from here: treat as held (the message says what to do)
+    return pid != os.getpid() and process_alive(pid)
+
+
 @contextlib.contextmanager
-def exclusive_lock(path: str | Path, what: str = "this directory") -> Iterator[None]:
-    """Hold an exclusive ``flock`` on ``path`` (created if needed), waiting until it is free.
+def exclusive_lock(
+    path: str | Path, what: str = "this directory", *, wait: bool = True
+) -> Iterator[Path]:
+    """Hold an exclusive ``flock`` on the file ``path`` (created if needed): the one lock.
 
-    For short critical sections that several processes may enter at once (a feature
-    cache computed once, a dataset's object table updated by concurrent ``record``s). The
-    kernel releases the lock when its holder dies, however it dies. The lock file is never
-    deleted: unlinking it while another process waits on the old inode would let a third
-    process lock a new file and enter at the same time.
+    The file records its holder (``pid PID on HOST since TIME``) while it is held. The
+    kernel releases the lock when its holder dies, however it dies, so a lock file left by
+    a killed process is simply taken over. The file is never deleted: unlinking it while
+    another process waits on the old inode would let a third process lock a new file and
+    enter at the same time.
 
-    Where ``flock`` is unavailable (Windows, a file system that refuses it) the block runs
-    unlocked, as before the lock existed, with a warning naming ``what`` is unprotected.
+    Args:
+        path: the lock file.
+        what: what the lock protects, for the messages ("the feature cache", "run
+            directory").
+        wait: True waits until the lock is free (short critical sections several
+            processes may enter: a feature cache computed once, a dataset's object table
+            updated by concurrent ``record``s). False fails at once (a run directory, an
+            experiment's output: one process at a time, a second one is a mistake).
+
+    Where ``flock`` is unavailable (Windows, a file system that refuses it), a waiting
+    lock runs the block unlocked with a warning naming ``what``; a non-waiting one lets the
+    recorded PID decide (a live process on this host, or any process on another host,
+    holds it).
+
+    Raises:
+        DirectoryLockedError: ``wait=False`` and another process holds the lock (one line
+            naming the lock file and the holder).
     """
-    if fcntl is None:
-        yield
-        return
-    with open(path, "a+b") as handle:
-        try:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
-        except OSError as err:
-            if err.errno not in (errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOLCK):
-                raise
+    path = Path(path)
+    busy = (
+        f"{path.parent} is in use: its lock {path} is held by {{}}; wait for that process "
+        f"to finish or use another {what}"
+    )
+    with open(path, "a+", encoding="utf-8") as handle:
+        locked = fcntl is not None
+        if fcntl is not None:
+            try:
+                fcntl.flock(handle.fileno(), fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+            except OSError as err:
+                if err.errno not in (errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOLCK):
+                    handle.seek(0)
+                    raise DirectoryLockedError(
+                        busy.format(handle.read().strip() or "another process")
+                    ) from None
+                locked = False
+        if not locked and wait:
             # Some cluster file systems (Lustre mounted without -o flock) refuse locks.
             warnings.warn(
-                f"{Path(path).parent}: the file system does not support flock ({err}); "
-                f"writing {what} without a lock (do not write it from two processes)",
+                f"{path.parent}: the file system does not support flock; writing {what} "
+                f"without a lock (do not write it from two processes)",
                 stacklevel=3,
             )
-            yield
-            return
+        elif not locked:  # no flock here: fall back to the recorded PID
+            handle.seek(0)
+            holder = handle.read().strip()
+            if holder and _held_by_other_process(holder):
+                raise DirectoryLockedError(
+                    busy.format(holder) + " (delete the lock file if that process is gone)"
+                )
+        handle.seek(0)
+        handle.truncate()
+        handle.write(_holder_record() + "\n")
+        handle.flush()
         try:
-            yield
+            yield path
         finally:
-            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+            # Released: an empty file names nobody (a killed holder leaves its record).
+            with contextlib.suppress(OSError):
+                handle.seek(0)
+                handle.truncate()
+                handle.flush()

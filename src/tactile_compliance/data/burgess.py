@@ -1,16 +1,8 @@
 """Importer for the GelSight Young's-modulus dataset layout (Burgess et al. 2024).
 
-Layout (see ``docs/data.md``)::
-
-    SRC/{object}/metadata.json
-    SRC/{object}/grasp={g}/augmentation={k}/RGB.pkl            (3, H, W, 3) BGR difference images
-                                            RGB_markers.pkl    same, the other finger (markers)
-                                            depth.pkl, depth_markers.pkl   (3, H, W) mm
-                                            forces.pkl (3,) N, widths.pkl (3,) m
-                                            elastic_estimate.pkl, hertz_estimate.pkl  () Pa
-
-The synthetic generator writes the same layout, so this one importer serves real and
-synthetic data. Each (grasp, augmentation, finger) becomes one store sample.
+The layout and its file readers are :mod:`~tactile_compliance.data.raw_layout` (see also
+``docs/data.md``). The synthetic generator writes the same layout, so this one importer
+serves real and synthetic data. Each (grasp, augmentation, finger) becomes one store sample.
 
 The frame size is the majority over the dataset: a first pass reads only the shape each
 image pickle declares (:func:`~tactile_compliance.data.safe_pickle.peek_array_shape`, a
@@ -24,14 +16,11 @@ negative estimate, float frames that are no difference image in [0, 1]): the rul
 from __future__ import annotations
 
 import json
-import re
 import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
 
-import numpy as np
 import pandas as pd
 
 from tactile_compliance.data import plausibility
@@ -44,36 +33,28 @@ from tactile_compliance.data.import_report import (
     utf8_problem,
 )
 from tactile_compliance.data.object_table import read_object_table, valid_modulus
-from tactile_compliance.data.plausibility import PlausibleRange, dtype_problem
-from tactile_compliance.data.safe_pickle import (
-    ArrayTooLargeError,
-    UnsafePickleError,
-    load_numpy_pickle,
-    peek_array_shape,
+from tactile_compliance.data.raw_layout import (
+    AUGMENTATION_DIR,
+    ESTIMATE_FILES,
+    FINGER_FILES,
+    FORCES_FILE,
+    GRASP_DIR,
+    METADATA_FILE,
+    SYNTHETIC_MANIFEST,
+    WIDTHS_FILE,
+    FingerChoice,
+    SampleError,
+    load_depth,
+    load_estimate,
+    load_frames,
+    load_vector,
+    numbered_dirs,
+    read_metadata,
+    recorded_units,
 )
-from tactile_compliance.data.store import FRAMES_PER_SAMPLE, GraspStoreWriter, depth_size_for
-from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
+from tactile_compliance.data.safe_pickle import peek_array_shape
+from tactile_compliance.data.store import GraspStoreWriter, depth_size_for
 from tactile_compliance.progress import progress_bar
-
-FingerChoice = Literal["markerless", "markers", "both"]
-
-# finger name -> (image file, depth file)
-FINGER_FILES: dict[str, tuple[str, str]] = {
-    "markerless": ("RGB.pkl", "depth.pkl"),
-    "markers": ("RGB_markers.pkl", "depth_markers.pkl"),
-}
-# Written by tactile_compliance.synthetic at the root of a generated tree.
-SYNTHETIC_MANIFEST = "generation.json"
-#: The plausibility rule of each file's values (both fingers' image files: frames).
-FILE_RULES: dict[str, PlausibleRange] = {
-    "forces.pkl": plausibility.FORCE,
-    "widths.pkl": plausibility.WIDTH,
-    "elastic_estimate.pkl": plausibility.ESTIMATE,
-    "hertz_estimate.pkl": plausibility.ESTIMATE,
-    **{image_file: plausibility.FRAME for image_file, _ in FINGER_FILES.values()},
-}
-_GRASP_DIR = re.compile(r"^grasp=(\d+)$")
-_AUGMENTATION_DIR = re.compile(r"^augmentation=(\d+)$")
 
 
 @dataclass(frozen=True)
@@ -84,122 +65,6 @@ class ObjectLabel:
     modulus_pa: float
     material: str
     shape: str
-
-
-class SampleError(Exception):
-    """One sample cannot be read; the message is the reason (importer and ``predict``)."""
-
-
-def _numbered_dirs(parent: Path, pattern: re.Pattern[str]) -> list[tuple[int, Path]]:
-    found = []
-    for child in parent.iterdir():
-        match = pattern.match(child.name)
-        if match and child.is_dir():
-            found.append((int(match.group(1)), child))
-    return sorted(found)
-
-
-def _implausible(name: str, values: np.ndarray) -> None:
-    """SampleError when a value of file ``name`` breaks its plausibility rule (NaN aside)."""
-    rule = FILE_RULES.get(name)
-    problem = rule.violation(values) if rule is not None else None
-    if problem:
-        raise SampleError(f"implausible value: {name}: {problem}")
-
-
-def _load_array(path: Path, what: str) -> np.ndarray:
-    """A numeric array (integer or float dtype) from an untrusted pickle, or SampleError.
-
-    Other dtypes (bool, complex, datetime, timedelta, text, structured) are refused, never
-    cast: a cast would drop an imaginary part or turn a date into a number."""
-    if not path.is_file():
-        raise SampleError(f"missing file: {path.name}")
-    try:
-        array = load_numpy_pickle(path)
-    except UnsafePickleError as err:
-        raise SampleError(f"unsafe pickle rejected: {err}") from err
-    except ArrayTooLargeError as err:
-        raise SampleError(f"array too large: {path.name} {err}") from err
-    except OSError as err:
-        raise SampleError(f"unreadable file: {path.name} ({err})") from err
-    except Exception as err:  # only numpy code runs: any other error means a bad file
-        raise SampleError(f"corrupt pickle: {path.name} ({type(err).__name__}: {err})") from err
-    if dtype_problem(array.dtype):
-        rule = FILE_RULES.get(path.name)
-        unit = f" ({rule.quantity} in {rule.unit})" if rule is not None else ""
-        raise SampleError(f"wrong dtype: {path.name} is {array.dtype}, expected numbers{unit}")
-    return array
-
-
-def load_vector(directory: Path, name: str, length: int) -> np.ndarray:
-    """A finite float64 vector of ``length`` values (forces [N], widths [m]) from a pickle,
-    within the file's plausibility rule (:data:`FILE_RULES`)."""
-    array = _load_array(directory / name, name).astype(np.float64)
-    if array.shape != (length,):
-        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected ({length},)")
-    if not np.all(np.isfinite(array)):
-        raise SampleError(f"non-finite values: {name}")
-    _implausible(name, array)
-    return array
-
-
-def load_estimate(directory: Path, name: str) -> float:
-    """An analytical estimate in Pa, or NaN when absent or NaN (a failed fit: the filter
-    decides what to drop). Infinite, zero or negative estimates are implausible."""
-    if not (directory / name).is_file():
-        return float("nan")
-    array = _load_array(directory / name, name)
-    if array.size != 1:
-        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected a scalar")
-    _implausible(name, array)
-    return float(array.reshape(()))
-
-
-def load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None) -> np.ndarray:
-    """Difference images as float32 RGB (3, H, W, 3); the files store BGR.
-
-    Values must be a difference image in [0, 1] by the frame rule
-    (:data:`~tactile_compliance.data.plausibility.FRAME`: one grey level of tolerance, at
-    most 1 % saturated values, none beyond [-0.5, 1.5]); the store's uint8 encoding would
-    otherwise clip them silently.
-    """
-    array = _load_array(directory / name, name)
-    if (
-        array.ndim != 4
-        or array.shape[0] != FRAMES_PER_SAMPLE
-        or array.shape[3] != 3
-        or array.size == 0
-    ):
-        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected (3, H, W, 3)")
-    if expected_hw is not None and tuple(array.shape[1:3]) != expected_hw:
-        raise SampleError(
-            f"wrong array shape: {name} is {array.shape}, the dataset's frames are "
-            f"{expected_hw[0]}x{expected_hw[1]}"
-        )
-    if not np.all(np.isfinite(array)):
-        raise SampleError(f"non-finite values: {name}")
-    _implausible(name, array)
-    # Explicit channel flip: the dataset was written by OpenCV (BGR); the store is RGB.
-    return np.ascontiguousarray(array[..., ::-1], dtype=np.float32)
-
-
-def load_depth(
-    directory: Path, name: str, depth_size: tuple[int, int] | None
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Maximum gel depth of each frame in mm (NaN when the depth file is absent), and the
-    depth maps area-averaged to ``depth_size`` (h, w) px as float32 mm (None when the
-    file is absent or ``depth_size`` is None: the store keeps no depth)."""
-    if not (directory / name).is_file():
-        return np.full(FRAMES_PER_SAMPLE, np.nan), None
-    depth = _load_array(directory / name, name)
-    if depth.ndim != 3 or depth.shape[0] != FRAMES_PER_SAMPLE or depth.size == 0:
-        raise SampleError(f"wrong array shape: {name} is {depth.shape}, expected (3, H, W)")
-    if not np.all(np.isfinite(depth)):
-        raise SampleError(f"non-finite values: {name}")
-    maxima = depth.reshape(FRAMES_PER_SAMPLE, -1).max(axis=1).astype(np.float64)
-    if depth_size is None:
-        return maxima, None
-    return maxima, resize_frames(depth.astype(np.float32), depth_size)
 
 
 def _object_label(
@@ -218,19 +83,14 @@ def _object_label(
         row = table.loc[name]
         modulus, material, shape = row["modulus_pa"], row["material"], row["shape"]
     else:
-        metadata_path = object_dir / "metadata.json"
-        if not metadata_path.is_file():
-            report.problem(
-                object_dir, "missing file: metadata.json (pass --objects TABLE.csv to label it)"
-            )
-            return None
+        metadata_path = object_dir / METADATA_FILE
         try:
-            metadata: dict[str, Any] = json.loads(metadata_path.read_text(encoding="utf-8"))
-        except (ValueError, OSError) as err:  # JSONDecodeError, UnicodeDecodeError
-            report.problem(metadata_path, f"corrupt metadata.json: {err}")
+            metadata = read_metadata(object_dir)
+        except FileNotFoundError as err:
+            report.problem(object_dir, f"{err} (pass --objects TABLE.csv to label it)")
             return None
-        if not isinstance(metadata, dict):
-            report.problem(metadata_path, "corrupt metadata.json: not a JSON object")
+        except ValueError as err:
+            report.problem(metadata_path, str(err))
             return None
         modulus = metadata.get("youngs_modulus")
         # JSON has numbers: text ("1e6") and booleans (true) are never cast to one.
@@ -265,14 +125,14 @@ def _sample_dirs(object_dir: Path, report: ImportReport) -> list[tuple[int, int,
     """(grasp, augmentation, directory) of an object; unlistable directories are reported."""
     found: list[tuple[int, int, Path]] = []
     try:
-        grasps = _numbered_dirs(object_dir, _GRASP_DIR)
+        grasps = numbered_dirs(object_dir, GRASP_DIR)
     except OSError as err:
         report.problem(object_dir, f"unreadable directory: {err.strerror or err}")
         return found
     unreadable = False
     for grasp, grasp_dir in grasps:
         try:
-            augmentations = _numbered_dirs(grasp_dir, _AUGMENTATION_DIR)
+            augmentations = numbered_dirs(grasp_dir, AUGMENTATION_DIR)
         except OSError as err:
             report.problem(grasp_dir, f"unreadable directory: {err.strerror or err}")
             unreadable = True
@@ -294,7 +154,7 @@ def _object_dirs(src: Path) -> list[Path]:
         for d in children
         if d.is_dir()
         and not d.name.startswith(".")
-        and ((d / "metadata.json").exists() or any(d.glob("grasp=*")))
+        and ((d / METADATA_FILE).exists() or any(d.glob("grasp=*")))
     ]
 
 
@@ -319,51 +179,21 @@ def _tree_estimator(src: Path) -> str:
 
     The public dataset's pickles come from its own code (``"dataset"``), and so does anything
     written in its layout by other tools. A generated tree names its estimator in its
-    manifest; trees generated before it did used ``"contact"``.
+    manifest.
+
+    Raises:
+        ImportPathError: a manifest that names none (a pre-release generator's tree).
     """
     manifest = src / SYNTHETIC_MANIFEST
     if not manifest.is_file():
         return "dataset"
     try:
-        recorded = json.loads(manifest.read_text()).get("analytical_estimator")
-    except (OSError, ValueError, AttributeError):
-        recorded = None
-    return str(recorded) if recorded else "contact"
-
-
-RECORDING_UNITS_FILE = "recording.json"
-"""What ``record`` writes next to its object table: the depth model and pixel density of its
-grasps (``physics.estimators.SensorUnits``)."""
-
-
-def read_units_file(directory: Path) -> SensorUnits | None:
-    """The units ``record`` wrote into ``directory`` (:data:`RECORDING_UNITS_FILE`), or None.
-
-    Raises:
-        ValueError: a damaged record (its estimates' units would be unknown).
-    """
-    path = Path(directory) / RECORDING_UNITS_FILE
-    if not path.is_file():
-        return None
-    try:
-        return SensorUnits.from_dict(json.loads(path.read_text(encoding="utf-8")))
-    except (OSError, ValueError) as err:
-        raise ValueError(f"{path}: cannot read the recording's units ({err})") from err
-
-
-def recorded_units(src: Path) -> SensorUnits:
-    """The units of a tree's estimates: what ``record`` wrote (in ``src`` or up to two
-    directories above, so an object or grasp directory of a recording finds it), else the
-    dataset's Wedge.
-
-    Raises:
-        ValueError: a damaged record.
-    """
-    for directory in (src, *src.resolve().parents[:2]):
-        units = read_units_file(directory)
-        if units is not None:
-            return units
-    return WEDGE_UNITS
+        return str(json.loads(manifest.read_text())["analytical_estimator"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ImportPathError(
+            f"{manifest}: names no analytical_estimator ({err!r}); a pre-release generator "
+            f"wrote it: generate the tree again"
+        ) from None
 
 
 def import_burgess(
@@ -428,7 +258,8 @@ def import_burgess(
             samples.extend((label, g, k, d) for g, k, d in _sample_dirs(object_dir, report))
     image_files = [FINGER_FILES[finger][0] for finger in finger_names]
     source_hw, sizes = majority_frame_size(samples, image_files, progress)
-    units = recorded_units(src)  # before anything is written: a damaged record stops here
+    # Before anything is written: a damaged record or manifest stops here.
+    units, estimator = recorded_units(src), _tree_estimator(src)
 
     def store_depth_size() -> tuple[int, int] | None:
         size = image_size or source_hw
@@ -448,7 +279,7 @@ def import_burgess(
                 "source_image_size": list(source_hw),
                 "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
                 "frame_kind": "difference",
-                "analytical_estimator": _tree_estimator(src),
+                "analytical_estimator": estimator,
                 "sensor": units.to_dict(),
                 "depth": bool(depth),
             },
@@ -463,10 +294,9 @@ def import_burgess(
         for label, grasp, augmentation, aug_dir in samples:
             advance()
             try:
-                forces_n = load_vector(aug_dir, "forces.pkl", FRAMES_PER_SAMPLE)
-                widths_m = load_vector(aug_dir, "widths.pkl", FRAMES_PER_SAMPLE)
-                elastic_pa = load_estimate(aug_dir, "elastic_estimate.pkl")
-                hertz_pa = load_estimate(aug_dir, "hertz_estimate.pkl")
+                forces_n = load_vector(aug_dir, FORCES_FILE)
+                widths_m = load_vector(aug_dir, WIDTHS_FILE)
+                elastic_pa, hertz_pa = (load_estimate(aug_dir, name) for name in ESTIMATE_FILES)
             except SampleError as err:
                 report.problem(aug_dir, str(err))
                 continue

@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from tactile_compliance.data.photometric import poisson_depth
+from tactile_compliance.outputs import check_format_version
 
 __all__ = [
     "DEPTH_MODEL_FORMAT",
@@ -299,11 +300,7 @@ class CalibratedDepthModel:
         """
         if not isinstance(data, dict) or data.get("format") != DEPTH_MODEL_FORMAT:
             raise ValueError(f"not a depth model (no format {DEPTH_MODEL_FORMAT})")
-        if data.get("format_version") != DEPTH_MODEL_VERSION:
-            raise ValueError(
-                f"depth model format_version {data.get('format_version')!r} is not "
-                f"{DEPTH_MODEL_VERSION}; calibrate again with this version"
-            )
+        check_format_version(data.get("format_version"), DEPTH_MODEL_VERSION, "depth model")
         try:
             layers = []
             width = 5

@@ -9,7 +9,7 @@ Cache layout, next to the store (``STORE/features/KEY/``)::
 
     features.f16     float16 array (N_store, 3, feature_dim), C order
     meta.json        backbone class, weights fingerprint, image size, normalisation, shape
-    lock             empty; ``flock``-ed by the one process computing the cache
+    lock             ``outputs.exclusive_lock``-ed by the one process computing the cache
 
 ``KEY`` = backbone class + sha256 of the backbone's weights + image size + the image
 normalisation: a different backbone initialisation can never reuse stale features.
@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +42,7 @@ from tactile_compliance.data.dataset import prepare_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
-from tactile_compliance.outputs import exclusive_lock
+from tactile_compliance.outputs import atomic_file, commit_path, exclusive_lock
 from tactile_compliance.progress import progress_bar
 
 FEATURES_DIR = "features"
@@ -162,9 +161,8 @@ def _compute(
         "store": str(store.path),
         "store_created": store.header.created,
     }
-    os.replace(partial, final)
+    commit_path(partial, final, replace=True)
     # Readers check for meta.json without the lock: it must appear complete or not at all.
-    tmp = meta_path.with_name(META_FILE + ".tmp")
-    tmp.write_text(json.dumps(meta, indent=2) + "\n")
-    os.replace(tmp, meta_path)
+    with atomic_file(meta_path) as handle:
+        handle.write(json.dumps(meta, indent=2) + "\n")
     progress_path.unlink(missing_ok=True)

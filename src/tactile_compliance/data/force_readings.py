@@ -17,7 +17,7 @@ show three quirks the generator does not make by itself:
   no-contact reference. :meth:`ForceBaseline.contact_n` tells by how much a reading lies
   above the baseline.
 
-These are pure functions of a force series; ``inference.recording.Readings`` (what
+These are pure functions of a force series; ``acquisition.recording.Readings`` (what
 ``record`` and ``live`` read the robot's log with) applies them, so both commands see the
 same corrected forces and report the same findings.
 """

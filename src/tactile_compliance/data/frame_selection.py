@@ -5,7 +5,7 @@ This is the published preprocessing (``DATA_FORMATS.md``, "How the three frames 
 chosen"), i.e. a rule about how the *dataset* is made from a recording, not about the
 physics of the contact; so it lives in ``data/``, the lowest layer that everything making
 or reading such recordings may import: the synthetic generator (``synthetic.timeseries``,
-``synthetic.grasp``), recording your own grasps (``inference.recording``) and the
+``synthetic.grasp``), recording your own grasps (``acquisition.recording``) and the
 streaming estimator (``inference.streaming``) all call the functions here, so they pick
 the same frames.
 

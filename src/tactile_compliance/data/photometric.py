@@ -1,6 +1,6 @@
 """Photometric depth reconstruction of difference images, as the real GelSight pipeline does.
 
-Real frames (``inference.recording`` writes ``depth.pkl`` for recorded grasps) and the
+Real frames (``acquisition.recording`` writes ``depth.pkl`` for recorded grasps) and the
 synthetic generator's rendered frames both go through this one function.
 
 From a difference image (BGR, centred on 0.5) the real pipeline takes the gradients

@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.preprocess import require_columns
-from tactile_compliance.outputs import atomic_file, check_output_file
+from tactile_compliance.outputs import atomic_file, check_format_version, check_output_file
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
@@ -221,11 +221,7 @@ class Split:
         """Inverse of :meth:`to_dict`; checks the format marker and the id lists."""
         if data.get("format") != SPLIT_FORMAT:
             raise ValueError(f"not a split file (format={data.get('format')!r})")
-        if int(data.get("version", 0)) > SPLIT_FORMAT_VERSION:
-            raise ValueError(
-                f"split format version {data['version']} is newer than supported "
-                f"({SPLIT_FORMAT_VERSION})"
-            )
+        check_format_version(data.get("version"), SPLIT_FORMAT_VERSION, "split file")
         missing = [f"{n}_ids" for n in SPLIT_NAMES if f"{n}_ids" not in data]
         if missing:
             raise ValueError(f"split file lacks {missing}")

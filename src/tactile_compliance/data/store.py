@@ -69,13 +69,19 @@ from tactile_compliance.data.plausibility import (
     check_size,
     dtype_problem,
 )
-from tactile_compliance.outputs import MARKER_NAME, output_kind, process_alive, process_start
+from tactile_compliance.outputs import (
+    MARKER_NAME,
+    check_format_version,
+    commit_path,
+    output_kind,
+    process_alive,
+    process_start,
+)
 from tactile_compliance.physics.estimators import SensorUnits
 
 FORMAT_VERSION = 1
 #: Written into every store by :class:`GraspStoreWriter`; ``--overwrite`` replaces only a
-#: directory that has it (or, for stores written before it existed, header.json +
-#: samples.parquet): see :func:`is_store_dir`.
+#: directory that has it: see :func:`is_store_dir`.
 #: The marker of every tactile-compliance output (``outputs.MARKER_NAME``), kind "store".
 STORE_MARKER = MARKER_NAME
 STORE_KIND = "store"
@@ -307,22 +313,10 @@ def is_store_dir(path: str | Path) -> bool:
     """Whether ``path`` is a GraspStore directory that may be replaced (``--overwrite``).
 
     A store is a real directory (not a link) holding the :data:`STORE_MARKER` file that
-    :class:`GraspStoreWriter` writes, or, for stores written before the marker existed,
-    a ``header.json`` with ``format_version`` and ``image_size`` next to
-    ``samples.parquet``. Nothing else is ever replaced.
+    :class:`GraspStoreWriter` writes. Nothing else is ever replaced.
     """
     path = Path(path)
-    if path.is_symlink() or not path.is_dir():
-        return False
-    try:
-        if (path / STORE_MARKER).is_file():
-            return output_kind(path) == STORE_KIND
-        if (path / HEADER_FILE).is_file() and (path / SAMPLES_FILE).is_file():
-            header = json.loads((path / HEADER_FILE).read_text())
-            return isinstance(header, dict) and {"format_version", "image_size"} <= set(header)
-    except (OSError, ValueError, AttributeError):
-        return False
-    return False
+    return not path.is_symlink() and path.is_dir() and output_kind(path) == STORE_KIND
 
 
 def store_kind_hint(path: str | Path) -> str:
@@ -332,7 +326,7 @@ def store_kind_hint(path: str | Path) -> str:
         return "a symbolic link"
     if not path.is_dir():
         return "not a directory"
-    return f"a directory without {STORE_MARKER}, nor {HEADER_FILE} + {SAMPLES_FILE}"
+    return f"a directory without {STORE_MARKER}"
 
 
 # ------------------------------------------------------------- leftovers of killed writers
@@ -415,9 +409,9 @@ class StoreHeader:
     creation_parameters: dict[str, Any]
     #: (h, w) px of the stored depth maps (``depth.f16``), or None: no depth maps.
     depth_size: tuple[int, int] | None = None
-    #: ``frame_shape_sha256`` as read from ``header.json`` (None: written before it
-    #: existed); :meth:`frame_shape_problem` compares it with the header's sizes.
-    recorded_shape_check: str | None = None
+    #: ``frame_shape_sha256`` as read from ``header.json``; :meth:`frame_shape_problem`
+    #: compares it with the header's sizes.
+    recorded_shape_check: str = ""
 
     @property
     def shape_check(self) -> str:
@@ -431,7 +425,7 @@ class StoreHeader:
 
     def frame_shape_problem(self) -> str | None:
         """Why the header's sizes are not the ones the store was written with, or None."""
-        if self.recorded_shape_check is None or self.recorded_shape_check == self.shape_check:
+        if self.recorded_shape_check == self.shape_check:
             return None
         height, width = self.image_size
         return (
@@ -477,7 +471,6 @@ class StoreHeader:
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise StoreError(f"{HEADER_FILE} is malformed: {key} {value!r} is not an integer")
         try:
-            check = data.get("frame_shape_sha256")
             return cls(
                 format_version=int(data["format_version"]),
                 num_samples=int(data["num_samples"]),
@@ -492,10 +485,40 @@ class StoreHeader:
                     if data.get("depth_size") is not None
                     else None
                 ),
-                recorded_shape_check=None if check is None else str(check),
+                recorded_shape_check=str(data["frame_shape_sha256"]),
             )
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise StoreError(f"{HEADER_FILE} is malformed: {err!r}") from err
+
+
+def read_store_header(path: str | Path) -> StoreHeader:
+    """A store's ``header.json`` alone: the report reads it where the frames are not copied.
+
+    Raises:
+        StoreError: no header, or a malformed one.
+    """
+    header_path = Path(path) / HEADER_FILE
+    if not header_path.is_file():
+        raise StoreError(f"{path}: not a GraspStore ({HEADER_FILE} missing)")
+    try:
+        return StoreHeader.from_dict(json.loads(header_path.read_text()))
+    except json.JSONDecodeError as err:
+        raise StoreError(f"{header_path}: invalid JSON ({err})") from err
+    except RecursionError:
+        raise StoreError(f"{header_path}: invalid JSON (nested too deeply)") from None
+
+
+def read_samples_table(path: str | Path) -> pd.DataFrame:
+    """A store's ``samples.parquet`` alone (not checked against the header).
+
+    Raises:
+        StoreError: missing, truncated or not parquet.
+    """
+    table = Path(path) / SAMPLES_FILE
+    try:
+        return pd.read_parquet(table)
+    except Exception as err:  # missing, truncated or not parquet (pyarrow's errors vary)
+        raise StoreError(f"{table}: cannot read the table ({err})") from err
 
 
 class GraspStore:
@@ -557,27 +580,15 @@ class GraspStore:
         path = Path(path)
         if not path.is_dir():
             raise StoreError(f"{path}: no such store directory")
-        header_path = path / HEADER_FILE
-        if not header_path.is_file():
-            raise StoreError(f"{path}: not a GraspStore ({HEADER_FILE} missing)")
-        try:
-            header = StoreHeader.from_dict(json.loads(header_path.read_text()))
-        except json.JSONDecodeError as err:
-            raise StoreError(f"{header_path}: invalid JSON ({err})") from err
-        except RecursionError:
-            raise StoreError(f"{header_path}: invalid JSON (nested too deeply)") from None
+        header = read_store_header(path)
         problem = header.frame_shape_problem()
         if problem:
             raise StoreError(f"{path}: {problem}")
-        if header.format_version > FORMAT_VERSION:
-            raise StoreError(
-                f"{path}: store format {header.format_version} is newer than this package "
-                f"supports ({FORMAT_VERSION}); upgrade tactile-compliance"
-            )
         try:
-            samples = pd.read_parquet(path / SAMPLES_FILE)
-        except Exception as err:  # missing, truncated or not parquet (pyarrow's errors vary)
-            raise StoreError(f"{path / SAMPLES_FILE}: cannot read the table ({err})") from err
+            check_format_version(header.format_version, FORMAT_VERSION, f"{path}: store")
+        except ValueError as err:
+            raise StoreError(str(err)) from None
+        samples = read_samples_table(path)
         if len(samples) != header.num_samples:
             raise StoreError(
                 f"{path}: {SAMPLES_FILE} has {len(samples)} rows, header says {header.num_samples}"
@@ -611,15 +622,11 @@ class GraspStore:
     def analytical_estimator(self) -> str | None:
         """Name of the estimator that made the stored analytical estimates, or None.
 
-        Importers record it (``creation_parameters["analytical_estimator"]``, a name of
-        ``physics.estimators``). Older stores are read by their source: the public dataset
-        was made with ``"dataset"``, the generator used ``"contact"`` before it recorded a
-        name, and Shore-hardness (``yuan``) stores have no estimates.
+        ``import burgess`` records it (``creation_parameters["analytical_estimator"]``, a
+        name of ``physics.estimators``); Shore-hardness (``yuan``) stores have no estimates.
         """
         recorded = self.header.creation_parameters.get("analytical_estimator")
-        if recorded:
-            return str(recorded)
-        return {"burgess": "dataset", "synthetic": "contact"}.get(self.header.source)
+        return str(recorded) if recorded else None
 
     @property
     def sensor_units(self) -> SensorUnits:
@@ -1064,26 +1071,11 @@ class GraspStoreWriter:
         return GraspStore.open(self.path)
 
     def _swap_into_place(self) -> None:
-        if not os.path.lexists(self.path):
-            try:
-                os.replace(self._tmp, self.path)
-            except OSError as err:
-                self._remove_everything()
-                raise self._write_error(err) from err
-            return
-        backup = self.path.with_name(f".{self.path.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
         try:
-            os.replace(self.path, backup)
+            commit_path(self._tmp, self.path, replace=True)
         except OSError as err:
             self._remove_everything()
             raise self._write_error(err) from err
-        try:
-            os.replace(self._tmp, self.path)
-        except OSError as err:
-            os.replace(backup, self.path)  # the old store goes back
-            self._remove_everything()
-            raise self._write_error(err) from err
-        shutil.rmtree(backup, ignore_errors=True)
 
     def abort(self) -> None:
         """Discard everything written so far."""

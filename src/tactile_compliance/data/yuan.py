@@ -7,11 +7,11 @@ midway between them. Labels come from the Shore 00 hardness through Larson's con
 there is no force, width or estimate.
 Frames are stored as raw camera images (``frame_kind: raw`` in the store header), in RGB.
 
-Every file with a video suffix (:data:`VIDEO_SUFFIXES`, e.g. ``.avi``, ``.mp4``) is a
-candidate: it is imported when its name matches and OpenCV decodes it, otherwise it is
-skipped and reported with the reason. The store's frame size is the most common size
-among the videos (read from their headers) unless ``image_size`` is given; other videos
-are resized to it. A label outside the plausible modulus range
+Every file with a video suffix (``raw_layout.VIDEO_SUFFIXES``, e.g. ``.avi``, ``.mp4``,
+the same list ``predict`` accepts) is a candidate: it is imported when its name matches
+and OpenCV decodes it, otherwise it is skipped and reported with the reason. The store's
+frame size is the most common size among the videos (read from their headers) unless
+``image_size`` is given; other videos are resized to it. A label outside the plausible modulus range
 (:mod:`~tactile_compliance.data.plausibility`, shared with the other importer, the store
 and the estimator) skips its video with a report; the frames are uint8, always in range.
 """
@@ -34,12 +34,11 @@ from tactile_compliance.data.import_report import (
     utf8_problem,
 )
 from tactile_compliance.data.plausibility import MODULUS
+from tactile_compliance.data.raw_layout import VIDEO_SUFFIXES
 from tactile_compliance.data.store import GraspStoreWriter
 from tactile_compliance.physics.shore import shore00_to_modulus_pa
 from tactile_compliance.progress import progress_bar
 
-#: File suffixes treated as videos (case-insensitive); the dataset itself uses ``.avi``.
-VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv", ".webm")
 VIDEO_NAME = re.compile(
     r"^(?P<shape>.+)_(?P<hardness>\d+)_(?P<press>\d+)\.(?:"
     + "|".join(suffix[1:] for suffix in VIDEO_SUFFIXES)

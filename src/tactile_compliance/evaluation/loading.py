@@ -9,7 +9,6 @@ the label range of its ``config.yaml``. A file that is missing or unreadable com
 
 from __future__ import annotations
 
-import json
 import math
 from functools import lru_cache
 from pathlib import Path
@@ -18,7 +17,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tactile_compliance.data.store import GraspStore, StoreError
+from tactile_compliance.data.store import (
+    GraspStore,
+    StoreError,
+    StoreHeader,
+    read_samples_table,
+    read_store_header,
+)
 from tactile_compliance.runs.results import (
     ROWS_DIR,
     STATUS_COMPLETE,
@@ -50,16 +55,15 @@ SHORE_PRESETS = frozenset({"new-dataset"})
 
 # ============================================================================ stores
 @lru_cache(maxsize=64)
-def _header_cached(path: str) -> dict[str, Any] | None:
-    header = Path(path) / "header.json"
+def _header_cached(path: str) -> StoreHeader | None:
     try:
-        return json.loads(header.read_text())
-    except (OSError, ValueError):
+        return read_store_header(path)
+    except (StoreError, OSError):
         return None
 
 
-def store_header(path: Any) -> dict[str, Any] | None:
-    """A store's ``header.json`` as a dict, or None when the store is not reachable here."""
+def store_header(path: Any) -> StoreHeader | None:
+    """A store's header, or None when the store is not reachable here."""
     if path is None or (isinstance(path, float) and math.isnan(path)) or str(path) == "":
         return None
     return _header_cached(str(Path(str(path)).expanduser().resolve()))
@@ -72,11 +76,13 @@ def read_store_samples(store: str) -> tuple[pd.DataFrame, str] | None:
         return opened.samples, opened.header.source
     except (StoreError, OSError, ValueError):
         # Fig. 1 needs only the table: a store copied without its frames still plots.
-        path = Path(store)
         header = store_header(store)
-        if header is None or not (path / "samples.parquet").is_file():
+        if header is None:
             return None
-        return pd.read_parquet(path / "samples.parquet"), str(header.get("source"))
+        try:
+            return read_samples_table(store), header.source
+        except StoreError:
+            return None
 
 
 # ============================================================================ results store
@@ -155,7 +161,7 @@ def load_results(results_dir: str | Path) -> pd.DataFrame:
     sources = []
     for store in frame["store"].tolist():
         header = store_header(store)
-        sources.append(None if header is None else str(header.get("source")))
+        sources.append(None if header is None else header.source)
     frame["store_source"] = sources
     frame["is_shore"] = [
         (src in SHORE_SOURCES) or any(preset.startswith(p) for p in SHORE_PRESETS)

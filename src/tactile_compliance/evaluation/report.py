@@ -175,11 +175,11 @@ class _Builder:
                 lines.append(f"- Store `{store}`: header not reachable from here")
             else:
                 lines.append(
-                    f"- Store `{store}`: source {header.get('source')}, "
-                    f"{header.get('num_samples')} samples, frames "
-                    f"{'x'.join(map(str, header.get('image_size', [])))} px, created "
-                    f"{header.get('created', '?')} by tactile-compliance "
-                    f"{header.get('package_version', '?')}"
+                    f"- Store `{store}`: source {header.source}, "
+                    f"{header.num_samples} samples, frames "
+                    f"{'x'.join(map(str, header.image_size))} px, created "
+                    f"{header.created or '?'} by tactile-compliance "
+                    f"{header.package_version or '?'}"
                 )
         if not done.empty:
             lines.append(f"- Backbone weights: {describe_weights(done)}")
@@ -317,11 +317,7 @@ def build_report(
     wanted = _normalise_formats(formats)
     results = Path(results_dir)
     frame = load_results(results)
-    out = claim_output_dir(
-        Path(out_dir) if out_dir is not None else results / "report",
-        "report",
-        recognise=lambda path: (path / "report.json").is_file(),
-    )
+    out = claim_output_dir(Path(out_dir) if out_dir is not None else results / "report", "report")
     builder = _Builder(frame, results, out, ddof, [Path(s) for s in stores], strict)
     parts, fig_dir = builder.parts, builder.fig_dir
 

@@ -239,7 +239,7 @@ def describe_runs(frame: pd.DataFrame, extra: str = "") -> str:
     stores = []
     for store in dict.fromkeys(frame["store"].tolist()):
         header = store_header(store)
-        source = header.get("source") if header else "header not reachable"
+        source = header.source if header else "header not reachable"
         stores.append(f"`{store}` (source {source})")
     seeds = sorted(int(s) for s in frame["seed"].dropna().tolist())
     sizes = ""

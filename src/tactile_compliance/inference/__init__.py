@@ -16,19 +16,14 @@
   ``ComplianceEstimator.from_pretrained``.
 * :func:`predict_path` - a store, raw grasp directory or video -> predictions
   (``sources.py``; the ``predict`` command).
-* :func:`open_source` - live frame sources: GelSight Mini, Wedge over HTTP MJPEG, DIGIT,
-  cameras, videos, folders (``sensors.py``); :class:`SensorCalibration` - a sensor's
-  geometry and no-contact frame (``calibration.py``; the ``calibrate`` command).
-* :func:`record_grasp` - record your own grasps in the public dataset's raw layout
-  (``recording.py``; the ``record`` command); :func:`live_estimates` - a source plus
-  readings through the streaming estimator (``live.py``; the ``live`` command).
+* :func:`live_estimates` - a sensor (``tactile_compliance.acquisition``) plus readings
+  through the streaming estimator (``live.py``; the ``live`` command).
 
 See ``docs/inference.md``.
 """
 
 from tactile_compliance.data.frame_selection import select_frame_indices
 from tactile_compliance.inference.base import BaseEstimator, Prediction
-from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.inference.ensemble import EnsembleEstimator, EnsemblePrediction
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.inference.export import (
@@ -38,8 +33,6 @@ from tactile_compliance.inference.export import (
 )
 from tactile_compliance.inference.live import live_estimates
 from tactile_compliance.inference.onnx import OnnxEstimator
-from tactile_compliance.inference.recording import ObjectInfo, Readings, record_grasp
-from tactile_compliance.inference.sensors import open_source
 from tactile_compliance.inference.sources import (
     GraspBatch,
     format_predictions,
@@ -58,11 +51,8 @@ __all__ = [
     "EnsembleEstimator",
     "EnsemblePrediction",
     "GraspBatch",
-    "ObjectInfo",
     "OnnxEstimator",
     "Prediction",
-    "Readings",
-    "SensorCalibration",
     "StreamEstimate",
     "StreamingEstimator",
     "export_onnx",
@@ -70,10 +60,8 @@ __all__ = [
     "format_export_report",
     "format_predictions",
     "live_estimates",
-    "open_source",
     "predict_path",
     "predict_trajectory",
     "read_source",
-    "record_grasp",
     "select_frame_indices",
 ]

@@ -14,9 +14,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tactile_compliance.acquisition.calibration import SensorCalibration
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
-from tactile_compliance.inference.calibration import SensorCalibration
 from tactile_compliance.outputs import claim_output_dir
 
 __all__ = ["depth_picture", "write_depth_maps"]

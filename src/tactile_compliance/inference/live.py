@@ -34,29 +34,29 @@ from typing import Any
 
 import numpy as np
 
-from tactile_compliance.data.image_ops import difference_images
-from tactile_compliance.data.photometric import reconstruct_depth
-from tactile_compliance.data.store import frames_to_uint8
-from tactile_compliance.devices import DEFAULT_DEVICE
-from tactile_compliance.inference.base import BaseEstimator
-from tactile_compliance.inference.calibration import SensorCalibration
-from tactile_compliance.inference.ensemble import EnsembleEstimator
-from tactile_compliance.inference.estimator import ComplianceEstimator
-from tactile_compliance.inference.pretrained import WEIGHTS_FILE
-from tactile_compliance.inference.recording import (
+from tactile_compliance.acquisition.calibration import SensorCalibration
+from tactile_compliance.acquisition.recording import (
     ReadingError,
     ReadingsCallback,
     check_recording,
     checked_reading,
     same_replay,
 )
-from tactile_compliance.inference.sensors import (
+from tactile_compliance.acquisition.sensors import (
     FrameError,
     FrameSizeError,
     FrameSourceBase,
     StampedOnArrival,
     iter_frames,
 )
+from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.photometric import reconstruct_depth
+from tactile_compliance.data.store import frames_to_uint8
+from tactile_compliance.devices import DEFAULT_DEVICE
+from tactile_compliance.inference.base import BaseEstimator
+from tactile_compliance.inference.ensemble import EnsembleEstimator
+from tactile_compliance.inference.estimator import ComplianceEstimator
+from tactile_compliance.inference.pretrained import WEIGHTS_FILE
 from tactile_compliance.inference.streaming import StreamEstimate, StreamingEstimator
 from tactile_compliance.physics.estimators import WEDGE_UNITS
 

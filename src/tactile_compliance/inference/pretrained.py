@@ -44,6 +44,7 @@ from tactile_compliance.models.backbones import file_sha256
 from tactile_compliance.outputs import (
     MARKER_NAME,
     atomic_file,
+    check_format_version,
     claim_output_dir,
     exchange_directories,
 )
@@ -385,11 +386,7 @@ def _read_config(path: Path) -> dict[str, Any]:
         raise ValueError(
             f"{path}: not a tactile-compliance model config (format {PRETRAINED_FORMAT!r} expected)"
         )
-    version = config.get("format_version", 0)
-    if isinstance(version, bool) or not isinstance(version, int):
-        raise ValueError(f"{path}: format_version {version!r} is not an integer")
-    if version > PRETRAINED_VERSION:
-        raise ValueError(f"{path}: format is newer than this package; upgrade")
+    check_format_version(config.get("format_version"), PRETRAINED_VERSION, f"{path}: model config")
     required = {
         "model_name": str,
         "inputs": str,

@@ -17,9 +17,7 @@ own code, so a grasp read here reaches the model exactly as it would through
 
 from __future__ import annotations
 
-import json
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -27,15 +25,22 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
-from tactile_compliance.data.burgess import (
+from tactile_compliance.data.image_ops import resize_frames
+from tactile_compliance.data.raw_layout import (
+    ESTIMATE_FILES,
     FINGER_FILES,
+    FORCES_FILE,
+    VIDEO_SUFFIXES,
+    WIDTHS_FILE,
+    FingerChoice,
     SampleError,
     load_estimate,
     load_frames,
     load_vector,
+    read_metadata,
     recorded_units,
+    sample_dirs,
 )
-from tactile_compliance.data.image_ops import resize_frames
 from tactile_compliance.data.store import (
     ESTIMATE_COLUMNS,
     FORCE_COLUMNS,
@@ -52,7 +57,6 @@ from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
 from tactile_compliance.runs.metrics import compute_metrics
 
 __all__ = [
-    "VIDEO_SUFFIXES",
     "GraspBatch",
     "format_predictions",
     "predict_path",
@@ -62,11 +66,7 @@ __all__ = [
     "read_video",
 ]
 
-VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv")
 SourceKind = Literal["store", "grasp_dir", "video"]
-FingerChoice = Literal["markerless", "markers", "both"]
-_GRASP = re.compile(r"^grasp=(\d+)$")
-_AUGMENTATION = re.compile(r"^augmentation=(\d+)$")
 #: Identification columns reported for every predicted sample.
 ROW_COLUMNS = ("sample_id", "object", "grasp", "augmentation", "finger", "source_path")
 
@@ -163,57 +163,16 @@ def read_store(path: str | Path, ids: np.ndarray | list[int] | None = None) -> G
 
 
 # ---------------------------------------------------------------------- raw dataset dirs
-def _numbered(parent: Path, pattern: re.Pattern[str]) -> list[tuple[int, Path]]:
-    found = [
-        (int(m.group(1)), child)
-        for child in parent.iterdir()
-        if child.is_dir() and (m := pattern.match(child.name))
-    ]
-    return sorted(found)
-
-
-def _is_sample_dir(path: Path) -> bool:
-    names = ("forces.pkl", *(files[0] for files in FINGER_FILES.values()))
-    return any((path / name).is_file() for name in names)
-
-
-def _sample_dirs(path: Path) -> list[tuple[int, int, Path]]:
-    """(grasp, augmentation, directory) under an augmentation, grasp or object directory."""
-    if _is_sample_dir(path):
-        grasp = _GRASP.match(path.parent.name)
-        aug = _AUGMENTATION.match(path.name)
-        return [(int(grasp.group(1)) if grasp else 0, int(aug.group(1)) if aug else 0, path)]
-    augmentations = _numbered(path, _AUGMENTATION)
-    if augmentations:
-        grasp = _GRASP.match(path.name)
-        g = int(grasp.group(1)) if grasp else 0
-        return [(g, k, d) for k, d in augmentations if _is_sample_dir(d)]
-    return [
-        (g, k, d)
-        for g, grasp_dir in _numbered(path, _GRASP)
-        for k, d in _numbered(grasp_dir, _AUGMENTATION)
-        if _is_sample_dir(d)
-    ]
-
-
 def _label_pa(sample_dir: Path) -> tuple[str, float]:
     """(object name, modulus in Pa) from the object's ``metadata.json``; NaN if absent."""
     object_dir = sample_dir.parent.parent
-    meta = object_dir / "metadata.json"
     try:
-        data = json.loads(meta.read_text()) if meta.is_file() else {}
+        data = read_metadata(object_dir)
         modulus = float(data.get("youngs_modulus", math.nan))
-    except (ValueError, TypeError, UnicodeDecodeError, AttributeError):
+    except (FileNotFoundError, ValueError, TypeError):
         data, modulus = {}, math.nan
     name = str(data.get("object_name", object_dir.name))
     return name, modulus if modulus > 0 else math.nan
-
-
-def _optional_vector(directory: Path, name: str) -> np.ndarray:
-    # forces/widths are needed only by F/W strategies; their absence is reported there.
-    if not (directory / name).is_file():
-        return np.full(3, np.nan)
-    return load_vector(directory, name, 3)
 
 
 def read_grasp_dir(
@@ -243,7 +202,7 @@ def read_grasp_dir(
     if fingers not in ("markerless", "markers", "both"):
         raise ValueError(f"fingers must be markerless, markers or both, got {fingers!r}")
     names = list(FINGER_FILES) if fingers == "both" else [fingers]
-    dirs = _sample_dirs(root)
+    dirs = sample_dirs(root)
     if not dirs:
         raise ValueError(
             f"{root}: no grasp data found; expected an augmentation directory with RGB.pkl "
@@ -326,12 +285,10 @@ def _read_sample_dir(
         sample = _SampleDir(
             object=obj,
             modulus_pa=modulus,
-            force=_optional_vector(directory, "forces.pkl"),
-            width=_optional_vector(directory, "widths.pkl"),
-            estimates=[
-                load_estimate(directory, "elastic_estimate.pkl"),
-                load_estimate(directory, "hertz_estimate.pkl"),
-            ],
+            # forces/widths are needed only by F/W strategies; their absence is reported there.
+            force=load_vector(directory, FORCES_FILE, optional=True),
+            width=load_vector(directory, WIDTHS_FILE, optional=True),
+            estimates=[load_estimate(directory, name) for name in ESTIMATE_FILES],
             images=[],
         )
         for finger in fingers:

@@ -8,7 +8,7 @@ The dataset's three frames were chosen after the grasp, from the whole recording
 * the three frames = ``i_start + floor(linspace(0, i_peak - i_start, 3))``.
 
 The rule itself, :func:`select_frame_indices`, lives in ``data.frame_selection`` (the
-synthetic generator and ``inference.recording`` use it too) and is re-exported here.
+synthetic generator and ``acquisition.recording`` use it too) and is re-exported here.
 A live stream does not know F_max yet. :class:`StreamingEstimator` applies the same rule to
 the frames received so far (F_max = the largest force *so far*). While the gripper
 loads, ``i_peak`` is the newest frame, so every new frame gives a new selection and a

@@ -14,7 +14,7 @@ run's checkpoint only costs disk: 0.53 GB for VGG16, against a few MB for the he
 record, ``{"weights": "none" | "imagenet" | PATH, "seed": int | None, "sha256": ...,
 "summary": ...}``, and :func:`load_checkpoint` rebuilds the backbone from it (never
 downloading) and checks its sha256 before loading the head. Fine-tuned backbones are
-stored whole. Format 1 checkpoints (always whole) still load.
+stored whole.
 
 A backbone initialised from a local weights file (frozen or fine-tuned), e.g. one written
 by ``tactile-compliance pretrain``, is also recorded as ``backbone_weights_file``:
@@ -44,7 +44,7 @@ from tactile_compliance.data.safe_pickle import load_torch_file
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.backbones import no_downloads, weights_file_record
-from tactile_compliance.outputs import atomic_file
+from tactile_compliance.outputs import atomic_file, check_format_version
 
 CHECKPOINT_FORMAT = "tactile-compliance-model"
 #: 2: a frozen backbone is stored as a ``backbone`` record instead of its tensors.
@@ -343,18 +343,7 @@ def load_checkpoint(
     payload = load_torch_file(path, "tactile-compliance checkpoint", map_location=device)
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{path}: not a tactile-compliance model checkpoint")
-    version = payload.get("format_version", 0)
-    if isinstance(version, bool) or not isinstance(version, int):
-        raise ValueError(f"{path}: format_version {version!r} is not an integer")
-    if version > CHECKPOINT_VERSION:
-        raise ValueError(f"{path}: checkpoint format is newer than this package; upgrade it")
-    if version < CHECKPOINT_VERSION:
-        # Formats before 2 never shipped (0.1.0 writes 2): one format is read, not a history.
-        raise ValueError(
-            f"{path}: checkpoint format_version {version} is a pre-release format; "
-            f"tactile-compliance {__version__} reads format {CHECKPOINT_VERSION} only: "
-            "train the run again"
-        )
+    check_format_version(payload.get("format_version"), CHECKPOINT_VERSION, f"{path}: checkpoint")
     return rebuild_model(path, payload, device, backbone_weights=backbone_weights)
 
 

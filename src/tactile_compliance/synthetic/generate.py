@@ -22,7 +22,8 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from tactile_compliance.outputs import claim_output_dir
+from tactile_compliance.data.raw_layout import ALLOWED_DTYPES, SYNTHETIC_MANIFEST
+from tactile_compliance.outputs import PARTIAL_PREFIX, claim_output_dir
 from tactile_compliance.synthetic.grasp import (
     ANALYTICAL_ESTIMATOR,
     SimulationOptions,
@@ -35,14 +36,13 @@ from tactile_compliance.synthetic.objects import (
     objects_from_table,
 )
 from tactile_compliance.synthetic.timeseries import RIGS
-from tactile_compliance.synthetic.writer import ALLOWED_DTYPES, PARTIAL_PREFIX, ObjectWriter
+from tactile_compliance.synthetic.writer import ObjectWriter
 
 __all__ = ["DEFAULT_N_OBJECTS", "GenerationError", "GenerationReport", "generate_burgess_tree"]
 
 DEFAULT_N_OBJECTS = 286
 """Objects in the default mix: as many as the real table has labelled objects."""
 
-MANIFEST = "generation.json"
 FORMAT = "tactile-compliance synthetic burgess tree, v1"
 
 
@@ -161,7 +161,7 @@ def _split_options(options: dict[str, Any]) -> tuple[SimulationOptions, str, int
 
 
 def _check_manifest(out_dir: Path, manifest: dict[str, Any]) -> None:
-    path = out_dir / MANIFEST
+    path = out_dir / SYNTHETIC_MANIFEST
     if not path.is_file():
         return
     try:
@@ -241,7 +241,7 @@ def generate_burgess_tree(
         specs = default_objects(count, seed, grasps_per_object)
         source = "default-mix"
 
-    out = claim_output_dir(out_dir, "simulate", recognise=lambda path: (path / MANIFEST).is_file())
+    out = claim_output_dir(out_dir, "simulate")
     manifest = {
         "format": FORMAT,
         "seed": seed,
@@ -258,7 +258,7 @@ def generate_burgess_tree(
     }
     _check_manifest(out, manifest)
     manifest["objects"] = len(specs)
-    (out / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    (out / SYNTHETIC_MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
     # Leftovers of an interrupted run are incomplete by construction.
     for partial in out.glob(f"{PARTIAL_PREFIX}*"):
         shutil.rmtree(partial, ignore_errors=True)

@@ -6,7 +6,7 @@ of a ``generate_burgess_tree`` dataset from their (seed, object, grasp) key, whi
 exactly the stored grasps' time series, and renders every frame (new draws of the same
 sensor noise). :func:`camera_recording` gives one grasp as a camera would film it: raw
 uint8 BGR frames and the sensor's no-contact frame, for replaying through the live
-sensor sources (``inference.sensors``) in tests and demos.
+sensor sources (``acquisition.sensors``) in tests and demos.
 """
 
 from __future__ import annotations

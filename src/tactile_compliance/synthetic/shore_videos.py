@@ -24,7 +24,6 @@ relief, like chocolate moulds).
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -32,7 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tactile_compliance.outputs import claim_output_dir
+from tactile_compliance.outputs import PARTIAL_PREFIX, claim_output_dir, commit_path
 from tactile_compliance.synthetic.generate import GenerationError, GenerationReport
 from tactile_compliance.synthetic.geometry import (
     PadGrid,
@@ -230,10 +229,8 @@ def generate_shore_videos(
     height, width = (int(v) for v in image_size)
     if height % 2 or width % 2:  # the MJPG codec would silently drop the odd row/column
         raise GenerationError(f"image_size must be even for MJPG videos, got {height}x{width}")
-    out = claim_output_dir(
-        out_dir, "simulate shore-videos", recognise=lambda path: any(path.glob("*.avi"))
-    )
-    for partial in out.glob(".partial-*"):  # leftovers of an interrupted run
+    out = claim_output_dir(out_dir, "simulate shore-videos")
+    for partial in out.glob(f"{PARTIAL_PREFIX}*"):  # leftovers of an interrupted run
         partial.unlink()
     # Unique (family, hardness) pairs: object i takes the i-th of a seeded permutation
     # whose order depends on the seed only (a subset gives the same first objects).
@@ -256,7 +253,7 @@ def generate_shore_videos(
                     continue
                 key = ("shore", family, hardness, n)
                 frames = _press_video(spec, modulus, seed, key, (height, width), sensor)
-                partial = path.with_name(f".partial-{path.name}")
+                partial = path.with_name(f"{PARTIAL_PREFIX}{path.name}")
                 writer = cv2.VideoWriter(
                     str(partial), cv2.VideoWriter_fourcc(*"MJPG"), _FPS, (width, height)
                 )
@@ -265,7 +262,7 @@ def generate_shore_videos(
                 for frame in frames:
                     writer.write(frame)
                 writer.release()
-                os.replace(partial, path)
+                commit_path(partial, path)
                 written += 1
                 report.samples += 1
                 report.grasps += 1

@@ -62,18 +62,20 @@ from tactile_compliance.config import (
     config_from_dict,
     config_to_dict,
 )
-from tactile_compliance.outputs import atomic_file, claim_output_dir
+from tactile_compliance.outputs import (
+    DirectoryLockedError,
+    atomic_file,
+    claim_output_dir,
+    exclusive_lock,
+)
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.layout import (
     KEEP_CHECKPOINTS,
+    LOCK_FILE,
     RUN_KIND,
-    DirectoryLockedError,
-    is_legacy_run_dir,
-    lock_directory,
     prune_checkpoints,
 )
 from tactile_compliance.runs.results import (
-    ROWS_DIR,
     STATUS_COMPLETE,
     STATUS_FAILED,
     ResultsStore,
@@ -203,7 +205,7 @@ def _count_attempt(run_dir: Path) -> int:
             "pid": os.getpid(),
         }
     )
-    claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir)
+    claim_output_dir(run_dir, RUN_KIND)
     with atomic_file(path, unique=True) as handle:
         handle.write(json.dumps({"attempts": len(history), "history": history}, indent=2) + "\n")
     return len(history)
@@ -463,7 +465,8 @@ def _locked(output_dir: Path) -> Iterator[None]:
     """Hold an exclusive lock on an experiment's output directory for one driver's lifetime."""
     output_dir.mkdir(parents=True, exist_ok=True)
     try:
-        with lock_directory(output_dir, what="experiment output directory (--out)"):
+        what = "experiment output directory (--out)"
+        with exclusive_lock(output_dir / LOCK_FILE, what, wait=False):
             yield
     except DirectoryLockedError as err:
         raise ExperimentError(str(err)) from None
@@ -567,18 +570,8 @@ def run_experiment(
         # A fresh experiment runs every cell: a missing store is reported before the
         # output folders are created, so the failed command leaves nothing behind.
         _check_stores(plan.cells)
-    claim_output_dir(
-        plan.output_dir,
-        "experiment",
-        recognise=lambda path: (path / EXPERIMENT_FILE).is_file(),
-        option="--out",
-    )
-    claim_output_dir(
-        plan.results_path,
-        "results",
-        recognise=lambda path: (path / ROWS_DIR).is_dir(),
-        option="--results",
-    )
+    claim_output_dir(plan.output_dir, "experiment", option="--out")
+    claim_output_dir(plan.results_path, "results", option="--results")
     with _locked(plan.output_dir):
         store_rows = ResultsStore(plan.results_path)
         skip = {STATUS_COMPLETE} if retry_failed else {STATUS_COMPLETE, STATUS_FAILED}

@@ -23,7 +23,7 @@ the end of every epoch) and ends with exactly the result of an uninterrupted run
 global RNG states, the augmentation generator and every callback's state are part of the
 checkpoint. A configuration or store that fails its checks writes nothing (not even the
 run directory); a second process on the same run directory fails at once
-(:class:`~tactile_compliance.runs.layout.DirectoryLockedError`). The resume engine
+(:class:`~tactile_compliance.outputs.DirectoryLockedError`). The resume engine
 (epoch-end checkpoints, their commit, where a re-run starts) is
 :mod:`tactile_compliance.training.resume`.
 """
@@ -66,7 +66,7 @@ from tactile_compliance.data.store import GraspStore
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.inputs import InputStrategy
-from tactile_compliance.outputs import atomic_file, claim_output_dir
+from tactile_compliance.outputs import atomic_file, claim_output_dir, exclusive_lock
 from tactile_compliance.runs.checkpoint import (
     FROZEN_BACKBONE_SEED,
     backbone_weights_file_record,
@@ -81,13 +81,12 @@ from tactile_compliance.runs.layout import (
     CHECKPOINT_DIR,
     EPOCH_LOG,
     LAST_CHECKPOINT,
+    LOCK_FILE,
     PREDICTION_COLUMNS,
     PREVIOUS_CHECKPOINT,
     RESULT_FILE,
     RUN_KIND,
     config_hash,
-    is_legacy_run_dir,
-    lock_directory,
     run_name,
 )
 from tactile_compliance.runs.metrics import (
@@ -353,7 +352,7 @@ def train(
     """
     run_dir = Path(run_dir) if run_dir is not None else Path(cfg.output_dir) / run_name(cfg)
     if run_dir.is_dir():  # a run directory of ours, never a directory of someone's files
-        claim_output_dir(run_dir, RUN_KIND, recognise=is_legacy_run_dir, option="--out")
+        claim_output_dir(run_dir, RUN_KIND, option="--out")
     if not overwrite and (finished := _finished_result(run_dir)) is not None:
         return finished
     try:
@@ -373,7 +372,7 @@ def _train(
         # every check, so that a failed check leaves no directory behind.
         locked = run_dir.is_dir()
         if locked:  # train() checked it is ours
-            stack.enter_context(lock_directory(run_dir))
+            stack.enter_context(exclusive_lock(run_dir / LOCK_FILE, "run directory", wait=False))
         _accelerator(cfg.training.device)  # a missing GPU fails before anything is written
         tensorboard = _tensorboard_logger(run_dir, cfg.training.tensorboard)
         L.seed_everything(cfg.seed, workers=True, verbose=False)
@@ -382,7 +381,7 @@ def _train(
         check_frame_size(cfg, model, data.image_size or data.store.image_size)
         if not locked:
             claim_output_dir(run_dir, RUN_KIND, option="--out")
-            stack.enter_context(lock_directory(run_dir))
+            stack.enter_context(exclusive_lock(run_dir / LOCK_FILE, "run directory", wait=False))
         # Another process may have finished this run while this one prepared its data.
         if not overwrite and (finished := _finished_result(run_dir)) is not None:
             return finished

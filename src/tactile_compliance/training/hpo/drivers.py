@@ -224,9 +224,7 @@ class _Search:
         """Run (or continue) the search: (the facade, its incumbent). ``objective`` builds
         the target function for the torch threads a trial gets."""
         # The search writes only into a directory it created (or an earlier search's).
-        claim_output_dir(
-            self.out, "tune", recognise=lambda path: (path / "smac").is_dir(), option="--out"
-        )
+        claim_output_dir(self.out, "tune", option="--out")
         cluster = trial_cluster(self.workers, self.scheduler, self.client, self.threads)
         with cluster as (dask, threads):
             for base in bases:

@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import json
 import math
 import os
 import re
@@ -73,7 +72,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from tactile_compliance.data.burgess import RECORDING_UNITS_FILE, read_units_file
+from tactile_compliance.acquisition.calibration import SensorCalibration
+from tactile_compliance.acquisition.sensors import (
+    SPEC_KINDS,
+    FrameError,
+    FrameSizeError,
+    FrameSourceBase,
+    iter_frames,
+)
 from tactile_compliance.data.force_readings import (
     BASELINE_WARN_N,
     ForceBaseline,
@@ -96,19 +102,22 @@ from tactile_compliance.data.object_table import (
 )
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.plausibility import FORCE, MODULUS, WIDTH
-from tactile_compliance.data.safe_pickle import dump_numpy_pickle
-from tactile_compliance.inference.calibration import SensorCalibration
-from tactile_compliance.inference.sensors import (
-    SPEC_KINDS,
-    FrameError,
-    FrameSizeError,
-    FrameSourceBase,
-    iter_frames,
+from tactile_compliance.data.raw_layout import (
+    METADATA_FILE,
+    augmentation_dir,
+    grasp_dir,
+    read_metadata,
+    read_units_file,
+    write_metadata,
+    write_sample,
+    write_units_file,
 )
 from tactile_compliance.outputs import (
     MARKER_NAME,
+    PARTIAL_PREFIX,
     atomic_file,
     claim_output_dir,
+    commit_path,
     exclusive_lock,
     output_kind,
 )
@@ -135,13 +144,6 @@ __all__ = [
     "write_grasp",
     "write_readings_csv",
 ]
-
-ESTIMATE_FILES = ("elastic_estimate.pkl", "hertz_estimate.pkl")
-"""The analytical estimates' files; left out where the fit failed, as in the dataset."""
-
-UNITS_FILE = RECORDING_UNITS_FILE
-"""Next to the object table: the depth model and pixel density every grasp was recorded with
-(``physics.estimators.SensorUnits``); ``import burgess`` copies it into the store."""
 
 OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
 """The object table written next to the object directories (the dataset's file name)."""
@@ -546,18 +548,6 @@ class ObjectInfo:
                     f"(newline, tab, ...); it would break the object table"
                 )
 
-    def metadata(self) -> dict[str, Any]:
-        """The ``metadata.json`` fields of the dataset."""
-        return {
-            "object_name": self.name,
-            "youngs_modulus": float(self.modulus_pa),
-            "material": self.material,
-            "shape": self.shape,
-            "shore_00_hardness": self.shore_00,
-            "shore_A_hardness": self.shore_a,
-            "shore_D_hardness": self.shore_d,
-        }
-
 
 @dataclass
 class RecordedGrasp:
@@ -635,12 +625,11 @@ def _write_metadata(object_dir: Path, info: ObjectInfo) -> bool:
     Returns:
         whether this call created it (so a failed grasp write can remove it again).
     """
-    path = object_dir / "metadata.json"
+    path = object_dir / METADATA_FILE
     if path.exists():
         try:
-            existing = json.loads(path.read_text(encoding="utf-8"))
-            modulus = float(existing.get("youngs_modulus"))
-        except (ValueError, TypeError, AttributeError) as err:
+            modulus = float(read_metadata(object_dir).get("youngs_modulus"))  # type: ignore[arg-type]
+        except (ValueError, TypeError) as err:
             raise ValueError(f"{path}: unreadable metadata.json ({err}); nothing written") from err
         if not math.isclose(modulus, float(info.modulus_pa), rel_tol=1e-9):
             raise ValueError(
@@ -648,9 +637,8 @@ def _write_metadata(object_dir: Path, info: ObjectInfo) -> bool:
                 f"{info.modulus_pa:.6g}; nothing written (use another object name)"
             )
         return False
-    with atomic_file(path, "w") as handle:
-        json.dump(info.metadata(), handle, indent=2, sort_keys=True)
-        handle.write("\n")
+    shore = (info.shore_00, info.shore_a, info.shore_d)
+    write_metadata(object_dir, info.name, info.modulus_pa, info.material, info.shape, shore)
     return True
 
 
@@ -726,9 +714,7 @@ def _check_units(out_dir: Path, units: SensorUnits) -> None:
     if recorded is not None:
         recorded.check_same(units, trained=f"{out_dir} (its earlier grasps)", used="this recording")
         return
-    with atomic_file(out_dir / UNITS_FILE, "w") as handle:
-        json.dump(units.to_dict(), handle, indent=2)
-        handle.write("\n")
+    write_units_file(out_dir, units)
 
 
 def write_grasp(
@@ -779,7 +765,7 @@ def write_grasp(
     # Every frame's depth: the dataset's estimator clips the press out of the whole series.
     diff = difference_images(frames, ref)
     depth = reconstruct_depth(diff, model="dataset" if sensor is None else sensor.depth)
-    fingers = [("RGB.pkl", "depth.pkl", diff, depth)]
+    fingers = {"markerless": (diff, depth)}
     marker_depth = None
     if captured.markers_frames is not None:
         markers = captured.markers_frames
@@ -787,7 +773,7 @@ def write_grasp(
         mdiff = difference_images(markers, mref)
         marker_model = "dataset" if markers_sensor is None else markers_sensor.depth
         marker_depth = reconstruct_depth(mdiff, markers=True, model=marker_model)
-        fingers.append(("RGB_markers.pkl", "depth_markers.pkl", mdiff, marker_depth))
+        fingers["markers"] = (mdiff, marker_depth)
     depth_maxima = [depth.reshape(len(depth), -1).max(axis=1)]
     if marker_depth is not None:
         depth_maxima.append(marker_depth.reshape(len(marker_depth), -1).max(axis=1))
@@ -837,31 +823,21 @@ def _check_readings(captured: CapturedGrasp, frames: Sequence[int]) -> None:
 def claim_dataset_dir(out_dir: str | Path, *, create: bool = True) -> Path:
     """Make ``out_dir`` a dataset directory of ``record`` (``outputs.claim_output_dir``).
 
-    Accepted: a new or empty directory, one ``record`` marked, and one written by
-    ``record`` before the marker existed (the object table and object directories with
-    ``metadata.json``, nothing else). Refused with ``OutputExistsError``: a GraspStore, a
-    run directory, any other command's output or a directory of other files.
+    Accepted: a new or empty directory, one ``record`` marked, and one that a concurrent
+    ``record`` is creating (its lock, its marker). Refused with ``OutputExistsError``: a
+    GraspStore, a run directory, any other command's output or a directory of other files.
     ``create=False`` only checks.
     """
     return claim_output_dir(out_dir, OUTPUT_KIND, recognise=_is_unmarked_recording, create=create)
 
 
 def _is_unmarked_recording(path: Path) -> bool:
-    names = {child.name for child in path.iterdir()}
-    if names <= {LOCK_FILE, MARKER_NAME}:
-        return True  # another record is creating this dataset (its lock, its marker)
+    """Whether another ``record`` is creating the dataset ``path`` (its marker not yet read)."""
+    if {child.name for child in path.iterdir()} <= {LOCK_FILE, MARKER_NAME}:
+        return True  # its lock, its marker being written
     # Read again after the listing: a concurrent record that created an object directory
     # had finished its marker before, though the first read may have caught it half written.
-    if output_kind(path) == OUTPUT_KIND:
-        return True
-    if not (path / OBJECT_TABLE_FILE).is_file():
-        return False
-    for child in path.iterdir():
-        if child.name in (OBJECT_TABLE_FILE, LOCK_FILE, UNITS_FILE):
-            continue
-        if not (child.is_dir() and (child / "metadata.json").is_file()):
-            return False
-    return True
+    return output_kind(path) == OUTPUT_KIND
 
 
 def _write_locked(
@@ -869,7 +845,7 @@ def _write_locked(
     out: Path,
     info: ObjectInfo,
     indices: list[tuple[int, int, int]],
-    fingers: list[tuple[str, str, np.ndarray, np.ndarray]],
+    fingers: dict[str, tuple[np.ndarray, np.ndarray]],
     estimates: tuple[float, float],
 ) -> RecordedGrasp:
     """The write of :func:`write_grasp`, under the dataset's lock."""
@@ -877,26 +853,24 @@ def _write_locked(
     new_object = not object_dir.exists()
     object_dir.mkdir(parents=True, exist_ok=True)
     grasp = _next_grasp(object_dir)
-    partial = object_dir / f".partial-grasp={grasp}-{os.getpid()}"
-    final = object_dir / f"grasp={grasp}"
+    partial = object_dir / f"{PARTIAL_PREFIX}grasp={grasp}-{os.getpid()}"
+    final = grasp_dir(object_dir, grasp)
     created_metadata = False
     try:
         created_metadata = _write_metadata(object_dir, info)
         for k, idx in enumerate(indices):
-            directory = partial / f"augmentation={k}"
-            directory.mkdir(parents=True)
             sel = list(idx)
-            for image_file, depth_file, images, depths in fingers:
-                dump_numpy_pickle(directory / image_file, images[sel].astype(np.float32))
-                dump_numpy_pickle(directory / depth_file, depths[sel].astype(np.float32))
-            dump_numpy_pickle(directory / "forces.pkl", captured.force_n[sel].astype(np.float64))
-            dump_numpy_pickle(directory / "widths.pkl", captured.width_m[sel].astype(np.float64))
-            for name, value in zip(ESTIMATE_FILES, estimates, strict=True):
-                if math.isfinite(value):  # the dataset has no file for a failed fit
-                    dump_numpy_pickle(directory / name, np.array(value, dtype=np.float64))
-        if final.exists():  # another recorder took the number meanwhile
-            raise FileExistsError(f"{final} exists; nothing was overwritten, record again")
-        os.rename(partial, final)
+            write_sample(
+                augmentation_dir(partial, k),
+                {
+                    finger: (images[sel], depths[sel])
+                    for finger, (images, depths) in fingers.items()
+                },
+                captured.force_n[sel],
+                captured.width_m[sel],
+                estimates,
+            )
+        commit_path(partial, final)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         # A full disk or Ctrl-C: leave no labelled object without grasps behind.

@@ -36,6 +36,16 @@ from typing import Any
 import cv2
 import numpy as np
 
+from tactile_compliance.acquisition.sensors import (
+    IMAGE_SUFFIXES,
+    FrameError,
+    FrameGeometry,
+    FrameSizeError,
+    FrameSourceBase,
+    SensorError,
+    iter_frames,
+    open_source,
+)
 from tactile_compliance.data.depth_model import (
     BallPress,
     CalibratedDepthModel,
@@ -46,17 +56,7 @@ from tactile_compliance.data.depth_model import (
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.plausibility import check_size
-from tactile_compliance.inference.sensors import (
-    IMAGE_SUFFIXES,
-    FrameError,
-    FrameGeometry,
-    FrameSizeError,
-    FrameSourceBase,
-    SensorError,
-    iter_frames,
-    open_source,
-)
-from tactile_compliance.outputs import atomic_file, check_output_file
+from tactile_compliance.outputs import atomic_file, check_format_version, check_output_file
 from tactile_compliance.physics.estimators import SensorUnits
 
 __all__ = [
@@ -187,6 +187,9 @@ class SensorCalibration:
             raise ValueError(f"{path}: not a sensor calibration (JSON nested too deeply)") from None
         if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
             raise ValueError(f"{path}: not a sensor calibration (no format {CALIBRATION_FORMAT})")
+        check_format_version(
+            data.get("format_version"), CALIBRATION_VERSION, f"{path}: calibration"
+        )
         try:
             geometry = FrameGeometry.from_dict(data["geometry"])
             raw = base64.b64decode(data["reference_png_base64"])

@@ -86,7 +86,6 @@ __all__ = [
 ]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv", ".mjpg", ".mjpeg")
 
 
 class SensorError(OSError):

@@ -1,0 +1,386 @@
+"""The raw layout of the GelSight Young's-modulus dataset (Burgess et al. 2024): its one
+reader and its one writer.
+
+::
+
+    ROOT/{object}/metadata.json
+    ROOT/{object}/grasp={g}/augmentation={k}/RGB.pkl            (3, H, W, 3) BGR difference images
+                                             RGB_markers.pkl    same, the other finger (markers)
+                                             depth.pkl, depth_markers.pkl   (3, H, W) mm
+                                             forces.pkl (3,) N, widths.pkl (3,) m
+                                             elastic_estimate.pkl, hertz_estimate.pkl  () Pa
+                                                 (absent where the fit failed)
+    ROOT/generation.json                     the generator's manifest (synthetic trees)
+    ROOT/recording.json                      ``record``'s depth model and px/mm
+
+Every ``.pkl`` is a pickled numpy array, read with the allow-list unpickler
+(:mod:`~tactile_compliance.data.safe_pickle`) and checked against its file's plausibility
+rule (:data:`FILE_RULES`). The importer (``import burgess``) and ``predict`` read with
+:func:`load_frames`, :func:`load_vector`, :func:`load_estimate` and :func:`load_depth`;
+the generator and ``record`` write with :func:`write_metadata` and :func:`write_sample`.
+:data:`VIDEO_SUFFIXES` is the one list of video files that ``import yuan`` and ``predict``
+accept.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from tactile_compliance.data import plausibility
+from tactile_compliance.data.image_ops import resize_frames
+from tactile_compliance.data.plausibility import PlausibleRange, dtype_problem
+from tactile_compliance.data.safe_pickle import (
+    ArrayTooLargeError,
+    UnsafePickleError,
+    dump_numpy_pickle,
+    load_numpy_pickle,
+)
+from tactile_compliance.data.store import FRAMES_PER_SAMPLE
+from tactile_compliance.outputs import atomic_file
+from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
+
+FingerChoice = Literal["markerless", "markers", "both"]
+
+#: Video files (case-insensitive suffixes) that ``import yuan`` and ``predict`` accept.
+VIDEO_SUFFIXES = (
+    ".avi",
+    ".mp4",
+    ".mov",
+    ".mkv",
+    ".m4v",
+    ".mpg",
+    ".mpeg",
+    ".wmv",
+    ".webm",
+    ".mjpg",
+    ".mjpeg",
+)
+#: finger name -> (image file, depth file)
+FINGER_FILES: dict[str, tuple[str, str]] = {
+    "markerless": ("RGB.pkl", "depth.pkl"),
+    "markers": ("RGB_markers.pkl", "depth_markers.pkl"),
+}
+FORCES_FILE = "forces.pkl"
+WIDTHS_FILE = "widths.pkl"
+#: (elastic E, Hertz E*) in Pa; a file is left out where its fit failed, as in the dataset.
+ESTIMATE_FILES = ("elastic_estimate.pkl", "hertz_estimate.pkl")
+METADATA_FILE = "metadata.json"
+#: Written by the generator at the root of a generated tree.
+SYNTHETIC_MANIFEST = "generation.json"
+RECORDING_UNITS_FILE = "recording.json"
+"""What ``record`` writes next to its object table: the depth model and pixel density of its
+grasps (``physics.estimators.SensorUnits``)."""
+#: The dtypes the writer stores images and depth maps in (forces, widths, estimates: float64).
+ALLOWED_DTYPES = ("float16", "float32", "float64")
+#: The plausibility rule of each file's values (both fingers' image files: frames).
+FILE_RULES: dict[str, PlausibleRange] = {
+    FORCES_FILE: plausibility.FORCE,
+    WIDTHS_FILE: plausibility.WIDTH,
+    **dict.fromkeys(ESTIMATE_FILES, plausibility.ESTIMATE),
+    **{image_file: plausibility.FRAME for image_file, _ in FINGER_FILES.values()},
+}
+GRASP_DIR = re.compile(r"^grasp=(\d+)$")
+AUGMENTATION_DIR = re.compile(r"^augmentation=(\d+)$")
+
+
+class SampleError(Exception):
+    """One sample cannot be read; the message is the reason (importer and ``predict``)."""
+
+
+def grasp_dir(object_dir: Path, grasp: int) -> Path:
+    """The directory of grasp ``grasp`` of an object."""
+    return object_dir / f"grasp={grasp}"
+
+
+def augmentation_dir(grasp_directory: Path, augmentation: int) -> Path:
+    """The sample directory of augmentation ``augmentation`` of a grasp."""
+    return grasp_directory / f"augmentation={augmentation}"
+
+
+def numbered_dirs(parent: Path, pattern: re.Pattern[str]) -> list[tuple[int, Path]]:
+    """(number, directory) of the children of ``parent`` named by ``pattern``, sorted.
+
+    Raises:
+        OSError: ``parent`` cannot be listed.
+    """
+    found = [
+        (int(match.group(1)), child)
+        for child in parent.iterdir()
+        if (match := pattern.match(child.name)) and child.is_dir()
+    ]
+    return sorted(found)
+
+
+def is_sample_dir(path: Path) -> bool:
+    """Whether ``path`` holds a sample's files (forces or an image of either finger)."""
+    names = (FORCES_FILE, *(files[0] for files in FINGER_FILES.values()))
+    return any((path / name).is_file() for name in names)
+
+
+def sample_dirs(path: Path) -> list[tuple[int, int, Path]]:
+    """(grasp, augmentation, directory) under an augmentation, grasp or object directory.
+
+    A number the path does not name (an augmentation directory outside the layout) is 0.
+    """
+    if is_sample_dir(path):
+        grasp = GRASP_DIR.match(path.parent.name)
+        aug = AUGMENTATION_DIR.match(path.name)
+        return [(int(grasp.group(1)) if grasp else 0, int(aug.group(1)) if aug else 0, path)]
+    augmentations = numbered_dirs(path, AUGMENTATION_DIR)
+    if augmentations:
+        grasp = GRASP_DIR.match(path.name)
+        g = int(grasp.group(1)) if grasp else 0
+        return [(g, k, d) for k, d in augmentations if is_sample_dir(d)]
+    return [
+        (g, k, d)
+        for g, grasp_dir in numbered_dirs(path, GRASP_DIR)
+        for k, d in numbered_dirs(grasp_dir, AUGMENTATION_DIR)
+        if is_sample_dir(d)
+    ]
+
+
+# ---------------------------------------------------------------------- reading
+def read_metadata(object_dir: Path) -> dict[str, Any]:
+    """An object's ``metadata.json`` as a dict.
+
+    Raises:
+        FileNotFoundError: there is none.
+        ValueError: it is unreadable, not JSON or not a JSON object.
+    """
+    path = object_dir / METADATA_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"missing file: {METADATA_FILE}")
+    try:
+        metadata = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, OSError) as err:  # JSONDecodeError, UnicodeDecodeError
+        raise ValueError(f"corrupt {METADATA_FILE}: {err}") from err
+    if not isinstance(metadata, dict):
+        raise ValueError(f"corrupt {METADATA_FILE}: not a JSON object")
+    return metadata
+
+
+def _implausible(name: str, values: np.ndarray) -> None:
+    """SampleError when a value of file ``name`` breaks its plausibility rule (NaN aside)."""
+    rule = FILE_RULES.get(name)
+    problem = rule.violation(values) if rule is not None else None
+    if problem:
+        raise SampleError(f"implausible value: {name}: {problem}")
+
+
+def _load_array(path: Path) -> np.ndarray:
+    """A numeric array (integer or float dtype) from an untrusted pickle, or SampleError.
+
+    Other dtypes (bool, complex, datetime, timedelta, text, structured) are refused, never
+    cast: a cast would drop an imaginary part or turn a date into a number."""
+    if not path.is_file():
+        raise SampleError(f"missing file: {path.name}")
+    try:
+        array = load_numpy_pickle(path)
+    except UnsafePickleError as err:
+        raise SampleError(f"unsafe pickle rejected: {err}") from err
+    except ArrayTooLargeError as err:
+        raise SampleError(f"array too large: {path.name} {err}") from err
+    except OSError as err:
+        raise SampleError(f"unreadable file: {path.name} ({err})") from err
+    except Exception as err:  # only numpy code runs: any other error means a bad file
+        raise SampleError(f"corrupt pickle: {path.name} ({type(err).__name__}: {err})") from err
+    if dtype_problem(array.dtype):
+        rule = FILE_RULES.get(path.name)
+        unit = f" ({rule.quantity} in {rule.unit})" if rule is not None else ""
+        raise SampleError(f"wrong dtype: {path.name} is {array.dtype}, expected numbers{unit}")
+    return array
+
+
+def load_vector(
+    directory: Path, name: str, length: int = FRAMES_PER_SAMPLE, *, optional: bool = False
+) -> np.ndarray:
+    """A finite float64 vector of ``length`` values (forces [N], widths [m]) from a pickle,
+    within the file's plausibility rule (:data:`FILE_RULES`); all NaN when the file is
+    absent and ``optional``."""
+    if optional and not (directory / name).is_file():
+        return np.full(length, np.nan)
+    array = _load_array(directory / name).astype(np.float64)
+    if array.shape != (length,):
+        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected ({length},)")
+    if not np.all(np.isfinite(array)):
+        raise SampleError(f"non-finite values: {name}")
+    _implausible(name, array)
+    return array
+
+
+def load_estimate(directory: Path, name: str) -> float:
+    """An analytical estimate in Pa, or NaN when absent or NaN (a failed fit: the filter
+    decides what to drop). Infinite, zero or negative estimates are implausible."""
+    if not (directory / name).is_file():
+        return float("nan")
+    array = _load_array(directory / name)
+    if array.size != 1:
+        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected a scalar")
+    _implausible(name, array)
+    return float(array.reshape(()))
+
+
+def load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None) -> np.ndarray:
+    """Difference images as float32 RGB (3, H, W, 3); the files store BGR.
+
+    Values must be a difference image in [0, 1] by the frame rule
+    (:data:`~tactile_compliance.data.plausibility.FRAME`: one grey level of tolerance, at
+    most 1 % saturated values, none beyond [-0.5, 1.5]); the store's uint8 encoding would
+    otherwise clip them silently.
+    """
+    array = _load_array(directory / name)
+    if (
+        array.ndim != 4
+        or array.shape[0] != FRAMES_PER_SAMPLE
+        or array.shape[3] != 3
+        or array.size == 0
+    ):
+        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected (3, H, W, 3)")
+    if expected_hw is not None and tuple(array.shape[1:3]) != expected_hw:
+        raise SampleError(
+            f"wrong array shape: {name} is {array.shape}, the dataset's frames are "
+            f"{expected_hw[0]}x{expected_hw[1]}"
+        )
+    if not np.all(np.isfinite(array)):
+        raise SampleError(f"non-finite values: {name}")
+    _implausible(name, array)
+    # Explicit channel flip: the dataset was written by OpenCV (BGR); the store is RGB.
+    return np.ascontiguousarray(array[..., ::-1], dtype=np.float32)
+
+
+def load_depth(
+    directory: Path, name: str, depth_size: tuple[int, int] | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Maximum gel depth of each frame in mm (NaN when the depth file is absent), and the
+    depth maps area-averaged to ``depth_size`` (h, w) px as float32 mm (None when the
+    file is absent or ``depth_size`` is None: the store keeps no depth)."""
+    if not (directory / name).is_file():
+        return np.full(FRAMES_PER_SAMPLE, np.nan), None
+    depth = _load_array(directory / name)
+    if depth.ndim != 3 or depth.shape[0] != FRAMES_PER_SAMPLE or depth.size == 0:
+        raise SampleError(f"wrong array shape: {name} is {depth.shape}, expected (3, H, W)")
+    if not np.all(np.isfinite(depth)):
+        raise SampleError(f"non-finite values: {name}")
+    maxima = depth.reshape(FRAMES_PER_SAMPLE, -1).max(axis=1).astype(np.float64)
+    if depth_size is None:
+        return maxima, None
+    return maxima, resize_frames(depth.astype(np.float32), depth_size)
+
+
+def read_units_file(directory: Path) -> SensorUnits | None:
+    """The units ``record`` wrote into ``directory`` (:data:`RECORDING_UNITS_FILE`), or None.
+
+    Raises:
+        ValueError: a damaged record (its estimates' units would be unknown).
+    """
+    path = Path(directory) / RECORDING_UNITS_FILE
+    if not path.is_file():
+        return None
+    try:
+        return SensorUnits.from_dict(json.loads(path.read_text(encoding="utf-8")))
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: cannot read the recording's units ({err})") from err
+
+
+def recorded_units(src: Path) -> SensorUnits:
+    """The units of a tree's estimates: what ``record`` wrote (in ``src`` or up to two
+    directories above, so an object or grasp directory of a recording finds it), else the
+    dataset's Wedge.
+
+    Raises:
+        ValueError: a damaged record.
+    """
+    for directory in (src, *src.resolve().parents[:2]):
+        units = read_units_file(directory)
+        if units is not None:
+            return units
+    return WEDGE_UNITS
+
+
+# ---------------------------------------------------------------------- writing
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    # Sorted keys, no timestamp: generated trees are byte-identical for the same seed.
+    with atomic_file(path, "w") as handle:
+        json.dump(data, handle, indent=2, sort_keys=True)
+        handle.write("\n")
+
+
+def write_metadata(
+    object_dir: Path,
+    name: str,
+    modulus_pa: float,
+    material: str,
+    shape: str,
+    shore: tuple[float | None, float | None, float | None],
+    **extra: Any,
+) -> Path:
+    """Write an object's ``metadata.json`` with the dataset's fields.
+
+    Args:
+        object_dir: the object's directory.
+        name: ``object_name``; modulus_pa: ``youngs_modulus``, Young's modulus E in Pa.
+        material, shape: as the dataset names them (``Rubber``, ``Sphere``, ...).
+        shore: Shore 00, A and D hardness, None where not measured.
+        extra: further fields (the generator's ``used_in_training``).
+    """
+    path = object_dir / METADATA_FILE
+    shore_00, shore_a, shore_d = shore
+    metadata = {
+        "object_name": name,
+        "youngs_modulus": float(modulus_pa),
+        "material": material,
+        "shape": shape,
+        "shore_00_hardness": shore_00,
+        "shore_A_hardness": shore_a,
+        "shore_D_hardness": shore_d,
+        **extra,
+    }
+    _write_json(path, metadata)
+    return path
+
+
+def write_units_file(directory: Path, units: SensorUnits) -> Path:
+    """Write the units of a recording's estimates (:data:`RECORDING_UNITS_FILE`)."""
+    path = directory / RECORDING_UNITS_FILE
+    _write_json(path, units.to_dict())
+    return path
+
+
+def write_sample(
+    directory: Path,
+    fingers: dict[str, tuple[np.ndarray, np.ndarray]],
+    forces_n: np.ndarray,
+    widths_m: np.ndarray,
+    estimates_pa: tuple[float, float],
+    dtype: str = "float32",
+) -> None:
+    """Write one ``grasp=g/augmentation=k`` directory (created; its parents too).
+
+    Args:
+        directory: the sample directory (:func:`augmentation_dir`), inside the caller's
+            temporary directory: the caller commits the whole object or grasp at once.
+        fingers: finger name (:data:`FINGER_FILES`) -> (BGR difference images
+            (3, H, W, 3) in [0, 1], depth maps (3, H, W) in mm).
+        forces_n: (3,) gripper force in N; widths_m: (3,) gripper width in m.
+        estimates_pa: (elastic E, Hertz E*) in Pa; a non-finite one gets no file.
+        dtype: of the images and depth maps (:data:`ALLOWED_DTYPES`); float16 halves a
+            tree and keeps a difference image well inside half a grey level.
+    """
+    if dtype not in ALLOWED_DTYPES:
+        raise ValueError(f"dtype must be one of {ALLOWED_DTYPES}, got {dtype!r}")
+    directory.mkdir(parents=True)
+    for finger, (images, depths) in fingers.items():
+        image_file, depth_file = FINGER_FILES[finger]
+        dump_numpy_pickle(directory / image_file, np.asarray(images).astype(dtype))
+        dump_numpy_pickle(directory / depth_file, np.asarray(depths).astype(dtype))
+    dump_numpy_pickle(directory / FORCES_FILE, np.asarray(forces_n, dtype=np.float64))
+    dump_numpy_pickle(directory / WIDTHS_FILE, np.asarray(widths_m, dtype=np.float64))
+    for name, value in zip(ESTIMATE_FILES, estimates_pa, strict=True):
+        if math.isfinite(value):  # the dataset has no file for a failed fit
+            dump_numpy_pickle(directory / name, np.array(value, dtype=np.float64))
