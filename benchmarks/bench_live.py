@@ -75,7 +75,7 @@ def main() -> None:
 
     from tactile_compliance.synthetic.grasp import SimulationOptions, make_context
     from tactile_compliance.synthetic.objects import default_objects
-    from tactile_compliance.synthetic.recording import camera_recording
+    from tactile_compliance.synthetic.trajectories import camera_recording
 
     spec = default_objects(3, seed=4)[1]
     recording = camera_recording(make_context(spec, 4, SimulationOptions()), 0)

@@ -15,7 +15,7 @@ shared CPU cores with the defaults, mostly training)::
 
     python benchmarks/inference_studies.py --workdir study --json study.json
 
-Whole recordings come from :func:`tactile_compliance.synthetic.recording.synthetic_trajectories`.
+Whole recordings come from :func:`tactile_compliance.synthetic.trajectories.synthetic_trajectories`.
 This is a research script, not part of the installed package.
 """
 
@@ -35,7 +35,7 @@ import pandas as pd
 from tactile_compliance.inference.ensemble import ensemble_calibration
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.inference.streaming import StreamingEstimator
-from tactile_compliance.synthetic.recording import GraspTrajectory, synthetic_trajectories
+from tactile_compliance.synthetic.trajectories import GraspTrajectory, synthetic_trajectories
 
 __all__ = ["run_studies", "summarise_window_study", "window_study"]
 

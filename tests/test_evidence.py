@@ -28,7 +28,7 @@ from tactile_compliance.evaluation.report import build_report
 from tactile_compliance.runs.metrics import compute_metrics, reference_predictions
 from tactile_compliance.runs.results import ResultsStore
 from tactile_compliance.training.experiment import plan_experiment, run_cell
-from tactile_compliance.training.grid import expand_experiment, load_experiment
+from tactile_compliance.training.experiment_file import expand_experiment, load_experiment
 from tactile_compliance.training.train import prepare_data
 from toy_store import make_toy_store
 

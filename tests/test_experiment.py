@@ -31,7 +31,7 @@ from tactile_compliance.training.experiment import (
     plan_experiment,
     run_experiment,
 )
-from tactile_compliance.training.grid import (
+from tactile_compliance.training.experiment_file import (
     expand_experiment,
     list_experiment_presets,
     load_experiment,

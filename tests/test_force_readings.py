@@ -142,7 +142,7 @@ def grasp():
     """A synthetic camera recording at 30 fps: frames, readings, the no-contact frame."""
     from tactile_compliance.synthetic.grasp import SimulationOptions, make_context
     from tactile_compliance.synthetic.objects import default_objects
-    from tactile_compliance.synthetic.recording import camera_recording
+    from tactile_compliance.synthetic.trajectories import camera_recording
 
     spec = default_objects(3, seed=4)[1]
     rec = camera_recording(make_context(spec, 4, SimulationOptions(image_size=SIZE)), 0)

@@ -38,7 +38,7 @@ from tactile_compliance.models import (
 )
 from tactile_compliance.models import registry as registry_module
 from tactile_compliance.training import hpo
-from tactile_compliance.training.grid import expand_experiment, load_experiment
+from tactile_compliance.training.experiment_file import expand_experiment, load_experiment
 from tactile_compliance.training.hpo.drivers import balance_budget
 from tactile_compliance.training.hpo.objectives import last_epoch_val_nmse, trial_cost
 from toy_store import make_toy_store

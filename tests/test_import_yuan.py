@@ -102,7 +102,7 @@ def test_yuan_preset_trains_as_published_for_this_data():
 
     from tactile_compliance.config import load_config
     from tactile_compliance.data.augment import GraspAugmentation
-    from tactile_compliance.training.grid import expand_experiment, load_experiment
+    from tactile_compliance.training.experiment_file import expand_experiment, load_experiment
 
     cfg = load_config("yuan")
     assert cfg.training.max_epochs == 1000 and cfg.training.patience == 30

@@ -330,7 +330,7 @@ def test_interval_scale_fit_reaches_the_level_and_no_more():
 def test_window_study_tables(estimator_fw):
     # The study is a research script in benchmarks/, not part of the package.
     from inference_studies import summarise_window_study, window_study
-    from tactile_compliance.synthetic.recording import GraspTrajectory
+    from tactile_compliance.synthetic.trajectories import GraspTrajectory
 
     frames, force, width = make_grasp(seed=0, n_frames=32, release=26)
     trajectory = GraspTrajectory("obj", 0, 1e6, frames, force, width, np.array([np.nan] * 2))

@@ -25,7 +25,7 @@ from tactile_compliance.data.burgess import import_burgess
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import RULES, PlausibleRange
 from tactile_compliance.data.store import GraspStore, GraspStoreWriter, StoreError
-from tactile_compliance.inference import ComplianceEstimator, inputs
+from tactile_compliance.inference import ComplianceEstimator, input_checks
 from tactile_compliance.models import create_model
 
 BAD_SAMPLE = ("foam_block", 0, 1)  # (object, grasp, augmentation) that gets the bad value
@@ -49,11 +49,11 @@ def test_every_rule_has_a_unit_a_range_and_a_reason():
 
 def test_the_consumers_read_the_same_rules():
     # Estimator: its ranges are the rules themselves, not literals of its own.
-    assert inputs.SCALAR_SPECS["force"].rule is plausibility.FORCE
-    assert inputs.SCALAR_SPECS["width"].rule is plausibility.WIDTH
-    assert inputs.SCALAR_SPECS["estimates"].rule is plausibility.ESTIMATE
-    assert inputs.SCALAR_SPECS["force"].high == plausibility.FORCE.high
-    assert plausibility.FRAME.tolerance == inputs._RANGE_TOLERANCE
+    assert input_checks.SCALAR_SPECS["force"].rule is plausibility.FORCE
+    assert input_checks.SCALAR_SPECS["width"].rule is plausibility.WIDTH
+    assert input_checks.SCALAR_SPECS["estimates"].rule is plausibility.ESTIMATE
+    assert input_checks.SCALAR_SPECS["force"].high == plausibility.FORCE.high
+    assert plausibility.FRAME.tolerance == input_checks._RANGE_TOLERANCE
     # Store columns and importer files.
     assert store.COLUMN_RULES["modulus_pa"] is plausibility.MODULUS
     for column in (*store.FORCE_COLUMNS, *store.WIDTH_COLUMNS, *store.ESTIMATE_COLUMNS):
@@ -419,9 +419,9 @@ def test_estimator_saturates_frames_like_the_store():
     rng = np.random.default_rng(3)
     raw = rng.uniform(0.3, 0.7, (3, 8, 8, 3)).astype(np.float32)
     raw[0, 0, 0] = [1.092, 1.2, -0.037]
-    checked, _ = inputs.check_frames(raw)
+    checked, _ = input_checks.check_frames(raw)
     stored = frames_from_uint8(frames_to_uint8(raw))
     np.testing.assert_array_equal(checked[0, 0, 0, 0].numpy(), stored[0, 0, 0])
     assert float(checked.max()) <= float(stored.max())
     decoded = frames_from_uint8(np.array([0, 7, 128, 255], np.uint8).repeat(18).reshape(3, 4, 2, 3))
-    np.testing.assert_array_equal(inputs.check_frames(decoded)[0][0].numpy(), decoded)
+    np.testing.assert_array_equal(input_checks.check_frames(decoded)[0][0].numpy(), decoded)

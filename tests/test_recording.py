@@ -1,6 +1,6 @@
 """Recording your own grasps and the live estimate, end to end through a replayed camera.
 
-A synthetic grasp (``synthetic.recording.camera_recording``) is written as an MJPG video
+A synthetic grasp (``synthetic.trajectories.camera_recording``) is written as an MJPG video
 at 15 fps with a readings CSV; the same ``VideoCapture`` code path that reads a camera
 then feeds ``calibrate``, ``record``, ``import burgess``, ``predict`` and ``live``.
 
@@ -69,7 +69,7 @@ def make_grasp(root, size):
     """A replayable grasp: video, no-contact video, readings CSV, ground truth."""
     from tactile_compliance.synthetic.grasp import SimulationOptions, make_context
     from tactile_compliance.synthetic.objects import default_objects
-    from tactile_compliance.synthetic.recording import camera_recording
+    from tactile_compliance.synthetic.trajectories import camera_recording
 
     spec = default_objects(3, seed=4)[1]
     recording = camera_recording(make_context(spec, 4, SimulationOptions(image_size=size)), 0)

@@ -39,7 +39,7 @@ from tactile_compliance.inference import (
 from tactile_compliance.models import create_model
 from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
 from tactile_compliance.synthetic.objects import default_objects
-from tactile_compliance.synthetic.recording import synthetic_trajectories
+from tactile_compliance.synthetic.trajectories import synthetic_trajectories
 from test_inference_streaming import make_grasp
 
 RATES_FPS = (18.0, 25.0, 30.0, 60.0)

@@ -627,7 +627,7 @@ JsonOption = Annotated[bool, typer.Option("--json", help="Print the result as JS
 def presets(as_json: JsonOption = False) -> None:
     """List the packaged presets: experiment grids and training configurations."""
     from tactile_compliance.config import list_presets
-    from tactile_compliance.training.grid import experiment_preset_descriptions
+    from tactile_compliance.training.experiment_file import experiment_preset_descriptions
 
     if as_json:
         payload = {"experiments": experiment_preset_descriptions(), "configs": list_presets()}

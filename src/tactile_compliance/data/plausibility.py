@@ -10,7 +10,7 @@ prediction time is never imported silently:
   yuan`) skip such a sample and report it with the value, the unit and the range;
 * the store (:func:`~tactile_compliance.data.store.validate_samples`, used by
   ``GraspStore.open``, and ``GraspStoreWriter.append``) refuses such a table or row;
-* the estimator (:data:`tactile_compliance.inference.inputs.SCALAR_SPECS`,
+* the estimator (:data:`tactile_compliance.inference.input_checks.SCALAR_SPECS`,
   ``check_frames``) rejects such an input with a ``ValueError``.
 
 NaN is not judged here: it means "missing" (the Shore videos have no force, width or

@@ -1,7 +1,7 @@
 """The ``predict`` API every estimator shares, whatever runs the network.
 
 :class:`BaseEstimator` owns the part of inference that must not depend on the runtime:
-input validation and scalar normalisation (:func:`~tactile_compliance.inference.inputs.
+input validation and scalar normalisation (:func:`~tactile_compliance.inference.input_checks.
 prepare_inputs`), ``required_inputs``, cutting a batch into bounded chunks, and reading
 the normalised outputs back to Pa (:class:`Prediction`). A subclass only loads its network
 and implements :meth:`BaseEstimator._forward` on one prepared chunk:
@@ -25,7 +25,11 @@ import numpy as np
 import torch
 
 from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
-from tactile_compliance.inference.inputs import PreparedInputs, prepare_inputs, required_inputs
+from tactile_compliance.inference.input_checks import (
+    PreparedInputs,
+    prepare_inputs,
+    required_inputs,
+)
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.physics.estimators import DEFAULT_ANALYTICAL_ESTIMATOR, SensorUnits
 

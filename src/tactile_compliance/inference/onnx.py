@@ -20,7 +20,7 @@ import torch
 from tactile_compliance.data.dataset import prepare_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.inference.base import BaseEstimator
-from tactile_compliance.inference.inputs import required_inputs
+from tactile_compliance.inference.input_checks import required_inputs
 from tactile_compliance.models import InputStrategy
 
 __all__ = ["ONNX_METADATA_KEY", "OUTPUT_NAME", "OnnxEstimator", "onnx_input_names"]

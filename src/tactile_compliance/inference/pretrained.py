@@ -38,7 +38,7 @@ import torch
 from tactile_compliance import __version__
 from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.devices import DEFAULT_DEVICE
-from tactile_compliance.inference.inputs import required_inputs
+from tactile_compliance.inference.input_checks import required_inputs
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.models.backbones import file_sha256
 from tactile_compliance.outputs import (

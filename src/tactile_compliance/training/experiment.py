@@ -1,9 +1,9 @@
 """Experiment grids on Dask: expand a grid, run every cell through ``train``, record it.
 
 ``run_experiment("table1", quick=True, workers=2)`` expands the experiment (see
-``training/grid.py`` for the YAML format), skips the cells whose row in the results store is
-``complete``, and runs the others on a Dask cluster (local by default, or an existing
-scheduler), one task per cell. Each task calls the one training path,
+``training/experiment_file.py`` for the YAML format), skips the cells whose row in the
+results store is ``complete``, and runs the others on a Dask cluster (local by default,
+or an existing scheduler), one task per cell. Each task calls the one training path,
 :func:`tactile_compliance.training.train.train`, and writes its row to the results store
 (``runs/results.py``: one atomic JSON file per cell, so concurrent workers never clash).
 
@@ -83,7 +83,7 @@ from tactile_compliance.runs.results import (
     row_grouping,
 )
 from tactile_compliance.training.cluster import dask_client, limit_threads
-from tactile_compliance.training.grid import (
+from tactile_compliance.training.experiment_file import (
     Cell,
     ExperimentSpec,
     expand_experiment,

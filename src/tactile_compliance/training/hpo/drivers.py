@@ -32,7 +32,7 @@ from tactile_compliance.config import (
 )
 from tactile_compliance.models import list_models
 from tactile_compliance.outputs import atomic_file, claim_output_dir
-from tactile_compliance.training.grid import load_experiment
+from tactile_compliance.training.experiment_file import load_experiment
 from tactile_compliance.training.hpo.objectives import (
     DEFAULT_OBJECTIVE,
     BalanceObjective,

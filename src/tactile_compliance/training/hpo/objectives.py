@@ -33,7 +33,7 @@ from tactile_compliance.config import (
 from tactile_compliance.runs.layout import EPOCH_LOG, config_hash
 from tactile_compliance.training.cluster import limit_threads
 from tactile_compliance.training.experiment import precompute_features
-from tactile_compliance.training.grid import expand_experiment, load_experiment
+from tactile_compliance.training.experiment_file import expand_experiment, load_experiment
 from tactile_compliance.training.hpo.space import canonical_inputs, plain, trial_overrides
 
 __all__ = [

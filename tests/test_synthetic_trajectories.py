@@ -9,7 +9,7 @@ from tactile_compliance.synthetic.grasp import (
     render_recording,
 )
 from tactile_compliance.synthetic.objects import default_objects
-from tactile_compliance.synthetic.recording import synthetic_trajectories
+from tactile_compliance.synthetic.trajectories import synthetic_trajectories
 
 SIZE = (60, 80)
 
