@@ -1183,7 +1183,7 @@ def predict(
     weights: BackboneWeightsOption = None,
 ) -> None:
     """Estimate Young's modulus for every grasp of a store, raw directory or video."""
-    from tactile_compliance.inference.sources import format_predictions, predict_path
+    from tactile_compliance.inference.predict import format_predictions, predict_path
 
     result = predict_path(
         checkpoint,

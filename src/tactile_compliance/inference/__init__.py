@@ -15,7 +15,7 @@
   (``export.py``, format in ``pretrained.py``), loaded by
   ``ComplianceEstimator.from_pretrained``.
 * :func:`predict_path` - a store, raw grasp directory or video -> predictions
-  (``sources.py``; the ``predict`` command).
+  (``predict.py``, reading with ``sources.py``; the ``predict`` command).
 * :func:`live_estimates` - a sensor (``tactile_compliance.acquisition``) plus readings
   through the streaming estimator (``live.py``; the ``live`` command).
 
@@ -33,12 +33,8 @@ from tactile_compliance.inference.export import (
 )
 from tactile_compliance.inference.live import live_estimates
 from tactile_compliance.inference.onnx import OnnxEstimator
-from tactile_compliance.inference.sources import (
-    GraspBatch,
-    format_predictions,
-    predict_path,
-    read_source,
-)
+from tactile_compliance.inference.predict import format_predictions, predict_path
+from tactile_compliance.inference.sources import GraspBatch, read_source
 from tactile_compliance.inference.streaming import (
     StreamEstimate,
     StreamingEstimator,

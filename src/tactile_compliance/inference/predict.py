@@ -1,0 +1,208 @@
+"""The ``predict`` command's library side: read a source, run a checkpoint, report.
+
+:func:`predict_path` reads a store, a raw grasp directory or a video with the readers of
+``sources.py``, predicts every readable grasp and scores it against the labels when the
+source has them; :func:`format_predictions` is the command's text output.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactile_compliance.data.raw_layout import (
+    FingerChoice,
+)
+from tactile_compliance.devices import DEFAULT_DEVICE
+from tactile_compliance.inference.sources import ROW_COLUMNS, read_source
+from tactile_compliance.models import InputStrategy
+from tactile_compliance.runs.metrics import compute_metrics
+
+__all__ = ["format_predictions", "predict_path", "skip_reasons"]
+
+
+def predict_path(
+    checkpoint: str | Path,
+    path: str | Path,
+    *,
+    device: str = DEFAULT_DEVICE,
+    fingers: FingerChoice = "both",
+    batch_size: int = 64,
+    backbone_weights: str | Path | None = None,
+) -> dict[str, Any]:
+    """Predict every grasp under ``path`` with ``checkpoint``: the ``predict`` command.
+
+    ``checkpoint``: ``best.pt``, its run directory, or a directory written by ``export
+    --safetensors`` (as ``live`` takes). ``backbone_weights``: a local copy of a frozen
+    backbone's weights file (see ``ComplianceEstimator.from_checkpoint``).
+
+    Samples missing an input the checkpoint needs (e.g. NaN estimates in a store) are
+    skipped and listed with the reason; everything else is predicted in batches.
+
+    Returns:
+        A JSON-serialisable dict: ``checkpoint`` (what the model is), ``source`` (path,
+        kind, counts), ``predictions`` (one dict per sample: identification, ``pred_pa``,
+        ``pred_log10_pa``, and ``true_pa``/``error_decades`` when the truth is known),
+        ``skipped`` and ``summary`` (geometric mean, and the paper's metrics when every
+        predicted sample has a known modulus).
+    """
+    from tactile_compliance.inference.estimator import ComplianceEstimator
+    from tactile_compliance.inference.pretrained import WEIGHTS_FILE
+
+    if (Path(checkpoint) / WEIGHTS_FILE).is_file():  # an exported directory
+        estimator = ComplianceEstimator.from_pretrained(checkpoint, device=device)
+    else:
+        estimator = ComplianceEstimator.from_checkpoint(
+            checkpoint, device=device, backbone_weights=backbone_weights
+        )
+    source = read_source(path, fingers=fingers, image_size=estimator.store_image_size)
+    needed = estimator.required_inputs
+    if source.kind == "video" and needed:
+        raise ValueError(
+            f"{path}: a video carries no force, width or estimates, but checkpoint "
+            f"{estimator.source} (inputs={estimator.inputs.value}) needs {', '.join(needed)}; "
+            f"use an Image checkpoint"
+        )
+    if "estimates" in needed:
+        estimator.sensor_units.check_same(
+            source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
+        )
+    scalars = source.scalars()
+    usable = np.ones(len(source), dtype=bool)
+    reasons: list[str] = [""] * len(source)
+    for name in needed:
+        missing = ~np.all(np.isfinite(scalars[name]), axis=1)
+        for i in np.flatnonzero(missing & usable):
+            reasons[i] = f"missing {name} (NaN)"
+        usable &= ~missing
+    if len(source) and not usable.any():
+        _refuse_when_nothing_is_usable(path, estimator.source, estimator.inputs, reasons)
+    ids = np.flatnonzero(usable)
+    pred_pa = np.full(len(source), np.nan)
+    pred_log10 = np.full(len(source), np.nan)
+    chunk = max(1, int(batch_size)) * 4  # bound memory on large stores
+    for start in range(0, ids.size, chunk):
+        part = ids[start : start + chunk]
+        part_scalars = source.scalars(part)
+        prediction = estimator.predict(
+            source.frames[part],
+            force=part_scalars["force"] if "force" in needed else None,
+            width=part_scalars["width"] if "width" in needed else None,
+            estimates=part_scalars["estimates"] if "estimates" in needed else None,
+            batch_size=batch_size,
+        )
+        pred_pa[part] = prediction.modulus_pa
+        pred_log10[part] = prediction.log10_modulus_pa
+
+    records: list[dict[str, Any]] = []
+    skipped = [{**dict.fromkeys(ROW_COLUMNS), **bad} for bad in source.unreadable]
+    truth = source.rows["modulus_pa"].to_numpy(np.float64)
+    for i, row in enumerate(source.rows.to_dict(orient="records")):
+        ident = {k: _plain(row[k]) for k in ROW_COLUMNS}
+        if not usable[i]:
+            skipped.append({**ident, "reason": reasons[i]})
+            continue
+        record = {**ident, "pred_pa": float(pred_pa[i]), "pred_log10_pa": float(pred_log10[i])}
+        if np.isfinite(truth[i]) and truth[i] > 0:
+            record["true_pa"] = float(truth[i])
+            record["error_decades"] = float(pred_log10[i] - np.log10(truth[i]))
+        records.append(record)
+
+    summary: dict[str, Any] = {"n_predicted": int(ids.size), "n_skipped": len(skipped)}
+    if ids.size:
+        mean_log10 = float(np.mean(pred_log10[ids]))
+        summary["mean_log10_pa"] = mean_log10
+        summary["geometric_mean_pa"] = float(10.0**mean_log10)
+        known = truth[ids]
+        if np.all(np.isfinite(known) & (known > 0)):
+            summary["metrics"] = compute_metrics(known, pred_pa[ids], estimator.constants)
+    return {
+        "checkpoint": estimator.describe(),
+        "source": {
+            "path": str(path),
+            "kind": source.kind,
+            "frame_kind": source.frame_kind,
+            "samples": len(source),
+        },
+        "predictions": records,
+        "skipped": skipped,
+        "summary": summary,
+    }
+
+
+def _refuse_when_nothing_is_usable(
+    path: str | Path, checkpoint: str, inputs: InputStrategy, reasons: list[str]
+) -> None:
+    """A ValueError naming why no sample of ``path`` can be predicted, and which input
+    strategies could (before, `predict` printed only "Skipped N samples" and exit 0)."""
+    lacking = {name for name in inputs.needs if any(name in reason for reason in reasons)}
+    could = [s.value for s in InputStrategy if not lacking & set(s.needs)]
+    raise ValueError(
+        f"{path}: none of its {len(reasons)} samples can be predicted by {checkpoint} "
+        f"(inputs={inputs.value}): {skip_reasons([{'reason': r} for r in reasons])}; "
+        f"a checkpoint of {' or '.join(could)} inputs can"
+    )
+
+
+def skip_reasons(skipped: list[dict[str, Any]]) -> str:
+    """Why samples were skipped, most common first: ``"missing estimates (NaN): 4"``."""
+    counts: dict[str, int] = {}
+    for row in skipped:
+        counts[str(row.get("reason"))] = counts.get(str(row.get("reason")), 0) + 1
+    return ", ".join(f"{reason}: {n}" for reason, n in sorted(counts.items(), key=lambda c: -c[1]))
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    return value
+
+
+def format_predictions(report: dict[str, Any], max_rows: int = 20) -> str:
+    """Human-readable text of a :func:`predict_path` report (what the CLI prints)."""
+    ckpt, source, summary = report["checkpoint"], report["source"], report["summary"]
+    size = "x".join(map(str, ckpt["image_size"])) if ckpt["image_size"] else "native"
+    lines = [
+        f"Checkpoint  {ckpt['checkpoint']}  ({ckpt['model']}, inputs {ckpt['inputs']}, "
+        f"frames {size})",
+        f"Source      {source['path']}  ({source['kind']}, {source['samples']} samples)",
+    ]
+    predictions = report["predictions"]
+    if predictions:
+        has_truth = all("true_pa" in p for p in predictions)
+        header = f"{'object':<24} {'grasp':>5} {'aug':>3} {'finger':<10} {'E_pred [Pa]':>12}"
+        if has_truth:
+            header += f" {'E_true [Pa]':>12} {'err [dec]':>9}"
+        lines += ["", header]
+        for p in predictions[:max_rows]:
+            line = (
+                f"{str(p['object'])[:24]:<24} {p['grasp']:>5} {p['augmentation']:>3} "
+                f"{p['finger']:<10} {p['pred_pa']:>12.3g}"
+            )
+            if has_truth:
+                line += f" {p['true_pa']:>12.3g} {p['error_decades']:>+9.2f}"
+            lines.append(line)
+        if len(predictions) > max_rows:
+            lines.append(f"... {len(predictions) - max_rows} more (use --json for all)")
+    lines.append("")
+    if summary["n_predicted"]:
+        lines.append(
+            f"Estimate    {summary['geometric_mean_pa']:.4g} Pa (geometric mean of "
+            f"{summary['n_predicted']}; log10 {summary['mean_log10_pa']:.3f})"
+        )
+    if "metrics" in summary:
+        m = summary["metrics"]
+        lines.append(
+            f"Metrics     log10 accuracy {m['log10_accuracy']:.3f}, N-MSE {m['nmse']:.4f}, "
+            f"MAE {m['mae_decades']:.3f} decades"
+        )
+    if report["skipped"]:
+        lines.append(
+            f"Skipped     {len(report['skipped'])} samples ({skip_reasons(report['skipped'])}; "
+            "see --json)"
+        )
+    return "\n".join(lines)
