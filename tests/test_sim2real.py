@@ -25,6 +25,7 @@ def sim2real_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     summary = json.loads(result.stdout)
     assert summary["checkpoint"] == str(out / "best.pt") and summary["rig"] == "wedge-2023"
     assert set(summary["stage_seconds"]) == {"generate", "import", "train"}
+    assert not (out / "run" / "checkpoints").exists()  # only best.pt is kept
     return out
 
 

@@ -113,6 +113,7 @@ def run_sim2real(
     from tactile_compliance.config import load_config
     from tactile_compliance.data.burgess import import_burgess
     from tactile_compliance.outputs import atomic_file, claim_output_dir
+    from tactile_compliance.runs.layout import prune_checkpoints
     from tactile_compliance.synthetic import generate_burgess_tree
     from tactile_compliance.training.train import train
 
@@ -151,6 +152,8 @@ def run_sim2real(
         ],
     )
     metrics = train(cfg, run_dir=out / "run", progress=progress)  # type: ignore[arg-type]
+    # The resume checkpoint (53 MB for the full mode) serves only an interrupted run.
+    prune_checkpoints(out / "run", "best")
     summary.stage_seconds["train"] = time.perf_counter() - start
     summary.synthetic_test = dict(metrics.get("test", {}))
 
