@@ -21,10 +21,11 @@ With ``--real-store`` (the store ``benchmarks/real_grasps.py`` writes to ``OUT/w
 it also compares the difference images the models see: the third frame of each grasp's
 first augmentation, real against the same five objects simulated at 250 x 350 px with the
 same rig. Per object: the share of the frame in contact (any channel more than 15 grey
-levels from the reference), the 99th percentile of |difference| per channel (B, G, R;
+levels from the reference), the 99th percentile of |difference| per channel (R, G, B;
 0.5 = 128 grey levels), the median |difference| outside the contact (noise and
-drift), the stored depth map's peak [mm] and the contact share at each of the three
-selected frames against their force (contact area against force).
+drift), the green edge's glow (:func:`edge_glow_grey`), the stored depth map's peak [mm]
+and the contact share at each of the three selected frames against their force (contact
+area against force).
 
     python benchmarks/real_vs_synthetic.py              # ~10 s
     python benchmarks/real_vs_synthetic.py --rig wedge-2023 --json out.json
@@ -131,7 +132,7 @@ def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
     chosen = samples[(samples.augmentation == 0) & (samples.finger == "markerless")]
     out = {}
     for label, rows in chosen.groupby("object"):
-        frames = store.load_frames(rows.sample_id.to_numpy()) - 0.5  # (n, 3, H, W, BGR)
+        frames = store.load_frames(rows.sample_id.to_numpy()) - 0.5  # (n, 3, H, W, RGB)
         shares = (np.abs(frames).max(axis=-1) > 15 / 255).mean(axis=(2, 3))  # (n, 3)
         diff = frames[:, 2]
         contact = np.abs(diff).max(axis=-1) > 15 / 255
@@ -144,11 +145,23 @@ def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
             "depth_max_mm": float(rows["depth_max_mm_2"].mean()),
             **{
                 f"p99_{c}": float(np.mean(np.percentile(np.abs(diff[..., i]), 99, axis=(1, 2))))
-                for i, c in enumerate("BGR")
+                for i, c in enumerate("RGB")
             },
+            "edge_glow_grey": edge_glow_grey(diff),
             "outside_median": float(np.median(np.abs(diff).max(axis=-1)[~contact])),
         }
     return out
+
+
+def edge_glow_grey(diff: np.ndarray) -> float:
+    """The green edge's glow (``synthetic.render``) in difference images (n, H, W, RGB):
+    the mean of G - R over the left 6 % of the columns, less its mean beyond 11 % (the
+    contact's own colour) [grey levels]."""
+    width = diff.shape[2]
+    g_minus_r = (diff[..., 1] - diff[..., 0]) * 255.0
+    left = g_minus_r[:, :, : round(0.06 * width)].mean()
+    rest = g_minus_r[:, :, round(0.11 * width) :].mean()
+    return float(left - rest)
 
 
 def simulated_store(table: Path, seed: int, rig: str, out: Path) -> Path:
@@ -171,8 +184,8 @@ def simulated_store(table: Path, seed: int, rig: str, out: Path) -> Path:
 
 def print_image_stats(results: dict[str, dict[str, dict[str, float]]]) -> None:
     print(
-        "\nobject                source     contact share  p99 |d| B  p99 |d| G  p99 |d| R"
-        "  median |d| outside  depth max [mm]  contact share at F1/F2/F3 [N]"
+        "\nobject                source     contact share  p99 |d| R  p99 |d| G  p99 |d| B"
+        "  median |d| outside  edge glow  depth max [mm]  contact share at F1/F2/F3 [N]"
     )
     for label, _ in OBJECTS.values():
         for source in ("real", "generator"):
@@ -185,9 +198,9 @@ def print_image_stats(results: dict[str, dict[str, dict[str, float]]]) -> None:
                     )
                 )
                 print(
-                    f"{label:21s} {source:9s} {row['contact_share']:13.3f}  {row['p99_B']:9.3f}"
-                    f"  {row['p99_G']:9.3f}  {row['p99_R']:9.3f}  {row['outside_median']:18.4f}"
-                    f"  {row['depth_max_mm']:14.2f}  {by_force}"
+                    f"{label:21s} {source:9s} {row['contact_share']:13.3f}  {row['p99_R']:9.3f}"
+                    f"  {row['p99_G']:9.3f}  {row['p99_B']:9.3f}  {row['outside_median']:18.4f}"
+                    f"  {row['edge_glow_grey']:9.1f}  {row['depth_max_mm']:14.2f}  {by_force}"
                 )
 
 

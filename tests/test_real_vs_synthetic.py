@@ -28,6 +28,15 @@ def test_closure_stats_read_stiffness_and_contact_above_the_baseline() -> None:
     assert stats["closure_peak_mm"] == pytest.approx(10.0)
 
 
+def test_edge_glow_reads_green_over_red_at_the_left_edge_only() -> None:
+    diff = np.zeros((2, 50, 100, 3), dtype=np.float32)  # RGB differences, 0 = no change
+    diff[..., :6, 1] = 20 / 255  # the left 6 %: green up by 20 grey levels
+    diff[..., :6, 0] = -10 / 255  # red down by 10
+    assert real_vs_synthetic.edge_glow_grey(diff) == pytest.approx(30.0, rel=1e-5)
+    diff[..., 50:, 1] = 8 / 255  # a contact's colour elsewhere is subtracted
+    assert real_vs_synthetic.edge_glow_grey(diff) == pytest.approx(30.0 - 8.0 * 50 / 89, rel=1e-5)
+
+
 def test_image_stats_see_the_contact(tmp_path: Path) -> None:
     generate_burgess_tree(
         tmp_path / "raw",
@@ -46,6 +55,7 @@ def test_image_stats_see_the_contact(tmp_path: Path) -> None:
         assert 0.0 <= row["contact_share"] <= 1.0 and len(row["contact_share_by_frame"]) == 3
         assert row["force_by_frame_n"][0] <= row["force_by_frame_n"][2] < 35.0
         assert 0.0 < row["outside_median"] < row["p99_B"] + row["p99_G"] + row["p99_R"]
+        assert np.isfinite(row["edge_glow_grey"])
 
 
 def test_the_wedge_rig_closes_like_the_real_rig_on_the_golf_ball(
