@@ -70,3 +70,18 @@ def test_the_wedge_rig_closes_like_the_real_rig_on_the_golf_ball(
     k_wedge = np.mean([g["stiffness_n_per_mm"] for g in simulated["golf_ball"]])
     # Fitted on these grasps (docs/synthetic.md): within 25 %; the dataset rig is ~5x stiffer.
     assert k_wedge == pytest.approx(k_real, rel=0.25)
+
+
+def test_background_stats_read_vignetting_and_fine_noise() -> None:
+    h, w = 100, 140
+    yy, xx = np.mgrid[0:h, 0:w]
+    falloff = ((xx - w / 2) / w) ** 2 + ((yy - h / 2) / h) ** 2  # 0 at the centre
+    frame = np.empty((h, w, 3), dtype=np.float32)
+    frame[...] = (140.0, 120.0, 100.0)  # BGR
+    frame -= 80.0 * falloff[..., None]
+    noise = np.random.default_rng(0).normal(0.0, 2.0, (h, w, 3))
+    stats = real_vs_synthetic.background_stats(np.clip(frame + noise, 0, 255).astype(np.uint8))
+    assert stats["mean"][2] > stats["mean"][1] > stats["mean"][0]  # RGB order: blue largest
+    assert all(v > 25.0 for v in stats["vignetting"])  # corners ~40 grey levels darker
+    assert all(1.5 < v < 2.5 for v in stats["fine_noise"])
+    assert len(stats["columns"]) == 3 and len(stats["columns"][0]) == w

@@ -168,3 +168,15 @@ def test_edge_glow_lights_the_left_edge_green_with_the_imprint_there() -> None:
     np.testing.assert_array_equal(
         render_frames(empty, look, stream(0, "n")), render_frames(empty, glowing, stream(0, "n"))
     )
+
+
+def test_edge_glow_saturates_so_frames_stay_difference_images() -> None:
+    look = sample_sensor_look(stream(6, "look"), markers=False)
+    look.jpeg_quality = 0
+    glowing = replace(look, edge_glow=(3600.0, 0.6, 0.18, 0.07))
+    # 0.5 mm of imprint at the edge: linear in the gain it would be 1800 grey levels.
+    depth = np.full((1, *SIZE), 0.5, dtype=np.float32)
+    rng = stream(6, "n")
+    reference = reference_frame(glowing, SIZE, rng)
+    diff = difference_images(render_frames(depth, glowing, rng), reference)
+    assert np.abs(diff - 0.5).max() < 0.5  # within the plausible [0, 1]

@@ -25,8 +25,9 @@ OpenCV reads the real camera):
    the left edge, strongest at about 0.6 of the height and fading over ~2 mm, that
    grows with the gel's compression there: wide contacts (soft objects, blocks) light
    it strongly, a small rigid contact hardly. Modelled as ``gain x mean imprint depth
-   of the left strip`` times a fixed colour, a Gaussian row profile and an exponential
-   fade from the edge (docs/synthetic.md, "Against real grasps").
+   of the left strip``, saturating softly at ``EDGE_GLOW_MAX_GREY``, times a fixed
+   colour, a Gaussian row profile and an exponential fade from the edge
+   (docs/synthetic.md, "Against real grasps").
 5. *Noise*: per-frame gain/offset drift, read noise sigma 2-3 grey levels, optional
    JPEG compression (the real frames came through an MJPEG stream), uint8 quantisation.
 
@@ -243,6 +244,11 @@ EDGE_GLOW_COLOUR_BGR = (0.3, 1.0, -0.9)
 """Grey-level change of (B, G, R) per unit of the edge glow: the band's colour, measured
 on the real Wedge grasps' difference images (green up, red down; any press shows it)."""
 
+EDGE_GLOW_MAX_GREY = 70.0
+"""The brightest the glow gets [grey levels of G]: it saturates as the edge's light is
+all scattered out. The real Wedge's strongest band, under the soft balls at 23 N, peaks
+at ~65 grey levels of G (G - R ~124)."""
+
 EDGE_GLOW_STRIP = 0.06
 """Width of the left strip whose mean imprint depth drives the glow [fraction of W]."""
 
@@ -267,7 +273,8 @@ def _edge_glow(depth: np.ndarray, look: SensorLook) -> np.ndarray:
     gain, centre, sigma, fade = look.edge_glow
     h, w = depth.shape[1:]
     strip = max(round(EDGE_GLOW_STRIP * w), 1)
-    drive = gain * depth[:, :, :strip].mean(axis=(1, 2), dtype=np.float64)  # (n,)
+    linear = gain * depth[:, :, :strip].mean(axis=(1, 2), dtype=np.float64)  # (n,)
+    drive = EDGE_GLOW_MAX_GREY * np.tanh(linear / EDGE_GLOW_MAX_GREY)
     y = (np.arange(h, dtype=np.float32) + 0.5) / h
     x = (np.arange(w, dtype=np.float32) + 0.5) / w
     band = np.exp(-0.5 * ((y - centre) / sigma) ** 2)[:, None] * np.exp(-x / fade)[None, :]
