@@ -303,9 +303,9 @@ def test_only_a_rig_with_a_glow_draws_one_and_the_dataset_rig_keeps_its_draws() 
     from tactile_compliance.synthetic.timeseries import DATASET_RIG
 
     plain = _session(3, 0, DATASET_RIG)
-    glowing = _session(3, 0, replace(DATASET_RIG, edge_glow_grey_per_mm=(900.0, 3600.0)))
+    glowing = _session(3, 0, replace(DATASET_RIG, edge_glow_grey_per_mm=(1150.0, 4600.0)))
     assert all(look.edge_glow[0] == 0.0 for look in plain.looks)
-    assert all(900.0 <= look.edge_glow[0] <= 3600.0 for look in glowing.looks)
+    assert all(1150.0 <= look.edge_glow[0] <= 4600.0 for look in glowing.looks)
     # The glow is drawn last: everything else of the session is the same draw.
     assert glowing.gels == plain.gels
     assert glowing.finger_stiffness_n_per_m == plain.finger_stiffness_n_per_m

@@ -109,7 +109,7 @@ DATASET_RIG = GripperRig()
 WEDGE_2023_RIG = GripperRig(
     peak_force_n=(23.0, 2.5),
     finger_stiffness_n_per_m=(3.0e3, 4.0e3),
-    edge_glow_grey_per_mm=(900.0, 3600.0),
+    edge_glow_grey_per_mm=(1150.0, 4600.0),
 )
 """The GelSight Wedge rig of ``real/wedge-grasps`` (the lab's 2023 example grasps).
 
@@ -117,7 +117,7 @@ Fitted on that development set, with nothing a user could not fit on their own r
 ``peak_force_n`` from the recorded force peaks (16-25 N, the controller's target);
 ``finger_stiffness_n_per_m`` from the golf ball's closure, the set's one near-rigid object
 (k = 2.2 N/mm in series with the gel); ``edge_glow_grey_per_mm`` from the golf ball's
-edge glow (1800, drawn within a factor 2 of it; docs/synthetic.md, "Against real
+edge glow (2300, drawn within a factor 2 of it; docs/synthetic.md, "Against real
 grasps")."""
 
 RIGS: dict[str, GripperRig] = {"dataset": DATASET_RIG, "wedge-2023": WEDGE_2023_RIG}
