@@ -1796,7 +1796,7 @@ def sim2real(
         RigName,
         typer.Option(
             help="The real rig the synthetic grasps imitate (`simulate --rig`): its press "
-            "force and stiffness."
+            "force, stiffness and edge glow."
         ),
     ] = "wedge-2023",
     mode: Annotated[

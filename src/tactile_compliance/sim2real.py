@@ -1,7 +1,7 @@
 """sim2real: a model for a real GelSight rig, trained on synthetic grasps only.
 
 ``tactile-compliance sim2real --out DIR`` generates grasps with the generator set to a
-real rig (``simulate --rig``: the controller's press force and the rig's stiffness),
+real rig (``simulate --rig``: the press force, the stiffness and the sensor's edge glow),
 imports them, trains the packaged ``sim2real`` configuration and copies the best epoch to
 ``DIR/best.pt``, which ``predict`` and ``live`` take like any checkpoint. Nothing in it
 sees a real grasp: the rig is the only thing fitted on real recordings, and with
