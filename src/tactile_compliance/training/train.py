@@ -94,6 +94,7 @@ from tactile_compliance.runs.metrics import (
     grouped_metrics,
     reference_predictions,
 )
+from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.training.module import ComplianceModule
 from tactile_compliance.training.resume import (
     PENDING_BEST,
@@ -115,17 +116,22 @@ class RunData:
     split: Split
     train_ids: np.ndarray  # after balancing (may repeat)
     val_ids: np.ndarray
-    constants: NormalisationConstants
-    image_size: tuple[int, int] | None
+    run_inputs: RunInputs  # resolved here, once; stored in best.pt
+
+    @property
+    def constants(self) -> NormalisationConstants:
+        return self.run_inputs.constants
 
 
-def prepare_data(cfg: ExperimentConfig, recommended_size: tuple[int, int] | None) -> RunData:
-    """Filter, split and balance the configured store (no model involved)."""
+def prepare_data(cfg: ExperimentConfig, model: torch.nn.Module) -> RunData:
+    """Filter, split and balance the configured store, and resolve the run's
+    :class:`~tactile_compliance.runs.run_inputs.RunInputs` for ``model``."""
     if cfg.data.store is None:
         raise ValueError(
             "data.store is not set: pass --set data.store=PATH or put it in the config"
         )
     store = GraspStore.open(cfg.data.store)
+    run_inputs = RunInputs.resolve(cfg, store, model)
     check_config_against_samples(cfg, store.samples, store.header.source)
     samples, report = filter_samples(store.samples, cfg)
     if samples.empty:
@@ -139,10 +145,9 @@ def prepare_data(cfg: ExperimentConfig, recommended_size: tuple[int, int] | None
             cfg.sampling.t_balance,
             seed=cfg.seed,
             n_bins=cfg.sampling.n_bins,
-            label_constants=cfg.normalisation_constants(),
+            label_constants=run_inputs.constants,
             balance_validation=cfg.sampling.balance_validation,
         )
-    image_size = cfg.data.image_size or recommended_size
     return RunData(
         store=store,
         samples=samples,
@@ -150,8 +155,7 @@ def prepare_data(cfg: ExperimentConfig, recommended_size: tuple[int, int] | None
         split=split,
         train_ids=np.asarray(train_ids, dtype=np.int64),
         val_ids=np.asarray(val_ids, dtype=np.int64),
-        constants=cfg.normalisation_constants(),
-        image_size=tuple(image_size) if image_size is not None else None,
+        run_inputs=run_inputs,
     )
 
 
@@ -245,7 +249,12 @@ def evaluate_model(
     for name, ids in (("val", data.split.val_ids), ("test", data.split.test_ids)):
         dataset = GraspDataset(data.store, ids, data.constants, features)
         predicted = predict_dataset(
-            model, dataset, data.constants, data.image_size, batch_size=batch_size, device=device
+            model,
+            dataset,
+            data.constants,
+            data.run_inputs.image_size,
+            batch_size=batch_size,
+            device=device,
         )
         frames.append(_predictions_frame(data, ids, predicted, name))
     predictions = pd.concat(frames, ignore_index=True)
@@ -377,8 +386,8 @@ def _train(
         tensorboard = _tensorboard_logger(run_dir, cfg.training.tensorboard)
         L.seed_everything(cfg.seed, workers=True, verbose=False)
         model = build_model(cfg)
-        data = prepare_data(cfg, getattr(model, "recommended_image_size", None))
-        check_frame_size(cfg, model, data.image_size or data.store.image_size)
+        data = prepare_data(cfg, model)
+        check_frame_size(cfg, model, data.run_inputs.image_size)
         if not locked:
             claim_output_dir(run_dir, RUN_KIND, option="--out")
             stack.enter_context(exclusive_lock(run_dir / LOCK_FILE, "run directory", wait=False))
@@ -444,7 +453,7 @@ def _fit_and_evaluate(
         features = cached_features(
             data.store,
             model.backbone,
-            data.image_size,
+            data.run_inputs.image_size,
             data.constants,
             batch_size=max(8, cfg.training.batch_size),
             device=device,
@@ -464,7 +473,7 @@ def _fit_and_evaluate(
     module = ComplianceModule(
         model,
         data.constants,
-        data.image_size,
+        data.run_inputs.image_size,
         lr=cfg.training.lr,
         gamma=cfg.training.gamma,
         l2_weight=cfg.training.l2_weight,
@@ -479,16 +488,12 @@ def _fit_and_evaluate(
         save_checkpoint(
             path,
             model,
-            constants=data.constants,
-            image_size=data.image_size,
+            run_inputs=data.run_inputs,
             config=config_dict,
             seed=cfg.seed,
             metrics=extra,
             backbone_weights_file=weights_file,
             frozen_backbone=frozen_backbone,
-            store_image_size=data.store.image_size,
-            analytical_estimator=data.store.analytical_estimator,
-            sensor_units=data.store.sensor_units.to_dict(),
             store={"path": str(Path(data.store.path).resolve()), **data.store.header.to_dict()},
         )
 
@@ -550,7 +555,7 @@ def _fit_and_evaluate(
         "backbone_weights": str(getattr(model, "backbone_weights", "none")),
         "backbone_weights_sha256": weights_file["sha256"] if weights_file else None,
         "freeze_backbone": cfg.model.freeze_backbone,
-        "image_size": list(data.image_size) if data.image_size else None,
+        "image_size": list(data.run_inputs.image_size),
         "n_train": len(data.train_ids),
         "n_val": len(data.val_ids),
         "n_test": len(data.split.test_ids),
