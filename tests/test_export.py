@@ -18,6 +18,7 @@ from tactile_compliance.inference import (
 from tactile_compliance.inference.export import _FixedAdaptiveAvgPool2d, onnx_input_names
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.checkpoint import save_checkpoint
+from tactile_compliance.runs.run_inputs import RunInputs
 
 SMALL_RES_TF = {"num_layers": 1, "embedding_dim": 64, "output_dim": 64}
 
@@ -26,7 +27,11 @@ def _checkpoint(path, name, inputs, image_size, **hparams):
     torch.manual_seed(0)
     model = create_model(name, inputs=inputs, **hparams)
     return save_checkpoint(
-        path, model, constants=NormalisationConstants(), image_size=image_size, config={}, seed=0
+        path,
+        model,
+        run_inputs=RunInputs(image_size, image_size, NormalisationConstants(), model.inputs),
+        config={},
+        seed=0,
     )
 
 

@@ -32,6 +32,7 @@ from tactile_compliance.inference.export import export_safetensors
 from tactile_compliance.inference.pretrained import CONFIG_FILE, WEIGHTS_FILE
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.checkpoint import save_checkpoint
+from tactile_compliance.runs.run_inputs import RunInputs
 from test_recording import make_grasp
 from toy_store import make_toy_store
 
@@ -89,8 +90,7 @@ def files(tmp_path_factory):
     checkpoint = save_checkpoint(
         root / "best.pt",
         model,
-        constants=NormalisationConstants(),
-        image_size=(72, 72),
+        run_inputs=RunInputs((72, 72), (72, 72), NormalisationConstants(), model.inputs),
         config={},
         seed=0,
     )

@@ -24,6 +24,7 @@ from tactile_compliance.inference.pretrained import CONFIG_FILE, WEIGHTS_FILE
 from tactile_compliance.models import create_model
 from tactile_compliance.outputs import MARKER_NAME
 from tactile_compliance.runs.checkpoint import save_checkpoint
+from tactile_compliance.runs.run_inputs import RunInputs
 from test_pretrain import depth_toy_store
 from toy_store import make_toy_store
 
@@ -46,8 +47,7 @@ def _checkpoint(path: Path, seed: int = 0, model: str = "top10nn") -> Path:
     return save_checkpoint(
         path,
         create_model(model, inputs="Image"),
-        constants=NormalisationConstants(),
-        image_size=(72, 72),
+        run_inputs=RunInputs((72, 72), (72, 72), NormalisationConstants(), "Image"),
         config={},
         seed=seed,
     )
