@@ -83,7 +83,7 @@ def test_head_only_checkpoint_reproduces_the_in_memory_model(tmp_path, name):
     path = _save(tmp_path / "head.pt", model, frozen_backbone=record)
 
     payload = torch.load(path, weights_only=True)
-    assert payload["format_version"] == CHECKPOINT_VERSION == 2
+    assert payload["format_version"] == CHECKPOINT_VERSION == 3
     assert not any(k.startswith("backbone.") for k in payload["state_dict"])
     assert payload["backbone"]["weights"] == "none"
     assert payload["backbone"]["seed"] == FROZEN_BACKBONE_SEED
