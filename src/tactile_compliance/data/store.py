@@ -625,15 +625,10 @@ class GraspStore:
     @property
     def analytical_estimator(self) -> AnalyticalEstimator:
         """The estimator that made the stored analytical estimates, at the store's pixel
-        density (``physics.estimators``).
-
-        ``import burgess`` records its name (``creation_parameters["analytical_estimator"]``);
-        a store that records none (Shore-hardness ``yuan`` stores have no estimates) gets
-        ``DEFAULT_ESTIMATOR``.
-        """
-        recorded = self.header.creation_parameters.get("analytical_estimator")
-        name = str(recorded) if recorded else DEFAULT_ESTIMATOR.name
-        return AnalyticalEstimator(name, self.sensor_units.px_per_mm)
+        density: the one ``import burgess`` names (``creation_parameters``), else
+        ``DEFAULT_ESTIMATOR`` (Shore-hardness ``yuan`` stores have no estimates)."""
+        name = self.header.creation_parameters.get("analytical_estimator")
+        return AnalyticalEstimator(name or DEFAULT_ESTIMATOR.name, self.sensor_units.px_per_mm)
 
     @property
     def sensor_units(self) -> SensorUnits:

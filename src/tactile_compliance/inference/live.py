@@ -163,8 +163,6 @@ def live_estimates(
     ]
     needs_depth = "estimates" in ensemble.required_inputs
     if needs_depth:
-        # Each member's estimator runs at its training sensor's pixel density
-        # (``RunInputs``): this sensor must be in the same units.
         units = WEDGE_UNITS if calibration is None else calibration.units
         for member in members:
             member.run_inputs.sensor.check_same(

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 
 from tactile_compliance import __version__
+from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.inference.input_checks import required_inputs
 from tactile_compliance.models import InputStrategy
@@ -172,7 +173,6 @@ def pretrained_config(
         "required_inputs": ["frames", *estimator.required_inputs],
         "frames_per_sample": 3,
         "frame_kind": _FRAME_KIND,
-        "label_range_pa": list(estimator.constants.label_range_pa),
         "backbone_weights": str(meta.get("backbone_weights", "none")),
         # Provenance only: the weights file holds the backbone's tensors.
         "frozen_backbone": (
@@ -481,7 +481,7 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
     strategy = InputStrategy.parse(run_inputs["inputs"])
     scalars = [f"{name} ({_UNITS[name]})" for name in required_inputs(strategy)]
     height, width = run_inputs["image_size"]
-    lo, hi = config["label_range_pa"]
+    lo, hi = NormalisationConstants.from_dict(norm).label_range_pa
     frozen = config.get("frozen_backbone")
     weights = config.get("backbone_weights", "none")
     checkpoint = config.get("checkpoint") or {}

@@ -11,11 +11,9 @@ force [N], width [m] and depth [mm] series:
   project's physically cleaner variant (``docs/physics.md`` compares the two).
 
 A model trained on one estimator's values must be fed the same estimator's values at
-inference, or it sees inputs from another distribution (train/serve skew). Stores record
-the name in their header (``GraspStore.analytical_estimator`` gives the object), training
-puts the object into the run's input record (``runs.run_inputs.RunInputs``) and the
-streaming estimator calls its :meth:`AnalyticalEstimator.estimate` on the frames of its
-:meth:`AnalyticalEstimator.window_start`.
+inference (no train/serve skew): stores record its name, training puts the object into
+the run's input record (``runs.run_inputs.RunInputs``), and the streaming estimator calls
+its :meth:`AnalyticalEstimator.estimate` from its :meth:`AnalyticalEstimator.window_start`.
 """
 
 from __future__ import annotations
@@ -76,12 +74,8 @@ class AnalyticalEstimator:
         marker_depths_mm: npt.ArrayLike | None = None,
     ) -> tuple[float, float]:
         """``(E_elastic, E*_hertz)`` in Pa of a force (T,), width (T,) and depth (T, H, W)
-        series. ``marker_depths_mm``: the marker finger's depth maps, which the dataset's
-        estimator uses for its depth-onset clip (the others ignore them).
-
-        Raises:
-            ValueError: malformed input, or no estimate possible.
-        """
+        series (ValueError: malformed). ``marker_depths_mm``: the marker finger's depth
+        maps, for the dataset estimator's depth-onset clip (the others ignore them)."""
         if self.name == "dataset":
             from tactile_compliance.physics.dataset_estimates import (
                 DATASET_CONSTANTS,
@@ -104,10 +98,9 @@ class AnalyticalEstimator:
     def window_start(self, forces_n: npt.ArrayLike) -> int | None:
         """The frame of a recording this estimator's series starts at, or None.
 
-        The dataset's estimator clips the whole recording itself: it is fed everything
-        from one frame before the force first reaches its press threshold (2.5 N), and the
-        recording after the peak too (None before that force). ``"contact"`` fits the
-        frames it is given: None, i.e. the frame selection's window ``[start, peak]``.
+        The dataset's estimator clips the whole recording itself: it is fed everything from
+        one frame before the force first reaches 2.5 N, the recording after the peak too
+        (None before that force). ``"contact"``: None, the selection's ``[start, peak]``.
         """
         if self.name != "dataset":
             return None

@@ -1,13 +1,6 @@
-"""The run's input contract: one record, resolved once when a run's data is prepared.
-
-:meth:`RunInputs.resolve` is the only place that decides what a model takes: the frame
-size (the configured one, else the model's recommended one, else the store's: never
-None), the normalisation constants, the input strategy, and what the training store's
-analytical estimates are (the sensor's depth model and pixel density, and the estimator
-that made them, as an object). ``train`` stores the record in ``best.pt``; evaluation,
-``predict``, the estimators, ``export`` (ONNX metadata, safetensors ``config.json``),
-streaming and ``live`` read it back and never work it out again.
-"""
+"""The run's input contract: one record, resolved once (:meth:`RunInputs.resolve`) when
+a run's data is prepared, stored in ``best.pt`` and read, never worked out again, by
+evaluation, the estimators, ``export``, ``predict``, streaming and ``live``."""
 
 from __future__ import annotations
 
@@ -28,10 +21,7 @@ if TYPE_CHECKING:
     from tactile_compliance.config import ExperimentConfig
     from tactile_compliance.data.store import GraspStore
 
-__all__ = ["CHANNEL_ORDER", "RunInputs"]
-
-#: The channel order of stored frames and of what every model sees (``predict`` flips
-#: ``channel_order="BGR"`` input).
+#: Of stored frames and of what every model sees (``predict`` flips BGR input).
 CHANNEL_ORDER = "RGB"
 
 
@@ -60,8 +50,8 @@ class RunInputs:
 
     def __post_init__(self) -> None:
         set_field = object.__setattr__  # a frozen dataclass normalises its own fields
-        set_field(self, "image_size", check_size(self.image_size, "image_size"))
-        set_field(self, "store_image_size", check_size(self.store_image_size, "store_image_size"))
+        for name in ("image_size", "store_image_size"):
+            set_field(self, name, check_size(getattr(self, name), name))
         set_field(self, "inputs", InputStrategy.parse(self.inputs))
         set_field(self, "estimator", self.estimator.at(self.sensor.px_per_mm))
         if self.channel_order != CHANNEL_ORDER:
@@ -77,12 +67,9 @@ class RunInputs:
         image_size: tuple[int, int] | None = None,
     ) -> RunInputs:
         """The record of a run of ``cfg`` on ``store`` with ``model`` (an instance or a
-        class: its ``recommended_image_size`` is read).
-
-        The frame size is ``image_size`` (a caller's own setting, e.g. ``pretrain
-        --size``), else ``cfg.data.image_size``, else the model's recommended size, else
-        the store's.
-        """
+        class). The frame size is ``image_size`` (``pretrain --size``), else
+        ``cfg.data.image_size``, else the model's ``recommended_image_size``, else the
+        store's; the estimator the store's (``GraspStore.analytical_estimator``)."""
         size = (
             image_size
             or cfg.data.image_size
@@ -112,11 +99,7 @@ class RunInputs:
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "run inputs") -> RunInputs:
-        """Read :meth:`to_dict` (from a checkpoint, an ONNX file or ``config.json``).
-
-        Raises:
-            ValueError: one line naming ``source``: a missing or invalid field.
-        """
+        """Read :meth:`to_dict`; a missing or invalid field is a ValueError naming ``source``."""
         try:
             return cls(
                 image_size=data["image_size"],

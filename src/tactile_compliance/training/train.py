@@ -59,7 +59,7 @@ from tactile_compliance.data.augment import GraspAugmentation
 from tactile_compliance.data.balance import balance_split
 from tactile_compliance.data.dataset import GraspDataset, batch_loader
 from tactile_compliance.data.features import cached_features
-from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
+from tactile_compliance.data.normalisation import denormalise_modulus
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split_from_config
 from tactile_compliance.data.store import GraspStore
@@ -117,10 +117,6 @@ class RunData:
     train_ids: np.ndarray  # after balancing (may repeat)
     val_ids: np.ndarray
     run_inputs: RunInputs  # resolved here, once; stored in best.pt
-
-    @property
-    def constants(self) -> NormalisationConstants:
-        return self.run_inputs.constants
 
 
 def prepare_data(cfg: ExperimentConfig, model: torch.nn.Module) -> RunData:
@@ -224,7 +220,7 @@ def _predictions_frame(
     data: RunData, ids: np.ndarray, predicted: np.ndarray, split_name: str
 ) -> pd.DataFrame:
     rows = data.store.samples.iloc[ids][list(PREDICTION_COLUMNS)].reset_index(drop=True)
-    rows["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), data.constants)
+    rows["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), data.run_inputs.constants)
     rows["split"] = split_name
     return rows
 
@@ -247,11 +243,11 @@ def evaluate_model(
     """
     frames = []
     for name, ids in (("val", data.split.val_ids), ("test", data.split.test_ids)):
-        dataset = GraspDataset(data.store, ids, data.constants, features)
+        dataset = GraspDataset(data.store, ids, data.run_inputs.constants, features)
         predicted = predict_dataset(
             model,
             dataset,
-            data.constants,
+            data.run_inputs.constants,
             data.run_inputs.image_size,
             batch_size=batch_size,
             device=device,
@@ -263,15 +259,15 @@ def evaluate_model(
     reference = reference_predictions(
         data.store.samples.iloc[data.split.train_ids],
         data.store.samples.iloc[data.split.test_ids],
-        data.constants,
+        data.run_inputs.constants,
         inputs=inputs,
         seed=seed,
     )
     metrics = {
-        "test": compute_metrics(test["modulus_pa"], test["pred_pa"], data.constants),
-        "val": compute_metrics(val["modulus_pa"], val["pred_pa"], data.constants),
+        "test": compute_metrics(test["modulus_pa"], test["pred_pa"], data.run_inputs.constants),
+        "val": compute_metrics(val["modulus_pa"], val["pred_pa"], data.run_inputs.constants),
         "reference": {
-            name: compute_metrics(test["modulus_pa"].to_numpy(), values, data.constants)
+            name: compute_metrics(test["modulus_pa"].to_numpy(), values, data.run_inputs.constants)
             for name, values in reference.items()
         },
     }
@@ -454,7 +450,7 @@ def _fit_and_evaluate(
             data.store,
             model.backbone,
             data.run_inputs.image_size,
-            data.constants,
+            data.run_inputs.constants,
             batch_size=max(8, cfg.training.batch_size),
             device=device,
             progress=progress,
@@ -464,7 +460,7 @@ def _fit_and_evaluate(
 
     def loader(ids: np.ndarray, shuffle: bool) -> DataLoader:
         return batch_loader(
-            GraspDataset(data.store, ids, data.constants, features),
+            GraspDataset(data.store, ids, data.run_inputs.constants, features),
             cfg.training.batch_size,
             shuffle=shuffle,
             num_workers=cfg.training.num_workers,
@@ -472,7 +468,7 @@ def _fit_and_evaluate(
 
     module = ComplianceModule(
         model,
-        data.constants,
+        data.run_inputs.constants,
         data.run_inputs.image_size,
         lr=cfg.training.lr,
         gamma=cfg.training.gamma,
@@ -540,7 +536,9 @@ def _fit_and_evaluate(
     )
     predictions.to_csv(run_dir / "predictions.csv", index=False)
     test_rows = predictions[predictions["split"] == "test"]
-    grouped_metrics(test_rows, c=data.constants).to_csv(run_dir / "groups.csv", index=False)
+    grouped_metrics(test_rows, c=data.run_inputs.constants).to_csv(
+        run_dir / "groups.csv", index=False
+    )
 
     result: dict[str, Any] = {
         "status": "complete",
