@@ -109,13 +109,6 @@ def test_export_of_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, monkeypa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.pt"]
 
 
-def test_export_refuses_a_size_the_model_cannot_take_before_writing(tmp_path):
-    checkpoint = _checkpoint(tmp_path / "a.pt")
-    args = ["export", str(checkpoint), "--safetensors", str(tmp_path / "e"), "--size", "40x40"]
-    assert "at least 65x65" in _one_line(runner.invoke(app, args), EXIT_BAD_INPUT)
-    assert not (tmp_path / "e").exists()
-
-
 def test_export_of_a_missing_checkpoint_creates_nothing(tmp_path):
     out = tmp_path / "deep" / "e3"
     args = ["export", str(tmp_path / "nonexist"), "--safetensors", str(out)]
