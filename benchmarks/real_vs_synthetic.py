@@ -21,10 +21,13 @@ With ``--real-store`` (the store ``benchmarks/real_grasps.py`` writes to ``OUT/w
 it also compares the difference images the models see: the third frame of each grasp's
 first augmentation, real against the same five objects simulated at 250 x 350 px with the
 same rig. Per object: the share of the frame in contact (any channel more than 15 grey
-levels from the reference), the 99th percentile of |difference| per channel (B, G, R;
+levels from the reference), the 99th percentile of |difference| per channel (R, G, B;
 0.5 = 128 grey levels), the median |difference| outside the contact (noise and
-drift), the stored depth map's peak [mm] and the contact share at each of the three
-selected frames against their force (contact area against force).
+drift), the green edge's glow (:func:`edge_glow_grey`), the 99th percentile of the
+largest channel's |difference| beyond the left 15 % of the frame (the imprint without the
+glow), the stored depth map's peak [mm]
+and the contact share at each of the three selected frames against their force (contact
+area against force).
 
     python benchmarks/real_vs_synthetic.py              # ~10 s
     python benchmarks/real_vs_synthetic.py --rig wedge-2023 --json out.json
@@ -131,7 +134,7 @@ def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
     chosen = samples[(samples.augmentation == 0) & (samples.finger == "markerless")]
     out = {}
     for label, rows in chosen.groupby("object"):
-        frames = store.load_frames(rows.sample_id.to_numpy()) - 0.5  # (n, 3, H, W, BGR)
+        frames = store.load_frames(rows.sample_id.to_numpy()) - 0.5  # (n, 3, H, W, RGB)
         shares = (np.abs(frames).max(axis=-1) > 15 / 255).mean(axis=(2, 3))  # (n, 3)
         diff = frames[:, 2]
         contact = np.abs(diff).max(axis=-1) > 15 / 255
@@ -144,11 +147,125 @@ def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
             "depth_max_mm": float(rows["depth_max_mm_2"].mean()),
             **{
                 f"p99_{c}": float(np.mean(np.percentile(np.abs(diff[..., i]), 99, axis=(1, 2))))
-                for i, c in enumerate("BGR")
+                for i, c in enumerate("RGB")
             },
+            "edge_glow_grey": edge_glow_grey(diff),
+            # The imprint itself: away from the left edge's glow (beyond 15 % of W).
+            "p99_away_from_edge": float(
+                np.mean(
+                    np.percentile(
+                        np.abs(diff[:, :, round(0.15 * diff.shape[2]) :]).max(axis=-1),
+                        99,
+                        axis=(1, 2),
+                    )
+                )
+            ),
             "outside_median": float(np.median(np.abs(diff).max(axis=-1)[~contact])),
         }
     return out
+
+
+def edge_glow_grey(diff: np.ndarray) -> float:
+    """The green edge's glow (``synthetic.render``) in difference images (n, H, W, RGB):
+    the mean of G - R over the left 6 % of the columns, less its mean beyond 11 % (the
+    contact's own colour) [grey levels]."""
+    width = diff.shape[2]
+    g_minus_r = (diff[..., 1] - diff[..., 0]) * 255.0
+    left = g_minus_r[:, :, : round(0.06 * width)].mean()
+    rest = g_minus_r[:, :, round(0.11 * width) :].mean()
+    return float(left - rest)
+
+
+def background_stats(frame_bgr: np.ndarray) -> dict[str, object]:
+    """A no-contact frame (H, W, 3) uint8 BGR: per channel (R, G, B) the mean, the
+    vignetting (centre fifth less the four corner tenths) and the fine noise (standard
+    deviation after a 9 x 9 box blur is removed) [grey levels], and the column and row
+    profiles (means)."""
+    import cv2
+
+    rgb = frame_bgr[..., ::-1].astype(np.float32)
+    h, w = rgb.shape[:2]
+    centre = rgb[2 * h // 5 : 3 * h // 5, 2 * w // 5 : 3 * w // 5].mean(axis=(0, 1))
+    ch, cw = h // 10, w // 10
+    corners = np.mean(
+        [rgb[:ch, :cw], rgb[:ch, -cw:], rgb[-ch:, :cw], rgb[-ch:, -cw:]], axis=(0, 1, 2)
+    )
+    fine = rgb - cv2.blur(rgb, (9, 9))
+    return {
+        "mean": rgb.mean(axis=(0, 1)).round(1).tolist(),
+        "vignetting": (centre - corners).round(1).tolist(),
+        "fine_noise": fine[5:-5, 5:-5].std(axis=(0, 1)).round(2).tolist(),
+        "columns": rgb.mean(axis=0).T.round(1).tolist(),
+        "rows": rgb.mean(axis=1).T.round(1).tolist(),
+    }
+
+
+def backgrounds(real_frame: Path, seed: int, looks: int) -> dict[str, list[dict[str, object]]]:
+    """The real warped no-contact frame, cropped 25 px per side as the dataset was, and
+    the generator's no-contact frames of ``looks`` recording sessions at the same size."""
+    import cv2
+
+    from tactile_compliance.synthetic.render import reference_frame, sample_sensor_look
+    from tactile_compliance.synthetic.rng import stream
+
+    frame = cv2.imread(str(real_frame), cv2.IMREAD_COLOR)
+    if frame is None:
+        raise SystemExit(f"cannot read {real_frame}")
+    real = frame[25:-25, 25:-25]
+    generated = [
+        reference_frame(
+            sample_sensor_look(stream(seed, "session", k), markers=False),
+            real.shape[:2],
+            stream(seed, "noise", k),
+        )
+        for k in range(looks)
+    ]
+    return {
+        "real": [background_stats(real)],
+        "generator": [background_stats(g) for g in generated],
+    }
+
+
+def print_backgrounds(results: dict[str, list[dict[str, object]]]) -> None:
+    print("\nno-contact frame     mean R/G/B            vignetting R/G/B      fine noise R/G/B")
+    for source, rows in results.items():
+        for row in rows:
+            print(
+                f"{source:20s} "
+                + "  ".join(
+                    " ".join(f"{v:5.1f}" for v in row[key])  # type: ignore[union-attr]
+                    for key in ("mean", "vignetting", "fine_noise")
+                )
+            )
+
+
+def draw_backgrounds(results: dict[str, list[dict[str, object]]], path: Path) -> None:
+    """Column and row profiles of the no-contact frames, real against generated."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.4))
+    for ax, key, xlabel in ((axes[0], "columns", "column [px]"), (axes[1], "rows", "row [px]")):
+        for source, style, width in (("generator", "--", 0.8), ("real", "-", 2.0)):
+            for k, row in enumerate(results[source]):
+                for c, colour in enumerate(("red", "green", "blue")):
+                    ax.plot(
+                        row[key][c],  # type: ignore[index]
+                        style,
+                        color=colour,
+                        lw=width,
+                        alpha=1.0 if source == "real" else 0.5,
+                        label=f"{source}" if (k == 0 and c == 1) else None,
+                    )
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("mean grey level")
+    axes[0].set_title("across the frame (left to right)", fontsize=9)
+    axes[1].set_title("down the frame (top to bottom)", fontsize=9)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
 
 
 def simulated_store(table: Path, seed: int, rig: str, out: Path) -> Path:
@@ -171,8 +288,8 @@ def simulated_store(table: Path, seed: int, rig: str, out: Path) -> Path:
 
 def print_image_stats(results: dict[str, dict[str, dict[str, float]]]) -> None:
     print(
-        "\nobject                source     contact share  p99 |d| B  p99 |d| G  p99 |d| R"
-        "  median |d| outside  depth max [mm]  contact share at F1/F2/F3 [N]"
+        "\nobject                source     contact share  p99 |d| R  p99 |d| G  p99 |d| B"
+        "  median |d| outside  edge glow  p99 away  depth max [mm]  contact share at F1/F2/F3 [N]"
     )
     for label, _ in OBJECTS.values():
         for source in ("real", "generator"):
@@ -185,8 +302,9 @@ def print_image_stats(results: dict[str, dict[str, dict[str, float]]]) -> None:
                     )
                 )
                 print(
-                    f"{label:21s} {source:9s} {row['contact_share']:13.3f}  {row['p99_B']:9.3f}"
-                    f"  {row['p99_G']:9.3f}  {row['p99_R']:9.3f}  {row['outside_median']:18.4f}"
+                    f"{label:21s} {source:9s} {row['contact_share']:13.3f}  {row['p99_R']:9.3f}"
+                    f"  {row['p99_G']:9.3f}  {row['p99_B']:9.3f}  {row['outside_median']:18.4f}"
+                    f"  {row['edge_glow_grey']:9.1f}  {row['p99_away_from_edge']:8.3f}"
                     f"  {row['depth_max_mm']:14.2f}  {by_force}"
                 )
 
@@ -200,6 +318,15 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rig", default="dataset", help="the generator's rig (RIGS)")
     parser.add_argument("--real-store", type=Path, help="store of the real grasps (images)")
+    parser.add_argument(
+        "--background",
+        type=Path,
+        default=REFERENCE / "real/wedge-grasps/wedge_config/init_frame.png",
+        help="the real warped no-contact frame (400 x 300 px)",
+    )
+    parser.add_argument(
+        "--background-figure", type=Path, help="Draw the no-contact frames' profiles (PNG)."
+    )
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="Draw force against closure (PNG).")
     args = parser.parse_args()
@@ -233,6 +360,11 @@ def main() -> None:
                 "generator": image_stats(synthetic),
             }
         print_image_stats(results["images"])
+    if args.background.is_file():
+        results["backgrounds"] = backgrounds(args.background, args.seed, looks=4)
+        print_backgrounds(results["backgrounds"])
+        if args.background_figure:
+            draw_backgrounds(results["backgrounds"], args.background_figure)
     if args.json:
         args.json.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
     if args.figure:

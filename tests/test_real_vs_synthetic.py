@@ -28,6 +28,15 @@ def test_closure_stats_read_stiffness_and_contact_above_the_baseline() -> None:
     assert stats["closure_peak_mm"] == pytest.approx(10.0)
 
 
+def test_edge_glow_reads_green_over_red_at_the_left_edge_only() -> None:
+    diff = np.zeros((2, 50, 100, 3), dtype=np.float32)  # RGB differences, 0 = no change
+    diff[..., :6, 1] = 20 / 255  # the left 6 %: green up by 20 grey levels
+    diff[..., :6, 0] = -10 / 255  # red down by 10
+    assert real_vs_synthetic.edge_glow_grey(diff) == pytest.approx(30.0, rel=1e-5)
+    diff[..., 50:, 1] = 8 / 255  # a contact's colour elsewhere is subtracted
+    assert real_vs_synthetic.edge_glow_grey(diff) == pytest.approx(30.0 - 8.0 * 50 / 89, rel=1e-5)
+
+
 def test_image_stats_see_the_contact(tmp_path: Path) -> None:
     generate_burgess_tree(
         tmp_path / "raw",
@@ -46,6 +55,7 @@ def test_image_stats_see_the_contact(tmp_path: Path) -> None:
         assert 0.0 <= row["contact_share"] <= 1.0 and len(row["contact_share_by_frame"]) == 3
         assert row["force_by_frame_n"][0] <= row["force_by_frame_n"][2] < 35.0
         assert 0.0 < row["outside_median"] < row["p99_B"] + row["p99_G"] + row["p99_R"]
+        assert np.isfinite(row["edge_glow_grey"])
 
 
 def test_the_wedge_rig_closes_like_the_real_rig_on_the_golf_ball(
@@ -60,3 +70,18 @@ def test_the_wedge_rig_closes_like_the_real_rig_on_the_golf_ball(
     k_wedge = np.mean([g["stiffness_n_per_mm"] for g in simulated["golf_ball"]])
     # Fitted on these grasps (docs/synthetic.md): within 25 %; the dataset rig is ~5x stiffer.
     assert k_wedge == pytest.approx(k_real, rel=0.25)
+
+
+def test_background_stats_read_vignetting_and_fine_noise() -> None:
+    h, w = 100, 140
+    yy, xx = np.mgrid[0:h, 0:w]
+    falloff = ((xx - w / 2) / w) ** 2 + ((yy - h / 2) / h) ** 2  # 0 at the centre
+    frame = np.empty((h, w, 3), dtype=np.float32)
+    frame[...] = (140.0, 120.0, 100.0)  # BGR
+    frame -= 80.0 * falloff[..., None]
+    noise = np.random.default_rng(0).normal(0.0, 2.0, (h, w, 3))
+    stats = real_vs_synthetic.background_stats(np.clip(frame + noise, 0, 255).astype(np.uint8))
+    assert stats["mean"][2] > stats["mean"][1] > stats["mean"][0]  # RGB order: blue largest
+    assert all(v > 25.0 for v in stats["vignetting"])  # corners ~40 grey levels darker
+    assert all(1.5 < v < 2.5 for v in stats["fine_noise"])
+    assert len(stats["columns"]) == 3 and len(stats["columns"][0]) == w

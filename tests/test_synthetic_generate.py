@@ -277,6 +277,7 @@ def test_the_rig_sets_the_press_force_and_is_part_of_the_parameters(tmp_path: Pa
         assert json.loads((out / "generation.json").read_text())["options"]["rig"] == {
             "peak_force_n": list(RIGS[rig].peak_force_n),
             "finger_stiffness_n_per_m": list(RIGS[rig].finger_stiffness_n_per_m),
+            "edge_glow_grey_per_mm": list(RIGS[rig].edge_glow_grey_per_mm),
         }
     assert peak_n["dataset"] > 50.0 and peak_n["wedge-2023"] < 35.0
     # Resuming a tree with another rig would mix two rigs in one dataset.
@@ -291,3 +292,21 @@ def test_a_rig_must_be_physical() -> None:
         GripperRig(peak_force_n=(8.0, 1.0))
     with pytest.raises(ValueError, match="finger stiffness"):
         GripperRig(finger_stiffness_n_per_m=(5e3, 1e3))
+    with pytest.raises(ValueError, match="edge glow"):
+        GripperRig(edge_glow_grey_per_mm=(0.0, 100.0))
+
+
+def test_only_a_rig_with_a_glow_draws_one_and_the_dataset_rig_keeps_its_draws() -> None:
+    from dataclasses import replace
+
+    from tactile_compliance.synthetic.grasp import _session
+    from tactile_compliance.synthetic.timeseries import DATASET_RIG
+
+    plain = _session(3, 0, DATASET_RIG)
+    glowing = _session(3, 0, replace(DATASET_RIG, edge_glow_grey_per_mm=(1150.0, 4600.0)))
+    assert all(look.edge_glow[0] == 0.0 for look in plain.looks)
+    assert all(1150.0 <= look.edge_glow[0] <= 4600.0 for look in glowing.looks)
+    # The glow is drawn last: everything else of the session is the same draw.
+    assert glowing.gels == plain.gels
+    assert glowing.finger_stiffness_n_per_m == plain.finger_stiffness_n_per_m
+    assert glowing.looks[0].background == plain.looks[0].background

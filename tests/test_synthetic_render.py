@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -13,6 +15,7 @@ from tactile_compliance.synthetic.render import (
     pixel_size_mm,
     reference_frame,
     render_frames,
+    sample_edge_glow,
     sample_sensor_look,
 )
 from tactile_compliance.synthetic.rng import stream
@@ -140,3 +143,40 @@ def test_contact_grows_across_the_three_frames() -> None:
             assert depth[0] <= depth[2] + 0.05, (spec.name, depth)
             grown.append(area[2] - area[0])
     assert len(grown) >= 4 and np.mean(grown) > 0, grown
+
+
+def test_edge_glow_lights_the_left_edge_green_with_the_imprint_there() -> None:
+    look = sample_sensor_look(stream(5, "look"), markers=False)
+    look.jpeg_quality = 0
+    look.read_noise = 0.0
+    look.drift = (0.0, 0.0)
+    glowing = replace(look, edge_glow=sample_edge_glow(stream(5, "glow"), (2000.0, 2000.0)))
+    assert glowing.edge_glow[0] == pytest.approx(2000.0)
+    # A flat, uniform 20 um compression: no slopes, so only the glow (and the membrane's
+    # uniform darkening) differ between the two looks.
+    depth = np.full((1, *SIZE), 0.02, dtype=np.float32)
+    plain = render_frames(depth, look, stream(0, "n")).astype(float)[0]
+    lit = render_frames(depth, glowing, stream(0, "n")).astype(float)[0]
+    change = lit - plain  # BGR
+    w = SIZE[1]
+    left, right = change[:, : w // 20], change[:, w // 2 :]
+    assert left[..., 1].mean() > 10.0  # green up at the left edge
+    assert left[..., 2].mean() < -5.0  # red down
+    assert np.abs(right).max() <= 1.0  # nothing away from the edge
+    # No imprint at the edge, no glow.
+    empty = np.zeros((1, *SIZE), dtype=np.float32)
+    np.testing.assert_array_equal(
+        render_frames(empty, look, stream(0, "n")), render_frames(empty, glowing, stream(0, "n"))
+    )
+
+
+def test_edge_glow_saturates_so_frames_stay_difference_images() -> None:
+    look = sample_sensor_look(stream(6, "look"), markers=False)
+    look.jpeg_quality = 0
+    glowing = replace(look, edge_glow=(3600.0, 0.6, 0.18, 0.07))
+    # 0.5 mm of imprint at the edge: linear in the gain it would be 1800 grey levels.
+    depth = np.full((1, *SIZE), 0.5, dtype=np.float32)
+    rng = stream(6, "n")
+    reference = reference_frame(glowing, SIZE, rng)
+    diff = difference_images(render_frames(depth, glowing, rng), reference)
+    assert np.abs(diff - 0.5).max() < 0.5  # within the plausible [0, 1]

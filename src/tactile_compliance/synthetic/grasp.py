@@ -55,6 +55,7 @@ from tactile_compliance.synthetic.render import (
     pixel_size_mm,
     render_frames,
     render_size,
+    sample_edge_glow,
     sample_sensor_look,
 )
 from tactile_compliance.synthetic.rng import stream
@@ -136,6 +137,12 @@ def _session(seed: int, session_id: int, rig: GripperRig) -> Session:
     )
     looks = (sample_sensor_look(rng, markers=False), sample_sensor_look(rng, markers=True))
     stiffness = rig.draw_finger_stiffness_n_per_m(rng)
+    if rig.edge_glow_grey_per_mm[1] > 0:
+        # Drawn last, so rigs without a glow keep every earlier draw (and their data).
+        looks = tuple(  # type: ignore[assignment]
+            replace(look, edge_glow=sample_edge_glow(rng, rig.edge_glow_grey_per_mm))
+            for look in looks
+        )
     return Session(gels, looks, stiffness)  # type: ignore[arg-type]
 
 

@@ -19,7 +19,16 @@ OpenCV reads the real camera):
 3. *Background*: a parametric model of a Wedge no-contact frame (lavender-grey
    centre, blue band at the bottom, red tint at the top, green at the left edge,
    smooth blotches, bright specks; markers on the marker finger).
-4. *Noise*: per-frame gain/offset drift, read noise sigma 2-3 grey levels, optional
+4. *Edge glow* (rigs that show it, ``SensorLook.edge_glow``): the green light enters
+   the gel at the left edge; where the gel near that edge is compressed, that light
+   scatters towards the camera. On the real Wedge this gives a cyan-green band along
+   the left edge, strongest at about 0.6 of the height and fading over ~2 mm, that
+   grows with the gel's compression there: wide contacts (soft objects, blocks) light
+   it strongly, a small rigid contact hardly. Modelled as ``gain x mean imprint depth
+   of the left strip``, saturating softly at ``EDGE_GLOW_MAX_GREY``, times a fixed
+   colour, a Gaussian row profile and an exponential fade from the edge
+   (docs/synthetic.md, "Against real grasps").
+5. *Noise*: per-frame gain/offset drift, read noise sigma 2-3 grey levels, optional
    JPEG compression (the real frames came through an MJPEG stream), uint8 quantisation.
 
 The difference image is ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5`` with the
@@ -46,6 +55,7 @@ __all__ = [
     "gel_height_maps",
     "reference_frame",
     "render_frames",
+    "sample_edge_glow",
     "sample_sensor_look",
 ]
 
@@ -101,6 +111,10 @@ class SensorLook:
         jpeg_quality: JPEG quality of the stream (0 disables compression).
         darkening: grey levels lost per mm of imprint (the membrane thins) [1/mm].
         seed_words: 32-bit words seeding the background's fine structure.
+        edge_glow: the green edge's glow: ``(gain [grey levels of G per mm of mean
+            imprint depth in the left strip], row centre [fraction of H], row sigma
+            [fraction of H], fade length [fraction of W])``; gain 0 (the default)
+            renders none.
     """
 
     markers: bool
@@ -115,6 +129,7 @@ class SensorLook:
     seed_words: tuple[int, ...]
     marker_spacing_mm: float = 1.8
     marker_radius_mm: float = 0.3
+    edge_glow: tuple[float, float, float, float] = (0.0, 0.6, 0.18, 0.07)
     _cache: dict[tuple[int, int], tuple[np.ndarray, ...]] = field(
         default_factory=dict, repr=False, compare=False
     )
@@ -223,6 +238,48 @@ def _base_images(look: SensorLook, size: tuple[int, int]) -> tuple[np.ndarray, .
     result = (bg, strength, markers)
     look._cache[size] = result
     return result
+
+
+EDGE_GLOW_COLOUR_BGR = (0.3, 1.0, -0.9)
+"""Grey-level change of (B, G, R) per unit of the edge glow: the band's colour, measured
+on the real Wedge grasps' difference images (green up, red down; any press shows it)."""
+
+EDGE_GLOW_MAX_GREY = 70.0
+"""The brightest the glow gets [grey levels of G]: it saturates as the edge's light is
+all scattered out. The real Wedge's strongest band, under the soft balls at 23 N, peaks
+at ~65 grey levels of G (G - R ~124)."""
+
+EDGE_GLOW_STRIP = 0.06
+"""Width of the left strip whose mean imprint depth drives the glow [fraction of W]."""
+
+
+def sample_edge_glow(
+    rng: np.random.Generator, gain_range: tuple[float, float]
+) -> tuple[float, float, float, float]:
+    """Draw an edge glow (``SensorLook.edge_glow``): the gain log-uniformly from
+    ``gain_range`` [grey levels per mm], the band's place and fade around the real
+    Wedge's (row centre 0.6 H, sigma 0.18 H, fade 0.07 W)."""
+    lo, hi = gain_range
+    return (
+        float(10 ** rng.uniform(np.log10(lo), np.log10(hi))),
+        float(rng.uniform(0.45, 0.7)),
+        float(rng.uniform(0.12, 0.25)),
+        float(rng.uniform(0.05, 0.1)),
+    )
+
+
+def _edge_glow(depth: np.ndarray, look: SensorLook) -> np.ndarray:
+    """Grey-level change (3, n, H, W) of planes B, G, R by the green edge's glow."""
+    gain, centre, sigma, fade = look.edge_glow
+    h, w = depth.shape[1:]
+    strip = max(round(EDGE_GLOW_STRIP * w), 1)
+    linear = gain * depth[:, :, :strip].mean(axis=(1, 2), dtype=np.float64)  # (n,)
+    drive = EDGE_GLOW_MAX_GREY * np.tanh(linear / EDGE_GLOW_MAX_GREY)
+    y = (np.arange(h, dtype=np.float32) + 0.5) / h
+    x = (np.arange(w, dtype=np.float32) + 0.5) / w
+    band = np.exp(-0.5 * ((y - centre) / sigma) ** 2)[:, None] * np.exp(-x / fade)[None, :]
+    colour = np.asarray(EDGE_GLOW_COLOUR_BGR, dtype=np.float32)
+    return (colour[:, None] * drive.astype(np.float32)[None, :])[..., None, None] * band
 
 
 @lru_cache(maxsize=8)
@@ -413,6 +470,8 @@ def render_frames(
         )
         region = (slice(None), slice(None), *box)
         planes[region] += _shading(depth[region[1:]], look, gain_maps, pixel_size_mm(size))
+    if look.edge_glow[0] > 0:
+        planes += _edge_glow(depth, look)
     if look.markers:
         planes *= 1.0 - markers
     drift_gain, drift_offset = look.drift

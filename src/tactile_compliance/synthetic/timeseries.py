@@ -75,10 +75,14 @@ class GripperRig:
         peak_force_n: mean and standard deviation of the target force ``F_t`` [N].
         finger_stiffness_n_per_m: range of the finger/mount stiffness ``K_f`` [N/m]; each
             recording session draws one, log-uniformly (equal bounds: one value).
+        edge_glow_grey_per_mm: range of the gain of the sensor's green-edge glow [grey
+            levels per mm of imprint depth at the left edge] (``render.SensorLook``);
+            each session draws one, log-uniformly. ``(0, 0)``: no glow.
     """
 
     peak_force_n: tuple[float, float] = (60.0, 2.0)
     finger_stiffness_n_per_m: tuple[float, float] = (1e5, 6e5)
+    edge_glow_grey_per_mm: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         mean, sd = self.peak_force_n
@@ -88,6 +92,11 @@ class GripperRig:
             raise ValueError(f"peak force must be above 10 N with sd >= 0, got {mean} +- {sd} N")
         if not 0.0 < lo <= hi:
             raise ValueError(f"finger stiffness range must be 0 < lo <= hi N/m, got {lo}, {hi}")
+        glow_lo, glow_hi = self.edge_glow_grey_per_mm
+        if (glow_lo, glow_hi) != (0.0, 0.0) and not 0.0 < glow_lo <= glow_hi:
+            raise ValueError(
+                f"edge glow range must be (0, 0) or 0 < lo <= hi, got {glow_lo}, {glow_hi}"
+            )
 
     def draw_finger_stiffness_n_per_m(self, rng: np.random.Generator) -> float:
         lo, hi = self.finger_stiffness_n_per_m
@@ -97,13 +106,19 @@ class GripperRig:
 DATASET_RIG = GripperRig()
 """The rig of the public dataset as the design notes describe it (~60 N presses)."""
 
-WEDGE_2023_RIG = GripperRig(peak_force_n=(23.0, 2.5), finger_stiffness_n_per_m=(3.0e3, 4.0e3))
+WEDGE_2023_RIG = GripperRig(
+    peak_force_n=(23.0, 2.5),
+    finger_stiffness_n_per_m=(3.0e3, 4.0e3),
+    edge_glow_grey_per_mm=(1150.0, 4600.0),
+)
 """The GelSight Wedge rig of ``real/wedge-grasps`` (the lab's 2023 example grasps).
 
 Fitted on that development set, with nothing a user could not fit on their own rig:
 ``peak_force_n`` from the recorded force peaks (16-25 N, the controller's target);
 ``finger_stiffness_n_per_m`` from the golf ball's closure, the set's one near-rigid object
-(k = 2.2 N/mm in series with the gel; docs/synthetic.md, "Against real grasps")."""
+(k = 2.2 N/mm in series with the gel); ``edge_glow_grey_per_mm`` from the golf ball's
+edge glow (2300, drawn within a factor 2 of it; docs/synthetic.md, "Against real
+grasps")."""
 
 RIGS: dict[str, GripperRig] = {"dataset": DATASET_RIG, "wedge-2023": WEDGE_2023_RIG}
 """Named rigs, as ``simulate --rig`` and ``sim2real --rig`` accept them."""
