@@ -41,6 +41,7 @@ from tactile_compliance.inference import ComplianceEstimator, OnnxEstimator, exp
 from tactile_compliance.inference.export import _example_inputs, _ort_session, onnx_input_names
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.checkpoint import save_checkpoint
+from tactile_compliance.runs.run_inputs import RunInputs
 
 #: Frame size (H, W) px per model, as the presets use them (see the module docstring).
 SIZES: dict[str, tuple[int, int]] = {
@@ -108,8 +109,7 @@ def bench_model(
     checkpoint = save_checkpoint(
         workdir / f"{name}.pt",
         model,
-        constants=NormalisationConstants(),
-        image_size=size,
+        run_inputs=RunInputs(size, size, NormalisationConstants(), model.inputs),
         config={},
         seed=0,
     )

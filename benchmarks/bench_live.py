@@ -38,6 +38,7 @@ from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.inference.live import live_estimates
 from tactile_compliance.models import create_model
+from tactile_compliance.runs.run_inputs import RunInputs
 
 
 def _median_ms(fn, runs: int) -> float:
@@ -81,7 +82,12 @@ def main() -> None:
     recording = camera_recording(make_context(spec, 4, SimulationOptions()), 0)
     torch.manual_seed(0)
     model = create_model("top10nn", inputs="ALL")
-    estimator = ComplianceEstimator(model, NormalisationConstants(), tuple(args.model_size))
+    estimator = ComplianceEstimator(
+        model,
+        RunInputs(
+            tuple(args.model_size), tuple(args.model_size), NormalisationConstants(), model.inputs
+        ),
+    )
     with tempfile.TemporaryDirectory() as tmp:
         video = Path(tmp) / "grasp.avi"
         h, w = recording.frames.shape[1:3]

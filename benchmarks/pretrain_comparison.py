@@ -190,13 +190,15 @@ def _feature_probes(cfg: Any, run_dir: Path) -> dict[str, float]:
     from tactile_compliance.data.splits import Split
     from tactile_compliance.data.store import GraspStore
     from tactile_compliance.runs.metrics import nmse
+    from tactile_compliance.runs.run_inputs import RunInputs
     from tactile_compliance.training.pretrain import CONTACT_THRESHOLD_MM
     from tactile_compliance.training.train import build_model
 
     store = GraspStore.open(cfg.data.store)
-    constants = cfg.normalisation_constants()
-    size = tuple(cfg.data.image_size) if cfg.data.image_size else None
-    features = cached_features(store, build_model(cfg).backbone, size, constants, progress=False)
+    model = build_model(cfg)
+    inputs = RunInputs.resolve(cfg, store, model)  # the record train() resolved
+    constants = inputs.constants
+    features = cached_features(store, model.backbone, inputs.image_size, constants, progress=False)
     split = Split.load(run_dir / "split.json")
     train_ids, test_ids = split.train_ids, split.test_ids
     samples = store.samples

@@ -12,6 +12,11 @@ import torch
 
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.models import backbones, create_model
+from tactile_compliance.physics.estimators import (
+    DEFAULT_ESTIMATOR,
+    AnalyticalEstimator,
+    SensorUnits,
+)
 from tactile_compliance.runs.checkpoint import (
     CHECKPOINT_VERSION,
     FROZEN_BACKBONE_SEED,
@@ -19,6 +24,7 @@ from tactile_compliance.runs.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.training.train import build_model, train
 from toy_store import make_toy_store, tiny_run_config
 
@@ -52,8 +58,7 @@ def _save(path, model, frozen_backbone=None):
     return save_checkpoint(
         path,
         model,
-        constants=NormalisationConstants(),
-        image_size=(32, 32),
+        run_inputs=RunInputs((32, 32), (32, 32), NormalisationConstants(), model.inputs),
         config={},
         seed=0,
         frozen_backbone=frozen_backbone,
@@ -78,7 +83,7 @@ def test_head_only_checkpoint_reproduces_the_in_memory_model(tmp_path, name):
     path = _save(tmp_path / "head.pt", model, frozen_backbone=record)
 
     payload = torch.load(path, weights_only=True)
-    assert payload["format_version"] == CHECKPOINT_VERSION == 2
+    assert payload["format_version"] == CHECKPOINT_VERSION == 3
     assert not any(k.startswith("backbone.") for k in payload["state_dict"])
     assert payload["backbone"]["weights"] == "none"
     assert payload["backbone"]["seed"] == FROZEN_BACKBONE_SEED
@@ -132,24 +137,27 @@ def test_checkpoints_record_the_stores_analytical_estimator(frozen_run, tmp_path
 
     cfg, run_dir = frozen_run
     store = GraspStore.open(cfg.data.store)
-    assert store.header.source == "toy" and store.analytical_estimator is None
-    assert load_checkpoint(run_dir / "best.pt").meta["analytical_estimator"] is None
-    # An unrecorded estimator (toy stores, old checkpoints) falls back to the dataset's.
-    assert ComplianceEstimator.from_checkpoint(run_dir).analytical_estimator == "dataset"
+    # A store that names no estimator (toy stores) holds the default's values.
+    assert store.header.source == "toy"
+    assert "analytical_estimator" not in store.header.creation_parameters
+    assert store.analytical_estimator == DEFAULT_ESTIMATOR
+    assert load_checkpoint(run_dir / "best.pt").run_inputs.estimator == DEFAULT_ESTIMATOR
+    assert ComplianceEstimator.from_checkpoint(run_dir).run_inputs.estimator.name == "dataset"
     model = create_model("top10nn", inputs="ALL")
+    contact = AnalyticalEstimator("contact")
     path = save_checkpoint(
         tmp_path / "best.pt",
         model,
-        constants=NormalisationConstants(),
-        image_size=(72, 72),
+        run_inputs=RunInputs(
+            (72, 72), (72, 72), NormalisationConstants(), model.inputs, estimator=contact
+        ),
         config={},
         seed=0,
-        analytical_estimator="contact",
     )
     estimator = ComplianceEstimator.from_checkpoint(path)
-    assert estimator.analytical_estimator == "contact"
-    assert estimator.describe()["analytical_estimator"] == "contact"
-    assert estimator.stream().analytical_estimator == "contact"
+    assert estimator.run_inputs.estimator == contact
+    assert estimator.describe()["run_inputs"]["analytical_estimator"] == "contact"
+    assert estimator.stream().analytical_estimator == contact
 
 
 def _tamper(path, out, **changes):
@@ -252,33 +260,61 @@ def test_finetuned_run_keeps_the_backbone_in_its_checkpoint(toy_store, tmp_path)
     )
 
 
-def test_pre_release_format_1_checkpoints_are_refused_naming_the_version(tmp_path):
+def test_pre_release_format_2_checkpoints_are_refused_naming_the_version(tmp_path):
+    """Format 2 carried the input contract as loose keys (``image_size``,
+    ``store_image_size``, ``normalisation``, ...); format 3 carries one ``run_inputs``."""
     model = create_model("res_tf", inputs="ALL", num_layers=1, embedding_dim=64, output_dim=64)
-    path = _save(tmp_path / "v2.pt", model)
+    path = _save(tmp_path / "v3.pt", model)
     payload = torch.load(path, weights_only=True)
-    payload["format_version"] = 1
-    del payload["backbone"]  # format 1 had no backbone record: always the whole model
-    torch.save(payload, tmp_path / "v1.pt")
-    with pytest.raises(ValueError, match=r"format_version 1 is a pre-release format.*format 2"):
-        load_checkpoint(tmp_path / "v1.pt")
+    record = payload.pop("run_inputs")
+    payload.update(
+        format_version=2,
+        inputs=record["inputs"],
+        normalisation=record["normalisation"],
+        image_size=None,
+        store_image_size=record["store_image_size"],
+    )
+    torch.save(payload, tmp_path / "v2.pt")
+    with pytest.raises(ValueError, match=r"format_version 2 is a pre-release format.*format 3"):
+        load_checkpoint(tmp_path / "v2.pt")
+    # A checkpoint of the current version without its record is refused in one line too.
+    payload["format_version"] = CHECKPOINT_VERSION
+    torch.save(payload, tmp_path / "norecord.pt")
+    with pytest.raises(ValueError, match=r"norecord.pt: invalid run inputs"):
+        load_checkpoint(tmp_path / "norecord.pt")
 
 
-def test_native_size_checkpoint_records_the_store_frame_size(tmp_path):
-    """A model trained at the store's native size resizes inputs to it, store gone or not."""
+def test_the_run_inputs_record_round_trips_through_the_checkpoint(tmp_path):
+    """Every field of the record comes back as written, the store gone or not."""
     from tactile_compliance.inference.estimator import ComplianceEstimator
 
-    model = create_model("top10nn", inputs="Image")
+    model = create_model("top10nn", inputs="ALL")
+    record = RunInputs(
+        image_size=(72, 80),
+        store_image_size=(90, 120),
+        constants=NormalisationConstants(image_mean=(0.4, 0.5, 0.6), force_scale_n=50.0),
+        inputs=model.inputs,
+        sensor=SensorUnits("calibrated", 12.5),
+        estimator=AnalyticalEstimator("contact"),
+    )
+    assert record.estimator.px_per_mm == 12.5  # the estimator runs at the sensor's density
     path = save_checkpoint(
         tmp_path / "best.pt",
         model,
-        constants=NormalisationConstants(),
-        image_size=None,
+        run_inputs=record,
         config={"data": {"store": str(tmp_path / "deleted-store")}},
         seed=0,
-        store_image_size=(90, 120),
     )
+    payload = torch.load(path, weights_only=True)
+    assert not {"image_size", "store_image_size", "normalisation", "inputs"} & set(payload)
+    assert load_checkpoint(path).run_inputs == record
     estimator = ComplianceEstimator.from_checkpoint(path)
-    assert estimator.image_size == (90, 120) and estimator.store_image_size == (90, 120)
+    assert estimator.run_inputs == record
     # Frames of another size are resized to the training size, not fed as they are.
-    out = estimator.predict(np.full((3, 70, 80, 3), 128, np.uint8))
+    out = estimator.predict(
+        np.full((3, 70, 80, 3), 128, np.uint8),
+        force=[8.0, 30.0, 58.0],
+        width=[0.05, 0.048, 0.046],
+        estimates=[1e5, 2e5],
+    )
     assert np.isfinite(out.modulus_pa)

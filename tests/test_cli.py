@@ -151,11 +151,16 @@ def test_expected_errors_are_one_line_with_exit_code_2(tmp_path):
     from tactile_compliance.data.normalisation import NormalisationConstants
     from tactile_compliance.models import create_model
     from tactile_compliance.runs.checkpoint import save_checkpoint
+    from tactile_compliance.runs.run_inputs import RunInputs
 
     foreign = tmp_path / "foreign.pt"
     model = create_model("top10nn", inputs="ALL")
     save_checkpoint(
-        foreign, model, constants=NormalisationConstants(), image_size=(8, 8), config={}, seed=0
+        foreign,
+        model,
+        run_inputs=RunInputs((8, 8), (8, 8), NormalisationConstants(), model.inputs),
+        config={},
+        seed=0,
     )
     payload = torch.load(foreign, weights_only=True)
     payload["hparams"] = {**payload["hparams"], "decoder_sizes": [7]}

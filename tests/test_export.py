@@ -18,6 +18,7 @@ from tactile_compliance.inference import (
 from tactile_compliance.inference.export import _FixedAdaptiveAvgPool2d, onnx_input_names
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.checkpoint import save_checkpoint
+from tactile_compliance.runs.run_inputs import RunInputs
 
 SMALL_RES_TF = {"num_layers": 1, "embedding_dim": 64, "output_dim": 64}
 
@@ -26,7 +27,11 @@ def _checkpoint(path, name, inputs, image_size, **hparams):
     torch.manual_seed(0)
     model = create_model(name, inputs=inputs, **hparams)
     return save_checkpoint(
-        path, model, constants=NormalisationConstants(), image_size=image_size, config={}, seed=0
+        path,
+        model,
+        run_inputs=RunInputs(image_size, image_size, NormalisationConstants(), model.inputs),
+        config={},
+        seed=0,
     )
 
 
@@ -78,11 +83,9 @@ def test_onnx_estimator_agrees_with_the_pytorch_estimator(tmp_path):
         onnx_estimator.predict(frames[0], force=[8, 30, 58], width=[0.05, 0.048, 0.046])
 
 
-def test_export_needs_a_frame_size_and_onnx_estimator_needs_metadata(tmp_path):
-    checkpoint = _checkpoint(tmp_path / "m.pt", "top10nn", "Image", None)
-    with pytest.raises(ValueError, match="image_size"):
-        export_onnx(checkpoint, tmp_path / "m.onnx")
-    report = export_onnx(checkpoint, tmp_path / "m.onnx", image_size=(70, 70))
+def test_export_takes_the_checkpoints_frame_size_and_onnx_estimator_needs_metadata(tmp_path):
+    checkpoint = _checkpoint(tmp_path / "m.pt", "top10nn", "Image", (70, 70))
+    report = export_onnx(checkpoint, tmp_path / "m.onnx")
     assert report["image_size"] == [70, 70]
     model = onnx.load(str(tmp_path / "m.onnx"))
     del model.metadata_props[:]

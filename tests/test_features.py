@@ -75,7 +75,12 @@ def _compute_in_process(
     backbone = CountingBackbone(Path(log_path), delay_s=0.3)
     barrier.wait(timeout=60)
     features = cached_features(
-        store, backbone, None, NormalisationConstants(), batch_size=BATCH_SIZE, progress=False
+        store,
+        backbone,
+        store.image_size,
+        NormalisationConstants(),
+        batch_size=BATCH_SIZE,
+        progress=False,
     )
     np.save(out_path, np.asarray(features))
 
@@ -118,7 +123,7 @@ def test_two_processes_compute_one_cache_once(tmp_path):
         reference = cached_features(
             reference_store,
             CountingBackbone(tmp_path / "reference.log"),
-            None,
+            reference_store.image_size,
             NormalisationConstants(),
             batch_size=BATCH_SIZE,
             progress=False,
@@ -139,7 +144,7 @@ def test_a_crashed_computation_releases_the_lock_and_resumes(tmp_path):
         cached_features(
             store,
             CountingBackbone(log, fail_on_call=3),
-            None,
+            store.image_size,
             constants,
             batch_size=BATCH_SIZE,
             progress=False,
@@ -148,13 +153,23 @@ def test_a_crashed_computation_releases_the_lock_and_resumes(tmp_path):
     # The same process locks again (a held lock would block here) and resumes: the
     # finished batches are not encoded a second time.
     features = cached_features(
-        store, CountingBackbone(log), None, constants, batch_size=BATCH_SIZE, progress=False
+        store,
+        CountingBackbone(log),
+        store.image_size,
+        constants,
+        batch_size=BATCH_SIZE,
+        progress=False,
     )
     assert _logged(log)[1] == 3 * len(store)
     assert features.shape == (len(store), 3, CountingBackbone.feature_dim)
     assert np.isfinite(np.asarray(features, dtype=np.float32)).all()
     # A finished cache is read without computing (and without taking the lock).
     cached_features(
-        store, CountingBackbone(log), None, constants, batch_size=BATCH_SIZE, progress=False
+        store,
+        CountingBackbone(log),
+        store.image_size,
+        constants,
+        batch_size=BATCH_SIZE,
+        progress=False,
     )
     assert _logged(log)[1] == 3 * len(store)

@@ -209,7 +209,9 @@ def test_source_is_synthetic_for_generated_trees(tmp_path):
     (tmp_path / "src" / "generation.json").write_text('{"analytical_estimator": "contact"}')
     _import(tmp_path / "src", tmp_path / "generated")
     generated = GraspStore.open(tmp_path / "generated")
-    assert generated.header.source == "synthetic" and generated.analytical_estimator == "contact"
+    assert (
+        generated.header.source == "synthetic" and generated.analytical_estimator.name == "contact"
+    )
     # A pre-release generator's manifest named no estimator: refused, nothing written.
     (tmp_path / "src" / "generation.json").write_text("{}")
     with pytest.raises(ImportPathError, match="names no analytical_estimator"):

@@ -39,6 +39,7 @@ from tactile_compliance.inference import (
 )
 from tactile_compliance.inference.ensemble import ensemble_calibration
 from tactile_compliance.models import create_model
+from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.training.train import train
 from toy_store import make_toy_store
 
@@ -179,7 +180,9 @@ def test_inputs_the_strategy_does_not_use_are_ignored(runs, toy_store):
 def estimator_all():
     torch.manual_seed(0)
     model = create_model("top10nn", inputs="ALL")
-    return ComplianceEstimator(model, NormalisationConstants(), (72, 72))
+    return ComplianceEstimator(
+        model, RunInputs((72, 72), (72, 72), NormalisationConstants(), model.inputs)
+    )
 
 
 _RNG = np.random.default_rng(0)
@@ -254,18 +257,11 @@ def test_good_input_passes_and_bad_options_are_rejected(estimator_all):
         estimator_all.predict(**GOOD, batch_size=0)
 
 
-def test_native_size_checkpoint_rejects_frames_smaller_than_the_model_accepts():
-    model = create_model("top10nn", inputs="Image")
-    estimator = ComplianceEstimator(model, NormalisationConstants(), None)
-    with pytest.raises(ValueError, match=r"at least 65x65"):
-        estimator.predict(np.zeros((3, 32, 32, 3), np.uint8))
-
-
 def test_a_resizing_checkpoint_still_rejects_frames_too_small_to_hold_a_contact(estimator_all):
     # Frames are resized to the checkpoint's size, but a 1x1 "frame" is a wrong array.
     from tactile_compliance.inference.base import MIN_FRAME_SIDE_PX
 
-    assert estimator_all.image_size is not None
+    assert estimator_all.run_inputs.image_size == (72, 72)
     side = MIN_FRAME_SIDE_PX
     for tiny in ((1, 1), (side - 1, 40), (40, side - 1)):
         with pytest.raises(ValueError, match=rf"at least {side}x{side}"):

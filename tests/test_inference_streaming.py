@@ -6,6 +6,8 @@ the module under test, so a wrong selection or a buffering bug fails the compari
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -22,6 +24,8 @@ from tactile_compliance.inference import (
 from tactile_compliance.inference.ensemble import coverage, fit_interval_scale, interval_z
 from tactile_compliance.inference.streaming import difference_image
 from tactile_compliance.models import create_model
+from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, AnalyticalEstimator
+from tactile_compliance.runs.run_inputs import RunInputs
 
 SIZE = (40, 48)
 
@@ -29,7 +33,9 @@ SIZE = (40, 48)
 def _estimator(inputs: str, seed: int = 0) -> ComplianceEstimator:
     torch.manual_seed(seed)
     model = create_model("top10nn", inputs=inputs)
-    return ComplianceEstimator(model, NormalisationConstants(), (72, 72))
+    return ComplianceEstimator(
+        model, RunInputs((72, 72), (72, 72), NormalisationConstants(), model.inputs)
+    )
 
 
 @pytest.fixture(scope="module")
@@ -220,7 +226,7 @@ def test_stream_computes_estimates_from_depth_maps_with_the_contact_estimator():
     span = slice(idx[0], idx[2] + 1)  # [i_start, i_peak]
     estimates = analytical_estimates_pa(force[span], width[span], depth[span])
     batch = estimator.predict(frames[idx], force=force[idx], width=width[idx], estimates=estimates)
-    stream = estimator.stream(analytical_estimator="contact")
+    stream = estimator.stream(analytical_estimator=AnalyticalEstimator("contact"))
     final = _stream_final(stream, frames, force, width, depth)
     assert final.final and final.modulus_pa == pytest.approx(batch.modulus_pa, rel=1e-6)
     with pytest.raises(ValueError, match="every frame of a grasp or never"):
@@ -236,7 +242,7 @@ def test_stream_computes_the_dataset_estimates_by_default():
     from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
 
     estimator = _estimator("ALL")
-    assert estimator.analytical_estimator == "dataset"
+    assert estimator.run_inputs.estimator == DEFAULT_ESTIMATOR
     frames, force, width = make_grasp()
     # Large imprints: the dataset's estimator needs >= 2690 px of contact on its grid.
     depth = _depth_maps(force, size=(250, 350), radius_px=(20.0, 40.0), peak_mm=1.5)
@@ -248,10 +254,11 @@ def test_stream_computes_the_dataset_estimates_by_default():
     final = _stream_final(estimator.stream(), frames, force, width, depth)
     assert final.final and final.modulus_pa == pytest.approx(batch.modulus_pa, rel=1e-6)
     # A checkpoint trained on "contact" values is fed "contact" values.
-    estimator.meta["analytical_estimator"] = "contact"
-    assert estimator.stream().analytical_estimator == "contact"
+    contact = replace(estimator.run_inputs, estimator=AnalyticalEstimator("contact"))
+    estimator.run_inputs = contact
+    assert estimator.stream().analytical_estimator == AnalyticalEstimator("contact")
     with pytest.raises(ValueError, match="unknown analytical estimator"):
-        estimator.stream(analytical_estimator="hertz")
+        AnalyticalEstimator("hertz")
 
 
 def test_stream_input_errors(estimator_fw):

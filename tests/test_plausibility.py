@@ -27,6 +27,7 @@ from tactile_compliance.data.plausibility import RULES, PlausibleRange
 from tactile_compliance.data.store import GraspStore, GraspStoreWriter, StoreError
 from tactile_compliance.inference import ComplianceEstimator, input_checks
 from tactile_compliance.models import create_model
+from tactile_compliance.runs.run_inputs import RunInputs
 
 BAD_SAMPLE = ("foam_block", 0, 1)  # (object, grasp, augmentation) that gets the bad value
 
@@ -270,7 +271,9 @@ def test_import_skips_exactly_that_sample_and_reports_it(tmp_path, name):
 def estimator():
     torch.manual_seed(0)
     model = create_model("top10nn", inputs="ALL")
-    return ComplianceEstimator(model, NormalisationConstants(), (72, 72))
+    return ComplianceEstimator(
+        model, RunInputs((72, 72), (72, 72), NormalisationConstants(), model.inputs)
+    )
 
 
 GOOD = {

@@ -37,6 +37,7 @@ from tactile_compliance.runs.checkpoint import (
     frozen_backbone_record,
     save_checkpoint,
 )
+from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.training.train import train
 from toy_store import make_toy_store, tiny_run_config
 
@@ -73,8 +74,7 @@ def res_tf_head_only(tmp_path_factory) -> Path:
     return save_checkpoint(
         tmp_path_factory.mktemp("res_tf") / "best.pt",
         model.eval(),
-        constants=NormalisationConstants(),
-        image_size=(32, 32),
+        run_inputs=RunInputs((32, 32), (32, 32), NormalisationConstants(), model.inputs),
         config={"seed": 3},
         seed=3,
         frozen_backbone=record,
@@ -107,10 +107,7 @@ def test_from_pretrained_reproduces_from_checkpoint(request, tmp_path, which):
     expected = _predict(reference, inputs)
     assert np.ptp(expected) > 1e-3  # the inputs matter, so equal outputs mean equal models
     np.testing.assert_allclose(_predict(loaded, inputs), expected, rtol=0, atol=1e-5)
-    assert loaded.image_size == reference.image_size
-    assert loaded.store_image_size == reference.store_image_size
-    assert loaded.inputs == reference.inputs
-    assert loaded.analytical_estimator == reference.analytical_estimator
+    assert loaded.run_inputs == reference.run_inputs
     # Self-contained: the weights file holds the whole state dict, a frozen backbone too.
     stored = load_file(str(tmp_path / "model" / WEIGHTS_FILE))
     assert set(stored) == set(reference.model.state_dict())
@@ -131,7 +128,7 @@ def test_card_holds_the_runs_metrics_strategy_and_data(tmp_path, top10nn_run):
     assert f"condition **{result['condition']}**" in card
     height, width = result["image_size"]
     assert f"{height} x {width} px" in card
-    assert str(config["normalisation"]["image_mean"]) in card
+    assert str(config["run_inputs"]["normalisation"]["image_mean"]) in card
     assert "source `toy`" in card  # the training store's provenance, from the checkpoint
     assert config["training_store"]["source"] == "toy"
     assert config["evaluation"]["test"] == result["test"]
@@ -141,11 +138,11 @@ def test_config_json_round_trips(tmp_path, top10nn_run):
     export_safetensors(top10nn_run, tmp_path / "model")
     written = json.loads((tmp_path / "model" / CONFIG_FILE).read_text())
     checkpoint = ComplianceEstimator.from_checkpoint(top10nn_run)
-    assert written["model_name"] == "top10nn" and written["inputs"] == "ALL"
-    assert written["normalisation"] == checkpoint.constants.to_dict()
+    assert written["model_name"] == "top10nn" and written["run_inputs"]["inputs"] == "ALL"
+    assert written["run_inputs"] == checkpoint.run_inputs.to_dict()
     assert written["hparams"] == checkpoint.meta["hparams"]
     loaded = ComplianceEstimator.from_pretrained(tmp_path / "model")
-    assert loaded.constants == NormalisationConstants.from_dict(written["normalisation"])
+    assert loaded.run_inputs == checkpoint.run_inputs
     # Loaded -> described again: the same config (the weights' hash is added on writing).
     again = pretrained_config(
         loaded, checkpoint=top10nn_run / "best.pt", evaluation=written["evaluation"]
@@ -221,8 +218,7 @@ def test_frozen_vgg_lstm_export_is_self_contained(tmp_path):
     checkpoint = save_checkpoint(
         tmp_path / "best.pt",
         model.eval(),
-        constants=NormalisationConstants(),
-        image_size=(32, 32),
+        run_inputs=RunInputs((32, 32), (32, 32), NormalisationConstants(), model.inputs),
         config={},
         seed=0,
         frozen_backbone=record,
@@ -249,19 +245,21 @@ def test_the_units_of_the_estimates_travel_into_the_export(tmp_path):
     save_checkpoint(
         tmp_path / "best.pt",
         create_model("top10nn", inputs="ALL"),
-        constants=NormalisationConstants(),
-        image_size=(72, 72),
+        run_inputs=RunInputs(
+            (72, 72), (72, 72), NormalisationConstants(), "ALL", sensor=SensorUnits(**units)
+        ),
         config={},
         seed=0,
-        sensor_units=units,
     )
-    assert ComplianceEstimator.from_checkpoint(tmp_path / "best.pt").sensor_units == (
+    assert ComplianceEstimator.from_checkpoint(tmp_path / "best.pt").run_inputs.sensor == (
         SensorUnits("calibrated", 12.5)
     )
     export_safetensors(tmp_path / "best.pt", tmp_path / "model")
-    assert json.loads((tmp_path / "model" / CONFIG_FILE).read_text())["sensor_units"] == units
+    config = json.loads((tmp_path / "model" / CONFIG_FILE).read_text())
+    assert config["run_inputs"]["sensor"] == units
     loaded = ComplianceEstimator.from_pretrained(tmp_path / "model")
-    assert loaded.sensor_units == SensorUnits("calibrated", 12.5)
+    assert loaded.run_inputs.sensor == SensorUnits("calibrated", 12.5)
+    assert loaded.run_inputs.estimator.px_per_mm == 12.5
 
 
 def _strings(value) -> list[str]:  # type: ignore[no-untyped-def]

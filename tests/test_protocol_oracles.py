@@ -232,7 +232,8 @@ def check_balanced(
 
 def check_checkpoint_strategy(payload: dict[str, Any], cfg: Any) -> None:
     """A checkpoint records the configured input strategy, and its weights agree."""
-    assert payload["inputs"] == cfg.inputs, (payload["inputs"], cfg.inputs)
+    recorded = payload["run_inputs"]
+    assert recorded["inputs"] == cfg.inputs, (recorded["inputs"], cfg.inputs)
     assert payload["config"]["inputs"] == cfg.inputs
     assert payload["model_name"] == cfg.model.name
     uses_force, uses_width, uses_estimates = STRATEGY_USES[cfg.inputs]
@@ -241,8 +242,8 @@ def check_checkpoint_strategy(payload: dict[str, Any], cfg: Any) -> None:
     assert any(k.startswith("width_encoder.") for k in keys) == uses_width, "width tower"
     assert any(k.startswith("estimation_decoder.") for k in keys) == uses_estimates, "E tower"
     lo, hi = cfg.data.label_range_pa
-    assert payload["normalisation"]["label_log10_min"] == pytest.approx(math.log10(lo))
-    assert payload["normalisation"]["label_log10_max"] == pytest.approx(math.log10(hi))
+    assert recorded["normalisation"]["label_log10_min"] == pytest.approx(math.log10(lo))
+    assert recorded["normalisation"]["label_log10_max"] == pytest.approx(math.log10(hi))
 
 
 # ============================================================================ leakage
@@ -590,7 +591,8 @@ def test_strategy_oracle_fails_on_a_checkpoint_that_lies(strategy_runs):
     cfg, run_dir = strategy_runs["ImageF"]
     payload = torch.load(run_dir / "best.pt", map_location="cpu", weights_only=True)
     with pytest.raises(AssertionError):
-        check_checkpoint_strategy({**payload, "inputs": "ALL"}, cfg)
+        lying = {**payload["run_inputs"], "inputs": "ALL"}
+        check_checkpoint_strategy({**payload, "run_inputs": lying}, cfg)
     without_force = {k: v for k, v in payload["state_dict"].items() if "force_encoder" not in k}
     with pytest.raises(AssertionError, match="force tower"):
         check_checkpoint_strategy({**payload, "state_dict": without_force}, cfg)

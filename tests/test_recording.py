@@ -40,7 +40,9 @@ from tactile_compliance.data.store import GraspStore
 from tactile_compliance.inference.live import format_live_event
 from tactile_compliance.models import create_model
 from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
+from tactile_compliance.physics.estimators import SensorUnits
 from tactile_compliance.runs.checkpoint import save_checkpoint
+from tactile_compliance.runs.run_inputs import RunInputs
 
 SIZE = (60, 84)
 FPS = 15.0  # every second frame of the 30 fps simulation
@@ -102,15 +104,13 @@ def grasp(tmp_path_factory):
 def _checkpoint(path, inputs="ImageFW", seed=0, size=(72, 72), sensor_units=None):
     torch.manual_seed(seed)
     model = create_model("top10nn", inputs=inputs)
-    constants = NormalisationConstants()
+    sensor = SensorUnits.from_dict(sensor_units)
     return save_checkpoint(
         path,
         model,
-        constants=constants,
-        image_size=size,
+        run_inputs=RunInputs(size, size, NormalisationConstants(), inputs, sensor=sensor),
         config={},
         seed=0,
-        sensor_units=sensor_units,
     )
 
 

@@ -33,6 +33,7 @@ from tactile_compliance.outputs import (
 from tactile_compliance.runs.checkpoint import CHECKPOINT_FORMAT, save_checkpoint
 from tactile_compliance.runs.layout import LOCK_FILE, RUN_KIND
 from tactile_compliance.runs.results import ResultsStore
+from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.training import module
 from tactile_compliance.training.train import build_model, train
 from toy_store import make_toy_store, tiny_run_config
@@ -369,7 +370,8 @@ def test_full_disk_while_saving_a_checkpoint_leaves_no_temp_file(tmp_path, monke
     _full_disk(monkeypatch, _is_best)
     with pytest.raises(OSError, match="No space left"):
         save_checkpoint(
-            target, model, constants=cfg.normalisation_constants(), image_size=None,
+            target, model,
+            run_inputs=RunInputs((72, 72), (32, 32), cfg.normalisation_constants(), cfg.inputs),
             config={}, seed=0,
         )  # fmt: skip
     assert sorted(p.name for p in tmp_path.iterdir()) == ["best.pt"]

@@ -37,6 +37,7 @@ from tactile_compliance.inference import (
     select_frame_indices,
 )
 from tactile_compliance.models import create_model
+from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
 from tactile_compliance.synthetic.objects import default_objects
 from tactile_compliance.synthetic.trajectories import synthetic_trajectories
@@ -61,7 +62,9 @@ def one_thread():
 def estimator() -> ComplianceEstimator:
     torch.manual_seed(0)
     model = create_model("res_tf", inputs="ImageFW", num_layers=1, embedding_dim=64, output_dim=64)
-    return ComplianceEstimator(model, NormalisationConstants(), (32, 32))
+    return ComplianceEstimator(
+        model, RunInputs((32, 32), (32, 32), NormalisationConstants(), model.inputs)
+    )
 
 
 @pytest.fixture(scope="module")

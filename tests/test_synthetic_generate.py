@@ -121,7 +121,7 @@ def test_importer_reads_the_tree(small_tree: Path, tmp_path: Path) -> None:
     assert json.loads((small_tree / "generation.json").read_text())["analytical_estimator"] == (
         "dataset"
     )
-    assert store.analytical_estimator == "dataset"
+    assert store.analytical_estimator.name == "dataset"
 
 
 def test_same_seed_is_byte_identical_across_runs_and_workers(tmp_path: Path) -> None:

@@ -32,6 +32,7 @@ from tactile_compliance.inference.export import export_safetensors
 from tactile_compliance.inference.pretrained import CONFIG_FILE, WEIGHTS_FILE
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.checkpoint import save_checkpoint
+from tactile_compliance.runs.run_inputs import RunInputs
 from test_recording import make_grasp
 from toy_store import make_toy_store
 
@@ -73,9 +74,12 @@ WEIGHTS: list[tuple[str, Callable[[dict[str, torch.Tensor]], None]]] = [
 
 # (case id, a change of the description: checkpoint payload or config.json)
 META: list[tuple[str, Callable[[dict[str, Any]], None]]] = [
-    ("image_size floats", lambda d: d.update(image_size=[72.7, 72.2])),
-    ("image_size negative", lambda d: d.update(image_size=[-5, 10])),
-    ("image_size huge", lambda d: d.update(image_size=[20000, 20000])),
+    ("image_size floats", lambda d: d["run_inputs"].update(image_size=[72.7, 72.2])),
+    ("image_size negative", lambda d: d["run_inputs"].update(image_size=[-5, 10])),
+    ("image_size huge", lambda d: d["run_inputs"].update(image_size=[20000, 20000])),
+    ("store_image_size none", lambda d: d["run_inputs"].update(store_image_size=None)),
+    ("estimator unknown", lambda d: d["run_inputs"].update(analytical_estimator="hertz")),
+    ("run_inputs missing", lambda d: d.pop("run_inputs")),
     ("format_version list", lambda d: d.update(format_version=[1])),
 ]
 
@@ -89,8 +93,7 @@ def files(tmp_path_factory):
     checkpoint = save_checkpoint(
         root / "best.pt",
         model,
-        constants=NormalisationConstants(),
-        image_size=(72, 72),
+        run_inputs=RunInputs((72, 72), (72, 72), NormalisationConstants(), model.inputs),
         config={},
         seed=0,
     )
@@ -146,7 +149,9 @@ def _tampered_checkpoint(files, name: str, change: Callable[[dict[str, Any]], No
 
 @pytest.mark.parametrize(("name", "values"), CONSTANTS, ids=[c[0] for c in CONSTANTS])
 def test_checkpoint_constants(files, name, values):
-    path = _tampered_checkpoint(files, name, lambda p: p["normalisation"].update(values))
+    path = _tampered_checkpoint(
+        files, name, lambda p: p["run_inputs"]["normalisation"].update(values)
+    )
     with pytest.raises(ValueError) as err:
         ComplianceEstimator.from_checkpoint(path)
     assert "\n" not in str(err.value)
@@ -200,7 +205,7 @@ def _tampered_export(
 
 @pytest.mark.parametrize(("name", "values"), CONSTANTS, ids=[c[0] for c in CONSTANTS])
 def test_export_constants(files, name, values):
-    path = _tampered_export(files, name, lambda c: c["normalisation"].update(values))
+    path = _tampered_export(files, name, lambda c: c["run_inputs"]["normalisation"].update(values))
     with pytest.raises(ValueError) as err:
         ComplianceEstimator.from_pretrained(path)
     assert "\n" not in str(err.value)

@@ -132,10 +132,11 @@ def test_tiny_run_learns_to_its_measured_accuracy(toy_store, fast_run, model):
     assert (train_rows["train_loss"] > train_rows["train_mse"]).all()
     # The checkpoint describes itself.
     loaded = load_checkpoint(run_dir / "best.pt")
-    assert loaded.meta["model_name"] == model and loaded.inputs == "ALL"
+    assert loaded.meta["model_name"] == model and loaded.run_inputs.inputs.value == "ALL"
     assert loaded.meta["seed"] == cfg.seed and loaded.meta["backbone_weights"] == "none"
     assert loaded.meta["config"]["data"]["store"] == str(toy_store.path)
-    assert loaded.image_size == tuple(cfg.data.image_size)
+    assert loaded.run_inputs.image_size == tuple(cfg.data.image_size)
+    assert loaded.run_inputs.store_image_size == toy_store.image_size
     # Re-running a finished configuration returns the stored result without training.
     assert train(cfg, progress=False) == result
 

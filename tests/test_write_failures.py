@@ -24,6 +24,7 @@ from tactile_compliance.inference.pretrained import CONFIG_FILE, WEIGHTS_FILE
 from tactile_compliance.models import create_model
 from tactile_compliance.outputs import MARKER_NAME
 from tactile_compliance.runs.checkpoint import save_checkpoint
+from tactile_compliance.runs.run_inputs import RunInputs
 from test_pretrain import depth_toy_store
 from toy_store import make_toy_store
 
@@ -46,8 +47,7 @@ def _checkpoint(path: Path, seed: int = 0, model: str = "top10nn") -> Path:
     return save_checkpoint(
         path,
         create_model(model, inputs="Image"),
-        constants=NormalisationConstants(),
-        image_size=(72, 72),
+        run_inputs=RunInputs((72, 72), (72, 72), NormalisationConstants(), "Image"),
         config={},
         seed=seed,
     )
@@ -107,13 +107,6 @@ def test_export_of_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, monkeypa
     result = runner.invoke(app, ["export", str(checkpoint), "--safetensors", str(tmp_path / "e")])
     assert "No space left" in _one_line(result, EXIT_FAILED)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.pt"]
-
-
-def test_export_refuses_a_size_the_model_cannot_take_before_writing(tmp_path):
-    checkpoint = _checkpoint(tmp_path / "a.pt")
-    args = ["export", str(checkpoint), "--safetensors", str(tmp_path / "e"), "--size", "40x40"]
-    assert "at least 65x65" in _one_line(runner.invoke(app, args), EXIT_BAD_INPUT)
-    assert not (tmp_path / "e").exists()
 
 
 def test_export_of_a_missing_checkpoint_creates_nothing(tmp_path):

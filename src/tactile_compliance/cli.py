@@ -1209,13 +1209,6 @@ def export(
             help="Directory to write: model.safetensors + config.json + a model card README.md.",
         ),
     ] = None,
-    size: Annotated[
-        Optional[str],  # noqa: UP045
-        typer.Option(
-            "--size",
-            help="Frame size HxW the export takes (default: the checkpoint's; ONNX bakes it in).",
-        ),
-    ] = None,
     weights: BackboneWeightsOption = None,
     license: Annotated[
         str,
@@ -1252,7 +1245,6 @@ def export(
         written = export_safetensors(
             checkpoint,
             safetensors,
-            image_size=_size_option(size),
             backbone_weights=weights,
             license=license,
         )
@@ -1261,9 +1253,7 @@ def export(
             typer.echo(format_safetensors_report(written))
     if onnx is not None:
         try:
-            result = export_onnx(
-                checkpoint, onnx, image_size=_size_option(size), backbone_weights=weights
-            )
+            result = export_onnx(checkpoint, onnx, backbone_weights=weights)
         except RuntimeError as err:  # the graph does not match PyTorch: the export failed
             _fail(str(err))
         reports["onnx"] = result

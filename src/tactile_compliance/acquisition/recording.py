@@ -121,7 +121,7 @@ from tactile_compliance.outputs import (
     exclusive_lock,
     output_kind,
 )
-from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits, analytical_estimator
+from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, WEDGE_UNITS, SensorUnits
 
 __all__ = [
     "AUGMENTATION_FORCE_FRACTION",
@@ -725,7 +725,6 @@ def write_grasp(
     reference: np.ndarray | None = None,
     markers_reference: np.ndarray | None = None,
     max_aug: int = MAX_AUGMENTATIONS,
-    estimator: str = "dataset",
     sensor: SensorCalibration | None = None,
     markers_sensor: SensorCalibration | None = None,
 ) -> RecordedGrasp:
@@ -738,8 +737,6 @@ def write_grasp(
         reference: the no-contact frame (a calibration's); default the first frame.
         markers_reference: the same for the marker sensor.
         max_aug: augmentations at most.
-        estimator: the analytical estimator (``physics.estimators``): ``dataset`` makes
-            the values the public dataset stored.
         sensor: the sensor's calibration: its depth model and pixel density make the
             depth maps and the estimates (None: the dataset heuristic and the Wedge's
             16.40 px/mm); its reference is used where ``reference`` is None.
@@ -784,16 +781,13 @@ def write_grasp(
         max_depth_mm=depth_maxima,
         timestamps_s=captured.timestamp_s,
     )
-    px_per_mm = None if sensor is None else sensor.px_per_mm
-    estimate_fn = analytical_estimator(estimator, px_per_mm)
+    # The public dataset's estimator (what ``import burgess`` records for this layout); the
+    # original took the earlier depth onset of the two fingers.
+    estimator = DEFAULT_ESTIMATOR.at(None if sensor is None else sensor.px_per_mm)
     try:
-        if estimator == "dataset" and marker_depth is not None:
-            # The original took the earlier depth onset of the two fingers.
-            values = estimate_fn(
-                captured.force_n, captured.width_m, depth, marker_depths_mm=marker_depth
-            )
-        else:
-            values = estimate_fn(captured.force_n, captured.width_m, depth)
+        values = estimator.estimate(
+            captured.force_n, captured.width_m, depth, marker_depths_mm=marker_depth
+        )
         estimates = (float(values[0]), float(values[1]))
     except ValueError:
         estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps

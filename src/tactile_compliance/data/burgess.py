@@ -54,6 +54,7 @@ from tactile_compliance.data.raw_layout import (
 )
 from tactile_compliance.data.safe_pickle import peek_array_shape
 from tactile_compliance.data.store import GraspStoreWriter, depth_size_for
+from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR
 from tactile_compliance.progress import progress_bar
 
 
@@ -177,16 +178,16 @@ def majority_frame_size(
 def _tree_estimator(src: Path) -> str:
     """The analytical estimator (``physics.estimators`` name) that made a tree's estimates.
 
-    The public dataset's pickles come from its own code (``"dataset"``), and so does anything
-    written in its layout by other tools. A generated tree names its estimator in its
-    manifest.
+    The public dataset's pickles come from its own code (``DEFAULT_ESTIMATOR``), and so
+    does anything written in its layout by other tools (``record``). A generated tree
+    names its estimator in its manifest.
 
     Raises:
         ImportPathError: a manifest that names none (a pre-release generator's tree).
     """
     manifest = src / SYNTHETIC_MANIFEST
     if not manifest.is_file():
-        return "dataset"
+        return DEFAULT_ESTIMATOR.name
     try:
         return str(json.loads(manifest.read_text())["analytical_estimator"])
     except (OSError, ValueError, KeyError, TypeError) as err:

@@ -78,7 +78,7 @@ def cache_key(
 def cached_features(
     store: GraspStore,
     backbone: torch.nn.Module,
-    image_size: tuple[int, int] | None,
+    image_size: tuple[int, int],
     constants: NormalisationConstants,
     *,
     batch_size: int = 32,
@@ -88,9 +88,10 @@ def cached_features(
     """Features (N_store, 3, feature_dim) of every store sample, computed once and cached.
 
     Returns a read-only float16 memmap; callers convert batches to float32.
-    ``image_size`` (height, width) px is what frames are resized to (None = store size).
+    ``image_size`` (height, width) px is what frames are resized to (the run's
+    ``RunInputs.image_size``).
     """
-    size = tuple(image_size) if image_size is not None else store.image_size
+    size = tuple(image_size)
     directory = store.path / FEATURES_DIR / cache_key(backbone, size, constants)
     final, meta_path = directory / FEATURES_FILE, directory / META_FILE
     feature_dim = int(backbone.feature_dim)

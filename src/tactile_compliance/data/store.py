@@ -77,7 +77,11 @@ from tactile_compliance.outputs import (
     process_alive,
     process_start,
 )
-from tactile_compliance.physics.estimators import SensorUnits
+from tactile_compliance.physics.estimators import (
+    DEFAULT_ESTIMATOR,
+    AnalyticalEstimator,
+    SensorUnits,
+)
 
 FORMAT_VERSION = 1
 #: Written into every store by :class:`GraspStoreWriter`; ``--overwrite`` replaces only a
@@ -619,14 +623,12 @@ class GraspStore:
         return self.header.image_size
 
     @property
-    def analytical_estimator(self) -> str | None:
-        """Name of the estimator that made the stored analytical estimates, or None.
-
-        ``import burgess`` records it (``creation_parameters["analytical_estimator"]``, a
-        name of ``physics.estimators``); Shore-hardness (``yuan``) stores have no estimates.
-        """
-        recorded = self.header.creation_parameters.get("analytical_estimator")
-        return str(recorded) if recorded else None
+    def analytical_estimator(self) -> AnalyticalEstimator:
+        """The estimator that made the stored analytical estimates, at the store's pixel
+        density: the one ``import burgess`` names (``creation_parameters``), else
+        ``DEFAULT_ESTIMATOR`` (Shore-hardness ``yuan`` stores have no estimates)."""
+        name = self.header.creation_parameters.get("analytical_estimator")
+        return AnalyticalEstimator(name or DEFAULT_ESTIMATOR.name, self.sensor_units.px_per_mm)
 
     @property
     def sensor_units(self) -> SensorUnits:

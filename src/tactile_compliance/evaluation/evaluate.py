@@ -60,17 +60,18 @@ def evaluate_run(
         grasp_store = GraspStore.open(store)
         kept, _ = filter_samples(grasp_store.samples, cfg)
         ids = kept["sample_id"].to_numpy(dtype=np.int64)
-    dataset = GraspDataset(grasp_store, ids, loaded.constants)
+    constants = loaded.run_inputs.constants
+    dataset = GraspDataset(grasp_store, ids, constants)
     predicted = predict_dataset(
         loaded.model,
         dataset,
-        loaded.constants,
-        loaded.image_size,
+        constants,
+        loaded.run_inputs.image_size,
         batch_size=batch_size,
         device=device,
     )
     predictions = grasp_store.samples.iloc[ids][list(PREDICTION_COLUMNS)].reset_index(drop=True)
-    predictions["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), loaded.constants)
-    metrics = compute_metrics(predictions["modulus_pa"], predictions["pred_pa"], loaded.constants)
-    groups = grouped_metrics(predictions, c=loaded.constants)
+    predictions["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), constants)
+    metrics = compute_metrics(predictions["modulus_pa"], predictions["pred_pa"], constants)
+    groups = grouped_metrics(predictions, c=constants)
     return Evaluation(predictions=predictions, metrics=metrics, groups=groups)

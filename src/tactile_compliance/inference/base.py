@@ -31,7 +31,7 @@ from tactile_compliance.inference.input_checks import (
     required_inputs,
 )
 from tactile_compliance.models import InputStrategy
-from tactile_compliance.physics.estimators import DEFAULT_ANALYTICAL_ESTIMATOR, SensorUnits
+from tactile_compliance.runs.run_inputs import RunInputs
 
 __all__ = ["MIN_FRAME_SIDE_PX", "BaseEstimator", "Prediction", "to_plain"]
 
@@ -100,9 +100,8 @@ class BaseEstimator(ABC):
     Subclasses set the attributes below when they load and implement :meth:`_forward`.
 
     Attributes:
-        constants: the checkpoint's normalisation constants (scalars, frames, labels).
-        inputs: the checkpoint's input strategy.
-        image_size: (H, W) px the network takes; frames of another size are resized.
+        run_inputs: the run's input record (``runs.run_inputs.RunInputs``): frame sizes,
+            normalisation constants, input strategy, sensor and analytical estimator.
         source: where the network was loaded from (named in error messages).
         meta: what the checkpoint recorded (seed, package version, ...).
     """
@@ -110,9 +109,7 @@ class BaseEstimator(ABC):
     #: How error messages name this kind of estimator, before its source.
     kind: ClassVar[str] = "estimator"
 
-    constants: NormalisationConstants
-    inputs: InputStrategy
-    image_size: tuple[int, int] | None
+    run_inputs: RunInputs
     source: str
     meta: dict[str, Any]
 
@@ -122,20 +119,14 @@ class BaseEstimator(ABC):
         """Registry name of the model (``top10nn``, ``vgg_lstm``, ``res_tf``)."""
 
     @property
-    def analytical_estimator(self) -> str:
-        """Name of the estimator that made the training data's analytical estimates.
-
-        Estimates computed at inference (``StreamingEstimator`` from depth maps) must come
-        from the same one (``physics.estimators``); a checkpoint that records none
-        predates the record and gets ``DEFAULT_ANALYTICAL_ESTIMATOR``.
-        """
-        return str(self.meta.get("analytical_estimator") or DEFAULT_ANALYTICAL_ESTIMATOR)
+    def constants(self) -> NormalisationConstants:
+        """The run's normalisation constants (scalars, frames, labels)."""
+        return self.run_inputs.constants
 
     @property
-    def sensor_units(self) -> SensorUnits:
-        """Depth model and pixel density of the training data's analytical estimates
-        (``physics.estimators.SensorUnits``; the Wedge's where none is recorded)."""
-        return SensorUnits.from_dict(self.meta.get("sensor_units"))
+    def inputs(self) -> InputStrategy:
+        """The run's input strategy."""
+        return self.run_inputs.inputs
 
     @property
     def required_inputs(self) -> tuple[str, ...]:

@@ -24,12 +24,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
-from tactile_compliance.inference.base import MIN_FRAME_SIDE_PX, BaseEstimator, Prediction
-from tactile_compliance.models import InputStrategy
+from tactile_compliance.inference.base import BaseEstimator, Prediction
 from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.runs.forward import forward_batch
+from tactile_compliance.runs.run_inputs import RunInputs
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.streaming import StreamingEstimator
@@ -56,25 +55,13 @@ def resolve_checkpoint(path: str | Path) -> Path:
     return path
 
 
-def _training_store_size(meta: dict[str, Any]) -> tuple[int, int] | None:
-    """Frame size of the store a checkpoint was trained on (``store_image_size``), or None.
-
-    A checkpoint without ``image_size`` was trained at its store's native resolution;
-    inputs of another size are resized to it instead of silently being fed at the wrong
-    scale. Pre-release checkpoints without the record are not looked up in their store:
-    they need an explicit size where one is required (``export``, ONNX).
-    """
-    recorded = meta.get("store_image_size")
-    return (int(recorded[0]), int(recorded[1])) if recorded else None
-
-
 class ComplianceEstimator(BaseEstimator):
     """A trained PyTorch model plus its own preprocessing: predicts Young's modulus in Pa.
 
     Build it with :meth:`from_checkpoint` (a ``best.pt``) or :meth:`from_pretrained` (an
     exported safetensors directory). ``predict`` and the input checks are
-    :class:`~tactile_compliance.inference.base.BaseEstimator`'s; this class adds loading,
-    the device and the frame size of the checkpoint.
+    :class:`~tactile_compliance.inference.base.BaseEstimator`'s; this class adds loading
+    and the device. ``run_inputs`` is the checkpoint's record, read as it is.
     """
 
     kind = "checkpoint"
@@ -82,8 +69,7 @@ class ComplianceEstimator(BaseEstimator):
     def __init__(
         self,
         model: torch.nn.Module,
-        constants: NormalisationConstants,
-        image_size: tuple[int, int] | None,
+        run_inputs: RunInputs,
         *,
         meta: dict[str, Any] | None = None,
         device: str | torch.device = DEFAULT_DEVICE,
@@ -91,15 +77,9 @@ class ComplianceEstimator(BaseEstimator):
     ) -> None:
         self.device = torch.device(resolve_device(device))
         self.model = model.to(self.device).eval()
-        self.constants = constants
-        self.image_size = tuple(image_size) if image_size is not None else None
+        self.run_inputs = run_inputs
         self.meta = dict(meta or {})
         self.source = source or "<in memory>"
-        self.inputs = InputStrategy.parse(model.inputs)
-        #: (H, W) px of the store the model was trained on, when known: readers of raw
-        #: sources (grasp directories, videos) resize to it with the importer's function
-        #: first, so frames take the same path as at import time.
-        self.store_image_size: tuple[int, int] | None = None
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -120,17 +100,9 @@ class ComplianceEstimator(BaseEstimator):
         file = resolve_checkpoint(path)
         device = resolve_device(device)  # "auto": a GPU when torch sees one
         loaded = load_checkpoint(file, device=device, backbone_weights=backbone_weights)
-        store_size = _training_store_size(loaded.meta)
-        estimator = cls(
-            loaded.model,
-            loaded.constants,
-            loaded.image_size or store_size,
-            meta=loaded.meta,
-            device=device,
-            source=str(file),
+        return cls(
+            loaded.model, loaded.run_inputs, meta=loaded.meta, device=device, source=str(file)
         )
-        estimator.store_image_size = store_size
-        return estimator
 
     @classmethod
     def from_pretrained(
@@ -155,19 +127,9 @@ class ComplianceEstimator(BaseEstimator):
 
         device = resolve_device(device)  # "auto": a GPU when torch sees one
         loaded = load_pretrained(path, device=device)
-        estimator = cls(
-            loaded.model,
-            loaded.constants,
-            loaded.image_size,
-            meta=loaded.meta,
-            device=device,
-            source=str(path),
+        return cls(
+            loaded.model, loaded.run_inputs, meta=loaded.meta, device=device, source=str(path)
         )
-        store_size = loaded.meta.get("store_image_size")
-        estimator.store_image_size = (
-            (int(store_size[0]), int(store_size[1])) if store_size else None
-        )
-        return estimator
 
     def save_pretrained(self, path: str | Path, *, license: str = "other") -> dict[str, Any]:
         """Write this model as a safetensors directory that :meth:`from_pretrained` loads:
@@ -208,14 +170,6 @@ class ComplianceEstimator(BaseEstimator):
         """The model's registry name (its class name for a model without one)."""
         return str(getattr(self.model, "model_name", type(self.model).__name__))
 
-    @property
-    def min_frame_size(self) -> int:
-        """Smallest accepted frame side in pixels: ``MIN_FRAME_SIDE_PX`` when the checkpoint
-        resizes frames, else also what the backbone accepts."""
-        if self.image_size is not None:
-            return MIN_FRAME_SIDE_PX
-        return max(MIN_FRAME_SIDE_PX, int(getattr(self.model, "min_image_size", 1)))
-
     def describe(self) -> dict[str, Any]:
         """What the estimator is: model, strategy, frame size, label range, provenance."""
         lo, hi = self.constants.label_range_pa
@@ -224,18 +178,17 @@ class ComplianceEstimator(BaseEstimator):
             "model": self.model_name,
             "inputs": self.inputs.value,
             "required_inputs": ["frames", *self.required_inputs],
-            "image_size": list(self.image_size) if self.image_size else None,
+            "image_size": list(self.run_inputs.image_size),
             "label_range_pa": [lo, hi],
             "backbone_weights": str(getattr(self.model, "backbone_weights", "none")),
             "seed": self.meta.get("seed"),
             "package_version": self.meta.get("package_version"),
-            "analytical_estimator": self.analytical_estimator,
-            "sensor_units": self.sensor_units.to_dict(),
+            "run_inputs": self.run_inputs.to_dict(),
             "device": str(self.device),
         }
 
     def __repr__(self) -> str:
-        size = "x".join(map(str, self.image_size)) if self.image_size else "native"
+        size = "x".join(map(str, self.run_inputs.image_size))
         return (
             f"ComplianceEstimator({self.model_name}, inputs={self.inputs.value}, "
             f"image_size={size}, checkpoint={self.source!r})"
@@ -246,7 +199,7 @@ class ComplianceEstimator(BaseEstimator):
     def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
         """Normalised outputs of one prepared chunk, through ``forward_batch``."""
         chunk = {key: value.to(self.device) for key, value in chunk.items()}
-        y = forward_batch(self.model, chunk, self.constants, self.image_size)
+        y = forward_batch(self.model, chunk, self.constants, self.run_inputs.image_size)
         return y.float().cpu().numpy()
 
     # ------------------------------------------------------------------ streaming

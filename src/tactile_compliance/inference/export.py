@@ -190,7 +190,6 @@ def export_onnx(
     checkpoint: str | Path,
     out: str | Path,
     *,
-    image_size: tuple[int, int] | None = None,
     opset: int = DEFAULT_OPSET,
     check: bool = True,
     atol: float = 1e-4,
@@ -201,9 +200,8 @@ def export_onnx(
 
     Args:
         checkpoint: ``best.pt`` or a run directory.
-        out: the ``.onnx`` file to write (replaced atomically).
-        image_size: (H, W) px; only needed when the checkpoint does not record its frame
-            size and its training store is gone.
+        out: the ``.onnx`` file to write (replaced atomically); its frame size is the
+            checkpoint's (``RunInputs.image_size``).
         opset: ONNX opset version.
         check: run onnxruntime on random inputs at ``check_batch_sizes`` and compare.
         atol: largest acceptable absolute difference of the normalised output.
@@ -216,18 +214,12 @@ def export_onnx(
 
     Raises:
         OnnxMissingError: onnx or onnxruntime is not installed (nothing is written).
-        ValueError: no frame size known; RuntimeError: parity worse than ``atol``.
+        RuntimeError: parity worse than ``atol``.
     """
     require_onnx()
     out = check_output_file(out, "ONNX model", _is_our_onnx, option="--onnx")
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
-    size = tuple(image_size) if image_size is not None else estimator.image_size
-    if size is None:
-        raise ValueError(
-            f"{estimator.source}: the checkpoint does not record its frame size and its "
-            f"training store is not available; pass image_size=(H, W)"
-        )
-    height, width = int(size[0]), int(size[1])
+    height, width = estimator.run_inputs.image_size
     names = onnx_input_names(estimator.inputs)
     model = estimator.model.cpu().eval()
     example = _example_inputs(names, 2, (height, width))
@@ -255,7 +247,7 @@ def export_onnx(
                 opset_version=opset,
                 do_constant_folding=True,
             )
-        _write_metadata(tmp, estimator, (height, width), names)
+        _write_metadata(tmp, estimator, names)
         tmp.replace(out)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -320,24 +312,18 @@ def onnx_parity(
     return worst
 
 
-def _write_metadata(
-    path: Path, estimator: ComplianceEstimator, size: tuple[int, int], names: list[str]
-) -> None:
+def _write_metadata(path: Path, estimator: ComplianceEstimator, names: list[str]) -> None:
     import onnx
 
     proto = onnx.load(str(path))
     description = {
         "model": estimator.model_name,
-        "inputs": estimator.inputs.value,
         "input_names": names,
         "output_name": OUTPUT_NAME,
-        "image_size": list(size),
-        "normalisation": estimator.constants.to_dict(),
+        "run_inputs": estimator.run_inputs.to_dict(),
         "checkpoint": estimator.source,
         "seed": estimator.meta.get("seed"),
         "package_version": estimator.meta.get("package_version"),
-        "analytical_estimator": estimator.analytical_estimator,
-        "sensor_units": estimator.sensor_units.to_dict(),
     }
     entry = proto.metadata_props.add()
     entry.key = ONNX_METADATA_KEY
@@ -377,7 +363,6 @@ def export_safetensors(
     checkpoint: str | Path,
     out: str | Path,
     *,
-    image_size: tuple[int, int] | None = None,
     backbone_weights: str | Path | None = None,
     license: str = DEFAULT_LICENSE,
 ) -> dict[str, Any]:
@@ -393,8 +378,6 @@ def export_safetensors(
     Args:
         checkpoint: ``best.pt`` or a run directory.
         out: the directory to write.
-        image_size: (H, W) px; only needed when the checkpoint does not record its frame
-            size and its training store is gone.
         backbone_weights: see ``ComplianceEstimator.from_checkpoint``.
         license: the model card's licence (an SPDX identifier such as ``mit``; default
             ``other``: the weights follow the licence of their training data).
@@ -407,8 +390,6 @@ def export_safetensors(
     # Checked, not created: a missing checkpoint must not leave an empty OUT behind.
     claim_output_dir(out, OUTPUT_KIND, option="--safetensors", create=False)
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
-    if image_size is not None:
-        estimator.image_size = (int(image_size[0]), int(image_size[1]))
     file = Path(estimator.source)
     return write_pretrained(
         estimator, out, checkpoint=file, evaluation=run_evaluation(file), license=license
@@ -419,12 +400,13 @@ def format_safetensors_report(report: dict[str, Any]) -> str:
     """Human-readable text of an :func:`export_safetensors` report (what the CLI prints)."""
     config = report["config"]
     sizes = ", ".join(f"{name} {size / 1e6:.2f} MB" for name, size in report["files"].items())
-    height, width = config["image_size"]
+    run_inputs = config["run_inputs"]
+    height, width = run_inputs["image_size"]
     return "\n".join(
         [
             f"Wrote {report['out']} ({sizes})",
-            f"Model     {config['model_name']} inputs={config['inputs']}, frames "
-            f"{height}x{width} {config['channel_order']}",
+            f"Model     {config['model_name']} inputs={run_inputs['inputs']}, frames "
+            f"{height}x{width} {run_inputs['channel_order']}",
             f"Load      ComplianceEstimator.from_pretrained({report['out']!r})",
         ]
     )

@@ -149,7 +149,6 @@ def live_estimates(
     ensemble = EnsembleEstimator(list(members), level=level, scale=scale)
     reference = None if calibration is None else calibration.reference
     depth_model = "dataset" if calibration is None else calibration.depth
-    px_per_mm = None if calibration is None else calibration.px_per_mm
     # Each frame is differenced once, here: the depth map and every member's stream
     # (``frame_kind="difference"``) take the same difference image.
     streams = [
@@ -159,7 +158,6 @@ def live_estimates(
             window_s=window_s,
             frame_kind="difference",
             channel_order="BGR",
-            px_per_mm=px_per_mm,
         )
         for member in members
     ]
@@ -167,7 +165,7 @@ def live_estimates(
     if needs_depth:
         units = WEDGE_UNITS if calibration is None else calibration.units
         for member in members:
-            member.sensor_units.check_same(
+            member.run_inputs.sensor.check_same(
                 units, trained=f"checkpoint {member.source}", used="this sensor"
             )
 

@@ -18,10 +18,10 @@ import numpy as np
 import torch
 
 from tactile_compliance.data.dataset import prepare_frames
-from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.inference.input_checks import required_inputs
 from tactile_compliance.models import InputStrategy
+from tactile_compliance.runs.run_inputs import RunInputs
 
 __all__ = ["ONNX_METADATA_KEY", "OUTPUT_NAME", "OnnxEstimator", "onnx_input_names"]
 
@@ -49,7 +49,8 @@ class OnnxEstimator(BaseEstimator):
     """The ``predict`` API of :class:`ComplianceEstimator` on an exported ONNX file.
 
     Preprocessing is the project's own (``prepare_inputs`` + ``prepare_frames``) with the
-    constants stored in the file, so both estimators agree to the export's parity.
+    checkpoint's ``RunInputs`` stored in the file, so both estimators agree to the
+    export's parity.
 
     Args:
         path: an ``.onnx`` file written by :func:`~tactile_compliance.inference.export.
@@ -66,9 +67,7 @@ class OnnxEstimator(BaseEstimator):
         if ONNX_METADATA_KEY not in meta:
             raise ValueError(f"{path}: not exported by tactile-compliance (no metadata)")
         self.meta: dict[str, Any] = json.loads(meta[ONNX_METADATA_KEY])
-        self.constants = NormalisationConstants.from_dict(self.meta["normalisation"])
-        self.image_size = tuple(self.meta["image_size"])  # type: ignore[assignment]
-        self.inputs = InputStrategy.parse(self.meta["inputs"])
+        self.run_inputs = RunInputs.from_dict(self.meta.get("run_inputs"), self.source)
         self.input_names: list[str] = list(self.meta["input_names"])
 
     @property
@@ -82,7 +81,7 @@ class OnnxEstimator(BaseEstimator):
         The graph takes frames already resized and normalised (see ``export``), so that
         step runs here with the project's ``prepare_frames``, as ``forward_batch`` does.
         """
-        frames = prepare_frames(chunk["frames"], self.constants, self.image_size)
+        frames = prepare_frames(chunk["frames"], self.constants, self.run_inputs.image_size)
         feed = {"frames": frames.numpy()}
         feed.update({name: chunk[name].numpy() for name in self.input_names[1:]})
         return self.session.run([OUTPUT_NAME], feed)[0]

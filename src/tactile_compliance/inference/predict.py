@@ -57,7 +57,7 @@ def predict_path(
         estimator = ComplianceEstimator.from_checkpoint(
             checkpoint, device=device, backbone_weights=backbone_weights
         )
-    source = read_source(path, fingers=fingers, image_size=estimator.store_image_size)
+    source = read_source(path, fingers=fingers, image_size=estimator.run_inputs.store_image_size)
     needed = estimator.required_inputs
     if source.kind == "video" and needed:
         raise ValueError(
@@ -66,7 +66,7 @@ def predict_path(
             f"use an Image checkpoint"
         )
     if "estimates" in needed:
-        estimator.sensor_units.check_same(
+        estimator.run_inputs.sensor.check_same(
             source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
         )
     scalars = source.scalars()
@@ -165,7 +165,7 @@ def _plain(value: Any) -> Any:
 def format_predictions(report: dict[str, Any], max_rows: int = 20) -> str:
     """Human-readable text of a :func:`predict_path` report (what the CLI prints)."""
     ckpt, source, summary = report["checkpoint"], report["source"], report["summary"]
-    size = "x".join(map(str, ckpt["image_size"])) if ckpt["image_size"] else "native"
+    size = "x".join(map(str, ckpt["image_size"]))
     lines = [
         f"Checkpoint  {ckpt['checkpoint']}  ({ckpt['model']}, inputs {ckpt['inputs']}, "
         f"frames {size})",

@@ -12,10 +12,10 @@ CHECKPOINT --safetensors DIR``, see ``inference/export.py``).
   no weights file, seed or torch version to load (a frozen VGG16 adds 0.53 GB). Where the
   backbone came from stays recorded in ``config.json`` (``frozen_backbone``).
 * ``config.json``: everything needed to rebuild the model and its input pipeline: model
-  name and hyperparameters, input strategy, normalisation constants (image mean/std per
-  channel, scalar scales, label range), frame size (H, W) px, channel order, the analytical
-  estimator's name, the training store's provenance, the training configuration and its
-  metrics, the package version and the checkpoint's sha256.
+  name and hyperparameters, the checkpoint's ``run_inputs`` record (input strategy,
+  normalisation constants, frame sizes (H, W) px, channel order, sensor, the analytical
+  estimator: ``runs.run_inputs.RunInputs``), the training store's provenance, the
+  training configuration and its metrics, the package version and the checkpoint's sha256.
 * ``README.md``: a model card generated from the same facts (see :func:`model_card`).
 
 Rebuilding goes through :func:`~tactile_compliance.runs.checkpoint.rebuild_model`, the
@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 
 from tactile_compliance import __version__
-from tactile_compliance.data.plausibility import check_size
+from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.inference.input_checks import required_inputs
 from tactile_compliance.models import InputStrategy
@@ -69,15 +69,13 @@ __all__ = [
 ]
 
 PRETRAINED_FORMAT = "tactile-compliance-pretrained"
-PRETRAINED_VERSION = 1
+#: 2: the input contract is one ``run_inputs`` record (``runs.run_inputs.RunInputs``).
+PRETRAINED_VERSION = 2
 WEIGHTS_FILE = "model.safetensors"
 CONFIG_FILE = "config.json"
 CARD_FILE = "README.md"
 #: The ``outputs.claim_output_dir`` kind of an exported directory.
 OUTPUT_KIND = "pretrained"
-#: Channel order of the frames the network takes (the store's); ``predict`` converts
-#: BGR input when told ``channel_order="BGR"``.
-MODEL_CHANNEL_ORDER = "RGB"
 _FRAME_KIND = (
     "difference images (frame - GaussianBlur11x11(no-contact frame)) / 255 + 0.5, "
     "uint8 (u = floor(x * 255)) or float in [0, 1]"
@@ -160,15 +158,9 @@ def pretrained_config(
             ``other``).
     """
     meta = estimator.meta
-    if estimator.image_size is None:
-        raise ValueError(
-            f"{estimator.source}: the checkpoint does not record its frame size and its "
-            f"training store is not available; pass image_size=(H, W)"
-        )
     # A model loaded from an export has its whole state dict (no record) but keeps the
     # record's provenance in the config it was loaded from.
     backbone = meta.get("backbone") or (meta.get("pretrained") or {}).get("frozen_backbone")
-    store_size = meta.get("store_image_size")
     config = {
         "format": PRETRAINED_FORMAT,
         "format_version": PRETRAINED_VERSION,
@@ -177,17 +169,10 @@ def pretrained_config(
         "package_version": __version__,
         "model_name": estimator.model_name,
         "hparams": dict(meta.get("hparams") or {}),
-        "inputs": estimator.inputs.value,
+        "run_inputs": estimator.run_inputs.to_dict(),
         "required_inputs": ["frames", *estimator.required_inputs],
-        "image_size": [int(v) for v in estimator.image_size],
-        "store_image_size": [int(v) for v in store_size] if store_size else None,
-        "channel_order": MODEL_CHANNEL_ORDER,
         "frames_per_sample": 3,
         "frame_kind": _FRAME_KIND,
-        "normalisation": estimator.constants.to_dict(),
-        "label_range_pa": list(estimator.constants.label_range_pa),
-        "analytical_estimator": estimator.analytical_estimator,
-        "sensor_units": estimator.sensor_units.to_dict(),
         "backbone_weights": str(meta.get("backbone_weights", "none")),
         # Provenance only: the weights file holds the backbone's tensors.
         "frozen_backbone": (
@@ -215,13 +200,8 @@ def _payload(config: dict[str, Any], state_dict: dict[str, torch.Tensor]) -> dic
     checkpoint = config.get("checkpoint") or {}
     return {
         "model_name": config["model_name"],
-        "inputs": config["inputs"],
+        "run_inputs": config["run_inputs"],
         "hparams": config.get("hparams") or {},
-        "normalisation": config["normalisation"],
-        "image_size": config.get("image_size"),
-        "store_image_size": config.get("store_image_size"),
-        "analytical_estimator": config.get("analytical_estimator"),
-        "sensor_units": config.get("sensor_units"),
         "backbone_weights": config.get("backbone_weights", "none"),
         "backbone": None,  # the state dict is whole (see the module docstring)
         "seed": checkpoint.get("seed"),
@@ -275,13 +255,6 @@ def write_pretrained(
         # so a 0.5 GB backbone is not held twice.
         tensors[name] = value.clone() if storage in storages else value
         storages.add(storage)
-    size = check_size(config["image_size"], "image_size")
-    minimum = int(getattr(model, "min_image_size", 1))
-    if min(size) < minimum:
-        raise ValueError(
-            f"{estimator.model_name} needs frames of at least {minimum}x{minimum} px; "
-            f"{size[0]}x{size[1]} would write an export that cannot load (nothing written)"
-        )
     created = not Path(out).exists()
     out = claim_output_dir(out, OUTPUT_KIND, option="--safetensors")
     # The three files are written into a hidden sibling directory, then the two
@@ -389,8 +362,7 @@ def _read_config(path: Path) -> dict[str, Any]:
     check_format_version(config.get("format_version"), PRETRAINED_VERSION, f"{path}: model config")
     required = {
         "model_name": str,
-        "inputs": str,
-        "normalisation": dict,
+        "run_inputs": dict,
         "weights_sha256": str,
     }
     missing_keys = [k for k in required if k not in config]
@@ -504,11 +476,12 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
     scalar normalisation), training data (synthetic or real, the store's provenance),
     evaluation (metrics with their split protocol), intended use and limits, loading.
     """
-    norm = config["normalisation"]
-    strategy = InputStrategy.parse(config["inputs"])
+    run_inputs = config["run_inputs"]
+    norm = run_inputs["normalisation"]
+    strategy = InputStrategy.parse(run_inputs["inputs"])
     scalars = [f"{name} ({_UNITS[name]})" for name in required_inputs(strategy)]
-    height, width = config["image_size"]
-    lo, hi = config["label_range_pa"]
+    height, width = run_inputs["image_size"]
+    lo, hi = NormalisationConstants.from_dict(norm).label_range_pa
     frozen = config.get("frozen_backbone")
     weights = config.get("backbone_weights", "none")
     checkpoint = config.get("checkpoint") or {}
@@ -563,11 +536,11 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
         f"- Input strategy: **{strategy.value}**: three tactile frames"
         + (f" plus {', '.join(scalars)} at the same three frames." if scalars else " only."),
         f"- Frames: {config.get('frame_kind')}; resized to **{height} x {width} px** (H x W); "
-        f'channel order **{config.get("channel_order")}** (pass `channel_order="BGR"` for '
+        f'channel order **{run_inputs["channel_order"]}** (pass `channel_order="BGR"` for '
         "OpenCV frames).",
         "- The three frames: first frame with F >= 5 N, first frame with F >= 0.975 F_max, and "
         "the frame midway between them (in time when timestamps are given).",
-        f"- Image statistics (per channel {config.get('channel_order')}, on [0, 1] "
+        f"- Image statistics (per channel {run_inputs['channel_order']}, on [0, 1] "
         f"difference images): mean {norm['image_mean']}, std {norm['image_std']}.",
         f"- Scalar normalisation: force / {norm['force_scale_n']} N, width / "
         f"{norm['width_scale_m']} m; analytical estimates clamped to "
@@ -575,7 +548,7 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
         f"by {norm['estimate_log10_span']}; label log10 E in [{norm['label_log10_min']}, "
         f"{norm['label_log10_max']}].",
         f"- Analytical estimator (for estimates computed at inference from depth maps): "
-        f"`{config.get('analytical_estimator')}`.",
+        f"`{run_inputs['analytical_estimator']}`.",
         "",
         "## Training data",
         "",

@@ -68,8 +68,7 @@ from tactile_compliance.data.frame_selection import (
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.store import frames_to_uint8
 from tactile_compliance.models import NUM_FRAMES
-from tactile_compliance.physics.dataset_estimates import DATASET_PRESS_FORCE_N
-from tactile_compliance.physics.estimators import analytical_estimator as physics_estimator
+from tactile_compliance.physics.estimators import AnalyticalEstimator
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.base import BaseEstimator, Prediction
@@ -215,8 +214,8 @@ class StreamingEstimator:
     the checkpoint uses width; for ALL checkpoints the analytical estimates (elastic E,
     Hertz E*) in Pa, either given once (``estimates_pa=``, at construction or with any
     update) or computed on the fly from per-frame depth maps (``depth_mm=`` with each
-    update, over ``[onset, peak]``, with the estimator that made the training data's
-    values: the checkpoint records its name, see ``physics.estimators``).
+    update, with the estimator that made the training data's values: the checkpoint's
+    ``RunInputs.estimator``, over its ``window_start``).
 
     Args:
         estimator: a :class:`~tactile_compliance.inference.estimator.ComplianceEstimator`
@@ -230,11 +229,10 @@ class StreamingEstimator:
         reference: raw no-contact frame for ``frame_kind="raw"``; default the first frame.
         channel_order: ``"RGB"`` or ``"BGR"`` (OpenCV cameras) of the frames.
         estimates_pa: (elastic, Hertz) in Pa, for ALL checkpoints.
-        analytical_estimator: name of the estimator computing E from ``depth_mm``
-            (``"dataset"`` or ``"contact"``); default the one the checkpoint records, so
-            live values follow the training data's distribution.
-        px_per_mm: pixel density [px/mm] of ``depth_mm`` (a calibrated sensor's); None:
-            the estimator's own (the public dataset's Wedge).
+        analytical_estimator: the estimator computing E from ``depth_mm``
+            (``physics.estimators.AnalyticalEstimator``); default the checkpoint's
+            (``RunInputs.estimator``, at its sensor's pixel density), so live values
+            follow the training data's distribution.
         onset_force_n, peak_fraction, min_peak_force_n: the selection rule (dataset values).
         release_fraction: the grasp ends (final estimate) when, after reaching the minimum
             peak force, the force falls below this fraction of F_max.
@@ -252,8 +250,7 @@ class StreamingEstimator:
         reference: np.ndarray | None = None,
         channel_order: str = "RGB",
         estimates_pa: Any = None,
-        analytical_estimator: str | None = None,
-        px_per_mm: float | None = None,
+        analytical_estimator: AnalyticalEstimator | None = None,
         onset_force_n: float = ONSET_FORCE_N,
         peak_fraction: float = PEAK_FRACTION,
         min_peak_force_n: float = MIN_PEAK_FORCE_N,
@@ -276,9 +273,8 @@ class StreamingEstimator:
         if max_frames < NUM_FRAMES:
             raise ValueError(f"max_frames must be >= {NUM_FRAMES}, got {max_frames}")
         self.estimator = estimator
-        #: Name of the estimator computing E from depth maps (``physics.estimators``).
-        self.analytical_estimator = analytical_estimator or estimator.analytical_estimator
-        self._estimate_fn = physics_estimator(self.analytical_estimator, px_per_mm)
+        #: The estimator computing E from depth maps (``physics.estimators``).
+        self.analytical_estimator = analytical_estimator or estimator.run_inputs.estimator
         self.channel_order = channel_order
         self.onset_force_n = float(onset_force_n)
         self.peak_fraction = float(peak_fraction)
@@ -513,12 +509,11 @@ class StreamingEstimator:
             buf.offset += drop
 
     def _press_start(self, forces: np.ndarray) -> int | None:
-        """First frame the dataset's estimator fits from (one before F first reaches its
-        press threshold), when it computes the estimates from depth maps; else None."""
-        if self.analytical_estimator != "dataset" or not self._has_depth:
+        """First frame the estimator's series starts at when it computes the estimates
+        from depth maps (``AnalyticalEstimator.window_start``); else None."""
+        if not self._has_depth:
             return None
-        pressed = np.flatnonzero(forces >= DATASET_PRESS_FORCE_N)
-        return max(int(pressed[0]) - 1, 0) if pressed.size else None
+        return self.analytical_estimator.window_start(forces)
 
     @property
     def has_selection(self) -> bool:
@@ -576,7 +571,9 @@ class StreamingEstimator:
         depths = np.stack([buf.depths[i - buf.offset] for i in span])  # type: ignore[misc]
         forces = np.asarray(buf.forces)[lo:hi]
         widths = np.asarray(buf.widths)[lo:hi]
-        values = np.asarray(self._estimate_fn(forces, widths, depths), dtype=np.float64)
+        values = np.asarray(
+            self.analytical_estimator.estimate(forces, widths, depths), dtype=np.float64
+        )
         return values if np.all(np.isfinite(values)) else None
 
     def _estimate(self, *, final: bool) -> StreamEstimate | None:

@@ -1,50 +1,118 @@
-"""The analytical estimators by name, so data, checkpoints and live use agree on one.
+"""The analytical estimators as objects, so data, checkpoints and live use agree on one.
 
 Two estimators compute the same pair ``(E_elastic [Pa], E*_hertz [Pa])`` from a grasp's
 force [N], width [m] and depth [mm] series:
 
 * ``"dataset"``: :func:`~tactile_compliance.physics.dataset_estimates.dataset_estimates_pa`,
   the code that made the public dataset's ``elastic_estimate.pkl`` / ``hertz_estimate.pkl``
-  (Burgess et al.), quirks included. Real data and the synthetic generator use it.
+  (Burgess et al.), quirks included. Real data, the synthetic generator and ``record``
+  use it (:data:`DEFAULT_ESTIMATOR`).
 * ``"contact"``: :func:`~tactile_compliance.physics.contact.analytical_estimates_pa`, this
   project's physically cleaner variant (``docs/physics.md`` compares the two).
 
 A model trained on one estimator's values must be fed the same estimator's values at
-inference, or it sees inputs from another distribution (train/serve skew). Stores record
-the name in their header, checkpoints copy it, and the streaming estimator looks it up
-here.
+inference (no train/serve skew): stores record its name, training puts the object into
+the run's input record (``runs.run_inputs.RunInputs``), and the streaming estimator calls
+its :meth:`AnalyticalEstimator.estimate` from its :meth:`AnalyticalEstimator.window_start`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, replace
-from functools import partial
-from typing import Any, TypeAlias
+from typing import Any
 
+import numpy as np
 import numpy.typing as npt
 
 __all__ = [
     "ANALYTICAL_ESTIMATORS",
-    "DEFAULT_ANALYTICAL_ESTIMATOR",
+    "DEFAULT_ESTIMATOR",
     "WEDGE_UNITS",
     "AnalyticalEstimator",
     "SensorUnits",
-    "analytical_estimator",
 ]
-
-AnalyticalEstimator: TypeAlias = Callable[
-    [npt.ArrayLike, npt.ArrayLike, npt.ArrayLike], tuple[float, float]
-]
-"""``(forces_n (T,), widths_m (T,), depth_mm (T, H, W)) -> (E_elastic, E*_hertz)`` in Pa."""
 
 ANALYTICAL_ESTIMATORS = ("dataset", "contact")
 """The estimator names, in the order docs list them."""
 
-DEFAULT_ANALYTICAL_ESTIMATOR = "dataset"
-"""What a checkpoint that records no estimator was most likely trained on: the public
-dataset's stored values (the generator has written them too since it adopted the name)."""
+
+@dataclass(frozen=True)
+class AnalyticalEstimator:
+    """One analytical estimator at one pixel density.
+
+    Attributes:
+        name: ``"dataset"`` or ``"contact"`` (:data:`ANALYTICAL_ESTIMATORS`).
+        px_per_mm: pixel density [px/mm] of the depth maps it gets (a calibrated
+            sensor's); None keeps the estimator's own, the public dataset's Wedge value
+            (16.40 px/mm for ``"dataset"``, 11.4 px/mm for ``"contact"``).
+    """
+
+    name: str = "dataset"
+    px_per_mm: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.name not in ANALYTICAL_ESTIMATORS:
+            raise ValueError(
+                f"unknown analytical estimator {self.name!r}; choose one of "
+                f"{', '.join(ANALYTICAL_ESTIMATORS)}"
+            )
+        px = self.px_per_mm
+        if px is not None and not (isinstance(px, (int, float)) and math.isfinite(px) and px > 0):
+            raise ValueError(f"px_per_mm must be a positive number of px/mm, got {px}")
+
+    def at(self, px_per_mm: float | None) -> AnalyticalEstimator:
+        """The same estimator on depth maps of ``px_per_mm`` (None: its own density)."""
+        return replace(self, px_per_mm=px_per_mm)
+
+    def estimate(
+        self,
+        forces_n: npt.ArrayLike,
+        widths_m: npt.ArrayLike,
+        depth_mm: npt.ArrayLike,
+        *,
+        marker_depths_mm: npt.ArrayLike | None = None,
+    ) -> tuple[float, float]:
+        """``(E_elastic, E*_hertz)`` in Pa of a force (T,), width (T,) and depth (T, H, W)
+        series (ValueError: malformed). ``marker_depths_mm``: the marker finger's depth
+        maps, for the dataset estimator's depth-onset clip (the others ignore them)."""
+        if self.name == "dataset":
+            from tactile_compliance.physics.dataset_estimates import (
+                DATASET_CONSTANTS,
+                dataset_estimates_pa,
+            )
+
+            constants = DATASET_CONSTANTS
+            if self.px_per_mm is not None:
+                constants = replace(constants, px_per_mm=float(self.px_per_mm))
+            return dataset_estimates_pa(
+                forces_n, widths_m, depth_mm, constants, marker_depths_mm=marker_depths_mm
+            )
+        from tactile_compliance.physics.contact import SensorConstants, analytical_estimates_pa
+
+        sensor = SensorConstants()
+        if self.px_per_mm is not None:
+            sensor = SensorConstants(pixel_size_m=1e-3 / float(self.px_per_mm))
+        return analytical_estimates_pa(forces_n, widths_m, depth_mm, sensor)
+
+    def window_start(self, forces_n: npt.ArrayLike) -> int | None:
+        """The frame of a recording this estimator's series starts at, or None.
+
+        The dataset's estimator clips the whole recording itself: it is fed everything from
+        one frame before the force first reaches 2.5 N, the recording after the peak too
+        (None before that force). ``"contact"``: None, the selection's ``[start, peak]``.
+        """
+        if self.name != "dataset":
+            return None
+        from tactile_compliance.physics.dataset_estimates import DATASET_PRESS_FORCE_N
+
+        pressed = np.flatnonzero(np.asarray(forces_n) >= DATASET_PRESS_FORCE_N)
+        return max(int(pressed[0]) - 1, 0) if pressed.size else None
+
+
+DEFAULT_ESTIMATOR = AnalyticalEstimator("dataset")
+"""The public dataset's own estimator: what trees in the dataset's layout, the generator and
+``record`` store, and what a store that names no estimator is taken to hold."""
 
 
 @dataclass(frozen=True)
@@ -128,39 +196,3 @@ class SensorUnits:
 
 WEDGE_UNITS = SensorUnits()
 """The public dataset's units: its depth heuristic at the Wedge's pixel density."""
-
-
-def analytical_estimator(name: str, px_per_mm: float | None = None) -> AnalyticalEstimator:
-    """The estimator function called ``name`` (one of :data:`ANALYTICAL_ESTIMATORS`).
-
-    Args:
-        name: the estimator.
-        px_per_mm: pixel density [px/mm] of the depth maps it will get (a calibrated
-            sensor's); None keeps the estimator's own, the public dataset's Wedge value
-            (16.40 px/mm for ``"dataset"``, 11.4 px/mm for ``"contact"``).
-
-    Raises:
-        ValueError: an unknown name or a pixel density that is not positive.
-    """
-    if px_per_mm is not None and not (math.isfinite(px_per_mm) and px_per_mm > 0):
-        raise ValueError(f"px_per_mm must be a positive number of px/mm, got {px_per_mm}")
-    if name == "dataset":
-        from tactile_compliance.physics.dataset_estimates import (
-            DATASET_CONSTANTS,
-            dataset_estimates_pa,
-        )
-
-        if px_per_mm is None:
-            return dataset_estimates_pa
-        constants = replace(DATASET_CONSTANTS, px_per_mm=float(px_per_mm))
-        return partial(dataset_estimates_pa, constants=constants)
-    if name == "contact":
-        from tactile_compliance.physics.contact import SensorConstants, analytical_estimates_pa
-
-        if px_per_mm is None:
-            return analytical_estimates_pa
-        sensor = SensorConstants(pixel_size_m=1e-3 / float(px_per_mm))
-        return partial(analytical_estimates_pa, constants=sensor)
-    raise ValueError(
-        f"unknown analytical estimator {name!r}; choose one of {', '.join(ANALYTICAL_ESTIMATORS)}"
-    )

@@ -1,9 +1,11 @@
 """Self-describing model checkpoints (``best.pt``).
 
 A checkpoint holds everything needed to use the model without the run directory or
-the config file: weights, model name, hyperparameters, input strategy, normalisation
-constants, the frame size the model was trained at, the data/split/training
-configuration, the seed, which backbone weights were used and the package version.
+the config file: weights, model name, hyperparameters, the run's input record
+(``run_inputs``: :class:`~tactile_compliance.runs.run_inputs.RunInputs`, the frame sizes,
+normalisation constants, input strategy, sensor and analytical estimator), the
+data/split/training configuration, the seed, which backbone weights were used and the
+package version.
 It contains only tensors and plain Python values, so it loads with
 ``torch.load(weights_only=True)``: no pickled code is ever executed.
 
@@ -38,17 +40,16 @@ import torch
 
 from tactile_compliance import __version__
 from tactile_compliance.data.features import weights_fingerprint
-from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.safe_pickle import load_torch_file
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import create_model, get_model_class
 from tactile_compliance.models.backbones import no_downloads, weights_file_record
 from tactile_compliance.outputs import atomic_file, check_format_version
+from tactile_compliance.runs.run_inputs import RunInputs
 
 CHECKPOINT_FORMAT = "tactile-compliance-model"
-#: 2: a frozen backbone is stored as a ``backbone`` record instead of its tensors.
-CHECKPOINT_VERSION = 2
+#: 3: the input contract is one ``run_inputs`` record (``runs.run_inputs.RunInputs``).
+CHECKPOINT_VERSION = 3
 
 #: Seed of a randomly initialised frozen backbone. Independent of the run seed so that
 #: every seed and trial shares one backbone and therefore one feature cache; recorded in
@@ -71,9 +72,7 @@ class LoadedModel:
     """A model rebuilt from a checkpoint plus what it needs for its input pipeline."""
 
     model: torch.nn.Module
-    constants: NormalisationConstants
-    image_size: tuple[int, int] | None
-    inputs: str
+    run_inputs: RunInputs
     meta: dict[str, Any]
 
 
@@ -168,24 +167,18 @@ def save_checkpoint(
     path: str | Path,
     model: torch.nn.Module,
     *,
-    constants: NormalisationConstants,
-    image_size: tuple[int, int] | None,
+    run_inputs: RunInputs,
     config: dict[str, Any],
     seed: int,
     metrics: dict[str, Any] | None = None,
     frozen_backbone: dict[str, Any] | None = None,
     backbone_weights_file: dict[str, Any] | None = None,
-    store_image_size: tuple[int, int] | None = None,
-    analytical_estimator: str | None = None,
-    sensor_units: dict[str, Any] | None = None,
     store: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``model`` and its description to ``path`` (atomically: see
     :func:`~tactile_compliance.runs.layout.atomic_file`).
 
-    ``store_image_size`` (H, W) px: the frame size of the training store, recorded so a
-    model trained at the store's native size (``image_size`` None) resizes other inputs
-    to it even where that store is gone.
+    ``run_inputs``: the run's input record (:meth:`RunInputs.resolve`), stored as is.
 
     ``frozen_backbone``: the :func:`frozen_backbone_record` of a model trained with a
     frozen backbone; the backbone's tensors are then left out and rebuilt on loading.
@@ -194,13 +187,6 @@ def save_checkpoint(
 
     ``backbone_weights_file``: the :func:`backbone_weights_file_record` of the weights
     file the backbone was initialised from (None: random or ImageNet weights).
-
-    ``analytical_estimator``: the name (``physics.estimators``) of the estimator that made
-    the training store's analytical estimates, so estimates computed at inference come
-    from the same one.
-
-    ``sensor_units``: the training store's ``SensorUnits.to_dict()`` (depth model and
-    pixel density of its estimates), so inference on another sensor's units is refused.
 
     ``store``: the training store's provenance (its path and ``header.json``: source,
     creation time and parameters, package version), so a model card can say what the
@@ -218,14 +204,9 @@ def save_checkpoint(
         "format_version": CHECKPOINT_VERSION,
         "package_version": __version__,
         "model_name": model.model_name,
-        "inputs": model.inputs.value,
+        "run_inputs": run_inputs.to_dict(),
         "hparams": dict(model.hparams),
         "backbone_weights": str(getattr(model, "backbone_weights", "none")),
-        "normalisation": constants.to_dict(),
-        "image_size": list(image_size) if image_size is not None else None,
-        "store_image_size": list(store_image_size) if store_image_size is not None else None,
-        "analytical_estimator": analytical_estimator,
-        "sensor_units": sensor_units,
         "store": store,
         "config": config,
         "seed": int(seed),
@@ -258,12 +239,12 @@ def torch_write_errors(path: str | Path) -> Iterator[None]:
 
 
 def _rebuild_with_frozen_backbone(
-    path: Path, payload: dict[str, Any], weights: str | os.PathLike[str] | None
+    path: Path, payload: dict[str, Any], inputs: str, weights: str | os.PathLike[str] | None
 ) -> torch.nn.Module:
     """The model of a head-only checkpoint with its backbone rebuilt and verified."""
     record = payload["backbone"]
     name = payload["model_name"]
-    kwargs: dict[str, Any] = {"inputs": payload["inputs"], **payload["hparams"]}
+    kwargs: dict[str, Any] = {"inputs": inputs, **payload["hparams"]}
     takes_weights = getattr(get_model_class(name), "pretrained_backbone", False)
     source = os.fspath(weights) if weights is not None else str(record["weights"])
     if source.lower() == "none":
@@ -392,8 +373,8 @@ def rebuild_model(
 
     Args:
         source: where the payload came from, for error messages.
-        payload: ``model_name``, ``inputs``, ``hparams``, ``normalisation``,
-            ``image_size`` and ``state_dict``; ``backbone`` (a frozen backbone's record)
+        payload: ``model_name``, ``run_inputs`` (:meth:`RunInputs.to_dict`), ``hparams``
+            and ``state_dict``; ``backbone`` (a frozen backbone's record)
             when the state dict is the head only; everything else is kept as ``meta``.
         device: where the model goes (``auto``: a CUDA GPU when torch sees one).
         backbone_weights: see :func:`load_checkpoint`.
@@ -404,19 +385,14 @@ def rebuild_model(
     path = Path(source)
     # Every loaded number is checked before it is used: a tampered or damaged file fails
     # here with one line instead of predicting NaN, a constant or 9e256 Pa.
-    try:
-        constants = NormalisationConstants.from_dict(payload["normalisation"])
-    except (TypeError, ValueError, AttributeError) as err:
-        raise ValueError(f"{path}: invalid normalisation constants: {err}") from err
-    image_size = payload.get("image_size")
-    if image_size is not None:
-        image_size = check_size(image_size, f"{path}: image_size")
+    run_inputs = RunInputs.from_dict(payload.get("run_inputs"), str(path))
+    inputs = run_inputs.inputs.value
     check_state_dict(path, payload["state_dict"])
     if payload.get("backbone") is not None:
-        model = _rebuild_with_frozen_backbone(path, payload, backbone_weights)
+        model = _rebuild_with_frozen_backbone(path, payload, inputs, backbone_weights)
     else:
         # The whole state dict is stored: backbone weights come from it, not the network.
-        model = create_model(payload["model_name"], inputs=payload["inputs"], **payload["hparams"])
+        model = create_model(payload["model_name"], inputs=inputs, **payload["hparams"])
         try:
             model.load_state_dict(payload["state_dict"])
         except RuntimeError as err:  # weights of another model or architecture
@@ -427,10 +403,4 @@ def rebuild_model(
     model.backbone_weights = payload.get("backbone_weights", "none")
     model.to(resolve_device(device)).eval()
     meta = {k: v for k, v in payload.items() if k != "state_dict"}
-    return LoadedModel(
-        model=model,
-        constants=constants,
-        image_size=image_size,
-        inputs=payload["inputs"],
-        meta=meta,
-    )
+    return LoadedModel(model=model, run_inputs=run_inputs, meta=meta)

@@ -24,8 +24,8 @@ from typing import Any
 
 from tactile_compliance.data.raw_layout import ALLOWED_DTYPES, SYNTHETIC_MANIFEST
 from tactile_compliance.outputs import PARTIAL_PREFIX, claim_output_dir
+from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR
 from tactile_compliance.synthetic.grasp import (
-    ANALYTICAL_ESTIMATOR,
     SimulationOptions,
     make_context,
     simulate_grasp,
@@ -254,7 +254,7 @@ def generate_burgess_tree(
         "dtype": dtype,
         "grasps_per_object": grasps_per_object,
         # Importers copy it into the store: checkpoints and live estimates follow it.
-        "analytical_estimator": ANALYTICAL_ESTIMATOR,
+        "analytical_estimator": DEFAULT_ESTIMATOR.name,
     }
     _check_manifest(out, manifest)
     manifest["objects"] = len(specs)

@@ -247,11 +247,6 @@ def _render_sequence(
     return diff, depth
 
 
-ANALYTICAL_ESTIMATOR = "dataset"
-"""The estimator (``physics.estimators``) whose values the generator stores: the public
-dataset's own, so synthetic estimates have the real ones' distribution and quirks."""
-
-
 @lru_cache(maxsize=8)
 def _estimator_constants(width_px: int) -> DatasetEstimatorConstants:
     """The dataset estimator's constants for depth maps ``width_px`` wide.
@@ -275,7 +270,7 @@ def _estimates(
     frames: np.ndarray,
     width_px: int,
 ) -> tuple[float, float]:
-    """Both analytical estimates as the dataset's code made them (``ANALYTICAL_ESTIMATOR``).
+    """Both analytical estimates as the dataset's code made them (``DEFAULT_ESTIMATOR``).
 
     ``depth_mm`` holds the force-sensing finger's depth maps of the consecutive
     ``frames``; ``max_depth_mm`` (2, T) both fingers' maximum depth per frame of the

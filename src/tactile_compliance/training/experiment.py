@@ -168,6 +168,7 @@ def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None
     from tactile_compliance.data.features import cached_features
     from tactile_compliance.data.store import GraspStore
     from tactile_compliance.devices import resolve_device
+    from tactile_compliance.runs.run_inputs import RunInputs
     from tactile_compliance.training.train import build_model
 
     limit_threads(threads)
@@ -176,13 +177,15 @@ def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None
     for data in cfg_dicts:
         cfg = config_from_dict(data)
         model = build_model(cfg)
-        size = cfg.data.image_size or getattr(model, "recommended_image_size", None)
+        store = GraspStore.open(cfg.data.store)
+        # The record train() resolves, so both ask for the same cache.
+        run_inputs = RunInputs.resolve(cfg, store, model)
         device = str(resolve_device(cfg.training.device, name="training.device"))
         cached_features(
-            GraspStore.open(cfg.data.store),
+            store,
             model.backbone,
-            tuple(size) if size is not None else None,
-            cfg.normalisation_constants(),
+            run_inputs.image_size,
+            run_inputs.constants,
             batch_size=max(8, cfg.training.batch_size),
             device="cuda" if device.startswith("cuda") else "cpu",
             progress=False,

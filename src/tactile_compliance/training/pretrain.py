@@ -60,7 +60,6 @@ from tactile_compliance.config import ExperimentConfig
 from tactile_compliance.data.augment import GraspAugmentation
 from tactile_compliance.data.dataset import prepare_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split, make_split_from_config
 from tactile_compliance.data.store import SAMPLES_FILE, GraspStore
@@ -71,6 +70,7 @@ from tactile_compliance.models.top10nn import TOP10_BACKBONE, Top10Encoder
 from tactile_compliance.outputs import atomic_file, check_output_file
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.checkpoint import torch_write_errors
+from tactile_compliance.runs.run_inputs import RunInputs
 
 __all__ = [
     "CONTACT_THRESHOLD_MM",
@@ -464,11 +464,9 @@ def pretrain(
     assert store.depth_size is not None  # require_depth checked it (for type checkers)
     split, split_record = _split_of(store, cfg, Path(split_file) if split_file else None)
     train_ids, val_ids, no_depth = _pretrain_parts(store, split, settings.val_fraction, cfg.seed)
-    recommended = get_model_class(PRETRAIN_BACKBONES[settings.backbone]).recommended_image_size
-    image_size = tuple(
-        settings.image_size or cfg.data.image_size or recommended or store.image_size
-    )
-    image_size = check_size(image_size, "the pretraining frame size")
+    model_class = get_model_class(PRETRAIN_BACKBONES[settings.backbone])
+    run_inputs = RunInputs.resolve(cfg, store, model_class, image_size=settings.image_size)
+    image_size = run_inputs.image_size
     minimum = int(getattr(pretrain_backbone(settings.backbone), "min_input_size", 1))
     if min(image_size) < minimum:
         raise ValueError(
@@ -476,7 +474,7 @@ def pretrain(
             f"{image_size[0]}x{image_size[1]}: pass --size {max(image_size[0], minimum)}x"
             f"{max(image_size[1], minimum)} or larger"
         )
-    constants = cfg.normalisation_constants()
+    constants = run_inputs.constants
     arguments = _arguments(settings, store, split_record, image_size, cfg)
 
     # The depth scale: the training part's depth spread (recorded; a fixed unit per file).

@@ -59,7 +59,7 @@ from tactile_compliance.data.augment import GraspAugmentation
 from tactile_compliance.data.balance import balance_split
 from tactile_compliance.data.dataset import GraspDataset, batch_loader
 from tactile_compliance.data.features import cached_features
-from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
+from tactile_compliance.data.normalisation import denormalise_modulus
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import Split, make_split_from_config
 from tactile_compliance.data.store import GraspStore
@@ -94,6 +94,7 @@ from tactile_compliance.runs.metrics import (
     grouped_metrics,
     reference_predictions,
 )
+from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.training.module import ComplianceModule
 from tactile_compliance.training.resume import (
     PENDING_BEST,
@@ -115,17 +116,18 @@ class RunData:
     split: Split
     train_ids: np.ndarray  # after balancing (may repeat)
     val_ids: np.ndarray
-    constants: NormalisationConstants
-    image_size: tuple[int, int] | None
+    run_inputs: RunInputs  # resolved here, once; stored in best.pt
 
 
-def prepare_data(cfg: ExperimentConfig, recommended_size: tuple[int, int] | None) -> RunData:
-    """Filter, split and balance the configured store (no model involved)."""
+def prepare_data(cfg: ExperimentConfig, model: torch.nn.Module) -> RunData:
+    """Filter, split and balance the configured store, and resolve the run's
+    :class:`~tactile_compliance.runs.run_inputs.RunInputs` for ``model``."""
     if cfg.data.store is None:
         raise ValueError(
             "data.store is not set: pass --set data.store=PATH or put it in the config"
         )
     store = GraspStore.open(cfg.data.store)
+    run_inputs = RunInputs.resolve(cfg, store, model)
     check_config_against_samples(cfg, store.samples, store.header.source)
     samples, report = filter_samples(store.samples, cfg)
     if samples.empty:
@@ -139,10 +141,9 @@ def prepare_data(cfg: ExperimentConfig, recommended_size: tuple[int, int] | None
             cfg.sampling.t_balance,
             seed=cfg.seed,
             n_bins=cfg.sampling.n_bins,
-            label_constants=cfg.normalisation_constants(),
+            label_constants=run_inputs.constants,
             balance_validation=cfg.sampling.balance_validation,
         )
-    image_size = cfg.data.image_size or recommended_size
     return RunData(
         store=store,
         samples=samples,
@@ -150,8 +151,7 @@ def prepare_data(cfg: ExperimentConfig, recommended_size: tuple[int, int] | None
         split=split,
         train_ids=np.asarray(train_ids, dtype=np.int64),
         val_ids=np.asarray(val_ids, dtype=np.int64),
-        constants=cfg.normalisation_constants(),
-        image_size=tuple(image_size) if image_size is not None else None,
+        run_inputs=run_inputs,
     )
 
 
@@ -220,7 +220,7 @@ def _predictions_frame(
     data: RunData, ids: np.ndarray, predicted: np.ndarray, split_name: str
 ) -> pd.DataFrame:
     rows = data.store.samples.iloc[ids][list(PREDICTION_COLUMNS)].reset_index(drop=True)
-    rows["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), data.constants)
+    rows["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), data.run_inputs.constants)
     rows["split"] = split_name
     return rows
 
@@ -243,9 +243,14 @@ def evaluate_model(
     """
     frames = []
     for name, ids in (("val", data.split.val_ids), ("test", data.split.test_ids)):
-        dataset = GraspDataset(data.store, ids, data.constants, features)
+        dataset = GraspDataset(data.store, ids, data.run_inputs.constants, features)
         predicted = predict_dataset(
-            model, dataset, data.constants, data.image_size, batch_size=batch_size, device=device
+            model,
+            dataset,
+            data.run_inputs.constants,
+            data.run_inputs.image_size,
+            batch_size=batch_size,
+            device=device,
         )
         frames.append(_predictions_frame(data, ids, predicted, name))
     predictions = pd.concat(frames, ignore_index=True)
@@ -254,15 +259,15 @@ def evaluate_model(
     reference = reference_predictions(
         data.store.samples.iloc[data.split.train_ids],
         data.store.samples.iloc[data.split.test_ids],
-        data.constants,
+        data.run_inputs.constants,
         inputs=inputs,
         seed=seed,
     )
     metrics = {
-        "test": compute_metrics(test["modulus_pa"], test["pred_pa"], data.constants),
-        "val": compute_metrics(val["modulus_pa"], val["pred_pa"], data.constants),
+        "test": compute_metrics(test["modulus_pa"], test["pred_pa"], data.run_inputs.constants),
+        "val": compute_metrics(val["modulus_pa"], val["pred_pa"], data.run_inputs.constants),
         "reference": {
-            name: compute_metrics(test["modulus_pa"].to_numpy(), values, data.constants)
+            name: compute_metrics(test["modulus_pa"].to_numpy(), values, data.run_inputs.constants)
             for name, values in reference.items()
         },
     }
@@ -377,8 +382,8 @@ def _train(
         tensorboard = _tensorboard_logger(run_dir, cfg.training.tensorboard)
         L.seed_everything(cfg.seed, workers=True, verbose=False)
         model = build_model(cfg)
-        data = prepare_data(cfg, getattr(model, "recommended_image_size", None))
-        check_frame_size(cfg, model, data.image_size or data.store.image_size)
+        data = prepare_data(cfg, model)
+        check_frame_size(cfg, model, data.run_inputs.image_size)
         if not locked:
             claim_output_dir(run_dir, RUN_KIND, option="--out")
             stack.enter_context(exclusive_lock(run_dir / LOCK_FILE, "run directory", wait=False))
@@ -444,8 +449,8 @@ def _fit_and_evaluate(
         features = cached_features(
             data.store,
             model.backbone,
-            data.image_size,
-            data.constants,
+            data.run_inputs.image_size,
+            data.run_inputs.constants,
             batch_size=max(8, cfg.training.batch_size),
             device=device,
             progress=progress,
@@ -455,7 +460,7 @@ def _fit_and_evaluate(
 
     def loader(ids: np.ndarray, shuffle: bool) -> DataLoader:
         return batch_loader(
-            GraspDataset(data.store, ids, data.constants, features),
+            GraspDataset(data.store, ids, data.run_inputs.constants, features),
             cfg.training.batch_size,
             shuffle=shuffle,
             num_workers=cfg.training.num_workers,
@@ -463,8 +468,8 @@ def _fit_and_evaluate(
 
     module = ComplianceModule(
         model,
-        data.constants,
-        data.image_size,
+        data.run_inputs.constants,
+        data.run_inputs.image_size,
         lr=cfg.training.lr,
         gamma=cfg.training.gamma,
         l2_weight=cfg.training.l2_weight,
@@ -479,16 +484,12 @@ def _fit_and_evaluate(
         save_checkpoint(
             path,
             model,
-            constants=data.constants,
-            image_size=data.image_size,
+            run_inputs=data.run_inputs,
             config=config_dict,
             seed=cfg.seed,
             metrics=extra,
             backbone_weights_file=weights_file,
             frozen_backbone=frozen_backbone,
-            store_image_size=data.store.image_size,
-            analytical_estimator=data.store.analytical_estimator,
-            sensor_units=data.store.sensor_units.to_dict(),
             store={"path": str(Path(data.store.path).resolve()), **data.store.header.to_dict()},
         )
 
@@ -535,7 +536,9 @@ def _fit_and_evaluate(
     )
     predictions.to_csv(run_dir / "predictions.csv", index=False)
     test_rows = predictions[predictions["split"] == "test"]
-    grouped_metrics(test_rows, c=data.constants).to_csv(run_dir / "groups.csv", index=False)
+    grouped_metrics(test_rows, c=data.run_inputs.constants).to_csv(
+        run_dir / "groups.csv", index=False
+    )
 
     result: dict[str, Any] = {
         "status": "complete",
@@ -550,7 +553,7 @@ def _fit_and_evaluate(
         "backbone_weights": str(getattr(model, "backbone_weights", "none")),
         "backbone_weights_sha256": weights_file["sha256"] if weights_file else None,
         "freeze_backbone": cfg.model.freeze_backbone,
-        "image_size": list(data.image_size) if data.image_size else None,
+        "image_size": list(data.run_inputs.image_size),
         "n_train": len(data.train_ids),
         "n_val": len(data.val_ids),
         "n_test": len(data.split.test_ids),

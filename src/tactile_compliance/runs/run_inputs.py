@@ -1,0 +1,115 @@
+"""The run's input contract: one record, resolved once (:meth:`RunInputs.resolve`) when
+a run's data is prepared, stored in ``best.pt`` and read, never worked out again, by
+evaluation, the estimators, ``export``, ``predict``, streaming and ``live``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.data.plausibility import check_size
+from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.physics.estimators import (
+    DEFAULT_ESTIMATOR,
+    WEDGE_UNITS,
+    AnalyticalEstimator,
+    SensorUnits,
+)
+
+if TYPE_CHECKING:
+    from tactile_compliance.config import ExperimentConfig
+    from tactile_compliance.data.store import GraspStore
+
+#: Of stored frames and of what every model sees (``predict`` flips BGR input).
+CHANNEL_ORDER = "RGB"
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What a trained model takes and how its training data was made.
+
+    Attributes:
+        image_size: (H, W) px the model's frames are resized to.
+        store_image_size: (H, W) px of the training store's frames; readers of raw
+            sources (grasp directories, videos) resize to it first, as the importer did.
+        constants: normalisation constants (frames, scalars, label range).
+        inputs: the input strategy (``models.inputs``).
+        sensor: depth model and pixel density of the training data's analytical estimates.
+        estimator: the estimator that made them; it runs at ``sensor``'s pixel density.
+        channel_order: of the frames the model sees (:data:`CHANNEL_ORDER`).
+    """
+
+    image_size: tuple[int, int]
+    store_image_size: tuple[int, int]
+    constants: NormalisationConstants
+    inputs: InputStrategy
+    sensor: SensorUnits = WEDGE_UNITS
+    estimator: AnalyticalEstimator = DEFAULT_ESTIMATOR
+    channel_order: str = CHANNEL_ORDER
+
+    def __post_init__(self) -> None:
+        set_field = object.__setattr__  # a frozen dataclass normalises its own fields
+        for name in ("image_size", "store_image_size"):
+            set_field(self, name, check_size(getattr(self, name), name))
+        set_field(self, "inputs", InputStrategy.parse(self.inputs))
+        set_field(self, "estimator", self.estimator.at(self.sensor.px_per_mm))
+        if self.channel_order != CHANNEL_ORDER:
+            raise ValueError(f"channel_order must be {CHANNEL_ORDER!r}, got {self.channel_order!r}")
+
+    @classmethod
+    def resolve(
+        cls,
+        cfg: ExperimentConfig,
+        store: GraspStore,
+        model: Any,
+        *,
+        image_size: tuple[int, int] | None = None,
+    ) -> RunInputs:
+        """The record of a run of ``cfg`` on ``store`` with ``model`` (an instance or a
+        class). The frame size is ``image_size`` (``pretrain --size``), else
+        ``cfg.data.image_size``, else the model's ``recommended_image_size``, else the
+        store's; the estimator the store's (``GraspStore.analytical_estimator``)."""
+        size = (
+            image_size
+            or cfg.data.image_size
+            or getattr(model, "recommended_image_size", None)
+            or store.image_size
+        )
+        return cls(
+            image_size=tuple(size),  # type: ignore[arg-type]
+            store_image_size=store.image_size,
+            constants=cfg.normalisation_constants(),
+            inputs=InputStrategy.parse(cfg.inputs),
+            sensor=store.sensor_units,
+            estimator=store.analytical_estimator,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON values; inverse of :meth:`from_dict`."""
+        return {
+            "image_size": list(self.image_size),
+            "store_image_size": list(self.store_image_size),
+            "channel_order": self.channel_order,
+            "normalisation": self.constants.to_dict(),
+            "inputs": self.inputs.value,
+            "sensor": self.sensor.to_dict(),
+            "analytical_estimator": self.estimator.name,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str = "run inputs") -> RunInputs:
+        """Read :meth:`to_dict`; a missing or invalid field is a ValueError naming ``source``."""
+        try:
+            return cls(
+                image_size=data["image_size"],
+                store_image_size=data["store_image_size"],
+                constants=NormalisationConstants.from_dict(data["normalisation"]),
+                inputs=data["inputs"],
+                sensor=SensorUnits.from_dict(data["sensor"]),
+                estimator=AnalyticalEstimator(data["analytical_estimator"]),
+                channel_order=data["channel_order"],
+            )
+        except (KeyError, TypeError, ValueError, AttributeError) as err:
+            problem = f"missing {err}" if isinstance(err, KeyError) else str(err)
+            raise ValueError(f"{source}: invalid run inputs: {problem}") from err
