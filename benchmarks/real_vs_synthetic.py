@@ -202,7 +202,8 @@ def background_stats(frame_bgr: np.ndarray) -> dict[str, object]:
 
 def backgrounds(real_frame: Path, seed: int, looks: int) -> dict[str, list[dict[str, object]]]:
     """The real warped no-contact frame, cropped 25 px per side as the dataset was, and
-    the generator's no-contact frames of ``looks`` recording sessions at the same size."""
+    the no-contact frames of ``looks`` sensor appearances drawn as the generator draws
+    one per recording session (``render.sample_sensor_look``), at the same size."""
     import cv2
 
     from tactile_compliance.synthetic.render import reference_frame, sample_sensor_look

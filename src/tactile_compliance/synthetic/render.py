@@ -268,18 +268,23 @@ def sample_edge_glow(
     )
 
 
-def _edge_glow(depth: np.ndarray, look: SensorLook) -> np.ndarray:
-    """Grey-level change (3, n, H, W) of planes B, G, R by the green edge's glow."""
+def _add_edge_glow(planes: np.ndarray, depth: np.ndarray, look: SensorLook) -> None:
+    """Add the green edge's glow to ``planes`` (B, G, R; n, H, W), in place.
+
+    Only the columns where the band is above 1e-3 of its peak (about 7 fade lengths) are
+    touched: the glow is a left-edge effect, and the rest of the frame is the hot path's.
+    """
     gain, centre, sigma, fade = look.edge_glow
     h, w = depth.shape[1:]
     strip = max(round(EDGE_GLOW_STRIP * w), 1)
     linear = gain * depth[:, :, :strip].mean(axis=(1, 2), dtype=np.float64)  # (n,)
-    drive = EDGE_GLOW_MAX_GREY * np.tanh(linear / EDGE_GLOW_MAX_GREY)
+    drive = (EDGE_GLOW_MAX_GREY * np.tanh(linear / EDGE_GLOW_MAX_GREY)).astype(np.float32)
+    cols = min(w, int(np.ceil(-np.log(1e-3) * fade * w)))
     y = (np.arange(h, dtype=np.float32) + 0.5) / h
-    x = (np.arange(w, dtype=np.float32) + 0.5) / w
+    x = (np.arange(cols, dtype=np.float32) + 0.5) / w
     band = np.exp(-0.5 * ((y - centre) / sigma) ** 2)[:, None] * np.exp(-x / fade)[None, :]
-    colour = np.asarray(EDGE_GLOW_COLOUR_BGR, dtype=np.float32)
-    return (colour[:, None] * drive.astype(np.float32)[None, :])[..., None, None] * band
+    for plane, colour in enumerate(EDGE_GLOW_COLOUR_BGR):
+        planes[plane, :, :, :cols] += (np.float32(colour) * drive)[:, None, None] * band
 
 
 @lru_cache(maxsize=8)
@@ -471,7 +476,7 @@ def render_frames(
         region = (slice(None), slice(None), *box)
         planes[region] += _shading(depth[region[1:]], look, gain_maps, pixel_size_mm(size))
     if look.edge_glow[0] > 0:
-        planes += _edge_glow(depth, look)
+        _add_edge_glow(planes, depth, look)
     if look.markers:
         planes *= 1.0 - markers
     drift_gain, drift_offset = look.drift
