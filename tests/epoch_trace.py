@@ -76,6 +76,9 @@ def traced_env(directory: Path, trace: Path) -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(directory), env.get("PYTHONPATH", "")) if p)
     env[TRACE_VARIABLE] = str(trace)
+    # The traced runs are compared bit for bit with uninterrupted ones, which holds on the
+    # CPU only (docs/training.md): a GPU, if there is one, stays hidden from them.
+    env["CUDA_VISIBLE_DEVICES"] = ""
     return env
 
 

@@ -89,7 +89,8 @@ def test_head_only_checkpoint_reproduces_the_in_memory_model(tmp_path, name):
     assert payload["backbone"]["seed"] == FROZEN_BACKBONE_SEED
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # same machine: the exact sha256 must match
-        loaded = load_checkpoint(path).model
+        # On the CPU, beside the in-memory model ("auto" would take a GPU where there is one).
+        loaded = load_checkpoint(path, device="cpu").model
     reference = model.state_dict()
     assert set(loaded.state_dict()) == set(reference)
     assert all(torch.equal(v, reference[k]) for k, v in loaded.state_dict().items())
@@ -186,7 +187,7 @@ def test_a_tampered_backbone_record_is_a_clear_error(tmp_path):
     # CPU instruction set gives for torch's random initialisation. Loads, with a warning.
     rounding = _tamper(path, tmp_path / "rounding.pt", sha256="0" * 64)
     with pytest.warns(UserWarning, match="float32 rounding"):
-        loaded = load_checkpoint(rounding).model
+        loaded = load_checkpoint(rounding, device="cpu").model
     assert all(torch.equal(v, model.state_dict()[k]) for k, v in loaded.state_dict().items())
 
 
@@ -212,7 +213,7 @@ def test_imagenet_backbone_is_never_downloaded_on_load(tmp_path, monkeypatch):
     # A local copy of the weights, passed explicitly, is loaded and verified.
     local = tmp_path / "my-resnet18.pth"
     torch.save(model.backbone.state_dict(), local)
-    loaded = load_checkpoint(path, backbone_weights=local).model
+    loaded = load_checkpoint(path, backbone_weights=local, device="cpu").model
     assert loaded.backbone_weights == "imagenet"  # provenance stays the recorded source
     with torch.no_grad():
         assert torch.equal(loaded(*_inputs((32, 32))), model(*_inputs((32, 32))))
@@ -229,7 +230,7 @@ def test_local_weights_file_is_recorded_and_must_exist(tmp_path):
     model = create_model("res_tf", inputs="ALL", backbone_weights=weights).eval()
     path = _save(tmp_path / "head.pt", model, frozen_backbone_record(model, seed=None))
     assert torch.load(path, weights_only=True)["backbone"]["weights"] == str(weights.resolve())
-    loaded = load_checkpoint(path).model
+    loaded = load_checkpoint(path, device="cpu").model
     with torch.no_grad():
         assert torch.equal(loaded(*_inputs((32, 32))), model(*_inputs((32, 32))))
     weights.unlink()
@@ -253,7 +254,7 @@ def test_finetuned_run_keeps_the_backbone_in_its_checkpoint(toy_store, tmp_path)
     payload = torch.load(f"{result['run_dir']}/best.pt", weights_only=True)
     assert payload["backbone"] is None
     assert any(k.startswith("backbone.layer4.") for k in payload["state_dict"])
-    loaded = load_checkpoint(f"{result['run_dir']}/best.pt").model
+    loaded = load_checkpoint(f"{result['run_dir']}/best.pt", device="cpu").model
     assert torch.equal(
         loaded.state_dict()["backbone.layer4.0.conv1.weight"],
         payload["state_dict"]["backbone.layer4.0.conv1.weight"],

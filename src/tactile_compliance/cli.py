@@ -144,14 +144,16 @@ class _Option(TyperOption):
 
 class _Argument(TyperArgument):
     """An argument shown as click shows one, ``STORE`` (``[STORE]`` when optional,
-    ``STORE...`` for several), where typer 0.29 writes ``{store}`` in the usage line."""
+    ``STORE...`` for several), where typer writes ``{STORE}`` in the usage line. Click's
+    public ``get_usage_pieces`` is overridden: typer's own hooks for it differ between
+    versions (0.27 and 0.29 alike wrote the braces)."""
 
-    def _usage_display_name(self) -> str:
-        name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
-        return f"{name}..." if self.nargs != 1 else name
+    def get_usage_pieces(self, ctx: Any) -> list[str]:
+        name = self.metavar if self.required else f"[{self.metavar}]"
+        return [f"{name}..." if self.nargs != 1 else name]
 
     def _rich_display_name(self) -> str:
-        return f"{self.display_name_raw}..." if self.nargs != 1 else self.display_name_raw
+        return f"{self.metavar}..." if self.nargs != 1 else self.metavar
 
     def display_type_rich(self, ctx: Any) -> str | None:
         return _element_type(super().display_type_rich(ctx))
@@ -245,7 +247,7 @@ class _Command(TyperCommand):
             if param is None or param.nargs != -1:
                 raise
             raise _click_errors.UsageError(
-                f"give {param.display_name_raw}... and then SOURCE (the source is an "
+                f"give {param.metavar}... and then SOURCE (the source is an "
                 f"argument now, no longer {old})",
                 ctx,
             ) from None

@@ -307,6 +307,10 @@ def load_checkpoint(
 ) -> LoadedModel:
     """Rebuild a model from a checkpoint written by :func:`save_checkpoint` (eval mode).
 
+    The model goes to ``device``: ``auto``, like every command, is a CUDA GPU when torch
+    sees one, so inputs must be moved to ``next(model.parameters()).device``; ``"cpu"``
+    keeps it beside CPU tensors on any machine.
+
     Nothing is downloaded. A head-only checkpoint (frozen backbone) rebuilds its backbone
     from the recorded seed, the torch.hub cache (``imagenet``) or the recorded file;
     ``backbone_weights`` (a file) replaces that source, e.g. a copy of the ImageNet file
@@ -361,7 +365,7 @@ def check_state_dict(source: str | Path, state_dict: Any) -> None:
 def rebuild_model(
     source: str | Path,
     payload: dict[str, Any],
-    device: str | torch.device = DEFAULT_DEVICE,
+    device: str | torch.device,
     *,
     backbone_weights: str | os.PathLike[str] | None = None,
 ) -> LoadedModel:
