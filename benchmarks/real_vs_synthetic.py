@@ -32,19 +32,27 @@ area against force).
     python benchmarks/real_vs_synthetic.py              # ~10 s
     python benchmarks/real_vs_synthetic.py --rig wedge-2023 --json out.json
     python benchmarks/real_vs_synthetic.py --rig wedge-2023 --real-store real-out/work/store
+    # one point of the gel fit: the golf ball on a gel of 8.5e4 Pa
+    python benchmarks/real_vs_synthetic.py --rig wedge-2023 --real-store real-out/work/store \
+        --objects golf_ball --gel-pa 8.5e4 --finger-stiffness 3.0e3,4.0e3 --glow-gain 1150,4600
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tactile_compliance.data.force_readings import force_baseline
+
+if TYPE_CHECKING:
+    from tactile_compliance.synthetic.timeseries import GripperRig
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared/reference-data"
 OBJECTS = {  # file prefix -> (label in the object table, radius [m] or None)
@@ -89,11 +97,12 @@ def real_grasps(folder: Path) -> dict[str, list[dict[str, float]]]:
     return out
 
 
-def write_five_table(table: Path, path: Path) -> Path:
-    """The five objects' rows of the real object table, with the balls' known radii."""
+def write_five_table(table: Path, path: Path, labels: list[str] | None = None) -> Path:
+    """The five objects' rows of the real object table (or those of ``labels``), with the
+    balls' known radii."""
     with open(table, newline="", encoding="utf-8") as handle:
         rows = list(csv.DictReader(handle))
-    radius = {label: r for label, r in OBJECTS.values()}
+    radius = {label: r for label, r in OBJECTS.values() if labels is None or label in labels}
     chosen = [dict(r) for r in rows if r["Label"] in radius]
     for row in chosen:
         if radius[row["Label"]] is not None:
@@ -105,17 +114,18 @@ def write_five_table(table: Path, path: Path) -> Path:
     return path
 
 
-def simulated_grasps(table: Path, seed: int, rig: str) -> dict[str, list[dict[str, float]]]:
+def simulated_grasps(
+    table: Path, seed: int, rig: GripperRig, labels: list[str] | None = None
+) -> dict[str, list[dict[str, float]]]:
     from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, render_recording
     from tactile_compliance.synthetic.objects import objects_from_table
-    from tactile_compliance.synthetic.timeseries import RIGS
 
     with tempfile.TemporaryDirectory() as tmp:
-        path = write_five_table(table, Path(tmp) / "five.csv")
+        path = write_five_table(table, Path(tmp) / "five.csv", labels)
         specs, _ = objects_from_table(path, seed=seed, grasps_per_object=3)
     out: dict[str, list[dict[str, float]]] = {}
     for spec in specs:
-        ctx = make_context(spec, seed, SimulationOptions(image_size=(125, 175), rig=RIGS[rig]))
+        ctx = make_context(spec, seed, SimulationOptions(image_size=(125, 175), rig=rig))
         for grasp in range(spec.n_grasps):
             result, _ = render_recording(ctx, grasp)
             timeline = result.timeline
@@ -269,14 +279,16 @@ def draw_backgrounds(results: dict[str, list[dict[str, object]]], path: Path) ->
     fig.savefig(path, dpi=80)
 
 
-def simulated_store(table: Path, seed: int, rig: str, out: Path) -> Path:
+def simulated_store(
+    table: Path, seed: int, rig: GripperRig, out: Path, labels: list[str] | None = None
+) -> Path:
     """The five objects simulated at the real crop's 250 x 350 px and imported."""
     from tactile_compliance.data.burgess import import_burgess
     from tactile_compliance.synthetic import generate_burgess_tree
 
     generate_burgess_tree(
         out / "raw",
-        object_table=write_five_table(table, out / "five.csv"),
+        object_table=write_five_table(table, out / "five.csv", labels),
         grasps_per_object=3,
         seed=seed,
         image_size=(250, 350),
@@ -318,6 +330,11 @@ def main() -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rig", default="dataset", help="the generator's rig (RIGS)")
+    # Overrides of the rig's fields, to fit them (docs/synthetic.md, "The gel").
+    parser.add_argument("--gel-pa", type=float, help="the rig's gel modulus [Pa]")
+    parser.add_argument("--finger-stiffness", help="the rig's K_f range LO,HI [N/m]")
+    parser.add_argument("--glow-gain", help="the rig's edge glow gain range LO,HI")
+    parser.add_argument("--objects", help="comma-separated labels to simulate (default: all five)")
     parser.add_argument("--real-store", type=Path, help="store of the real grasps (images)")
     parser.add_argument(
         "--background",
@@ -333,9 +350,12 @@ def main() -> None:
     args = parser.parse_args()
     if not args.real.is_dir():
         raise SystemExit(f"no real grasps at {args.real}")
+    rig = chosen_rig(args)
+    labels = args.objects.split(",") if args.objects else None
     results = {
+        "rig": dataclasses.asdict(rig),
         "real": real_grasps(args.real),
-        "generator": simulated_grasps(args.table, args.seed, args.rig),
+        "generator": simulated_grasps(args.table, args.seed, rig, labels),
     }
     keys = [
         "F_peak_n",
@@ -355,7 +375,7 @@ def main() -> None:
             print(f"{label:21s} {source:9s} " + "  ".join(f"{v:13.1f}" for v in means))
     if args.real_store:
         with tempfile.TemporaryDirectory() as tmp:
-            synthetic = simulated_store(args.table, args.seed, args.rig, Path(tmp))
+            synthetic = simulated_store(args.table, args.seed, rig, Path(tmp), labels)
             results["images"] = {
                 "real": image_stats(args.real_store),
                 "generator": image_stats(synthetic),
@@ -370,6 +390,24 @@ def main() -> None:
         args.json.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
     if args.figure:
         draw(results, args.figure)
+
+
+def chosen_rig(args: argparse.Namespace) -> GripperRig:
+    """The named rig with the fields the options override."""
+    from tactile_compliance.synthetic.timeseries import RIGS
+
+    def pair(text: str) -> tuple[float, float]:
+        low, high = (float(v) for v in text.split(","))
+        return (low, high)
+
+    rig = RIGS[args.rig]
+    if args.gel_pa is not None:
+        rig = dataclasses.replace(rig, gel_modulus_pa=args.gel_pa)
+    if args.finger_stiffness:
+        rig = dataclasses.replace(rig, finger_stiffness_n_per_m=pair(args.finger_stiffness))
+    if args.glow_gain:
+        rig = dataclasses.replace(rig, edge_glow_grey_per_mm=pair(args.glow_gain))
+    return rig
 
 
 def draw(results: dict, path: Path) -> None:

@@ -278,6 +278,7 @@ def test_the_rig_sets_the_press_force_and_is_part_of_the_parameters(tmp_path: Pa
             "peak_force_n": list(RIGS[rig].peak_force_n),
             "finger_stiffness_n_per_m": list(RIGS[rig].finger_stiffness_n_per_m),
             "edge_glow_grey_per_mm": list(RIGS[rig].edge_glow_grey_per_mm),
+            "gel_modulus_pa": RIGS[rig].gel_modulus_pa,
         }
     assert peak_n["dataset"] > 50.0 and peak_n["wedge-2023"] < 35.0
     # Resuming a tree with another rig would mix two rigs in one dataset.
@@ -294,6 +295,39 @@ def test_a_rig_must_be_physical() -> None:
         GripperRig(finger_stiffness_n_per_m=(5e3, 1e3))
     with pytest.raises(ValueError, match="edge glow"):
         GripperRig(edge_glow_grey_per_mm=(0.0, 100.0))
+    with pytest.raises(ValueError, match="gel modulus"):
+        GripperRig(gel_modulus_pa=0.0)
+
+
+def test_the_rig_sets_the_gel_and_a_softer_gel_gives_a_larger_rigid_contact() -> None:
+    from dataclasses import replace
+
+    from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
+    from tactile_compliance.synthetic.geometry import PadGrid, Pose, ShapeSpec, sag_map
+    from tactile_compliance.synthetic.grasp import _session
+    from tactile_compliance.synthetic.mechanics import GelModel, ObjectMechanics, force_curve
+    from tactile_compliance.synthetic.timeseries import DATASET_RIG, WEDGE_2023_RIG
+
+    # The dataset rig keeps the paper's gel, so its data are unchanged; a rig's gel only
+    # moves the median, the sessions' scatter is the same draw.
+    assert DATASET_RIG.gel_modulus_pa == DEFAULT_GEL_MODULUS_PA
+    assert WEDGE_2023_RIG.gel_modulus_pa < DEFAULT_GEL_MODULUS_PA
+    plain = _session(3, 0, DATASET_RIG)
+    soft = _session(3, 0, replace(DATASET_RIG, gel_modulus_pa=DEFAULT_GEL_MODULUS_PA / 4))
+    for a, b in zip(plain.gels, soft.gels, strict=True):
+        assert b.modulus_pa == pytest.approx(a.modulus_pa / 4)
+        assert b.thickness_mm == a.thickness_mm
+    # What the fit relies on: at the same force a rigid ball's contact grows on a softer gel.
+    grid = PadGrid(0.5)
+    golf = sag_map(
+        ShapeSpec("Sphere", {"radius_mm": 21.3}, 42.6), grid, Pose((0.0, 0.0), 0.0, (0.0, 0.0))
+    )
+    ball = ObjectMechanics(8.5e8, 0.3, size_mm=42.6)
+    areas = []
+    for modulus in (DEFAULT_GEL_MODULUS_PA, WEDGE_2023_RIG.gel_modulus_pa):
+        curve = force_curve(golf, GelModel(modulus_pa=modulus, thickness_mm=4.5), ball, grid)
+        areas.append(np.interp(20.0, curve.forces_n, curve.contact_area_mm2))
+    assert areas[1] > 1.3 * areas[0], areas
 
 
 def test_only_a_rig_with_a_glow_draws_one_and_the_dataset_rig_keeps_its_draws() -> None:

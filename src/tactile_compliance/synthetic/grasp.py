@@ -30,7 +30,6 @@ import numpy as np
 
 from tactile_compliance.data.frame_selection import AugmentedSelection
 from tactile_compliance.data.photometric import reconstruct_depth
-from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 from tactile_compliance.physics.dataset_estimates import (
     DATASET_CONSTANTS,
     DatasetEstimatorConstants,
@@ -130,7 +129,7 @@ def _session(seed: int, session_id: int, rig: GripperRig) -> Session:
     rng = stream(seed, "session", session_id)
     gels = tuple(
         GelModel(
-            modulus_pa=DEFAULT_GEL_MODULUS_PA * 10 ** rng.normal(0.0, 0.05),
+            modulus_pa=rig.gel_modulus_pa * 10 ** rng.normal(0.0, 0.05),
             thickness_mm=float(rng.uniform(3.5, 5.5)),
         )
         for _ in range(2)
