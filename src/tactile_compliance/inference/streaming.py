@@ -1,36 +1,27 @@
 """Streaming estimation from a live sensor: frames with force/width readings one at a time.
 
-The dataset's three frames were chosen after the grasp, from the whole recording
-(``DATA_FORMATS.md``, "How the three frames were chosen"):
-
-* ``i_start`` = first frame with F >= 5 N (contact onset);
-* ``i_peak`` = first frame with F >= 0.975 F_max;
-* the three frames = ``i_start + floor(linspace(0, i_peak - i_start, 3))``.
-
-The rule itself, :func:`select_frame_indices`, lives in ``data.frame_selection`` (the
-synthetic generator and ``acquisition.recording`` use it too) and is re-exported here.
-A live stream does not know F_max yet. :class:`StreamingEstimator` applies the same rule to
-the frames received so far (F_max = the largest force *so far*). While the gripper
-loads, ``i_peak`` is the newest frame, so every new frame gives a new selection and a
-refined provisional estimate; once the force levels off the selection stops changing.
-The estimate becomes final when the grasp is released (force below
-``release_fraction`` x F_max) or when :meth:`StreamingEstimator.finish` is called. At
-that point the selection is the whole-trajectory selection, so the final estimate equals
-:func:`predict_trajectory` on the same recording (the batch estimate).
+The dataset chose its three frames after the grasp, from the whole recording
+(``data.frame_selection.select_frame_indices``: from the first frame with F >= 5 N to the
+first with F >= 0.975 F_max). A live stream does not know F_max yet, so
+:class:`StreamingEstimator` applies the same rule to the frames so far (F_max = the
+largest force *so far*). While the gripper loads, ``i_peak`` is the newest frame, so
+every new frame gives a new selection and a refined provisional estimate; once the force
+levels off the selection stops changing. The estimate becomes final when the grasp is
+released (force below ``release_fraction`` x F_max) or on
+:meth:`StreamingEstimator.finish`; its selection is then the whole-trajectory one, so it
+equals :func:`predict_trajectory` (the batch estimate) on the same recording.
 
 **Frame rate.** The published rule picks frames by index, which assumes a constant frame
 rate. Real sensors do not keep one (a GelSight Mini streams about 18 fps on Linux with
-uneven gaps, the dataset was recorded at 30 fps, other cameras run at 60), so every
-function here also takes each frame's timestamp (``timestamp_s=`` with
-:meth:`StreamingEstimator.update`, ``timestamps_s=`` for :func:`predict_trajectory` and
-:func:`select_frame_indices`). With timestamps the three frames are the frames nearest in
-time to ``linspace(t_start, t_peak, 3)`` (a tie goes to the earlier frame), where
-``t_start`` and ``t_peak`` are the times of ``i_start`` and ``i_peak``. At a constant
-frame rate that is exactly the index rule above (``floor`` of the half-way index is the
-earlier of two equally near frames); at an uneven rate the middle frame is the one at the
-middle *moment* of the press, whatever frames were dropped. Without timestamps the index
-rule is kept unchanged. Timestamps must increase: one that does not is refused with an
-error and the frames already buffered are kept.
+uneven gaps, the dataset was recorded at 30 fps, other cameras run at 60), so everything
+here also takes each frame's timestamp (``timestamp_s=`` with
+:meth:`StreamingEstimator.update`, ``timestamps_s=`` for :func:`predict_trajectory`).
+The three frames are then the frames nearest in time to ``linspace(t_start, t_peak, 3)``:
+at a constant frame rate exactly the index rule, at an uneven rate the middle frame is the
+one at the middle *moment* of the press, whatever frames were dropped
+(``data.frame_selection``). Without timestamps the index rule is kept unchanged.
+Timestamps must increase: one that does not is refused with an error and the frames
+already buffered are kept.
 
 ``window=n`` is the paper's future-work variant "estimate from the last n frames instead
 of the whole trajectory": the three frames are spread over the last ``n`` frames up to
@@ -51,7 +42,7 @@ then quantised like the store (``data.store.frames_to_uint8``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
@@ -158,21 +149,8 @@ class StreamEstimate:
     window_s: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly dict."""
-        return {
-            "modulus_pa": self.modulus_pa,
-            "log10_modulus_pa": self.log10_modulus_pa,
-            "frame_indices": list(self.frame_indices),
-            "onset_frame": self.onset_frame,
-            "peak_frame": self.peak_frame,
-            "frames_seen": self.frames_seen,
-            "final": self.final,
-            "force_n": list(self.force_n),
-            "width_m": list(self.width_m) if self.width_m is not None else None,
-            "window": self.window,
-            "frame_times_s": list(self.frame_times_s) if self.frame_times_s else None,
-            "window_s": self.window_s,
-        }
+        """JSON-friendly dict (lists for tuples)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
 
 def _check_reading(name: str, value: Any, unit: str) -> float:
@@ -407,16 +385,12 @@ class StreamingEstimator:
             return None
         array = self._check_frame(frame)
         force = _check_reading("force_n", force_n, "N")
-        needs_width = "width" in self.estimator.required_inputs
-        if width_m is None:
-            if needs_width:
-                raise ValueError(
-                    f"this checkpoint uses inputs={self.estimator.inputs.value}: every "
-                    f"update needs width_m (gripper width in m)"
-                )
-            width = float("nan")
-        else:
-            width = _check_reading("width_m", width_m, "m")
+        if width_m is None and "width" in self.estimator.required_inputs:
+            raise ValueError(
+                f"this checkpoint uses inputs={self.estimator.inputs.value}: every "
+                f"update needs width_m (gripper width in m)"
+            )
+        width = float("nan") if width_m is None else _check_reading("width_m", width_m, "m")
         time_s = self._check_timestamp(timestamp_s)
         if estimates_pa is not None:
             self._estimates_pa = self._check_estimates(estimates_pa)
@@ -492,15 +466,7 @@ class StreamingEstimator:
         else:
             # i_peak never moves backwards (F_max only grows), so frames before the
             # current window start are never selected again.
-            selection = select_frame_indices(
-                forces,
-                window=self.window,
-                timestamps_s=self._times(),
-                window_s=self.window_s,
-                onset_force_n=self.onset_force_n,
-                peak_fraction=self.peak_fraction,
-                min_peak_force_n=0.0,
-            )
+            selection = self._select(any_peak=True)
             keep_from = selection.window_start if selection is not None else int(onset[0])
         drop = keep_from - buf.offset
         if drop > 0:
@@ -534,19 +500,16 @@ class StreamingEstimator:
         return estimate
 
     # ------------------------------------------------------------------ estimation
-    def _times(self) -> list[float] | None:
-        """Timestamps (s) of every frame so far, None for an untimed stream."""
-        return self._buffer.times if self._has_times else None
-
-    def _select(self) -> FrameSelection | None:
+    def _select(self, *, any_peak: bool = False) -> FrameSelection | None:
+        """The selection on the frames so far; ``any_peak`` waives the minimum peak force."""
         return select_frame_indices(
             self._buffer.forces,
             window=self.window,
-            timestamps_s=self._times(),
+            timestamps_s=self._buffer.times if self._has_times else None,
             window_s=self.window_s,
             onset_force_n=self.onset_force_n,
             peak_fraction=self.peak_fraction,
-            min_peak_force_n=self.min_peak_force_n,
+            min_peak_force_n=0.0 if any_peak else self.min_peak_force_n,
         )
 
     def _frames_at(self, indices: tuple[int, ...]) -> np.ndarray:
@@ -595,7 +558,7 @@ class StreamingEstimator:
             if not final:
                 return None
             # Same frames as the last refinement: the final estimate is that one.
-            estimate = _replace_final(self._last, self.frames_seen)
+            estimate = replace(self._last, final=True, frames_seen=self.frames_seen)
         else:
             estimate = self._predict(selection, estimates, final)
         self._last, self._last_key = estimate, key
@@ -630,10 +593,6 @@ class StreamingEstimator:
             frame_times_s=selection.times_s,
             window_s=self.window_s,
         )
-
-
-def _replace_final(estimate: StreamEstimate, frames_seen: int) -> StreamEstimate:
-    return replace(estimate, final=True, frames_seen=frames_seen)
 
 
 def predict_trajectory(
