@@ -94,9 +94,11 @@ from tactile_compliance.data.object_table import (
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.plausibility import FORCE, MODULUS, WIDTH
 from tactile_compliance.data.raw_layout import (
+    GRASP_DIR,
     METADATA_FILE,
     augmentation_dir,
     grasp_dir,
+    numbered_dirs,
     read_metadata,
     read_units_file,
     write_metadata,
@@ -400,13 +402,10 @@ def capture_grasp(
         markers_source: a second sensor (the marker finger), read in lockstep: its i-th
             frame pairs with the first sensor's i-th.
     """
-    times: list[float] = []
-    frames: list[np.ndarray] = []
-    marker_frames: list[np.ndarray] = []
-    forces: list[float] = []
-    widths: list[float] = []
+    kept: list[tuple[float, np.ndarray, float, float, np.ndarray | None]] = []
     skipped: list[str] = []
     interrupted = False
+    f_max = -math.inf
 
     try:
         for timestamp_s, frame in iter_frames(source, lambda err: skipped.append(str(err))):
@@ -425,28 +424,24 @@ def capture_grasp(
             except ReadingError as err:
                 skipped.append(f"frame at {timestamp_s:.4f} s: {err}")
                 continue
-            times.append(timestamp_s)
-            frames.append(frame)
-            forces.append(force)
-            widths.append(width)
-            if marker is not None:
-                marker_frames.append(marker)
-            f_max = max(forces)
+            kept.append((timestamp_s, frame, force, width, marker))
+            f_max = max(f_max, force)
             if stop_on_release and f_max >= min_peak_force_n and force < release_fraction * f_max:
                 break
-            if max_frames is not None and len(frames) >= max_frames:
+            if max_frames is not None and len(kept) >= max_frames:
                 break
     except KeyboardInterrupt:
         interrupted = True
-    if not frames:
+    if not kept:
         why = f" ({len(skipped)} skipped; first: {skipped[0]})" if skipped else ""
         raise ValueError(f"{source.name}: no usable frame was recorded{why}")
+    times, frames, forces, widths, markers = zip(*kept, strict=True)
     return CapturedGrasp(
         timestamp_s=np.asarray(times),
         frames=np.stack(frames),
         force_n=np.asarray(forces),
         width_m=np.asarray(widths),
-        markers_frames=np.stack(marker_frames) if marker_frames else None,
+        markers_frames=None if markers_source is None else np.stack(markers),
         skipped=skipped,
         interrupted=interrupted,
     )
@@ -764,7 +759,46 @@ def write_grasp(
             write_units_file(out, units)
         else:
             recorded.check_same(units, trained=f"{out} (its earlier grasps)", used="this recording")
-        return _write_locked(captured, out, info, indices, fingers, estimates)
+        object_dir = out / info.name
+        new_object = not object_dir.exists()
+        object_dir.mkdir(parents=True, exist_ok=True)
+        grasp = _next_grasp(object_dir)
+        partial = object_dir / f"{PARTIAL_PREFIX}grasp={grasp}-{os.getpid()}"
+        created_metadata = False
+        try:
+            created_metadata = _write_metadata(object_dir, info)
+            for k, idx in enumerate(indices):
+                sel = list(idx)
+                write_sample(
+                    augmentation_dir(partial, k),
+                    {
+                        finger: (images[sel], depths[sel])
+                        for finger, (images, depths) in fingers.items()
+                    },
+                    captured.force_n[sel],
+                    captured.width_m[sel],
+                    estimates,
+                )
+            commit_path(partial, grasp_dir(object_dir, grasp))
+        except BaseException:
+            shutil.rmtree(partial, ignore_errors=True)
+            # A full disk or Ctrl-C: leave no labelled object without grasps behind.
+            if created_metadata:
+                (object_dir / METADATA_FILE).unlink(missing_ok=True)
+            if new_object:
+                with contextlib.suppress(OSError):  # only when empty
+                    object_dir.rmdir()
+            raise
+        table = _update_object_table(out, info, len(numbered_dirs(object_dir, GRASP_DIR)))
+    return RecordedGrasp(
+        path=grasp_dir(object_dir, grasp),
+        grasp=grasp,
+        frame_indices=indices,
+        estimates_pa=estimates,
+        n_frames=len(captured),
+        skipped=list(captured.skipped),
+        object_table=table,
+    )
 
 
 def claim_dataset_dir(out_dir: str | Path, *, create: bool = True) -> Path:
@@ -785,59 +819,6 @@ def _is_unmarked_recording(path: Path) -> bool:
     # Read again after the listing: a concurrent record that created an object directory
     # had finished its marker before, though the first read may have caught it half written.
     return output_kind(path) == OUTPUT_KIND
-
-
-def _write_locked(
-    captured: CapturedGrasp,
-    out: Path,
-    info: ObjectInfo,
-    indices: list[tuple[int, int, int]],
-    fingers: dict[str, tuple[np.ndarray, np.ndarray]],
-    estimates: tuple[float, float],
-) -> RecordedGrasp:
-    """The write of :func:`write_grasp`, under the dataset's lock."""
-    object_dir = out / info.name
-    new_object = not object_dir.exists()
-    object_dir.mkdir(parents=True, exist_ok=True)
-    grasp = _next_grasp(object_dir)
-    partial = object_dir / f"{PARTIAL_PREFIX}grasp={grasp}-{os.getpid()}"
-    final = grasp_dir(object_dir, grasp)
-    created_metadata = False
-    try:
-        created_metadata = _write_metadata(object_dir, info)
-        for k, idx in enumerate(indices):
-            sel = list(idx)
-            write_sample(
-                augmentation_dir(partial, k),
-                {
-                    finger: (images[sel], depths[sel])
-                    for finger, (images, depths) in fingers.items()
-                },
-                captured.force_n[sel],
-                captured.width_m[sel],
-                estimates,
-            )
-        commit_path(partial, final)
-    except BaseException:
-        shutil.rmtree(partial, ignore_errors=True)
-        # A full disk or Ctrl-C: leave no labelled object without grasps behind.
-        if created_metadata:
-            (object_dir / "metadata.json").unlink(missing_ok=True)
-        if new_object:
-            with contextlib.suppress(OSError):  # only when empty
-                object_dir.rmdir()
-        raise
-    grasps = sum(1 for c in object_dir.iterdir() if re.match(r"^grasp=\d+$", c.name))
-    table = _update_object_table(out, info, grasps)
-    return RecordedGrasp(
-        path=final,
-        grasp=grasp,
-        frame_indices=indices,
-        estimates_pa=estimates,
-        n_frames=len(captured),
-        skipped=list(captured.skipped),
-        object_table=table,
-    )
 
 
 # ---------------------------------------------------------------------- checks
