@@ -34,10 +34,9 @@ frames are spread over the last ``window_s`` seconds up to ``t_peak`` (frames wi
 ``t_peak - t <= window_s``), i.e. ``window=n`` at ``fps`` is ``window_s=(n - 1) / fps``.
 
 Frames are either difference images (``frame_kind="difference"``, as stored in the
-dataset: uint8 or float in [0, 1]) or raw uint8 camera frames (``frame_kind="raw"``);
-raw frames are turned into difference images ``(frame - GaussianBlur11x11(reference)) /
-255 + 0.5`` with the no-contact ``reference`` frame (default: the first frame received),
-then quantised like the store (``data.store.frames_to_uint8``).
+dataset: uint8 or float in [0, 1]) or raw uint8 camera frames (``frame_kind="raw"``),
+differenced against the no-contact ``reference`` frame (default: the first frame
+received) as the importer does (:func:`difference_image`).
 """
 
 from __future__ import annotations
@@ -187,13 +186,11 @@ class StreamingEstimator:
     final = stream.finish()                             # or: emitted on release
     ```
 
-    What the stream needs: a frame and the normal force (N) with every update (the frame
-    selection is by force, so even Image models need force); the gripper width (m) when
-    the checkpoint uses width; for ALL checkpoints the analytical estimates (elastic E,
-    Hertz E*) in Pa, either given once (``estimates_pa=``, at construction or with any
-    update) or computed on the fly from per-frame depth maps (``depth_mm=`` with each
-    update, with the estimator that made the training data's values: the checkpoint's
-    ``RunInputs.estimator``, over its ``window_start``).
+    Every update needs a frame and the normal force (N): the selection is by force, so
+    even Image models need it; the gripper width (m) when the checkpoint uses width. ALL
+    checkpoints need the analytical estimates (elastic E, Hertz E*) in Pa: given once
+    (``estimates_pa=``, here or with any update) or computed from a depth map given with
+    every update (``depth_mm=``).
 
     Args:
         estimator: a :class:`~tactile_compliance.inference.estimator.ComplianceEstimator`
@@ -206,11 +203,9 @@ class StreamingEstimator:
             ``"raw"`` (uint8 camera frames, differenced against ``reference``).
         reference: raw no-contact frame for ``frame_kind="raw"``; default the first frame.
         channel_order: ``"RGB"`` or ``"BGR"`` (OpenCV cameras) of the frames.
-        estimates_pa: (elastic, Hertz) in Pa, for ALL checkpoints.
-        analytical_estimator: the estimator computing E from ``depth_mm``
-            (``physics.estimators.AnalyticalEstimator``); default the checkpoint's
-            (``RunInputs.estimator``, at its sensor's pixel density), so live values
-            follow the training data's distribution.
+        analytical_estimator: the estimator computing E from ``depth_mm``; default the
+            checkpoint's (``RunInputs.estimator``, at its sensor's pixel density, over its
+            ``window_start``), so live values follow the training data's distribution.
         onset_force_n, peak_fraction, min_peak_force_n: the selection rule (dataset values).
         release_fraction: the grasp ends (final estimate) when, after reaching the minimum
             peak force, the force falls below this fraction of F_max.
@@ -260,7 +255,9 @@ class StreamingEstimator:
         self.release_fraction = float(release_fraction)
         self.max_frames = int(max_frames)
         self._initial_reference = None if reference is None else self._check_raw(reference)
-        self._initial_estimates = estimates_pa
+        self._initial_estimates = (
+            None if estimates_pa is None else self._check_estimates(estimates_pa)
+        )
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -268,11 +265,7 @@ class StreamingEstimator:
         """Forget the current grasp (keeps the options and an explicit reference frame)."""
         self._buffer = _Buffer()
         self._reference = self._initial_reference
-        self._estimates_pa = (
-            None
-            if self._initial_estimates is None
-            else self._check_estimates(self._initial_estimates)
-        )
+        self._estimates_pa = self._initial_estimates
         self._frame_shape: tuple[int, ...] | None = None
         self._last: StreamEstimate | None = None
         self._last_key: tuple[Any, ...] | None = None
@@ -364,15 +357,12 @@ class StreamingEstimator:
 
         Args:
             frame: (H, W, 3) difference image or raw frame (see ``frame_kind``).
-            force_n: normal force in N at this frame.
-            width_m: gripper width in m at this frame (needed when the model uses width).
             estimates_pa: (elastic E, Hertz E*) in Pa, replaces earlier values.
             depth_mm: (H', W') gel depth map in mm of this frame, to compute the estimates
                 on the fly (give it with every frame or never).
             timestamp_s: when the frame was captured, in s on any clock that only moves
                 forward (e.g. ``time.monotonic()`` or the camera's); give it with every
-                frame or never. With timestamps the frames are selected in time, not by
-                index (see the module docstring).
+                frame or never. With timestamps the frames are selected in time.
             provisional: False adds the frame without a provisional estimate (a consumer
                 that is behind its sensor catches up); the final estimate is the same.
 
@@ -512,11 +502,6 @@ class StreamingEstimator:
             min_peak_force_n=0.0 if any_peak else self.min_peak_force_n,
         )
 
-    def _frames_at(self, indices: tuple[int, ...]) -> np.ndarray:
-        buf = self._buffer
-        frames = np.stack([buf.frames[i - buf.offset] for i in indices])
-        return _as_difference_images(frames, self.frame_kind, self._reference)
-
     def _current_estimates(self, selection: FrameSelection, final: bool) -> np.ndarray | None:
         if self._estimates_pa is not None or not self._has_depth:
             return self._estimates_pa
@@ -568,12 +553,13 @@ class StreamingEstimator:
     def _predict(
         self, selection: FrameSelection, estimates: np.ndarray | None, final: bool
     ) -> StreamEstimate:
-        idx = selection.indices
-        forces = tuple(float(self._buffer.forces[i]) for i in idx)
-        widths_all = np.asarray(self._buffer.widths)[list(idx)]
+        idx, buf = selection.indices, self._buffer
+        forces = tuple(float(buf.forces[i]) for i in idx)
+        widths_all = np.asarray(buf.widths)[list(idx)]
         widths = None if np.isnan(widths_all).any() else tuple(float(w) for w in widths_all)
+        frames = np.stack([buf.frames[i - buf.offset] for i in idx])
         prediction: Prediction = self.estimator.predict(
-            self._frames_at(idx),
+            _as_difference_images(frames, self.frame_kind, self._reference),
             force=np.asarray(forces),
             width=None if widths is None else np.asarray(widths),
             estimates=estimates,
@@ -616,13 +602,12 @@ def predict_trajectory(
 
     Args:
         frames: (T, H, W, 3) difference images (or raw frames with ``frame_kind="raw"``).
-        force_n: (T,) normal force in N.
-        width_m: (T,) gripper width in m (when the model uses width).
+        force_n, width_m: (T,) normal force in N, gripper width in m (when the model uses
+            width).
         estimates_pa: (elastic E, Hertz E*) in Pa (ALL models).
-        window: None (dataset rule) or the last ``n`` frames up to the peak.
-        timestamps_s: (T,) capture times in s (increasing): select the frames in time
-            (see the module docstring); None keeps the index rule.
-        window_s: the last ``window_s`` seconds up to the peak (needs ``timestamps_s``).
+        timestamps_s: (T,) capture times in s (increasing): select the frames in time;
+            None keeps the index rule.
+        window, window_s: as :class:`StreamingEstimator`'s.
 
     Returns:
         (prediction for the grasp, the frame selection used).
