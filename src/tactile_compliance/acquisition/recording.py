@@ -16,20 +16,16 @@ robot (a callback ``timestamp_s -> (force_n, width_m)`` or a CSV of timestamped 
     OUT/dataset_objects_and_compliance.csv           the object table, one row per object
     OUT/recording.json                               depth model and px/mm of every grasp
 
-as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen"):
-
-* the three frames: ``data.frame_selection.select_frame_indices`` (first F >= 5 N to
-  first F >= 0.975 F_max); augmentation k = 0..4 shifts all three by +k while F stays
-  >= 0.95 F_max (:func:`augmented_indices`, the generator's rule too);
-* difference images ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5``
-  (``data.image_ops.difference_images``), with the calibration's no-contact frame as
-  reference, or the recording's first frame;
-* depth maps: ``data.photometric.reconstruct_depth`` with the calibration's depth model
-  (``calibrate-depth``), or the dataset heuristic without one (the marker sensor with its
-  markers masked);
-* the analytical estimates: ``physics.dataset_estimates.dataset_estimates_pa`` on the
-  whole recording (it clips the press itself), as the dataset's own code did, at the
-  calibration's pixel density (the Wedge's 16.40 px/mm without one).
+as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen"): the
+three frames of each augmentation by the rule of ``data.frame_selection``
+(:func:`augmented_indices`, the generator's rule too); difference images
+``(frame - GaussianBlur11x11(reference)) / 255 + 0.5`` against the calibration's
+no-contact frame, or the recording's first frame; depth maps by
+``data.photometric.reconstruct_depth`` with the calibration's depth model
+(``calibrate-depth``), or the dataset heuristic without one (the marker sensor with its
+markers masked); the analytical estimates by the dataset's estimator on the whole
+recording (it clips the press itself), at the calibration's pixel density (the Wedge's
+16.40 px/mm without one).
 
 The grasp number is the next free one; a grasp directory is written under a hidden name
 and renamed into place, so nothing existing is ever overwritten and an interrupted
@@ -38,21 +34,16 @@ in range, of the wrong size or with a time going backwards is skipped and report
 (:attr:`RecordedGrasp.skipped`); the capture goes on.
 
 What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps: what
-``record`` guarantees"):
-
-* ``OUT`` is claimed with ``outputs.claim_output_dir`` (kind ``record``): a new or empty
-  directory, or one ``record`` wrote; a GraspStore, a run directory or a directory of
-  other files is refused before the capture starts;
-* the write (grasp number, ``metadata.json``, the grasp, the object table) runs under an
-  exclusive lock on ``OUT/.record.lock``, so concurrent ``record``s into one dataset
-  each get their own grasp number and every object keeps its row; the table is replaced
-  atomically (``outputs.atomic_file``);
-* the table's row follows ``metadata.json`` (its modulus, material and shape);
-* when writing fails (a full disk), the grasp's temporary directory and a
-  ``metadata.json`` this call created are removed: no object without grasps is left;
-* object names are letters, digits and ``_ . + -`` only (no control characters), and
-  the saved forces and widths must be plausible (``data.plausibility``): a width in
-  millimetres (17.4 "m") is refused before anything is written.
+``record`` guarantees"): it writes only into a new or empty directory or one ``record``
+wrote (``outputs.claim_output_dir``, kind ``record``), refusing a GraspStore, a run
+directory or other files before the capture starts; the write (grasp number,
+``metadata.json``, the grasp, the object table) holds an exclusive lock on
+``OUT/.record.lock``, so concurrent ``record``s each get their own grasp number and
+every object keeps its row in the atomically replaced table, a row that follows
+``metadata.json``; a failed write (a full disk) removes the grasp's temporary directory
+and a ``metadata.json`` it created, leaving no object without grasps; object names
+(letters, digits and ``_ . + -``) and the saved forces and widths (``data.plausibility``:
+a width in millimetres is refused) are checked before anything is written.
 """
 
 from __future__ import annotations
@@ -103,9 +94,11 @@ from tactile_compliance.data.object_table import (
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.plausibility import FORCE, MODULUS, WIDTH
 from tactile_compliance.data.raw_layout import (
+    GRASP_DIR,
     METADATA_FILE,
     augmentation_dir,
     grasp_dir,
+    numbered_dirs,
     read_metadata,
     read_units_file,
     write_metadata,
@@ -121,7 +114,7 @@ from tactile_compliance.outputs import (
     exclusive_lock,
     output_kind,
 )
-from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, WEDGE_UNITS, SensorUnits
+from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, WEDGE_UNITS
 
 __all__ = [
     "AUGMENTATION_FORCE_FRACTION",
@@ -157,6 +150,9 @@ OUTPUT_KIND = "record"
 
 LOCK_FILE = ".record.lock"
 """``flock``-ed while one ``record`` writes into the dataset (see the module)."""
+
+READINGS_COLUMNS = ["timestamp_s", "force_n", "width_m"]
+"""The columns of a readings CSV (s, N, m)."""
 
 ReadingsCallback = Callable[[float], tuple[float, float]]
 """``timestamp_s -> (force_n, width_m)``; raise :class:`ReadingError` for no reading."""
@@ -235,19 +231,12 @@ class Readings:
                 increasing. OSError: the file cannot be read.
         """
         path = Path(path)
+        table = _readings_table(path)
+        if table is None:
+            raise ValueError(f"{path}: not a readings CSV (the file is empty)")
         try:
-            table = pd.read_csv(path)
-        except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as err:
-            raise ValueError(f"{path}: not a readings CSV ({err})") from err
-        table.columns = [str(c).strip() for c in table.columns]
-        missing = [c for c in ("timestamp_s", "force_n", "width_m") if c not in table.columns]
-        if missing:
-            raise ValueError(
-                f"{path}: missing column(s) {missing}; expected timestamp_s,force_n,width_m"
-            )
-        try:
-            values = table[["timestamp_s", "force_n", "width_m"]].astype(np.float64)
-            return cls(*(values[c].to_numpy() for c in values.columns), tolerance_s=tolerance_s)
+            values = table.astype(np.float64)
+            return cls(*(values[c].to_numpy() for c in READINGS_COLUMNS), tolerance_s=tolerance_s)
         except ValueError as err:
             raise ValueError(f"{path}: {err}") from err
 
@@ -267,6 +256,22 @@ class Readings:
             float(np.interp(t, self.timestamp_s, self.force_n)),
             float(np.interp(t, self.timestamp_s, self.width_m)),
         )
+
+
+def _readings_table(path: Path) -> pd.DataFrame | None:
+    """The :data:`READINGS_COLUMNS` of a readings CSV as read (None: the file is empty)."""
+    try:
+        table = pd.read_csv(path)
+    except pd.errors.EmptyDataError:
+        return None
+    except (pd.errors.ParserError, UnicodeDecodeError) as err:
+        raise ValueError(f"{path}: not a readings CSV ({err})") from err
+    table.columns = [str(c).strip() for c in table.columns]
+    missing = [c for c in READINGS_COLUMNS if c not in table.columns]
+    if missing:
+        expected = ",".join(READINGS_COLUMNS)
+        raise ValueError(f"{path}: missing column(s) {missing}; expected {expected}")
+    return table[READINGS_COLUMNS]
 
 
 class FollowedReadings:
@@ -295,18 +300,10 @@ class FollowedReadings:
         stamp = (stat.st_mtime_ns, stat.st_size)
         if stamp == self._stamp:
             return
-        try:
-            table = pd.read_csv(self.path)
-        except pd.errors.EmptyDataError:
+        table = _readings_table(self.path)
+        if table is None:
             return
-        except (pd.errors.ParserError, UnicodeDecodeError) as err:
-            raise ValueError(f"{self.path}: not a readings CSV ({err})") from err
-        table.columns = [str(c).strip() for c in table.columns]
-        columns = ["timestamp_s", "force_n", "width_m"]
-        missing = [c for c in columns if c not in table.columns]
-        if missing:
-            raise ValueError(f"{self.path}: missing column(s) {missing}; expected {columns}")
-        values = table[columns].apply(pd.to_numeric, errors="coerce")
+        values = table.apply(pd.to_numeric, errors="coerce")
         complete = values.notna().all(axis=1).to_numpy()
         n = len(complete)
         if not complete.all():
@@ -317,7 +314,7 @@ class FollowedReadings:
             n -= 1
         self._stamp = stamp
         if n:
-            arrays = (values[c].to_numpy()[:n] for c in columns)
+            arrays = (values[c].to_numpy()[:n] for c in READINGS_COLUMNS)
             self.readings = Readings(*arrays, tolerance_s=self.tolerance_s)
 
     @property
@@ -402,24 +399,16 @@ def capture_grasp(
     capture and keeps what was recorded.
 
     Args:
-        source: the (markerless) sensor.
-        readings: ``timestamp_s -> (force_n, width_m)``, e.g. :class:`Readings`.
         markers_source: a second sensor (the marker finger), read in lockstep: its i-th
             frame pairs with the first sensor's i-th.
     """
-    times: list[float] = []
-    frames: list[np.ndarray] = []
-    marker_frames: list[np.ndarray] = []
-    forces: list[float] = []
-    widths: list[float] = []
+    kept: list[tuple[float, np.ndarray, float, float, np.ndarray | None]] = []
     skipped: list[str] = []
     interrupted = False
-
-    def bad(err: FrameError) -> None:
-        skipped.append(str(err))
+    f_max = -math.inf
 
     try:
-        for timestamp_s, frame in iter_frames(source, bad):
+        for timestamp_s, frame in iter_frames(source, lambda err: skipped.append(str(err))):
             marker = None
             if markers_source is not None:
                 try:
@@ -435,28 +424,24 @@ def capture_grasp(
             except ReadingError as err:
                 skipped.append(f"frame at {timestamp_s:.4f} s: {err}")
                 continue
-            times.append(timestamp_s)
-            frames.append(frame)
-            forces.append(force)
-            widths.append(width)
-            if marker is not None:
-                marker_frames.append(marker)
-            f_max = max(forces)
+            kept.append((timestamp_s, frame, force, width, marker))
+            f_max = max(f_max, force)
             if stop_on_release and f_max >= min_peak_force_n and force < release_fraction * f_max:
                 break
-            if max_frames is not None and len(frames) >= max_frames:
+            if max_frames is not None and len(kept) >= max_frames:
                 break
     except KeyboardInterrupt:
         interrupted = True
-    if not frames:
+    if not kept:
         why = f" ({len(skipped)} skipped; first: {skipped[0]})" if skipped else ""
         raise ValueError(f"{source.name}: no usable frame was recorded{why}")
+    times, frames, forces, widths, markers = zip(*kept, strict=True)
     return CapturedGrasp(
         timestamp_s=np.asarray(times),
         frames=np.stack(frames),
         force_n=np.asarray(forces),
         width_m=np.asarray(widths),
-        markers_frames=np.stack(marker_frames) if marker_frames else None,
+        markers_frames=None if markers_source is None else np.stack(markers),
         skipped=skipped,
         interrupted=interrupted,
     )
@@ -473,16 +458,11 @@ def augmented_indices(
 ) -> list[tuple[int, int, int]]:
     """The dataset's three frames of each augmentation k = 0, 1, ... (frame indices).
 
-    The dataset's rule, ``data.frame_selection.augment_selection`` (the generator uses
-    the same function). Augmentation 0 is ``select_frame_indices`` (the frames ``live``
-    uses), in time when ``timestamps_s`` (s, one per frame) are given, as ``live`` does.
-    Augmentation k shifts all three by +k while the force at the shifted last frame stays
-    >= 0.95 F_max (``DATA_FORMATS.md``; F_max over the published clip
-    ``[i_start, i_peak + 1 + max_aug)``). The published code also capped the count, and
-    this follows it: at most ``max(i_1 - i_0, 2)`` augmentations, one when the three
-    frames span fewer than three frames, none reaching past the clip, and, for objects
-    of >= 5e5 Pa, none whose first frame is already >= 80 % as deep as its last (on
-    every sensor of ``max_depth_mm``, per-frame maximum depths in mm).
+    The rule of ``data.frame_selection.augment_selection``, the generator's too:
+    augmentation 0 is the frames ``live`` selects (in time when ``timestamps_s`` are
+    given), augmentation k shifts them by +k while the force stays >= 0.95 F_max, with the
+    published code's caps on the count (the hard-object one reads ``modulus_pa`` and
+    ``max_depth_mm``, the per-frame maximum depths in mm of every sensor).
 
     Raises:
         ValueError: no selection (no frame reaches 5 N, the peak stays below 10 N, or
@@ -649,32 +629,6 @@ def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
     checked against ``info``): an object recorded again with another modulus after its
     directory was deleted gets the new modulus, never keeps the old one. The caller holds
     the dataset's lock; the file is replaced atomically."""
-    path = out_dir / OBJECT_TABLE_FILE
-    if path.exists():
-        try:
-            table = pd.read_csv(path, dtype=str, keep_default_na=False)
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
-            raise ValueError(f"{path}: not an object table ({err}); nothing updated") from err
-        missing = [c for c in (LABEL_COLUMN, MODULUS_COLUMN) if c not in table.columns]
-        if missing:
-            raise ValueError(f"{path}: not an object table (missing {missing}); nothing updated")
-    else:
-        table = pd.DataFrame(
-            columns=[
-                LABEL_COLUMN,
-                SHAPE_COLUMN,
-                MATERIAL_COLUMN,
-                "Shore 00 [/]",
-                "Shore A [/]",
-                "Shore D [/]",
-                MODULUS_COLUMN,
-                TRIALS_COLUMN,
-            ],
-            dtype=str,
-        )
-    for column in (SHAPE_COLUMN, MATERIAL_COLUMN, TRIALS_COLUMN):
-        if column not in table.columns:
-            table[column] = ""
 
     def text(value: float | None) -> str:
         return "" if value is None else f"{value:g}"
@@ -689,6 +643,20 @@ def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
         MODULUS_COLUMN: f"{float(info.modulus_pa):.6g}",
         TRIALS_COLUMN: str(grasps),
     }
+    path = out_dir / OBJECT_TABLE_FILE
+    if path.exists():
+        try:
+            table = pd.read_csv(path, dtype=str, keep_default_na=False)
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
+            raise ValueError(f"{path}: not an object table ({err}); nothing updated") from err
+        missing = [c for c in (LABEL_COLUMN, MODULUS_COLUMN) if c not in table.columns]
+        if missing:
+            raise ValueError(f"{path}: not an object table (missing {missing}); nothing updated")
+    else:
+        table = pd.DataFrame(columns=list(row), dtype=str)
+    for column in (SHAPE_COLUMN, MATERIAL_COLUMN, TRIALS_COLUMN):
+        if column not in table.columns:
+            table[column] = ""
     match = table.index[table[LABEL_COLUMN].str.strip() == info.name]
     if len(match):
         for column, value in row.items():
@@ -701,20 +669,6 @@ def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
     with atomic_file(path, "w") as handle:
         table.to_csv(handle, index=False)
     return path
-
-
-def _check_units(out_dir: Path, units: SensorUnits) -> None:
-    """Record ``units`` for the dataset, or refuse a grasp in other units than its grasps.
-
-    Raises:
-        ValueError: the dataset's grasps were recorded with another depth model or pixel
-            density (their estimates would mix units), or its record is damaged.
-    """
-    recorded = read_units_file(out_dir)
-    if recorded is not None:
-        recorded.check_same(units, trained=f"{out_dir} (its earlier grasps)", used="this recording")
-        return
-    write_units_file(out_dir, units)
 
 
 def write_grasp(
@@ -731,24 +685,28 @@ def write_grasp(
     """Write a captured grasp as ``OUT/{object}/grasp={next}/augmentation={k}/``.
 
     Args:
-        captured: from :func:`capture_grasp`.
-        out_dir: the dataset directory (created if needed).
-        info: the object's label and description.
-        reference: the no-contact frame (a calibration's); default the first frame.
-        markers_reference: the same for the marker sensor.
+        reference, markers_reference: the no-contact frame of each sensor; default the
+            calibration's, else the first frame.
         max_aug: augmentations at most.
-        sensor: the sensor's calibration: its depth model and pixel density make the
-            depth maps and the estimates (None: the dataset heuristic and the Wedge's
-            16.40 px/mm); its reference is used where ``reference`` is None.
-        markers_sensor: the same for the marker sensor.
+        sensor, markers_sensor: the sensors' calibrations: their depth models and the
+            first one's pixel density make the depth maps and the estimates (None: the
+            dataset heuristic and the Wedge's 16.40 px/mm).
 
     Raises:
         ValueError: the grasp has no frame selection (nothing is written), or the object
             exists with another modulus.
     """
-    # No selection or implausible readings: fail before any work.
+    # No selection or implausible readings: fail before any work (the depth caps below
+    # only drop augmentations, so these frames include every frame written).
     selection = augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
-    _check_readings(captured, sorted({i for idx in selection for i in idx}))
+    written = sorted({i for idx in selection for i in idx})
+    for rule, values in ((FORCE, captured.force_n), (WIDTH, captured.width_m)):
+        problem = rule.violation(np.asarray(values)[written])  # data.plausibility
+        if problem:
+            raise ValueError(
+                f"the readings of the selected frames are implausible: {problem}; nothing "
+                f"written (are the widths in millimetres? --readings needs metres)"
+            )
     frames = captured.frames
     if reference is None and sensor is not None:
         reference = sensor.reference
@@ -771,14 +729,11 @@ def write_grasp(
         marker_model = "dataset" if markers_sensor is None else markers_sensor.depth
         marker_depth = reconstruct_depth(mdiff, markers=True, model=marker_model)
         fingers["markers"] = (mdiff, marker_depth)
-    depth_maxima = [depth.reshape(len(depth), -1).max(axis=1)]
-    if marker_depth is not None:
-        depth_maxima.append(marker_depth.reshape(len(marker_depth), -1).max(axis=1))
     indices = augmented_indices(
         captured.force_n,
         max_aug,
         modulus_pa=info.modulus_pa,
-        max_depth_mm=depth_maxima,
+        max_depth_mm=[d.reshape(len(d), -1).max(axis=1) for _, d in fingers.values()],
         timestamps_s=captured.timestamp_s,
     )
     # The public dataset's estimator (what ``import burgess`` records for this layout); the
@@ -791,27 +746,59 @@ def write_grasp(
         estimates = (float(values[0]), float(values[1]))
     except ValueError:
         estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps
-
-    _check_readings(captured, sorted({i for idx in indices for i in idx}))
     # Checked before anything is created; claimed (the marker written) under the lock, so
     # concurrent recordings into a new dataset never see each other's half-made marker.
     out = claim_dataset_dir(out_dir, create=False)
     out.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(out / LOCK_FILE, what=f"the dataset {out}"):
         claim_dataset_dir(out)
-        _check_units(out, WEDGE_UNITS if sensor is None else sensor.units)
-        return _write_locked(captured, out, info, indices, fingers, estimates)
-
-
-def _check_readings(captured: CapturedGrasp, frames: Sequence[int]) -> None:
-    """Refuse implausible saved readings (``data.plausibility``), before anything is written."""
-    for rule, values in ((FORCE, captured.force_n), (WIDTH, captured.width_m)):
-        problem = rule.violation(np.asarray(values)[list(frames)])
-        if problem:
-            raise ValueError(
-                f"the readings of the selected frames are implausible: {problem}; nothing "
-                f"written (are the widths in millimetres? --readings needs metres)"
-            )
+        # A grasp in other units (depth model, px/mm) than the dataset's would mix estimates.
+        units = WEDGE_UNITS if sensor is None else sensor.units
+        recorded = read_units_file(out)
+        if recorded is None:
+            write_units_file(out, units)
+        else:
+            recorded.check_same(units, trained=f"{out} (its earlier grasps)", used="this recording")
+        object_dir = out / info.name
+        new_object = not object_dir.exists()
+        object_dir.mkdir(parents=True, exist_ok=True)
+        grasp = _next_grasp(object_dir)
+        partial = object_dir / f"{PARTIAL_PREFIX}grasp={grasp}-{os.getpid()}"
+        created_metadata = False
+        try:
+            created_metadata = _write_metadata(object_dir, info)
+            for k, idx in enumerate(indices):
+                sel = list(idx)
+                write_sample(
+                    augmentation_dir(partial, k),
+                    {
+                        finger: (images[sel], depths[sel])
+                        for finger, (images, depths) in fingers.items()
+                    },
+                    captured.force_n[sel],
+                    captured.width_m[sel],
+                    estimates,
+                )
+            commit_path(partial, grasp_dir(object_dir, grasp))
+        except BaseException:
+            shutil.rmtree(partial, ignore_errors=True)
+            # A full disk or Ctrl-C: leave no labelled object without grasps behind.
+            if created_metadata:
+                (object_dir / METADATA_FILE).unlink(missing_ok=True)
+            if new_object:
+                with contextlib.suppress(OSError):  # only when empty
+                    object_dir.rmdir()
+            raise
+        table = _update_object_table(out, info, len(numbered_dirs(object_dir, GRASP_DIR)))
+    return RecordedGrasp(
+        path=grasp_dir(object_dir, grasp),
+        grasp=grasp,
+        frame_indices=indices,
+        estimates_pa=estimates,
+        n_frames=len(captured),
+        skipped=list(captured.skipped),
+        object_table=table,
+    )
 
 
 def claim_dataset_dir(out_dir: str | Path, *, create: bool = True) -> Path:
@@ -832,59 +819,6 @@ def _is_unmarked_recording(path: Path) -> bool:
     # Read again after the listing: a concurrent record that created an object directory
     # had finished its marker before, though the first read may have caught it half written.
     return output_kind(path) == OUTPUT_KIND
-
-
-def _write_locked(
-    captured: CapturedGrasp,
-    out: Path,
-    info: ObjectInfo,
-    indices: list[tuple[int, int, int]],
-    fingers: dict[str, tuple[np.ndarray, np.ndarray]],
-    estimates: tuple[float, float],
-) -> RecordedGrasp:
-    """The write of :func:`write_grasp`, under the dataset's lock."""
-    object_dir = out / info.name
-    new_object = not object_dir.exists()
-    object_dir.mkdir(parents=True, exist_ok=True)
-    grasp = _next_grasp(object_dir)
-    partial = object_dir / f"{PARTIAL_PREFIX}grasp={grasp}-{os.getpid()}"
-    final = grasp_dir(object_dir, grasp)
-    created_metadata = False
-    try:
-        created_metadata = _write_metadata(object_dir, info)
-        for k, idx in enumerate(indices):
-            sel = list(idx)
-            write_sample(
-                augmentation_dir(partial, k),
-                {
-                    finger: (images[sel], depths[sel])
-                    for finger, (images, depths) in fingers.items()
-                },
-                captured.force_n[sel],
-                captured.width_m[sel],
-                estimates,
-            )
-        commit_path(partial, final)
-    except BaseException:
-        shutil.rmtree(partial, ignore_errors=True)
-        # A full disk or Ctrl-C: leave no labelled object without grasps behind.
-        if created_metadata:
-            (object_dir / "metadata.json").unlink(missing_ok=True)
-        if new_object:
-            with contextlib.suppress(OSError):  # only when empty
-                object_dir.rmdir()
-        raise
-    grasps = sum(1 for c in object_dir.iterdir() if re.match(r"^grasp=\d+$", c.name))
-    table = _update_object_table(out, info, grasps)
-    return RecordedGrasp(
-        path=final,
-        grasp=grasp,
-        frame_indices=indices,
-        estimates_pa=estimates,
-        n_frames=len(captured),
-        skipped=list(captured.skipped),
-        object_table=table,
-    )
 
 
 # ---------------------------------------------------------------------- checks
@@ -982,11 +916,9 @@ def check_recording(
         remedy: what to give instead, in the warning (``record``'s options by default).
     """
     warnings: list[str] = []
-    checks: dict[str, Any] = {"reference": reference_kind}
+    checks: dict[str, Any] = {"reference": reference_kind, "spikes": []}
     frame_times = np.asarray(frame_times_s, dtype=np.float64)
-    spikes = list(getattr(readings, "spikes", None) or [])
-    checks["spikes"] = []
-    for spike in spikes:
+    for spike in getattr(readings, "spikes", None) or []:
         frame = _frame_of_reading(readings, spike.index, frame_times)
         checks["spikes"].append({**spike.to_dict(), "frame": frame})
         warnings.append(spike.describe(frame))
@@ -1006,21 +938,18 @@ def check_recording(
     ref = np.asarray(reference, dtype=np.float64)
     difference = float(np.mean(np.abs(first - ref)))
     checks["reference_vs_first_frame_grey"] = difference
-    if contact is not None:
-        start = (
-            f"the recording starts in contact: {float(force_n[0]):.2f} N at its first frame, "
-            f"{contact:.2f} N above the no-contact level {baseline.level_n:+.2f} N"  # type: ignore[union-attr]
+    if contact is not None and (reference_kind == "first frame" or reference_from_start):
+        which = (
+            "that frame is the reference"
+            if reference_kind == "first frame"
+            else "the calibration was taken from this recording's first frames"
         )
-        if reference_kind == "first frame" or reference_from_start:
-            which = (
-                "that frame is the reference"
-                if reference_kind == "first frame"
-                else "the calibration was taken from this recording's first frames"
-            )
-            warnings.append(
-                f"{start}; {which}, so the difference images and depth maps miss this "
-                f"contact: give a frame with nothing touching the gel ({remedy})"
-            )
+        warnings.append(
+            f"the recording starts in contact: {float(force_n[0]):.2f} N at its first frame, "
+            f"{contact:.2f} N above the no-contact level {baseline.level_n:+.2f} N; "  # type: ignore[union-attr]
+            f"{which}, so the difference images and depth maps miss this "
+            f"contact: give a frame with nothing touching the gel ({remedy})"
+        )
     if difference > REFERENCE_MISMATCH_GREY:
         text = (
             f"the reference ({reference_kind}) differs from the first frame by "
@@ -1061,8 +990,6 @@ def record_grasp(
         source: an open frame source (``sensors.open_source``; with a calibration, open
             it with ``calibration.open(spec)`` so the geometry matches the reference).
         readings: ``timestamp_s -> (force_n, width_m)``, e.g. ``Readings.from_csv(path)``.
-        out_dir: the dataset directory.
-        info: the object.
         calibration: its reference frame is the no-contact frame (default: the first
             recorded frame); its depth model and pixel density make the depth maps and
             the analytical estimates (default: the dataset heuristic, 16.40 px/mm).
@@ -1110,7 +1037,6 @@ def record_grasp(
         out_dir,
         info,
         reference=used,
-        markers_reference=None if markers_calibration is None else markers_calibration.reference,
         max_aug=max_aug,
         sensor=calibration,
         markers_sensor=markers_calibration,
@@ -1123,12 +1049,11 @@ def record_grasp(
     if missing:
         # The grasp is written (the dataset has such grasps too), but an ALL model will
         # skip it: say so now rather than at `predict`, which only counts skipped samples.
-        warnings = [
-            *warnings,
+        warnings.append(
             f"no {' or '.join(missing)} analytical estimate for this grasp (too little "
             "contact area or depth at this frame size and pixel density): ALL models will "
-            "skip it; Image, ImageF and ImageFW models can use it",
-        ]
+            "skip it; Image, ImageF and ImageFW models can use it"
+        )
     result.warnings, result.checks = warnings, checks
     return result
 
@@ -1138,7 +1063,7 @@ def write_readings_csv(path: str | Path, timestamp_s: Any, force_n: Any, width_m
     path = Path(path)
     with atomic_file(path, "w") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["timestamp_s", "force_n", "width_m"])
+        writer.writerow(READINGS_COLUMNS)
         for row in zip(timestamp_s, force_n, width_m, strict=True):
             writer.writerow([repr(float(v)) for v in row])
     return path

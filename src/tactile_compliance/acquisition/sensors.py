@@ -27,21 +27,15 @@ The last two concern one frame: :meth:`FrameSourceBase.read` raises them for tha
 and the source stays usable, so a capture loop (:func:`iter_frames` with ``on_error``)
 skips the frame and keeps what it already has.
 
-Presets (every step a documented parameter of :class:`FrameGeometry`):
-
-* **GelSight Mini** (:data:`MINI_GEOMETRY`, :func:`gelsight_mini`): a UVC camera opened by
-  index or ``/dev/v4l/by-id/...`` path; 3280 x 2464 MJPG requested (nominally 25 fps,
-  about 18 on Linux); a 1/7 border cropped per side; resized to 320 x 240 (W x H).
-* **GelSight Wedge over HTTP MJPEG** (:data:`WEDGE_GEOMETRY`, :func:`gelsight_wedge`),
-  the public dataset's rig: 640 x 480 frames, warped with four corner points to
-  400 x 300 (W x H), cropped 25 px per side to 350 x 250 (``DATA_FORMATS.md``).
-* **DIGIT** (:class:`DigitSource`) through the optional ``digit-interface`` package
-  (non-commercial licence: never a dependency of this project).
-* A **video file** or URL (:class:`VideoCaptureSource`) and a **folder of frames**
-  (:class:`FolderSource`) for replay and tests.
-
-:func:`open_source` parses a spec string (``mini:0``, ``wedge:http://host:port/...``,
-``digit:SERIAL``, ``video:path.avi``, ``camera:0``, ``folder:dir`` or a plain path).
+Presets (every step a documented parameter of :class:`FrameGeometry`): a **GelSight
+Mini** (:func:`gelsight_mini`, :data:`MINI_GEOMETRY`), a **GelSight Wedge** over HTTP
+MJPEG, the public dataset's rig (:func:`gelsight_wedge`, :data:`WEDGE_GEOMETRY`), a
+**DIGIT** (:class:`DigitSource`) through the optional ``digit-interface`` package
+(non-commercial licence: never a dependency of this project), and for replay and tests a
+**video file** or URL (:class:`VideoCaptureSource`) or a **folder of frames**
+(:class:`FolderSource`). :func:`open_source` parses a spec string (``mini:0``,
+``wedge:http://host:port/...``, ``digit:SERIAL``, ``video:path.avi``, ``camera:0``,
+``folder:dir`` or a plain path).
 """
 
 from __future__ import annotations
@@ -226,17 +220,12 @@ class FrameGeometry:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> FrameGeometry:
-        """Inverse of :meth:`to_dict`; unknown keys are an error."""
-        unknown = set(data) - {f for f in cls.__dataclass_fields__}
+        """Inverse of :meth:`to_dict` (the checks make its lists tuples); unknown keys are
+        an error."""
+        unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"unknown frame geometry field(s) {sorted(unknown)}")
-        values = dict(data)
-        for key in ("input_size", "warp_size", "output_size"):
-            if values.get(key) is not None:
-                values[key] = tuple(values[key])
-        if values.get("warp_corners") is not None:
-            values["warp_corners"] = tuple(tuple(p) for p in values["warp_corners"])
-        return cls(**values)
+        return cls(**data)
 
 
 def _checked_corners(points: Any) -> Corners:
@@ -251,17 +240,14 @@ def _checked_corners(points: Any) -> Corners:
         raise ValueError(f"warp_corners must be four (x, y) points, got {points!r}") from err
     if len(corners) != 4 or not all(math.isfinite(v) for p in corners for v in p):
         raise ValueError(f"warp_corners must be four finite (x, y) points, got {corners!r}")
-    # Cross products of consecutive edges: one sign all round = convex, in order.
-    turns = []
+    # Cross products of consecutive edges: one sign all round = convex, in order. The
+    # area is the shoelace formula's.
+    turns, twice_area = [], 0.0
     for i in range(4):
         (x0, y0), (x1, y1), (x2, y2) = corners[i], corners[(i + 1) % 4], corners[(i + 2) % 4]
         turns.append((x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1))
-    area = 0.5 * abs(
-        sum(
-            corners[i][0] * corners[(i + 1) % 4][1] - corners[(i + 1) % 4][0] * corners[i][1]
-            for i in range(4)
-        )
-    )
+        twice_area += x0 * y1 - x1 * y0
+    area = 0.5 * abs(twice_area)
     if area < 1.0 or not (all(t > 0 for t in turns) or all(t < 0 for t in turns)):
         raise ValueError(
             f"warp_corners {[list(p) for p in corners]} do not span a convex quadrilateral "
@@ -275,7 +261,8 @@ PLAIN_GEOMETRY = FrameGeometry()
 """Frames as the camera delivers them."""
 
 MINI_CAPTURE_SIZE = (2464, 3280)
-"""(H, W) px the GelSight Mini is asked for (MJPG); it may deliver another mode."""
+"""(H, W) px the GelSight Mini is asked for (MJPG, nominally 25 fps, about 18 on Linux);
+it may deliver another mode."""
 
 MINI_GEOMETRY = FrameGeometry(crop_fraction=1.0 / 7.0, output_size=(240, 320))
 """GelSight Mini: 1/7 of each side cropped (the gel's unlit border), resized to 320 x 240
@@ -444,15 +431,14 @@ class StampedOnArrival(FrameSourceBase):
         try:
             while not self._stop.is_set():
                 item = self.inner._grab()
-                if item is None or self._queue.qsize() >= self.max_pending:
-                    if item is not None:
-                        item = SensorError(
-                            f"{self.name}: {self.max_pending} frames wait to be processed; "
-                            "the estimator cannot keep up with the sensor"
-                        )
-                    self._queue.put(item)
-                    return
+                if item is not None and self._queue.qsize() >= self.max_pending:
+                    item = SensorError(
+                        f"{self.name}: {self.max_pending} frames wait to be processed; "
+                        "the estimator cannot keep up with the sensor"
+                    )
                 self._queue.put(item)
+                if item is None or isinstance(item, SensorError):
+                    return
         except BaseException as err:  # handed to the consumer, raised there
             self._queue.put(err)
 

@@ -1,36 +1,27 @@
 """Streaming estimation from a live sensor: frames with force/width readings one at a time.
 
-The dataset's three frames were chosen after the grasp, from the whole recording
-(``DATA_FORMATS.md``, "How the three frames were chosen"):
-
-* ``i_start`` = first frame with F >= 5 N (contact onset);
-* ``i_peak`` = first frame with F >= 0.975 F_max;
-* the three frames = ``i_start + floor(linspace(0, i_peak - i_start, 3))``.
-
-The rule itself, :func:`select_frame_indices`, lives in ``data.frame_selection`` (the
-synthetic generator and ``acquisition.recording`` use it too) and is re-exported here.
-A live stream does not know F_max yet. :class:`StreamingEstimator` applies the same rule to
-the frames received so far (F_max = the largest force *so far*). While the gripper
-loads, ``i_peak`` is the newest frame, so every new frame gives a new selection and a
-refined provisional estimate; once the force levels off the selection stops changing.
-The estimate becomes final when the grasp is released (force below
-``release_fraction`` x F_max) or when :meth:`StreamingEstimator.finish` is called. At
-that point the selection is the whole-trajectory selection, so the final estimate equals
-:func:`predict_trajectory` on the same recording (the batch estimate).
+The dataset chose its three frames after the grasp, from the whole recording
+(``data.frame_selection.select_frame_indices``: from the first frame with F >= 5 N to the
+first with F >= 0.975 F_max). A live stream does not know F_max yet, so
+:class:`StreamingEstimator` applies the same rule to the frames so far (F_max = the
+largest force *so far*). While the gripper loads, ``i_peak`` is the newest frame, so
+every new frame gives a new selection and a refined provisional estimate; once the force
+levels off the selection stops changing. The estimate becomes final when the grasp is
+released (force below ``release_fraction`` x F_max) or on
+:meth:`StreamingEstimator.finish`; its selection is then the whole-trajectory one, so it
+equals :func:`predict_trajectory` (the batch estimate) on the same recording.
 
 **Frame rate.** The published rule picks frames by index, which assumes a constant frame
 rate. Real sensors do not keep one (a GelSight Mini streams about 18 fps on Linux with
-uneven gaps, the dataset was recorded at 30 fps, other cameras run at 60), so every
-function here also takes each frame's timestamp (``timestamp_s=`` with
-:meth:`StreamingEstimator.update`, ``timestamps_s=`` for :func:`predict_trajectory` and
-:func:`select_frame_indices`). With timestamps the three frames are the frames nearest in
-time to ``linspace(t_start, t_peak, 3)`` (a tie goes to the earlier frame), where
-``t_start`` and ``t_peak`` are the times of ``i_start`` and ``i_peak``. At a constant
-frame rate that is exactly the index rule above (``floor`` of the half-way index is the
-earlier of two equally near frames); at an uneven rate the middle frame is the one at the
-middle *moment* of the press, whatever frames were dropped. Without timestamps the index
-rule is kept unchanged. Timestamps must increase: one that does not is refused with an
-error and the frames already buffered are kept.
+uneven gaps, the dataset was recorded at 30 fps, other cameras run at 60), so everything
+here also takes each frame's timestamp (``timestamp_s=`` with
+:meth:`StreamingEstimator.update`, ``timestamps_s=`` for :func:`predict_trajectory`).
+The three frames are then the frames nearest in time to ``linspace(t_start, t_peak, 3)``:
+at a constant frame rate exactly the index rule, at an uneven rate the middle frame is the
+one at the middle *moment* of the press, whatever frames were dropped
+(``data.frame_selection``). Without timestamps the index rule is kept unchanged.
+Timestamps must increase: one that does not is refused with an error and the frames
+already buffered are kept.
 
 ``window=n`` is the paper's future-work variant "estimate from the last n frames instead
 of the whole trajectory": the three frames are spread over the last ``n`` frames up to
@@ -43,15 +34,14 @@ frames are spread over the last ``window_s`` seconds up to ``t_peak`` (frames wi
 ``t_peak - t <= window_s``), i.e. ``window=n`` at ``fps`` is ``window_s=(n - 1) / fps``.
 
 Frames are either difference images (``frame_kind="difference"``, as stored in the
-dataset: uint8 or float in [0, 1]) or raw uint8 camera frames (``frame_kind="raw"``);
-raw frames are turned into difference images ``(frame - GaussianBlur11x11(reference)) /
-255 + 0.5`` with the no-contact ``reference`` frame (default: the first frame received),
-then quantised like the store (``data.store.frames_to_uint8``).
+dataset: uint8 or float in [0, 1]) or raw uint8 camera frames (``frame_kind="raw"``),
+differenced against the no-contact ``reference`` frame (default: the first frame
+received) as the importer does (:func:`difference_image`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
@@ -158,21 +148,8 @@ class StreamEstimate:
     window_s: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly dict."""
-        return {
-            "modulus_pa": self.modulus_pa,
-            "log10_modulus_pa": self.log10_modulus_pa,
-            "frame_indices": list(self.frame_indices),
-            "onset_frame": self.onset_frame,
-            "peak_frame": self.peak_frame,
-            "frames_seen": self.frames_seen,
-            "final": self.final,
-            "force_n": list(self.force_n),
-            "width_m": list(self.width_m) if self.width_m is not None else None,
-            "window": self.window,
-            "frame_times_s": list(self.frame_times_s) if self.frame_times_s else None,
-            "window_s": self.window_s,
-        }
+        """JSON-friendly dict (lists for tuples)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
 
 def _check_reading(name: str, value: Any, unit: str) -> float:
@@ -209,13 +186,11 @@ class StreamingEstimator:
     final = stream.finish()                             # or: emitted on release
     ```
 
-    What the stream needs: a frame and the normal force (N) with every update (the frame
-    selection is by force, so even Image models need force); the gripper width (m) when
-    the checkpoint uses width; for ALL checkpoints the analytical estimates (elastic E,
-    Hertz E*) in Pa, either given once (``estimates_pa=``, at construction or with any
-    update) or computed on the fly from per-frame depth maps (``depth_mm=`` with each
-    update, with the estimator that made the training data's values: the checkpoint's
-    ``RunInputs.estimator``, over its ``window_start``).
+    Every update needs a frame and the normal force (N): the selection is by force, so
+    even Image models need it; the gripper width (m) when the checkpoint uses width. ALL
+    checkpoints need the analytical estimates (elastic E, Hertz E*) in Pa: given once
+    (``estimates_pa=``, here or with any update) or computed from a depth map given with
+    every update (``depth_mm=``).
 
     Args:
         estimator: a :class:`~tactile_compliance.inference.estimator.ComplianceEstimator`
@@ -228,11 +203,9 @@ class StreamingEstimator:
             ``"raw"`` (uint8 camera frames, differenced against ``reference``).
         reference: raw no-contact frame for ``frame_kind="raw"``; default the first frame.
         channel_order: ``"RGB"`` or ``"BGR"`` (OpenCV cameras) of the frames.
-        estimates_pa: (elastic, Hertz) in Pa, for ALL checkpoints.
-        analytical_estimator: the estimator computing E from ``depth_mm``
-            (``physics.estimators.AnalyticalEstimator``); default the checkpoint's
-            (``RunInputs.estimator``, at its sensor's pixel density), so live values
-            follow the training data's distribution.
+        analytical_estimator: the estimator computing E from ``depth_mm``; default the
+            checkpoint's (``RunInputs.estimator``, at its sensor's pixel density, over its
+            ``window_start``), so live values follow the training data's distribution.
         onset_force_n, peak_fraction, min_peak_force_n: the selection rule (dataset values).
         release_fraction: the grasp ends (final estimate) when, after reaching the minimum
             peak force, the force falls below this fraction of F_max.
@@ -282,7 +255,9 @@ class StreamingEstimator:
         self.release_fraction = float(release_fraction)
         self.max_frames = int(max_frames)
         self._initial_reference = None if reference is None else self._check_raw(reference)
-        self._initial_estimates = estimates_pa
+        self._initial_estimates = (
+            None if estimates_pa is None else self._check_estimates(estimates_pa)
+        )
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -290,11 +265,7 @@ class StreamingEstimator:
         """Forget the current grasp (keeps the options and an explicit reference frame)."""
         self._buffer = _Buffer()
         self._reference = self._initial_reference
-        self._estimates_pa = (
-            None
-            if self._initial_estimates is None
-            else self._check_estimates(self._initial_estimates)
-        )
+        self._estimates_pa = self._initial_estimates
         self._frame_shape: tuple[int, ...] | None = None
         self._last: StreamEstimate | None = None
         self._last_key: tuple[Any, ...] | None = None
@@ -386,15 +357,12 @@ class StreamingEstimator:
 
         Args:
             frame: (H, W, 3) difference image or raw frame (see ``frame_kind``).
-            force_n: normal force in N at this frame.
-            width_m: gripper width in m at this frame (needed when the model uses width).
             estimates_pa: (elastic E, Hertz E*) in Pa, replaces earlier values.
             depth_mm: (H', W') gel depth map in mm of this frame, to compute the estimates
                 on the fly (give it with every frame or never).
             timestamp_s: when the frame was captured, in s on any clock that only moves
                 forward (e.g. ``time.monotonic()`` or the camera's); give it with every
-                frame or never. With timestamps the frames are selected in time, not by
-                index (see the module docstring).
+                frame or never. With timestamps the frames are selected in time.
             provisional: False adds the frame without a provisional estimate (a consumer
                 that is behind its sensor catches up); the final estimate is the same.
 
@@ -407,16 +375,12 @@ class StreamingEstimator:
             return None
         array = self._check_frame(frame)
         force = _check_reading("force_n", force_n, "N")
-        needs_width = "width" in self.estimator.required_inputs
-        if width_m is None:
-            if needs_width:
-                raise ValueError(
-                    f"this checkpoint uses inputs={self.estimator.inputs.value}: every "
-                    f"update needs width_m (gripper width in m)"
-                )
-            width = float("nan")
-        else:
-            width = _check_reading("width_m", width_m, "m")
+        if width_m is None and "width" in self.estimator.required_inputs:
+            raise ValueError(
+                f"this checkpoint uses inputs={self.estimator.inputs.value}: every "
+                f"update needs width_m (gripper width in m)"
+            )
+        width = float("nan") if width_m is None else _check_reading("width_m", width_m, "m")
         time_s = self._check_timestamp(timestamp_s)
         if estimates_pa is not None:
             self._estimates_pa = self._check_estimates(estimates_pa)
@@ -492,15 +456,7 @@ class StreamingEstimator:
         else:
             # i_peak never moves backwards (F_max only grows), so frames before the
             # current window start are never selected again.
-            selection = select_frame_indices(
-                forces,
-                window=self.window,
-                timestamps_s=self._times(),
-                window_s=self.window_s,
-                onset_force_n=self.onset_force_n,
-                peak_fraction=self.peak_fraction,
-                min_peak_force_n=0.0,
-            )
+            selection = self._select(any_peak=True)
             keep_from = selection.window_start if selection is not None else int(onset[0])
         drop = keep_from - buf.offset
         if drop > 0:
@@ -534,25 +490,17 @@ class StreamingEstimator:
         return estimate
 
     # ------------------------------------------------------------------ estimation
-    def _times(self) -> list[float] | None:
-        """Timestamps (s) of every frame so far, None for an untimed stream."""
-        return self._buffer.times if self._has_times else None
-
-    def _select(self) -> FrameSelection | None:
+    def _select(self, *, any_peak: bool = False) -> FrameSelection | None:
+        """The selection on the frames so far; ``any_peak`` waives the minimum peak force."""
         return select_frame_indices(
             self._buffer.forces,
             window=self.window,
-            timestamps_s=self._times(),
+            timestamps_s=self._buffer.times if self._has_times else None,
             window_s=self.window_s,
             onset_force_n=self.onset_force_n,
             peak_fraction=self.peak_fraction,
-            min_peak_force_n=self.min_peak_force_n,
+            min_peak_force_n=0.0 if any_peak else self.min_peak_force_n,
         )
-
-    def _frames_at(self, indices: tuple[int, ...]) -> np.ndarray:
-        buf = self._buffer
-        frames = np.stack([buf.frames[i - buf.offset] for i in indices])
-        return _as_difference_images(frames, self.frame_kind, self._reference)
 
     def _current_estimates(self, selection: FrameSelection, final: bool) -> np.ndarray | None:
         if self._estimates_pa is not None or not self._has_depth:
@@ -595,7 +543,7 @@ class StreamingEstimator:
             if not final:
                 return None
             # Same frames as the last refinement: the final estimate is that one.
-            estimate = _replace_final(self._last, self.frames_seen)
+            estimate = replace(self._last, final=True, frames_seen=self.frames_seen)
         else:
             estimate = self._predict(selection, estimates, final)
         self._last, self._last_key = estimate, key
@@ -605,12 +553,13 @@ class StreamingEstimator:
     def _predict(
         self, selection: FrameSelection, estimates: np.ndarray | None, final: bool
     ) -> StreamEstimate:
-        idx = selection.indices
-        forces = tuple(float(self._buffer.forces[i]) for i in idx)
-        widths_all = np.asarray(self._buffer.widths)[list(idx)]
+        idx, buf = selection.indices, self._buffer
+        forces = tuple(float(buf.forces[i]) for i in idx)
+        widths_all = np.asarray(buf.widths)[list(idx)]
         widths = None if np.isnan(widths_all).any() else tuple(float(w) for w in widths_all)
+        frames = np.stack([buf.frames[i - buf.offset] for i in idx])
         prediction: Prediction = self.estimator.predict(
-            self._frames_at(idx),
+            _as_difference_images(frames, self.frame_kind, self._reference),
             force=np.asarray(forces),
             width=None if widths is None else np.asarray(widths),
             estimates=estimates,
@@ -630,10 +579,6 @@ class StreamingEstimator:
             frame_times_s=selection.times_s,
             window_s=self.window_s,
         )
-
-
-def _replace_final(estimate: StreamEstimate, frames_seen: int) -> StreamEstimate:
-    return replace(estimate, final=True, frames_seen=frames_seen)
 
 
 def predict_trajectory(
@@ -657,13 +602,12 @@ def predict_trajectory(
 
     Args:
         frames: (T, H, W, 3) difference images (or raw frames with ``frame_kind="raw"``).
-        force_n: (T,) normal force in N.
-        width_m: (T,) gripper width in m (when the model uses width).
+        force_n, width_m: (T,) normal force in N, gripper width in m (when the model uses
+            width).
         estimates_pa: (elastic E, Hertz E*) in Pa (ALL models).
-        window: None (dataset rule) or the last ``n`` frames up to the peak.
-        timestamps_s: (T,) capture times in s (increasing): select the frames in time
-            (see the module docstring); None keeps the index rule.
-        window_s: the last ``window_s`` seconds up to the peak (needs ``timestamps_s``).
+        timestamps_s: (T,) capture times in s (increasing): select the frames in time;
+            None keeps the index rule.
+        window, window_s: as :class:`StreamingEstimator`'s.
 
     Returns:
         (prediction for the grasp, the frame selection used).
