@@ -258,11 +258,6 @@ def describe_runs(frame: pd.DataFrame, extra: str = "") -> str:
     return text + (f"; {extra}" if extra else "")
 
 
-def _stat_fields(rec: Any) -> dict[str, Any]:
-    """The numbers of one :func:`summarise` record, as every tidy table row carries them."""
-    return {"mean": rec.mean, "std": rec.std, "n": rec.n, "seeds": rec.seeds}
-
-
 def _ddof_text(ddof: int) -> str:
     return (
         f"mean ± std over seeds (std with ddof={ddof}; one run shows the mean alone); "
@@ -358,7 +353,8 @@ def _pivot(
             cells.append(Cell(rec.mean, rec.std, bold=best[j][i], digits=digits))
             runs.append(rec.n)
             flag = {"bold": best[j][i]} if bold else {}
-            out.tidy.append({**head, **row, **column, **_stat_fields(rec), **flag})
+            numbers = {"mean": rec.mean, "std": rec.std, "n": rec.n, "seeds": rec.seeds}
+            out.tidy.append({**head, **row, **column, **numbers, **flag})
         out.cells.append(cells)
         out.runs.append(runs)
     return out
