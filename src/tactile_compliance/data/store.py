@@ -100,35 +100,22 @@ MAX_ABS_DEPTH_MM = 100.0
 
 FINGERS = ("markerless", "markers")
 
-# Column order of samples.parquet. Units: forces in N, widths in m, moduli and
-# estimates in Pa, depths in mm. Missing values are NaN (e.g. the Shore-hardness
-# videos have no force, width, estimates or depth).
-SAMPLE_COLUMNS: tuple[str, ...] = (
-    "sample_id",
-    "object",
-    "grasp",
-    "augmentation",
-    "finger",
-    "material",
-    "shape",
-    "modulus_pa",
-    "force_n_0",
-    "force_n_1",
-    "force_n_2",
-    "width_m_0",
-    "width_m_1",
-    "width_m_2",
-    "elastic_estimate_pa",
-    "hertz_estimate_pa",
-    "depth_max_mm_0",
-    "depth_max_mm_1",
-    "depth_max_mm_2",
-    "source_path",
-)
 FORCE_COLUMNS = ("force_n_0", "force_n_1", "force_n_2")
 WIDTH_COLUMNS = ("width_m_0", "width_m_1", "width_m_2")
 ESTIMATE_COLUMNS = ("elastic_estimate_pa", "hertz_estimate_pa")
 DEPTH_COLUMNS = ("depth_max_mm_0", "depth_max_mm_1", "depth_max_mm_2")
+# Column order of samples.parquet. Units: forces in N, widths in m, moduli and
+# estimates in Pa, depths in mm. Missing values are NaN (e.g. the Shore-hardness
+# videos have no force, width, estimates or depth).
+SAMPLE_COLUMNS: tuple[str, ...] = (
+    *("sample_id", "object", "grasp", "augmentation", "finger", "material", "shape"),
+    "modulus_pa",
+    *FORCE_COLUMNS,
+    *WIDTH_COLUMNS,
+    *ESTIMATE_COLUMNS,
+    *DEPTH_COLUMNS,
+    "source_path",
+)
 #: The plausibility rule of each numeric column. NaN (missing) is allowed in all of them
 #: but ``modulus_pa``, the training label.
 COLUMN_RULES: dict[str, PlausibleRange] = {
@@ -235,13 +222,11 @@ def _column_numbers(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
 def validate_samples(samples: pd.DataFrame) -> list[str]:
     """What is wrong with a store's table, one message per problem (empty: nothing).
 
-    Checks the columns every later step relies on: all of :data:`SAMPLE_COLUMNS` present;
-    ``sample_id`` equal to the row number 0..N-1 (it is the index into ``frames.u8``), so
-    unique; ``modulus_pa`` a finite number within the plausible label range (> 0 Pa) in
-    every row (the training label); the force, width and estimate columns numbers within
-    their plausible ranges or NaN (missing), see :data:`COLUMN_RULES`. A column of another
-    dtype (datetime, complex, bool) is a problem of its own, never cast.
-    Messages name the column and the first bad rows (0-based row numbers).
+    Checks what every later step relies on: all of :data:`SAMPLE_COLUMNS`; ``sample_id``
+    equal to the row number (the index into ``frames.u8``); every numeric column within
+    its rule of :data:`COLUMN_RULES` or NaN (missing), but ``modulus_pa``, the training
+    label, is never NaN. A column of another dtype (datetime, complex, bool) is a problem
+    of its own, never cast. Messages name the column and the first bad (0-based) rows.
     """
     problems = []
     missing = [c for c in SAMPLE_COLUMNS if c not in samples.columns]
@@ -663,9 +648,9 @@ class GraspStore:
     def read_block(self, start: int, stop: int) -> np.ndarray:
         """Frames of samples ``start..stop-1``, uint8 (n, 3, H, W, 3), in one ``os.pread``.
 
-        Like :meth:`read_sample`, this maps no file pages into the process: slicing the
-        memmap instead made a pass over a 6 GB store (the feature cache) count all 6 GB
-        in the process's resident memory.
+        Unlike slicing the memmap, this maps no file pages into the process: a pass over a
+        6 GB store (a training epoch, the feature cache) would otherwise count all 6 GB in
+        the process's resident memory (the OS page cache still speeds up repeated reads).
         """
         if not 0 <= start <= stop <= len(self):
             raise IndexError(f"samples {start}..{stop} out of range (store has {len(self)})")
@@ -688,13 +673,8 @@ class GraspStore:
         return self._fd
 
     def read_sample(self, sample_id: int) -> np.ndarray:
-        """One sample's frames, uint8 (3, H, W, 3), read with ``os.pread``.
-
-        Unlike indexing the memmap, this keeps no file pages mapped into the process, so
-        a training epoch over a 6 GB store does not grow the process's resident memory
-        (the OS page cache still speeds up repeated reads). Safe in DataLoader workers:
-        each process opens its own descriptor.
-        """
+        """One sample's frames, uint8 (3, H, W, 3), read like :meth:`read_block` (safe in
+        DataLoader workers: each process opens its own descriptor)."""
         if not 0 <= sample_id < len(self):
             raise IndexError(f"sample {sample_id} out of range (store has {len(self)})")
         return self.read_block(sample_id, sample_id + 1)[0]
