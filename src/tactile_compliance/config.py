@@ -366,11 +366,9 @@ def _unknown_key_message(dotted: str, parent: Sequence[Any]) -> str:
 def _format_errors(exc: ValidationError, origin: str) -> ConfigError:
     lines = []
     for err in exc.errors():
-        loc = [p for p in err["loc"]]
+        loc = list(err["loc"])
         dotted = ".".join(map(str, loc))
-        msg = str(err["msg"])
-        if msg.startswith("Value error, "):
-            msg = msg[len("Value error, ") :]
+        msg = str(err["msg"]).removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             lines.append(_unknown_key_message(dotted, loc[:-1]))
         elif not loc:
@@ -456,18 +454,17 @@ def _read_source(
     text = str(ref)
     stem = text[: -len(".yaml")] if text.endswith(".yaml") else text
     is_bare_name = isinstance(ref, str) and "/" not in text and "\\" not in text
+    is_preset = is_bare_name and (_preset_dir() / f"{stem}.yaml").is_file()
     if path.is_file():
         body, origin, directory = path.read_text(encoding="utf-8"), str(path), path.parent
-    elif is_bare_name and (_preset_dir() / f"{stem}.yaml").is_file():
+    elif is_preset or (is_bare_name and not text.endswith((".yaml", ".yml"))):
+        # preset_path raises, naming the presets, for a name that is none of them.
         body = preset_path(stem).read_text(encoding="utf-8")
         origin, directory = f"preset {stem}", None
-    elif not is_bare_name or text.endswith((".yaml", ".yml")):
+    else:
         raise ConfigError(
             f"config file {path} does not exist (presets: {', '.join(list_presets())})"
         )
-    else:
-        preset_path(text)  # raises: names the presets
-        raise AssertionError("unreachable")
     data = parse_yaml(body, origin)
     if data is None:
         data = {}
@@ -570,11 +567,9 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
     parts = dotted.split(".")
     node = data
     for part in parts[:-1]:
-        child = node.get(part)
-        if not isinstance(child, dict):
-            child = {}
-            node[part] = child
-        node = child
+        if not isinstance(node.get(part), dict):
+            node[part] = {}
+        node = node[part]
     node[parts[-1]] = value
 
 

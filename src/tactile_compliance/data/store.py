@@ -9,14 +9,11 @@ A store is a directory::
       frames.u8         raw uint8 array (N, 3 frames, H, W, 3 channels), RGB, memory-mapped
       depth.f16         optional: float16 gel depth maps in mm (N, 3 frames, h, w), see below
 
-Frames are difference images (values centred near 0.5) quantised to uint8 as
-``floor(x * 255)`` and decoded as ``(u + 0.5) / 255`` (see :func:`frames_to_uint8`); that
-is the camera's own quantisation step, and it makes a
-7,840-sample full-resolution store 6.2 GB on disk instead of 25 GB of float32, read
-lazily through ``np.memmap`` so nothing is loaded into RAM until a sample is asked for.
-The encoding holds differences of -127 to +128 grey levels; larger ones are clipped to
-those (:data:`MIN_DIFFERENCE_LEVEL`, :data:`MAX_DIFFERENCE_LEVEL`), and the writer counts
-every clipped value (:attr:`GraspStoreWriter.clipped_frame_values`) for the import report.
+Frames are difference images (values centred near 0.5) quantised to uint8 at the
+camera's own step (:func:`frames_to_uint8`): a 7,840-sample full-resolution store is 6.2 GB
+on disk instead of 25 GB of float32, read lazily so nothing is loaded into RAM until a
+sample is asked for. Differences beyond -127..+128 grey levels are clipped, and the writer
+counts them (:attr:`GraspStoreWriter.clipped_frame_values`) for the import report.
 
 Depth maps (optional, ``header.json`` ``depth_size``; stores without them open unchanged):
 the gel's indentation depth of every frame in mm, as the dataset's ``depth*.pkl`` give it,
@@ -48,7 +45,7 @@ import secrets
 import shutil
 import socket
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -103,35 +100,22 @@ MAX_ABS_DEPTH_MM = 100.0
 
 FINGERS = ("markerless", "markers")
 
-# Column order of samples.parquet. Units: forces in N, widths in m, moduli and
-# estimates in Pa, depths in mm. Missing values are NaN (e.g. the Shore-hardness
-# videos have no force, width, estimates or depth).
-SAMPLE_COLUMNS: tuple[str, ...] = (
-    "sample_id",
-    "object",
-    "grasp",
-    "augmentation",
-    "finger",
-    "material",
-    "shape",
-    "modulus_pa",
-    "force_n_0",
-    "force_n_1",
-    "force_n_2",
-    "width_m_0",
-    "width_m_1",
-    "width_m_2",
-    "elastic_estimate_pa",
-    "hertz_estimate_pa",
-    "depth_max_mm_0",
-    "depth_max_mm_1",
-    "depth_max_mm_2",
-    "source_path",
-)
 FORCE_COLUMNS = ("force_n_0", "force_n_1", "force_n_2")
 WIDTH_COLUMNS = ("width_m_0", "width_m_1", "width_m_2")
 ESTIMATE_COLUMNS = ("elastic_estimate_pa", "hertz_estimate_pa")
 DEPTH_COLUMNS = ("depth_max_mm_0", "depth_max_mm_1", "depth_max_mm_2")
+# Column order of samples.parquet. Units: forces in N, widths in m, moduli and
+# estimates in Pa, depths in mm. Missing values are NaN (e.g. the Shore-hardness
+# videos have no force, width, estimates or depth).
+SAMPLE_COLUMNS: tuple[str, ...] = (
+    *("sample_id", "object", "grasp", "augmentation", "finger", "material", "shape"),
+    "modulus_pa",
+    *FORCE_COLUMNS,
+    *WIDTH_COLUMNS,
+    *ESTIMATE_COLUMNS,
+    *DEPTH_COLUMNS,
+    "source_path",
+)
 #: The plausibility rule of each numeric column. NaN (missing) is allowed in all of them
 #: but ``modulus_pa``, the training label.
 COLUMN_RULES: dict[str, PlausibleRange] = {
@@ -173,13 +157,9 @@ MAX_DIFFERENCE_LEVEL = 128
 
 
 def encode_frames(frames: np.ndarray) -> tuple[np.ndarray, int]:
-    """:func:`frames_to_uint8` and the number of values it clipped to 0 or 255.
-
-    A float value is clipped when ``floor(x * 255)`` leaves 0..255, i.e. a difference of
-    fewer than -127 or more than +128 grey levels (x < 0 or x >= 1 + 1/255): the
-    saturated pixels the frame rule allows (:data:`~tactile_compliance.data.plausibility.
-    FRAME`). uint8 input is stored unchanged and never clipped.
-    """
+    """:func:`frames_to_uint8` and the number of values it clipped to 0 or 255 (the
+    saturated pixels the frame rule :data:`~tactile_compliance.data.plausibility.FRAME`
+    allows); uint8 input is never clipped."""
     frames = np.asarray(frames)
     if frames.dtype == np.uint8:
         return frames, 0
@@ -199,19 +179,17 @@ def frames_to_uint8(frames: np.ndarray) -> np.ndarray:
     floats are reproduced within half a grey level, without bias. uint8 input (raw camera
     frames) is stored unchanged.
 
-    Clipping: only differences k of -127..+128 grey levels fit (:data:`MIN_DIFFERENCE_LEVEL`,
-    :data:`MAX_DIFFERENCE_LEVEL`); k <= -128 is stored as -127 and k >= +129 as +128, like
-    any value below 0 or from 1 + 1/255 up. :func:`encode_frames` also returns how
-    many values were clipped; the store writer counts them for the import report.
+    Only differences k of -127..+128 grey levels fit (:data:`MIN_DIFFERENCE_LEVEL`,
+    :data:`MAX_DIFFERENCE_LEVEL`): any value below 0 or from 1 + 1/255 up is clipped to
+    the nearest end, and :func:`encode_frames` counts it.
     """
     return encode_frames(frames)[0]
 
 
 def frames_from_uint8(frames: np.ndarray) -> np.ndarray:
     """Decode stored uint8 frames to float32 ``(u + 0.5) / 255`` (inverse of the encoding)."""
-    return (np.asarray(frames, dtype=np.float32) + np.float32(FRAME_DECODE_OFFSET)) / np.float32(
-        255.0
-    )
+    decoded = np.asarray(frames, dtype=np.float32) + np.float32(FRAME_DECODE_OFFSET)
+    return decoded / np.float32(255.0)
 
 
 def depth_size_for(image_size: tuple[int, int]) -> tuple[int, int]:
@@ -244,13 +222,11 @@ def _column_numbers(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
 def validate_samples(samples: pd.DataFrame) -> list[str]:
     """What is wrong with a store's table, one message per problem (empty: nothing).
 
-    Checks the columns every later step relies on: all of :data:`SAMPLE_COLUMNS` present;
-    ``sample_id`` equal to the row number 0..N-1 (it is the index into ``frames.u8``), so
-    unique; ``modulus_pa`` a finite number within the plausible label range (> 0 Pa) in
-    every row (the training label); the force, width and estimate columns numbers within
-    their plausible ranges or NaN (missing), see :data:`COLUMN_RULES`. A column of another
-    dtype (datetime, complex, bool) is a problem of its own, never cast.
-    Messages name the column and the first bad rows (0-based row numbers).
+    Checks what every later step relies on: all of :data:`SAMPLE_COLUMNS`; ``sample_id``
+    equal to the row number (the index into ``frames.u8``); every numeric column within
+    its rule of :data:`COLUMN_RULES` or NaN (missing), but ``modulus_pa``, the training
+    label, is never NaN. A column of another dtype (datetime, complex, bool) is a problem
+    of its own, never cast. Messages name the column and the first bad (0-based) rows.
     """
     problems = []
     missing = [c for c in SAMPLE_COLUMNS if c not in samples.columns]
@@ -525,6 +501,19 @@ def read_samples_table(path: str | Path) -> pd.DataFrame:
         raise StoreError(f"{table}: cannot read the table ({err})") from err
 
 
+def _map_array(path: Path, dtype: type[np.generic], shape: tuple[int, ...], what: str) -> Any:
+    """``path`` mapped read-only as ``shape``; :class:`StoreError` unless its size fits."""
+    expected = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    actual = path.stat().st_size if path.exists() else -1
+    if actual != expected:
+        raise StoreError(
+            f"{path}: expected {expected} bytes for {what} of shape {shape}, found {actual}"
+        )
+    if expected == 0:  # np.memmap cannot map an empty file
+        return np.zeros(shape, dtype=dtype)
+    return np.memmap(path, dtype=dtype, mode="r", shape=shape)
+
+
 class GraspStore:
     """Read access to a store directory; frames stay on disk until indexed."""
 
@@ -532,46 +521,22 @@ class GraspStore:
         self.path = path
         self.header = header
         self.samples = samples
-        height, width = header.image_size
-        shape = (header.num_samples, FRAMES_PER_SAMPLE, height, width, 3)
-        frames_path = path / FRAMES_FILE
-        expected_bytes = int(np.prod(shape))
-        actual_bytes = frames_path.stat().st_size if frames_path.exists() else -1
-        if actual_bytes != expected_bytes:
-            raise StoreError(
-                f"{frames_path}: expected {expected_bytes} bytes for frames of shape {shape}, "
-                f"found {actual_bytes}"
-            )
-        if expected_bytes == 0:
-            self.frames = np.zeros(shape, dtype=np.uint8)
-        else:
-            self.frames = np.memmap(frames_path, dtype=np.uint8, mode="r", shape=shape)
-        self._frames_path = frames_path
-        self._sample_bytes = int(np.prod(shape[1:]))
+        self._frames_path = path / FRAMES_FILE
+        self._depth_path = path / DEPTH_FILE
+        self._sample_bytes = FRAMES_PER_SAMPLE * int(np.prod(header.image_size)) * 3
         self._fd: int | None = None
         self._fd_pid = -1
-        self._depth_path = path / DEPTH_FILE
-        self.depth: np.ndarray | None = None
-        self._open_depth()
+        self._map_files()
 
-    def _open_depth(self) -> None:
-        """Map ``depth.f16`` read-only when the header names depth maps (checks its size)."""
-        if self.header.depth_size is None:
-            self.depth = None
-            return
-        shape = (self.header.num_samples, FRAMES_PER_SAMPLE, *self.header.depth_size)
-        expected = int(np.prod(shape)) * 2
-        actual = self._depth_path.stat().st_size if self._depth_path.exists() else -1
-        if actual != expected:
-            raise StoreError(
-                f"{self._depth_path}: expected {expected} bytes for depth maps of shape "
-                f"{shape} (float16), found {actual}"
-            )
-        self.depth = (
-            np.zeros(shape, dtype=np.float16)
-            if expected == 0
-            else np.memmap(self._depth_path, dtype=np.float16, mode="r", shape=shape)
-        )
+    def _map_files(self) -> None:
+        """Map the frames and, when the header names them, the depth maps (sizes checked)."""
+        samples = (self.header.num_samples, FRAMES_PER_SAMPLE)
+        shape = (*samples, *self.header.image_size, 3)
+        self.frames: np.ndarray = _map_array(self._frames_path, np.uint8, shape, "frames")
+        self.depth: np.ndarray | None = None
+        if self.header.depth_size is not None:
+            shape = (*samples, *self.header.depth_size)
+            self.depth = _map_array(self._depth_path, np.float16, shape, "depth maps (float16)")
 
     @classmethod
     def open(cls, path: str | Path, *, validate: bool = True) -> GraspStore:
@@ -683,9 +648,9 @@ class GraspStore:
     def read_block(self, start: int, stop: int) -> np.ndarray:
         """Frames of samples ``start..stop-1``, uint8 (n, 3, H, W, 3), in one ``os.pread``.
 
-        Like :meth:`read_sample`, this maps no file pages into the process: slicing the
-        memmap instead made a pass over a 6 GB store (the feature cache) count all 6 GB
-        in the process's resident memory.
+        Unlike slicing the memmap, this maps no file pages into the process: a pass over a
+        6 GB store (a training epoch, the feature cache) would otherwise count all 6 GB in
+        the process's resident memory (the OS page cache still speeds up repeated reads).
         """
         if not 0 <= start <= stop <= len(self):
             raise IndexError(f"samples {start}..{stop} out of range (store has {len(self)})")
@@ -708,13 +673,8 @@ class GraspStore:
         return self._fd
 
     def read_sample(self, sample_id: int) -> np.ndarray:
-        """One sample's frames, uint8 (3, H, W, 3), read with ``os.pread``.
-
-        Unlike indexing the memmap, this keeps no file pages mapped into the process, so
-        a training epoch over a 6 GB store does not grow the process's resident memory
-        (the OS page cache still speeds up repeated reads). Safe in DataLoader workers:
-        each process opens its own descriptor.
-        """
+        """One sample's frames, uint8 (3, H, W, 3), read like :meth:`read_block` (safe in
+        DataLoader workers: each process opens its own descriptor)."""
         if not 0 <= sample_id < len(self):
             raise IndexError(f"sample {sample_id} out of range (store has {len(self)})")
         return self.read_block(sample_id, sample_id + 1)[0]
@@ -729,12 +689,7 @@ class GraspStore:
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
-        shape = (self.header.num_samples, FRAMES_PER_SAMPLE, *self.header.image_size, 3)
-        if self._sample_bytes * self.header.num_samples == 0:
-            self.frames = np.zeros(shape, dtype=np.uint8)
-        else:
-            self.frames = np.memmap(self._frames_path, dtype=np.uint8, mode="r", shape=shape)
-        self._open_depth()
+        self._map_files()
 
     def forces_n(self) -> np.ndarray:
         """Normal force at the three frames, (N, 3) in N."""
@@ -891,7 +846,7 @@ class GraspStoreWriter:
         self._check_target()
         self._created = _missing_ancestors(self.path.parent)
         self._tmp = self.path.with_name(f".{self.path.name}.partial-{secrets.token_hex(4)}")
-        try:
+        with self._discarded_on_os_error():
             for directory in list(self._created):
                 try:
                     os.mkdir(directory)
@@ -914,9 +869,6 @@ class GraspStoreWriter:
                 if self.depth_size is not None
                 else None
             )
-        except OSError as err:
-            self._remove_everything()
-            raise self._write_error(err) from err
 
     def _check_target(self) -> None:
         if not os.path.lexists(self.path):
@@ -929,12 +881,20 @@ class GraspStoreWriter:
                 "refusing to replace it"
             )
 
-    def _write_error(self, err: OSError) -> StoreWriteError:
-        reason = f"[Errno {err.errno}] {err.strerror}" if err.strerror else str(err)
-        return StoreWriteError(f"{self.path}: cannot write the store: {reason}", reason, err.errno)
+    @contextlib.contextmanager
+    def _discarded_on_os_error(self) -> Iterator[None]:
+        """An ``OSError`` (full disk, ...) discards everything: :class:`StoreWriteError`."""
+        try:
+            yield
+        except OSError as err:
+            self.abort()
+            reason = f"[Errno {err.errno}] {err.strerror}" if err.strerror else str(err)
+            message = f"{self.path}: cannot write the store: {reason}"
+            raise StoreWriteError(message, reason, err.errno) from err
 
-    def _remove_everything(self) -> None:
-        """Delete the temporary directory and the parent directories this writer made."""
+    def abort(self) -> None:
+        """Discard everything written so far: the temporary directory and the parent
+        directories this writer made."""
         for handle in (getattr(self, "_frames_file", None), getattr(self, "_depth_file", None)):
             if handle is not None and not handle.closed:
                 # The data is discarded anyway (e.g. a full disk on the last flush).
@@ -966,8 +926,7 @@ class GraspStoreWriter:
         would clip; unknown field, a value that is no number or outside its plausibility
         rule (modulus, force, width, estimates: :data:`COLUMN_RULES`), text that is not
         UTF-8): nothing is written for it. The few saturated pixels the frame rule allows
-        are saturated to [0, 1] by the encoding (differences beyond -127/+128 grey
-        levels); they are counted in :attr:`clipped_frame_values`.
+        are clipped by the encoding and counted in :attr:`clipped_frame_values`.
         """
         if self._closed:
             raise RuntimeError("writer is closed")
@@ -989,13 +948,10 @@ class GraspStoreWriter:
         normalised = _normalise_row(row, sample_id)
         depth_bytes = self._depth_bytes(depth)
         encoded, clipped = encode_frames(frames)
-        try:
+        with self._discarded_on_os_error():
             _write_all(self._frames_file, np.ascontiguousarray(encoded).tobytes())
             if self._depth_file is not None:
                 _write_all(self._depth_file, depth_bytes)
-        except OSError as err:
-            self._remove_everything()
-            raise self._write_error(err) from err
         self._rows.append(normalised)
         self.frame_values += int(encoded.size)
         self.clipped_frame_values += clipped
@@ -1047,7 +1003,7 @@ class GraspStoreWriter:
             creation_parameters=self.creation_parameters,
             depth_size=self.depth_size,
         )
-        try:
+        with self._discarded_on_os_error():
             self._frames_file.close()  # a full disk may only show on this last flush
             if self._depth_file is not None:
                 self._depth_file.close()
@@ -1057,31 +1013,18 @@ class GraspStoreWriter:
             )
             # header.json is written last: with it the directory is a complete store.
             _write_json(self._tmp / HEADER_FILE, header.to_dict())
-        except OSError as err:
-            self._remove_everything()
-            raise self._write_error(err) from err
         try:
             self._check_target()
         except (FileExistsError, NotAStoreError):
             self.abort()
             raise
-        self._swap_into_place()
+        with self._discarded_on_os_error():
+            commit_path(self._tmp, self.path, replace=True)
         self._closed = True
         # A leftover marker would be harmless: only .NAME.partial-* directories are tidied.
         with contextlib.suppress(OSError):
             (self.path / PARTIAL_MARKER).unlink()
         return GraspStore.open(self.path)
-
-    def _swap_into_place(self) -> None:
-        try:
-            commit_path(self._tmp, self.path, replace=True)
-        except OSError as err:
-            self._remove_everything()
-            raise self._write_error(err) from err
-
-    def abort(self) -> None:
-        """Discard everything written so far."""
-        self._remove_everything()
 
     def __enter__(self) -> GraspStoreWriter:
         return self

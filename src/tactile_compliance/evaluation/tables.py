@@ -258,11 +258,6 @@ def describe_runs(frame: pd.DataFrame, extra: str = "") -> str:
     return text + (f"; {extra}" if extra else "")
 
 
-def _stat_fields(rec: Any) -> dict[str, Any]:
-    """The numbers of one :func:`summarise` record, as every tidy table row carries them."""
-    return {"mean": rec.mean, "std": rec.std, "n": rec.n, "seeds": rec.seeds}
-
-
 def _ddof_text(ddof: int) -> str:
     return (
         f"mean ± std over seeds (std with ddof={ddof}; one run shows the mean alone); "
@@ -282,6 +277,27 @@ def _best_mask(values: Sequence[float], metric: str, digits: int) -> list[bool]:
 
 def _label_for(text: str) -> str:
     return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-").lower()
+
+
+def _settings(stats: pd.DataFrame, keys: list[str]) -> list[dict[str, Any]]:
+    """The distinct run settings (``keys`` of ``stats``) in table order: (preset,) model,
+    inputs, object condition, sampling."""
+    settings = stats[keys].drop_duplicates()
+    models = ordered(settings["model"], model_order())
+    settings = settings.assign(
+        _m=[models.index(m) for m in settings["model"]],
+        _p=[_protocol_rank(p) for p in settings["protocol"]],
+    ).sort_values([*(["preset"] if "preset" in keys else []), "_m", "inputs", "_p", "sampling"])
+    return [dict(zip(keys, s, strict=True)) for s in settings[keys].itertuples(index=False)]
+
+
+def _setting_cells(setting: Mapping[str, Any]) -> list[Cell]:
+    """The Model, Input and Split cells of a row that stands for one run setting."""
+    return [
+        Cell(text=model_label(setting["model"])),
+        Cell(text=str(setting["inputs"])),
+        Cell(text=f"{protocol_label(setting['protocol'])}, {setting['sampling']}"),
+    ]
 
 
 @dataclass
@@ -337,7 +353,8 @@ def _pivot(
             cells.append(Cell(rec.mean, rec.std, bold=best[j][i], digits=digits))
             runs.append(rec.n)
             flag = {"bold": best[j][i]} if bold else {}
-            out.tidy.append({**head, **row, **column, **_stat_fields(rec), **flag})
+            numbers = {"mean": rec.mean, "std": rec.std, "n": rec.n, "seeds": rec.seeds}
+            out.tidy.append({**head, **row, **column, **numbers, **flag})
         out.cells.append(cells)
         out.runs.append(runs)
     return out
@@ -352,26 +369,37 @@ class PaperTable:
     cells: pd.DataFrame
 
 
-_PAPER_METRICS = ("test_log10_accuracy", "test_nmse")
+#: The metrics of Tables I and II (results columns ``test_NAME``, ``ref_REF_NAME``).
+_PAPER_METRICS = ("log10_accuracy", "nmse")
 
 
 def _reference_stats(
-    rows: pd.DataFrame, name: str, metric: str, ddof: int
-) -> tuple[float, float, int, list[int]]:
-    """Reference predictor over seeds: one value per seed (the mean over that seed's runs).
+    lines: Sequence[tuple[str, str | None, pd.DataFrame]], protocols: Sequence[str], ddof: int
+) -> pd.DataFrame:
+    """:func:`summarise` records of the reference rows: one value per seed (the mean over
+    that seed's runs), ``model`` ``ref_NAME``.
 
     Every run of a seed carries the reference on its own test split; runs of one seed and
     object condition share the split, so averaging per seed first keeps the std an
     over-seeds std instead of counting each split once per model and input.
     """
-    column = f"ref_{name}_{metric}"
-    if column not in rows.columns:
-        return math.nan, math.nan, 0, []
-    values = pd.to_numeric(rows[column], errors="coerce")
-    part = rows.assign(_v=values).dropna(subset=["_v"])
-    per_seed = part.groupby("seed")["_v"].mean()
-    mean, std, n = _stats(per_seed.tolist(), ddof)
-    return mean, std, n, sorted(int(s) for s in per_seed.index)
+    records = []
+    for name, inputs, rows in lines:
+        for protocol in protocols:
+            for metric in _PAPER_METRICS:
+                column = f"ref_{name}_{metric}"
+                if column not in rows.columns:
+                    continue
+                part = rows[rows["protocol"] == protocol]
+                values = part.assign(_v=pd.to_numeric(part[column], errors="coerce"))
+                per_seed = values.dropna(subset=["_v"]).groupby("seed")["_v"].mean()
+                mean, std, n = _stats(per_seed.tolist(), ddof)
+                if not n:
+                    continue  # shown as "–"
+                seeds = sorted(int(s) for s in per_seed.index)
+                records.append((f"ref_{name}", inputs, protocol, metric, mean, std, n, seeds))
+    columns = ["model", "inputs", "protocol", "metric", "mean", "std", "n", "seeds"]
+    return pd.DataFrame(records, columns=columns)
 
 
 def _has_reference(rows: pd.DataFrame, name: str) -> bool:
@@ -423,7 +451,8 @@ def paper_tables(
         return out
     groups = list(rows.groupby(["preset", "store"], sort=True, dropna=False))
     for (preset, store), part in groups:
-        stats = summarise(part, ["model", "inputs", "protocol"], _PAPER_METRICS, ddof)
+        metrics = [f"test_{m}" for m in _PAPER_METRICS]
+        stats = summarise(part, ["model", "inputs", "protocol"], metrics, ddof)
         protocols = ordered(part["protocol"], PROTOCOLS)
         # The split settings each column group stands for (in the tidy cells).
         split_fields = {
@@ -433,74 +462,48 @@ def paper_tables(
         models = ordered(part["model"], model_order())
         inputs = ordered(part["inputs"], InputStrategy.names())
         body_keys = [(m, i) for m in models for i in inputs]
+        columns_fields = [
+            {**split_fields[protocol], "metric": metric}
+            for protocol in protocols
+            for metric in _PAPER_METRICS
+        ]
+        head = {"table": number, "preset": preset, "store": store}
         pivot = _pivot(
             stats,
             [{"model": m, "inputs": i} for m, i in body_keys],
-            [
-                {**split_fields[protocol], "metric": metric.removeprefix("test_")}
-                for protocol in protocols
-                for metric in _PAPER_METRICS
-            ],
-            head={"table": number, "preset": preset, "store": store},
+            columns_fields,
+            head=head,
             digits=digits,
             bold=True,
         )
-        columns = ["Model", "Input"]
-        group_header: list[tuple[str, int]] = [("", 2)]
-        latex_columns = ["Model", "Input"]
-        for protocol in protocols:
-            group_header.append((protocol_label(protocol), 2))
-            for metric in _PAPER_METRICS:
-                name = metric.removeprefix("test_")
-                columns.append(METRIC_LABELS[name])
-                latex_columns.append(_LATEX_METRIC[name])
-        columns.append("runs")
-        latex_columns.append("runs")
-        group_header.append(("", 1))
-
-        tidy = pivot.tidy
-        body: list[list[Cell]] = []
-        rules: set[int] = set()
-        for index, (model, inp) in enumerate(body_keys):
-            line = [Cell(text=model_label(model)), Cell(text=str(inp)), *pivot.cells[index]]
-            body.append([*line, Cell(text=_runs_text(pivot.runs[index]))])
-            if index + 1 < len(body_keys) and body_keys[index + 1][0] != model:
-                rules.add(index)
-        rules.add(len(body) - 1)  # a rule between the models and the references (if any)
-        n_models = len(body)
+        # References are never bold (they are floors, not contenders), yet their tidy
+        # rows carry ``bold`` like the models'.
         references = _reference_lines(part, inputs)
-        for ref_name, ref_inputs, ref_rows in references:
-            line = [
-                Cell(text=f"{REFERENCE_LABELS[ref_name]} (reference)"),
-                Cell(text=ref_inputs or "–"),
-            ]
-            runs = []
-            for protocol in protocols:
-                cond_rows = ref_rows[ref_rows["protocol"] == protocol]
-                for metric in _PAPER_METRICS:
-                    name = metric.removeprefix("test_")
-                    mean, std, n, seeds = _reference_stats(cond_rows, ref_name, name, ddof)
-                    line.append(Cell(mean, std, digits=digits) if n else Cell(text="–"))
-                    if n:
-                        runs.append(n)
-                        tidy.append(
-                            {
-                                "table": number,
-                                "preset": preset,
-                                "store": store,
-                                "model": f"ref_{ref_name}",
-                                "inputs": ref_inputs,
-                                **split_fields[protocol],
-                                "metric": name,
-                                "mean": mean,
-                                "std": std,
-                                "n": n,
-                                "seeds": seeds,
-                                "bold": False,
-                            }
-                        )
-            line.append(Cell(text=_runs_text(runs)))
-            body.append(line)
+        ref_pivot = _pivot(
+            _reference_stats(references, protocols, ddof),
+            [{"model": f"ref_{name}", "inputs": inp} for name, inp, _ in references],
+            columns_fields,
+            head=head,
+            digits=digits,
+            bold=False,
+        )
+        metric_columns = [m for _ in protocols for m in _PAPER_METRICS]
+        columns = ["Model", "Input", *[METRIC_LABELS[m] for m in metric_columns], "runs"]
+        latex_columns = ["Model", "Input", *[_LATEX_METRIC[m] for m in metric_columns], "runs"]
+        group_header = [("", 2), *[(protocol_label(p), 2) for p in protocols], ("", 1)]
+        labels = [(model_label(m), str(i)) for m, i in body_keys] + [
+            (f"{REFERENCE_LABELS[name]} (reference)", inp or "–") for name, inp, _ in references
+        ]
+        body = [
+            [Cell(text=label), Cell(text=inp), *cells, Cell(text=_runs_text(runs))]
+            for (label, inp), cells, runs in zip(
+                labels, pivot.cells + ref_pivot.cells, pivot.runs + ref_pivot.runs, strict=True
+            )
+        ]
+        # A rule after each model, and between the models and the references (if any).
+        rules = {i for i in range(len(body_keys) - 1) if body_keys[i][0] != body_keys[i + 1][0]}
+        rules.add(len(body_keys) - 1)
+        tidy = pivot.tidy + [{**row, "bold": False} for row in ref_pivot.tidy]
         title = f"Table {number} — preset {preset or '(none)'}"
         if len(groups) > 1 and len({p for (p, _), _ in groups}) < len(groups):
             title += f", store {Path(str(store)).name}"
@@ -512,7 +515,7 @@ def paper_tables(
             + _protocol_caption(protocols)
             + _reference_caption({name for name, _, _ in references})
         )
-        has_refs = len(body) > n_models
+        has_refs = bool(references)
         provenance = describe_runs(
             part, _ddof_text(ddof) + ("; references: one value per seed" if has_refs else "")
         )
@@ -588,29 +591,11 @@ def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> P
     metrics = ("test_nmse", "test_r2")
     keys = ["preset", "store", "model", "inputs", "protocol", "sampling"]
     stats = summarise(rows, keys, metrics, ddof)
-    settings = stats[keys].drop_duplicates()
-    settings = settings.assign(
-        _m=[ordered(rows["model"], model_order()).index(m) for m in settings["model"]],
-        _p=[_protocol_rank(p) for p in settings["protocol"]],
-    ).sort_values(["preset", "_m", "inputs", "_p", "sampling"])
-    show_preset = settings["preset"].nunique() > 1 or settings["store"].nunique() > 1
-    columns = (["Preset"] if show_preset else []) + [
-        "Model",
-        "Input",
-        "Split",
-        "N-MSE",
-        "R²",
-        "runs",
-    ]
-    latex_columns = (["Preset"] if show_preset else []) + [
-        "Model",
-        "Input",
-        "Split",
-        "N-MSE",
-        "$R^2$",
-        "runs",
-    ]
-    setting_rows = [dict(zip(keys, s, strict=True)) for s in settings[keys].itertuples(index=False)]
+    setting_rows = _settings(stats, keys)
+    show_preset = stats["preset"].nunique() > 1 or stats["store"].nunique() > 1
+    preset_column = ["Preset"] if show_preset else []
+    columns = [*preset_column, "Model", "Input", "Split", "N-MSE", "R²", "runs"]
+    latex_columns = [*preset_column, "Model", "Input", "Split", "N-MSE", "$R^2$", "runs"]
     pivot = _pivot(
         stats,
         setting_rows,
@@ -619,17 +604,13 @@ def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> P
         digits=digits,
         bold=True,
     )
-    body: list[list[Cell]] = []
-    for index, setting in enumerate(setting_rows):
-        line = [Cell(text=str(setting["preset"]))] if show_preset else []
-        line += [
-            Cell(text=model_label(setting["model"])),
-            Cell(text=str(setting["inputs"])),
-            Cell(text=f"{protocol_label(setting['protocol'])}, {setting['sampling']}"),
-            *pivot.cells[index],
-            Cell(text=_runs_text(pivot.runs[index])),
-        ]
-        body.append(line)
+    body = [
+        [*_setting_cells(s), *cells, Cell(text=_runs_text(runs))]
+        for s, cells, runs in zip(setting_rows, pivot.cells, pivot.runs, strict=True)
+    ]
+    if show_preset:
+        presets = [Cell(text=str(s["preset"])) for s in setting_rows]
+        body = [[preset, *line] for preset, line in zip(presets, body, strict=True)]
     table = Table(
         title="Table III — Shore-hardness data",
         columns=columns,
@@ -720,31 +701,17 @@ def softhard_subset_table(
     stats = summarise(
         rows, ["model", "inputs", "protocol", "sampling", "subset_key"], metrics, ddof
     ).rename(columns={"subset_key": "subset"})
-    settings = stats[["model", "inputs", "protocol", "sampling"]].drop_duplicates()
-    order = ordered(rows["model"], model_order())
-    settings = settings.assign(
-        _m=[order.index(m) for m in settings["model"]],
-        _p=[_protocol_rank(p) for p in settings["protocol"]],
-    ).sort_values(["_m", "inputs", "_p", "sampling"])
-    setting_rows = [
-        s._asdict() for s in settings[["model", "inputs", "protocol", "sampling"]].itertuples()
-    ]
+    setting_rows = _settings(stats, ["model", "inputs", "protocol", "sampling"])
     pivot = _pivot(
         stats,
-        [{k: s[k] for k in ("model", "inputs", "protocol", "sampling")} for s in setting_rows],
+        setting_rows,
         [{"subset": s, "metric": m} for s in ("soft", "hard") for m in ("log10_accuracy", "nmse")],
         head={"table": "softhard-subsets"},
         digits=digits,
         bold=False,
     )
     body = [
-        [
-            Cell(text=model_label(s["model"])),
-            Cell(text=str(s["inputs"])),
-            Cell(text=f"{protocol_label(s['protocol'])}, {s['sampling']}"),
-            *cells,
-        ]
-        for s, cells in zip(setting_rows, pivot.cells, strict=True)
+        [*_setting_cells(s), *cells] for s, cells in zip(setting_rows, pivot.cells, strict=True)
     ]
     table = Table(
         title="Soft / hard training subsets",
@@ -797,6 +764,9 @@ def group_metric_tables(
         preferred = ("soft", "hard") if grouping == "soft_hard" else ()
         group_order += [(grouping, g) for g in ordered(names, preferred)]
     used_rows = rows[rows["run_dir"].notna() & rows.set_index(["model", "inputs"]).index.isin(keys)]
+    n_test = data.groupby(["grouping", "group"])["n"].mean()
+    # A rule between the groupings (stiffness, material, shape).
+    rules = {i for i in range(len(group_order) - 1) if group_order[i][0] != group_order[i + 1][0]}
     out: list[PaperTable] = []
     for metric in ("nmse", "log10_accuracy"):
         if metric not in data.columns:
@@ -804,7 +774,6 @@ def group_metric_tables(
         stats = summarise(data, ["grouping", "group", "model", "inputs"], [metric], ddof)
         # Group names as the row labels spell them (groups.csv may read them as numbers).
         stats = stats.assign(group=stats["group"].astype(str))
-        n_test = data.groupby(["grouping", "group"])["n"].mean()
         pivot = _pivot(
             stats,
             [{"grouping": grouping, "group": group} for grouping, group in group_order],
@@ -813,15 +782,14 @@ def group_metric_tables(
             digits=digits,
             bold=False,
         )
-        tidy = pivot.tidy
-        body: list[list[Cell]] = []
-        rules: set[int] = set()
-        for index, (grouping, group) in enumerate(group_order):
-            label = {"soft_hard": "stiffness"}.get(grouping, grouping)
-            line = [Cell(text=f"{label}: {group}"), Cell(text=f"{n_test[(grouping, group)]:.0f}")]
-            body.append([*line, *pivot.cells[index]])
-            if index + 1 < len(group_order) and group_order[index + 1][0] != grouping:
-                rules.add(index)
+        body = [
+            [
+                Cell(text=f"{'stiffness' if grouping == 'soft_hard' else grouping}: {group}"),
+                Cell(text=f"{n_test[(grouping, group)]:.0f}"),
+                *cells,
+            ]
+            for (grouping, group), cells in zip(group_order, pivot.cells, strict=True)
+        ]
         name = METRIC_LABELS[metric]
         table = Table(
             title=f"{name} per material, shape and stiffness",
@@ -835,7 +803,7 @@ def group_metric_tables(
             provenance=describe_runs(used_rows, _ddof_text(ddof) + "; from each run's groups.csv"),
             label=f"groups-{_label_for(metric)}",
         )
-        out.append(PaperTable(table, pd.DataFrame(tidy)))
+        out.append(PaperTable(table, pd.DataFrame(pivot.tidy)))
     return out
 
 
@@ -855,9 +823,7 @@ def failed_table(frame: pd.DataFrame, max_error_chars: int = 160) -> Table | Non
         body.append(
             [
                 Cell(text=str(row.preset or "")),
-                Cell(text=model_label(row.model)),
-                Cell(text=str(row.inputs)),
-                Cell(text=f"{protocol_label(row.protocol)}, {row.sampling}"),
+                *_setting_cells(row._asdict()),
                 Cell(text=str(row.seed)),
                 Cell(text=subset),
                 Cell(text=str(row.status)),
@@ -866,19 +832,10 @@ def failed_table(frame: pd.DataFrame, max_error_chars: int = 160) -> Table | Non
             ]
         )
     n_failed = int((bad["status"] == STATUS_FAILED).sum())
+    columns = ["Preset", "Model", "Input", "Split", "Seed", "Subset", "Status", "Attempts", "Error"]
     return Table(
         title="Runs that did not complete",
-        columns=[
-            "Preset",
-            "Model",
-            "Input",
-            "Split",
-            "Seed",
-            "Subset",
-            "Status",
-            "Attempts",
-            "Error",
-        ],
+        columns=columns,
         rows=body,
         caption=(
             f"{len(bad)} row(s) ({n_failed} failed) are excluded from every table and figure; "

@@ -40,6 +40,7 @@ shared by every experiment under ``runs/``, which is what ``report`` reads)::
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import socket
@@ -117,9 +118,7 @@ class ExperimentError(RuntimeError):
 
 
 # =========================================================================== worker side
-_QUIETED = False
-
-
+@functools.cache  # once per worker process, not once per cell
 def _quiet_training_warnings() -> None:
     # Every cell would repeat Lightning's start-up banner and its advice about loader
     # workers and logging intervals; it says nothing about the results, so keep worker
@@ -128,10 +127,6 @@ def _quiet_training_warnings() -> None:
 
     from tactile_compliance.training.train import LIGHTNING_LOGGERS, quiet_lightning_warnings
 
-    global _QUIETED
-    if _QUIETED:  # once per worker process, not once per cell
-        return
-    _QUIETED = True
     for name in LIGHTNING_LOGGERS:
         logging.getLogger(name).setLevel(logging.WARNING)
     quiet_lightning_warnings()
@@ -253,27 +248,18 @@ def run_cell(
     attempts = _count_attempt(run_dir)
     started = time.perf_counter()
     extra: dict[str, Any] = {"host": socket.gethostname()}
+    result, error = None, None
     try:
         # train() resumes from the last finished epoch, or sets a damaged checkpoint aside.
         result = train(cfg, run_dir=run_dir, progress=False)
         prune_checkpoints(run_dir, keep_checkpoints)
-        row = result_row(
-            cfg,
-            result,
-            preset=preset,
-            attempts=attempts,
-            wall_time_s=round(time.perf_counter() - started, 2),
-        )
     except Exception as exc:  # recorded, never lost: the grid goes on
-        row = result_row(
-            cfg,
-            None,
-            preset=preset,
-            error=f"{type(exc).__name__}: {exc}",
-            attempts=attempts,
-            wall_time_s=round(time.perf_counter() - started, 2),
-        )
+        result, error = None, f"{type(exc).__name__}: {exc}"
         extra["traceback"] = traceback.format_exc()
+    wall_time_s = round(time.perf_counter() - started, 2)
+    row = result_row(
+        cfg, result, preset=preset, error=error, attempts=attempts, wall_time_s=wall_time_s
+    )
     row.update(extra)
     row["run_dir"] = row.get("run_dir") or str(run_dir)
     results.record(row)
@@ -476,17 +462,14 @@ def _locked(output_dir: Path) -> Iterator[None]:
 
 
 def _check_stores(cells: Sequence[Cell]) -> None:
-    missing = sorted({c.cfg.data.store or "" for c in cells if not _store_exists(c.cfg)})
+    stores = {c.cfg.data.store or "" for c in cells}
+    missing = sorted(store for store in stores if not (store and Path(store).is_dir()))
     if missing:
         shown = ", ".join(m or "(data.store not set)" for m in missing)
         raise ExperimentError(
             f"store not found: {shown}. Create one (tactile-compliance import ... --out PATH, "
             "see docs/data.md) and pass it with --store PATH"
         )
-
-
-def _store_exists(cfg: ExperimentConfig) -> bool:
-    return bool(cfg.data.store) and Path(cfg.data.store).is_dir()
 
 
 def _write_plan(plan: ExperimentPlan) -> None:
@@ -576,33 +559,18 @@ def run_experiment(
     claim_output_dir(plan.output_dir, "experiment", option="--out")
     claim_output_dir(plan.results_path, "results", option="--results")
     with _locked(plan.output_dir):
-        store_rows = ResultsStore(plan.results_path)
         skip = {STATUS_COMPLETE} if retry_failed else {STATUS_COMPLETE, STATUS_FAILED}
-        todo = []
-        for cell in plan.cells:
-            row = store_rows.get(cell.key)
-            if row is not None and row.get("status") in skip:
-                summary.skipped += 1
-            else:
-                todo.append(cell)
+        status = plan.status()
+        todo = [cell for cell in plan.cells if status[cell.key] not in skip]
+        summary.skipped = len(plan.cells) - len(todo)
         if not remote:
             _check_stores(todo)
         _write_plan(plan)
         if todo:
-            if threads is None:
-                threads = 1
             try:
-                _dispatch(
-                    plan,
-                    todo,
-                    summary,
-                    workers,
-                    scheduler,
-                    client,
-                    threads,
-                    keep_checkpoints,
-                    progress,
-                )
+                with dask_client(workers, scheduler, client) as dask:
+                    threads = 1 if threads is None else threads
+                    _dispatch(dask, plan, todo, summary, threads, keep_checkpoints, progress)
             except KeyboardInterrupt:
                 summary.interrupted = True
                 summary.wall_time_s = round(time.perf_counter() - started, 2)
@@ -614,30 +582,26 @@ def run_experiment(
 
 
 def _dispatch(
+    dask: Any,
     plan: ExperimentPlan,
     todo: list[Cell],
     summary: ExperimentSummary,
-    workers: int,
-    scheduler: str | None,
-    client: Any,
-    threads: int | None,
+    threads: int,
     keep_checkpoints: str,
     progress: bool,
 ) -> None:
+    """Run the cells ``todo`` on the Dask client ``dask``, counting them in ``summary``."""
     from distributed import as_completed
 
     results_path = str(plan.results_path)
     store_rows = ResultsStore(plan.results_path)
-    with (
-        dask_client(workers, scheduler, client) as dask,
-        progress_bar(
-            plan.preset,
-            len(todo),
-            progress,
-            fields={"done": 0, "failed": 0},
-            fields_format="[green]{task.fields[done]} done[/] [red]{task.fields[failed]} failed",
-        ) as bar,
-    ):
+    with progress_bar(
+        plan.preset,
+        len(todo),
+        progress,
+        fields={"done": 0, "failed": 0},
+        fields_format="[green]{task.fields[done]} done[/] [red]{task.fields[failed]} failed",
+    ) as bar:
         # One feature-cache task per model, before that model's frozen-backbone cells.
         by_model: dict[str, dict[str, dict[str, Any]]] = {}
         for cell in todo:
@@ -670,8 +634,7 @@ def _dispatch(
                     row = future.result()
                 except Exception as exc:  # the worker died repeatedly, or its cache failed
                     row = _record_lost_cell(store_rows, cell, plan.preset, exc)
-                ok = row.get("status") == STATUS_COMPLETE
-                if ok:
+                if row.get("status") == STATUS_COMPLETE:
                     summary.completed += 1
                 else:
                     summary.failed += 1
