@@ -1,5 +1,8 @@
 """The `tactile-compliance` command. Thin: parse arguments, call library functions, print."""
 
+# typer reads the parameters' annotations at runtime and needs Optional[X] on Python 3.10.
+# ruff: noqa: UP045
+
 from __future__ import annotations
 
 import functools
@@ -301,7 +304,7 @@ app = _Cli(
     pretty_exceptions_enable=False,
 )
 import_app = _Cli(
-    help="Import a raw dataset into a GraspStore (the one on-disk format every command reads).",
+    help="Import a raw dataset into a GraspStore (the one on-disk format every command reads)."
 )
 app.add_typer(import_app, name="import")
 
@@ -366,7 +369,7 @@ def simulate(
         ),
     ] = "gelsight",
     objects: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option(
             "--objects",
             min=1,
@@ -375,7 +378,7 @@ def simulate(
         ),
     ] = None,
     object_table: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
             "--object-table",
             help="Simulate exactly the objects of a table in the "
@@ -383,7 +386,7 @@ def simulate(
         ),
     ] = None,
     grasps_per_object: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option("--grasps-per-object", min=1, help="Grasps (presses for videos) per object."),
     ] = None,
     seed: Annotated[
@@ -394,8 +397,7 @@ def simulate(
         "float16"
     ),
     workers: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option(min=1, help="Processes (default: all CPUs)."),
+        Optional[int], typer.Option(min=1, help="Processes (default: all CPUs).")
     ] = None,
     rig: Annotated[
         RigName,
@@ -511,14 +513,12 @@ def _run_import(run: object, report_json: Path | None, as_json: bool = False) ->
 
 
 SizeOption = Annotated[
-    Optional[str],  # noqa: UP045 (typer needs Optional on 3.10)
-    typer.Option("--size", help="Resize frames to HxW pixels, e.g. 224x224."),
+    Optional[str], typer.Option("--size", help="Resize frames to HxW pixels, e.g. 224x224.")
 ]
 StrictOption = Annotated[bool, typer.Option(help="Stop at the first problem.")]
 OverwriteOption = Annotated[bool, typer.Option(help="Replace an existing store.")]
 ReportOption = Annotated[
-    Optional[Path],  # noqa: UP045
-    typer.Option("--report", help="Also write the import report as JSON."),
+    Optional[Path], typer.Option("--report", help="Also write the import report as JSON.")
 ]
 OutOption = Annotated[Path, typer.Option("--out", help="Store directory to create.")]
 ImportJsonOption = Annotated[
@@ -533,7 +533,7 @@ def import_burgess_command(
     ],
     out: OutOption,
     objects: Annotated[
-        Optional[Path],  # noqa: UP045 (typer needs Optional on 3.10)
+        Optional[Path],
         typer.Option(
             "--objects",
             help="Object table CSV (dataset_objects_and_compliance.csv); "
@@ -612,7 +612,7 @@ DeviceOption = Annotated[
     typer.Option(help="auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda or cuda:N."),
 ]
 SetOption = Annotated[
-    Optional[list[str]],  # noqa: UP045
+    Optional[list[str]],
     typer.Option(
         "--set",
         "-s",
@@ -723,21 +723,19 @@ def train(
     config: ConfigArg = "default",
     overrides: SetOption = None,
     run_dir: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
             "--out", help="Run directory to write (default: the config's output_dir/NAME)."
         ),
     ] = None,
     run_dir_alias: Annotated[
-        Optional[Path],  # noqa: UP045
-        typer.Option("--run-dir", hidden=True, help="The old name of --out."),
+        Optional[Path], typer.Option("--run-dir", hidden=True, help="The old name of --out.")
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Retrain a finished run.")] = False,
     size: Annotated[
-        Optional[str],  # noqa: UP045
+        Optional[str],
         typer.Option(
-            "--size",
-            help="Frame size HxW the model sees (data.image_size; a --set of it wins).",
+            "--size", help="Frame size HxW the model sees (data.image_size; a --set of it wins)."
         ),
     ] = None,
     as_json: Annotated[
@@ -802,7 +800,7 @@ def pretrain(
     ],
     out: Annotated[Path, typer.Option("--out", help="The backbone weights file to write.")],
     split_file: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option("--split", help="Use this split's training objects (a split JSON)."),
     ] = None,
     condition: Annotated[
@@ -823,7 +821,7 @@ def pretrain(
         int, typer.Option(min=0, help="Early-stopping patience (epochs, 0: off).")
     ] = 4,
     size: Annotated[
-        Optional[str],  # noqa: UP045
+        Optional[str],
         typer.Option(
             "--size", help="Frame size HxW (default: the size the backbone's model uses)."
         ),
@@ -897,7 +895,7 @@ def pretrain(
 
 
 BackboneWeightsOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option(
         "--weights",
         help="Frozen-backbone checkpoints store the head only: a local copy of the "
@@ -910,7 +908,7 @@ BackboneWeightsOption = Annotated[
 def evaluate(
     run_dir: Annotated[Path, typer.Argument(help="A finished run directory.")],
     store: Annotated[
-        Optional[Path], typer.Option("--store", help="Evaluate on this store instead.")  # noqa: UP045
+        Optional[Path], typer.Option("--store", help="Evaluate on this store instead.")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     weights: BackboneWeightsOption = None,
@@ -934,7 +932,7 @@ WorkersOption = Annotated[
     int, typer.Option("--workers", "-w", min=1, help="Local Dask worker processes.")
 ]
 SchedulerOption = Annotated[
-    Optional[str],  # noqa: UP045
+    Optional[str],
     typer.Option(
         "--scheduler",
         help="Address (tcp://host:8786) or scheduler file of a "
@@ -942,26 +940,25 @@ SchedulerOption = Annotated[
     ),
 ]
 StoreOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option("--store", help="GraspStore for every run (default: the preset's)."),
 ]
 OutputDirOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option("--out", help="Where run directories go.", show_default="the preset's"),
 ]
 OutputDirAlias = Annotated[
-    Optional[Path],  # noqa: UP045
-    typer.Option("--output-dir", hidden=True, help="The old name of --out."),
+    Optional[Path], typer.Option("--output-dir", hidden=True, help="The old name of --out.")
 ]
 QuickOption = Annotated[
     bool, typer.Option("--quick", help="The preset's small variant for a 2-core CPU.")
 ]
 ThreadsOption = Annotated[
-    Optional[int],  # noqa: UP045
+    Optional[int],
     typer.Option(min=1, help="Torch threads per run (default 1: one run per worker and core)."),
 ]
 ConditionOption = Annotated[
-    Optional[Condition],  # noqa: UP045
+    Optional[Condition],
     typer.Option(help="Split condition (unseen: by object).", show_default="the config's"),
 ]
 ObjectiveOption = Annotated[
@@ -983,13 +980,12 @@ def experiment(
     preset: Annotated[str, typer.Argument(help="Experiment preset (see `presets`) or YAML file.")],
     quick: QuickOption = False,
     seeds: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option(min=1, help="Number of seeds (0..N-1); default: the preset's."),
+        Optional[int], typer.Option(min=1, help="Number of seeds (0..N-1); default: the preset's.")
     ] = None,
     store: StoreOption = None,
     overrides: SetOption = None,
     where: Annotated[
-        Optional[list[str]],  # noqa: UP045
+        Optional[list[str]],
         typer.Option(
             "--where",
             metavar="KEY=VALUE",
@@ -1001,7 +997,7 @@ def experiment(
     output_dir: OutputDirOption = None,
     output_dir_alias: OutputDirAlias = None,
     results: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option("--results", help="Results store directory (default: runs/results)."),
     ] = None,
     threads: ThreadsOption = None,
@@ -1030,10 +1026,7 @@ def experiment(
     Re-running skips finished cells and retries failed or interrupted ones. Exits with
     status 1 when a cell failed and 130 when interrupted (re-run to continue).
     """
-    from tactile_compliance.training.experiment import (
-        plan_experiment,
-        run_experiment,
-    )
+    from tactile_compliance.training.experiment import plan_experiment, run_experiment
 
     output_dir = _renamed(output_dir, output_dir_alias, "--out", "--output-dir")
     common = dict(
@@ -1109,13 +1102,13 @@ def tune_balance(
     store: StoreOption = None,
     overrides: SetOption = None,
     epochs: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option(
             min=1, help="Epochs per model and trial.", show_default="10; 50 with --paper-budget"
         ),
     ] = None,
     trials: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option(min=1, help="SMAC trials.", show_default="30; 132 with --paper-budget"),
     ] = None,
     paper_budget: Annotated[
@@ -1188,11 +1181,7 @@ def predict(
     from tactile_compliance.inference.predict import format_predictions, predict_path
 
     result = predict_path(
-        checkpoint,
-        source,
-        device=device,
-        fingers=fingers,
-        backbone_weights=weights,
+        checkpoint, source, device=device, fingers=fingers, backbone_weights=weights
     )
     typer.echo(json.dumps(result, indent=2, default=str) if as_json else format_predictions(result))
 
@@ -1200,12 +1189,9 @@ def predict(
 @app.command()
 def export(
     checkpoint: Annotated[Path, typer.Argument(help="best.pt of a run, or the run directory.")],
-    onnx: Annotated[
-        Optional[Path],  # noqa: UP045
-        typer.Option("--onnx", help="The .onnx file to write."),
-    ] = None,
+    onnx: Annotated[Optional[Path], typer.Option("--onnx", help="The .onnx file to write.")] = None,
     safetensors: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
             "--safetensors",
             help="Directory to write: model.safetensors + config.json + a model card README.md.",
@@ -1245,10 +1231,7 @@ def export(
     reports: dict[str, Any] = {}
     if safetensors is not None:
         written = export_safetensors(
-            checkpoint,
-            safetensors,
-            backbone_weights=weights,
-            license=license,
+            checkpoint, safetensors, backbone_weights=weights, license=license
         )
         reports["safetensors"] = {k: v for k, v in written.items() if k != "config"}
         if not as_json:
@@ -1271,19 +1254,15 @@ SOURCE_HELP = (
 )
 SourceArg = Annotated[str, typer.Argument(help=SOURCE_HELP)]
 CalibrationOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option("--calibration", help="Sensor calibration JSON (from `calibrate`)."),
 ]
 FolderFpsOption = Annotated[
-    Optional[float],  # noqa: UP045
-    typer.Option(
-        "--fps",
-        min=0,
-        help="Frame rate of a folder of frames (or give --timestamps).",
-    ),
+    Optional[float],
+    typer.Option("--fps", min=0, help="Frame rate of a folder of frames (or give --timestamps)."),
 ]
 FolderTimesOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option("--timestamps", help="CSV of a folder's frame times (file,timestamp_s)."),
 ]
 
@@ -1327,7 +1306,7 @@ def calibrate(
         int, typer.Option("--frames", min=1, help="Frames to take the median of.")
     ] = 30,
     corners: Annotated[
-        Optional[str],  # noqa: UP045
+        Optional[str],
         typer.Option(
             "--corners",
             help="Warp: the pad's corners in the camera frame as 'x,y x,y x,y x,y' "
@@ -1335,20 +1314,18 @@ def calibrate(
         ),
     ] = None,
     warp_size: Annotated[
-        Optional[str],  # noqa: UP045
-        typer.Option("--warp-size", help="HxW of the warped image (with --corners)."),
+        Optional[str], typer.Option("--warp-size", help="HxW of the warped image (with --corners).")
     ] = None,
     crop_px: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option("--crop-px", min=0, help="Pixels cropped per side after the warp."),
     ] = None,
     crop_fraction: Annotated[
-        Optional[float],  # noqa: UP045
+        Optional[float],
         typer.Option("--crop-fraction", help="Share of each side cropped (Mini: 1/7)."),
     ] = None,
     size: Annotated[
-        Optional[str],  # noqa: UP045
-        typer.Option("--size", help="Final frame size HxW (default: the preset's)."),
+        Optional[str], typer.Option("--size", help="Final frame size HxW (default: the preset's).")
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
@@ -1424,7 +1401,7 @@ def calibrate_depth_command(
         Path, typer.Option("--out", help="Calibration JSON to write (depth model inside).")
     ],
     reference: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
             "--reference",
             help="No-contact frame (an image). Default: --calibration's reference, else the "
@@ -1432,7 +1409,7 @@ def calibrate_depth_command(
         ),
     ] = None,
     calibration: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
             "--calibration",
             help="A calibration from `calibrate` to extend: its geometry and reference carry "
@@ -1440,7 +1417,7 @@ def calibrate_depth_command(
         ),
     ] = None,
     circles: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
             "--circles",
             help="Given contact circles, lines 'NAME (x, y) r' or 'NAME,x,y,r' in px; "
@@ -1448,7 +1425,7 @@ def calibrate_depth_command(
         ),
     ] = None,
     frames: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option("--frames", help="Take this many presses from the live source PRESSES names."),
     ] = None,
     fps: FolderFpsOption = None,
@@ -1504,7 +1481,7 @@ def depth(
     frames: Annotated[list[Path], typer.Argument(help="Images (or folders of images).")],
     out: Annotated[Path, typer.Option("--out", help="Directory to write STEM.npy into.")],
     calibration: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
             "--calibration",
             help="Calibration with a depth model (`calibrate-depth`); without one, the "
@@ -1512,7 +1489,7 @@ def depth(
         ),
     ] = None,
     reference: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option("--reference", help="No-contact frame (default: the calibration's)."),
     ] = None,
     png: Annotated[bool, typer.Option("--png", help="Also write a coloured STEM.png.")] = False,
@@ -1555,7 +1532,7 @@ def record(
     shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
     calibration: CalibrationOption = None,
     reference: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
             "--reference",
             help="A no-contact frame (image file: a camera frame, or one already cut to the "
@@ -1563,15 +1540,14 @@ def record(
         ),
     ] = None,
     markers_source: Annotated[
-        Optional[str],  # noqa: UP045
-        typer.Option("--markers-source", help="A second sensor (the marker finger)."),
+        Optional[str], typer.Option("--markers-source", help="A second sensor (the marker finger).")
     ] = None,
     markers_calibration: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option("--markers-calibration", help="Calibration of the second sensor."),
     ] = None,
     max_frames: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option("--max-frames", min=1, help="Stop after this many frames (default: release)."),
     ] = None,
     fps: FolderFpsOption = None,
@@ -1636,11 +1612,11 @@ def live(
     ],
     calibration: CalibrationOption = None,
     window: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option("--window", min=3, help="Estimate from the last N frames (default: all)."),
     ] = None,
     window_s: Annotated[
-        Optional[float],  # noqa: UP045
+        Optional[float],
         typer.Option(
             "--window-s",
             min=0,
@@ -1648,10 +1624,7 @@ def live(
             "(not with --window; the same at any frame rate).",
         ),
     ] = None,
-    level: Annotated[
-        float,
-        typer.Option(min=0, max=1, help="Ensemble interval coverage."),
-    ] = 0.8,
+    level: Annotated[float, typer.Option(min=0, max=1, help="Ensemble interval coverage.")] = 0.8,
     readings_offset_s: Annotated[
         float,
         typer.Option(
@@ -1704,14 +1677,14 @@ def live(
 def report(
     results: Annotated[Path, typer.Argument(help="Results store directory (holds rows/*.json).")],
     out: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option("--out", "-o", help="Output directory (default: RESULTS/report)."),
     ] = None,
     formats: Annotated[
         str, typer.Option("--format", "-f", help="Comma-separated formats: md, html, tex.")
     ] = "md,html",
     stores: Annotated[
-        Optional[list[Path]],  # noqa: UP045
+        Optional[list[Path]],
         typer.Option("--store", help="Extra GraspStore to draw in Fig. 1 (repeatable)."),
     ] = None,
     as_json: Annotated[
@@ -1752,7 +1725,7 @@ def demo(
         DemoMode, typer.Option(help="full (a few minutes on 2 CPU cores) or ci (seconds, tiny).")
     ] = "full",
     workers: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option(min=1, help="Dask worker processes for the grids (default: CPUs, at most 4)."),
     ] = None,
     as_json: Annotated[
@@ -1796,8 +1769,7 @@ def sim2real(
     ] = "full",
     seed: Annotated[int, typer.Option(min=0, help="Generation and training seed.")] = 0,
     workers: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option(min=1, help="Generator processes (default: all CPUs)."),
+        Optional[int], typer.Option(min=1, help="Generator processes (default: all CPUs).")
     ] = None,
     device: DeviceOption = DEFAULT_DEVICE,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
