@@ -360,7 +360,7 @@ def main(
 
 @app.command()
 def simulate(
-    out: Annotated[Path, typer.Option("--out", help="Directory to write the raw dataset to.")],
+    out: Annotated[Path, typer.Option(help="Directory to write the raw dataset to.")],
     kind: Annotated[
         SimulateKind,
         typer.Option(
@@ -371,7 +371,6 @@ def simulate(
     objects: Annotated[
         Optional[int],
         typer.Option(
-            "--objects",
             min=1,
             help="Number of objects (default: 286 like the real table; "
             "40 silicone samples for shore-videos).",
@@ -380,19 +379,17 @@ def simulate(
     object_table: Annotated[
         Optional[Path],
         typer.Option(
-            "--object-table",
             help="Simulate exactly the objects of a table in the "
-            "real CSV format (dataset_objects_and_compliance.csv).",
+            "real CSV format (dataset_objects_and_compliance.csv)."
         ),
     ] = None,
     grasps_per_object: Annotated[
-        Optional[int],
-        typer.Option("--grasps-per-object", min=1, help="Grasps (presses for videos) per object."),
+        Optional[int], typer.Option(min=1, help="Grasps (presses for videos) per object.")
     ] = None,
     seed: Annotated[
         int, typer.Option(min=0, help="Base seed; same seed, byte-identical output.")
     ] = 0,
-    size: Annotated[str, typer.Option("--size", help="Frame size HxW in pixels.")] = "250x350",
+    size: Annotated[str, typer.Option(help="Frame size HxW in pixels.")] = "250x350",
     dtype: Annotated[PickleDtype, typer.Option(help="Pickle dtype of images and depths.")] = (
         "float16"
     ),
@@ -535,9 +532,8 @@ def import_burgess_command(
     objects: Annotated[
         Optional[Path],
         typer.Option(
-            "--objects",
             help="Object table CSV (dataset_objects_and_compliance.csv); "
-            "labels come from it instead of metadata.json.",
+            "labels come from it instead of metadata.json."
         ),
     ] = None,
     fingers: Annotated[
@@ -646,7 +642,7 @@ def presets(as_json: JsonOption = False) -> None:
 @app.command()
 def split(
     store: Annotated[Path, typer.Argument(help="GraspStore directory.")],
-    out: Annotated[Path, typer.Option("--out", help="Where to write the split JSON.")],
+    out: Annotated[Path, typer.Option(help="Where to write the split JSON.")],
     condition: Annotated[
         Condition, typer.Option(help="seen, or unseen (split by object).")
     ] = "seen",
@@ -734,9 +730,7 @@ def train(
     overwrite: Annotated[bool, typer.Option(help="Retrain a finished run.")] = False,
     size: Annotated[
         Optional[str],
-        typer.Option(
-            "--size", help="Frame size HxW the model sees (data.image_size; a --set of it wins)."
-        ),
+        typer.Option(help="Frame size HxW the model sees (data.image_size; a --set of it wins)."),
     ] = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print the run's result (metrics.json) as JSON.")
@@ -798,7 +792,7 @@ def pretrain(
         Backbone,
         typer.Option(help="resnet18/34/50 (Res-Tf), vgg16 (VGG-LSTM) or top10nn-cnn (Top10NN)."),
     ],
-    out: Annotated[Path, typer.Option("--out", help="The backbone weights file to write.")],
+    out: Annotated[Path, typer.Option(help="The backbone weights file to write.")],
     split_file: Annotated[
         Optional[Path],
         typer.Option("--split", help="Use this split's training objects (a split JSON)."),
@@ -822,9 +816,7 @@ def pretrain(
     ] = 4,
     size: Annotated[
         Optional[str],
-        typer.Option(
-            "--size", help="Frame size HxW (default: the size the backbone's model uses)."
-        ),
+        typer.Option(help="Frame size HxW (default: the size the backbone's model uses)."),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a pretrained weights file.")] = False,
     device: DeviceOption = DEFAULT_DEVICE,
@@ -907,9 +899,7 @@ BackboneWeightsOption = Annotated[
 @app.command()
 def evaluate(
     run_dir: Annotated[Path, typer.Argument(help="A finished run directory.")],
-    store: Annotated[
-        Optional[Path], typer.Option("--store", help="Evaluate on this store instead.")
-    ] = None,
+    store: Annotated[Optional[Path], typer.Option(help="Evaluate on this store instead.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     weights: BackboneWeightsOption = None,
     device: DeviceOption = DEFAULT_DEVICE,
@@ -987,7 +977,6 @@ def experiment(
     where: Annotated[
         Optional[list[str]],
         typer.Option(
-            "--where",
             metavar="KEY=VALUE",
             help="Run only matching cells: --where model.name=res_tf (repeatable).",
         ),
@@ -997,8 +986,7 @@ def experiment(
     output_dir: OutputDirOption = None,
     output_dir_alias: OutputDirAlias = None,
     results: Annotated[
-        Optional[Path],
-        typer.Option("--results", help="Results store directory (default: runs/results)."),
+        Optional[Path], typer.Option(help="Results store directory (default: runs/results).")
     ] = None,
     threads: ThreadsOption = None,
     keep_checkpoints: Annotated[
@@ -1189,21 +1177,19 @@ def predict(
 @app.command()
 def export(
     checkpoint: Annotated[Path, typer.Argument(help="best.pt of a run, or the run directory.")],
-    onnx: Annotated[Optional[Path], typer.Option("--onnx", help="The .onnx file to write.")] = None,
+    onnx: Annotated[Optional[Path], typer.Option(help="The .onnx file to write.")] = None,
     safetensors: Annotated[
         Optional[Path],
         typer.Option(
-            "--safetensors",
-            help="Directory to write: model.safetensors + config.json + a model card README.md.",
+            help="Directory to write: model.safetensors + config.json + a model card README.md."
         ),
     ] = None,
     weights: BackboneWeightsOption = None,
     license: Annotated[
         str,
         typer.Option(
-            "--license",
             help="The model card's licence for --safetensors (an SPDX id such as mit or "
-            "cc-by-4.0); other: the weights follow the licence of their training data.",
+            "cc-by-4.0); other: the weights follow the licence of their training data."
         ),
     ] = "other",
     as_json: Annotated[
@@ -1301,31 +1287,26 @@ def _open_source(
 @app.command()
 def calibrate(
     source: SourceArg,
-    out: Annotated[Path, typer.Option("--out", help="Calibration JSON to write.")],
-    frames: Annotated[
-        int, typer.Option("--frames", min=1, help="Frames to take the median of.")
-    ] = 30,
+    out: Annotated[Path, typer.Option(help="Calibration JSON to write.")],
+    frames: Annotated[int, typer.Option(min=1, help="Frames to take the median of.")] = 30,
     corners: Annotated[
         Optional[str],
         typer.Option(
-            "--corners",
             help="Warp: the pad's corners in the camera frame as 'x,y x,y x,y x,y' "
-            "(top-left, top-right, bottom-right, bottom-left).",
+            "(top-left, top-right, bottom-right, bottom-left)."
         ),
     ] = None,
     warp_size: Annotated[
-        Optional[str], typer.Option("--warp-size", help="HxW of the warped image (with --corners).")
+        Optional[str], typer.Option(help="HxW of the warped image (with --corners).")
     ] = None,
     crop_px: Annotated[
-        Optional[int],
-        typer.Option("--crop-px", min=0, help="Pixels cropped per side after the warp."),
+        Optional[int], typer.Option(min=0, help="Pixels cropped per side after the warp.")
     ] = None,
     crop_fraction: Annotated[
-        Optional[float],
-        typer.Option("--crop-fraction", help="Share of each side cropped (Mini: 1/7)."),
+        Optional[float], typer.Option(help="Share of each side cropped (Mini: 1/7).")
     ] = None,
     size: Annotated[
-        Optional[str], typer.Option("--size", help="Final frame size HxW (default: the preset's).")
+        Optional[str], typer.Option(help="Final frame size HxW (default: the preset's).")
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
@@ -1391,42 +1372,33 @@ def calibrate_depth_command(
             "each; with --frames, one live source spec instead."
         ),
     ],
-    ball_radius_mm: Annotated[
-        float, typer.Option("--ball-radius-mm", help="Radius of the ball in mm.")
-    ],
-    px_per_mm: Annotated[
-        float, typer.Option("--px-per-mm", help="Pixel density of the sensor frames, px/mm.")
-    ],
-    out: Annotated[
-        Path, typer.Option("--out", help="Calibration JSON to write (depth model inside).")
-    ],
+    ball_radius_mm: Annotated[float, typer.Option(help="Radius of the ball in mm.")],
+    px_per_mm: Annotated[float, typer.Option(help="Pixel density of the sensor frames, px/mm.")],
+    out: Annotated[Path, typer.Option(help="Calibration JSON to write (depth model inside).")],
     reference: Annotated[
         Optional[Path],
         typer.Option(
-            "--reference",
             help="No-contact frame (an image). Default: --calibration's reference, else the "
-            "per-pixel median of the presses.",
+            "per-pixel median of the presses."
         ),
     ] = None,
     calibration: Annotated[
         Optional[Path],
         typer.Option(
-            "--calibration",
             help="A calibration from `calibrate` to extend: its geometry and reference carry "
-            "over to --out.",
+            "over to --out."
         ),
     ] = None,
     circles: Annotated[
         Optional[Path],
         typer.Option(
-            "--circles",
             help="Given contact circles, lines 'NAME (x, y) r' or 'NAME,x,y,r' in px; "
-            "presses not listed are found automatically.",
+            "presses not listed are found automatically."
         ),
     ] = None,
     frames: Annotated[
         Optional[int],
-        typer.Option("--frames", help="Take this many presses from the live source PRESSES names."),
+        typer.Option(help="Take this many presses from the live source PRESSES names."),
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
@@ -1479,18 +1451,16 @@ def calibrate_depth_command(
 @app.command()
 def depth(
     frames: Annotated[list[Path], typer.Argument(help="Images (or folders of images).")],
-    out: Annotated[Path, typer.Option("--out", help="Directory to write STEM.npy into.")],
+    out: Annotated[Path, typer.Option(help="Directory to write STEM.npy into.")],
     calibration: Annotated[
         Optional[Path],
         typer.Option(
-            "--calibration",
             help="Calibration with a depth model (`calibrate-depth`); without one, the "
-            "public dataset's heuristic.",
+            "public dataset's heuristic."
         ),
     ] = None,
     reference: Annotated[
-        Optional[Path],
-        typer.Option("--reference", help="No-contact frame (default: the calibration's)."),
+        Optional[Path], typer.Option(help="No-contact frame (default: the calibration's).")
     ] = None,
     png: Annotated[bool, typer.Option("--png", help="Also write a coloured STEM.png.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
@@ -1517,15 +1487,14 @@ def depth(
 @app.command()
 def record(
     source: SourceArg,
-    out: Annotated[Path, typer.Option("--out", help="Dataset directory (raw layout).")],
+    out: Annotated[Path, typer.Option(help="Dataset directory (raw layout).")],
     object_name: Annotated[str, typer.Option("--object", help="Object name (its directory).")],
-    modulus: Annotated[float, typer.Option("--modulus", help="Young's modulus E in Pa.")],
+    modulus: Annotated[float, typer.Option(help="Young's modulus E in Pa.")],
     readings: Annotated[
         Path,
         typer.Option(
-            "--readings",
             help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
-            "writes it when the source is a live device.",
+            "writes it when the source is a live device."
         ),
     ],
     material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
@@ -1534,21 +1503,18 @@ def record(
     reference: Annotated[
         Optional[Path],
         typer.Option(
-            "--reference",
             help="A no-contact frame (image file: a camera frame, or one already cut to the "
-            "sensor frame); replaces the calibration's reference and the first frame.",
+            "sensor frame); replaces the calibration's reference and the first frame."
         ),
     ] = None,
     markers_source: Annotated[
-        Optional[str], typer.Option("--markers-source", help="A second sensor (the marker finger).")
+        Optional[str], typer.Option(help="A second sensor (the marker finger).")
     ] = None,
     markers_calibration: Annotated[
-        Optional[Path],
-        typer.Option("--markers-calibration", help="Calibration of the second sensor."),
+        Optional[Path], typer.Option(help="Calibration of the second sensor.")
     ] = None,
     max_frames: Annotated[
-        Optional[int],
-        typer.Option("--max-frames", min=1, help="Stop after this many frames (default: release)."),
+        Optional[int], typer.Option(min=1, help="Stop after this many frames (default: release).")
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
@@ -1605,20 +1571,17 @@ def live(
     readings: Annotated[
         Path,
         typer.Option(
-            "--readings",
             help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
-            "writes it when the source is a live device.",
+            "writes it when the source is a live device."
         ),
     ],
     calibration: CalibrationOption = None,
     window: Annotated[
-        Optional[int],
-        typer.Option("--window", min=3, help="Estimate from the last N frames (default: all)."),
+        Optional[int], typer.Option(min=3, help="Estimate from the last N frames (default: all).")
     ] = None,
     window_s: Annotated[
         Optional[float],
         typer.Option(
-            "--window-s",
             min=0,
             help="Estimate from the last S seconds before the peak, by the frames' timestamps "
             "(not with --window; the same at any frame rate).",
@@ -1628,9 +1591,8 @@ def live(
     readings_offset_s: Annotated[
         float,
         typer.Option(
-            "--readings-offset-s",
             help="Seconds added to a frame's time to find its reading: the readings' clock "
-            "minus the sensor's (0 when the robot logs time.monotonic() on this machine).",
+            "minus the sensor's (0 when the robot logs time.monotonic() on this machine)."
         ),
     ] = 0.0,
     fps: FolderFpsOption = None,
@@ -1718,9 +1680,7 @@ def report(
 
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option("--out", help="Where everything is written.")] = Path(
-        "demo-output"
-    ),
+    out: Annotated[Path, typer.Option(help="Where everything is written.")] = Path("demo-output"),
     mode: Annotated[
         DemoMode, typer.Option(help="full (a few minutes on 2 CPU cores) or ci (seconds, tiny).")
     ] = "full",
@@ -1754,9 +1714,9 @@ def demo(
 
 @app.command()
 def sim2real(
-    out: Annotated[
-        Path, typer.Option("--out", help="Where the data, the run and DIR/best.pt go.")
-    ] = Path("sim2real-output"),
+    out: Annotated[Path, typer.Option(help="Where the data, the run and DIR/best.pt go.")] = Path(
+        "sim2real-output"
+    ),
     rig: Annotated[
         RigName,
         typer.Option(
