@@ -50,37 +50,29 @@ PickleDtype = Literal["float16", "float32", "float64"]  # data.raw_layout.ALLOWE
 RigName = Literal["dataset", "wedge-2023"]  # synthetic.timeseries.RIGS
 
 
-def _expected_errors() -> tuple[type[BaseException], ...]:
-    """Errors that mean bad input rather than a bug: they become one line, exit code 2.
+def _exit_code(err: Exception) -> int | None:
+    """The exit code of an expected error: 2 for bad input, 1 where the input was fine but
+    writing failed (a full disk or quota, in every command); None for a bug.
 
-    Imported when an error happens, so that the command starts fast."""
-    from tactile_compliance.data.import_report import DataImportError
-    from tactile_compliance.data.store import StoreError
-    from tactile_compliance.inference.pretrained import OptionalDependencyError
-    from tactile_compliance.models.backbones import BackboneWeightsError
-    from tactile_compliance.training.experiment import ExperimentError
-    from tactile_compliance.training.hpo import TuneError
+    ValueError (ConfigError, pydantic's ValidationError, pyarrow's ArrowInvalid, the
+    library's argument checks) and OSError (missing files, permissions) are decided without
+    importing the library's error classes, which load torch, so that a config typo is
+    reported at once."""
+    if not isinstance(err, (ValueError, OSError)):
+        from tactile_compliance.data.import_report import DataImportError, ImportWriteError
+        from tactile_compliance.data.store import StoreError, StoreWriteError
+        from tactile_compliance.inference.pretrained import OptionalDependencyError
+        from tactile_compliance.models.backbones import BackboneWeightsError
+        from tactile_compliance.training.experiment import ExperimentError
+        from tactile_compliance.training.hpo import TuneError
 
-    # ValueError covers ConfigError, pydantic's ValidationError, pyarrow's ArrowInvalid and
-    # the library's argument checks; OSError covers missing files, permissions, a full disk.
-    return (
-        ValueError,
-        OSError,
-        StoreError,
-        DataImportError,
-        ExperimentError,
-        TuneError,
-        BackboneWeightsError,
-        OptionalDependencyError,  # the message says what to pip install
-    )
-
-
-def _write_failures() -> tuple[type[BaseException], ...]:
-    """Expected errors where the input was fine but writing failed (a full disk): exit 1."""
-    from tactile_compliance.data.import_report import ImportWriteError
-    from tactile_compliance.data.store import StoreWriteError
-
-    return (ImportWriteError, StoreWriteError)
+        expected = (StoreError, DataImportError, ExperimentError, TuneError, BackboneWeightsError)
+        # OptionalDependencyError's message says what to pip install.
+        if not isinstance(err, (*expected, OptionalDependencyError)):
+            return None
+        if isinstance(err, (ImportWriteError, StoreWriteError)):
+            return EXIT_FAILED
+    return EXIT_FAILED if _disk_full(err) else EXIT_BAD_INPUT
 
 
 def _disk_full(err: BaseException) -> bool:
@@ -99,7 +91,7 @@ def _disk_full(err: BaseException) -> bool:
 
 
 def _one_line_errors(command: Any) -> Any:
-    """Wrap a command so that expected errors print one line and exit with code 2."""
+    """Wrap a command so that expected errors print one line and exit with their code."""
 
     @functools.wraps(command)
     def run(*args: Any, **kwargs: Any) -> Any:
@@ -111,17 +103,9 @@ def _one_line_errors(command: Any) -> Any:
             typer.secho("interrupted; re-run the same command to continue", err=True)
             raise typer.Exit(EXIT_INTERRUPTED) from None
         except Exception as err:
-            if _debug:
+            code = None if _debug else _exit_code(err)
+            if code is None:
                 raise
-            # ValueError and OSError are bad input unless the disk is full: decided without
-            # importing the library's error classes (which load torch), so that a config
-            # typo is reported at once.
-            if not isinstance(err, (ValueError, OSError)):
-                if not isinstance(err, _expected_errors()):
-                    raise
-                if isinstance(err, _write_failures()):
-                    _fail(str(err) or type(err).__name__, EXIT_FAILED)
-            code = EXIT_FAILED if _disk_full(err) else EXIT_BAD_INPUT
             _fail(str(err) or type(err).__name__, code)
 
     return run
