@@ -298,6 +298,11 @@ def _fail(message: str, code: int = EXIT_FAILED) -> None:
     raise typer.Exit(code)
 
 
+def _json(document: Any) -> str:
+    """JSON as the commands print (--json) and write it: indented, paths as strings."""
+    return json.dumps(document, indent=2, default=str)
+
+
 def _renamed(value: Any, old_value: Any, name: str, old_name: str) -> Any:
     """An option's value given under its name or its old name (a hidden alias kept for one
     release after a rename to the scheme in docs/cli.md)."""
@@ -421,12 +426,9 @@ def simulate(
             seed=seed,
             image_size=image_size,
         )
-    if as_json:
-        typer.echo(json.dumps(report.to_dict(), indent=2, default=str))
-        return
-    typer.echo(report.format())
     importer = "burgess" if kind == "gelsight" else "yuan"
-    typer.echo(f"Next: tactile-compliance import {importer} {out} --out STORE")
+    next_step = f"Next: tactile-compliance import {importer} {out} --out STORE"
+    typer.echo(_json(report.to_dict()) if as_json else f"{report.format()}\n{next_step}")
 
 
 @app.command()
@@ -446,7 +448,7 @@ def info(
         _fail(problems[-1], EXIT_BAD_INPUT)
     summary = GraspStore.open(store).summary()
     if as_json:
-        typer.echo(json.dumps(summary, indent=2))
+        typer.echo(_json(summary))
         return
     height, width = summary["image_size"]
     lines = [
@@ -488,9 +490,9 @@ def _run_import(run: object, report_json: Path | None, as_json: bool = False) ->
     if report_json is not None:  # checked first: a refused path must cost no import
         check_output_file(report_json, "import report", _is_import_report, option="--report")
     report = run()  # type: ignore[operator]
-    typer.echo(json.dumps(report.to_dict(), indent=2) if as_json else report.format())
+    typer.echo(_json(report.to_dict()) if as_json else report.format())
     if report_json is not None:
-        report_json.write_text(json.dumps(report.to_dict(), indent=2) + "\n")
+        report_json.write_text(_json(report.to_dict()) + "\n")
 
 
 SizeOption = Annotated[
@@ -577,15 +579,18 @@ def import_yuan_command(
     )
 
 
-def _load_config(config: str, overrides: list[str] | None) -> object:
+def _load_config(config: str, options: list[str], overrides: list[str] | None) -> object:
+    """The config with the command's options applied, then the --set overrides (which win)."""
     from tactile_compliance.config import load_config
 
-    return load_config(config, overrides or [])
-    return None  # unreachable
+    return load_config(config, [*options, *(overrides or [])])
 
 
 ConfigArg = Annotated[
     str, typer.Option("--config", "-c", help="YAML config file or packaged preset name.")
+]
+FilterConfigOption = Annotated[
+    str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
 ]
 DeviceOption = Annotated[
     str,
@@ -613,7 +618,7 @@ def presets(as_json: JsonOption = False) -> None:
 
     if as_json:
         payload = {"experiments": experiment_preset_descriptions(), "configs": list_presets()}
-        typer.echo(json.dumps(payload, indent=2))
+        typer.echo(_json(payload))
         return
     typer.echo("Experiment presets (tactile-compliance experiment NAME [--quick]):")
     for name, description in experiment_preset_descriptions().items():
@@ -635,9 +640,7 @@ def split(
         typer.Option(help="How seen splits: by grasp, or per_sample (the paper's, leaks)."),
     ] = "grasp",
     seed: Annotated[int, typer.Option(min=0, help="Random seed of the split.")] = 0,
-    config: Annotated[
-        str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
-    ] = "default",
+    config: FilterConfigOption = "default",
     overrides: SetOption = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print the filter report and the split as JSON.")
@@ -648,22 +651,14 @@ def split(
     from tactile_compliance.data.splits import make_split_from_config, summarise_split
     from tactile_compliance.data.store import GraspStore
 
-    extra = [
-        f"data.store={store}",
-        f"split.condition={condition}",
-        f"split.grouping={grouping}",
-        f"seed={seed}",
-    ]
-    cfg = _load_config(config, [*extra, *(overrides or [])])
+    options = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
+    cfg = _load_config(config, [*options, f"split.grouping={grouping}"], overrides)
     samples, report = filter_samples(GraspStore.open(store).samples, cfg)
     drawn = make_split_from_config(samples, cfg)
     drawn.save(out)
     summary = summarise_split(samples, drawn)
-    if as_json:
-        payload = {"filter": report.to_dict(), "split": summary.to_dict(), "out": str(out)}
-        typer.echo(json.dumps(payload, indent=2, default=str))
-        return
-    typer.echo(f"{report}\n\n{summary}\n\nSplit written to {out}")
+    payload = {"filter": report.to_dict(), "split": summary.to_dict(), "out": str(out)}
+    typer.echo(_json(payload) if as_json else f"{report}\n\n{summary}\n\nSplit written to {out}")
 
 
 def _split_and_store(first: Path, second: Path) -> tuple[Path, Path]:
@@ -695,7 +690,7 @@ def split_summary(
     split_file, store = _split_and_store(split_file, store)
     split = Split.load(split_file)  # the small file first: its mistakes are reported first
     summary = summarise_split(GraspStore.open(store).samples, split)
-    typer.echo(json.dumps(summary.to_dict(), indent=2, default=str) if as_json else str(summary))
+    typer.echo(_json(summary.to_dict()) if as_json else str(summary))
 
 
 @app.command()
@@ -745,7 +740,7 @@ def train(
     image_size = _size_option(size)
     sized = [f"data.image_size=[{image_size[0]},{image_size[1]}]"] if image_size else []
     # The config first, before torch loads: a typo is reported at once.
-    cfg = _load_config(config, [*sized, *(overrides or [])])
+    cfg = _load_config(config, sized, overrides)
     from tactile_compliance.training.train import train as train_run
 
     result = train_run(  # --json: stdout holds the JSON only, so no progress bar
@@ -759,7 +754,7 @@ def train(
 
     prune_checkpoints(result["run_dir"], keep_checkpoints)
     if as_json:
-        typer.echo(json.dumps(result, indent=2, default=str))
+        typer.echo(_json(result))
         return
     test, median = result["test"], result["reference"]["median"]
     typer.echo(
@@ -788,9 +783,7 @@ def pretrain(
     seed: Annotated[
         int, typer.Option(min=0, help="Seed of the split (without --split) and init.")
     ] = 0,
-    config: Annotated[
-        str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
-    ] = "default",
+    config: FilterConfigOption = "default",
     overrides: SetOption = None,
     epochs: Annotated[int, typer.Option(min=1, help="Maximum epochs.")] = 30,
     batch_size: Annotated[int, typer.Option(min=1, help="Samples (3 frames each) per batch.")] = 16,
@@ -819,8 +812,8 @@ def pretrain(
     The result loads with --set model.backbone_weights=OUT. Re-running resumes after the
     last finished epoch.
     """
-    extra = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
-    cfg = _load_config(config, [*extra, *(overrides or [])])  # before torch loads
+    options = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
+    cfg = _load_config(config, options, overrides)  # before torch loads
     from tactile_compliance.training.pretrain import PretrainSettings
     from tactile_compliance.training.pretrain import pretrain as run_pretrain
 
@@ -856,7 +849,7 @@ def pretrain(
             "provenance": record,
             "train_overrides": use,
         }
-        typer.echo(json.dumps(payload, indent=2, default=str))
+        typer.echo(_json(payload))
         return
     if result.existing:
         typer.echo(f"{out} is already pretrained (pass --overwrite to train it again).")
@@ -893,11 +886,8 @@ def evaluate(
 
     evaluation = evaluate_run(run_dir, store, backbone_weights=weights, device=device)
     if as_json:
-        payload = {
-            "metrics": evaluation.metrics,
-            "groups": evaluation.groups.to_dict(orient="records"),
-        }
-        typer.echo(json.dumps(payload, indent=2))
+        records = evaluation.groups.to_dict(orient="records")
+        typer.echo(_json({"metrics": evaluation.metrics, "groups": records}))
         return
     typer.echo(evaluation.groups.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
 
@@ -1012,7 +1002,7 @@ def experiment(
     )
     if dry_run:
         plan = plan_experiment(preset, **common)  # type: ignore[arg-type]
-        typer.echo(json.dumps(plan.to_dict(), indent=2) if as_json else plan.format())
+        typer.echo(_json(plan.to_dict()) if as_json else plan.format())
         return
     try:
         summary = run_experiment(
@@ -1026,7 +1016,7 @@ def experiment(
         )
     except KeyboardInterrupt:  # the summary is already on stderr
         raise typer.Exit(EXIT_INTERRUPTED) from None
-    typer.echo(json.dumps(summary.to_dict(), indent=2) if as_json else summary.format())
+    typer.echo(_json(summary.to_dict()) if as_json else summary.format())
     if summary.failed:
         _fail(f"{summary.failed} cell(s) failed (recorded with their errors); re-run to retry")
 
@@ -1133,7 +1123,7 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
     options["output_dir"] = _renamed(options["output_dir"], alias, "--out", "--output-dir")
     as_json = options.pop("as_json")
     result = getattr(hpo, name)(**options)
-    typer.echo(json.dumps(result.to_dict(), indent=2) if as_json else result.format())
+    typer.echo(_json(result.to_dict()) if as_json else result.format())
 
 
 @app.command()
@@ -1155,7 +1145,7 @@ def predict(
     result = predict_path(
         checkpoint, source, device=device, fingers=fingers, backbone_weights=weights
     )
-    typer.echo(json.dumps(result, indent=2, default=str) if as_json else format_predictions(result))
+    typer.echo(_json(result) if as_json else format_predictions(result))
 
 
 @app.command()
@@ -1190,13 +1180,12 @@ def export(
         export_safetensors,
         format_export_report,
         format_safetensors_report,
+        require_onnx,
     )
 
     if onnx is None and safetensors is None:
         raise typer.BadParameter("give --onnx FILE, --safetensors DIR or both")
     if onnx is not None:
-        from tactile_compliance.inference.export import require_onnx
-
         require_onnx()  # before the safetensors directory is written
     reports: dict[str, Any] = {}
     if safetensors is not None:
@@ -1215,7 +1204,7 @@ def export(
         if not as_json:
             typer.echo(format_export_report(result))
     if as_json:
-        typer.echo(json.dumps(reports, indent=2, default=str))
+        typer.echo(_json(reports))
 
 
 SOURCE_HELP = (
@@ -1230,6 +1219,14 @@ CalibrationOption = Annotated[
 FolderFpsOption = Annotated[
     Optional[float],
     typer.Option("--fps", min=0, help="Frame rate of a folder of frames (or give --timestamps)."),
+]
+ReadingsOption = Annotated[
+    Path,
+    typer.Option(
+        "--readings",
+        help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot writes "
+        "it when the source is a live device.",
+    ),
 ]
 FolderTimesOption = Annotated[
     Optional[Path],
@@ -1321,12 +1318,8 @@ def calibrate(
         changes["warp_size"] = _size_option(warp_size) or geometry.warp_size
         if changes["warp_size"] is None:
             raise typer.BadParameter("--corners needs --warp-size HxW")
-    if crop_px is not None:
-        changes["crop_px"] = crop_px
-    if crop_fraction is not None:
-        changes["crop_fraction"] = crop_fraction
-    if size is not None:
-        changes["output_size"] = _size_option(size)
+    steps = {"crop_px": crop_px, "crop_fraction": crop_fraction, "output_size": _size_option(size)}
+    changes |= {step: value for step, value in steps.items() if value is not None}
     result = run_calibration(
         source,
         geometry=replace(geometry, **changes),
@@ -1338,7 +1331,7 @@ def calibrate(
     if as_json:
         document = result.to_dict()
         document.pop("reference_png_base64")  # the image is in the file, not on screen
-        typer.echo(json.dumps({"out": str(out), **document}, indent=2))
+        typer.echo(_json({"out": str(out), **document}))
         return
     height, width = result.frame_size
     typer.echo(
@@ -1404,9 +1397,7 @@ def calibrate_depth_command(
 
     check_output_file(out, "sensor calibration", is_calibration_file, option="--out")
     sensor = SensorCalibration.load(calibration) if calibration is not None else None
-    ref = None
-    if reference is not None:
-        ref = read_image(reference)
+    ref = read_image(reference) if reference is not None else None
     if frames is not None:
         if len(presses) != 1:
             raise typer.BadParameter("--frames takes one live source spec as PRESSES")
@@ -1425,11 +1416,9 @@ def calibrate_depth_command(
         source=" ".join(presses),
     )
     result.calibration.save(out)
-    if as_json:
-        typer.echo(json.dumps(result.calibration.depth_model.report, indent=2))
-        return
-    typer.echo(result.format())
-    typer.echo(f"Calibration {out}: depth model and {px_per_mm:g} px/mm")
+    saved = f"Calibration {out}: depth model and {px_per_mm:g} px/mm"
+    report = result.calibration.depth_model.report
+    typer.echo(_json(report) if as_json else f"{result.format()}\n{saved}")
 
 
 @app.command()
@@ -1462,7 +1451,7 @@ def depth(
     written = write_depth_maps(read_images(frames), out, sensor=sensor, reference=ref, png=png)
     if as_json:
         rows = [{"depth_npy": str(path), "peak_depth_mm": peak} for path, peak in written]
-        typer.echo(json.dumps(rows, indent=2))
+        typer.echo(_json(rows))
         return
     for path, peak in written:
         typer.echo(f"{path}: peak {peak:.3f} mm")
@@ -1474,13 +1463,7 @@ def record(
     out: Annotated[Path, typer.Option(help="Dataset directory (raw layout).")],
     object_name: Annotated[str, typer.Option("--object", help="Object name (its directory).")],
     modulus: Annotated[float, typer.Option(help="Young's modulus E in Pa.")],
-    readings: Annotated[
-        Path,
-        typer.Option(
-            help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
-            "writes it when the source is a live device."
-        ),
-    ],
+    readings: ReadingsOption,
     material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
     shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
     calibration: CalibrationOption = None,
@@ -1534,12 +1517,9 @@ def record(
             markers_calibration=marker_sensor,
             max_frames=max_frames,
         )
-    if as_json:
-        typer.echo(json.dumps(result.to_dict(), indent=2))
-        return
-    typer.echo(result.format())
     fingers = "" if markers_source is not None else " --fingers markerless"
-    typer.echo(f"Next: tactile-compliance import burgess {out} --out STORE{fingers}")
+    next_step = f"Next: tactile-compliance import burgess {out} --out STORE{fingers}"
+    typer.echo(_json(result.to_dict()) if as_json else f"{result.format()}\n{next_step}")
 
 
 @app.command()
@@ -1552,13 +1532,7 @@ def live(
         ),
     ],
     source: SourceArg,
-    readings: Annotated[
-        Path,
-        typer.Option(
-            help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
-            "writes it when the source is a live device."
-        ),
-    ],
+    readings: ReadingsOption,
     calibration: CalibrationOption = None,
     window: Annotated[
         Optional[int], typer.Option(min=3, help="Estimate from the last N frames (default: all).")
@@ -1657,7 +1631,7 @@ def report(
             "complete": summary.n_complete,
             "failed": summary.n_failed,
         }
-        typer.echo(json.dumps(payload, indent=2))
+        typer.echo(_json(payload))
         return
     typer.echo(str(summary))
 
@@ -1688,12 +1662,9 @@ def demo(
     """
     from tactile_compliance.demo import run_demo
 
-    if as_json:
-        summary = run_demo(out, mode=mode, workers=workers, echo=lambda t: typer.echo(t, err=True))
-        typer.echo(json.dumps(summary.to_dict(), indent=2, default=str))
-        return
-    summary = run_demo(out, mode=mode, workers=workers, echo=typer.echo)
-    typer.echo(summary.format())
+    echo = (lambda text: typer.echo(text, err=True)) if as_json else typer.echo  # stdout: JSON only
+    summary = run_demo(out, mode=mode, workers=workers, echo=echo)
+    typer.echo(_json(summary.to_dict()) if as_json else summary.format())
 
 
 @app.command()
@@ -1737,10 +1708,7 @@ def sim2real(
         progress=not as_json,
         echo=(lambda text: typer.echo(text, err=True)) if as_json else typer.echo,
     )
-    if as_json:
-        typer.echo(json.dumps(summary.to_dict(), indent=2))
-        return
-    typer.echo(summary.format())
+    typer.echo(_json(summary.to_dict()) if as_json else summary.format())
 
 
 if __name__ == "__main__":  # pragma: no cover
