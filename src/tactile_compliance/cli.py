@@ -1619,21 +1619,18 @@ def report(
     from tactile_compliance.evaluation.report import build_report
 
     summary = build_report(results, out, formats=formats, stores=stores or ())
-    if as_json:
-        payload = {
-            "results_dir": str(summary.results_dir),
-            "out_dir": str(summary.out_dir),
-            "documents": {k: str(v) for k, v in summary.documents.items()},
-            "figures": {k: str(v) for k, v in summary.figures.items()},
-            "tables": sorted(summary.tables),
-            "notes": summary.notes,
-            "rows": summary.n_rows,
-            "complete": summary.n_complete,
-            "failed": summary.n_failed,
-        }
-        typer.echo(_json(payload))
-        return
-    typer.echo(str(summary))
+    payload = {
+        "results_dir": str(summary.results_dir),
+        "out_dir": str(summary.out_dir),
+        "documents": {k: str(v) for k, v in summary.documents.items()},
+        "figures": {k: str(v) for k, v in summary.figures.items()},
+        "tables": sorted(summary.tables),
+        "notes": summary.notes,
+        "rows": summary.n_rows,
+        "complete": summary.n_complete,
+        "failed": summary.n_failed,
+    }
+    typer.echo(_json(payload) if as_json else str(summary))
 
 
 @app.command()
