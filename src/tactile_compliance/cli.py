@@ -1,5 +1,8 @@
 """The `tactile-compliance` command. Thin: parse arguments, call library functions, print."""
 
+# typer reads the parameters' annotations at runtime and needs Optional[X] on Python 3.10.
+# ruff: noqa: UP045
+
 from __future__ import annotations
 
 import functools
@@ -47,37 +50,29 @@ PickleDtype = Literal["float16", "float32", "float64"]  # data.raw_layout.ALLOWE
 RigName = Literal["dataset", "wedge-2023"]  # synthetic.timeseries.RIGS
 
 
-def _expected_errors() -> tuple[type[BaseException], ...]:
-    """Errors that mean bad input rather than a bug: they become one line, exit code 2.
+def _exit_code(err: Exception) -> int | None:
+    """The exit code of an expected error: 2 for bad input, 1 where the input was fine but
+    writing failed (a full disk or quota, in every command); None for a bug.
 
-    Imported when an error happens, so that the command starts fast."""
-    from tactile_compliance.data.import_report import DataImportError
-    from tactile_compliance.data.store import StoreError
-    from tactile_compliance.inference.pretrained import OptionalDependencyError
-    from tactile_compliance.models.backbones import BackboneWeightsError
-    from tactile_compliance.training.experiment import ExperimentError
-    from tactile_compliance.training.hpo import TuneError
+    ValueError (ConfigError, pydantic's ValidationError, pyarrow's ArrowInvalid, the
+    library's argument checks) and OSError (missing files, permissions) are decided without
+    importing the library's error classes, which load torch, so that a config typo is
+    reported at once."""
+    if not isinstance(err, (ValueError, OSError)):
+        from tactile_compliance.data.import_report import DataImportError, ImportWriteError
+        from tactile_compliance.data.store import StoreError, StoreWriteError
+        from tactile_compliance.inference.pretrained import OptionalDependencyError
+        from tactile_compliance.models.backbones import BackboneWeightsError
+        from tactile_compliance.training.experiment import ExperimentError
+        from tactile_compliance.training.hpo import TuneError
 
-    # ValueError covers ConfigError, pydantic's ValidationError, pyarrow's ArrowInvalid and
-    # the library's argument checks; OSError covers missing files, permissions, a full disk.
-    return (
-        ValueError,
-        OSError,
-        StoreError,
-        DataImportError,
-        ExperimentError,
-        TuneError,
-        BackboneWeightsError,
-        OptionalDependencyError,  # the message says what to pip install
-    )
-
-
-def _write_failures() -> tuple[type[BaseException], ...]:
-    """Expected errors where the input was fine but writing failed (a full disk): exit 1."""
-    from tactile_compliance.data.import_report import ImportWriteError
-    from tactile_compliance.data.store import StoreWriteError
-
-    return (ImportWriteError, StoreWriteError)
+        expected = (StoreError, DataImportError, ExperimentError, TuneError, BackboneWeightsError)
+        # OptionalDependencyError's message says what to pip install.
+        if not isinstance(err, (*expected, OptionalDependencyError)):
+            return None
+        if isinstance(err, (ImportWriteError, StoreWriteError)):
+            return EXIT_FAILED
+    return EXIT_FAILED if _disk_full(err) else EXIT_BAD_INPUT
 
 
 def _disk_full(err: BaseException) -> bool:
@@ -96,7 +91,7 @@ def _disk_full(err: BaseException) -> bool:
 
 
 def _one_line_errors(command: Any) -> Any:
-    """Wrap a command so that expected errors print one line and exit with code 2."""
+    """Wrap a command so that expected errors print one line and exit with their code."""
 
     @functools.wraps(command)
     def run(*args: Any, **kwargs: Any) -> Any:
@@ -108,17 +103,9 @@ def _one_line_errors(command: Any) -> Any:
             typer.secho("interrupted; re-run the same command to continue", err=True)
             raise typer.Exit(EXIT_INTERRUPTED) from None
         except Exception as err:
-            if _debug:
+            code = None if _debug else _exit_code(err)
+            if code is None:
                 raise
-            # ValueError and OSError are bad input unless the disk is full: decided without
-            # importing the library's error classes (which load torch), so that a config
-            # typo is reported at once.
-            if not isinstance(err, (ValueError, OSError)):
-                if not isinstance(err, _expected_errors()):
-                    raise
-                if isinstance(err, _write_failures()):
-                    _fail(str(err) or type(err).__name__, EXIT_FAILED)
-            code = EXIT_FAILED if _disk_full(err) else EXIT_BAD_INPUT
             _fail(str(err) or type(err).__name__, code)
 
     return run
@@ -301,7 +288,7 @@ app = _Cli(
     pretty_exceptions_enable=False,
 )
 import_app = _Cli(
-    help="Import a raw dataset into a GraspStore (the one on-disk format every command reads).",
+    help="Import a raw dataset into a GraspStore (the one on-disk format every command reads)."
 )
 app.add_typer(import_app, name="import")
 
@@ -309,6 +296,11 @@ app.add_typer(import_app, name="import")
 def _fail(message: str, code: int = EXIT_FAILED) -> None:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code)
+
+
+def _json(document: Any) -> str:
+    """JSON as the commands print (--json) and write it: indented, paths as strings."""
+    return json.dumps(document, indent=2, default=str)
 
 
 def _renamed(value: Any, old_value: Any, name: str, old_name: str) -> Any:
@@ -357,7 +349,7 @@ def main(
 
 @app.command()
 def simulate(
-    out: Annotated[Path, typer.Option("--out", help="Directory to write the raw dataset to.")],
+    out: Annotated[Path, typer.Option(help="Directory to write the raw dataset to.")],
     kind: Annotated[
         SimulateKind,
         typer.Option(
@@ -366,36 +358,32 @@ def simulate(
         ),
     ] = "gelsight",
     objects: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option(
-            "--objects",
             min=1,
             help="Number of objects (default: 286 like the real table; "
             "40 silicone samples for shore-videos).",
         ),
     ] = None,
     object_table: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
-            "--object-table",
             help="Simulate exactly the objects of a table in the "
-            "real CSV format (dataset_objects_and_compliance.csv).",
+            "real CSV format (dataset_objects_and_compliance.csv)."
         ),
     ] = None,
     grasps_per_object: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option("--grasps-per-object", min=1, help="Grasps (presses for videos) per object."),
+        Optional[int], typer.Option(min=1, help="Grasps (presses for videos) per object.")
     ] = None,
     seed: Annotated[
         int, typer.Option(min=0, help="Base seed; same seed, byte-identical output.")
     ] = 0,
-    size: Annotated[str, typer.Option("--size", help="Frame size HxW in pixels.")] = "250x350",
+    size: Annotated[str, typer.Option(help="Frame size HxW in pixels.")] = "250x350",
     dtype: Annotated[PickleDtype, typer.Option(help="Pickle dtype of images and depths.")] = (
         "float16"
     ),
     workers: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option(min=1, help="Processes (default: all CPUs)."),
+        Optional[int], typer.Option(min=1, help="Processes (default: all CPUs).")
     ] = None,
     rig: Annotated[
         RigName,
@@ -438,12 +426,9 @@ def simulate(
             seed=seed,
             image_size=image_size,
         )
-    if as_json:
-        typer.echo(json.dumps(report.to_dict(), indent=2, default=str))
-        return
-    typer.echo(report.format())
     importer = "burgess" if kind == "gelsight" else "yuan"
-    typer.echo(f"Next: tactile-compliance import {importer} {out} --out STORE")
+    next_step = f"Next: tactile-compliance import {importer} {out} --out STORE"
+    typer.echo(_json(report.to_dict()) if as_json else f"{report.format()}\n{next_step}")
 
 
 @app.command()
@@ -463,7 +448,7 @@ def info(
         _fail(problems[-1], EXIT_BAD_INPUT)
     summary = GraspStore.open(store).summary()
     if as_json:
-        typer.echo(json.dumps(summary, indent=2))
+        typer.echo(_json(summary))
         return
     height, width = summary["image_size"]
     lines = [
@@ -505,20 +490,18 @@ def _run_import(run: object, report_json: Path | None, as_json: bool = False) ->
     if report_json is not None:  # checked first: a refused path must cost no import
         check_output_file(report_json, "import report", _is_import_report, option="--report")
     report = run()  # type: ignore[operator]
-    typer.echo(json.dumps(report.to_dict(), indent=2) if as_json else report.format())
+    typer.echo(_json(report.to_dict()) if as_json else report.format())
     if report_json is not None:
-        report_json.write_text(json.dumps(report.to_dict(), indent=2) + "\n")
+        report_json.write_text(_json(report.to_dict()) + "\n")
 
 
 SizeOption = Annotated[
-    Optional[str],  # noqa: UP045 (typer needs Optional on 3.10)
-    typer.Option("--size", help="Resize frames to HxW pixels, e.g. 224x224."),
+    Optional[str], typer.Option("--size", help="Resize frames to HxW pixels, e.g. 224x224.")
 ]
 StrictOption = Annotated[bool, typer.Option(help="Stop at the first problem.")]
 OverwriteOption = Annotated[bool, typer.Option(help="Replace an existing store.")]
 ReportOption = Annotated[
-    Optional[Path],  # noqa: UP045
-    typer.Option("--report", help="Also write the import report as JSON."),
+    Optional[Path], typer.Option("--report", help="Also write the import report as JSON.")
 ]
 OutOption = Annotated[Path, typer.Option("--out", help="Store directory to create.")]
 ImportJsonOption = Annotated[
@@ -533,11 +516,10 @@ def import_burgess_command(
     ],
     out: OutOption,
     objects: Annotated[
-        Optional[Path],  # noqa: UP045 (typer needs Optional on 3.10)
+        Optional[Path],
         typer.Option(
-            "--objects",
             help="Object table CSV (dataset_objects_and_compliance.csv); "
-            "labels come from it instead of metadata.json.",
+            "labels come from it instead of metadata.json."
         ),
     ] = None,
     fingers: Annotated[
@@ -597,22 +579,25 @@ def import_yuan_command(
     )
 
 
-def _load_config(config: str, overrides: list[str] | None) -> object:
+def _load_config(config: str, options: list[str], overrides: list[str] | None) -> object:
+    """The config with the command's options applied, then the --set overrides (which win)."""
     from tactile_compliance.config import load_config
 
-    return load_config(config, overrides or [])
-    return None  # unreachable
+    return load_config(config, [*options, *(overrides or [])])
 
 
 ConfigArg = Annotated[
     str, typer.Option("--config", "-c", help="YAML config file or packaged preset name.")
+]
+FilterConfigOption = Annotated[
+    str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
 ]
 DeviceOption = Annotated[
     str,
     typer.Option(help="auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda or cuda:N."),
 ]
 SetOption = Annotated[
-    Optional[list[str]],  # noqa: UP045
+    Optional[list[str]],
     typer.Option(
         "--set",
         "-s",
@@ -633,7 +618,7 @@ def presets(as_json: JsonOption = False) -> None:
 
     if as_json:
         payload = {"experiments": experiment_preset_descriptions(), "configs": list_presets()}
-        typer.echo(json.dumps(payload, indent=2))
+        typer.echo(_json(payload))
         return
     typer.echo("Experiment presets (tactile-compliance experiment NAME [--quick]):")
     for name, description in experiment_preset_descriptions().items():
@@ -646,7 +631,7 @@ def presets(as_json: JsonOption = False) -> None:
 @app.command()
 def split(
     store: Annotated[Path, typer.Argument(help="GraspStore directory.")],
-    out: Annotated[Path, typer.Option("--out", help="Where to write the split JSON.")],
+    out: Annotated[Path, typer.Option(help="Where to write the split JSON.")],
     condition: Annotated[
         Condition, typer.Option(help="seen, or unseen (split by object).")
     ] = "seen",
@@ -655,9 +640,7 @@ def split(
         typer.Option(help="How seen splits: by grasp, or per_sample (the paper's, leaks)."),
     ] = "grasp",
     seed: Annotated[int, typer.Option(min=0, help="Random seed of the split.")] = 0,
-    config: Annotated[
-        str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
-    ] = "default",
+    config: FilterConfigOption = "default",
     overrides: SetOption = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print the filter report and the split as JSON.")
@@ -668,22 +651,14 @@ def split(
     from tactile_compliance.data.splits import make_split_from_config, summarise_split
     from tactile_compliance.data.store import GraspStore
 
-    extra = [
-        f"data.store={store}",
-        f"split.condition={condition}",
-        f"split.grouping={grouping}",
-        f"seed={seed}",
-    ]
-    cfg = _load_config(config, [*extra, *(overrides or [])])
+    options = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
+    cfg = _load_config(config, [*options, f"split.grouping={grouping}"], overrides)
     samples, report = filter_samples(GraspStore.open(store).samples, cfg)
     drawn = make_split_from_config(samples, cfg)
     drawn.save(out)
     summary = summarise_split(samples, drawn)
-    if as_json:
-        payload = {"filter": report.to_dict(), "split": summary.to_dict(), "out": str(out)}
-        typer.echo(json.dumps(payload, indent=2, default=str))
-        return
-    typer.echo(f"{report}\n\n{summary}\n\nSplit written to {out}")
+    payload = {"filter": report.to_dict(), "split": summary.to_dict(), "out": str(out)}
+    typer.echo(_json(payload) if as_json else f"{report}\n\n{summary}\n\nSplit written to {out}")
 
 
 def _split_and_store(first: Path, second: Path) -> tuple[Path, Path]:
@@ -715,7 +690,7 @@ def split_summary(
     split_file, store = _split_and_store(split_file, store)
     split = Split.load(split_file)  # the small file first: its mistakes are reported first
     summary = summarise_split(GraspStore.open(store).samples, split)
-    typer.echo(json.dumps(summary.to_dict(), indent=2, default=str) if as_json else str(summary))
+    typer.echo(_json(summary.to_dict()) if as_json else str(summary))
 
 
 @app.command()
@@ -723,22 +698,18 @@ def train(
     config: ConfigArg = "default",
     overrides: SetOption = None,
     run_dir: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
             "--out", help="Run directory to write (default: the config's output_dir/NAME)."
         ),
     ] = None,
     run_dir_alias: Annotated[
-        Optional[Path],  # noqa: UP045
-        typer.Option("--run-dir", hidden=True, help="The old name of --out."),
+        Optional[Path], typer.Option("--run-dir", hidden=True, help="The old name of --out.")
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Retrain a finished run.")] = False,
     size: Annotated[
-        Optional[str],  # noqa: UP045
-        typer.Option(
-            "--size",
-            help="Frame size HxW the model sees (data.image_size; a --set of it wins).",
-        ),
+        Optional[str],
+        typer.Option(help="Frame size HxW the model sees (data.image_size; a --set of it wins)."),
     ] = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print the run's result (metrics.json) as JSON.")
@@ -769,7 +740,7 @@ def train(
     image_size = _size_option(size)
     sized = [f"data.image_size=[{image_size[0]},{image_size[1]}]"] if image_size else []
     # The config first, before torch loads: a typo is reported at once.
-    cfg = _load_config(config, [*sized, *(overrides or [])])
+    cfg = _load_config(config, sized, overrides)
     from tactile_compliance.training.train import train as train_run
 
     result = train_run(  # --json: stdout holds the JSON only, so no progress bar
@@ -783,7 +754,7 @@ def train(
 
     prune_checkpoints(result["run_dir"], keep_checkpoints)
     if as_json:
-        typer.echo(json.dumps(result, indent=2, default=str))
+        typer.echo(_json(result))
         return
     test, median = result["test"], result["reference"]["median"]
     typer.echo(
@@ -800,9 +771,9 @@ def pretrain(
         Backbone,
         typer.Option(help="resnet18/34/50 (Res-Tf), vgg16 (VGG-LSTM) or top10nn-cnn (Top10NN)."),
     ],
-    out: Annotated[Path, typer.Option("--out", help="The backbone weights file to write.")],
+    out: Annotated[Path, typer.Option(help="The backbone weights file to write.")],
     split_file: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option("--split", help="Use this split's training objects (a split JSON)."),
     ] = None,
     condition: Annotated[
@@ -812,9 +783,7 @@ def pretrain(
     seed: Annotated[
         int, typer.Option(min=0, help="Seed of the split (without --split) and init.")
     ] = 0,
-    config: Annotated[
-        str, typer.Option("--config", "-c", help="Config whose filters and split options apply.")
-    ] = "default",
+    config: FilterConfigOption = "default",
     overrides: SetOption = None,
     epochs: Annotated[int, typer.Option(min=1, help="Maximum epochs.")] = 30,
     batch_size: Annotated[int, typer.Option(min=1, help="Samples (3 frames each) per batch.")] = 16,
@@ -823,10 +792,8 @@ def pretrain(
         int, typer.Option(min=0, help="Early-stopping patience (epochs, 0: off).")
     ] = 4,
     size: Annotated[
-        Optional[str],  # noqa: UP045
-        typer.Option(
-            "--size", help="Frame size HxW (default: the size the backbone's model uses)."
-        ),
+        Optional[str],
+        typer.Option(help="Frame size HxW (default: the size the backbone's model uses)."),
     ] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a pretrained weights file.")] = False,
     device: DeviceOption = DEFAULT_DEVICE,
@@ -845,8 +812,8 @@ def pretrain(
     The result loads with --set model.backbone_weights=OUT. Re-running resumes after the
     last finished epoch.
     """
-    extra = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
-    cfg = _load_config(config, [*extra, *(overrides or [])])  # before torch loads
+    options = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
+    cfg = _load_config(config, options, overrides)  # before torch loads
     from tactile_compliance.training.pretrain import PretrainSettings
     from tactile_compliance.training.pretrain import pretrain as run_pretrain
 
@@ -882,7 +849,7 @@ def pretrain(
             "provenance": record,
             "train_overrides": use,
         }
-        typer.echo(json.dumps(payload, indent=2, default=str))
+        typer.echo(_json(payload))
         return
     if result.existing:
         typer.echo(f"{out} is already pretrained (pass --overwrite to train it again).")
@@ -897,7 +864,7 @@ def pretrain(
 
 
 BackboneWeightsOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option(
         "--weights",
         help="Frozen-backbone checkpoints store the head only: a local copy of the "
@@ -909,9 +876,7 @@ BackboneWeightsOption = Annotated[
 @app.command()
 def evaluate(
     run_dir: Annotated[Path, typer.Argument(help="A finished run directory.")],
-    store: Annotated[
-        Optional[Path], typer.Option("--store", help="Evaluate on this store instead.")  # noqa: UP045
-    ] = None,
+    store: Annotated[Optional[Path], typer.Option(help="Evaluate on this store instead.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     weights: BackboneWeightsOption = None,
     device: DeviceOption = DEFAULT_DEVICE,
@@ -921,11 +886,8 @@ def evaluate(
 
     evaluation = evaluate_run(run_dir, store, backbone_weights=weights, device=device)
     if as_json:
-        payload = {
-            "metrics": evaluation.metrics,
-            "groups": evaluation.groups.to_dict(orient="records"),
-        }
-        typer.echo(json.dumps(payload, indent=2))
+        records = evaluation.groups.to_dict(orient="records")
+        typer.echo(_json({"metrics": evaluation.metrics, "groups": records}))
         return
     typer.echo(evaluation.groups.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
 
@@ -934,7 +896,7 @@ WorkersOption = Annotated[
     int, typer.Option("--workers", "-w", min=1, help="Local Dask worker processes.")
 ]
 SchedulerOption = Annotated[
-    Optional[str],  # noqa: UP045
+    Optional[str],
     typer.Option(
         "--scheduler",
         help="Address (tcp://host:8786) or scheduler file of a "
@@ -942,26 +904,25 @@ SchedulerOption = Annotated[
     ),
 ]
 StoreOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option("--store", help="GraspStore for every run (default: the preset's)."),
 ]
 OutputDirOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option("--out", help="Where run directories go.", show_default="the preset's"),
 ]
 OutputDirAlias = Annotated[
-    Optional[Path],  # noqa: UP045
-    typer.Option("--output-dir", hidden=True, help="The old name of --out."),
+    Optional[Path], typer.Option("--output-dir", hidden=True, help="The old name of --out.")
 ]
 QuickOption = Annotated[
     bool, typer.Option("--quick", help="The preset's small variant for a 2-core CPU.")
 ]
 ThreadsOption = Annotated[
-    Optional[int],  # noqa: UP045
+    Optional[int],
     typer.Option(min=1, help="Torch threads per run (default 1: one run per worker and core)."),
 ]
 ConditionOption = Annotated[
-    Optional[Condition],  # noqa: UP045
+    Optional[Condition],
     typer.Option(help="Split condition (unseen: by object).", show_default="the config's"),
 ]
 ObjectiveOption = Annotated[
@@ -983,15 +944,13 @@ def experiment(
     preset: Annotated[str, typer.Argument(help="Experiment preset (see `presets`) or YAML file.")],
     quick: QuickOption = False,
     seeds: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option(min=1, help="Number of seeds (0..N-1); default: the preset's."),
+        Optional[int], typer.Option(min=1, help="Number of seeds (0..N-1); default: the preset's.")
     ] = None,
     store: StoreOption = None,
     overrides: SetOption = None,
     where: Annotated[
-        Optional[list[str]],  # noqa: UP045
+        Optional[list[str]],
         typer.Option(
-            "--where",
             metavar="KEY=VALUE",
             help="Run only matching cells: --where model.name=res_tf (repeatable).",
         ),
@@ -1001,8 +960,7 @@ def experiment(
     output_dir: OutputDirOption = None,
     output_dir_alias: OutputDirAlias = None,
     results: Annotated[
-        Optional[Path],  # noqa: UP045
-        typer.Option("--results", help="Results store directory (default: runs/results)."),
+        Optional[Path], typer.Option(help="Results store directory (default: runs/results).")
     ] = None,
     threads: ThreadsOption = None,
     keep_checkpoints: Annotated[
@@ -1030,10 +988,7 @@ def experiment(
     Re-running skips finished cells and retries failed or interrupted ones. Exits with
     status 1 when a cell failed and 130 when interrupted (re-run to continue).
     """
-    from tactile_compliance.training.experiment import (
-        plan_experiment,
-        run_experiment,
-    )
+    from tactile_compliance.training.experiment import plan_experiment, run_experiment
 
     output_dir = _renamed(output_dir, output_dir_alias, "--out", "--output-dir")
     common = dict(
@@ -1047,7 +1002,7 @@ def experiment(
     )
     if dry_run:
         plan = plan_experiment(preset, **common)  # type: ignore[arg-type]
-        typer.echo(json.dumps(plan.to_dict(), indent=2) if as_json else plan.format())
+        typer.echo(_json(plan.to_dict()) if as_json else plan.format())
         return
     try:
         summary = run_experiment(
@@ -1061,7 +1016,7 @@ def experiment(
         )
     except KeyboardInterrupt:  # the summary is already on stderr
         raise typer.Exit(EXIT_INTERRUPTED) from None
-    typer.echo(json.dumps(summary.to_dict(), indent=2) if as_json else summary.format())
+    typer.echo(_json(summary.to_dict()) if as_json else summary.format())
     if summary.failed:
         _fail(f"{summary.failed} cell(s) failed (recorded with their errors); re-run to retry")
 
@@ -1109,13 +1064,13 @@ def tune_balance(
     store: StoreOption = None,
     overrides: SetOption = None,
     epochs: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option(
             min=1, help="Epochs per model and trial.", show_default="10; 50 with --paper-budget"
         ),
     ] = None,
     trials: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option(min=1, help="SMAC trials.", show_default="30; 132 with --paper-budget"),
     ] = None,
     paper_budget: Annotated[
@@ -1168,7 +1123,7 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
     options["output_dir"] = _renamed(options["output_dir"], alias, "--out", "--output-dir")
     as_json = options.pop("as_json")
     result = getattr(hpo, name)(**options)
-    typer.echo(json.dumps(result.to_dict(), indent=2) if as_json else result.format())
+    typer.echo(_json(result.to_dict()) if as_json else result.format())
 
 
 @app.command()
@@ -1188,36 +1143,27 @@ def predict(
     from tactile_compliance.inference.predict import format_predictions, predict_path
 
     result = predict_path(
-        checkpoint,
-        source,
-        device=device,
-        fingers=fingers,
-        backbone_weights=weights,
+        checkpoint, source, device=device, fingers=fingers, backbone_weights=weights
     )
-    typer.echo(json.dumps(result, indent=2, default=str) if as_json else format_predictions(result))
+    typer.echo(_json(result) if as_json else format_predictions(result))
 
 
 @app.command()
 def export(
     checkpoint: Annotated[Path, typer.Argument(help="best.pt of a run, or the run directory.")],
-    onnx: Annotated[
-        Optional[Path],  # noqa: UP045
-        typer.Option("--onnx", help="The .onnx file to write."),
-    ] = None,
+    onnx: Annotated[Optional[Path], typer.Option(help="The .onnx file to write.")] = None,
     safetensors: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
-            "--safetensors",
-            help="Directory to write: model.safetensors + config.json + a model card README.md.",
+            help="Directory to write: model.safetensors + config.json + a model card README.md."
         ),
     ] = None,
     weights: BackboneWeightsOption = None,
     license: Annotated[
         str,
         typer.Option(
-            "--license",
             help="The model card's licence for --safetensors (an SPDX id such as mit or "
-            "cc-by-4.0); other: the weights follow the licence of their training data.",
+            "cc-by-4.0); other: the weights follow the licence of their training data."
         ),
     ] = "other",
     as_json: Annotated[
@@ -1234,21 +1180,17 @@ def export(
         export_safetensors,
         format_export_report,
         format_safetensors_report,
+        require_onnx,
     )
 
     if onnx is None and safetensors is None:
         raise typer.BadParameter("give --onnx FILE, --safetensors DIR or both")
     if onnx is not None:
-        from tactile_compliance.inference.export import require_onnx
-
         require_onnx()  # before the safetensors directory is written
     reports: dict[str, Any] = {}
     if safetensors is not None:
         written = export_safetensors(
-            checkpoint,
-            safetensors,
-            backbone_weights=weights,
-            license=license,
+            checkpoint, safetensors, backbone_weights=weights, license=license
         )
         reports["safetensors"] = {k: v for k, v in written.items() if k != "config"}
         if not as_json:
@@ -1262,7 +1204,7 @@ def export(
         if not as_json:
             typer.echo(format_export_report(result))
     if as_json:
-        typer.echo(json.dumps(reports, indent=2, default=str))
+        typer.echo(_json(reports))
 
 
 SOURCE_HELP = (
@@ -1271,19 +1213,23 @@ SOURCE_HELP = (
 )
 SourceArg = Annotated[str, typer.Argument(help=SOURCE_HELP)]
 CalibrationOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option("--calibration", help="Sensor calibration JSON (from `calibrate`)."),
 ]
 FolderFpsOption = Annotated[
-    Optional[float],  # noqa: UP045
+    Optional[float],
+    typer.Option("--fps", min=0, help="Frame rate of a folder of frames (or give --timestamps)."),
+]
+ReadingsOption = Annotated[
+    Path,
     typer.Option(
-        "--fps",
-        min=0,
-        help="Frame rate of a folder of frames (or give --timestamps).",
+        "--readings",
+        help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot writes "
+        "it when the source is a live device.",
     ),
 ]
 FolderTimesOption = Annotated[
-    Optional[Path],  # noqa: UP045
+    Optional[Path],
     typer.Option("--timestamps", help="CSV of a folder's frame times (file,timestamp_s)."),
 ]
 
@@ -1322,33 +1268,26 @@ def _open_source(
 @app.command()
 def calibrate(
     source: SourceArg,
-    out: Annotated[Path, typer.Option("--out", help="Calibration JSON to write.")],
-    frames: Annotated[
-        int, typer.Option("--frames", min=1, help="Frames to take the median of.")
-    ] = 30,
+    out: Annotated[Path, typer.Option(help="Calibration JSON to write.")],
+    frames: Annotated[int, typer.Option(min=1, help="Frames to take the median of.")] = 30,
     corners: Annotated[
-        Optional[str],  # noqa: UP045
+        Optional[str],
         typer.Option(
-            "--corners",
             help="Warp: the pad's corners in the camera frame as 'x,y x,y x,y x,y' "
-            "(top-left, top-right, bottom-right, bottom-left).",
+            "(top-left, top-right, bottom-right, bottom-left)."
         ),
     ] = None,
     warp_size: Annotated[
-        Optional[str],  # noqa: UP045
-        typer.Option("--warp-size", help="HxW of the warped image (with --corners)."),
+        Optional[str], typer.Option(help="HxW of the warped image (with --corners).")
     ] = None,
     crop_px: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option("--crop-px", min=0, help="Pixels cropped per side after the warp."),
+        Optional[int], typer.Option(min=0, help="Pixels cropped per side after the warp.")
     ] = None,
     crop_fraction: Annotated[
-        Optional[float],  # noqa: UP045
-        typer.Option("--crop-fraction", help="Share of each side cropped (Mini: 1/7)."),
+        Optional[float], typer.Option(help="Share of each side cropped (Mini: 1/7).")
     ] = None,
     size: Annotated[
-        Optional[str],  # noqa: UP045
-        typer.Option("--size", help="Final frame size HxW (default: the preset's)."),
+        Optional[str], typer.Option(help="Final frame size HxW (default: the preset's).")
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
@@ -1379,12 +1318,8 @@ def calibrate(
         changes["warp_size"] = _size_option(warp_size) or geometry.warp_size
         if changes["warp_size"] is None:
             raise typer.BadParameter("--corners needs --warp-size HxW")
-    if crop_px is not None:
-        changes["crop_px"] = crop_px
-    if crop_fraction is not None:
-        changes["crop_fraction"] = crop_fraction
-    if size is not None:
-        changes["output_size"] = _size_option(size)
+    steps = {"crop_px": crop_px, "crop_fraction": crop_fraction, "output_size": _size_option(size)}
+    changes |= {step: value for step, value in steps.items() if value is not None}
     result = run_calibration(
         source,
         geometry=replace(geometry, **changes),
@@ -1396,7 +1331,7 @@ def calibrate(
     if as_json:
         document = result.to_dict()
         document.pop("reference_png_base64")  # the image is in the file, not on screen
-        typer.echo(json.dumps({"out": str(out), **document}, indent=2))
+        typer.echo(_json({"out": str(out), **document}))
         return
     height, width = result.frame_size
     typer.echo(
@@ -1414,42 +1349,33 @@ def calibrate_depth_command(
             "each; with --frames, one live source spec instead."
         ),
     ],
-    ball_radius_mm: Annotated[
-        float, typer.Option("--ball-radius-mm", help="Radius of the ball in mm.")
-    ],
-    px_per_mm: Annotated[
-        float, typer.Option("--px-per-mm", help="Pixel density of the sensor frames, px/mm.")
-    ],
-    out: Annotated[
-        Path, typer.Option("--out", help="Calibration JSON to write (depth model inside).")
-    ],
+    ball_radius_mm: Annotated[float, typer.Option(help="Radius of the ball in mm.")],
+    px_per_mm: Annotated[float, typer.Option(help="Pixel density of the sensor frames, px/mm.")],
+    out: Annotated[Path, typer.Option(help="Calibration JSON to write (depth model inside).")],
     reference: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
-            "--reference",
             help="No-contact frame (an image). Default: --calibration's reference, else the "
-            "per-pixel median of the presses.",
+            "per-pixel median of the presses."
         ),
     ] = None,
     calibration: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
-            "--calibration",
             help="A calibration from `calibrate` to extend: its geometry and reference carry "
-            "over to --out.",
+            "over to --out."
         ),
     ] = None,
     circles: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
-            "--circles",
             help="Given contact circles, lines 'NAME (x, y) r' or 'NAME,x,y,r' in px; "
-            "presses not listed are found automatically.",
+            "presses not listed are found automatically."
         ),
     ] = None,
     frames: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option("--frames", help="Take this many presses from the live source PRESSES names."),
+        Optional[int],
+        typer.Option(help="Take this many presses from the live source PRESSES names."),
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
@@ -1471,9 +1397,7 @@ def calibrate_depth_command(
 
     check_output_file(out, "sensor calibration", is_calibration_file, option="--out")
     sensor = SensorCalibration.load(calibration) if calibration is not None else None
-    ref = None
-    if reference is not None:
-        ref = read_image(reference)
+    ref = read_image(reference) if reference is not None else None
     if frames is not None:
         if len(presses) != 1:
             raise typer.BadParameter("--frames takes one live source spec as PRESSES")
@@ -1492,28 +1416,24 @@ def calibrate_depth_command(
         source=" ".join(presses),
     )
     result.calibration.save(out)
-    if as_json:
-        typer.echo(json.dumps(result.calibration.depth_model.report, indent=2))
-        return
-    typer.echo(result.format())
-    typer.echo(f"Calibration {out}: depth model and {px_per_mm:g} px/mm")
+    saved = f"Calibration {out}: depth model and {px_per_mm:g} px/mm"
+    report = result.calibration.depth_model.report
+    typer.echo(_json(report) if as_json else f"{result.format()}\n{saved}")
 
 
 @app.command()
 def depth(
     frames: Annotated[list[Path], typer.Argument(help="Images (or folders of images).")],
-    out: Annotated[Path, typer.Option("--out", help="Directory to write STEM.npy into.")],
+    out: Annotated[Path, typer.Option(help="Directory to write STEM.npy into.")],
     calibration: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
-            "--calibration",
             help="Calibration with a depth model (`calibrate-depth`); without one, the "
-            "public dataset's heuristic.",
+            "public dataset's heuristic."
         ),
     ] = None,
     reference: Annotated[
-        Optional[Path],  # noqa: UP045
-        typer.Option("--reference", help="No-contact frame (default: the calibration's)."),
+        Optional[Path], typer.Option(help="No-contact frame (default: the calibration's).")
     ] = None,
     png: Annotated[bool, typer.Option("--png", help="Also write a coloured STEM.png.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
@@ -1531,7 +1451,7 @@ def depth(
     written = write_depth_maps(read_images(frames), out, sensor=sensor, reference=ref, png=png)
     if as_json:
         rows = [{"depth_npy": str(path), "peak_depth_mm": peak} for path, peak in written]
-        typer.echo(json.dumps(rows, indent=2))
+        typer.echo(_json(rows))
         return
     for path, peak in written:
         typer.echo(f"{path}: peak {peak:.3f} mm")
@@ -1540,39 +1460,28 @@ def depth(
 @app.command()
 def record(
     source: SourceArg,
-    out: Annotated[Path, typer.Option("--out", help="Dataset directory (raw layout).")],
+    out: Annotated[Path, typer.Option(help="Dataset directory (raw layout).")],
     object_name: Annotated[str, typer.Option("--object", help="Object name (its directory).")],
-    modulus: Annotated[float, typer.Option("--modulus", help="Young's modulus E in Pa.")],
-    readings: Annotated[
-        Path,
-        typer.Option(
-            "--readings",
-            help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
-            "writes it when the source is a live device.",
-        ),
-    ],
+    modulus: Annotated[float, typer.Option(help="Young's modulus E in Pa.")],
+    readings: ReadingsOption,
     material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
     shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
     calibration: CalibrationOption = None,
     reference: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option(
-            "--reference",
             help="A no-contact frame (image file: a camera frame, or one already cut to the "
-            "sensor frame); replaces the calibration's reference and the first frame.",
+            "sensor frame); replaces the calibration's reference and the first frame."
         ),
     ] = None,
     markers_source: Annotated[
-        Optional[str],  # noqa: UP045
-        typer.Option("--markers-source", help="A second sensor (the marker finger)."),
+        Optional[str], typer.Option(help="A second sensor (the marker finger).")
     ] = None,
     markers_calibration: Annotated[
-        Optional[Path],  # noqa: UP045
-        typer.Option("--markers-calibration", help="Calibration of the second sensor."),
+        Optional[Path], typer.Option(help="Calibration of the second sensor.")
     ] = None,
     max_frames: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option("--max-frames", min=1, help="Stop after this many frames (default: release)."),
+        Optional[int], typer.Option(min=1, help="Stop after this many frames (default: release).")
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
@@ -1608,12 +1517,9 @@ def record(
             markers_calibration=marker_sensor,
             max_frames=max_frames,
         )
-    if as_json:
-        typer.echo(json.dumps(result.to_dict(), indent=2))
-        return
-    typer.echo(result.format())
     fingers = "" if markers_source is not None else " --fingers markerless"
-    typer.echo(f"Next: tactile-compliance import burgess {out} --out STORE{fingers}")
+    next_step = f"Next: tactile-compliance import burgess {out} --out STORE{fingers}"
+    typer.echo(_json(result.to_dict()) if as_json else f"{result.format()}\n{next_step}")
 
 
 @app.command()
@@ -1626,38 +1532,25 @@ def live(
         ),
     ],
     source: SourceArg,
-    readings: Annotated[
-        Path,
-        typer.Option(
-            "--readings",
-            help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot "
-            "writes it when the source is a live device.",
-        ),
-    ],
+    readings: ReadingsOption,
     calibration: CalibrationOption = None,
     window: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option("--window", min=3, help="Estimate from the last N frames (default: all)."),
+        Optional[int], typer.Option(min=3, help="Estimate from the last N frames (default: all).")
     ] = None,
     window_s: Annotated[
-        Optional[float],  # noqa: UP045
+        Optional[float],
         typer.Option(
-            "--window-s",
             min=0,
             help="Estimate from the last S seconds before the peak, by the frames' timestamps "
             "(not with --window; the same at any frame rate).",
         ),
     ] = None,
-    level: Annotated[
-        float,
-        typer.Option(min=0, max=1, help="Ensemble interval coverage."),
-    ] = 0.8,
+    level: Annotated[float, typer.Option(min=0, max=1, help="Ensemble interval coverage.")] = 0.8,
     readings_offset_s: Annotated[
         float,
         typer.Option(
-            "--readings-offset-s",
             help="Seconds added to a frame's time to find its reading: the readings' clock "
-            "minus the sensor's (0 when the robot logs time.monotonic() on this machine).",
+            "minus the sensor's (0 when the robot logs time.monotonic() on this machine)."
         ),
     ] = 0.0,
     fps: FolderFpsOption = None,
@@ -1704,14 +1597,14 @@ def live(
 def report(
     results: Annotated[Path, typer.Argument(help="Results store directory (holds rows/*.json).")],
     out: Annotated[
-        Optional[Path],  # noqa: UP045
+        Optional[Path],
         typer.Option("--out", "-o", help="Output directory (default: RESULTS/report)."),
     ] = None,
     formats: Annotated[
         str, typer.Option("--format", "-f", help="Comma-separated formats: md, html, tex.")
     ] = "md,html",
     stores: Annotated[
-        Optional[list[Path]],  # noqa: UP045
+        Optional[list[Path]],
         typer.Option("--store", help="Extra GraspStore to draw in Fig. 1 (repeatable)."),
     ] = None,
     as_json: Annotated[
@@ -1726,33 +1619,28 @@ def report(
     from tactile_compliance.evaluation.report import build_report
 
     summary = build_report(results, out, formats=formats, stores=stores or ())
-    if as_json:
-        payload = {
-            "results_dir": str(summary.results_dir),
-            "out_dir": str(summary.out_dir),
-            "documents": {k: str(v) for k, v in summary.documents.items()},
-            "figures": {k: str(v) for k, v in summary.figures.items()},
-            "tables": sorted(summary.tables),
-            "notes": summary.notes,
-            "rows": summary.n_rows,
-            "complete": summary.n_complete,
-            "failed": summary.n_failed,
-        }
-        typer.echo(json.dumps(payload, indent=2))
-        return
-    typer.echo(str(summary))
+    payload = {
+        "results_dir": str(summary.results_dir),
+        "out_dir": str(summary.out_dir),
+        "documents": {k: str(v) for k, v in summary.documents.items()},
+        "figures": {k: str(v) for k, v in summary.figures.items()},
+        "tables": sorted(summary.tables),
+        "notes": summary.notes,
+        "rows": summary.n_rows,
+        "complete": summary.n_complete,
+        "failed": summary.n_failed,
+    }
+    typer.echo(_json(payload) if as_json else str(summary))
 
 
 @app.command()
 def demo(
-    out: Annotated[Path, typer.Option("--out", help="Where everything is written.")] = Path(
-        "demo-output"
-    ),
+    out: Annotated[Path, typer.Option(help="Where everything is written.")] = Path("demo-output"),
     mode: Annotated[
         DemoMode, typer.Option(help="full (a few minutes on 2 CPU cores) or ci (seconds, tiny).")
     ] = "full",
     workers: Annotated[
-        Optional[int],  # noqa: UP045
+        Optional[int],
         typer.Option(min=1, help="Dask worker processes for the grids (default: CPUs, at most 4)."),
     ] = None,
     as_json: Annotated[
@@ -1771,19 +1659,16 @@ def demo(
     """
     from tactile_compliance.demo import run_demo
 
-    if as_json:
-        summary = run_demo(out, mode=mode, workers=workers, echo=lambda t: typer.echo(t, err=True))
-        typer.echo(json.dumps(summary.to_dict(), indent=2, default=str))
-        return
-    summary = run_demo(out, mode=mode, workers=workers, echo=typer.echo)
-    typer.echo(summary.format())
+    echo = (lambda text: typer.echo(text, err=True)) if as_json else typer.echo  # stdout: JSON only
+    summary = run_demo(out, mode=mode, workers=workers, echo=echo)
+    typer.echo(_json(summary.to_dict()) if as_json else summary.format())
 
 
 @app.command()
 def sim2real(
-    out: Annotated[
-        Path, typer.Option("--out", help="Where the data, the run and DIR/best.pt go.")
-    ] = Path("sim2real-output"),
+    out: Annotated[Path, typer.Option(help="Where the data, the run and DIR/best.pt go.")] = Path(
+        "sim2real-output"
+    ),
     rig: Annotated[
         RigName,
         typer.Option(
@@ -1796,8 +1681,7 @@ def sim2real(
     ] = "full",
     seed: Annotated[int, typer.Option(min=0, help="Generation and training seed.")] = 0,
     workers: Annotated[
-        Optional[int],  # noqa: UP045
-        typer.Option(min=1, help="Generator processes (default: all CPUs)."),
+        Optional[int], typer.Option(min=1, help="Generator processes (default: all CPUs).")
     ] = None,
     device: DeviceOption = DEFAULT_DEVICE,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
@@ -1821,10 +1705,7 @@ def sim2real(
         progress=not as_json,
         echo=(lambda text: typer.echo(text, err=True)) if as_json else typer.echo,
     )
-    if as_json:
-        typer.echo(json.dumps(summary.to_dict(), indent=2))
-        return
-    typer.echo(summary.format())
+    typer.echo(_json(summary.to_dict()) if as_json else summary.format())
 
 
 if __name__ == "__main__":  # pragma: no cover
