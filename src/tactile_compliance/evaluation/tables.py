@@ -399,7 +399,9 @@ def _reference_stats(
                 seeds = sorted(int(s) for s in per_seed.index)
                 records.append((f"ref_{name}", inputs, protocol, metric, mean, std, n, seeds))
     columns = ["model", "inputs", "protocol", "metric", "mean", "std", "n", "seeds"]
-    return pd.DataFrame(records, columns=columns)
+    # dtype=object keeps a reference without inputs (median, analytical) as None, the key
+    # its row is looked up by; pandas would turn it into NaN beside string inputs.
+    return pd.DataFrame(records, columns=columns, dtype=object)
 
 
 def _has_reference(rows: pd.DataFrame, name: str) -> bool:
