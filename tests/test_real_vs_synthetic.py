@@ -65,7 +65,12 @@ def test_the_wedge_rig_closes_like_the_real_rig_on_the_golf_ball(
     if not real_folder.is_dir():
         pytest.skip(f"{real_folder} is not present")
     real = real_vs_synthetic.real_grasps(real_folder)["golf_ball"]
-    simulated = real_vs_synthetic.simulated_grasps(object_table_csv, 0, "wedge-2023")
+    from tactile_compliance.synthetic.timeseries import RIGS
+
+    simulated = real_vs_synthetic.simulated_grasps(
+        object_table_csv, 0, RIGS["wedge-2023"], labels=["golf_ball"]
+    )
+    assert list(simulated) == ["golf_ball"]
     k_real = np.mean([g["stiffness_n_per_mm"] for g in real])
     k_wedge = np.mean([g["stiffness_n_per_mm"] for g in simulated["golf_ball"]])
     # Fitted on these grasps (docs/synthetic.md): within 25 %; the dataset rig is ~5x stiffer.
