@@ -34,16 +34,20 @@ in range, of the wrong size or with a time going backwards is skipped and report
 (:attr:`RecordedGrasp.skipped`); the capture goes on.
 
 What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps: what
-``record`` guarantees"): it writes only into a new or empty directory or one ``record``
-wrote (``outputs.claim_output_dir``, kind ``record``), refusing a GraspStore, a run
-directory or other files before the capture starts; the write (grasp number,
-``metadata.json``, the grasp, the object table) holds an exclusive lock on
-``OUT/.record.lock``, so concurrent ``record``s each get their own grasp number and
-every object keeps its row in the atomically replaced table, a row that follows
-``metadata.json``; a failed write (a full disk) removes the grasp's temporary directory
-and a ``metadata.json`` it created, leaving no object without grasps; object names
-(letters, digits and ``_ . + -``) and the saved forces and widths (``data.plausibility``:
-a width in millimetres is refused) are checked before anything is written.
+``record`` guarantees"):
+
+* it writes only into a new or empty directory or one ``record`` wrote
+  (``outputs.claim_output_dir``, kind ``record``); a GraspStore, a run directory or other
+  files are refused before the capture starts;
+* the write (grasp number, ``metadata.json``, the grasp, the object table) holds an
+  exclusive lock on ``OUT/.record.lock``, so concurrent ``record``s each get their own
+  grasp number and every object keeps its row in the atomically replaced table; the row
+  follows ``metadata.json``;
+* a failed write (a full disk) removes the grasp's temporary directory and a
+  ``metadata.json`` it created: no object is left without grasps;
+* object names (letters, digits and ``_ . + -``) and the saved forces and widths
+  (``data.plausibility``: a width in millimetres is refused) are checked before anything
+  is written.
 """
 
 from __future__ import annotations
