@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from tactile_compliance.data.store import FORCE_COLUMNS, WIDTH_COLUMNS
 from tactile_compliance.inference.estimator import ComplianceEstimator
 from tactile_compliance.inference.predict import predict_path
 from tactile_compliance.runs.checkpoint import load_checkpoint
@@ -54,12 +55,11 @@ def test_a_run_trains_on_the_gpu_and_its_checkpoint_loads_anywhere(gpu_run):
 
 def test_gpu_predictions_take_cpu_inputs_and_match_the_cpu(gpu_run):
     store, run_dir, _ = gpu_run
-    ids = np.arange(len(store))
-    rows = store.samples.iloc[ids]
-    frames = store.load_frames(ids)
+    rows = store.samples
+    frames = store.load_frames(rows["sample_id"].to_numpy())
     scalars = {
-        "force": rows[[f"force_n_{i}" for i in range(3)]].to_numpy(),
-        "width": rows[[f"width_m_{i}" for i in range(3)]].to_numpy(),
+        "force": rows[list(FORCE_COLUMNS)].to_numpy(),
+        "width": rows[list(WIDTH_COLUMNS)].to_numpy(),
     }
     on_gpu = ComplianceEstimator.from_checkpoint(run_dir, device="cuda").predict(frames, **scalars)
     on_cpu = ComplianceEstimator.from_checkpoint(run_dir, device="cpu").predict(frames, **scalars)
@@ -70,5 +70,5 @@ def test_gpu_predictions_take_cpu_inputs_and_match_the_cpu(gpu_run):
     # The command's path (`predict --device cuda`) gives the same numbers.
     report = predict_path(run_dir, store.path, device="cuda")
     by_id = {p["sample_id"]: p["pred_log10_pa"] for p in report["predictions"]}
-    command = np.array([by_id[i] for i in store.samples["sample_id"].to_numpy()[ids]])
+    command = np.array([by_id[i] for i in rows["sample_id"]])
     np.testing.assert_allclose(command, on_cpu.log10_modulus_pa, atol=GPU_VS_CPU_DECADES, rtol=0)

@@ -65,7 +65,6 @@ from tactile_compliance.data.splits import Split, make_split_from_config
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import create_model, get_model_class
-from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.outputs import atomic_file, claim_output_dir, exclusive_lock
 from tactile_compliance.runs.checkpoint import (
     FROZEN_BACKBONE_SEED,
@@ -232,25 +231,20 @@ def evaluate_model(
     batch_size: int,
     device: str | torch.device = DEFAULT_DEVICE,
     *,
-    inputs: InputStrategy | str | None = None,
     seed: int = 0,
 ) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Predictions on val and test, test metrics (overall, grouped, reference predictors).
 
-    ``inputs`` (the run's input strategy) adds the scalar reference on that strategy's
+    The run's input strategy (``data.run_inputs.inputs``) adds the scalar reference on its
     scalar inputs (none for Image), fitted with ``random_state=seed``; the references are
     fitted on the split's training rows (before balancing) and scored on its test rows.
     """
+    constants, image_size = data.run_inputs.constants, data.run_inputs.image_size
     frames = []
     for name, ids in (("val", data.split.val_ids), ("test", data.split.test_ids)):
-        dataset = GraspDataset(data.store, ids, data.run_inputs.constants, features)
+        dataset = GraspDataset(data.store, ids, constants, features)
         predicted = predict_dataset(
-            model,
-            dataset,
-            data.run_inputs.constants,
-            data.run_inputs.image_size,
-            batch_size=batch_size,
-            device=device,
+            model, dataset, constants, image_size, batch_size=batch_size, device=device
         )
         frames.append(_predictions_frame(data, ids, predicted, name))
     predictions = pd.concat(frames, ignore_index=True)
@@ -259,15 +253,15 @@ def evaluate_model(
     reference = reference_predictions(
         data.store.samples.iloc[data.split.train_ids],
         data.store.samples.iloc[data.split.test_ids],
-        data.run_inputs.constants,
-        inputs=inputs,
+        constants,
+        inputs=data.run_inputs.inputs,
         seed=seed,
     )
     metrics = {
-        "test": compute_metrics(test["modulus_pa"], test["pred_pa"], data.run_inputs.constants),
-        "val": compute_metrics(val["modulus_pa"], val["pred_pa"], data.run_inputs.constants),
+        "test": compute_metrics(test["modulus_pa"], test["pred_pa"], constants),
+        "val": compute_metrics(val["modulus_pa"], val["pred_pa"], constants),
         "reference": {
-            name: compute_metrics(test["modulus_pa"].to_numpy(), values, data.run_inputs.constants)
+            name: compute_metrics(test["modulus_pa"].to_numpy(), values, constants)
             for name, values in reference.items()
         },
     }
@@ -531,7 +525,6 @@ def _fit_and_evaluate(
         features,
         batch_size=max(64, cfg.training.batch_size),
         device=device,
-        inputs=cfg.inputs,
         seed=cfg.seed,
     )
     predictions.to_csv(run_dir / "predictions.csv", index=False)
