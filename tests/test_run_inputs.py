@@ -125,7 +125,10 @@ def test_predict_live_onnx_and_evaluation_agree_across_frame_sizes(setup):
         loaded.run_inputs.image_size,
     )
     evaluated_log10 = np.log10(denormalise_modulus(evaluated.astype(np.float64), constants))
-    np.testing.assert_allclose(evaluated_log10, predicted, rtol=0, atol=1e-5)
+    # 1e-4 decades, as for ONNX and live below: the two paths batch the samples
+    # differently, and float32 sums then differ with the CPU's thread count (3.6e-5
+    # decades on a 16-core Xeon; a wrong frame size moves the value by more, see below).
+    np.testing.assert_allclose(evaluated_log10, predicted, rtol=0, atol=1e-4)
 
     # The ONNX export on the same store's samples.
     samples = store.samples.sort_values("augmentation")
