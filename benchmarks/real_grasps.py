@@ -312,10 +312,14 @@ def draw_figure(result: dict[str, Any], path: Path) -> Path:
 def _model_names(models: Sequence[Path]) -> list[str]:
     """Short unique names: the run directory's (or the export's) name without the run
     name's trailing hash (``top10nn-ALL-unseen-random-seed0-cf1c812ecd`` ->
-    ``top10nn-ALL-unseen-random-seed0``)."""
+    ``top10nn-ALL-unseen-random-seed0``); a checkpoint not called ``best.pt`` by its own
+    name (``models/seed1.pt`` -> ``seed1``)."""
     names: list[str] = []
     for model in models:
-        name = model.parent.name if model.suffix == ".pt" else model.name
+        if model.suffix == ".pt":
+            name = model.parent.name if model.name == "best.pt" else model.stem
+        else:
+            name = model.name
         name = re.sub(r"-[0-9a-f]{10}$", "", name) or name
         base, k = name, 2
         while name in names:

@@ -74,6 +74,25 @@ def test_the_summary_uses_the_projects_metrics():
     assert rows[0]["m"] == pytest.approx(1e5) and rows[1]["m"] is None
 
 
+def test_models_are_named_by_their_run_or_their_own_file():
+    names = real_grasps._model_names(
+        [
+            Path("runs/top10nn-ImageFW-unseen-random-seed0-cf1c812ecd/best.pt"),
+            Path("models/seed1.pt"),
+            Path("models/seed2.pt"),
+            Path("exports/top10nn"),
+            Path("other/top10nn/best.pt"),
+        ]
+    )
+    assert names == [
+        "top10nn-ImageFW-unseen-random-seed0",
+        "seed1",
+        "seed2",
+        "top10nn",
+        "top10nn-2",
+    ]
+
+
 def test_predict_takes_an_exported_directory_like_live(tmp_path):
     """The benchmark's --model is what predict takes: a checkpoint or an export."""
     pytest.importorskip("safetensors")
