@@ -34,8 +34,9 @@ def test_the_data_comes_from_the_rig_and_the_model_from_the_preset(sim2real_dir:
     assert generation["options"]["rig"]["peak_force_n"] == [23.0, 2.5]
     assert GraspStore.open(sim2real_dir / "store").forces_n().max() < 35.0  # not ~60 N
     meta = torch.load(sim2real_dir / "best.pt", map_location="cpu", weights_only=False)
-    assert meta["run_inputs"]["inputs"] == "ImageFW"
-    assert meta["run_inputs"]["image_size"] == [65, 65]
+    assert meta["model_name"] == "vgg_lstm" and meta["config"]["model"]["freeze_backbone"]
+    assert meta["run_inputs"]["inputs"] == "ALL"
+    assert meta["run_inputs"]["image_size"] == [32, 32]
     assert meta["config"]["data"]["fingers"] == ["markerless"]
 
 
