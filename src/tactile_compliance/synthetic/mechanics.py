@@ -296,8 +296,10 @@ def contact_curve(
     qc = wc * e_c * e_o
     disc = np.sqrt(np.maximum(qb * qb - np.float32(4.0) * qa * qc, np.float32(0.0)))
     denom = -qb + disc
-    tiny = np.float32(1e-30)
-    pressure = np.where(masks & (denom > 0), 2.0 * qc / np.maximum(denom, tiny), np.float32(0))
+    # Divide only inside the contact: np.where would divide in every cell and overflow
+    # (a RuntimeWarning in every generator process) where denom is tiny outside it.
+    valid = masks & (denom > 0)
+    pressure = np.divide(2.0 * qc, denom, out=np.zeros(valid.shape, np.float32), where=valid)
     forces = pressure.sum(axis=1, dtype=np.float64) * grid.cell_area_m2
     gel_depth = None
     object_share = None
