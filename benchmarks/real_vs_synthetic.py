@@ -334,6 +334,7 @@ def main() -> None:
     parser.add_argument("--gel-pa", type=float, help="the rig's gel modulus [Pa]")
     parser.add_argument("--finger-stiffness", help="the rig's K_f range LO,HI [N/m]")
     parser.add_argument("--glow-gain", help="the rig's edge glow gain range LO,HI")
+    parser.add_argument("--light-balance", help="the rig's light balance G,R,B (factors)")
     parser.add_argument("--objects", help="comma-separated labels to simulate (default: all five)")
     parser.add_argument("--real-store", type=Path, help="store of the real grasps (images)")
     parser.add_argument(
@@ -407,6 +408,9 @@ def chosen_rig(args: argparse.Namespace) -> GripperRig:
         rig = dataclasses.replace(rig, finger_stiffness_n_per_m=pair(args.finger_stiffness))
     if args.glow_gain:
         rig = dataclasses.replace(rig, edge_glow_grey_per_mm=pair(args.glow_gain))
+    if args.light_balance:
+        balance = tuple(float(v) for v in args.light_balance.split(","))
+        rig = dataclasses.replace(rig, light_balance=balance)  # type: ignore[arg-type]
     return rig
 
 

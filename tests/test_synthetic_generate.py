@@ -280,6 +280,7 @@ def test_the_rig_sets_the_press_force_and_is_part_of_the_parameters(tmp_path: Pa
             "finger_stiffness_n_per_m": list(RIGS[rig].finger_stiffness_n_per_m),
             "edge_glow_grey_per_mm": list(RIGS[rig].edge_glow_grey_per_mm),
             "gel_modulus_pa": RIGS[rig].gel_modulus_pa,
+            "light_balance": list(RIGS[rig].light_balance),
         }
     assert peak_n["dataset"] > 50.0 and peak_n["wedge-2023"] < 35.0
     # Resuming a tree with another rig would mix two rigs in one dataset.
@@ -287,6 +288,36 @@ def test_the_rig_sets_the_press_force_and_is_part_of_the_parameters(tmp_path: Pa
         _generate(tmp_path / "dataset", rig="wedge-2023")
     with pytest.raises(GenerationError, match="unknown rig 'franka'"):
         _generate(tmp_path / "other", rig="franka")
+
+
+def test_the_light_balance_scales_one_light_and_draws_nothing() -> None:
+    from dataclasses import replace
+
+    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, render_recording
+    from tactile_compliance.synthetic.objects import default_objects
+
+    spec = default_objects(3, seed=4)[1]
+    rig = RIGS["wedge-2023"]
+    images = {}
+    for balance in ((1.0, 1.0, 1.0), (0.5, 1.0, 1.0)):
+        options = SimulationOptions(image_size=SMALL, rig=replace(rig, light_balance=balance))
+        result, frames = render_recording(make_context(spec, 4, options), 0)
+        force = result.timeline.force_n
+        # |difference| (stored around 0.5) at the force peak, BGR.
+        images[balance] = np.abs(frames[int(np.argmax(force))].astype(np.float64) - 0.5)
+    same, halved = images[(1.0, 1.0, 1.0)], images[(0.5, 1.0, 1.0)]
+    # The green light (G, channel 1 of BGR) prints half as strongly; the grasp is the same.
+    assert halved[..., 1].sum() < 0.75 * same[..., 1].sum()
+    assert halved[..., 2].sum() == pytest.approx(same[..., 2].sum(), rel=0.1)
+    assert np.array_equal(force, simulate_force(rig, spec))
+
+
+def simulate_force(rig: GripperRig, spec) -> np.ndarray:  # type: ignore[no-untyped-def]
+    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
+
+    return simulate_grasp(
+        make_context(spec, 4, SimulationOptions(image_size=SMALL, rig=rig)), 0
+    ).timeline.force_n
 
 
 def test_a_rig_must_be_physical() -> None:
@@ -298,6 +329,8 @@ def test_a_rig_must_be_physical() -> None:
         GripperRig(edge_glow_grey_per_mm=(0.0, 100.0))
     with pytest.raises(ValueError, match="gel modulus"):
         GripperRig(gel_modulus_pa=0.0)
+    with pytest.raises(ValueError, match="light balance"):
+        GripperRig(light_balance=(1.0, 0.0, 1.0))
 
 
 def test_the_rig_sets_the_gel_and_a_softer_gel_gives_a_larger_rigid_contact() -> None:

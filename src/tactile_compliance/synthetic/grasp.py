@@ -135,6 +135,11 @@ def _session(seed: int, session_id: int, rig: GripperRig) -> Session:
         for _ in range(2)
     )
     looks = (sample_sensor_look(rng, markers=False), sample_sensor_look(rng, markers=True))
+    # Scales the drawn strengths, drawing nothing: a rig's balance changes no other draw.
+    looks = tuple(  # type: ignore[assignment]
+        replace(look, light_gain=tuple(np.multiply(look.light_gain, rig.light_balance).tolist()))
+        for look in looks
+    )
     stiffness = rig.draw_finger_stiffness_n_per_m(rng)
     if rig.edge_glow_grey_per_mm[1] > 0:
         # Drawn last, so rigs without a glow keep every earlier draw (and their data).

@@ -82,12 +82,16 @@ class GripperRig:
         gel_modulus_pa: the sensor gel's median Young's modulus [Pa]; each session's two
             gels scatter about it by a factor 10^N(0, 0.05). A rigid ball's contact area
             at a known force measures it on a real sensor.
+        light_balance: factors on the drawn strengths of the sensor's three lights (G, R,
+            B) [-] (``render.SensorLook.light_gain``): the colour balance of an imprint.
+            A rigid ball's difference image measures it on a real sensor.
     """
 
     peak_force_n: tuple[float, float] = (60.0, 2.0)
     finger_stiffness_n_per_m: tuple[float, float] = (1e5, 6e5)
     edge_glow_grey_per_mm: tuple[float, float] = (0.0, 0.0)
     gel_modulus_pa: float = DEFAULT_GEL_MODULUS_PA
+    light_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
         mean, sd = self.peak_force_n
@@ -99,6 +103,8 @@ class GripperRig:
             raise ValueError(f"finger stiffness range must be 0 < lo <= hi N/m, got {lo}, {hi}")
         if not self.gel_modulus_pa > 0.0:
             raise ValueError(f"gel modulus must be positive, got {self.gel_modulus_pa} Pa")
+        if not all(factor > 0.0 for factor in self.light_balance):
+            raise ValueError(f"light balance factors must be positive, got {self.light_balance}")
         glow_lo, glow_hi = self.edge_glow_grey_per_mm
         if (glow_lo, glow_hi) != (0.0, 0.0) and not 0.0 < glow_lo <= glow_hi:
             raise ValueError(
