@@ -63,3 +63,25 @@ def test_rerunning_continues_and_foreign_folders_are_refused(
     with pytest.raises(OutputExistsError):
         run_sim2real(foreign, mode="ci", progress=False)
     assert (foreign / "notes.txt").read_text() == "keep me"
+
+
+def test_live_gives_the_estimate_that_record_and_predict_give(
+    sim2real_dir: Path, tmp_path: Path
+) -> None:
+    """The preset's model (frozen VGG16 features, ALL inputs) through the user path on a
+    recorded video: `live` recomputes the features and the estimates that `record` stored."""
+    from test_recording import _cli, _json_lines, make_grasp
+
+    grasp = make_grasp(tmp_path / "grasp", (250, 350))  # the estimators need this size
+    model = sim2real_dir / "best.pt"
+    sensor, data, store = tmp_path / "sensor.json", tmp_path / "data", tmp_path / "store"
+    common = ["--readings", grasp["readings"], "--calibration", sensor]
+    _cli("calibrate", f"video:{grasp['still']}", "--out", sensor, "--frames", 5)
+    label = ["--object", grasp["name"], "--modulus", grasp["modulus_pa"]]
+    _cli("record", f"video:{grasp['video']}", "--out", data, *label, *common)
+    _cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
+    predicted = json.loads(_cli("predict", model, store, "--json"))
+    first = next(p for p in predicted["predictions"] if p["augmentation"] == 0)
+    events = _json_lines(_cli("live", model, f"video:{grasp['video']}", *common, "--json"))
+    assert events[-1]["final"]
+    assert events[-1]["log10_modulus_pa"] == pytest.approx(first["pred_log10_pa"], abs=1e-5)

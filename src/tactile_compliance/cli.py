@@ -1677,7 +1677,7 @@ def sim2real(
         ),
     ] = "wedge-2023",
     mode: Annotated[
-        DemoMode, typer.Option(help="full (about 25 minutes on 2 CPU cores) or ci (seconds, tiny).")
+        DemoMode, typer.Option(help="full (about 7 minutes on 2 CPU cores) or ci (seconds, tiny).")
     ] = "full",
     seed: Annotated[int, typer.Option(min=0, help="Generation and training seed.")] = 0,
     workers: Annotated[
