@@ -155,6 +155,11 @@ def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
             "force_by_frame_n": [float(rows[f"force_n_{i}"].mean()) for i in range(3)],
             # The stored depth map's peak [mm] (record: the sensor's depth model).
             "depth_max_mm": float(rows["depth_max_mm_2"].mean()),
+            # The stored analytical estimates (geometric means) [Pa]: an ALL model's input.
+            **{
+                f"{name}_pa": float(10 ** np.log10(rows[f"{name}_estimate_pa"]).mean())
+                for name in ("elastic", "hertz")
+            },
             **{
                 f"p99_{c}": float(np.mean(np.percentile(np.abs(diff[..., i]), 99, axis=(1, 2))))
                 for i, c in enumerate("RGB")
@@ -302,7 +307,8 @@ def simulated_store(
 def print_image_stats(results: dict[str, dict[str, dict[str, float]]]) -> None:
     print(
         "\nobject                source     contact share  p99 |d| R  p99 |d| G  p99 |d| B"
-        "  median |d| outside  edge glow  p99 away  depth max [mm]  contact share at F1/F2/F3 [N]"
+        "  median |d| outside  edge glow  p99 away  depth max [mm]  elastic [Pa]  Hertz [Pa]"
+        "  contact share at F1/F2/F3 [N]"
     )
     for label, _ in OBJECTS.values():
         for source in ("real", "generator"):
@@ -318,7 +324,8 @@ def print_image_stats(results: dict[str, dict[str, dict[str, float]]]) -> None:
                     f"{label:21s} {source:9s} {row['contact_share']:13.3f}  {row['p99_R']:9.3f}"
                     f"  {row['p99_G']:9.3f}  {row['p99_B']:9.3f}  {row['outside_median']:18.4f}"
                     f"  {row['edge_glow_grey']:9.1f}  {row['p99_away_from_edge']:8.3f}"
-                    f"  {row['depth_max_mm']:14.2f}  {by_force}"
+                    f"  {row['depth_max_mm']:14.2f}  {row['elastic_pa']:12.2e}"
+                    f"  {row['hertz_pa']:10.2e}  {by_force}"
                 )
 
 

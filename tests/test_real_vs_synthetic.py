@@ -13,6 +13,7 @@ import pytest
 
 import real_vs_synthetic
 from tactile_compliance.data.burgess import import_burgess
+from tactile_compliance.data.store import GraspStore
 from tactile_compliance.synthetic import generate_burgess_tree
 
 
@@ -56,6 +57,18 @@ def test_image_stats_see_the_contact(tmp_path: Path) -> None:
         assert row["force_by_frame_n"][0] <= row["force_by_frame_n"][2] < 35.0
         assert 0.0 < row["outside_median"] < row["p99_B"] + row["p99_G"] + row["p99_R"]
         assert np.isfinite(row["edge_glow_grey"])
+    # The estimates: the geometric mean over the object's chosen samples, from the store.
+    samples = GraspStore.open(tmp_path / "store").samples
+    for label, row in stats.items():
+        chosen = samples[
+            (samples.object == label)
+            & (samples.augmentation == 0)
+            & (samples.finger == "markerless")
+        ]
+        for name in ("elastic", "hertz"):
+            expected = np.exp(np.log(chosen[f"{name}_estimate_pa"]).mean())
+            # (NaN where no fit succeeded: the estimators need larger frames than these.)
+            assert row[f"{name}_pa"] == pytest.approx(expected, rel=1e-9, nan_ok=True)
 
 
 def test_the_wedge_rig_closes_like_the_real_rig_on_the_golf_ball(
