@@ -85,3 +85,17 @@ def test_live_gives_the_estimate_that_record_and_predict_give(
     events = _json_lines(_cli("live", model, f"video:{grasp['video']}", *common, "--json"))
     assert events[-1]["final"]
     assert events[-1]["log10_modulus_pa"] == pytest.approx(first["pred_log10_pa"], abs=1e-5)
+
+
+def test_the_summary_warns_when_the_model_learned_nothing() -> None:
+    from tactile_compliance.sim2real import MIN_SYNTHETIC_R2, Sim2RealSummary
+
+    def summary(r2: float, mode: str = "full") -> str:
+        test = {"nmse": 0.08, "r2": r2, "log10_accuracy": 0.1}
+        return Sim2RealSummary(
+            Path("o"), Path("o/best.pt"), "wedge-2023", mode, {"train": 1.0}, test
+        ).format()
+
+    assert "Warning" in summary(MIN_SYNTHETIC_R2 - 0.01) and "--seed" in summary(-0.05)
+    assert "Warning" not in summary(0.25) and "R^2 0.25" in summary(0.25)
+    assert "Warning" not in summary(-0.05, mode="ci")  # a tiny run is not meant to learn
