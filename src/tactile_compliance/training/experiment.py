@@ -131,7 +131,6 @@ def _quiet_training_warnings() -> None:
         logging.getLogger(name).setLevel(logging.WARNING)
     quiet_lightning_warnings()
     warnings.filterwarnings("ignore", message=".*cached image features.*")
-    warnings.filterwarnings("ignore", message=".*augmentation is ignored with freeze_backbone.*")
 
 
 def _backbone_signature(cfg: ExperimentConfig) -> str:

@@ -434,12 +434,7 @@ def _fit_and_evaluate(
     # The weights file (e.g. from `pretrain`) the backbone started from: sha256 + provenance.
     weights_file = backbone_weights_file_record(model)
     if cfg.model.freeze_backbone:
-        if cfg.augmentation.enabled:
-            warnings.warn(
-                "augmentation is ignored with freeze_backbone: features are cached from "
-                "un-augmented frames (set augmentation.enabled=false to silence this)",
-                stacklevel=3,
-            )
+        # (Augmentation is ignored here; the config's validation already warned.)
         features = cached_features(
             data.store,
             model.backbone,
