@@ -27,7 +27,10 @@ drift), the green edge's glow (:func:`edge_glow_grey`), the 99th percentile of t
 largest channel's |difference| beyond the left 15 % of the frame (the imprint without the
 glow), the stored depth map's peak [mm]
 and the contact share at each of the three selected frames against their force (contact
-area against force).
+area against force). It then reads every frame of every grasp, the real videos through
+the calibrations ``benchmarks/real_grasps.py`` made (``OUT/work/calibrations``) and the
+generator's rendered frames, and prints the contact share at 5, 10, 15 and 20 N
+(``--contact-figure`` draws the curves).
 
     python benchmarks/real_vs_synthetic.py              # ~10 s
     python benchmarks/real_vs_synthetic.py --rig wedge-2023 --json out.json
@@ -284,6 +287,125 @@ def draw_backgrounds(results: dict[str, list[dict[str, object]]], path: Path) ->
     fig.savefig(path, dpi=80)
 
 
+#: Forces above the no-contact level [N] at which the contact curves are read.
+CURVE_FORCES_N = (5.0, 10.0, 15.0, 20.0)
+
+
+def contact_share(diff: np.ndarray) -> np.ndarray:
+    """Share of each frame (..., H, W, 3; difference around 0) where some channel differs
+    by more than 15 grey levels (the rule of :func:`image_stats`)."""
+    return (np.abs(diff).max(axis=-1) > 15 / 255).mean(axis=(-2, -1))
+
+
+def share_at_forces(force_above_n: np.ndarray, share: np.ndarray) -> list[float]:
+    """The contact share at :data:`CURVE_FORCES_N`, from the loading part of one grasp
+    (up to its force peak; NaN for a force it never reaches)."""
+    peak = int(np.argmax(force_above_n))
+    rising = np.maximum.accumulate(force_above_n[: peak + 1])  # monotone for np.interp
+    return [
+        float(np.interp(f, rising, share[: peak + 1])) if f <= rising[-1] else float("nan")
+        for f in CURVE_FORCES_N
+    ]
+
+
+def real_contact_curves(folder: Path, calibrations: Path) -> dict[str, list[dict[str, list]]]:
+    """Contact share against force over every frame of every real grasp, through the
+    calibrations ``benchmarks/real_grasps.py`` made (``OUT/work/calibrations``)."""
+    from tactile_compliance.acquisition.calibration import SensorCalibration
+    from tactile_compliance.acquisition.sensors import iter_frames
+    from tactile_compliance.inference.streaming import difference_image
+
+    out: dict[str, list[dict[str, list]]] = {}
+    for prefix, (label, _) in OBJECTS.items():
+        for video in sorted(folder.glob(f"{prefix}_[0-9].avi")):
+            calibration = SensorCalibration.load(calibrations / f"{video.stem}.json")
+            with calibration.open(f"wedge:{video}") as source:
+                diffs = [
+                    difference_image(frame, calibration.reference).astype(np.float32)
+                    for _, frame in iter_frames(source)
+                ]
+            share = contact_share((np.stack(diffs) + 0.5) / 255 - 0.5)
+            force = np.loadtxt(
+                video.with_name(f"{video.stem}_readings.csv"), delimiter=",", skiprows=1
+            )[: len(share), 1]
+            out.setdefault(label, []).append(_curve(force, share))
+    return out
+
+
+def simulated_contact_curves(
+    table: Path, seed: int, rig: GripperRig, labels: list[str] | None = None
+) -> dict[str, list[dict[str, list]]]:
+    """The same for the five objects simulated at 250 x 350 px (every frame rendered)."""
+    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, render_recording
+    from tactile_compliance.synthetic.objects import objects_from_table
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write_five_table(table, Path(tmp) / "five.csv", labels)
+        specs, _ = objects_from_table(path, seed=seed, grasps_per_object=3)
+    out: dict[str, list[dict[str, list]]] = {}
+    for spec in specs:
+        ctx = make_context(spec, seed, SimulationOptions(image_size=(250, 350), rig=rig))
+        for grasp in range(spec.n_grasps):
+            result, frames = render_recording(ctx, grasp)
+            share = contact_share(frames.astype(np.float32) - 0.5)
+            out.setdefault(spec.name, []).append(_curve(result.timeline.force_n, share))
+    return out
+
+
+def _curve(force_n: np.ndarray, share: np.ndarray) -> dict[str, list]:
+    above = np.asarray(force_n, dtype=np.float64) - force_baseline(force_n).level_n
+    return {
+        "force_above_n": above.round(3).tolist(),
+        "contact_share": np.asarray(share).round(4).tolist(),
+        "share_at_forces": share_at_forces(above, np.asarray(share)),
+    }
+
+
+def print_contact_curves(curves: dict[str, dict[str, list]]) -> None:
+    forces = "  ".join(f"{f:5.0f} N" for f in CURVE_FORCES_N)
+    print(
+        f"\ncontact share against force (every frame, mean of the grasps)\n{'object':21s} "
+        f"{'source':9s}  {forces}"
+    )
+    for label, _ in OBJECTS.values():
+        for source in ("real", "generator"):
+            grasps = curves[source].get(label)
+            if grasps:
+                means = np.nanmean([g["share_at_forces"] for g in grasps], axis=0)
+                print(f"{label:21s} {source:9s}  " + "  ".join(f"{v:7.3f}" for v in means))
+
+
+def draw_contact_curves(curves: dict[str, dict[str, list]], path: Path) -> None:
+    """One panel per object: contact share against force, real (solid) and generator
+    (dashed), every grasp up to its force peak."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(OBJECTS), figsize=(15, 3.2), sharey=True)
+    for ax, (label, _) in zip(axes, OBJECTS.values(), strict=True):
+        for source, style in (("real", "-"), ("generator", "--")):
+            for k, grasp in enumerate(curves[source].get(label, [])):
+                force = np.asarray(grasp["force_above_n"])
+                peak = int(np.argmax(force))
+                ax.plot(
+                    force[: peak + 1],
+                    np.asarray(grasp["contact_share"])[: peak + 1],
+                    style,
+                    color="C0" if source == "real" else "C1",
+                    lw=1,
+                    label=source if k == 0 else None,
+                )
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("force above baseline [N]")
+    axes[0].set_ylabel("contact share of the frame")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100, pil_kwargs={"optimize": True})
+    plt.close(fig)
+
+
 def simulated_store(
     table: Path, seed: int, rig: GripperRig, out: Path, labels: list[str] | None = None
 ) -> Path:
@@ -345,6 +467,9 @@ def main() -> None:
     parser.add_argument("--objects", help="comma-separated labels to simulate (default: all five)")
     parser.add_argument("--real-store", type=Path, help="store of the real grasps (images)")
     parser.add_argument(
+        "--contact-figure", type=Path, help="with --real-store: contact share against force"
+    )
+    parser.add_argument(
         "--background",
         type=Path,
         default=REFERENCE / "real/wedge-grasps/wedge_config/init_frame.png",
@@ -389,6 +514,13 @@ def main() -> None:
                 "generator": image_stats(synthetic),
             }
         print_image_stats(results["images"])
+        results["contact_curves"] = {
+            "real": real_contact_curves(args.real, args.real_store.parent / "calibrations"),
+            "generator": simulated_contact_curves(args.table, args.seed, rig, labels),
+        }
+        print_contact_curves(results["contact_curves"])
+        if args.contact_figure:
+            draw_contact_curves(results["contact_curves"], args.contact_figure)
     if args.background.is_file():
         results["backgrounds"] = backgrounds(args.background, args.seed, looks=4)
         print_backgrounds(results["backgrounds"])

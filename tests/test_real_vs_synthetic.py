@@ -103,3 +103,16 @@ def test_background_stats_read_vignetting_and_fine_noise() -> None:
     assert all(v > 25.0 for v in stats["vignetting"])  # corners ~40 grey levels darker
     assert all(1.5 < v < 2.5 for v in stats["fine_noise"])
     assert len(stats["columns"]) == 3 and len(stats["columns"][0]) == w
+
+
+def test_contact_curves_read_the_loading_part_at_fixed_forces() -> None:
+    diff = np.zeros((3, 4, 5, 3), dtype=np.float32)
+    diff[1, :2, :, 0] = 20 / 255  # half the frame past the 15-grey-level rule
+    diff[2, :, :, 2] = -16 / 255  # all of it
+    np.testing.assert_allclose(real_vs_synthetic.contact_share(diff), [0.0, 0.5, 1.0])
+    # Loading to 20 N, then unloading: the unloading part is not read.
+    force = np.array([0.0, 10.0, 20.0, 10.0, 0.0])
+    share = np.array([0.0, 0.2, 0.4, 0.9, 0.9])
+    at = real_vs_synthetic.share_at_forces(force, share)
+    np.testing.assert_allclose(at, [0.1, 0.2, 0.3, 0.4])
+    assert np.isnan(real_vs_synthetic.share_at_forces(force / 4, share)[2])  # never 15 N
