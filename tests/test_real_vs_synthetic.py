@@ -116,3 +116,26 @@ def test_contact_curves_read_the_loading_part_at_fixed_forces() -> None:
     at = real_vs_synthetic.share_at_forces(force, share)
     np.testing.assert_allclose(at, [0.1, 0.2, 0.3, 0.4])
     assert np.isnan(real_vs_synthetic.share_at_forces(force / 4, share)[2])  # never 15 N
+
+
+def test_real_contact_curves_replay_the_videos_through_their_calibration(
+    reference_data_dir: Path, tmp_path: Path
+) -> None:
+    """The golf ball's grasps (the one set that starts without contact): the contact grows
+    with the force, as the frames `record` keeps show it (docs/synthetic.md)."""
+    from test_real_grasps import _calibration
+
+    session = reference_data_dir / "real" / "wedge-grasps" / "2023-12-06"
+    if not session.is_dir():
+        pytest.skip(f"{session} is not present")
+    folder, calibrations = tmp_path / "videos", tmp_path / "calibrations"
+    folder.mkdir()
+    calibrations.mkdir()
+    for suffix in (".avi", "_readings.csv"):  # one grasp, linked (nothing copied)
+        (folder / f"golf_ball_1{suffix}").symlink_to(session / f"golf_ball_1{suffix}")
+    _calibration(tmp_path, folder / "golf_ball_1.avi").rename(calibrations / "golf_ball_1.json")
+    curves = real_vs_synthetic.real_contact_curves(folder, calibrations)
+    (grasp,) = curves["golf_ball"]
+    assert len(grasp["force_above_n"]) == len(grasp["contact_share"]) > 50
+    at = grasp["share_at_forces"]
+    assert at[0] < at[1] < at[2] < at[3] and 0.3 < at[3] < 0.6
