@@ -47,8 +47,9 @@ import csv
 import dataclasses
 import json
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -117,25 +118,45 @@ def write_five_table(table: Path, path: Path, labels: list[str] | None = None) -
     return path
 
 
-def simulated_grasps(
-    table: Path, seed: int, rig: GripperRig, labels: list[str] | None = None
-) -> dict[str, list[dict[str, float]]]:
+def simulated_recordings(
+    table: Path, seed: int, rig: GripperRig, labels: list[str] | None, image_size: tuple[int, int]
+) -> Iterator[tuple[str, Any, np.ndarray]]:
+    """``(label, simulated grasp, every frame)`` for the five objects' 3 grasps each, as
+    `simulate --object-table` makes them, rendered at ``image_size`` (H, W) [px]."""
     from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, render_recording
     from tactile_compliance.synthetic.objects import objects_from_table
 
     with tempfile.TemporaryDirectory() as tmp:
         path = write_five_table(table, Path(tmp) / "five.csv", labels)
         specs, _ = objects_from_table(path, seed=seed, grasps_per_object=3)
-    out: dict[str, list[dict[str, float]]] = {}
     for spec in specs:
-        ctx = make_context(spec, seed, SimulationOptions(image_size=(125, 175), rig=rig))
+        ctx = make_context(spec, seed, SimulationOptions(image_size=image_size, rig=rig))
         for grasp in range(spec.n_grasps):
-            result, _ = render_recording(ctx, grasp)
-            timeline = result.timeline
-            out.setdefault(spec.name, []).append(
-                closure_stats(np.asarray(timeline.force_n), np.asarray(timeline.width_m))
-            )
+            result, frames = render_recording(ctx, grasp)
+            yield spec.name, result, frames
+
+
+def simulated_grasps(
+    table: Path, seed: int, rig: GripperRig, labels: list[str] | None = None
+) -> dict[str, list[dict[str, float]]]:
+    out: dict[str, list[dict[str, float]]] = {}
+    # A small size: only the force and width time lines are used.
+    for label, result, _ in simulated_recordings(table, seed, rig, labels, (125, 175)):
+        timeline = result.timeline
+        out.setdefault(label, []).append(
+            closure_stats(np.asarray(timeline.force_n), np.asarray(timeline.width_m))
+        )
     return out
+
+
+#: A pixel is in contact where some channel differs from the reference by more than this
+#: many grey levels.
+CONTACT_GREY = 15
+
+
+def contact_share(diff: np.ndarray) -> np.ndarray:
+    """Share of each frame (..., H, W, 3; difference around 0) in contact (CONTACT_GREY)."""
+    return (np.abs(diff).max(axis=-1) > CONTACT_GREY / 255).mean(axis=(-2, -1))
 
 
 def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
@@ -148,9 +169,9 @@ def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
     out = {}
     for label, rows in chosen.groupby("object"):
         frames = store.load_frames(rows.sample_id.to_numpy()) - 0.5  # (n, 3, H, W, RGB)
-        shares = (np.abs(frames).max(axis=-1) > 15 / 255).mean(axis=(2, 3))  # (n, 3)
+        shares = contact_share(frames)  # (n, 3)
         diff = frames[:, 2]
-        contact = np.abs(diff).max(axis=-1) > 15 / 255
+        contact = np.abs(diff).max(axis=-1) > CONTACT_GREY / 255  # (n, H, W)
         out[str(label)] = {
             "contact_share": float(contact.mean()),
             # Contact area against force over the three selected frames.
@@ -291,12 +312,6 @@ def draw_backgrounds(results: dict[str, list[dict[str, object]]], path: Path) ->
 CURVE_FORCES_N = (5.0, 10.0, 15.0, 20.0)
 
 
-def contact_share(diff: np.ndarray) -> np.ndarray:
-    """Share of each frame (..., H, W, 3; difference around 0) where some channel differs
-    by more than 15 grey levels (the rule of :func:`image_stats`)."""
-    return (np.abs(diff).max(axis=-1) > 15 / 255).mean(axis=(-2, -1))
-
-
 def share_at_forces(force_above_n: np.ndarray, share: np.ndarray) -> list[float]:
     """The contact share at :data:`CURVE_FORCES_N`, from the loading part of one grasp
     (up to its force peak; NaN for a force it never reaches)."""
@@ -313,6 +328,7 @@ def real_contact_curves(folder: Path, calibrations: Path) -> dict[str, list[dict
     calibrations ``benchmarks/real_grasps.py`` made (``OUT/work/calibrations``)."""
     from tactile_compliance.acquisition.calibration import SensorCalibration
     from tactile_compliance.acquisition.sensors import iter_frames
+    from tactile_compliance.data.store import frames_from_uint8
     from tactile_compliance.inference.streaming import difference_image
 
     out: dict[str, list[dict[str, list]]] = {}
@@ -321,10 +337,10 @@ def real_contact_curves(folder: Path, calibrations: Path) -> dict[str, list[dict
             calibration = SensorCalibration.load(calibrations / f"{video.stem}.json")
             with calibration.open(f"wedge:{video}") as source:
                 diffs = [
-                    difference_image(frame, calibration.reference).astype(np.float32)
+                    difference_image(frame, calibration.reference)
                     for _, frame in iter_frames(source)
                 ]
-            share = contact_share((np.stack(diffs) + 0.5) / 255 - 0.5)
+            share = contact_share(frames_from_uint8(np.stack(diffs)) - 0.5)
             force = np.loadtxt(
                 video.with_name(f"{video.stem}_readings.csv"), delimiter=",", skiprows=1
             )[: len(share), 1]
@@ -336,19 +352,10 @@ def simulated_contact_curves(
     table: Path, seed: int, rig: GripperRig, labels: list[str] | None = None
 ) -> dict[str, list[dict[str, list]]]:
     """The same for the five objects simulated at 250 x 350 px (every frame rendered)."""
-    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, render_recording
-    from tactile_compliance.synthetic.objects import objects_from_table
-
-    with tempfile.TemporaryDirectory() as tmp:
-        path = write_five_table(table, Path(tmp) / "five.csv", labels)
-        specs, _ = objects_from_table(path, seed=seed, grasps_per_object=3)
     out: dict[str, list[dict[str, list]]] = {}
-    for spec in specs:
-        ctx = make_context(spec, seed, SimulationOptions(image_size=(250, 350), rig=rig))
-        for grasp in range(spec.n_grasps):
-            result, frames = render_recording(ctx, grasp)
-            share = contact_share(frames.astype(np.float32) - 0.5)
-            out.setdefault(spec.name, []).append(_curve(result.timeline.force_n, share))
+    for label, result, frames in simulated_recordings(table, seed, rig, labels, (250, 350)):
+        share = contact_share(frames.astype(np.float32) - 0.5)
+        out.setdefault(label, []).append(_curve(result.timeline.force_n, share))
     return out
 
 
