@@ -47,7 +47,7 @@ import csv
 import dataclasses
 import json
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -383,8 +383,25 @@ def print_contact_curves(curves: dict[str, dict[str, list]]) -> None:
 
 
 def draw_contact_curves(curves: dict[str, dict[str, list]], path: Path) -> None:
-    """One panel per object: contact share against force, real (solid) and generator
-    (dashed), every grasp up to its force peak."""
+    """Contact share against force, every grasp up to its force peak."""
+
+    def loading(grasp: dict) -> tuple[np.ndarray, np.ndarray]:
+        force = np.asarray(grasp["force_above_n"])
+        peak = int(np.argmax(force)) + 1
+        return force[:peak], np.asarray(grasp["contact_share"])[:peak]
+
+    draw_per_object(curves, loading, "force above baseline [N]", "contact share of the frame", path)
+
+
+def draw_per_object(
+    curves: dict[str, dict[str, list]],
+    xy: Callable[[dict], tuple[Any, Any]],
+    xlabel: str,
+    ylabel: str,
+    path: Path,
+) -> None:
+    """One panel per object, every grasp's ``xy(grasp)`` curve: real (solid) and the
+    generator (dashed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -394,19 +411,12 @@ def draw_contact_curves(curves: dict[str, dict[str, list]], path: Path) -> None:
     for ax, (label, _) in zip(axes, OBJECTS.values(), strict=True):
         for source, style in (("real", "-"), ("generator", "--")):
             for k, grasp in enumerate(curves[source].get(label, [])):
-                force = np.asarray(grasp["force_above_n"])
-                peak = int(np.argmax(force))
-                ax.plot(
-                    force[: peak + 1],
-                    np.asarray(grasp["contact_share"])[: peak + 1],
-                    style,
-                    color="C0" if source == "real" else "C1",
-                    lw=1,
-                    label=source if k == 0 else None,
-                )
+                color = "C0" if source == "real" else "C1"
+                x, y = xy(grasp)
+                ax.plot(x, y, style, color=color, lw=1, label=source if k == 0 else None)
         ax.set_title(label, fontsize=9)
-        ax.set_xlabel("force above baseline [N]")
-    axes[0].set_ylabel("contact share of the frame")
+        ax.set_xlabel(xlabel)
+    axes[0].set_ylabel(ylabel)
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100, pil_kwargs={"optimize": True})
@@ -561,29 +571,14 @@ def chosen_rig(args: argparse.Namespace) -> GripperRig:
 
 
 def draw(results: dict, path: Path) -> None:
-    """One panel per object: force above baseline against closure, real vs generator."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(OBJECTS), figsize=(15, 3.2), sharey=True)
-    for ax, (label, _) in zip(axes, OBJECTS.values(), strict=True):
-        for source, style in (("real", "-"), ("generator", "--")):
-            for k, row in enumerate(results[source].get(label, [])):
-                ax.plot(
-                    row["curve_closure_mm"],
-                    row["curve_force_n"],
-                    style,
-                    color="C0" if source == "real" else "C1",
-                    label=source if k == 0 else None,
-                )
-        ax.set_title(label, fontsize=9)
-        ax.set_xlabel("closure since contact [mm]")
-    axes[0].set_ylabel("force above baseline [N]")
-    axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    """Force above baseline against closure since contact."""
+    draw_per_object(
+        results,
+        lambda grasp: (grasp["curve_closure_mm"], grasp["curve_force_n"]),
+        "closure since contact [mm]",
+        "force above baseline [N]",
+        path,
+    )
 
 
 if __name__ == "__main__":
