@@ -29,8 +29,10 @@ glow), the stored depth map's peak [mm]
 and the contact share at each of the three selected frames against their force (contact
 area against force). It then reads every frame of every grasp, the real videos through
 the calibrations ``benchmarks/real_grasps.py`` made (``OUT/work/calibrations``) and the
-generator's rendered frames, and prints the contact share at 5, 10, 15 and 20 N
-(``--contact-figure`` draws the curves).
+generator's rendered frames, and prints the contact share and the depth map's peak (the
+dataset's heuristic on both sides) at 5, 10, 15 and 20 N (``--contact-figure`` and
+``--depth-figure`` draw the curves). ``--gel-mechanics`` prints the generator's contact
+mechanics alone: a rigid golf ball's geometric contact area on gel variants.
 
     python benchmarks/real_vs_synthetic.py              # ~10 s
     python benchmarks/real_vs_synthetic.py --rig wedge-2023 --json out.json
@@ -340,11 +342,11 @@ def real_contact_curves(folder: Path, calibrations: Path) -> dict[str, list[dict
                     difference_image(frame, calibration.reference)
                     for _, frame in iter_frames(source)
                 ]
-            share = contact_share(frames_from_uint8(np.stack(diffs)) - 0.5)
+            diff = frames_from_uint8(np.stack(diffs))
             force = np.loadtxt(
                 video.with_name(f"{video.stem}_readings.csv"), delimiter=",", skiprows=1
-            )[: len(share), 1]
-            out.setdefault(label, []).append(_curve(force, share))
+            )[: len(diff), 1]
+            out.setdefault(label, []).append(_curve(force, diff))
     return out
 
 
@@ -354,43 +356,57 @@ def simulated_contact_curves(
     """The same for the five objects simulated at 250 x 350 px (every frame rendered)."""
     out: dict[str, list[dict[str, list]]] = {}
     for label, result, frames in simulated_recordings(table, seed, rig, labels, (250, 350)):
-        share = contact_share(frames.astype(np.float32) - 0.5)
-        out.setdefault(label, []).append(_curve(result.timeline.force_n, share))
+        out.setdefault(label, []).append(_curve(result.timeline.force_n, frames))
     return out
 
 
-def _curve(force_n: np.ndarray, share: np.ndarray) -> dict[str, list]:
+#: What the curves read from every frame: its contact share (:data:`CONTACT_GREY`) and the
+#: peak of its depth map [mm] by the dataset's heuristic, as ``record`` computes it without
+#: a depth calibration (on both sides; the Wedge grasps come with no ball presses).
+CURVE_SERIES = {"contact_share": "contact share of the frame", "depth_peak_mm": "depth peak [mm]"}
+
+
+def _curve(force_n: np.ndarray, diff: np.ndarray) -> dict[str, list]:
+    """One grasp's curves from its force [N] and difference images (T, H, W, 3; BGR in
+    [0, 1], 0.5 = no change)."""
+    from tactile_compliance.data.photometric import reconstruct_depth
+
     above = np.asarray(force_n, dtype=np.float64) - force_baseline(force_n).level_n
-    return {
-        "force_above_n": above.round(3).tolist(),
-        "contact_share": np.asarray(share).round(4).tolist(),
-        "share_at_forces": share_at_forces(above, np.asarray(share)),
+    series = {
+        "contact_share": contact_share(diff.astype(np.float32) - 0.5),
+        "depth_peak_mm": reconstruct_depth(diff).max(axis=(1, 2)),
     }
+    curve: dict[str, list] = {"force_above_n": above.round(3).tolist()}
+    for key, values in series.items():
+        curve[key] = np.asarray(values).round(4).tolist()
+        curve[f"{key}_at_forces"] = share_at_forces(above, np.asarray(values))
+    return curve
 
 
 def print_contact_curves(curves: dict[str, dict[str, list]]) -> None:
     forces = "  ".join(f"{f:5.0f} N" for f in CURVE_FORCES_N)
-    print(
-        f"\ncontact share against force (every frame, mean of the grasps)\n{'object':21s} "
-        f"{'source':9s}  {forces}"
-    )
-    for label, _ in OBJECTS.values():
-        for source in ("real", "generator"):
-            grasps = curves[source].get(label)
-            if grasps:
-                means = np.nanmean([g["share_at_forces"] for g in grasps], axis=0)
-                print(f"{label:21s} {source:9s}  " + "  ".join(f"{v:7.3f}" for v in means))
+    for key, name in CURVE_SERIES.items():
+        print(
+            f"\n{name} against force (every frame, mean of the grasps)\n{'object':21s} "
+            f"{'source':9s}  {forces}"
+        )
+        for label, _ in OBJECTS.values():
+            for source in ("real", "generator"):
+                grasps = curves[source].get(label)
+                if grasps:
+                    means = np.nanmean([g[f"{key}_at_forces"] for g in grasps], axis=0)
+                    print(f"{label:21s} {source:9s}  " + "  ".join(f"{v:7.3f}" for v in means))
 
 
-def draw_contact_curves(curves: dict[str, dict[str, list]], path: Path) -> None:
-    """Contact share against force, every grasp up to its force peak."""
+def draw_contact_curves(curves: dict[str, dict[str, list]], key: str, path: Path) -> None:
+    """One of :data:`CURVE_SERIES` against force, every grasp up to its force peak."""
 
     def loading(grasp: dict) -> tuple[np.ndarray, np.ndarray]:
         force = np.asarray(grasp["force_above_n"])
         peak = int(np.argmax(force)) + 1
-        return force[:peak], np.asarray(grasp["contact_share"])[:peak]
+        return force[:peak], np.asarray(grasp[key])[:peak]
 
-    draw_per_object(curves, loading, "force above baseline [N]", "contact share of the frame", path)
+    draw_per_object(curves, loading, "force above baseline [N]", CURVE_SERIES[key], path)
 
 
 def draw_per_object(
@@ -421,6 +437,51 @@ def draw_per_object(
     fig.tight_layout()
     fig.savefig(path, dpi=100, pil_kwargs={"optimize": True})
     plt.close(fig)
+
+
+#: Gel variants of :func:`print_gel_mechanics`: the session gel of ``wedge-2023`` (its
+#: median modulus, the middle of its 3.5-5.5 mm thickness range), then without the thin
+#: layer's confinement, without the strain saturation, neither, a softer gel and a thick one.
+GEL_VARIANTS = {
+    "wedge-2023 gel": {},
+    "no confinement": {"confinement_kappa": 1e9},
+    "no saturation": {"max_strain": 5.0},
+    "neither": {"confinement_kappa": 1e9, "max_strain": 5.0},
+    "neither, 3e4 Pa": {"confinement_kappa": 1e9, "max_strain": 5.0, "modulus_pa": 3e4},
+    "neither, h 20 mm": {"confinement_kappa": 1e9, "max_strain": 5.0, "thickness_mm": 20.0},
+}
+
+
+def print_gel_mechanics(radius_mm: float = 21.3) -> dict[str, list[float]]:
+    """The generator's contact mechanics alone: the geometric contact area of a rigid ball
+    (the golf ball's radius [mm]) as a share of the visible frame, at
+    :data:`CURVE_FORCES_N`, for each of :data:`GEL_VARIANTS` (no rendering, no rig)."""
+    from tactile_compliance.synthetic.geometry import PadGrid
+    from tactile_compliance.synthetic.mechanics import GelModel, ObjectMechanics, force_curve
+    from tactile_compliance.synthetic.render import VISIBLE_SIZE_MM
+    from tactile_compliance.synthetic.timeseries import RIGS
+
+    grid = PadGrid(0.25)
+    x, y = grid.coords()
+    r2 = x.astype(np.float64) ** 2 + y.astype(np.float64) ** 2
+    sag = np.where(r2 < radius_mm**2, radius_mm - np.sqrt(np.maximum(radius_mm**2 - r2, 0)), 1e3)
+    # The visible crop, where the images' contact share is counted.
+    visible = (np.abs(x) < VISIBLE_SIZE_MM[0] / 2) & (np.abs(y) < VISIBLE_SIZE_MM[1] / 2)
+    golf = ObjectMechanics(8.5e8, size_mm=2 * radius_mm)
+    base = {"modulus_pa": RIGS["wedge-2023"].gel_modulus_pa, "thickness_mm": 4.5}
+    forces = "  ".join(f"{f:5.0f} N" for f in CURVE_FORCES_N)
+    print(f"geometric contact share of a rigid {radius_mm} mm ball\n{'gel':18s} {forces}  20/5 N")
+    out = {}
+    for name, changes in GEL_VARIANTS.items():
+        curve = force_curve(sag, GelModel(**(base | changes)), golf, grid, max_force_n=30.0)
+        approach = np.interp(CURVE_FORCES_N, curve.forces_n, curve.approaches_mm)
+        out[name] = [float((visible & (sag < a)).mean() / visible.mean()) for a in approach]
+        print(
+            f"{name:18s} "
+            + "  ".join(f"{v:7.3f}" for v in out[name])
+            + f"  {out[name][3] / out[name][0]:6.2f}"
+        )
+    return out
 
 
 def simulated_store(
@@ -487,6 +548,14 @@ def main() -> None:
         "--contact-figure", type=Path, help="with --real-store: contact share against force"
     )
     parser.add_argument(
+        "--depth-figure", type=Path, help="with --real-store: depth peak against force"
+    )
+    parser.add_argument(
+        "--gel-mechanics",
+        action="store_true",
+        help="print the geometric contact share of a rigid golf ball on gel variants and exit",
+    )
+    parser.add_argument(
         "--background",
         type=Path,
         default=REFERENCE / "real/wedge-grasps/wedge_config/init_frame.png",
@@ -498,6 +567,9 @@ def main() -> None:
     parser.add_argument("--json", type=Path)
     parser.add_argument("--figure", type=Path, help="Draw force against closure (PNG).")
     args = parser.parse_args()
+    if args.gel_mechanics:
+        print_gel_mechanics()
+        return
     if not args.real.is_dir():
         raise SystemExit(f"no real grasps at {args.real}")
     rig = chosen_rig(args)
@@ -537,7 +609,9 @@ def main() -> None:
         }
         print_contact_curves(results["contact_curves"])
         if args.contact_figure:
-            draw_contact_curves(results["contact_curves"], args.contact_figure)
+            draw_contact_curves(results["contact_curves"], "contact_share", args.contact_figure)
+        if args.depth_figure:
+            draw_contact_curves(results["contact_curves"], "depth_peak_mm", args.depth_figure)
     if args.background.is_file():
         results["backgrounds"] = backgrounds(args.background, args.seed, looks=4)
         print_backgrounds(results["backgrounds"])

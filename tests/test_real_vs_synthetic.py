@@ -6,6 +6,7 @@ the real grasps (``../shared/reference-data``) and skips when they are absent.
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -137,5 +138,19 @@ def test_real_contact_curves_replay_the_videos_through_their_calibration(
     curves = real_vs_synthetic.real_contact_curves(folder, calibrations)
     (grasp,) = curves["golf_ball"]
     assert len(grasp["force_above_n"]) == len(grasp["contact_share"]) > 50
-    at = grasp["share_at_forces"]
+    at = grasp["contact_share_at_forces"]
     assert at[0] < at[1] < at[2] < at[3] and 0.3 < at[3] < 0.6
+    depth = grasp["depth_peak_mm_at_forces"]  # the heuristic depth deepens with the force
+    assert depth[0] < depth[3] and 1.0 < depth[3] < 3.0
+
+
+def test_gel_mechanics_contact_grows_with_force_and_without_the_layer_limits(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    shares = real_vs_synthetic.print_gel_mechanics()
+    assert set(shares) == set(real_vs_synthetic.GEL_VARIANTS)
+    for values in shares.values():
+        assert all(0.0 < a < b < 1.0 for a, b in itertools.pairwise(values))
+    # The thin layer's confinement and the strain saturation both stiffen the gel.
+    assert shares["neither"][3] > shares["no saturation"][3] > shares["wedge-2023 gel"][3]
+    assert "20/5 N" in capsys.readouterr().out
