@@ -49,10 +49,12 @@ import csv
 import dataclasses
 import json
 import tempfile
+import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import cv2
 import numpy as np
 
 from tactile_compliance.data.force_readings import force_baseline
@@ -314,15 +316,43 @@ def draw_backgrounds(results: dict[str, list[dict[str, object]]], path: Path) ->
 CURVE_FORCES_N = (5.0, 10.0, 15.0, 20.0)
 
 
-def share_at_forces(force_above_n: np.ndarray, share: np.ndarray) -> list[float]:
-    """The contact share at :data:`CURVE_FORCES_N`, from the loading part of one grasp
+def at_forces(force_above_n: np.ndarray, values: np.ndarray) -> list[float]:
+    """Per-frame ``values`` at :data:`CURVE_FORCES_N`, from the loading part of one grasp
     (up to its force peak; NaN for a force it never reaches)."""
     peak = int(np.argmax(force_above_n))
     rising = np.maximum.accumulate(force_above_n[: peak + 1])  # monotone for np.interp
     return [
-        float(np.interp(f, rising, share[: peak + 1])) if f <= rising[-1] else float("nan")
+        float(np.interp(f, rising, values[: peak + 1])) if f <= rising[-1] else float("nan")
         for f in CURVE_FORCES_N
     ]
+
+
+#: The outer edge of a contact: where the largest channel's |difference|, blurred over
+#: OUTER_BLUR_PX, exceeds this many grey levels. Blurred and low, it takes in a textured
+#: contact whole, however faint its texture's contrast (the golf ball's dimples).
+OUTER_GREY = 8
+OUTER_BLUR_PX = 6.0
+#: Left share of the frame left out of the outer edge: the Wedge's green edge glow.
+GLOW_STRIP = 0.15
+
+
+def outer_radius_mm(diff: np.ndarray) -> float:
+    """Equivalent radius [mm] of the largest region inside :data:`OUTER_GREY`, holes filled,
+    away from the glow strip, in one difference image (H, W, 3; 0.5 = no change); NaN
+    without one."""
+    from tactile_compliance.synthetic.render import VISIBLE_SIZE_MM
+
+    grey = np.abs(np.asarray(diff, dtype=np.float32) - 0.5).max(axis=-1) * 255
+    grey = cv2.GaussianBlur(grey, (0, 0), OUTER_BLUR_PX)
+    grey[:, : int(GLOW_STRIP * grey.shape[1])] = 0
+    count, labels, stats, _ = cv2.connectedComponentsWithStats((grey > OUTER_GREY).astype(np.uint8))
+    if count < 2:
+        return float("nan")
+    largest = (labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
+    outline, _ = cv2.findContours(largest, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    filled = cv2.drawContours(np.zeros_like(largest), outline, -1, 1, thickness=-1)
+    mm_per_px = VISIBLE_SIZE_MM[0] / grey.shape[1]
+    return float(np.sqrt(filled.sum() / np.pi) * mm_per_px)
 
 
 def real_contact_curves(folder: Path, calibrations: Path) -> dict[str, list[dict[str, list]]]:
@@ -360,26 +390,37 @@ def simulated_contact_curves(
     return out
 
 
-#: What the curves read from every frame: its contact share (:data:`CONTACT_GREY`) and the
-#: peak of its depth map [mm] by the dataset's heuristic, as ``record`` computes it without
-#: a depth calibration (on both sides; the Wedge grasps come with no ball presses).
-CURVE_SERIES = {"contact_share": "contact share of the frame", "depth_peak_mm": "depth peak [mm]"}
+#: What the curves read from every frame: its contact share (:data:`CONTACT_GREY`), the
+#: contact's outer radius (:func:`outer_radius_mm`) and the peak of its depth map [mm] by
+#: the dataset's heuristic, as ``record`` computes it without a depth calibration (on both
+#: sides; the Wedge grasps come with no ball presses).
+CURVE_SERIES = {
+    "contact_share": "contact share of the frame",
+    "outer_radius_mm": "contact's outer radius [mm]",
+    "depth_peak_mm": "depth peak [mm]",
+}
 
 
 def _curve(force_n: np.ndarray, diff: np.ndarray) -> dict[str, list]:
     """One grasp's curves from its force [N] and difference images (T, H, W, 3; BGR in
-    [0, 1], 0.5 = no change)."""
+    [0, 1], 0.5 = no change); ``frames_at_forces`` keeps the frames nearest
+    :data:`CURVE_FORCES_N` (uint8, for :func:`draw_frames`; not written to JSON)."""
     from tactile_compliance.data.photometric import reconstruct_depth
 
     above = np.asarray(force_n, dtype=np.float64) - force_baseline(force_n).level_n
     series = {
         "contact_share": contact_share(diff.astype(np.float32) - 0.5),
+        "outer_radius_mm": [outer_radius_mm(frame) for frame in diff],
         "depth_peak_mm": reconstruct_depth(diff).max(axis=(1, 2)),
     }
-    curve: dict[str, list] = {"force_above_n": above.round(3).tolist()}
+    curve: dict[str, Any] = {"force_above_n": above.round(3).tolist()}
     for key, values in series.items():
         curve[key] = np.asarray(values).round(4).tolist()
-        curve[f"{key}_at_forces"] = share_at_forces(above, np.asarray(values))
+        curve[f"{key}_at_forces"] = at_forces(above, np.asarray(values))
+    nearest = at_forces(above, np.arange(len(above), dtype=np.float64))
+    curve["frames_at_forces"] = [
+        None if np.isnan(i) else np.uint8(np.clip(diff[round(i)], 0, 1) * 255) for i in nearest
+    ]
     return curve
 
 
@@ -394,7 +435,9 @@ def print_contact_curves(curves: dict[str, dict[str, list]]) -> None:
             for source in ("real", "generator"):
                 grasps = curves[source].get(label)
                 if grasps:
-                    means = np.nanmean([g[f"{key}_at_forces"] for g in grasps], axis=0)
+                    with warnings.catch_warnings():  # NaN where no grasp has a value
+                        warnings.simplefilter("ignore", RuntimeWarning)
+                        means = np.nanmean([g[f"{key}_at_forces"] for g in grasps], axis=0)
                     print(f"{label:21s} {source:9s}  " + "  ".join(f"{v:7.3f}" for v in means))
 
 
@@ -407,6 +450,37 @@ def draw_contact_curves(curves: dict[str, dict[str, list]], key: str, path: Path
         return force[:peak], np.asarray(grasp[key])[:peak]
 
     draw_per_object(curves, loading, "force above baseline [N]", CURVE_SERIES[key], path)
+
+
+#: The frames' differences from 0.5 are shown this many times stronger in
+#: :func:`draw_frames` (a faint imprint would not show otherwise).
+FRAMES_GAIN = 3.0
+
+
+def draw_frames(curves: dict[str, dict[str, list]], label: str, path: Path) -> None:
+    """The difference images of one object's first real and first simulated grasp at
+    :data:`CURVE_FORCES_N` (rows: real, generator), :data:`FRAMES_GAIN` times stronger."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sources = [s for s in ("real", "generator") if curves[s].get(label)]
+    fig, axes = plt.subplots(
+        len(sources), len(CURVE_FORCES_N), figsize=(12, 2.1 * len(sources)), squeeze=False
+    )
+    for row, source in zip(axes, sources, strict=True):
+        for ax, force, frame in zip(
+            row, CURVE_FORCES_N, curves[source][label][0]["frames_at_forces"], strict=True
+        ):
+            ax.set_axis_off()
+            ax.set_title(f"{source}, {force:.0f} N", fontsize=9)
+            if frame is not None:
+                strong = (frame.astype(np.float32) - 127.5) * FRAMES_GAIN + 127.5
+                ax.imshow(np.clip(strong, 0, 255).astype(np.uint8)[..., ::-1])  # BGR -> RGB
+    fig.tight_layout()
+    fig.savefig(path, dpi=80, pil_kwargs={"optimize": True})
+    plt.close(fig)
 
 
 def draw_per_object(
@@ -551,6 +625,13 @@ def main() -> None:
         "--depth-figure", type=Path, help="with --real-store: depth peak against force"
     )
     parser.add_argument(
+        "--radius-figure", type=Path, help="with --real-store: outer radius against force"
+    )
+    parser.add_argument(
+        "--frames-figure", type=Path, help="with --real-store: one object's frames (PNG)"
+    )
+    parser.add_argument("--frames-object", default="golf_ball", help="the object they show")
+    parser.add_argument(
         "--gel-mechanics",
         action="store_true",
         help="print the geometric contact share of a rigid golf ball on gel variants and exit",
@@ -612,6 +693,13 @@ def main() -> None:
             draw_contact_curves(results["contact_curves"], "contact_share", args.contact_figure)
         if args.depth_figure:
             draw_contact_curves(results["contact_curves"], "depth_peak_mm", args.depth_figure)
+        if args.radius_figure:
+            draw_contact_curves(results["contact_curves"], "outer_radius_mm", args.radius_figure)
+        if args.frames_figure:
+            draw_frames(results["contact_curves"], args.frames_object, args.frames_figure)
+        for grasps in results["contact_curves"].values():  # images, not for the JSON
+            for grasp in (g for per_object in grasps.values() for g in per_object):
+                del grasp["frames_at_forces"]
     if args.background.is_file():
         results["backgrounds"] = backgrounds(args.background, args.seed, looks=4)
         print_backgrounds(results["backgrounds"])

@@ -114,9 +114,9 @@ def test_contact_curves_read_the_loading_part_at_fixed_forces() -> None:
     # Loading to 20 N, then unloading: the unloading part is not read.
     force = np.array([0.0, 10.0, 20.0, 10.0, 0.0])
     share = np.array([0.0, 0.2, 0.4, 0.9, 0.9])
-    at = real_vs_synthetic.share_at_forces(force, share)
+    at = real_vs_synthetic.at_forces(force, share)
     np.testing.assert_allclose(at, [0.1, 0.2, 0.3, 0.4])
-    assert np.isnan(real_vs_synthetic.share_at_forces(force / 4, share)[2])  # never 15 N
+    assert np.isnan(real_vs_synthetic.at_forces(force / 4, share)[2])  # never 15 N
 
 
 def test_real_contact_curves_replay_the_videos_through_their_calibration(
@@ -154,3 +154,16 @@ def test_gel_mechanics_contact_grows_with_force_and_without_the_layer_limits(
     # The thin layer's confinement and the strain saturation both stiffen the gel.
     assert shares["neither"][3] > shares["no saturation"][3] > shares["wedge-2023 gel"][3]
     assert "20/5 N" in capsys.readouterr().out
+
+
+def test_outer_radius_takes_in_a_textured_contact_whole_and_leaves_out_the_glow() -> None:
+    diff = np.full((250, 350, 3), 0.5, dtype=np.float32)
+    assert np.isnan(real_vs_synthetic.outer_radius_mm(diff))
+    yy, xx = np.mgrid[:250, :350]
+    r = np.hypot(yy - 125, xx - 200)
+    # A dimpled contact of 60 px (5.25 mm): texture on cells, flat (no change) between them.
+    texture = (r < 60) & ((yy // 12 + xx // 12) % 2 == 0)
+    diff[texture, 1] += 30 / 255
+    diff[:, :40, 1] += 60 / 255  # a strong glow along the left edge, larger than the contact
+    radius = real_vs_synthetic.outer_radius_mm(diff)
+    assert 60 * 0.0875 - 0.7 < radius < 60 * 0.0875 + 0.7
