@@ -36,7 +36,6 @@ import scipy.fft
 
 __all__ = [
     "CALIBRATION_WIDTH_PX",
-    "DEPTH_MODELS",
     "DEPTH_TO_MM",
     "DepthModel",
     "poisson_depth",
@@ -143,10 +142,6 @@ class DepthModel(Protocol):
     """A calibrated depth model (``data.depth_model.CalibratedDepthModel``)."""
 
     def depth_mm(self, diff: np.ndarray) -> np.ndarray: ...
-
-
-DEPTH_MODELS = ("dataset",)
-"""Depth models known by name; a calibrated one is passed as an object."""
 
 
 def reconstruct_depth(

@@ -81,9 +81,8 @@ from tactile_compliance.physics.estimators import (
 )
 
 FORMAT_VERSION = 1
-#: Written into every store by :class:`GraspStoreWriter`; ``--overwrite`` replaces only a
-#: directory that has it: see :func:`is_store_dir`.
-#: The marker of every tactile-compliance output (``outputs.MARKER_NAME``), kind "store".
+#: The marker of every tactile-compliance output, kind "store" here: ``--overwrite``
+#: replaces only a directory that has it (:func:`is_store_dir`).
 STORE_MARKER = MARKER_NAME
 STORE_KIND = "store"
 #: Written into a writer's temporary directory when it is created: who owns it.
@@ -97,8 +96,6 @@ FRAMES_PER_SAMPLE = 3
 DEPTH_DOWNSAMPLE = 4
 #: Largest stored |depth| in mm: a gel is a few mm thick, so anything beyond is no depth map.
 MAX_ABS_DEPTH_MM = 100.0
-
-FINGERS = ("markerless", "markers")
 
 FORCE_COLUMNS = ("force_n_0", "force_n_1", "force_n_2")
 WIDTH_COLUMNS = ("width_m_0", "width_m_1", "width_m_2")
@@ -613,7 +610,7 @@ class GraspStore:
 
     def require_depth(self) -> None:
         """Raise :class:`StoreError` (saying how to get them) when the store has no depth maps."""
-        if self.depth is None or self.header.depth_size is None:
+        if self.depth is None:
             raise StoreError(
                 f"{self.path}: the store holds no depth maps; re-import it with "
                 "`tactile-compliance import burgess SRC --out STORE --depth`"
@@ -736,7 +733,7 @@ class GraspStore:
                     "samples_with_depth": int(s[list(DEPTH_COLUMNS)].notna().all(axis=1).sum()),
                     "bytes": int(np.prod(self.depth.shape)) * 2,
                 }
-                if self.depth is not None and self.header.depth_size is not None
+                if self.depth is not None
                 else None
             ),
             "created": self.header.created,
