@@ -150,10 +150,7 @@ class FilterReport:
 
     def removed_by(self, name: str) -> int:
         """Samples removed by rule ``name`` (0 when disabled or not applicable)."""
-        for rule in self.rules:
-            if rule.name == name:
-                return rule.removed or 0
-        raise KeyError(f"unknown rule {name!r}; rules: {[r.name for r in self.rules]}")
+        return self.rule(name).removed or 0
 
     def rule(self, name: str) -> RuleResult:
         """The :class:`RuleResult` of rule ``name``."""
@@ -169,10 +166,6 @@ class FilterReport:
             "n_output": self.n_output,
             "rules": [asdict(r) | {"status": r.status} for r in self.rules],
         }
-
-    def to_frame(self) -> pd.DataFrame:
-        """One row per rule."""
-        return pd.DataFrame([asdict(r) | {"status": r.status} for r in self.rules])
 
     def __str__(self) -> str:
         lines = [f"Sample filter: {self.n_input} -> {self.n_output} samples"]
@@ -290,15 +283,15 @@ def filter_samples(
         record("fingers", fingers is not None, False, None, note)
 
     # 2./3. exclusion lists (case-insensitive) ----------------------------------------------
-    for name, column, listed, enabled in (
-        ("exclude_objects", "object", fcfg.exclude_objects, True),
-        ("exclude_materials", "material", fcfg.exclude_materials, True),
+    for name, column, listed in (
+        ("exclude_objects", "object", fcfg.exclude_objects),
+        ("exclude_materials", "material", fcfg.exclude_materials),
     ):
         listed_lower = {str(v).lower() for v in listed}
         values = df[column].astype(str).str.lower()
         present = listed_lower & set(samples[column].astype(str).str.lower())
         note = f"{len(listed_lower)} listed, {len(present)} present in the data"
-        record(name, enabled and bool(listed_lower), True, ~values.isin(listed_lower), note)
+        record(name, bool(listed_lower), True, ~values.isin(listed_lower), note)
 
     # 4. missing estimates ------------------------------------------------------------------
     usable = _usable_columns(samples, ESTIMATE_COLUMNS)
