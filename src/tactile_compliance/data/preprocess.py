@@ -195,14 +195,9 @@ def _usable_columns(samples: pd.DataFrame, columns: Sequence[str]) -> list[str]:
 def _depth_trend(
     samples: pd.DataFrame, df: pd.DataFrame, fingers: Sequence[str] | None
 ) -> tuple[np.ndarray, np.ndarray, str]:
-    """Max depth (mm) of frames 1 and 2 that judge each row of ``df`` in rule 7, and a note.
-
-    The markerless finger's depth judges the samples of both fingers of a press
-    (:data:`DEPTH_REFERENCE_FINGER`), looked up in ``samples`` (the unfiltered table, so
-    a sibling removed by the finger selection still counts). When the experiment uses
-    only other fingers, or the table has no finger/grasp/augmentation columns, each row
-    is judged on its own depth; so is a row whose markerless sibling is absent.
-    """
+    """Max depth (mm) of frames 1 and 2 that judge each row of ``df`` in rule 7 (module
+    docstring), and a note. The markerless sibling is looked up in ``samples``, the
+    unfiltered table, so one removed by the finger selection still counts."""
     first_col, last_col = DEPTH_TREND_COLUMNS
     own_first = df[first_col].to_numpy(dtype=float)
     own_last = df[last_col].to_numpy(dtype=float)

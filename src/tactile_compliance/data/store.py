@@ -196,11 +196,8 @@ def depth_size_for(image_size: tuple[int, int]) -> tuple[int, int]:
 
 
 def _column_numbers(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
-    """A numeric column as float64, and where it holds something that is no number.
-
-    Object columns (e.g. text written by another tool) are read element by element:
-    numbers and numeric text count, anything else (a word, a bool, a complex number) is
-    flagged; None/NaN stay NaN (missing) and are not flagged."""
+    """A numeric column as float64, and where it holds no number (a word, a bool, a complex
+    number); numeric text counts, None/NaN stay NaN (missing) and are not flagged."""
     if series.dtype.kind in "iuf":
         values = series.to_numpy(dtype=np.float64, na_value=np.nan)
         return values, np.zeros(len(series), dtype=bool)
