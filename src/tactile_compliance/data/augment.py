@@ -46,12 +46,6 @@ __all__ = ["GraspAugmentation"]
 _CHUNK_PIXELS = 2**18
 
 
-def _chunk_samples(frames: torch.Tensor) -> int:
-    """How many samples of ``frames`` (B, T, C, H, W) to augment per kornia call."""
-    pixels_per_sample = frames.shape[1] * frames.shape[3] * frames.shape[4]
-    return max(1, _CHUNK_PIXELS // pixels_per_sample)
-
-
 class GraspAugmentation(nn.Module):
     """Augment a batch of grasps ``(B, T frames, 3, H, W)`` with values in [0, 1].
 
@@ -101,15 +95,9 @@ class GraspAugmentation(nn.Module):
             if augmentations
             else None
         )
-        self._generator: torch.Generator | None = None
-        if seed is not None:
-            self._generator = torch.Generator().manual_seed(int(seed))
-
-    @property
-    def generator(self) -> torch.Generator | None:
-        """The generator of the random parameters (None: torch's global one). A resumed
-        run restores its state to draw the same augmentations as an uninterrupted run."""
-        return self._generator
+        #: The generator of the random parameters (None: torch's global one). A resumed
+        #: run restores its state to draw the same augmentations as an uninterrupted run.
+        self.generator = None if seed is None else torch.Generator().manual_seed(int(seed))
 
     @classmethod
     def from_config(cls, cfg: Any, seed: int | None = None) -> GraspAugmentation:
@@ -128,10 +116,10 @@ class GraspAugmentation(nn.Module):
 
     @contextlib.contextmanager
     def _rng(self, device: torch.device) -> Iterator[None]:
-        if self._generator is None:
+        if self.generator is None:
             yield
             return
-        call_seed = int(torch.randint(0, 2**62, (1,), generator=self._generator))
+        call_seed = int(torch.randint(0, 2**62, (1,), generator=self.generator))
         devices = [device.index or 0] if device.type == "cuda" else []
         with torch.random.fork_rng(devices=devices):
             torch.manual_seed(call_seed)
@@ -149,19 +137,17 @@ class GraspAugmentation(nn.Module):
                 return frames
             out = frames.clone()
             chosen = apply.nonzero().flatten()
-            step = _chunk_samples(frames)
+            step = max(1, _CHUNK_PIXELS // (frames.shape[1] * frames.shape[3] * frames.shape[4]))
             for start in range(0, len(chosen), step):
                 index = chosen[start : start + step]
-                out[index] = self._augment(frames[index]).to(out.dtype)
+                chunk = frames[index]
+                if self.frames_pipeline is not None:
+                    chunk = self.frames_pipeline(chunk)
+                if self.noise_std > 0:
+                    chunk = chunk + torch.randn_like(chunk).mul_(self.noise_std)
+                    chunk.clamp_(0.0, 1.0)
+                out[index] = chunk.to(out.dtype)
         return out
-
-    def _augment(self, chunk: torch.Tensor) -> torch.Tensor:
-        if self.frames_pipeline is not None:
-            chunk = self.frames_pipeline(chunk)
-        if self.noise_std > 0:
-            chunk = chunk + torch.randn_like(chunk).mul_(self.noise_std)
-            chunk.clamp_(0.0, 1.0)
-        return chunk
 
     def extra_repr(self) -> str:
         return f"probability={self.probability}, noise_std={self.noise_std:.4f}"

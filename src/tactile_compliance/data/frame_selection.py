@@ -166,16 +166,12 @@ def select_frame_indices(
     peak_fraction: float = PEAK_FRACTION,
     min_peak_force_n: float = MIN_PEAK_FORCE_N,
 ) -> FrameSelection | None:
-    """The dataset's three-frame selection on a force sequence (N), or None if not yet possible.
+    """The dataset's three-frame selection on a force sequence (N), or None if not yet
+    possible (module docstring), chosen in time with ``timestamps_s`` ((T,) s, increasing).
 
-    None when no frame reaches ``onset_force_n``, the peak is below ``min_peak_force_n``,
-    or fewer than three distinct frames lie between the window start and the peak.
-    With ``window=n`` the frames are spread over the last ``n`` frames up to the peak
-    (the streaming variant; see ``inference.streaming``).
-
-    With ``timestamps_s`` ((T,) s, increasing) the three frames are the frames nearest in
-    time to ``linspace(t_start, t_peak, 3)`` (see the module docstring); ``window_s``
-    (s, needs timestamps) spreads them over the last ``window_s`` seconds up to the peak.
+    ``window=n`` spreads the frames over the last ``n`` frames up to the peak (the
+    streaming variant; see ``inference.streaming``), ``window_s`` (s, needs timestamps)
+    over the last ``window_s`` seconds.
     """
     f = np.asarray(forces_n, dtype=np.float64).reshape(-1)
     window = check_window(window)

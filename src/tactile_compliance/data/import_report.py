@@ -24,11 +24,6 @@ exception                meaning
 ======================== ===============================================================
 
 Each carries the :class:`ImportReport` so far as ``report`` (None before the import began).
-
-The report also counts the frame values that the store's uint8 encoding clipped
-(differences beyond -127/+128 grey levels, :func:`~tactile_compliance.data.store.
-encode_frames`): a few saturated pixels are normal, a large share says the source's
-frames are not what the store can hold.
 """
 
 from __future__ import annotations
@@ -217,7 +212,8 @@ class ImportReport:
     ``frame_values`` is the number of frame values written (samples x 3 frames x H x W x
     3 channels), ``clipped_frame_values`` how many of them the store's uint8 encoding
     clipped (a difference beyond -127/+128 grey levels, stored as -127/+128), in
-    ``samples_with_clipped_frames`` samples.
+    ``samples_with_clipped_frames`` samples: a few saturated pixels are normal, a large
+    share says the source's frames are not what the store can hold.
     """
 
     source: str

@@ -118,8 +118,6 @@ class NormalisationConstants:
     estimate_log10_span: float = 12.0
     force_scale_n: float = 60.0
     width_scale_m: float = 0.08
-    # Reversed because the store is RGB (the importer flips the BGR pickles), while the
-    # published statistics were computed on the pickles as they are.
     image_mean: tuple[float, float, float] = PUBLISHED_IMAGE_MEAN_BGR[::-1]
     image_std: tuple[float, float, float] = PUBLISHED_IMAGE_STD_BGR[::-1]
 

@@ -24,11 +24,8 @@ holds -65504..65504 mm with a relative step of 2**-11 (0.0005 mm at 1 mm, 0.002 
 At a quarter of each side they add 4 % to the frames' bytes. They are the label-free
 target of tactile pretraining (``training.pretrain``).
 
-Stores are written by :class:`GraspStoreWriter`, which streams frames into a temporary
-sibling directory and renames it into place only when everything is written: an
-interrupted import never leaves a directory that looks like a complete store. What a
-killed writer leaves (its ``.NAME.partial-*`` directory, or the old store it was swapping
-out) is tidied by the next writer to the same path (:func:`recover_interrupted_writes`).
+Stores are written by :class:`GraspStoreWriter`, atomically (its guarantees are listed
+there): an interrupted import never leaves a directory that looks like a complete store.
 Opening a store checks its table (:func:`validate_samples`), including the physical
 plausibility of F, W, E and the label (:mod:`~tactile_compliance.data.plausibility`, the
 rules the importers and the estimator apply too).
