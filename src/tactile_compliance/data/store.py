@@ -406,17 +406,7 @@ class StoreHeader:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        depth = (
-            {
-                "depth_size": list(self.depth_size),
-                "depth_file": DEPTH_FILE,
-                "depth_dtype": "float16",
-                "depth_unit": "mm",
-            }
-            if self.depth_size is not None
-            else {}
-        )
-        return {
+        data = {
             "format_version": self.format_version,
             "num_samples": self.num_samples,
             "image_size": list(self.image_size),
@@ -429,9 +419,11 @@ class StoreHeader:
             "created": self.created,
             "package_version": self.package_version,
             "creation_parameters": self.creation_parameters,
-            **depth,
-            "frame_shape_sha256": self.shape_check,
         }
+        if self.depth_size is not None:
+            data["depth_size"] = list(self.depth_size)
+            data |= {"depth_file": DEPTH_FILE, "depth_dtype": "float16", "depth_unit": "mm"}
+        return data | {"frame_shape_sha256": self.shape_check}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> StoreHeader:
@@ -974,11 +966,9 @@ class GraspStoreWriter:
         """Write the table and header, then move the store into place."""
         if self._closed:
             raise RuntimeError("writer is closed")
-        samples = pd.DataFrame(self._rows, columns=list(SAMPLE_COLUMNS))
-        for column in _INT_COLUMNS:
-            samples[column] = samples[column].astype(np.int64)
-        for column in _STRING_COLUMNS:
-            samples[column] = samples[column].astype(str)
+        samples = pd.DataFrame(self._rows, columns=list(SAMPLE_COLUMNS)).astype(
+            dict.fromkeys(_INT_COLUMNS, np.int64) | dict.fromkeys(_STRING_COLUMNS, str)
+        )
         problems = validate_samples(samples)
         if problems:
             self.abort()
