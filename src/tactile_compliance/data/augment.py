@@ -46,6 +46,12 @@ __all__ = ["GraspAugmentation"]
 _CHUNK_PIXELS = 2**18
 
 
+def _chunk_samples(frames: torch.Tensor) -> int:
+    """How many samples of ``frames`` (B, T, C, H, W) to augment per kornia call."""
+    pixels_per_sample = frames.shape[1] * frames.shape[3] * frames.shape[4]
+    return max(1, _CHUNK_PIXELS // pixels_per_sample)
+
+
 class GraspAugmentation(nn.Module):
     """Augment a batch of grasps ``(B, T frames, 3, H, W)`` with values in [0, 1].
 
@@ -137,7 +143,7 @@ class GraspAugmentation(nn.Module):
                 return frames
             out = frames.clone()
             chosen = apply.nonzero().flatten()
-            step = max(1, _CHUNK_PIXELS // (frames.shape[1] * frames.shape[3] * frames.shape[4]))
+            step = _chunk_samples(frames)
             for start in range(0, len(chosen), step):
                 index = chosen[start : start + step]
                 chunk = frames[index]
