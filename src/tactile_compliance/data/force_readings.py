@@ -32,9 +32,6 @@ import numpy as np
 __all__ = [
     "BASELINE_WARN_N",
     "CONTACT_MARGIN_N",
-    "QUIET_RANGE_N",
-    "SPIKE_MIN_N",
-    "SPIKE_PEAK_FRACTION",
     "ForceBaseline",
     "ForceSpike",
     "find_force_spikes",

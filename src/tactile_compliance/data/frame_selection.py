@@ -40,18 +40,13 @@ from tactile_compliance.data.store import FRAMES_PER_SAMPLE
 
 __all__ = [
     "AUGMENTATION_FORCE_FRACTION",
-    "CONTACT_DEPTH_FRACTION",
-    "HARD_DEPTH_RATIO",
-    "HARD_OBJECT_PA",
     "MAX_AUGMENTATIONS",
     "MIN_PEAK_FORCE_N",
     "ONSET_FORCE_N",
     "PEAK_FRACTION",
-    "TIME_TOLERANCE_S",
     "AugmentedSelection",
     "FrameSelection",
     "augment_selection",
-    "check_timestamps",
     "check_window",
     "check_window_s",
     "select_frame_indices",

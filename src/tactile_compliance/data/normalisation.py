@@ -74,9 +74,6 @@ PUBLISHED_IMAGE_STD_BGR: tuple[float, float, float] = (0.04634926, 0.06181679, 0
 LABEL_LOG10_BOUNDS: tuple[float, float] = (0.0, math.log10(MODULUS.high))
 
 __all__ = [
-    "LABEL_LOG10_BOUNDS",
-    "PUBLISHED_IMAGE_MEAN_BGR",
-    "PUBLISHED_IMAGE_STD_BGR",
     "NormalisationConstants",
     "denormalise_images",
     "denormalise_modulus",

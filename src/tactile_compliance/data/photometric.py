@@ -35,8 +35,6 @@ import numpy as np
 import scipy.fft
 
 __all__ = [
-    "CALIBRATION_WIDTH_PX",
-    "DEPTH_TO_MM",
     "DepthModel",
     "poisson_depth",
     "reconstruct_depth",

@@ -36,7 +36,6 @@ __all__ = [
     "FRAME",
     "MAX_FRAME_SIDE_PX",
     "MODULUS",
-    "NUMERIC_KINDS",
     "RULES",
     "WIDTH",
     "PlausibleRange",

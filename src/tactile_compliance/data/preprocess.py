@@ -46,7 +46,6 @@ from tactile_compliance.data.store import (
 )
 
 __all__ = [
-    "DEFAULT_EXCLUDED_MATERIALS",
     "UNKNOWN_GROUND_TRUTH_OBJECTS",
     "FilterReport",
     "RuleResult",

@@ -37,7 +37,6 @@ from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
     "N_ROLLING_WINDOWS",
-    "SPLIT_FORMAT",
     "Split",
     "SplitSummary",
     "grasp_keys",
