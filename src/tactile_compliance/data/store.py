@@ -281,11 +281,8 @@ def store_problems(path: str | Path) -> list[str]:
 
 
 def is_store_dir(path: str | Path) -> bool:
-    """Whether ``path`` is a GraspStore directory that may be replaced (``--overwrite``).
-
-    A store is a real directory (not a link) holding the :data:`STORE_MARKER` file that
-    :class:`GraspStoreWriter` writes. Nothing else is ever replaced.
-    """
+    """Whether ``path`` is a GraspStore directory that may be replaced (``--overwrite``): a
+    real directory (not a link) with the store marker. Nothing else is ever replaced."""
     path = Path(path)
     return not path.is_symlink() and path.is_dir() and output_kind(path) == STORE_KIND
 
