@@ -319,11 +319,8 @@ def exchange_directories(first: str | Path, second: str | Path) -> None:
     except (OSError, AttributeError):
         renameat2 = None
     if renameat2 is not None:
-        at_fdcwd, rename_exchange = -100, 2
-        if (
-            renameat2(at_fdcwd, os.fsencode(first), at_fdcwd, os.fsencode(second), rename_exchange)
-            == 0
-        ):
+        at_fdcwd, rename_exchange, names = -100, 2, (os.fsencode(first), os.fsencode(second))
+        if renameat2(at_fdcwd, names[0], at_fdcwd, names[1], rename_exchange) == 0:
             fsync_directory(first.parent)
             return
         code = ctypes.get_errno()

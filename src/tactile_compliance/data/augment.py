@@ -101,15 +101,9 @@ class GraspAugmentation(nn.Module):
             if augmentations
             else None
         )
-        self._generator: torch.Generator | None = None
-        if seed is not None:
-            self._generator = torch.Generator().manual_seed(int(seed))
-
-    @property
-    def generator(self) -> torch.Generator | None:
-        """The generator of the random parameters (None: torch's global one). A resumed
-        run restores its state to draw the same augmentations as an uninterrupted run."""
-        return self._generator
+        #: The generator of the random parameters (None: torch's global one). A resumed
+        #: run restores its state to draw the same augmentations as an uninterrupted run.
+        self.generator = None if seed is None else torch.Generator().manual_seed(int(seed))
 
     @classmethod
     def from_config(cls, cfg: Any, seed: int | None = None) -> GraspAugmentation:
@@ -128,10 +122,10 @@ class GraspAugmentation(nn.Module):
 
     @contextlib.contextmanager
     def _rng(self, device: torch.device) -> Iterator[None]:
-        if self._generator is None:
+        if self.generator is None:
             yield
             return
-        call_seed = int(torch.randint(0, 2**62, (1,), generator=self._generator))
+        call_seed = int(torch.randint(0, 2**62, (1,), generator=self.generator))
         devices = [device.index or 0] if device.type == "cuda" else []
         with torch.random.fork_rng(devices=devices):
             torch.manual_seed(call_seed)
@@ -152,16 +146,14 @@ class GraspAugmentation(nn.Module):
             step = _chunk_samples(frames)
             for start in range(0, len(chosen), step):
                 index = chosen[start : start + step]
-                out[index] = self._augment(frames[index]).to(out.dtype)
+                chunk = frames[index]
+                if self.frames_pipeline is not None:
+                    chunk = self.frames_pipeline(chunk)
+                if self.noise_std > 0:
+                    chunk = chunk + torch.randn_like(chunk).mul_(self.noise_std)
+                    chunk.clamp_(0.0, 1.0)
+                out[index] = chunk.to(out.dtype)
         return out
-
-    def _augment(self, chunk: torch.Tensor) -> torch.Tensor:
-        if self.frames_pipeline is not None:
-            chunk = self.frames_pipeline(chunk)
-        if self.noise_std > 0:
-            chunk = chunk + torch.randn_like(chunk).mul_(self.noise_std)
-            chunk.clamp_(0.0, 1.0)
-        return chunk
 
     def extra_repr(self) -> str:
         return f"probability={self.probability}, noise_std={self.noise_std:.4f}"

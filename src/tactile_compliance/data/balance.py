@@ -34,8 +34,6 @@ from tactile_compliance.data.preprocess import require_columns
 
 __all__ = ["balance_indices", "balance_split", "balance_summary", "label_bins"]
 
-SeedLike = int | Sequence[int]
-
 
 def label_bins(
     modulus_pa: Any, n_bins: int = 9, label_constants: NormalisationConstants | None = None
@@ -64,7 +62,7 @@ def balance_indices(
     samples_subset: pd.DataFrame,
     t_balance: float,
     n_bins: int = 9,
-    seed: SeedLike = 0,
+    seed: int | Sequence[int] = 0,
     label_constants: NormalisationConstants | None = None,
 ) -> np.ndarray:
     """Sample ids of ``samples_subset`` plus the duplicates that balance its label bins.

@@ -176,15 +176,9 @@ def majority_frame_size(
 
 
 def _tree_estimator(src: Path) -> str:
-    """The analytical estimator (``physics.estimators`` name) that made a tree's estimates.
-
-    The public dataset's pickles come from its own code (``DEFAULT_ESTIMATOR``), and so
-    does anything written in its layout by other tools (``record``). A generated tree
-    names its estimator in its manifest.
-
-    Raises:
-        ImportPathError: a manifest that names none (a pre-release generator's tree).
-    """
+    """The analytical estimator (``physics.estimators`` name) that made a tree's estimates:
+    the one a generated tree's manifest names, else ``DEFAULT_ESTIMATOR`` (the public
+    dataset's own code, and ``record``'s trees). ImportPathError: a manifest naming none."""
     manifest = src / SYNTHETIC_MANIFEST
     if not manifest.is_file():
         return DEFAULT_ESTIMATOR.name

@@ -37,14 +37,11 @@ from tactile_compliance.data.photometric import poisson_depth
 from tactile_compliance.outputs import check_format_version
 
 __all__ = [
-    "DEPTH_MODEL_FORMAT",
     "BallPress",
     "CalibratedDepthModel",
     "ContactCircle",
-    "contact_magnitude",
     "find_contact_circle",
     "fit_depth_model",
-    "sphere_slopes",
 ]
 
 DEPTH_MODEL_FORMAT = "tactile-compliance-depth-model"
@@ -125,12 +122,10 @@ def find_contact_circle(diff: np.ndarray, min_radius_px: float = 3.0) -> Contact
     """
     mag = contact_magnitude(diff)
     peak = float(np.percentile(mag, 99.9))
-    if peak < _MIN_CONTACT_MAGNITUDE:
+    if not peak >= _MIN_CONTACT_MAGNITUDE:  # NaN too; else the mask holds the peak's pixels
         raise ValueError("no contact region found (the frame looks like the reference)")
     mask = (mag > _CIRCLE_FRACTION * peak).astype(np.uint8)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not contours:
-        raise ValueError("no contact region found (the frame looks like the reference)")
     outline = max(contours, key=cv2.contourArea)
     moments = cv2.moments(outline)
     radius = math.sqrt(moments["m00"] / math.pi)
@@ -235,10 +230,8 @@ class CalibratedDepthModel:
         return out[..., 0], out[..., 1]
 
     def contact_mask(self, diff: np.ndarray) -> np.ndarray:
-        """Pixels (n, H, W) whose colour change is above the noise, grown by 0.3 mm."""
-        diff = np.asarray(diff, dtype=np.float32)
-        if diff.ndim == 3:
-            diff = diff[None]
+        """Pixels (n, H, W) of difference images (n, H, W, 3) whose colour change is above
+        the noise, grown by 0.3 mm."""
         grow = max(1, round(_MASK_GROW_MM * self.px_per_mm))
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
         masks = np.empty(diff.shape[:3], dtype=bool)
@@ -332,11 +325,7 @@ class CalibratedDepthModel:
 def _noise_level(presses: list[BallPress]) -> float:
     """Colour-change magnitude of untouched pixels: a high percentile over every press's
     pixels farther than ``_BACKGROUND_GAP`` contact radii (and at least 2 mm) away."""
-    values = []
-    for press in presses:
-        mag = contact_magnitude(press.diff)
-        far = _far_mask(mag.shape, press.circle)
-        values.append(mag[far])
+    values = [contact_magnitude(p.diff)[_far_mask(p.diff.shape[:2], p.circle)] for p in presses]
     return float(np.percentile(np.concatenate(values), _NOISE_QUANTILE))
 
 

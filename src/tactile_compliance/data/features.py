@@ -110,7 +110,6 @@ def cached_features(
     return np.memmap(final, dtype=np.float16, mode="r", shape=shape)
 
 
-@torch.no_grad()
 def _compute(
     store: GraspStore,
     backbone: torch.nn.Module,
@@ -122,7 +121,7 @@ def _compute(
     device: str | torch.device,
     progress: bool,
 ) -> None:
-    """Fill ``directory`` with the features; the caller holds the cache's lock."""
+    """Fill ``directory`` with the features; the caller holds the cache's lock (and no_grad)."""
     final, meta_path = directory / FEATURES_FILE, directory / META_FILE
     partial, progress_path = directory / (FEATURES_FILE + ".partial"), directory / PROGRESS_FILE
     # Resume only when both the partial array and its progress record survived.

@@ -32,9 +32,6 @@ import numpy as np
 __all__ = [
     "BASELINE_WARN_N",
     "CONTACT_MARGIN_N",
-    "QUIET_RANGE_N",
-    "SPIKE_MIN_N",
-    "SPIKE_PEAK_FRACTION",
     "ForceBaseline",
     "ForceSpike",
     "find_force_spikes",
@@ -221,14 +218,7 @@ def find_force_spikes(force_n: Any, timestamp_s: Any = None) -> tuple[np.ndarray
     cleaned = f.copy()
     spikes = []
     for i in (np.flatnonzero(spike) + 1).tolist():
-        neighbours = [f[j] for j in (i - 2, i - 1, i + 1, i + 2) if 0 <= j < f.size and j != i]
-        cleaned[i] = float(np.median(neighbours))
-        spikes.append(
-            ForceSpike(
-                index=int(i),
-                timestamp_s=None if times is None else float(times[i]),
-                force_n=float(f[i]),
-                replaced_n=float(cleaned[i]),
-            )
-        )
+        cleaned[i] = np.median([f[j] for j in (i - 2, i - 1, i + 1, i + 2) if 0 <= j < f.size])
+        when = None if times is None else float(times[i])
+        spikes.append(ForceSpike(i, when, float(f[i]), float(cleaned[i])))
     return cleaned, spikes

@@ -40,18 +40,13 @@ from tactile_compliance.data.store import FRAMES_PER_SAMPLE
 
 __all__ = [
     "AUGMENTATION_FORCE_FRACTION",
-    "CONTACT_DEPTH_FRACTION",
-    "HARD_DEPTH_RATIO",
-    "HARD_OBJECT_PA",
     "MAX_AUGMENTATIONS",
     "MIN_PEAK_FORCE_N",
     "ONSET_FORCE_N",
     "PEAK_FRACTION",
-    "TIME_TOLERANCE_S",
     "AugmentedSelection",
     "FrameSelection",
     "augment_selection",
-    "check_timestamps",
     "check_window",
     "check_window_s",
     "select_frame_indices",
@@ -166,16 +161,12 @@ def select_frame_indices(
     peak_fraction: float = PEAK_FRACTION,
     min_peak_force_n: float = MIN_PEAK_FORCE_N,
 ) -> FrameSelection | None:
-    """The dataset's three-frame selection on a force sequence (N), or None if not yet possible.
+    """The dataset's three-frame selection on a force sequence (N), or None if not yet
+    possible (module docstring), chosen in time with ``timestamps_s`` ((T,) s, increasing).
 
-    None when no frame reaches ``onset_force_n``, the peak is below ``min_peak_force_n``,
-    or fewer than three distinct frames lie between the window start and the peak.
-    With ``window=n`` the frames are spread over the last ``n`` frames up to the peak
-    (the streaming variant; see ``inference.streaming``).
-
-    With ``timestamps_s`` ((T,) s, increasing) the three frames are the frames nearest in
-    time to ``linspace(t_start, t_peak, 3)`` (see the module docstring); ``window_s``
-    (s, needs timestamps) spreads them over the last ``window_s`` seconds up to the peak.
+    ``window=n`` spreads the frames over the last ``n`` frames up to the peak (the
+    streaming variant; see ``inference.streaming``), ``window_s`` (s, needs timestamps)
+    over the last ``window_s`` seconds.
     """
     f = np.asarray(forces_n, dtype=np.float64).reshape(-1)
     window = check_window(window)

@@ -24,11 +24,6 @@ exception                meaning
 ======================== ===============================================================
 
 Each carries the :class:`ImportReport` so far as ``report`` (None before the import began).
-
-The report also counts the frame values that the store's uint8 encoding clipped
-(differences beyond -127/+128 grey levels, :func:`~tactile_compliance.data.store.
-encode_frames`): a few saturated pixels are normal, a large share says the source's
-frames are not what the store can hold.
 """
 
 from __future__ import annotations
@@ -217,7 +212,8 @@ class ImportReport:
     ``frame_values`` is the number of frame values written (samples x 3 frames x H x W x
     3 channels), ``clipped_frame_values`` how many of them the store's uint8 encoding
     clipped (a difference beyond -127/+128 grey levels, stored as -127/+128), in
-    ``samples_with_clipped_frames`` samples.
+    ``samples_with_clipped_frames`` samples: a few saturated pixels are normal, a large
+    share says the source's frames are not what the store can hold.
     """
 
     source: str
@@ -260,15 +256,6 @@ class ImportReport:
         """Share of the written frame values that were clipped (0 when none were written)."""
         return self.clipped_frame_values / self.frame_values if self.frame_values else 0.0
 
-    def clipping_line(self) -> str:
-        """One line on the clipped frame values, e.g. ``Clipped frame values: 12 of
-        1,728,000 (0.0007 %) in 3 samples (...)``."""
-        return (
-            f"Clipped frame values: {self.clipped_frame_values:,} of {self.frame_values:,} "
-            f"({100 * self.clipped_frame_share:.4f} %) in {self.samples_with_clipped_frames} "
-            "samples (differences beyond -127/+128 grey levels, stored as -127/+128)."
-        )
-
     def reasons(self) -> Counter[str]:
         """How many problems of each kind (the reason's text up to the first colon)."""
         return Counter(reason.split(":")[0] for _, reason in self.problems)
@@ -298,14 +285,16 @@ class ImportReport:
             f"in {self.seconds:.1f} s ({self.samples_per_second:.1f} samples/s).",
         ]
         if self.frame_values:
-            lines.append(self.clipping_line())
+            lines.append(
+                f"Clipped frame values: {self.clipped_frame_values:,} of {self.frame_values:,} "
+                f"({100 * self.clipped_frame_share:.4f} %) in {self.samples_with_clipped_frames} "
+                "samples (differences beyond -127/+128 grey levels, stored as -127/+128)."
+            )
         if self.problems:
             lines.append(f"Skipped {len(self.problems)} item(s):")
-            for reason, count in self.reasons().most_common():
-                lines.append(f"  {count:6d}  {reason}")
+            lines += [f"  {count:6d}  {reason}" for reason, count in self.reasons().most_common()]
             lines.append("First problems:")
-            for path, reason in self.problems[:max_listed]:
-                lines.append(f"  {path}: {reason}")
+            lines += [f"  {path}: {reason}" for path, reason in self.problems[:max_listed]]
             if len(self.problems) > max_listed:
                 lines.append(f"  ... and {len(self.problems) - max_listed} more")
         else:

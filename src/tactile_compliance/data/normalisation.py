@@ -74,9 +74,6 @@ PUBLISHED_IMAGE_STD_BGR: tuple[float, float, float] = (0.04634926, 0.06181679, 0
 LABEL_LOG10_BOUNDS: tuple[float, float] = (0.0, math.log10(MODULUS.high))
 
 __all__ = [
-    "LABEL_LOG10_BOUNDS",
-    "PUBLISHED_IMAGE_MEAN_BGR",
-    "PUBLISHED_IMAGE_STD_BGR",
     "NormalisationConstants",
     "denormalise_images",
     "denormalise_modulus",
@@ -118,8 +115,6 @@ class NormalisationConstants:
     estimate_log10_span: float = 12.0
     force_scale_n: float = 60.0
     width_scale_m: float = 0.08
-    # Reversed because the store is RGB (the importer flips the BGR pickles), while the
-    # published statistics were computed on the pickles as they are.
     image_mean: tuple[float, float, float] = PUBLISHED_IMAGE_MEAN_BGR[::-1]
     image_std: tuple[float, float, float] = PUBLISHED_IMAGE_STD_BGR[::-1]
 
@@ -151,9 +146,8 @@ class NormalisationConstants:
             raise ValueError(f"estimate_clamp_pa must be (lo, hi) with 0 < lo < hi, got {lo, hi}")
         if min(self.image_std) <= 0 or max(self.image_std) > 1:
             raise ValueError(
-                f"image_std values must be positive and at most 1 (difference images in "
-                f"[0, 1]), got "
-                f"{list(self.image_std)}"
+                "image_std values must be positive and at most 1 (difference images in "
+                f"[0, 1]), got {list(self.image_std)}"
             )
         if min(self.image_mean) < 0 or max(self.image_mean) > 1:
             raise ValueError(
@@ -218,19 +212,13 @@ def _finite(name: str, value: Any, *, positive: bool = False) -> float:
 
 
 def _finite_tuple(name: str, values: Any, length: int) -> tuple[float, ...]:
-    if (
-        isinstance(values, (str, bytes))
-        or not hasattr(values, "__len__")
-        or (len(values) != length)
-    ):
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__len__") or len(values) != length:
         raise ValueError(f"normalisation constant {name} needs {length} numbers, got {values!r}")
     return tuple(_finite(name, v) for v in values)
 
 
 def _as_array(x: Any) -> np.ndarray | torch.Tensor:
-    if _is_tensor(x):
-        return x
-    return np.asarray(x, dtype=np.float64)
+    return x if _is_tensor(x) else np.asarray(x, dtype=np.float64)
 
 
 def _log10(x: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
@@ -279,7 +267,6 @@ def normalise_estimates(estimate_pa: Any, c: NormalisationConstants | None = Non
     c = c or NormalisationConstants()
     lo, hi = c.estimate_clamp_pa
     x = _as_array(estimate_pa)
-    # np.clip / torch.clamp keep NaN, so a missing estimate stays visibly missing.
     clamped = _torch().clamp(x, lo, hi) if _is_tensor(x) else np.clip(x, lo, hi)
     y = (_log10(clamped) - c.estimate_log10_min) / c.estimate_log10_span
     return _unwrap_scalar(y, estimate_pa)
@@ -334,10 +321,8 @@ def normalise_images(
     """
     c = c or NormalisationConstants()
     x = images if _is_tensor(images) else np.asarray(images)
-    if isinstance(x, np.ndarray) and x.dtype == np.uint8:
-        # uint8 would be normalised as if 0..255 were in [0, 1]: a silent 255x error.
-        raise ValueError("normalise_images expects float images in [0, 1], got uint8")
-    if _is_tensor(x) and x.dtype == _torch().uint8:
+    # uint8 would be normalised as if 0..255 were in [0, 1]: a silent 255x error.
+    if x.dtype == (_torch().uint8 if _is_tensor(x) else np.uint8):
         raise ValueError("normalise_images expects float images in [0, 1], got uint8")
     mean, std = _channel_stats(x, c, channel_axis)
     out = x - mean

@@ -35,9 +35,6 @@ import numpy as np
 import scipy.fft
 
 __all__ = [
-    "CALIBRATION_WIDTH_PX",
-    "DEPTH_MODELS",
-    "DEPTH_TO_MM",
     "DepthModel",
     "poisson_depth",
     "reconstruct_depth",
@@ -143,10 +140,6 @@ class DepthModel(Protocol):
     """A calibrated depth model (``data.depth_model.CalibratedDepthModel``)."""
 
     def depth_mm(self, diff: np.ndarray) -> np.ndarray: ...
-
-
-DEPTH_MODELS = ("dataset",)
-"""Depth models known by name; a calibrated one is passed as an object."""
 
 
 def reconstruct_depth(

@@ -36,7 +36,6 @@ __all__ = [
     "FRAME",
     "MAX_FRAME_SIDE_PX",
     "MODULUS",
-    "NUMERIC_KINDS",
     "RULES",
     "WIDTH",
     "PlausibleRange",
@@ -173,15 +172,6 @@ class PlausibleRange:
         (it means missing). Without ``saturated_share`` such a value is implausible."""
         return self.below(values) | self.above(values)
 
-    def beyond_limits(self, values: Any) -> np.ndarray:
-        """Element-wise: the value crosses :attr:`limits` (NaN: False); without limits,
-        the same as :meth:`outside`."""
-        if self.limits is None:
-            return self.outside(values)
-        x = np.asarray(values, dtype=np.float64)
-        with np.errstate(invalid="ignore"):
-            return (x < self.limits[0]) | (x > self.limits[1])
-
     def contains(self, values: Any) -> np.ndarray:
         """Element-wise: the value is plausible. NaN is not (it is no value)."""
         x = np.asarray(values, dtype=np.float64)
@@ -205,7 +195,11 @@ class PlausibleRange:
             return None
         x = np.asarray(array, dtype=np.float64).ravel()
         outside = self.outside(x)
-        bad = np.flatnonzero(self.beyond_limits(x))
+        beyond = outside  # values crossing the limits, which no saturated share allows
+        if self.limits is not None:
+            with np.errstate(invalid="ignore"):
+                beyond = (x < self.limits[0]) | (x > self.limits[1])
+        bad = np.flatnonzero(beyond)
         allowance = self.allowance()
         if bad.size == 0:
             if outside.sum() <= self.saturated_share * x.size:

@@ -46,7 +46,6 @@ from tactile_compliance.data.store import (
 )
 
 __all__ = [
-    "DEFAULT_EXCLUDED_MATERIALS",
     "UNKNOWN_GROUND_TRUTH_OBJECTS",
     "FilterReport",
     "RuleResult",
@@ -150,10 +149,7 @@ class FilterReport:
 
     def removed_by(self, name: str) -> int:
         """Samples removed by rule ``name`` (0 when disabled or not applicable)."""
-        for rule in self.rules:
-            if rule.name == name:
-                return rule.removed or 0
-        raise KeyError(f"unknown rule {name!r}; rules: {[r.name for r in self.rules]}")
+        return self.rule(name).removed or 0
 
     def rule(self, name: str) -> RuleResult:
         """The :class:`RuleResult` of rule ``name``."""
@@ -169,10 +165,6 @@ class FilterReport:
             "n_output": self.n_output,
             "rules": [asdict(r) | {"status": r.status} for r in self.rules],
         }
-
-    def to_frame(self) -> pd.DataFrame:
-        """One row per rule."""
-        return pd.DataFrame([asdict(r) | {"status": r.status} for r in self.rules])
 
     def __str__(self) -> str:
         lines = [f"Sample filter: {self.n_input} -> {self.n_output} samples"]
@@ -202,14 +194,9 @@ def _usable_columns(samples: pd.DataFrame, columns: Sequence[str]) -> list[str]:
 def _depth_trend(
     samples: pd.DataFrame, df: pd.DataFrame, fingers: Sequence[str] | None
 ) -> tuple[np.ndarray, np.ndarray, str]:
-    """Max depth (mm) of frames 1 and 2 that judge each row of ``df`` in rule 7, and a note.
-
-    The markerless finger's depth judges the samples of both fingers of a press
-    (:data:`DEPTH_REFERENCE_FINGER`), looked up in ``samples`` (the unfiltered table, so
-    a sibling removed by the finger selection still counts). When the experiment uses
-    only other fingers, or the table has no finger/grasp/augmentation columns, each row
-    is judged on its own depth; so is a row whose markerless sibling is absent.
-    """
+    """Max depth (mm) of frames 1 and 2 that judge each row of ``df`` in rule 7 (module
+    docstring), and a note. The markerless sibling is looked up in ``samples``, the
+    unfiltered table, so one removed by the finger selection still counts."""
     first_col, last_col = DEPTH_TREND_COLUMNS
     own_first = df[first_col].to_numpy(dtype=float)
     own_last = df[last_col].to_numpy(dtype=float)
@@ -290,15 +277,15 @@ def filter_samples(
         record("fingers", fingers is not None, False, None, note)
 
     # 2./3. exclusion lists (case-insensitive) ----------------------------------------------
-    for name, column, listed, enabled in (
-        ("exclude_objects", "object", fcfg.exclude_objects, True),
-        ("exclude_materials", "material", fcfg.exclude_materials, True),
+    for name, column, listed in (
+        ("exclude_objects", "object", fcfg.exclude_objects),
+        ("exclude_materials", "material", fcfg.exclude_materials),
     ):
         listed_lower = {str(v).lower() for v in listed}
         values = df[column].astype(str).str.lower()
         present = listed_lower & set(samples[column].astype(str).str.lower())
         note = f"{len(listed_lower)} listed, {len(present)} present in the data"
-        record(name, enabled and bool(listed_lower), True, ~values.isin(listed_lower), note)
+        record(name, bool(listed_lower), True, ~values.isin(listed_lower), note)
 
     # 4. missing estimates ------------------------------------------------------------------
     usable = _usable_columns(samples, ESTIMATE_COLUMNS)

@@ -197,17 +197,17 @@ def _load_array(path: Path) -> np.ndarray:
     return array
 
 
-def load_vector(
-    directory: Path, name: str, length: int = FRAMES_PER_SAMPLE, *, optional: bool = False
-) -> np.ndarray:
-    """A finite float64 vector of ``length`` values (forces [N], widths [m]) from a pickle,
-    within the file's plausibility rule (:data:`FILE_RULES`); all NaN when the file is
-    absent and ``optional``."""
+def load_vector(directory: Path, name: str, *, optional: bool = False) -> np.ndarray:
+    """A finite float64 vector of one value per frame (forces [N], widths [m]) from a
+    pickle, within the file's plausibility rule (:data:`FILE_RULES`); all NaN when the file
+    is absent and ``optional``."""
     if optional and not (directory / name).is_file():
-        return np.full(length, np.nan)
+        return np.full(FRAMES_PER_SAMPLE, np.nan)
     array = _load_array(directory / name).astype(np.float64)
-    if array.shape != (length,):
-        raise SampleError(f"wrong array shape: {name} is {array.shape}, expected ({length},)")
+    if array.shape != (FRAMES_PER_SAMPLE,):
+        raise SampleError(
+            f"wrong array shape: {name} is {array.shape}, expected ({FRAMES_PER_SAMPLE},)"
+        )
     if not np.all(np.isfinite(array)):
         raise SampleError(f"non-finite values: {name}")
     _implausible(name, array)

@@ -37,7 +37,6 @@ from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
     "N_ROLLING_WINDOWS",
-    "SPLIT_FORMAT",
     "Split",
     "SplitSummary",
     "grasp_keys",
@@ -131,10 +130,6 @@ def select_subset(
 
 
 # ============================================================================ Split
-def _ids(values: Any) -> np.ndarray:
-    return np.sort(np.asarray(values, dtype=np.int64).reshape(-1))
-
-
 def is_split_file(path: Path) -> bool:
     """Whether ``path`` is a split written by :meth:`Split.save` (safe to replace)."""
     data = json.loads(path.read_text(encoding="utf-8"))
@@ -158,11 +153,9 @@ class Split:
     metadata: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.train_ids = _ids(self.train_ids)
-        self.val_ids = _ids(self.val_ids)
-        self.test_ids = _ids(self.test_ids)
         for name in SPLIT_NAMES:
-            ids = self.ids(name)
+            ids = np.sort(np.asarray(self.ids(name), dtype=np.int64).reshape(-1))
+            setattr(self, f"{name}_ids", ids)
             if len(np.unique(ids)) != len(ids):
                 raise ValueError(f"{name} ids contain duplicates")
         for a, b in (("train", "val"), ("train", "test"), ("val", "test")):
@@ -211,9 +204,7 @@ class Split:
             "subset": self.subset,
             "counts": {name: len(self.ids(name)) for name in SPLIT_NAMES},
             "metadata": self.metadata,
-            "train_ids": self.train_ids.tolist(),
-            "val_ids": self.val_ids.tolist(),
-            "test_ids": self.test_ids.tolist(),
+            **{f"{name}_ids": self.ids(name).tolist() for name in SPLIT_NAMES},
         }
 
     @classmethod
@@ -226,9 +217,7 @@ class Split:
         if missing:
             raise ValueError(f"split file lacks {missing}")
         return cls(
-            train_ids=data["train_ids"],
-            val_ids=data["val_ids"],
-            test_ids=data["test_ids"],
+            **{f"{name}_ids": data[f"{name}_ids"] for name in SPLIT_NAMES},
             condition=data.get("condition", "seen"),
             grouping=data.get("grouping", "grasp"),
             seed=int(data.get("seed", 0)),

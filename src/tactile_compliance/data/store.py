@@ -24,11 +24,8 @@ holds -65504..65504 mm with a relative step of 2**-11 (0.0005 mm at 1 mm, 0.002 
 At a quarter of each side they add 4 % to the frames' bytes. They are the label-free
 target of tactile pretraining (``training.pretrain``).
 
-Stores are written by :class:`GraspStoreWriter`, which streams frames into a temporary
-sibling directory and renames it into place only when everything is written: an
-interrupted import never leaves a directory that looks like a complete store. What a
-killed writer leaves (its ``.NAME.partial-*`` directory, or the old store it was swapping
-out) is tidied by the next writer to the same path (:func:`recover_interrupted_writes`).
+Stores are written by :class:`GraspStoreWriter`, atomically (its guarantees are listed
+there): an interrupted import never leaves a directory that looks like a complete store.
 Opening a store checks its table (:func:`validate_samples`), including the physical
 plausibility of F, W, E and the label (:mod:`~tactile_compliance.data.plausibility`, the
 rules the importers and the estimator apply too).
@@ -81,9 +78,8 @@ from tactile_compliance.physics.estimators import (
 )
 
 FORMAT_VERSION = 1
-#: Written into every store by :class:`GraspStoreWriter`; ``--overwrite`` replaces only a
-#: directory that has it: see :func:`is_store_dir`.
-#: The marker of every tactile-compliance output (``outputs.MARKER_NAME``), kind "store".
+#: The marker of every tactile-compliance output, kind "store" here: ``--overwrite``
+#: replaces only a directory that has it (:func:`is_store_dir`).
 STORE_MARKER = MARKER_NAME
 STORE_KIND = "store"
 #: Written into a writer's temporary directory when it is created: who owns it.
@@ -97,8 +93,6 @@ FRAMES_PER_SAMPLE = 3
 DEPTH_DOWNSAMPLE = 4
 #: Largest stored |depth| in mm: a gel is a few mm thick, so anything beyond is no depth map.
 MAX_ABS_DEPTH_MM = 100.0
-
-FINGERS = ("markerless", "markers")
 
 FORCE_COLUMNS = ("force_n_0", "force_n_1", "force_n_2")
 WIDTH_COLUMNS = ("width_m_0", "width_m_1", "width_m_2")
@@ -199,11 +193,8 @@ def depth_size_for(image_size: tuple[int, int]) -> tuple[int, int]:
 
 
 def _column_numbers(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
-    """A numeric column as float64, and where it holds something that is no number.
-
-    Object columns (e.g. text written by another tool) are read element by element:
-    numbers and numeric text count, anything else (a word, a bool, a complex number) is
-    flagged; None/NaN stay NaN (missing) and are not flagged."""
+    """A numeric column as float64, and where it holds no number (a word, a bool, a complex
+    number); numeric text counts, None/NaN stay NaN (missing) and are not flagged."""
     if series.dtype.kind in "iuf":
         values = series.to_numpy(dtype=np.float64, na_value=np.nan)
         return values, np.zeros(len(series), dtype=bool)
@@ -290,11 +281,8 @@ def store_problems(path: str | Path) -> list[str]:
 
 
 def is_store_dir(path: str | Path) -> bool:
-    """Whether ``path`` is a GraspStore directory that may be replaced (``--overwrite``).
-
-    A store is a real directory (not a link) holding the :data:`STORE_MARKER` file that
-    :class:`GraspStoreWriter` writes. Nothing else is ever replaced.
-    """
+    """Whether ``path`` is a GraspStore directory that may be replaced (``--overwrite``): a
+    real directory (not a link) with the store marker. Nothing else is ever replaced."""
     path = Path(path)
     return not path.is_symlink() and path.is_dir() and output_kind(path) == STORE_KIND
 
@@ -415,17 +403,7 @@ class StoreHeader:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        depth = (
-            {
-                "depth_size": list(self.depth_size),
-                "depth_file": DEPTH_FILE,
-                "depth_dtype": "float16",
-                "depth_unit": "mm",
-            }
-            if self.depth_size is not None
-            else {}
-        )
-        return {
+        data = {
             "format_version": self.format_version,
             "num_samples": self.num_samples,
             "image_size": list(self.image_size),
@@ -438,9 +416,11 @@ class StoreHeader:
             "created": self.created,
             "package_version": self.package_version,
             "creation_parameters": self.creation_parameters,
-            **depth,
-            "frame_shape_sha256": self.shape_check,
         }
+        if self.depth_size is not None:
+            data["depth_size"] = list(self.depth_size)
+            data |= {"depth_file": DEPTH_FILE, "depth_dtype": "float16", "depth_unit": "mm"}
+        return data | {"frame_shape_sha256": self.shape_check}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> StoreHeader:
@@ -613,7 +593,7 @@ class GraspStore:
 
     def require_depth(self) -> None:
         """Raise :class:`StoreError` (saying how to get them) when the store has no depth maps."""
-        if self.depth is None or self.header.depth_size is None:
+        if self.depth is None:
             raise StoreError(
                 f"{self.path}: the store holds no depth maps; re-import it with "
                 "`tactile-compliance import burgess SRC --out STORE --depth`"
@@ -736,7 +716,7 @@ class GraspStore:
                     "samples_with_depth": int(s[list(DEPTH_COLUMNS)].notna().all(axis=1).sum()),
                     "bytes": int(np.prod(self.depth.shape)) * 2,
                 }
-                if self.depth is not None and self.header.depth_size is not None
+                if self.depth is not None
                 else None
             ),
             "created": self.header.created,
@@ -983,11 +963,9 @@ class GraspStoreWriter:
         """Write the table and header, then move the store into place."""
         if self._closed:
             raise RuntimeError("writer is closed")
-        samples = pd.DataFrame(self._rows, columns=list(SAMPLE_COLUMNS))
-        for column in _INT_COLUMNS:
-            samples[column] = samples[column].astype(np.int64)
-        for column in _STRING_COLUMNS:
-            samples[column] = samples[column].astype(str)
+        samples = pd.DataFrame(self._rows, columns=list(SAMPLE_COLUMNS)).astype(
+            dict.fromkeys(_INT_COLUMNS, np.int64) | dict.fromkeys(_STRING_COLUMNS, str)
+        )
         problems = validate_samples(samples)
         if problems:
             self.abort()

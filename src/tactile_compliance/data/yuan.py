@@ -108,10 +108,9 @@ def import_yuan(
     overwrite: bool = False,
     progress: bool = True,
 ) -> ImportReport:
-    """Import a directory of Shore-hardness press videos into a GraspStore.
+    """Import a directory of Shore-hardness press videos into a GraspStore (frame size:
+    ``image_size`` (height, width) px, else the videos' most common one).
 
-    ``image_size`` is (height, width) in pixels; by default the most common size among the
-    videos is used and other videos are resized to it. Every skipped video is reported.
     Raises a :class:`~tactile_compliance.data.import_report.DataImportError` subclass when
     the import cannot go on (nothing is written then).
     """
