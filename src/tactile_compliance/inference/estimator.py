@@ -25,30 +25,25 @@ import numpy as np
 import torch
 
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
-from tactile_compliance.inference.base import BaseEstimator, Prediction
+from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.runs.forward import forward_batch
+from tactile_compliance.runs.layout import BEST_FILE
 from tactile_compliance.runs.run_inputs import RunInputs
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.streaming import StreamingEstimator
 
-# ``Prediction`` lives in ``base`` (both estimators return it); it stays importable here,
-# where it was defined before the ONNX estimator shared this API.
-__all__ = ["ComplianceEstimator", "Prediction", "resolve_checkpoint"]
-
-#: File name of a run's best checkpoint (``training.train.BEST_FILE``); a run directory
-#: is accepted wherever a checkpoint path is.
-BEST_CHECKPOINT = "best.pt"
+__all__ = ["ComplianceEstimator", "resolve_checkpoint"]
 
 
 def resolve_checkpoint(path: str | Path) -> Path:
     """A checkpoint file, or a run directory holding ``best.pt`` -> the checkpoint file."""
     path = Path(path)
     if path.is_dir():
-        candidate = path / BEST_CHECKPOINT
+        candidate = path / BEST_FILE
         if not candidate.is_file():
-            raise FileNotFoundError(f"{path}: run directory without {BEST_CHECKPOINT}")
+            raise FileNotFoundError(f"{path}: run directory without {BEST_FILE}")
         return candidate
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
@@ -98,7 +93,7 @@ class ComplianceEstimator(BaseEstimator):
         torch.hub cache); ``backbone_weights`` names a local copy of that file instead.
         """
         file = resolve_checkpoint(path)
-        device = resolve_device(device)  # "auto": a GPU when torch sees one
+        device = resolve_device(device)
         loaded = load_checkpoint(file, device=device, backbone_weights=backbone_weights)
         return cls(
             loaded.model, loaded.run_inputs, meta=loaded.meta, device=device, source=str(file)
@@ -125,7 +120,7 @@ class ComplianceEstimator(BaseEstimator):
         """
         from tactile_compliance.inference.pretrained import load_pretrained
 
-        device = resolve_device(device)  # "auto": a GPU when torch sees one
+        device = resolve_device(device)
         loaded = load_pretrained(path, device=device)
         return cls(
             loaded.model, loaded.run_inputs, meta=loaded.meta, device=device, source=str(path)

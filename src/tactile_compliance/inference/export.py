@@ -35,8 +35,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import json
-import os
-import tempfile
 import warnings
 from pathlib import Path
 from typing import Any
@@ -46,10 +44,10 @@ import torch
 from torch import nn
 
 from tactile_compliance.inference.estimator import ComplianceEstimator
+from tactile_compliance.inference.input_checks import SCALAR_SPECS
 from tactile_compliance.inference.onnx import (
     ONNX_METADATA_KEY,
     OUTPUT_NAME,
-    OnnxEstimator,
     _ort_session,
     onnx_input_names,
 )
@@ -61,19 +59,13 @@ from tactile_compliance.inference.pretrained import (
     run_evaluation,
     write_pretrained,
 )
-from tactile_compliance.outputs import check_output_file, claim_output_dir
+from tactile_compliance.outputs import atomic_file, check_output_file, claim_output_dir
 
-# The runtime names are defined in ``onnx`` (the file's reader); they stay importable from
-# here, where export and runtime lived together before.
 __all__ = [
-    "ONNX_METADATA_KEY",
-    "OUTPUT_NAME",
-    "OnnxEstimator",
     "export_onnx",
     "export_safetensors",
     "format_export_report",
     "format_safetensors_report",
-    "onnx_input_names",
 ]
 
 DEFAULT_OPSET = 17
@@ -153,9 +145,8 @@ def _example_inputs(
 ) -> tuple[torch.Tensor, ...]:
     """Normalised-looking random inputs (frames ~ N(0, 1), scalars in [0, 1])."""
     gen = torch.Generator().manual_seed(seed)
-    sizes = {"force": 3, "width": 3, "estimates": 2}
     tensors = [torch.randn(batch, 3, 3, *image_size, generator=gen)]
-    tensors += [torch.rand(batch, sizes[n], generator=gen) for n in names[1:]]
+    tensors += [torch.rand(batch, SCALAR_SPECS[n].size, generator=gen) for n in names[1:]]
     return tuple(tensors)
 
 
@@ -228,35 +219,30 @@ def export_onnx(
     # failed export leaves no empty folder behind.
     created = [folder for folder in (out.parent, *out.parent.parents) if not folder.exists()]
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
     try:
-        with warnings.catch_warnings():
-            # The TorchScript exporter is deprecated (see the module docstring) and warns
-            # about shape-dependent Python code that is constant for a fixed frame size.
-            warnings.simplefilter("ignore")
-            torch.onnx.export(
-                wrapper,
-                example,
-                str(tmp),
-                dynamo=False,
-                input_names=names,
-                output_names=[OUTPUT_NAME],
-                dynamic_axes={name: {0: "batch"} for name in [*names, OUTPUT_NAME]},
-                opset_version=opset,
-                do_constant_folding=True,
-            )
-        _write_metadata(tmp, estimator, names)
-        tmp.replace(out)
+        # Written by name into the temp file, which atomic_file then renames into place.
+        with atomic_file(out, "wb", unique=True) as handle:
+            with warnings.catch_warnings():
+                # The TorchScript exporter is deprecated (see the module docstring) and warns
+                # about shape-dependent Python code that is constant for a fixed frame size.
+                warnings.simplefilter("ignore")
+                torch.onnx.export(
+                    wrapper,
+                    example,
+                    handle.name,
+                    dynamo=False,
+                    input_names=names,
+                    output_names=[OUTPUT_NAME],
+                    dynamic_axes={name: {0: "batch"} for name in [*names, OUTPUT_NAME]},
+                    opset_version=opset,
+                    do_constant_folding=True,
+                )
+            _write_metadata(Path(handle.name), estimator, names)
     except BaseException:
-        tmp.unlink(missing_ok=True)
         for folder in created:
             with contextlib.suppress(OSError):  # not empty: something else wrote there
                 folder.rmdir()
         raise
-    finally:
-        tmp.unlink(missing_ok=True)
 
     import onnxruntime
 
@@ -268,7 +254,7 @@ def export_onnx(
         "inputs": {
             name: ["batch", 3, 3, height, width]
             if name == "frames"
-            else ["batch", 2 if name == "estimates" else 3]
+            else ["batch", SCALAR_SPECS[name].size]
             for name in names
         },
         "output": {OUTPUT_NAME: ["batch"]},

@@ -58,7 +58,6 @@ __all__ = [
     "check_frames",
     "check_scalar",
     "prepare_inputs",
-    "required_inputs",
 ]
 
 #: Tolerance on the [0, 1] range of float frames: one grey level, so frames decoded from
@@ -151,15 +150,6 @@ class PreparedInputs:
             {key: value[start : start + batch_size] for key, value in self.batch.items()}
             for start in range(0, n, batch_size)
         ]
-
-
-def required_inputs(inputs: InputStrategy | str) -> tuple[str, ...]:
-    """Scalar inputs a strategy needs besides the frames, e.g. ``("force", "width")``.
-
-    The strategy's own ``needs`` (one vocabulary for models and inference); this only
-    also accepts the strategy's name, as checkpoints and ONNX metadata record it.
-    """
-    return InputStrategy.parse(inputs).needs
 
 
 def _shape(value: Any) -> str:
@@ -349,7 +339,7 @@ def prepare_inputs(
     batch_size = int(tensor.shape[0])
     batch: dict[str, torch.Tensor] = {"frames": tensor}
     strategy = InputStrategy.parse(inputs)
-    for name in required_inputs(strategy):
+    for name in strategy.needs:
         value = scalars.get(name)
         if value is None:
             spec = SCALAR_SPECS[name]

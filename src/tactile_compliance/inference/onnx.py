@@ -19,7 +19,6 @@ import torch
 
 from tactile_compliance.data.dataset import prepare_frames
 from tactile_compliance.inference.base import BaseEstimator
-from tactile_compliance.inference.input_checks import required_inputs
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.run_inputs import RunInputs
 
@@ -31,7 +30,7 @@ OUTPUT_NAME = "modulus_normalised"
 
 def onnx_input_names(inputs: InputStrategy | str) -> list[str]:
     """Graph input names for a strategy: ``frames`` plus the enabled scalar inputs."""
-    return ["frames", *required_inputs(inputs)]
+    return ["frames", *InputStrategy.parse(inputs).needs]
 
 
 def _ort_session(path: str | Path, threads: int | None = None) -> Any:

@@ -38,7 +38,7 @@ import torch
 from tactile_compliance import __version__
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.devices import DEFAULT_DEVICE
-from tactile_compliance.inference.input_checks import required_inputs
+from tactile_compliance.inference.input_checks import SCALAR_SPECS
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.models.backbones import file_sha256
 from tactile_compliance.outputs import (
@@ -82,7 +82,6 @@ _FRAME_KIND = (
 )
 # Store sources that are recordings of real sensors (the importers' names).
 _REAL_SOURCES = {"burgess": "real (Burgess et al. dataset layout)", "yuan": "real (Yuan videos)"}
-_UNITS = {"force": "N", "width": "m", "estimates": "Pa"}
 
 
 class OptionalDependencyError(ImportError):
@@ -479,7 +478,7 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
     run_inputs = config["run_inputs"]
     norm = run_inputs["normalisation"]
     strategy = InputStrategy.parse(run_inputs["inputs"])
-    scalars = [f"{name} ({_UNITS[name]})" for name in required_inputs(strategy)]
+    scalars = [f"{name} ({SCALAR_SPECS[name].unit})" for name in strategy.needs]
     height, width = run_inputs["image_size"]
     lo, hi = NormalisationConstants.from_dict(norm).label_range_pa
     frozen = config.get("frozen_backbone")
@@ -577,7 +576,7 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
         "result = estimator.predict(frames, "
         + ", ".join(
             {"force": "force=F_N", "width": "width=W_M", "estimates": "estimates=E_PA"}[n]
-            for n in required_inputs(strategy)
+            for n in strategy.needs
         )
         + ")",
         "```",
