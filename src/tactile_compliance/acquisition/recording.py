@@ -29,25 +29,11 @@ recording (it clips the press itself), at the calibration's pixel density (the W
 
 The grasp number is the next free one; a grasp directory is written under a hidden name
 and renamed into place, so nothing existing is ever overwritten and an interrupted
-recording leaves no half grasp that the importer would read. A frame without a reading
-in range, of the wrong size or with a time going backwards is skipped and reported
-(:attr:`RecordedGrasp.skipped`); the capture goes on.
-
-What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps: what
-``record`` guarantees"):
-
-* it writes only into a new or empty directory or one ``record`` wrote
-  (``outputs.claim_output_dir``, kind ``record``); a GraspStore, a run directory or other
-  files are refused before the capture starts;
-* the write (grasp number, ``metadata.json``, the grasp, the object table) holds an
-  exclusive lock on ``OUT/.record.lock``, so concurrent ``record``s each get their own
-  grasp number and every object keeps its row in the atomically replaced table; the row
-  follows ``metadata.json``;
-* a failed write (a full disk) removes the grasp's temporary directory and a
-  ``metadata.json`` it created: no object is left without grasps;
-* object names (letters, digits and ``_ . + -``) and the saved forces and widths
-  (``data.plausibility``: a width in millimetres is refused) are checked before anything
-  is written.
+recording leaves no half grasp. A frame without a reading in range, of the wrong size or
+with a time going backwards is skipped and reported (:attr:`RecordedGrasp.skipped`).
+What ``record`` guarantees about ``OUT`` (the directories it writes into, the lock on
+``OUT/.record.lock``, the object table, failed writes, checked names and readings) is
+listed in docs/data.md, "Recording your own grasps: what ``record`` guarantees".
 """
 
 from __future__ import annotations

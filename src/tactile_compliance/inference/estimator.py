@@ -8,11 +8,9 @@ result = estimator.predict(frames, force=[8.1, 31.0, 58.7], width=[0.050, 0.047,
 result.modulus_pa, result.log10_modulus_pa
 ```
 
-This module only loads a PyTorch checkpoint and runs it. Input checks, scalar
-normalisation, batching and the result are :class:`~tactile_compliance.inference.base.
-BaseEstimator`'s (shared with the ONNX estimator), and the forward pass is
-:func:`tactile_compliance.runs.forward.forward_batch`, the function training, validation
-and ``evaluate`` call. A checkpoint therefore gives the same numbers here as on the
+This module loads a PyTorch checkpoint and runs it; input checks, batching and the result
+are ``BaseEstimator``'s, and the forward pass is ``runs.forward.forward_batch``, the one
+training and ``evaluate`` call, so a checkpoint gives the same numbers as on the
 evaluation path.
 """
 
@@ -54,9 +52,7 @@ class ComplianceEstimator(BaseEstimator):
     """A trained PyTorch model plus its own preprocessing: predicts Young's modulus in Pa.
 
     Build it with :meth:`from_checkpoint` (a ``best.pt``) or :meth:`from_pretrained` (an
-    exported safetensors directory). ``predict`` and the input checks are
-    :class:`~tactile_compliance.inference.base.BaseEstimator`'s; this class adds loading
-    and the device. ``run_inputs`` is the checkpoint's record, read as it is.
+    exported safetensors directory); ``run_inputs`` is the checkpoint's record.
     """
 
     kind = "checkpoint"

@@ -2,32 +2,15 @@
 weights to a safetensors directory with a config and a model card (:func:`export_safetensors`,
 format in ``inference/pretrained.py``).
 
-The graph takes *already normalised* inputs, exactly what the PyTorch model takes, with a
-dynamic batch axis:
-
-| name | shape | present for |
-|---|---|---|
-| ``frames`` | (batch, 3, 3, H, W) float32, per-channel normalised | every strategy |
-| ``force`` | (batch, 3) float32, F / 60 N | ImageF, ImageFW, ALL |
-| ``width`` | (batch, 3) float32, W / 0.08 m | ImageFW, ALL |
-| ``estimates`` | (batch, 2) float32, normalised log10 (elastic, Hertz) | ALL |
-| output ``modulus_normalised`` | (batch,) float32 in (0, 1) | |
-
-Models have no tower for a disabled input, so the graph has no input for it either.
-H and W are fixed to the checkpoint's frame size. The checkpoint's description
-(normalisation constants, frame size, strategy, model) is stored in the ONNX metadata
-(key ``tactile_compliance``), so :class:`~tactile_compliance.inference.onnx.OnnxEstimator`
-(which runs the file) applies the same preprocessing as
-:class:`~tactile_compliance.inference.estimator.ComplianceEstimator` and has the same
-``predict`` API.
-
-Exporter: the TorchScript-based exporter (``torch.onnx.export(..., dynamo=False)``). The
-default dynamo exporter of torch 2.13 needs ``onnxscript``, which is not a dependency of
-this project; the TorchScript exporter is deprecated but works offline for all three
-models. It cannot export ``AdaptiveAvgPool2d`` when the batch axis is dynamic (VGG16's
-7 x 7 pool: the traced input size is symbolic), so the export replaces each such pool by
-the same averaging written as two fixed matrix products for the checkpoint's frame size
-(exact, checked by the parity test).
+The ONNX graph takes *already normalised* inputs (``frames`` (batch, 3, 3, H, W), and the
+scalar inputs the strategy uses, ``force`` (batch, 3), ``width`` (batch, 3), ``estimates``
+(batch, 2)) and returns ``modulus_normalised`` (batch,), with a dynamic batch axis and H, W
+fixed to the checkpoint's. The checkpoint's ``run_inputs`` travels in the ONNX metadata
+(key ``tactile_compliance``), so ``onnx.OnnxEstimator`` preprocesses like
+``ComplianceEstimator``. The TorchScript-based exporter (``dynamo=False``: the dynamo one
+needs ``onnxscript``, not a dependency) cannot export ``AdaptiveAvgPool2d`` with a dynamic
+batch axis, so each such pool is replaced by the same averaging as two fixed matrix
+products (exact). Table and details: docs/inference.md, "ONNX export".
 """
 
 from __future__ import annotations

@@ -1,31 +1,17 @@
 """Validation of user input for the inference API, and conversion to a model batch.
 
-Everything a robot program hands to :meth:`ComplianceEstimator.predict` passes through
-:func:`prepare_inputs` first. It checks shapes, dtypes, value ranges and NaN, and raises a
-``ValueError`` that names the argument, the expected shape/unit and what it got. It then
-normalises the scalar inputs with the functions of
-:mod:`tactile_compliance.data.normalisation` (the same functions ``model_inputs`` uses for
-training), so the dict it returns is exactly what :func:`~tactile_compliance.training.
-forward.forward_batch` receives on the evaluation path. Frames stay in the store's
-encoding (uint8, or float in [0, 1]); ``prepare_frames`` resizes and normalises them later.
-
-Conventions of the public API (units in the names):
-
-* ``frames``: three RGB difference images of one grasp ``(3, H, W, 3)`` or a batch
-  ``(B, 3, H, W, 3)``; uint8 in the store's encoding (``data.store.frames_to_uint8``,
-  decoded as ``(u + 0.5) / 255``) or float in [0, 1].
-* ``force``: normal force in N at the three frames, ``(3,)`` or ``(B, 3)``.
-* ``width``: gripper width in m at the three frames, ``(3,)`` or ``(B, 3)``.
-* ``estimates``: analytical estimates (elastic E, Hertz E*) in Pa, ``(2,)`` or ``(B, 2)``.
-
-The plausible ranges (force, width, estimates, float frames) are the rules of
-:mod:`tactile_compliance.data.plausibility`, the same the importers and the store apply
-(table in ``docs/data.md``): a value rejected here is never imported silently either.
+Everything a robot program hands to ``BaseEstimator.predict`` (argument conventions and
+units there) passes through :func:`prepare_inputs`: shapes, dtypes, ranges and NaN are
+checked with a ``ValueError`` that names the argument, the expected shape/unit and what it
+got; the scalars are then normalised by ``data.normalisation`` as ``model_inputs`` does for
+training, so the batch is what ``forward_batch`` receives on the evaluation path. Frames
+stay in the store's encoding (uint8, or float in [0, 1]). The plausible ranges are the rules
+of ``data.plausibility``, shared with the importers and the store (``docs/data.md``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -71,25 +57,18 @@ _DECODED_RANGE = tuple(frames_from_uint8(np.array([0, 255], dtype=np.uint8)).tol
 
 @dataclass(frozen=True)
 class ScalarSpec:
-    """What one scalar input is, its shape per grasp and its plausibility rule.
+    """What one scalar input is, its shape per grasp, its plausibility rule and its
+    normalisation; ``unit`` and ``high`` are read from ``rule`` (``data.plausibility``)."""
 
-    ``unit``, ``low`` and ``high`` are read from ``rule``
-    (:mod:`tactile_compliance.data.plausibility`), never written here.
-    """
-
-    name: str
     size: int
     meaning: str
     rule: PlausibleRange
     hint: str
+    normalise: Callable[[np.ndarray, NormalisationConstants], Any]
 
     @property
     def unit(self) -> str:
         return self.rule.unit
-
-    @property
-    def low(self) -> float:
-        return self.rule.low
 
     @property
     def high(self) -> float:
@@ -102,26 +81,26 @@ class ScalarSpec:
 #: reach ~60 N and the gripper opens to 0.08 m.
 SCALAR_SPECS: dict[str, ScalarSpec] = {
     "force": ScalarSpec(
-        "force",
         NUM_FRAMES,
         "normal force at the three frames",
         FORCE,
         "pass the raw reading in newtons (the model divides by 60 N itself)",
+        normalise_force,
     ),
     "width": ScalarSpec(
-        "width",
         NUM_FRAMES,
         "gripper width at the three frames",
         WIDTH,
         "pass metres, not millimetres (the gripper opens to 0.08 m)",
+        normalise_width,
     ),
     "estimates": ScalarSpec(
-        "estimates",
         2,
         "analytical estimates (elastic E, Hertz E*)",
         ESTIMATE,
         "values are clamped to [1e2, 1e14] Pa like in training; NaN means 'missing' and "
         "cannot be used by an ALL model",
+        normalise_estimates,
     ),
 }
 
@@ -303,13 +282,6 @@ def _numeric_array(value: Any, what: str) -> np.ndarray:
     return np.asarray(array, dtype=np.float64)
 
 
-_NORMALISERS = {
-    "force": normalise_force,
-    "width": normalise_width,
-    "estimates": normalise_estimates,
-}
-
-
 def prepare_inputs(
     frames: Any,
     scalars: Mapping[str, Any],
@@ -326,7 +298,7 @@ def prepare_inputs(
     so one call site can feed estimators of every strategy.
 
     Args:
-        frames: see the module docstring.
+        frames: see ``BaseEstimator.predict``.
         scalars: ``{"force": ..., "width": ..., "estimates": ...}`` in N, m and Pa; None
             entries count as absent.
         inputs: the checkpoint's input strategy.
@@ -350,6 +322,6 @@ def prepare_inputs(
             )
         physical = check_scalar(name, value, batch_size, single)
         # float64 normalisation then float32, exactly like model_inputs() on the store.
-        normalised = np.asarray(_NORMALISERS[name](physical, constants), dtype=np.float32)
+        normalised = np.asarray(SCALAR_SPECS[name].normalise(physical, constants), dtype=np.float32)
         batch[name] = torch.from_numpy(normalised)
     return PreparedInputs(batch=batch, single=single)

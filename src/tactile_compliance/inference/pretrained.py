@@ -1,25 +1,15 @@
 """Deployable weights: a directory of ``model.safetensors``, ``config.json`` and ``README.md``.
 
-The layout follows the Hugging Face hub convention (weights + a JSON config + a model
-card), so such a directory can be uploaded or shared as is, but nothing here depends on
-the hub: :func:`load_pretrained` (behind ``ComplianceEstimator.from_pretrained``) reads a
-local directory. :func:`write_pretrained` writes one (behind ``tactile-compliance export
-CHECKPOINT --safetensors DIR``, see ``inference/export.py``).
-
-* ``model.safetensors``: the model's **whole** state dict. A checkpoint of a frozen-backbone
-  run stores the head only and rebuilds the backbone from a seed or a weights file; the
-  export rebuilds (and verifies) it once and writes its tensors too, so the directory needs
-  no weights file, seed or torch version to load (a frozen VGG16 adds 0.53 GB). Where the
-  backbone came from stays recorded in ``config.json`` (``frozen_backbone``).
-* ``config.json``: everything needed to rebuild the model and its input pipeline: model
-  name and hyperparameters, the checkpoint's ``run_inputs`` record (input strategy,
-  normalisation constants, frame sizes (H, W) px, channel order, sensor, the analytical
-  estimator: ``runs.run_inputs.RunInputs``), the training store's provenance, the
-  training configuration and its metrics, the package version and the checkpoint's sha256.
-* ``README.md``: a model card generated from the same facts (see :func:`model_card`).
-
-Rebuilding goes through :func:`~tactile_compliance.runs.checkpoint.rebuild_model`, the
-function that also rebuilds ``best.pt`` checkpoints: there is one way to make a model.
+The Hugging Face hub's layout (weights, a JSON config, a model card), read and written
+locally without the hub: :func:`load_pretrained` (behind
+``ComplianceEstimator.from_pretrained``) and :func:`write_pretrained` (behind ``export
+--safetensors``). ``model.safetensors`` holds the **whole** state dict, a frozen backbone
+included, so loading needs no weights file or seed (where the backbone came from stays in
+``config.json``, ``frozen_backbone``); ``config.json`` holds the model's name and
+hyperparameters, the ``run_inputs`` record, the training store's provenance, configuration
+and metrics; ``README.md`` is the model card made from it (:func:`model_card`). The model
+is rebuilt by ``runs.checkpoint.rebuild_model``, as ``best.pt`` checkpoints are. See
+docs/inference.md, "Deployable weights (safetensors)".
 """
 
 from __future__ import annotations

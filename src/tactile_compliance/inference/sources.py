@@ -11,9 +11,6 @@ own code, so a grasp read here reaches the model exactly as it would through
   BGR -> RGB flip), its resize, and the store's uint8 quantisation.
 * Video (``.avi``, ...): the Shore-hardness importer's decoder and press-frame rule
   (first, midway, brightest frame); raw frames, no force/width/estimates.
-
-:func:`~tactile_compliance.inference.predict.predict_path` (``predict.py``) runs a
-checkpoint on what these readers return: the ``predict`` command.
 """
 
 from __future__ import annotations
