@@ -69,7 +69,6 @@ from tactile_compliance.data.force_readings import (
     force_baseline,
 )
 from tactile_compliance.data.frame_selection import (
-    AUGMENTATION_FORCE_FRACTION,
     MAX_AUGMENTATIONS,
     MIN_PEAK_FORCE_N,
     augment_selection,
@@ -107,8 +106,6 @@ from tactile_compliance.outputs import (
 from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, WEDGE_UNITS
 
 __all__ = [
-    "AUGMENTATION_FORCE_FRACTION",
-    "MAX_AUGMENTATIONS",
     "OBJECT_TABLE_FILE",
     "OUTPUT_KIND",
     "CapturedGrasp",
@@ -590,11 +587,8 @@ def _next_grasp(object_dir: Path) -> int:
 
 
 def _write_metadata(object_dir: Path, info: ObjectInfo) -> bool:
-    """Create ``metadata.json``, or check an existing one names the same label.
-
-    Returns:
-        whether this call created it (so a failed grasp write can remove it again).
-    """
+    """Create ``metadata.json`` (True: a failed grasp write removes it again), or check
+    that an existing one names the same label (False)."""
     path = object_dir / METADATA_FILE
     if path.exists():
         try:
@@ -613,12 +607,10 @@ def _write_metadata(object_dir: Path, info: ObjectInfo) -> bool:
 
 
 def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
-    """Add the object to the table, or update its row, keeping other columns and rows.
-
-    The row follows ``metadata.json`` (which :func:`_write_metadata` has just written or
-    checked against ``info``): an object recorded again with another modulus after its
-    directory was deleted gets the new modulus, never keeps the old one. The caller holds
-    the dataset's lock; the file is replaced atomically."""
+    """Add the object to the table, or update its row, keeping other columns and rows. The
+    row follows ``metadata.json`` (written or checked against ``info`` just before), also
+    for an object deleted and recorded again with another modulus. The caller holds the
+    dataset's lock; the file is replaced atomically."""
 
     def text(value: float | None) -> str:
         return "" if value is None else f"{value:g}"

@@ -757,8 +757,7 @@ def open_source(
         return DigitSource(target, pick(PLAIN_GEOMETRY))
     if kind == "folder" or (kind == "" and Path(target).is_dir()):
         return FolderSource(target, pick(PLAIN_GEOMETRY), fps=fps, timestamps_csv=timestamps_csv)
-    if kind in ("video", "camera", ""):
-        if kind == "camera" and not (target.isdigit() or target.startswith("/dev/")):
-            raise ValueError(f"camera:{target}: expected a camera index or a /dev/ path")
-        return VideoCaptureSource(target, pick(PLAIN_GEOMETRY))
-    raise AssertionError(kind)  # pragma: no cover - every kind is handled above
+    # video, camera, or a plain path, index or URL
+    if kind == "camera" and not (target.isdigit() or target.startswith("/dev/")):
+        raise ValueError(f"camera:{target}: expected a camera index or a /dev/ path")
+    return VideoCaptureSource(target, pick(PLAIN_GEOMETRY))

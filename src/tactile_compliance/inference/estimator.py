@@ -195,11 +195,8 @@ class ComplianceEstimator(BaseEstimator):
 
     # ------------------------------------------------------------------ streaming
     def stream(self, **options: Any) -> StreamingEstimator:
-        """A :class:`~tactile_compliance.inference.streaming.StreamingEstimator` on this model.
-
-        Options are those of ``StreamingEstimator`` (``window``, ``frame_kind``,
-        ``reference``, ``estimates_pa``, thresholds).
-        """
+        """A :class:`~tactile_compliance.inference.streaming.StreamingEstimator` on this model
+        (``options``: its ``window``, ``frame_kind``, ``reference``, ``estimates_pa``, ...)."""
         from tactile_compliance.inference.streaming import StreamingEstimator
 
         return StreamingEstimator(self, **options)

@@ -337,17 +337,15 @@ def export_safetensors(
 ) -> dict[str, Any]:
     """Write a checkpoint as ``model.safetensors`` + ``config.json`` + a model card ``README.md``.
 
-    ``out`` is claimed with ``outputs.claim_output_dir`` (kind ``pretrained``): a new or
-    empty directory, or an earlier export, never a directory of other files. A frozen
-    backbone is rebuilt and verified as :meth:`ComplianceEstimator.from_checkpoint` does
-    (``backbone_weights``: a local copy of its weights file) and its tensors are written
-    with the head, so the directory is self-contained. The card's metrics come from the
-    run's ``metrics.json`` next to the checkpoint when there is one.
+    A frozen backbone is rebuilt and verified as ``from_checkpoint`` does and written with
+    the head, so the directory is self-contained; the card's metrics come from the run's
+    ``metrics.json`` next to the checkpoint when there is one.
 
     Args:
         checkpoint: ``best.pt`` or a run directory.
-        out: the directory to write.
-        backbone_weights: see ``ComplianceEstimator.from_checkpoint``.
+        out: a new or empty directory, or an earlier export, never one of other files
+            (``outputs.claim_output_dir``, kind ``pretrained``).
+        backbone_weights: a local copy of a frozen backbone's weights file.
         license: the model card's licence (an SPDX identifier such as ``mit``; default
             ``other``: the weights follow the licence of their training data).
 

@@ -160,8 +160,6 @@ def check_frames(
         raise ValueError(f"channel_order must be 'RGB' or 'BGR', got {channel_order!r}")
     if isinstance(frames, torch.Tensor):
         array = frames.detach().cpu().numpy()
-    elif isinstance(frames, np.ndarray):
-        array = frames
     elif frames is None:
         raise ValueError("frames are required: three difference images (3, H, W, 3), RGB")
     else:

@@ -84,17 +84,13 @@ def live_estimates(
 ) -> Iterator[dict[str, Any]]:
     """Run ``source`` through streaming estimators; yield one dict per event.
 
-    Events: ``{"event": "no_estimate", "reason": ...}`` (the stream ended without one, and
-    why), ``{"event": "estimate", ...}`` (a provisional or the final estimate:
+    Events (``{"event": KIND, ...}``): ``estimate`` (provisional or final:
     ``StreamEstimate.to_dict()`` plus ``timestamp_s``; with several members also
-    ``std_decades``, ``interval_pa``, ``level`` and ``members_log10``) and
-    ``{"event": "skipped", "reason": ...}`` (a frame left out). The loop ends after the
-    final estimate (the grasp was released) or with the source; a grasp that never
-    reached the selection thresholds ends without an estimate.
-
-    Bad frames and frames without a reading are reported as ``skipped`` and the loop goes
-    on; what ``record`` warns about (``recording.check_recording`` at the first frame, and
-    every force spike the readings replaced) is reported as ``{"event": "warning", ...}``.
+    ``std_decades``, ``interval_pa``, ``level`` and ``members_log10``), ``skipped`` (a bad
+    frame or one without a reading; the loop goes on), ``warning`` (what ``record`` warns
+    about: ``recording.check_recording`` at the first frame, every force spike the readings
+    replaced) and ``no_estimate`` (the stream ended without one; ``reason`` says why). The
+    loop ends after the final estimate (the grasp was released) or with the source.
 
     Args:
         members: one estimator, or several for an ensemble interval.
@@ -109,9 +105,7 @@ def live_estimates(
         readings_offset_s: added to a frame's time to find its reading: the readings'
             clock minus the source's (``docs/inference.md``, "Clocks").
 
-    A live device is read by a background thread (:class:`~.sensors.StampedOnArrival`), so
-    every frame is stamped when it arrives, however long the estimate of the previous one
-    takes; while frames wait, the loop skips provisional estimates (never frames), so the
+    A live device is read by a background thread (``sensors.StampedOnArrival``), so the
     final estimate is the one a replay of the same frames gives.
     """
     if not math.isfinite(readings_offset_s):
@@ -258,12 +252,11 @@ def _combine(
     ensemble: EnsembleEstimator, streams: list[StreamingEstimator], timestamp_s: float | None
 ) -> dict[str, Any] | None:
     """One event from the members' latest estimates (None until every member has one)."""
-    latest: list[StreamEstimate | None] = [s.latest for s in streams]
+    latest = [s.latest for s in streams]
     if any(e is None for e in latest):
         return None
     estimates: list[StreamEstimate] = latest  # type: ignore[assignment]
-    first = estimates[0]
-    event: dict[str, Any] = {"event": "estimate", "timestamp_s": timestamp_s, **first.to_dict()}
+    event = {"event": "estimate", "timestamp_s": timestamp_s, **estimates[0].to_dict()}
     event["final"] = all(e.final for e in estimates)
     if len(estimates) > 1:
         combined = ensemble.combine(np.array([e.log10_modulus_pa for e in estimates]))

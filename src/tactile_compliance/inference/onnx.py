@@ -75,11 +75,8 @@ class OnnxEstimator(BaseEstimator):
         return str(self.meta["model"])
 
     def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
-        """Normalised outputs of one prepared chunk, through onnxruntime.
-
-        The graph takes frames already resized and normalised (see ``export``), so that
-        step runs here with the project's ``prepare_frames``, as ``forward_batch`` does.
-        """
+        """Normalised outputs of one prepared chunk through onnxruntime; the graph takes
+        frames resized and normalised, here by ``prepare_frames`` as ``forward_batch`` does."""
         frames = prepare_frames(chunk["frames"], self.constants, self.run_inputs.image_size)
         feed = {"frames": frames.numpy()}
         feed.update({name: chunk[name].numpy() for name in self.input_names[1:]})

@@ -118,14 +118,12 @@ def _without_local_paths(value: Any) -> Any:
         return {key: _without_local_paths(item) for key, item in value.items()}
     if isinstance(value, list):
         return [_without_local_paths(item) for item in value]
-    if isinstance(value, str) and (value.startswith(("/", "~")) or _is_windows_path(value)):
+    if isinstance(value, str) and (
+        value.startswith(("/", "~"))  # or an absolute Windows path, C:\\... or C:/...
+        or (len(value) > 2 and value[0].isalpha() and value[1] == ":" and value[2] in "\\/")
+    ):
         return Path(value).name or value
     return value
-
-
-def _is_windows_path(value: str) -> bool:
-    """Whether ``value`` looks like an absolute Windows path (``C:\\...``, ``C:/...``)."""
-    return len(value) > 2 and value[0].isalpha() and value[1] == ":" and value[2] in "\\/"
 
 
 def pretrained_config(

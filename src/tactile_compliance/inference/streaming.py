@@ -475,19 +475,16 @@ class StreamingEstimator:
         if self._estimates_pa is not None or not self._has_depth:
             return self._estimates_pa
         buf = self._buffer
-        lo = max(selection.window_start, buf.offset)
-        hi = selection.peak + 1
+        lo, hi = max(selection.window_start, buf.offset), selection.peak + 1
         press = self._press_start(np.asarray(buf.forces))
         if press is not None:
             # The dataset's estimator clips the whole recording itself (press by force,
             # depth onset, the end of the press after the peak): the final estimate gives
             # it everything since the press began, as the dataset's driver loaded it;
             # refinements stop at the peak so they change only when the peak does.
-            lo, hi = max(press, buf.offset), (len(buf.forces) if final else selection.peak + 1)
-        span = range(lo, hi)
-        depths = np.stack([buf.depths[i - buf.offset] for i in span])  # type: ignore[misc]
-        forces = np.asarray(buf.forces)[lo:hi]
-        widths = np.asarray(buf.widths)[lo:hi]
+            lo, hi = max(press, buf.offset), (len(buf.forces) if final else hi)
+        depths = np.stack(buf.depths[lo - buf.offset : hi - buf.offset])  # type: ignore[arg-type]
+        forces, widths = np.asarray(buf.forces)[lo:hi], np.asarray(buf.widths)[lo:hi]
         values = np.asarray(
             self.analytical_estimator.estimate(forces, widths, depths), dtype=np.float64
         )
