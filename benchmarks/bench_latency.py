@@ -38,7 +38,8 @@ import torch
 
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.inference import ComplianceEstimator, OnnxEstimator, export_onnx
-from tactile_compliance.inference.export import _example_inputs, _ort_session, onnx_input_names
+from tactile_compliance.inference.export import _example_inputs
+from tactile_compliance.inference.onnx import _ort_session, onnx_input_names
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.checkpoint import save_checkpoint
 from tactile_compliance.runs.run_inputs import RunInputs

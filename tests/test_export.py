@@ -15,7 +15,8 @@ from tactile_compliance.inference import (
     export_onnx,
     format_export_report,
 )
-from tactile_compliance.inference.export import _FixedAdaptiveAvgPool2d, onnx_input_names
+from tactile_compliance.inference.export import _FixedAdaptiveAvgPool2d
+from tactile_compliance.inference.onnx import onnx_input_names
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.checkpoint import save_checkpoint
 from tactile_compliance.runs.run_inputs import RunInputs

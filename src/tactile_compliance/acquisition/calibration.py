@@ -1,24 +1,14 @@
 """Calibration to your own sensor: frame geometry, no-contact reference, pixel pitch, depth.
 
 A :class:`SensorCalibration` is one JSON file (``tactile-compliance calibrate SOURCE --out
-sensor.json``, extended by ``tactile-compliance calibrate-depth``) holding
-
-* ``geometry``: the warp / crop / resize (:class:`~.sensors.FrameGeometry`) that turns the
-  camera frame into the sensor frame, with the camera frame size it was made for;
-* ``reference_png_base64``: the no-contact reference frame (after the geometry), the
-  per-pixel median of ``n_frames`` frames recorded with nothing touching the gel, as a
-  lossless PNG (BGR, uint8) inside the JSON, so one file travels with nothing to lose;
-* ``px_per_mm``: the sensor frames' pixel density [px/mm] (None: not calibrated, the
-  public dataset's Wedge value 16.40 is assumed, as its estimator does);
-* ``depth_model``: the sensor's own colour-to-slope model fitted on ball presses
-  (:func:`calibrate_depth`, ``data.depth_model``); None: the dataset heuristic;
-* what it was recorded from (``source``, ``n_frames``, ``created_utc``).
-
-Difference images are ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5``
-(``data.image_ops.difference_images``): with a calibration, every grasp uses this
-reference instead of its own first frame, so a grasp that starts in contact still gets
-correct difference images. Sources opened with a calibration (:meth:`open`) apply its
-geometry and refuse frames of another camera size.
+sensor.json``, extended by ``calibrate-depth``) holding the frame geometry, the no-contact
+reference frame (the per-pixel median of frames recorded with nothing touching the gel, as
+a lossless PNG inside the JSON, so one file travels with nothing to lose), the pixel
+density and the sensor's own depth model fitted on ball presses (:func:`calibrate_depth`).
+With a calibration every grasp is differenced against this reference instead of its own
+first frame, so a grasp that starts in contact still gets correct difference images, and
+sources opened with it (:meth:`SensorCalibration.open`) refuse frames of another camera
+size. See docs/sensors.md.
 """
 
 from __future__ import annotations
@@ -144,9 +134,7 @@ class SensorCalibration:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON document (reference as base64 PNG)."""
-        ok, png = cv2.imencode(".png", self.reference)
-        if not ok:  # pragma: no cover - PNG encoding of uint8 never fails
-            raise ValueError("cannot encode the reference frame as PNG")
+        _, png = cv2.imencode(".png", self.reference)  # never fails for uint8 (H, W, 3)
         return {
             "format": CALIBRATION_FORMAT,
             "format_version": CALIBRATION_VERSION,
@@ -313,7 +301,7 @@ def calibrate(
         for _, frame in iter_frames(source, skipped.append):
             frames.append(frame)
             if camera_size is None:
-                camera_size = _camera_size(source)
+                camera_size = source.last_raw_size
             if len(frames) >= n_frames:
                 break
         used = source.geometry
@@ -329,12 +317,6 @@ def calibrate(
     if out is not None:
         calibration.save(out)
     return calibration
-
-
-def _camera_size(source: FrameSourceBase) -> tuple[int, int] | None:
-    """The raw camera frame size a source last delivered, when it can tell."""
-    size = getattr(source, "last_raw_size", None)
-    return None if size is None else (int(size[0]), int(size[1]))
 
 
 # ---------------------------------------------------------------------- depth calibration

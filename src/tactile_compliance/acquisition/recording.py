@@ -29,25 +29,11 @@ recording (it clips the press itself), at the calibration's pixel density (the W
 
 The grasp number is the next free one; a grasp directory is written under a hidden name
 and renamed into place, so nothing existing is ever overwritten and an interrupted
-recording leaves no half grasp that the importer would read. A frame without a reading
-in range, of the wrong size or with a time going backwards is skipped and reported
-(:attr:`RecordedGrasp.skipped`); the capture goes on.
-
-What ``record`` guarantees about ``OUT`` (docs/data.md, "Recording your own grasps: what
-``record`` guarantees"):
-
-* it writes only into a new or empty directory or one ``record`` wrote
-  (``outputs.claim_output_dir``, kind ``record``); a GraspStore, a run directory or other
-  files are refused before the capture starts;
-* the write (grasp number, ``metadata.json``, the grasp, the object table) holds an
-  exclusive lock on ``OUT/.record.lock``, so concurrent ``record``s each get their own
-  grasp number and every object keeps its row in the atomically replaced table; the row
-  follows ``metadata.json``;
-* a failed write (a full disk) removes the grasp's temporary directory and a
-  ``metadata.json`` it created: no object is left without grasps;
-* object names (letters, digits and ``_ . + -``) and the saved forces and widths
-  (``data.plausibility``: a width in millimetres is refused) are checked before anything
-  is written.
+recording leaves no half grasp. A frame without a reading in range, of the wrong size or
+with a time going backwards is skipped and reported (:attr:`RecordedGrasp.skipped`).
+What ``record`` guarantees about ``OUT`` (the directories it writes into, the lock on
+``OUT/.record.lock``, the object table, failed writes, checked names and readings) is
+listed in docs/data.md, "Recording your own grasps: what ``record`` guarantees".
 """
 
 from __future__ import annotations
@@ -83,7 +69,6 @@ from tactile_compliance.data.force_readings import (
     force_baseline,
 )
 from tactile_compliance.data.frame_selection import (
-    AUGMENTATION_FORCE_FRACTION,
     MAX_AUGMENTATIONS,
     MIN_PEAK_FORCE_N,
     augment_selection,
@@ -121,8 +106,6 @@ from tactile_compliance.outputs import (
 from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, WEDGE_UNITS
 
 __all__ = [
-    "AUGMENTATION_FORCE_FRACTION",
-    "MAX_AUGMENTATIONS",
     "OBJECT_TABLE_FILE",
     "OUTPUT_KIND",
     "CapturedGrasp",
@@ -604,11 +587,8 @@ def _next_grasp(object_dir: Path) -> int:
 
 
 def _write_metadata(object_dir: Path, info: ObjectInfo) -> bool:
-    """Create ``metadata.json``, or check an existing one names the same label.
-
-    Returns:
-        whether this call created it (so a failed grasp write can remove it again).
-    """
+    """Create ``metadata.json`` (True: a failed grasp write removes it again), or check
+    that an existing one names the same label (False)."""
     path = object_dir / METADATA_FILE
     if path.exists():
         try:
@@ -627,12 +607,10 @@ def _write_metadata(object_dir: Path, info: ObjectInfo) -> bool:
 
 
 def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
-    """Add the object to the table, or update its row, keeping other columns and rows.
-
-    The row follows ``metadata.json`` (which :func:`_write_metadata` has just written or
-    checked against ``info``): an object recorded again with another modulus after its
-    directory was deleted gets the new modulus, never keeps the old one. The caller holds
-    the dataset's lock; the file is replaced atomically."""
+    """Add the object to the table, or update its row, keeping other columns and rows. The
+    row follows ``metadata.json`` (written or checked against ``info`` just before), also
+    for an object deleted and recorded again with another modulus. The caller holds the
+    dataset's lock; the file is replaced atomically."""
 
     def text(value: float | None) -> str:
         return "" if value is None else f"{value:g}"

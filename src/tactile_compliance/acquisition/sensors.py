@@ -1,41 +1,20 @@
 """Live frame sources: tactile sensor cameras, replayed videos and folders of frames.
 
-Every source yields ``(timestamp_s, frame)``: the time in seconds of the frame and a uint8
-BGR image ``(H, W, 3)`` (OpenCV's channel order) already cut to the sensor's pad by the
-source's :class:`FrameGeometry` (an optional perspective warp, a crop, a resize). Sources
-are context managers and iterators::
+Every source yields ``(timestamp_s, frame)``: the frame's time in seconds and a uint8 BGR
+image ``(H, W, 3)`` already cut to the sensor's pad by the source's :class:`FrameGeometry`
+(warp, crop, resize). Sources are context managers and iterators::
 
     with open_source("mini:0") as source:          # a GelSight Mini on /dev/video0
         for timestamp_s, frame in source:
             ...
 
-Timestamps: a video file gives its own frame times (``CAP_PROP_POS_MSEC``), so a replay
-has the recording's timing whatever the reading speed; live devices and streams take
-``time.monotonic()`` when the frame arrives; a folder of frames takes a CSV of times or a
-given frame rate.
-
-Errors (one line each; ``OSError`` / ``ValueError`` subclasses, which the CLI reports as
-``error: ...``):
-
-* :class:`SensorError` (``OSError``): the device, stream or file cannot be opened or
-  stops delivering (a camera that is not there), or an optional driver is missing.
-* :class:`FrameSizeError` (``ValueError``): a frame whose size differs from the
-  source's first frame or from the size a calibration expects.
-* :class:`TimestampError` (``ValueError``): a frame older than the previous one.
-
-The last two concern one frame: :meth:`FrameSourceBase.read` raises them for that frame
-and the source stays usable, so a capture loop (:func:`iter_frames` with ``on_error``)
-skips the frame and keeps what it already has.
-
-Presets (every step a documented parameter of :class:`FrameGeometry`): a **GelSight
-Mini** (:func:`gelsight_mini`, :data:`MINI_GEOMETRY`), a **GelSight Wedge** over HTTP
-MJPEG, the public dataset's rig (:func:`gelsight_wedge`, :data:`WEDGE_GEOMETRY`), a
-**DIGIT** (:class:`DigitSource`) through the optional ``digit-interface`` package
-(non-commercial licence: never a dependency of this project), and for replay and tests a
-**video file** or URL (:class:`VideoCaptureSource`) or a **folder of frames**
-(:class:`FolderSource`). :func:`open_source` parses a spec string (``mini:0``,
-``wedge:http://host:port/...``, ``digit:SERIAL``, ``video:path.avi``, ``camera:0``,
-``folder:dir`` or a plain path).
+A video file gives its own frame times, so a replay keeps the recording's timing; live
+devices and streams take ``time.monotonic()`` on arrival; a folder takes a CSV of times or
+a frame rate. Errors are one line each: :class:`SensorError` (an ``OSError``: the source
+fails) and the :class:`FrameError` kinds (``ValueError``: one frame is unusable, the
+source goes on, so :func:`iter_frames` can skip it). :func:`open_source` parses the spec
+strings of the presets (GelSight Mini, GelSight Wedge over HTTP MJPEG, DIGIT through the
+optional, non-commercial ``digit-interface``, any camera, a video or URL, a folder).
 """
 
 from __future__ import annotations
@@ -49,7 +28,6 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from types import TracebackType
 from typing import Any, Protocol, runtime_checkable
 
 import cv2
@@ -328,12 +306,7 @@ class FrameSourceBase:
     def __enter__(self) -> FrameSourceBase:
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def __iter__(self) -> Iterator[tuple[float, np.ndarray]]:
@@ -543,11 +516,6 @@ class VideoCaptureSource(FrameSourceBase):
                 self._capture.set(cv2.CAP_PROP_FRAME_HEIGHT, capture_size[0])
             if fps:
                 self._capture.set(cv2.CAP_PROP_FPS, fps)
-
-    @property
-    def nominal_fps(self) -> float:
-        """The frame rate the device or file declares (0 when unknown)."""
-        return float(self._capture.get(cv2.CAP_PROP_FPS) or 0.0)
 
     def _grab(self) -> tuple[float, np.ndarray] | None:
         if self._capture is None:
@@ -789,8 +757,7 @@ def open_source(
         return DigitSource(target, pick(PLAIN_GEOMETRY))
     if kind == "folder" or (kind == "" and Path(target).is_dir()):
         return FolderSource(target, pick(PLAIN_GEOMETRY), fps=fps, timestamps_csv=timestamps_csv)
-    if kind in ("video", "camera", ""):
-        if kind == "camera" and not (target.isdigit() or target.startswith("/dev/")):
-            raise ValueError(f"camera:{target}: expected a camera index or a /dev/ path")
-        return VideoCaptureSource(target, pick(PLAIN_GEOMETRY))
-    raise AssertionError(kind)  # pragma: no cover - every kind is handled above
+    # video, camera, or a plain path, index or URL
+    if kind == "camera" and not (target.isdigit() or target.startswith("/dev/")):
+        raise ValueError(f"camera:{target}: expected a camera index or a /dev/ path")
+    return VideoCaptureSource(target, pick(PLAIN_GEOMETRY))

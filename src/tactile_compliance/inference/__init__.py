@@ -1,25 +1,12 @@
 """Inference: load a checkpoint, predict Young's modulus (Pa), stream, ensemble, export.
 
-* :class:`BaseEstimator` - the ``predict(frames, force, width, estimates)`` API for one
-  grasp or a batch, with the input checks and :class:`Prediction`, shared by the PyTorch
-  and ONNX estimators (``base.py``).
-* :class:`ComplianceEstimator` - ``from_checkpoint(path)``: a PyTorch checkpoint
-  (``estimator.py``).
-* :class:`StreamingEstimator` - frames with force/width one at a time from a live sensor
-  (``streaming.py``).
-* :class:`EnsembleEstimator` - several checkpoints, mean and interval in decades
-  (``ensemble.py``).
-* :func:`export_onnx` - ONNX export with a parity check (``export.py``);
-  :class:`OnnxEstimator` runs the exported file with onnxruntime (``onnx.py``).
-* :func:`export_safetensors` - weights + ``config.json`` + a model card in one directory
-  (``export.py``, format in ``pretrained.py``), loaded by
-  ``ComplianceEstimator.from_pretrained``.
-* :func:`predict_path` - a store, raw grasp directory or video -> predictions
-  (``predict.py``, reading with ``sources.py``; the ``predict`` command).
-* :func:`live_estimates` - a sensor (``tactile_compliance.acquisition``) plus readings
-  through the streaming estimator (``live.py``; the ``live`` command).
-
-See ``docs/inference.md``.
+:class:`ComplianceEstimator` (a PyTorch checkpoint or an exported safetensors directory)
+and :class:`OnnxEstimator` (an ONNX file) share :class:`BaseEstimator`'s ``predict(frames,
+force, width, estimates)``; :class:`StreamingEstimator` takes a live sensor's frames one at
+a time and :class:`EnsembleEstimator` combines checkpoints (mean and interval in decades);
+:func:`export_onnx` and :func:`export_safetensors` export; :func:`predict_path` and
+:func:`live_estimates` are the ``predict`` and ``live`` commands. Each module's contents:
+``docs/inference.md``, "Files".
 """
 
 from tactile_compliance.data.frame_selection import select_frame_indices

@@ -1,18 +1,11 @@
 """The ``predict`` API every estimator shares, whatever runs the network.
 
-:class:`BaseEstimator` owns the part of inference that must not depend on the runtime:
-input validation and scalar normalisation (:func:`~tactile_compliance.inference.input_checks.
-prepare_inputs`), ``required_inputs``, cutting a batch into bounded chunks, and reading
-the normalised outputs back to Pa (:class:`Prediction`). A subclass only loads its network
-and implements :meth:`BaseEstimator._forward` on one prepared chunk:
-
-* :class:`~tactile_compliance.inference.estimator.ComplianceEstimator` - a PyTorch
-  checkpoint, through ``runs.forward.forward_batch``;
-* :class:`~tactile_compliance.inference.onnx.OnnxEstimator` - an exported ONNX file,
-  through onnxruntime.
-
-Both therefore accept, reject and post-process inputs identically; they can differ only by
-the network's numerical round-off.
+:class:`BaseEstimator` owns what must not depend on the runtime: input validation and
+scalar normalisation (``input_checks.prepare_inputs``), bounded chunks, and reading the
+outputs back to Pa (:class:`Prediction`). A subclass loads its network and implements
+:meth:`BaseEstimator._forward` on one prepared chunk (``ComplianceEstimator``: a PyTorch
+checkpoint; ``OnnxEstimator``: an ONNX file), so both treat inputs identically and differ
+only by the network's round-off.
 """
 
 from __future__ import annotations
@@ -25,17 +18,15 @@ import numpy as np
 import torch
 
 from tactile_compliance.data.normalisation import NormalisationConstants, denormalise_modulus
-from tactile_compliance.inference.input_checks import (
-    PreparedInputs,
-    prepare_inputs,
-    required_inputs,
-)
+from tactile_compliance.inference.input_checks import prepare_inputs
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.run_inputs import RunInputs
 
 __all__ = ["MIN_FRAME_SIDE_PX", "BaseEstimator", "Prediction", "to_plain"]
 
-#: Frames must be at least this many pixels high and wide (see ``min_frame_size``).
+#: Frames must be at least this many pixels high and wide, even when they are resized: a
+#: smaller tactile frame holds no contact geometry (a thumbnail, a single pixel), and
+#: upscaling it would only hide the mistake.
 MIN_FRAME_SIDE_PX = 8
 
 
@@ -131,51 +122,13 @@ class BaseEstimator(ABC):
     @property
     def required_inputs(self) -> tuple[str, ...]:
         """Scalar inputs ``predict`` needs besides the frames, e.g. ``("force", "width")``."""
-        return required_inputs(self.inputs)
-
-    @property
-    def min_frame_size(self) -> int:
-        """Smallest accepted frame side in pixels, even when frames are resized.
-
-        A tactile frame smaller than this holds no contact geometry: it is a wrong array
-        (a thumbnail, a single pixel), and upscaling it would only hide the mistake."""
-        return MIN_FRAME_SIDE_PX
-
-    # ------------------------------------------------------------------ prediction
-    def prepare(
-        self,
-        frames: Any,
-        force: Any = None,
-        width: Any = None,
-        estimates: Any = None,
-        *,
-        channel_order: str = "RGB",
-    ) -> PreparedInputs:
-        """Validate and normalise inputs (what ``predict`` runs first); see ``inputs``."""
-        return prepare_inputs(
-            frames,
-            {"force": force, "width": width, "estimates": estimates},
-            inputs=self.inputs,
-            constants=self.constants,
-            min_size=self.min_frame_size,
-            channel_order=channel_order,
-            describe=f"{self.kind} {self.source} ({self.model_name})",
-        )
-
-    def predict_prepared(self, prepared: PreparedInputs, batch_size: int = 64) -> np.ndarray:
-        """Normalised outputs y (B,) of a prepared batch, ``batch_size`` grasps at a time."""
-        if batch_size < 1:
-            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-        return np.concatenate([self._forward(chunk) for chunk in prepared.chunks(batch_size)])
+        return self.inputs.needs
 
     @abstractmethod
     def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
-        """Normalised outputs y (b,) of one chunk of :class:`PreparedInputs`.
-
-        ``chunk`` holds ``frames`` in the store's encoding (the subclass resizes and
-        normalises them, as the network it runs expects) and the normalised scalars the
-        strategy uses.
-        """
+        """Normalised outputs y (b,) of one chunk of ``input_checks.PreparedInputs``:
+        ``frames`` in the store's encoding (the subclass resizes and normalises them for
+        its network) and the normalised scalars the strategy uses."""
 
     def predict(
         self,
@@ -207,6 +160,16 @@ class BaseEstimator(ABC):
                 strategy needs is missing. The ranges are the plausibility rules the
                 importers and the store share (``data.plausibility``, ``docs/data.md``).
         """
-        prepared = self.prepare(frames, force, width, estimates, channel_order=channel_order)
-        y = self.predict_prepared(prepared, batch_size=batch_size)
+        prepared = prepare_inputs(
+            frames,
+            {"force": force, "width": width, "estimates": estimates},
+            inputs=self.inputs,
+            constants=self.constants,
+            min_size=MIN_FRAME_SIDE_PX,
+            channel_order=channel_order,
+            describe=f"{self.kind} {self.source} ({self.model_name})",
+        )
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        y = np.concatenate([self._forward(chunk) for chunk in prepared.chunks(batch_size)])
         return Prediction.from_normalised(y, self.constants, prepared.single)

@@ -288,7 +288,7 @@ def ensemble_calibration(
         members, truth = [], []
         for start in range(0, len(ids), 256):  # bounded memory on full-size stores
             batch = read_store(store, ids[start : start + 256])
-            scalars = {k: (v if k in needed else None) for k, v in batch.scalars().items()}
+            scalars = batch.scalars(needed)
             members.append(ensemble.members_log10(batch.frames, **scalars, batch_size=batch_size))
             truth.append(np.log10(batch.rows["modulus_pa"].to_numpy(np.float64)))
         return np.concatenate(members, axis=1), np.concatenate(truth)

@@ -8,11 +8,9 @@ result = estimator.predict(frames, force=[8.1, 31.0, 58.7], width=[0.050, 0.047,
 result.modulus_pa, result.log10_modulus_pa
 ```
 
-This module only loads a PyTorch checkpoint and runs it. Input checks, scalar
-normalisation, batching and the result are :class:`~tactile_compliance.inference.base.
-BaseEstimator`'s (shared with the ONNX estimator), and the forward pass is
-:func:`tactile_compliance.runs.forward.forward_batch`, the function training, validation
-and ``evaluate`` call. A checkpoint therefore gives the same numbers here as on the
+This module loads a PyTorch checkpoint and runs it; input checks, batching and the result
+are ``BaseEstimator``'s, and the forward pass is ``runs.forward.forward_batch``, the one
+training and ``evaluate`` call, so a checkpoint gives the same numbers as on the
 evaluation path.
 """
 
@@ -25,30 +23,25 @@ import numpy as np
 import torch
 
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
-from tactile_compliance.inference.base import BaseEstimator, Prediction
+from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.runs.forward import forward_batch
+from tactile_compliance.runs.layout import BEST_FILE
 from tactile_compliance.runs.run_inputs import RunInputs
 
 if TYPE_CHECKING:
     from tactile_compliance.inference.streaming import StreamingEstimator
 
-# ``Prediction`` lives in ``base`` (both estimators return it); it stays importable here,
-# where it was defined before the ONNX estimator shared this API.
-__all__ = ["ComplianceEstimator", "Prediction", "resolve_checkpoint"]
-
-#: File name of a run's best checkpoint (``training.train.BEST_FILE``); a run directory
-#: is accepted wherever a checkpoint path is.
-BEST_CHECKPOINT = "best.pt"
+__all__ = ["ComplianceEstimator", "resolve_checkpoint"]
 
 
 def resolve_checkpoint(path: str | Path) -> Path:
     """A checkpoint file, or a run directory holding ``best.pt`` -> the checkpoint file."""
     path = Path(path)
     if path.is_dir():
-        candidate = path / BEST_CHECKPOINT
+        candidate = path / BEST_FILE
         if not candidate.is_file():
-            raise FileNotFoundError(f"{path}: run directory without {BEST_CHECKPOINT}")
+            raise FileNotFoundError(f"{path}: run directory without {BEST_FILE}")
         return candidate
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
@@ -59,9 +52,7 @@ class ComplianceEstimator(BaseEstimator):
     """A trained PyTorch model plus its own preprocessing: predicts Young's modulus in Pa.
 
     Build it with :meth:`from_checkpoint` (a ``best.pt``) or :meth:`from_pretrained` (an
-    exported safetensors directory). ``predict`` and the input checks are
-    :class:`~tactile_compliance.inference.base.BaseEstimator`'s; this class adds loading
-    and the device. ``run_inputs`` is the checkpoint's record, read as it is.
+    exported safetensors directory); ``run_inputs`` is the checkpoint's record.
     """
 
     kind = "checkpoint"
@@ -98,7 +89,7 @@ class ComplianceEstimator(BaseEstimator):
         torch.hub cache); ``backbone_weights`` names a local copy of that file instead.
         """
         file = resolve_checkpoint(path)
-        device = resolve_device(device)  # "auto": a GPU when torch sees one
+        device = resolve_device(device)
         loaded = load_checkpoint(file, device=device, backbone_weights=backbone_weights)
         return cls(
             loaded.model, loaded.run_inputs, meta=loaded.meta, device=device, source=str(file)
@@ -125,7 +116,7 @@ class ComplianceEstimator(BaseEstimator):
         """
         from tactile_compliance.inference.pretrained import load_pretrained
 
-        device = resolve_device(device)  # "auto": a GPU when torch sees one
+        device = resolve_device(device)
         loaded = load_pretrained(path, device=device)
         return cls(
             loaded.model, loaded.run_inputs, meta=loaded.meta, device=device, source=str(path)
@@ -204,11 +195,8 @@ class ComplianceEstimator(BaseEstimator):
 
     # ------------------------------------------------------------------ streaming
     def stream(self, **options: Any) -> StreamingEstimator:
-        """A :class:`~tactile_compliance.inference.streaming.StreamingEstimator` on this model.
-
-        Options are those of ``StreamingEstimator`` (``window``, ``frame_kind``,
-        ``reference``, ``estimates_pa``, thresholds).
-        """
+        """A :class:`~tactile_compliance.inference.streaming.StreamingEstimator` on this model
+        (``options``: its ``window``, ``frame_kind``, ``reference``, ``estimates_pa``, ...)."""
         from tactile_compliance.inference.streaming import StreamingEstimator
 
         return StreamingEstimator(self, **options)

@@ -2,32 +2,15 @@
 weights to a safetensors directory with a config and a model card (:func:`export_safetensors`,
 format in ``inference/pretrained.py``).
 
-The graph takes *already normalised* inputs, exactly what the PyTorch model takes, with a
-dynamic batch axis:
-
-| name | shape | present for |
-|---|---|---|
-| ``frames`` | (batch, 3, 3, H, W) float32, per-channel normalised | every strategy |
-| ``force`` | (batch, 3) float32, F / 60 N | ImageF, ImageFW, ALL |
-| ``width`` | (batch, 3) float32, W / 0.08 m | ImageFW, ALL |
-| ``estimates`` | (batch, 2) float32, normalised log10 (elastic, Hertz) | ALL |
-| output ``modulus_normalised`` | (batch,) float32 in (0, 1) | |
-
-Models have no tower for a disabled input, so the graph has no input for it either.
-H and W are fixed to the checkpoint's frame size. The checkpoint's description
-(normalisation constants, frame size, strategy, model) is stored in the ONNX metadata
-(key ``tactile_compliance``), so :class:`~tactile_compliance.inference.onnx.OnnxEstimator`
-(which runs the file) applies the same preprocessing as
-:class:`~tactile_compliance.inference.estimator.ComplianceEstimator` and has the same
-``predict`` API.
-
-Exporter: the TorchScript-based exporter (``torch.onnx.export(..., dynamo=False)``). The
-default dynamo exporter of torch 2.13 needs ``onnxscript``, which is not a dependency of
-this project; the TorchScript exporter is deprecated but works offline for all three
-models. It cannot export ``AdaptiveAvgPool2d`` when the batch axis is dynamic (VGG16's
-7 x 7 pool: the traced input size is symbolic), so the export replaces each such pool by
-the same averaging written as two fixed matrix products for the checkpoint's frame size
-(exact, checked by the parity test).
+The ONNX graph takes *already normalised* inputs (``frames`` (batch, 3, 3, H, W), and the
+scalar inputs the strategy uses, ``force`` (batch, 3), ``width`` (batch, 3), ``estimates``
+(batch, 2)) and returns ``modulus_normalised`` (batch,), with a dynamic batch axis and H, W
+fixed to the checkpoint's. The checkpoint's ``run_inputs`` travels in the ONNX metadata
+(key ``tactile_compliance``), so ``onnx.OnnxEstimator`` preprocesses like
+``ComplianceEstimator``. The TorchScript-based exporter (``dynamo=False``: the dynamo one
+needs ``onnxscript``, not a dependency) cannot export ``AdaptiveAvgPool2d`` with a dynamic
+batch axis, so each such pool is replaced by the same averaging as two fixed matrix
+products (exact). Table and details: docs/inference.md, "ONNX export".
 """
 
 from __future__ import annotations
@@ -35,8 +18,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import json
-import os
-import tempfile
 import warnings
 from pathlib import Path
 from typing import Any
@@ -46,10 +27,10 @@ import torch
 from torch import nn
 
 from tactile_compliance.inference.estimator import ComplianceEstimator
+from tactile_compliance.inference.input_checks import SCALAR_SPECS
 from tactile_compliance.inference.onnx import (
     ONNX_METADATA_KEY,
     OUTPUT_NAME,
-    OnnxEstimator,
     _ort_session,
     onnx_input_names,
 )
@@ -61,19 +42,13 @@ from tactile_compliance.inference.pretrained import (
     run_evaluation,
     write_pretrained,
 )
-from tactile_compliance.outputs import check_output_file, claim_output_dir
+from tactile_compliance.outputs import atomic_file, check_output_file, claim_output_dir
 
-# The runtime names are defined in ``onnx`` (the file's reader); they stay importable from
-# here, where export and runtime lived together before.
 __all__ = [
-    "ONNX_METADATA_KEY",
-    "OUTPUT_NAME",
-    "OnnxEstimator",
     "export_onnx",
     "export_safetensors",
     "format_export_report",
     "format_safetensors_report",
-    "onnx_input_names",
 ]
 
 DEFAULT_OPSET = 17
@@ -153,9 +128,8 @@ def _example_inputs(
 ) -> tuple[torch.Tensor, ...]:
     """Normalised-looking random inputs (frames ~ N(0, 1), scalars in [0, 1])."""
     gen = torch.Generator().manual_seed(seed)
-    sizes = {"force": 3, "width": 3, "estimates": 2}
     tensors = [torch.randn(batch, 3, 3, *image_size, generator=gen)]
-    tensors += [torch.rand(batch, sizes[n], generator=gen) for n in names[1:]]
+    tensors += [torch.rand(batch, SCALAR_SPECS[n].size, generator=gen) for n in names[1:]]
     return tuple(tensors)
 
 
@@ -228,35 +202,30 @@ def export_onnx(
     # failed export leaves no empty folder behind.
     created = [folder for folder in (out.parent, *out.parent.parents) if not folder.exists()]
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
     try:
-        with warnings.catch_warnings():
-            # The TorchScript exporter is deprecated (see the module docstring) and warns
-            # about shape-dependent Python code that is constant for a fixed frame size.
-            warnings.simplefilter("ignore")
-            torch.onnx.export(
-                wrapper,
-                example,
-                str(tmp),
-                dynamo=False,
-                input_names=names,
-                output_names=[OUTPUT_NAME],
-                dynamic_axes={name: {0: "batch"} for name in [*names, OUTPUT_NAME]},
-                opset_version=opset,
-                do_constant_folding=True,
-            )
-        _write_metadata(tmp, estimator, names)
-        tmp.replace(out)
+        # Written by name into the temp file, which atomic_file then renames into place.
+        with atomic_file(out, "wb", unique=True) as handle:
+            with warnings.catch_warnings():
+                # The TorchScript exporter is deprecated (see the module docstring) and warns
+                # about shape-dependent Python code that is constant for a fixed frame size.
+                warnings.simplefilter("ignore")
+                torch.onnx.export(
+                    wrapper,
+                    example,
+                    handle.name,
+                    dynamo=False,
+                    input_names=names,
+                    output_names=[OUTPUT_NAME],
+                    dynamic_axes={name: {0: "batch"} for name in [*names, OUTPUT_NAME]},
+                    opset_version=opset,
+                    do_constant_folding=True,
+                )
+            _write_metadata(Path(handle.name), estimator, names)
     except BaseException:
-        tmp.unlink(missing_ok=True)
         for folder in created:
             with contextlib.suppress(OSError):  # not empty: something else wrote there
                 folder.rmdir()
         raise
-    finally:
-        tmp.unlink(missing_ok=True)
 
     import onnxruntime
 
@@ -268,7 +237,7 @@ def export_onnx(
         "inputs": {
             name: ["batch", 3, 3, height, width]
             if name == "frames"
-            else ["batch", 2 if name == "estimates" else 3]
+            else ["batch", SCALAR_SPECS[name].size]
             for name in names
         },
         "output": {OUTPUT_NAME: ["batch"]},
@@ -368,17 +337,15 @@ def export_safetensors(
 ) -> dict[str, Any]:
     """Write a checkpoint as ``model.safetensors`` + ``config.json`` + a model card ``README.md``.
 
-    ``out`` is claimed with ``outputs.claim_output_dir`` (kind ``pretrained``): a new or
-    empty directory, or an earlier export, never a directory of other files. A frozen
-    backbone is rebuilt and verified as :meth:`ComplianceEstimator.from_checkpoint` does
-    (``backbone_weights``: a local copy of its weights file) and its tensors are written
-    with the head, so the directory is self-contained. The card's metrics come from the
-    run's ``metrics.json`` next to the checkpoint when there is one.
+    A frozen backbone is rebuilt and verified as ``from_checkpoint`` does and written with
+    the head, so the directory is self-contained; the card's metrics come from the run's
+    ``metrics.json`` next to the checkpoint when there is one.
 
     Args:
         checkpoint: ``best.pt`` or a run directory.
-        out: the directory to write.
-        backbone_weights: see ``ComplianceEstimator.from_checkpoint``.
+        out: a new or empty directory, or an earlier export, never one of other files
+            (``outputs.claim_output_dir``, kind ``pretrained``).
+        backbone_weights: a local copy of a frozen backbone's weights file.
         license: the model card's licence (an SPDX identifier such as ``mit``; default
             ``other``: the weights follow the licence of their training data).
 

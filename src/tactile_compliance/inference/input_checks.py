@@ -1,31 +1,17 @@
 """Validation of user input for the inference API, and conversion to a model batch.
 
-Everything a robot program hands to :meth:`ComplianceEstimator.predict` passes through
-:func:`prepare_inputs` first. It checks shapes, dtypes, value ranges and NaN, and raises a
-``ValueError`` that names the argument, the expected shape/unit and what it got. It then
-normalises the scalar inputs with the functions of
-:mod:`tactile_compliance.data.normalisation` (the same functions ``model_inputs`` uses for
-training), so the dict it returns is exactly what :func:`~tactile_compliance.training.
-forward.forward_batch` receives on the evaluation path. Frames stay in the store's
-encoding (uint8, or float in [0, 1]); ``prepare_frames`` resizes and normalises them later.
-
-Conventions of the public API (units in the names):
-
-* ``frames``: three RGB difference images of one grasp ``(3, H, W, 3)`` or a batch
-  ``(B, 3, H, W, 3)``; uint8 in the store's encoding (``data.store.frames_to_uint8``,
-  decoded as ``(u + 0.5) / 255``) or float in [0, 1].
-* ``force``: normal force in N at the three frames, ``(3,)`` or ``(B, 3)``.
-* ``width``: gripper width in m at the three frames, ``(3,)`` or ``(B, 3)``.
-* ``estimates``: analytical estimates (elastic E, Hertz E*) in Pa, ``(2,)`` or ``(B, 2)``.
-
-The plausible ranges (force, width, estimates, float frames) are the rules of
-:mod:`tactile_compliance.data.plausibility`, the same the importers and the store apply
-(table in ``docs/data.md``): a value rejected here is never imported silently either.
+Everything a robot program hands to ``BaseEstimator.predict`` (argument conventions and
+units there) passes through :func:`prepare_inputs`: shapes, dtypes, ranges and NaN are
+checked with a ``ValueError`` that names the argument, the expected shape/unit and what it
+got; the scalars are then normalised by ``data.normalisation`` as ``model_inputs`` does for
+training, so the batch is what ``forward_batch`` receives on the evaluation path. Frames
+stay in the store's encoding (uint8, or float in [0, 1]). The plausible ranges are the rules
+of ``data.plausibility``, shared with the importers and the store (``docs/data.md``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -58,7 +44,6 @@ __all__ = [
     "check_frames",
     "check_scalar",
     "prepare_inputs",
-    "required_inputs",
 ]
 
 #: Tolerance on the [0, 1] range of float frames: one grey level, so frames decoded from
@@ -72,25 +57,18 @@ _DECODED_RANGE = tuple(frames_from_uint8(np.array([0, 255], dtype=np.uint8)).tol
 
 @dataclass(frozen=True)
 class ScalarSpec:
-    """What one scalar input is, its shape per grasp and its plausibility rule.
+    """What one scalar input is, its shape per grasp, its plausibility rule and its
+    normalisation; ``unit`` and ``high`` are read from ``rule`` (``data.plausibility``)."""
 
-    ``unit``, ``low`` and ``high`` are read from ``rule``
-    (:mod:`tactile_compliance.data.plausibility`), never written here.
-    """
-
-    name: str
     size: int
     meaning: str
     rule: PlausibleRange
     hint: str
+    normalise: Callable[[np.ndarray, NormalisationConstants], Any]
 
     @property
     def unit(self) -> str:
         return self.rule.unit
-
-    @property
-    def low(self) -> float:
-        return self.rule.low
 
     @property
     def high(self) -> float:
@@ -103,26 +81,26 @@ class ScalarSpec:
 #: reach ~60 N and the gripper opens to 0.08 m.
 SCALAR_SPECS: dict[str, ScalarSpec] = {
     "force": ScalarSpec(
-        "force",
         NUM_FRAMES,
         "normal force at the three frames",
         FORCE,
         "pass the raw reading in newtons (the model divides by 60 N itself)",
+        normalise_force,
     ),
     "width": ScalarSpec(
-        "width",
         NUM_FRAMES,
         "gripper width at the three frames",
         WIDTH,
         "pass metres, not millimetres (the gripper opens to 0.08 m)",
+        normalise_width,
     ),
     "estimates": ScalarSpec(
-        "estimates",
         2,
         "analytical estimates (elastic E, Hertz E*)",
         ESTIMATE,
         "values are clamped to [1e2, 1e14] Pa like in training; NaN means 'missing' and "
         "cannot be used by an ALL model",
+        normalise_estimates,
     ),
 }
 
@@ -151,15 +129,6 @@ class PreparedInputs:
             {key: value[start : start + batch_size] for key, value in self.batch.items()}
             for start in range(0, n, batch_size)
         ]
-
-
-def required_inputs(inputs: InputStrategy | str) -> tuple[str, ...]:
-    """Scalar inputs a strategy needs besides the frames, e.g. ``("force", "width")``.
-
-    The strategy's own ``needs`` (one vocabulary for models and inference); this only
-    also accepts the strategy's name, as checkpoints and ONNX metadata record it.
-    """
-    return InputStrategy.parse(inputs).needs
 
 
 def _shape(value: Any) -> str:
@@ -191,8 +160,6 @@ def check_frames(
         raise ValueError(f"channel_order must be 'RGB' or 'BGR', got {channel_order!r}")
     if isinstance(frames, torch.Tensor):
         array = frames.detach().cpu().numpy()
-    elif isinstance(frames, np.ndarray):
-        array = frames
     elif frames is None:
         raise ValueError("frames are required: three difference images (3, H, W, 3), RGB")
     else:
@@ -313,13 +280,6 @@ def _numeric_array(value: Any, what: str) -> np.ndarray:
     return np.asarray(array, dtype=np.float64)
 
 
-_NORMALISERS = {
-    "force": normalise_force,
-    "width": normalise_width,
-    "estimates": normalise_estimates,
-}
-
-
 def prepare_inputs(
     frames: Any,
     scalars: Mapping[str, Any],
@@ -336,7 +296,7 @@ def prepare_inputs(
     so one call site can feed estimators of every strategy.
 
     Args:
-        frames: see the module docstring.
+        frames: see ``BaseEstimator.predict``.
         scalars: ``{"force": ..., "width": ..., "estimates": ...}`` in N, m and Pa; None
             entries count as absent.
         inputs: the checkpoint's input strategy.
@@ -349,7 +309,7 @@ def prepare_inputs(
     batch_size = int(tensor.shape[0])
     batch: dict[str, torch.Tensor] = {"frames": tensor}
     strategy = InputStrategy.parse(inputs)
-    for name in required_inputs(strategy):
+    for name in strategy.needs:
         value = scalars.get(name)
         if value is None:
             spec = SCALAR_SPECS[name]
@@ -360,6 +320,6 @@ def prepare_inputs(
             )
         physical = check_scalar(name, value, batch_size, single)
         # float64 normalisation then float32, exactly like model_inputs() on the store.
-        normalised = np.asarray(_NORMALISERS[name](physical, constants), dtype=np.float32)
+        normalised = np.asarray(SCALAR_SPECS[name].normalise(physical, constants), dtype=np.float32)
         batch[name] = torch.from_numpy(normalised)
     return PreparedInputs(batch=batch, single=single)

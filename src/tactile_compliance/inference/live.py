@@ -1,28 +1,15 @@
 """Live estimation: a frame source plus force/width readings through the streaming estimator.
 
-:func:`live_estimates` is the library side of ``tactile-compliance live``. Every good frame
-of the source is paired with the robot's reading at its time (``recording.Readings`` or
-any ``timestamp_s -> (force_n, width_m)`` callback), differenced once against the
-calibration's no-contact frame or the grasp's first frame, and fed to
+:func:`live_estimates` is the library side of ``tactile-compliance live``. Each good frame
+is paired with the robot's reading at its time, differenced once against the calibration's
+no-contact frame or the grasp's first frame, and fed to every member's
 :class:`~tactile_compliance.inference.streaming.StreamingEstimator` as a BGR difference
-image in the store's encoding (``frame_kind="difference"``, ``channel_order="BGR"``;
-what ``frame_kind="raw"`` would compute). Checkpoints that use the analytical estimates
-get them computed on the fly from the same difference image's depth map
-(``data.photometric.reconstruct_depth``, the reconstruction ``record`` stores) with the
-estimator the checkpoint records. So a grasp recorded with ``record`` and predicted after
-``import burgess`` gets the estimate ``live`` gives on the same frames and readings.
-
-Several checkpoints form an ensemble: ``EnsembleEstimator`` has no streaming mode of its
-own, so each member runs its own stream on the same frames (the frame selection depends
-only on the force, so all members select the same frames), and every time a member
-refines its estimate the members' latest estimates are combined with
-``EnsembleEstimator.combine`` (mean and interval in decades).
-
-Bad frames and frames without a reading are reported as ``{"event": "skipped", ...}``
-and the loop goes on. What ``record`` warns about is reported as ``{"event": "warning",
-...}`` (``recording.check_recording``, at the first frame: a start in contact while the
-reference is that frame, a baseline beyond +-0.5 N, a reference unlike the frames), and
-so is every force spike the readings replaced, when it is found.
+image in the store's encoding; ALL checkpoints get the analytical estimates from the same
+difference image's depth map, as ``record`` stores them. So a grasp recorded with
+``record`` and predicted after ``import burgess`` gets the estimate ``live`` gives.
+Several checkpoints each run their own stream (the selection depends only on the force,
+so all select the same frames) and their latest estimates are combined with
+``EnsembleEstimator.combine``.
 """
 
 from __future__ import annotations
@@ -97,13 +84,13 @@ def live_estimates(
 ) -> Iterator[dict[str, Any]]:
     """Run ``source`` through streaming estimators; yield one dict per event.
 
-    Events: ``{"event": "no_estimate", "reason": ...}`` (the stream ended without one, and
-    why), ``{"event": "estimate", ...}`` (a provisional or the final estimate:
+    Events (``{"event": KIND, ...}``): ``estimate`` (provisional or final:
     ``StreamEstimate.to_dict()`` plus ``timestamp_s``; with several members also
-    ``std_decades``, ``interval_pa``, ``level`` and ``members_log10``) and
-    ``{"event": "skipped", "reason": ...}`` (a frame left out). The loop ends after the
-    final estimate (the grasp was released) or with the source; a grasp that never
-    reached the selection thresholds ends without an estimate.
+    ``std_decades``, ``interval_pa``, ``level`` and ``members_log10``), ``skipped`` (a bad
+    frame or one without a reading; the loop goes on), ``warning`` (what ``record`` warns
+    about: ``recording.check_recording`` at the first frame, every force spike the readings
+    replaced) and ``no_estimate`` (the stream ended without one; ``reason`` says why). The
+    loop ends after the final estimate (the grasp was released) or with the source.
 
     Args:
         members: one estimator, or several for an ensemble interval.
@@ -118,9 +105,7 @@ def live_estimates(
         readings_offset_s: added to a frame's time to find its reading: the readings'
             clock minus the source's (``docs/inference.md``, "Clocks").
 
-    A live device is read by a background thread (:class:`~.sensors.StampedOnArrival`), so
-    every frame is stamped when it arrives, however long the estimate of the previous one
-    takes; while frames wait, the loop skips provisional estimates (never frames), so the
+    A live device is read by a background thread (``sensors.StampedOnArrival``), so the
     final estimate is the one a replay of the same frames gives.
     """
     if not math.isfinite(readings_offset_s):
@@ -129,124 +114,113 @@ def live_estimates(
         )
     if not members:
         raise ValueError("give at least one estimator")
+    reader = None
     if source.live and not isinstance(source, StampedOnArrival):
-        reader = StampedOnArrival(source)
-        try:
-            yield from live_estimates(
-                members,
-                reader,
-                readings,
-                calibration=calibration,
+        source = reader = StampedOnArrival(source)
+    try:
+        ensemble = EnsembleEstimator(list(members), level=level, scale=scale)
+        reference = None if calibration is None else calibration.reference
+        depth_model = "dataset" if calibration is None else calibration.depth
+        # Each frame is differenced once, here: the depth map and every member's stream
+        # (``frame_kind="difference"``) take the same difference image.
+        streams = [
+            StreamingEstimator(
+                member,
                 window=window,
                 window_s=window_s,
-                level=level,
-                scale=scale,
-                readings_offset_s=readings_offset_s,
+                frame_kind="difference",
+                channel_order="BGR",
             )
-        finally:
-            reader.stop()  # the caller owns ``source`` and closes it
-        return
-    ensemble = EnsembleEstimator(list(members), level=level, scale=scale)
-    reference = None if calibration is None else calibration.reference
-    depth_model = "dataset" if calibration is None else calibration.depth
-    # Each frame is differenced once, here: the depth map and every member's stream
-    # (``frame_kind="difference"``) take the same difference image.
-    streams = [
-        StreamingEstimator(
-            member,
-            window=window,
-            window_s=window_s,
-            frame_kind="difference",
-            channel_order="BGR",
-        )
-        for member in members
-    ]
-    needs_depth = "estimates" in ensemble.required_inputs
-    if needs_depth:
-        units = WEDGE_UNITS if calibration is None else calibration.units
-        for member in members:
-            member.run_inputs.sensor.check_same(
-                units, trained=f"checkpoint {member.source}", used="this sensor"
-            )
+            for member in members
+        ]
+        needs_depth = "estimates" in ensemble.required_inputs
+        if needs_depth:
+            units = WEDGE_UNITS if calibration is None else calibration.units
+            for member in members:
+                member.run_inputs.sensor.check_same(
+                    units, trained=f"checkpoint {member.source}", used="this sensor"
+                )
 
-    def pending() -> int:
-        return source.pending if isinstance(source, StampedOnArrival) else 0
-
-    skipped: list[FrameError] = []
-    reported: set[int] = set()  # force spikes reported (a followed log finds them late)
-    first = True
-    kind = "first frame" if reference is None else "calibration"
-    skips: list[str] = []  # every skip's reason, for the cause of a missing estimate
-    for timestamp_s, frame in iter_frames(source, skipped.append):
+        skipped: list[FrameError] = []
+        reported: set[int] = set()  # force spikes reported (a followed log finds them late)
+        first = True
+        kind = "first frame" if reference is None else "calibration"
+        skips: list[str] = []  # every skip's reason, for the cause of a missing estimate
+        for timestamp_s, frame in iter_frames(source, skipped.append):
+            while skipped:
+                skips.append(str(skipped.pop(0)))
+                yield {"event": "skipped", "reason": skips[-1]}
+            try:
+                force_n, width_m = checked_reading(readings, timestamp_s + readings_offset_s)
+            except ReadingError as err:
+                skips.append(f"frame at {timestamp_s:.4f} s: {err}")
+                yield {"event": "skipped", "reason": skips[-1]}
+                continue
+            if reference is None:
+                reference = frame  # right if the grasp starts without contact (checked below)
+            if reference.shape != frame.shape:
+                raise FrameSizeError(
+                    f"the reference frame is {reference.shape}, the source's frames {frame.shape}"
+                )
+            if first:
+                first = False
+                warnings, checks = check_recording(
+                    readings,
+                    np.array([timestamp_s]),
+                    np.array([force_n]),
+                    frame,
+                    reference,
+                    kind,
+                    reference_from_start=kind == "calibration" and same_replay(calibration, source),
+                    remedy="a --calibration recorded before the grasp",
+                )
+                reported.update(s["index"] for s in checks["spikes"])
+                for warning in warnings:
+                    yield {"event": "warning", "reason": warning}
+            for spike in getattr(readings, "spikes", None) or ():
+                if spike.index not in reported:
+                    reported.add(spike.index)
+                    yield {"event": "warning", "reason": spike.describe()}
+            diff = difference_images(frame[None], reference)
+            depth = reconstruct_depth(diff, model=depth_model)[0] if needs_depth else None
+            # Quantised like the store (and like StreamingEstimator's raw frames), so the
+            # models see the training frames' encoding.
+            model_frame = frames_to_uint8(diff[0])
+            # Frames waiting: skip provisional estimates (never frames) to catch up.
+            provisional = not (isinstance(source, StampedOnArrival) and source.pending)
+            emitted = [
+                stream.update(
+                    model_frame,
+                    force_n,
+                    width_m,
+                    depth_mm=depth,
+                    timestamp_s=timestamp_s,
+                    provisional=provisional,
+                )
+                for stream in streams
+            ]
+            if any(e is not None for e in emitted):
+                event = _combine(ensemble, streams, timestamp_s)
+                if event is not None:
+                    yield event
+                    if event["final"]:
+                        return
+            if all(stream.state == "done" for stream in streams):
+                break  # released without a final estimate: say why below
         while skipped:
             skips.append(str(skipped.pop(0)))
             yield {"event": "skipped", "reason": skips[-1]}
-        try:
-            force_n, width_m = checked_reading(readings, timestamp_s + readings_offset_s)
-        except ReadingError as err:
-            skips.append(f"frame at {timestamp_s:.4f} s: {err}")
-            yield {"event": "skipped", "reason": skips[-1]}
-            continue
-        if reference is None:
-            reference = frame  # right if the grasp starts without contact (checked below)
-        if reference.shape != frame.shape:
-            raise FrameSizeError(
-                f"the reference frame is {reference.shape}, the source's frames {frame.shape}"
-            )
-        if first:
-            first = False
-            warnings, checks = check_recording(
-                readings,
-                np.array([timestamp_s]),
-                np.array([force_n]),
-                frame,
-                reference,
-                kind,
-                reference_from_start=kind == "calibration" and same_replay(calibration, source),
-                remedy="a --calibration recorded before the grasp",
-            )
-            reported.update(s["index"] for s in checks["spikes"])
-            for warning in warnings:
-                yield {"event": "warning", "reason": warning}
-        for spike in getattr(readings, "spikes", None) or ():
-            if spike.index not in reported:
-                reported.add(spike.index)
-                yield {"event": "warning", "reason": spike.describe()}
-        diff = difference_images(frame[None], reference)
-        depth = reconstruct_depth(diff, model=depth_model)[0] if needs_depth else None
-        # Quantised like the store (and like StreamingEstimator's raw frames), so the
-        # models see the training frames' encoding.
-        model_frame = frames_to_uint8(diff[0])
-        provisional = not pending()
-        emitted = [
-            stream.update(
-                model_frame,
-                force_n,
-                width_m,
-                depth_mm=depth,
-                timestamp_s=timestamp_s,
-                provisional=provisional,
-            )
-            for stream in streams
-        ]
-        if any(e is not None for e in emitted):
-            event = _combine(ensemble, streams, timestamp_s)
+        finals = [stream.finish() for stream in streams]
+        if any(f is not None for f in finals):
+            event = _combine(ensemble, streams, None)
             if event is not None:
                 yield event
-                if event["final"]:
-                    return
-        if all(stream.state == "done" for stream in streams):
-            break  # released without a final estimate: say why below
-    while skipped:
-        skips.append(str(skipped.pop(0)))
-        yield {"event": "skipped", "reason": skips[-1]}
-    finals = [stream.finish() for stream in streams]
-    if any(f is not None for f in finals):
-        event = _combine(ensemble, streams, None)
-        if event is not None:
-            yield event
-            return
-    yield {"event": "no_estimate", "reason": _no_estimate_reason(streams[0], skips, needs_depth)}
+                return
+        reason = _no_estimate_reason(streams[0], skips, needs_depth)
+        yield {"event": "no_estimate", "reason": reason}
+    finally:
+        if reader is not None:
+            reader.stop()  # the caller owns the inner source and closes it
 
 
 def _no_estimate_reason(stream: StreamingEstimator, skips: list[str], needs_depth: bool) -> str:
@@ -278,12 +252,11 @@ def _combine(
     ensemble: EnsembleEstimator, streams: list[StreamingEstimator], timestamp_s: float | None
 ) -> dict[str, Any] | None:
     """One event from the members' latest estimates (None until every member has one)."""
-    latest: list[StreamEstimate | None] = [s.latest for s in streams]
+    latest = [s.latest for s in streams]
     if any(e is None for e in latest):
         return None
     estimates: list[StreamEstimate] = latest  # type: ignore[assignment]
-    first = estimates[0]
-    event: dict[str, Any] = {"event": "estimate", "timestamp_s": timestamp_s, **first.to_dict()}
+    event = {"event": "estimate", "timestamp_s": timestamp_s, **estimates[0].to_dict()}
     event["final"] = all(e.final for e in estimates)
     if len(estimates) > 1:
         combined = ensemble.combine(np.array([e.log10_modulus_pa for e in estimates]))

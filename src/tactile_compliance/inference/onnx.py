@@ -19,7 +19,6 @@ import torch
 
 from tactile_compliance.data.dataset import prepare_frames
 from tactile_compliance.inference.base import BaseEstimator
-from tactile_compliance.inference.input_checks import required_inputs
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.run_inputs import RunInputs
 
@@ -31,7 +30,7 @@ OUTPUT_NAME = "modulus_normalised"
 
 def onnx_input_names(inputs: InputStrategy | str) -> list[str]:
     """Graph input names for a strategy: ``frames`` plus the enabled scalar inputs."""
-    return ["frames", *required_inputs(inputs)]
+    return ["frames", *InputStrategy.parse(inputs).needs]
 
 
 def _ort_session(path: str | Path, threads: int | None = None) -> Any:
@@ -76,11 +75,8 @@ class OnnxEstimator(BaseEstimator):
         return str(self.meta["model"])
 
     def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
-        """Normalised outputs of one prepared chunk, through onnxruntime.
-
-        The graph takes frames already resized and normalised (see ``export``), so that
-        step runs here with the project's ``prepare_frames``, as ``forward_batch`` does.
-        """
+        """Normalised outputs of one prepared chunk through onnxruntime; the graph takes
+        frames resized and normalised, here by ``prepare_frames`` as ``forward_batch`` does."""
         frames = prepare_frames(chunk["frames"], self.constants, self.run_inputs.image_size)
         feed = {"frames": frames.numpy()}
         feed.update({name: chunk[name].numpy() for name in self.input_names[1:]})

@@ -7,14 +7,13 @@ source has them; :func:`format_predictions` is the command's text output.
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from tactile_compliance.data.raw_layout import (
-    FingerChoice,
-)
+from tactile_compliance.data.raw_layout import FingerChoice
 from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.inference.sources import ROW_COLUMNS, read_source
 from tactile_compliance.models import InputStrategy
@@ -48,15 +47,9 @@ def predict_path(
         ``skipped`` and ``summary`` (geometric mean, and the paper's metrics when every
         predicted sample has a known modulus).
     """
-    from tactile_compliance.inference.estimator import ComplianceEstimator
-    from tactile_compliance.inference.pretrained import WEIGHTS_FILE
+    from tactile_compliance.inference.live import load_members
 
-    if (Path(checkpoint) / WEIGHTS_FILE).is_file():  # an exported directory
-        estimator = ComplianceEstimator.from_pretrained(checkpoint, device=device)
-    else:
-        estimator = ComplianceEstimator.from_checkpoint(
-            checkpoint, device=device, backbone_weights=backbone_weights
-        )
+    [estimator] = load_members([checkpoint], device=device, backbone_weights=backbone_weights)
     source = read_source(path, fingers=fingers, image_size=estimator.run_inputs.store_image_size)
     needed = estimator.required_inputs
     if source.kind == "video" and needed:
@@ -69,7 +62,7 @@ def predict_path(
         estimator.run_inputs.sensor.check_same(
             source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
         )
-    scalars = source.scalars()
+    scalars = source.scalars(needed)
     usable = np.ones(len(source), dtype=bool)
     reasons: list[str] = [""] * len(source)
     for name in needed:
@@ -85,13 +78,8 @@ def predict_path(
     chunk = max(1, int(batch_size)) * 4  # bound memory on large stores
     for start in range(0, ids.size, chunk):
         part = ids[start : start + chunk]
-        part_scalars = source.scalars(part)
         prediction = estimator.predict(
-            source.frames[part],
-            force=part_scalars["force"] if "force" in needed else None,
-            width=part_scalars["width"] if "width" in needed else None,
-            estimates=part_scalars["estimates"] if "estimates" in needed else None,
-            batch_size=batch_size,
+            source.frames[part], **source.scalars(needed, part), batch_size=batch_size
         )
         pred_pa[part] = prediction.modulus_pa
         pred_log10[part] = prediction.log10_modulus_pa
@@ -100,7 +88,9 @@ def predict_path(
     skipped = [{**dict.fromkeys(ROW_COLUMNS), **bad} for bad in source.unreadable]
     truth = source.rows["modulus_pa"].to_numpy(np.float64)
     for i, row in enumerate(source.rows.to_dict(orient="records")):
-        ident = {k: _plain(row[k]) for k in ROW_COLUMNS}
+        ident = {
+            k: row[k].item() if isinstance(row[k], np.generic) else row[k] for k in ROW_COLUMNS
+        }
         if not usable[i]:
             skipped.append({**ident, "reason": reasons[i]})
             continue
@@ -148,18 +138,8 @@ def _refuse_when_nothing_is_usable(
 
 def skip_reasons(skipped: list[dict[str, Any]]) -> str:
     """Why samples were skipped, most common first: ``"missing estimates (NaN): 4"``."""
-    counts: dict[str, int] = {}
-    for row in skipped:
-        counts[str(row.get("reason"))] = counts.get(str(row.get("reason")), 0) + 1
-    return ", ".join(f"{reason}: {n}" for reason, n in sorted(counts.items(), key=lambda c: -c[1]))
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
-    return value
+    counts = Counter(str(row.get("reason")) for row in skipped)
+    return ", ".join(f"{reason}: {n}" for reason, n in counts.most_common())
 
 
 def format_predictions(report: dict[str, Any], max_rows: int = 20) -> str:

@@ -1,25 +1,15 @@
 """Deployable weights: a directory of ``model.safetensors``, ``config.json`` and ``README.md``.
 
-The layout follows the Hugging Face hub convention (weights + a JSON config + a model
-card), so such a directory can be uploaded or shared as is, but nothing here depends on
-the hub: :func:`load_pretrained` (behind ``ComplianceEstimator.from_pretrained``) reads a
-local directory. :func:`write_pretrained` writes one (behind ``tactile-compliance export
-CHECKPOINT --safetensors DIR``, see ``inference/export.py``).
-
-* ``model.safetensors``: the model's **whole** state dict. A checkpoint of a frozen-backbone
-  run stores the head only and rebuilds the backbone from a seed or a weights file; the
-  export rebuilds (and verifies) it once and writes its tensors too, so the directory needs
-  no weights file, seed or torch version to load (a frozen VGG16 adds 0.53 GB). Where the
-  backbone came from stays recorded in ``config.json`` (``frozen_backbone``).
-* ``config.json``: everything needed to rebuild the model and its input pipeline: model
-  name and hyperparameters, the checkpoint's ``run_inputs`` record (input strategy,
-  normalisation constants, frame sizes (H, W) px, channel order, sensor, the analytical
-  estimator: ``runs.run_inputs.RunInputs``), the training store's provenance, the
-  training configuration and its metrics, the package version and the checkpoint's sha256.
-* ``README.md``: a model card generated from the same facts (see :func:`model_card`).
-
-Rebuilding goes through :func:`~tactile_compliance.runs.checkpoint.rebuild_model`, the
-function that also rebuilds ``best.pt`` checkpoints: there is one way to make a model.
+The Hugging Face hub's layout (weights, a JSON config, a model card), read and written
+locally without the hub: :func:`load_pretrained` (behind
+``ComplianceEstimator.from_pretrained``) and :func:`write_pretrained` (behind ``export
+--safetensors``). ``model.safetensors`` holds the **whole** state dict, a frozen backbone
+included, so loading needs no weights file or seed (where the backbone came from stays in
+``config.json``, ``frozen_backbone``); ``config.json`` holds the model's name and
+hyperparameters, the ``run_inputs`` record, the training store's provenance, configuration
+and metrics; ``README.md`` is the model card made from it (:func:`model_card`). The model
+is rebuilt by ``runs.checkpoint.rebuild_model``, as ``best.pt`` checkpoints are. See
+docs/inference.md, "Deployable weights (safetensors)".
 """
 
 from __future__ import annotations
@@ -38,7 +28,7 @@ import torch
 from tactile_compliance import __version__
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.devices import DEFAULT_DEVICE
-from tactile_compliance.inference.input_checks import required_inputs
+from tactile_compliance.inference.input_checks import SCALAR_SPECS
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.models.backbones import file_sha256
 from tactile_compliance.outputs import (
@@ -82,7 +72,6 @@ _FRAME_KIND = (
 )
 # Store sources that are recordings of real sensors (the importers' names).
 _REAL_SOURCES = {"burgess": "real (Burgess et al. dataset layout)", "yuan": "real (Yuan videos)"}
-_UNITS = {"force": "N", "width": "m", "estimates": "Pa"}
 
 
 class OptionalDependencyError(ImportError):
@@ -129,14 +118,12 @@ def _without_local_paths(value: Any) -> Any:
         return {key: _without_local_paths(item) for key, item in value.items()}
     if isinstance(value, list):
         return [_without_local_paths(item) for item in value]
-    if isinstance(value, str) and (value.startswith(("/", "~")) or _is_windows_path(value)):
+    if isinstance(value, str) and (
+        value.startswith(("/", "~"))  # or an absolute Windows path, C:\\... or C:/...
+        or (len(value) > 2 and value[0].isalpha() and value[1] == ":" and value[2] in "\\/")
+    ):
         return Path(value).name or value
     return value
-
-
-def _is_windows_path(value: str) -> bool:
-    """Whether ``value`` looks like an absolute Windows path (``C:\\...``, ``C:/...``)."""
-    return len(value) > 2 and value[0].isalpha() and value[1] == ":" and value[2] in "\\/"
 
 
 def pretrained_config(
@@ -479,7 +466,7 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
     run_inputs = config["run_inputs"]
     norm = run_inputs["normalisation"]
     strategy = InputStrategy.parse(run_inputs["inputs"])
-    scalars = [f"{name} ({_UNITS[name]})" for name in required_inputs(strategy)]
+    scalars = [f"{name} ({SCALAR_SPECS[name].unit})" for name in strategy.needs]
     height, width = run_inputs["image_size"]
     lo, hi = NormalisationConstants.from_dict(norm).label_range_pa
     frozen = config.get("frozen_backbone")
@@ -577,7 +564,7 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
         "result = estimator.predict(frames, "
         + ", ".join(
             {"force": "force=F_N", "width": "width=W_M", "estimates": "estimates=E_PA"}[n]
-            for n in required_inputs(strategy)
+            for n in strategy.needs
         )
         + ")",
         "```",

@@ -11,14 +11,12 @@ own code, so a grasp read here reaches the model exactly as it would through
   BGR -> RGB flip), its resize, and the store's uint8 quantisation.
 * Video (``.avi``, ...): the Shore-hardness importer's decoder and press-frame rule
   (first, midway, brightest frame); raw frames, no force/width/estimates.
-
-:func:`~tactile_compliance.inference.predict.predict_path` (``predict.py``) runs a
-checkpoint on what these readers return: the ``predict`` command.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -98,14 +96,11 @@ class GraspBatch:
     def __len__(self) -> int:
         return len(self.frames)
 
-    def scalars(self, ids: np.ndarray | slice | None = None) -> dict[str, np.ndarray]:
-        """``force``/``width``/``estimates`` for ``predict`` (rows ``ids``; all by default)."""
-        sel = slice(None) if ids is None else ids
-        return {
-            "force": self.force_n[sel],
-            "width": self.width_m[sel],
-            "estimates": self.estimates_pa[sel],
-        }
+    def scalars(self, names: Sequence[str], ids: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The ``predict`` inputs ``names`` (``force``, ``width``, ``estimates``) of rows
+        ``ids`` (all by default)."""
+        columns = {"force": self.force_n, "width": self.width_m, "estimates": self.estimates_pa}
+        return {name: columns[name][slice(None) if ids is None else ids] for name in names}
 
 
 # ---------------------------------------------------------------------- store

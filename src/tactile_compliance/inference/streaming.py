@@ -1,42 +1,19 @@
 """Streaming estimation from a live sensor: frames with force/width readings one at a time.
 
-The dataset chose its three frames after the grasp, from the whole recording
-(``data.frame_selection.select_frame_indices``: from the first frame with F >= 5 N to the
-first with F >= 0.975 F_max). A live stream does not know F_max yet, so
-:class:`StreamingEstimator` applies the same rule to the frames so far (F_max = the
-largest force *so far*). While the gripper loads, ``i_peak`` is the newest frame, so
-every new frame gives a new selection and a refined provisional estimate; once the force
-levels off the selection stops changing. The estimate becomes final when the grasp is
-released (force below ``release_fraction`` x F_max) or on
-:meth:`StreamingEstimator.finish`; its selection is then the whole-trajectory one, so it
-equals :func:`predict_trajectory` (the batch estimate) on the same recording.
+The dataset chose its three frames after the grasp (``data.frame_selection``: from the
+first frame with F >= 5 N to the first with F >= 0.975 F_max). :class:`StreamingEstimator`
+applies the same rule to the frames so far (F_max = the largest force *so far*), so every
+new frame while the gripper loads gives a refined provisional estimate. The estimate is
+final when the grasp is released (force below ``release_fraction`` x F_max) or on
+:meth:`StreamingEstimator.finish`; it then equals :func:`predict_trajectory` (the batch
+estimate) on the same recording.
 
-**Frame rate.** The published rule picks frames by index, which assumes a constant frame
-rate. Real sensors do not keep one (a GelSight Mini streams about 18 fps on Linux with
-uneven gaps, the dataset was recorded at 30 fps, other cameras run at 60), so everything
-here also takes each frame's timestamp (``timestamp_s=`` with
-:meth:`StreamingEstimator.update`, ``timestamps_s=`` for :func:`predict_trajectory`).
-The three frames are then the frames nearest in time to ``linspace(t_start, t_peak, 3)``:
-at a constant frame rate exactly the index rule, at an uneven rate the middle frame is the
-one at the middle *moment* of the press, whatever frames were dropped
-(``data.frame_selection``). Without timestamps the index rule is kept unchanged.
-Timestamps must increase: one that does not is refused with an error and the frames
-already buffered are kept.
-
-``window=n`` is the paper's future-work variant "estimate from the last n frames instead
-of the whole trajectory": the three frames are spread over the last ``n`` frames up to
-``i_peak`` (``[max(i_start, i_peak - n + 1), i_peak]``) instead of over
-``[i_start, i_peak]``. It needs only a bounded buffer and no reliable contact onset;
-``docs/inference.md`` documents its accuracy against the full-trajectory estimate.
-``window=n`` counts frames, so it spans a different time at another frame rate
-(n - 1 frame periods); with timestamps, ``window_s=`` is the same variant in time: the
-frames are spread over the last ``window_s`` seconds up to ``t_peak`` (frames with
-``t_peak - t <= window_s``), i.e. ``window=n`` at ``fps`` is ``window_s=(n - 1) / fps``.
-
-Frames are either difference images (``frame_kind="difference"``, as stored in the
-dataset: uint8 or float in [0, 1]) or raw uint8 camera frames (``frame_kind="raw"``),
-differenced against the no-contact ``reference`` frame (default: the first frame
-received) as the importer does (:func:`difference_image`).
+With timestamps (``timestamp_s=``, ``timestamps_s=``) the frames are selected in time, so
+an uneven frame rate picks the same moments of the press; ``window=n`` (frames) and
+``window_s=`` (seconds) spread the three frames over the last part of the press only.
+Frames are difference images (``frame_kind="difference"``) or raw uint8 camera frames
+(``frame_kind="raw"``, differenced against ``reference``, default the first frame).
+See ``docs/inference.md``, "Streaming from a live sensor".
 """
 
 from __future__ import annotations
@@ -90,17 +67,9 @@ def _as_difference_images(
 
 
 def difference_image(frame: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Raw camera frame -> difference image in the store's uint8 encoding.
-
-    ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5``, as in the recording pipeline
-    (blurring the reference suppresses its pixel noise), then quantised with the store's
-    own ``frames_to_uint8`` exactly like the importer stores frames, so a streamed frame
-    reaches the model in the same encoding as the training frames.
-
-    Args:
-        frame: raw uint8 frame (H, W, 3).
-        reference: raw uint8 no-contact frame (H, W, 3) of the same sensor.
-    """
+    """Raw uint8 camera frame (H, W, 3) -> difference image against the no-contact
+    ``reference`` (``data.image_ops.difference_images``), quantised like the importer
+    stores frames (``frames_to_uint8``), so the model sees the training frames' encoding."""
     frame = np.asarray(frame)
     reference = np.asarray(reference)
     if frame.shape != reference.shape or frame.ndim != 3 or frame.shape[-1] != 3:
@@ -506,19 +475,16 @@ class StreamingEstimator:
         if self._estimates_pa is not None or not self._has_depth:
             return self._estimates_pa
         buf = self._buffer
-        lo = max(selection.window_start, buf.offset)
-        hi = selection.peak + 1
+        lo, hi = max(selection.window_start, buf.offset), selection.peak + 1
         press = self._press_start(np.asarray(buf.forces))
         if press is not None:
             # The dataset's estimator clips the whole recording itself (press by force,
             # depth onset, the end of the press after the peak): the final estimate gives
             # it everything since the press began, as the dataset's driver loaded it;
             # refinements stop at the peak so they change only when the peak does.
-            lo, hi = max(press, buf.offset), (len(buf.forces) if final else selection.peak + 1)
-        span = range(lo, hi)
-        depths = np.stack([buf.depths[i - buf.offset] for i in span])  # type: ignore[misc]
-        forces = np.asarray(buf.forces)[lo:hi]
-        widths = np.asarray(buf.widths)[lo:hi]
+            lo, hi = max(press, buf.offset), (len(buf.forces) if final else hi)
+        depths = np.stack(buf.depths[lo - buf.offset : hi - buf.offset])  # type: ignore[arg-type]
+        forces, widths = np.asarray(buf.forces)[lo:hi], np.asarray(buf.widths)[lo:hi]
         values = np.asarray(
             self.analytical_estimator.estimate(forces, widths, depths), dtype=np.float64
         )
