@@ -27,6 +27,13 @@ show how much of the label each input carries. Each probe is a
                        never within a decade), and either of the two
 =====================  ==========================================================
 
+With ``--real-store`` the learning probes are also fitted on the whole synthetic store and
+scored on a store of real grasps (``benchmarks/real_grasps.py`` writes one to
+``OUT/work/store``), as ``real_grasps.py`` scores a model: per grasp the geometric mean
+over its samples, the share of grasps within one decade and Spearman over objects. A
+probe on ``F, W`` alone joins them there: the rig's closure under force, which the
+``wedge-2023`` rig was fitted to (docs/synthetic.md). Nothing is fitted on the real store.
+
 N-MSE and the other metrics are ``tactile_compliance.runs.metrics.compute_metrics`` with
 the package's default normalisation (labels on [1e3, 1e12] Pa). Prints a markdown table
 (and ``--json`` writes the numbers).
@@ -36,6 +43,9 @@ Usage::
     tactile-compliance simulate --out /tmp/raw --objects 286 --size 48x64
     tactile-compliance import burgess /tmp/raw --out /tmp/store
     python benchmarks/calibrate_synthetic.py /tmp/store [--finger markerless] [--json out.json]
+    # sim2real's store against the real grasps' (docs/results.md, "What transfers")
+    python benchmarks/calibrate_synthetic.py s2r/work/store --finger markerless \
+        --real-store real-out/work/store
 
 The issue's targets: image-only probe clearly better than the median; the analytical
 estimates within one decade for 20-40 % of test samples.
@@ -264,6 +274,84 @@ def run_probes(  # type: ignore[no-untyped-def]
     }
 
 
+def real_transfer_probes(  # type: ignore[no-untyped-def]
+    samples, image: np.ndarray, real_samples, real_image: np.ndarray, seed: int = 0
+) -> dict:
+    """The learning probes fitted on every synthetic sample, scored on real grasps.
+
+    Returns, per probe, ``real_grasps.score`` over the real grasps (each grasp's prediction
+    the geometric mean over its samples) and ``per_object`` (true E and mean prediction).
+    """
+    from sklearn.ensemble import HistGradientBoostingRegressor
+
+    from real_grasps import per_object, score
+
+    def inputs(rows, img: np.ndarray) -> dict[str, np.ndarray]:  # type: ignore[no-untyped-def]
+        fwe = force_width_estimate_features(rows)
+        return {
+            "image features": img,
+            "F, W": fwe[:, :6],
+            "F, W, log10 E": fwe,
+            "F, W, E + image features": np.concatenate([fwe, img], axis=1),
+        }
+
+    y = np.log10(samples["modulus_pa"].to_numpy(dtype=np.float64))
+    real = inputs(real_samples, real_image)
+    keys = real_samples[["object", "grasp"]].astype(str).agg("/".join, axis=1).to_numpy()
+    result = {}
+    for name, x in inputs(samples, image).items():
+        model = HistGradientBoostingRegressor(random_state=seed).fit(x, y)
+        predicted = model.predict(real[name])
+        grasps = [
+            {
+                "object": real_samples["object"].to_numpy()[keys == key][0],
+                "true_pa": float(real_samples["modulus_pa"].to_numpy()[keys == key][0]),
+                "probe_pa": float(10 ** predicted[keys == key].mean()),
+            }
+            for key in dict.fromkeys(keys)
+        ]
+        result[name] = {
+            "score": score(grasps, "probe_pa"),
+            "objects": per_object(grasps, ["probe_pa"]),
+        }
+    return result
+
+
+def format_real_transfer(result: dict) -> str:
+    """The real-transfer probes as a markdown table: one row per probe."""
+    names = [row["object"] for row in next(iter(result.values()))["objects"]]
+    lines = [
+        "| probe | grasps within one decade | Spearman over objects | "
+        + " | ".join(f"{name} [log10 Pa]" for name in names)
+        + " |",
+        "|---|---|---|" + "---|" * len(names),
+        "| true E | | | "
+        + " | ".join(
+            f"{np.log10(row['true_pa']):.2f}" for row in result[next(iter(result))]["objects"]
+        )
+        + " |",
+    ]
+    for name, probe in result.items():
+        sc = probe["score"]
+        rho = "-" if sc.get("spearman_objects") is None else f"{sc['spearman_objects']:.2f}"
+        within = round(sc["within_one_decade"] * sc["n_grasps"])
+        lines.append(
+            f"| {name} | {within}/{sc['n_grasps']} | {rho} | "
+            + " | ".join(f"{np.log10(row['probe_pa']):.2f}" for row in probe["objects"])
+            + " |"
+        )
+    return "\n".join(lines)
+
+
+def _rows(store, finger: str):  # type: ignore[no-untyped-def]
+    """A store's samples of one finger ("all": every row) and their uint8 frames."""
+    samples = store.samples
+    rows = np.arange(len(samples))
+    if finger != "all":
+        rows = rows[(samples["finger"] == finger).to_numpy()]
+    return samples.iloc[rows].reset_index(drop=True), store.read_block(0, len(store))[rows]
+
+
 def format_table(result: dict) -> str:
     """The probes as a markdown table."""
     lines = [
@@ -326,15 +414,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--folds", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
+    parser.add_argument(
+        "--real-store", type=Path, default=None, help="also score the probes on these real grasps"
+    )
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    store = GraspStore.open(args.store)
-    samples = store.samples
-    rows = np.arange(len(samples))
-    if args.finger != "all":
-        rows = rows[(samples["finger"] == args.finger).to_numpy()]
-    samples = samples.iloc[rows].reset_index(drop=True)
-    frames = store.read_block(0, len(store))[rows]
+    samples, frames = _rows(GraspStore.open(args.store), args.finger)
     # Unknown-ground-truth objects stay in (the probe measures the generator, not the paper).
     image = image_features(frames)  # once, for both sets of probes
     result = run_probes(samples, frames, folds=args.folds, seed=args.seed, image=image)
@@ -345,6 +430,13 @@ def main(argv: list[str] | None = None) -> None:
     print(format_table(result))
     print()
     print(format_soft_hard(result["soft_hard"]))
+    if args.real_store:
+        real_samples, real_frames = _rows(GraspStore.open(args.real_store), args.finger)
+        result["real"] = real_transfer_probes(
+            samples, image, real_samples, image_features(real_frames), seed=args.seed
+        )
+        print(f"\nfitted on every synthetic sample, scored on {args.real_store}:\n")
+        print(format_real_transfer(result["real"]))
     if args.json:
         args.json.write_text(json.dumps(result, indent=2))
 
