@@ -28,7 +28,6 @@ import numpy.typing as npt
 __all__ = [
     "DEFAULT_GEL_MODULUS_PA",
     "DEFAULT_GEL_POISSON",
-    "DEFAULT_OBJECT_POISSON",
     "FINAL_PIPELINE_GEL_MODULUS_PA",
     "SensorConstants",
     "analytical_estimates_pa",
@@ -104,28 +103,17 @@ class SensorConstants:
     hertz_patch_px: int = 11
 
     def __post_init__(self) -> None:
-        positive = {
-            "gel_modulus_pa": self.gel_modulus_pa,
-            "gel_thickness_m": self.gel_thickness_m,
-            "pad_width_m": self.pad_width_m,
-            "pad_height_m": self.pad_height_m,
-            "pixel_size_m": self.pixel_size_m,
-        }
-        for name, value in positive.items():
+        lengths = ("gel_thickness_m", "pad_width_m", "pad_height_m", "pixel_size_m")
+        for name in ("gel_modulus_pa", *lengths):
+            value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"SensorConstants.{name} must be finite and > 0, got {value!r}")
-        non_negative = {
-            "contact_depth_threshold_mm": self.contact_depth_threshold_mm,
-            "min_contact_area_m2": self.min_contact_area_m2,
-            "fit_tolerance": self.fit_tolerance,
-        }
-        for name, value in non_negative.items():
+        for name in ("contact_depth_threshold_mm", "min_contact_area_m2", "fit_tolerance"):
+            value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"SensorConstants.{name} must be finite and >= 0, got {value!r}")
-        for name, value in (
-            ("gel_poisson", self.gel_poisson),
-            ("object_poisson", self.object_poisson),
-        ):
+        for name in ("gel_poisson", "object_poisson"):
+            value = getattr(self, name)
             if not (-1.0 < value <= 0.5):
                 raise ValueError(f"SensorConstants.{name} must be in (-1, 0.5], got {value!r}")
         if not (0.0 <= self.min_depth_fraction <= 1.0):
@@ -160,13 +148,10 @@ class SensorConstants:
 # ---------------------------------------------------------------------------------------
 
 
-def _is_scalar(value: object) -> bool:
-    return not isinstance(value, np.ndarray) and np.ndim(value) == 0
-
-
 def _like_inputs(result: FloatArray, *inputs: object) -> ArrayOrFloat:
-    """A float when every input was a scalar, otherwise the (broadcast) array."""
-    if all(_is_scalar(v) for v in inputs):
+    """A float when every input was a scalar (not an array, not even a 0-d one), otherwise
+    the (broadcast) array: the 'same kind' promise."""
+    if all(not isinstance(v, np.ndarray) and np.ndim(v) == 0 for v in inputs):
         return float(result)
     return result
 

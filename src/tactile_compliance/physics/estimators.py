@@ -26,7 +26,6 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = [
-    "ANALYTICAL_ESTIMATORS",
     "DEFAULT_ESTIMATOR",
     "WEDGE_UNITS",
     "AnalyticalEstimator",
@@ -163,15 +162,10 @@ class SensorUnits:
 
     def describe(self) -> str:
         """E.g. ``the dataset's depth heuristic at the Wedge's pixel density``."""
-        model = (
-            "the dataset's depth heuristic"
-            if self.depth_model == "dataset"
-            else ("a calibrated depth model")
-        )
+        dataset = self.depth_model == "dataset"
+        model = "the dataset's depth heuristic" if dataset else "a calibrated depth model"
         pixels = (
-            "the Wedge's pixel density"
-            if self.px_per_mm is None
-            else (f"{self.px_per_mm:.4g} px/mm")
+            "the Wedge's pixel density" if self.px_per_mm is None else f"{self.px_per_mm:.4g} px/mm"
         )
         return f"{model} at {pixels}"
 
