@@ -42,13 +42,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-__all__ = [
-    "analytical_within_decade",
-    "baseline_ladder",
-    "image_statistics",
-    "knn_predict",
-    "object_folds",
-]
+__all__ = ["analytical_within_decade", "baseline_ladder", "image_statistics"]
 
 
 def object_folds(objects: np.ndarray, folds: int, seed: int) -> np.ndarray:

@@ -46,10 +46,9 @@ import numpy as np
 
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.synthetic.geometry import PAD_SIZE_MM, PadGrid
+from tactile_compliance.synthetic.rng import log_uniform
 
 __all__ = [
-    "PIXEL_SIZE_MM_FULL",
-    "VISIBLE_SIZE_MM",
     "SensorLook",
     "difference_images",
     "gel_height_maps",
@@ -67,11 +66,6 @@ PIXEL_SIZE_MM_FULL = 35.0 / 400.0
 
 VISIBLE_SIZE_MM = (FULL_SIZE[1] * PIXEL_SIZE_MM_FULL, FULL_SIZE[0] * PIXEL_SIZE_MM_FULL)
 """Visible crop (x, y) = (30.625, 21.875) mm, centred on the pad."""
-
-# Slope -> grey-level gain that the real inversion assumes: depth = 21.5 * poisson(t)/128
-# with t ~ (diff channel combination); one unit of slope over one 0.0875 mm pixel
-# corresponds to t = 0.0875 * 128 / 21.5 = 0.521 (difference-image units).
-INVERSION_GAIN = PIXEL_SIZE_MM_FULL * 128.0 / 21.5
 
 
 def pixel_size_mm(size: tuple[int, int]) -> float:
@@ -92,6 +86,14 @@ def render_size(size: tuple[int, int]) -> tuple[int, int]:
     while round(PAD_SIZE_MM[1] / pixel_size_mm((height, width))) < height:
         width += 1
     return height, width
+
+
+def to_stored_size(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Frames (n, H', W', ...) rendered at :func:`render_size` squeezed to ``size`` (H, W)."""
+    if frames.shape[1:3] == tuple(size):
+        return frames
+    target = (size[1], size[0])  # OpenCV's (width, height)
+    return np.stack([cv2.resize(frame, target, interpolation=cv2.INTER_AREA) for frame in frames])
 
 
 @dataclass
@@ -259,9 +261,8 @@ def sample_edge_glow(
     """Draw an edge glow (``SensorLook.edge_glow``): the gain log-uniformly from
     ``gain_range`` [grey levels per mm], the band's place and fade around the real
     Wedge's (row centre 0.6 H, sigma 0.18 H, fade 0.07 W)."""
-    lo, hi = gain_range
     return (
-        float(10 ** rng.uniform(np.log10(lo), np.log10(hi))),
+        log_uniform(rng, *gain_range),
         float(rng.uniform(0.45, 0.7)),
         float(rng.uniform(0.12, 0.25)),
         float(rng.uniform(0.05, 0.1)),

@@ -19,7 +19,7 @@ import hashlib
 
 import numpy as np
 
-__all__ = ["key_digest", "stream"]
+__all__ = ["log_uniform", "stream"]
 
 
 def key_digest(*keys: object) -> list[int]:
@@ -35,3 +35,8 @@ def stream(seed: int, *keys: object) -> np.random.Generator:
         raise ValueError(f"seed must be >= 0, got {seed}")
     words = [seed & 0xFFFFFFFF, (seed >> 32) & 0xFFFFFFFF, *key_digest(*keys)]
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence(words)))
+
+
+def log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
+    """A draw from ``rng``, uniform in log10 between ``low`` and ``high`` (same unit)."""
+    return float(10.0 ** rng.uniform(np.log10(low), np.log10(high)))
