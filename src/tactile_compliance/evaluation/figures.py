@@ -46,16 +46,7 @@ from tactile_compliance.evaluation.tables import (
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.runs.results import PROTOCOLS
 
-__all__ = [
-    "MAX_STORES",
-    "fig1",
-    "fig5",
-    "fig6",
-    "fig7",
-    "fig8",
-    "headline_runs",
-    "learning_curves",
-]
+__all__ = ["fig1", "fig5", "fig6", "fig7", "fig8", "headline_runs", "learning_curves"]
 
 #: Fig. 1 draws at most this many stores (a results store normally uses one or two).
 MAX_STORES = 4

@@ -33,8 +33,6 @@ from tactile_compliance.runs.results import (
 )
 
 __all__ = [
-    "SHORE_PRESETS",
-    "SHORE_SOURCES",
     "complete_rows",
     "load_results",
     "main_grid",

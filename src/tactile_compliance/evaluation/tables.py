@@ -1,19 +1,9 @@
 """Tables of the report, built from the loaded results frame (one row per run).
 
 This module only aggregates and lays out; reading the store and the run directories is
-:mod:`tactile_compliance.evaluation.loading`'s job.
-
-Which rows feed which table (only ``status == "complete"`` rows ever count):
-
-* Table I   — sampling ``random``,   subset none, not Shore-hardness data; one column group
-  per object condition (``protocol``: seen per-sample, seen grasp-grouped, unseen) and the
-  reference rows (median, analytical, scalar GBR per input strategy);
-* Table II  — sampling ``balanced``, subset none, not Shore-hardness data, the same layout;
-* Table III — Shore-hardness data (store header source ``yuan``, or a preset whose name
-  starts with ``new-dataset``, for when the store is not reachable from here);
-* Fig. 6 / Fig. 7 companion tables — subset 0-6 (rolling window) / a shape name;
-* extras — per-material / per-shape / soft-hard errors from each run's ``groups.csv``, and
-  runs trained on the ``soft`` / ``hard`` subsets.
+:mod:`tactile_compliance.evaluation.loading`'s job, and which rows feed which table is
+listed in :mod:`tactile_compliance.evaluation.report` (only ``status == "complete"`` rows
+ever count).
 
 Cells are ``mean ± std`` over the runs of a cell (one run per seed): the sample standard
 deviation (``ddof=1``) by default, blank for a single run. Runs of different presets or
@@ -54,8 +44,6 @@ from tactile_compliance.runs.results import (
 
 __all__ = [
     "PRESET_HINTS",
-    "PROTOCOL_LABELS",
-    "REFERENCE_LABELS",
     "SETTING_PREFERENCE",
     "SHAPE_ORDER",
     "STD_DDOF",
