@@ -59,17 +59,14 @@ def fig1(
 ) -> None:
     """Fig. 1: the modulus distribution by shape of every store the runs used (and extras)."""
     parts.blocks.append(Heading("Fig. 1: dataset distribution", 2))
-    stores: list[str] = []
-    seen: set[str] = set()
+    unique: dict[str, str] = {}  # resolved path -> the first spelling of it
     for store in [
         *complete_rows(frame)["store"].dropna().astype(str),
         *frame["store"].dropna().astype(str),
         *map(str, extra_stores),
     ]:
-        resolved = str(Path(store).expanduser().resolve())
-        if resolved not in seen:
-            seen.add(resolved)
-            stores.append(store)
+        unique.setdefault(str(Path(store).expanduser().resolve()), store)
+    stores = list(unique.values())
     if not stores:
         parts.note(
             f"Fig. 1 skipped: no store recorded; produced from the store of {PRESET_HINTS['fig1']}."

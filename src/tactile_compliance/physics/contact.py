@@ -533,20 +533,10 @@ def estimate_elastic_modulus_pa(
 ) -> float:
     """Hooke (simple elastic) estimate E_elastic [Pa] of the object from a grasp sequence.
 
-    Args:
-        forces_n: normal force per frame [N], shape (T,).
-        widths_m: gripper width per frame [m], shape (T,).
-        depths_mm: gel indentation depth maps [mm] (positive into the gel), shape
-            (T, H, W), on a grid of ``constants.pixel_size_m``.
-        constants: sensor constants.
-
-    Returns:
-        The slope of stress ``F_i / A_i`` against strain
-        ``(L0 - (W_i + 2 d97_i)) / L0`` fitted through the origin, or ``nan`` when it
-        cannot be formed (no contact, no usable frame, non-positive slope).
-
-    Raises:
-        ValueError: malformed input (shapes, frame counts, NaN/inf values).
+    Arguments and errors as :func:`analytical_estimates_pa`. Returns the slope of stress
+    ``F_i / A_i`` against strain ``(L0 - (W_i + 2 d97_i)) / L0`` fitted through the
+    origin, or ``nan`` when it cannot be formed (no contact, no usable frame,
+    non-positive slope).
     """
     return _elastic_from_contact(_grasp_contact(forces_n, widths_m, depths_mm, constants))
 
@@ -560,22 +550,11 @@ def estimate_hertz_effective_modulus_pa(
     """Hertz/MDR estimate of the gel-object effective modulus E* [Pa] from a grasp sequence.
 
     This is E*, as stored in the dataset's ``hertz_estimate.pkl``; convert it to the
-    object's modulus with :func:`object_modulus_from_effective_pa`.
-
-    Args:
-        forces_n: normal force per frame [N], shape (T,).
-        widths_m: gripper width per frame [m], shape (T,).
-        depths_mm: gel indentation depth maps [mm] (positive into the gel), shape
-            (T, H, W), on a grid of ``constants.pixel_size_m``.
-        constants: sensor constants.
-
-    Returns:
-        ``k^(3/2)`` with k the through-origin slope of the patch depth against
-        ``(1 - nu_gel^2)/E_gel * (pi a / 4) * (1/pi) (6 F / R^2)^(1/3)``, or ``nan`` when
-        it cannot be formed.
-
-    Raises:
-        ValueError: malformed input (shapes, frame counts, NaN/inf values).
+    object's modulus with :func:`object_modulus_from_effective_pa`. Arguments and errors
+    as :func:`analytical_estimates_pa`. Returns ``k^(3/2)`` with k the through-origin
+    slope of the patch depth against
+    ``(1 - nu_gel^2)/E_gel * (pi a / 4) * (1/pi) (6 F / R^2)^(1/3)``, or ``nan`` when it
+    cannot be formed.
     """
     return _hertz_from_contact(_grasp_contact(forces_n, widths_m, depths_mm, constants), constants)
 
@@ -591,6 +570,13 @@ def analytical_estimates_pa(
     Same results as :func:`estimate_elastic_modulus_pa` and
     :func:`estimate_hertz_effective_modulus_pa`, but the per-frame contact analysis
     (masks, areas, percentiles, patches) is done once.
+
+    Args:
+        forces_n: normal force per frame [N], shape (T,).
+        widths_m: gripper width per frame [m], shape (T,).
+        depths_mm: gel indentation depth maps [mm] (positive into the gel), shape
+            (T, H, W), on a grid of ``constants.pixel_size_m``.
+        constants: sensor constants.
 
     Raises:
         ValueError: malformed input (shapes, frame counts, NaN/inf values).

@@ -247,12 +247,9 @@ def _first_true(flags: npt.NDArray[np.bool_]) -> int:
 def dataset_force_press(
     forces_n: npt.ArrayLike, constants: DatasetEstimatorConstants = DATASET_CONSTANTS
 ) -> tuple[int, int] | None:
-    """The press clip by force of a whole recording, ``[start, end)``, or None (step 1).
-
-    Start one frame before the force first reaches ``constants.press_force_n`` (2.5 N);
-    end at the last frame before the force first drops below
-    ``constants.press_peak_fraction`` (90 %) of its peak after the peak, or at the peak
-    when it never drops. None when that leaves no frames (``start >= end``).
+    """The press clip by force of a whole recording, ``[start, end)`` (module docstring,
+    step 1, with ``constants.press_force_n`` and ``constants.press_peak_fraction``), or
+    None when that leaves no frames (``start >= end``).
 
     Args:
         forces_n: normal force per frame of the whole recording [N], shape (T,).

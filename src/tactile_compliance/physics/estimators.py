@@ -25,6 +25,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tactile_compliance.physics.contact import SensorConstants, analytical_estimates_pa
+from tactile_compliance.physics.dataset_estimates import (
+    DATASET_CONSTANTS,
+    DATASET_PRESS_FORCE_N,
+    dataset_estimates_pa,
+)
+
 __all__ = [
     "DEFAULT_ESTIMATOR",
     "WEDGE_UNITS",
@@ -76,19 +83,12 @@ class AnalyticalEstimator:
         series (ValueError: malformed). ``marker_depths_mm``: the marker finger's depth
         maps, for the dataset estimator's depth-onset clip (the others ignore them)."""
         if self.name == "dataset":
-            from tactile_compliance.physics.dataset_estimates import (
-                DATASET_CONSTANTS,
-                dataset_estimates_pa,
-            )
-
             constants = DATASET_CONSTANTS
             if self.px_per_mm is not None:
                 constants = replace(constants, px_per_mm=float(self.px_per_mm))
             return dataset_estimates_pa(
                 forces_n, widths_m, depth_mm, constants, marker_depths_mm=marker_depths_mm
             )
-        from tactile_compliance.physics.contact import SensorConstants, analytical_estimates_pa
-
         sensor = SensorConstants()
         if self.px_per_mm is not None:
             sensor = SensorConstants(pixel_size_m=1e-3 / float(self.px_per_mm))
@@ -103,8 +103,6 @@ class AnalyticalEstimator:
         """
         if self.name != "dataset":
             return None
-        from tactile_compliance.physics.dataset_estimates import DATASET_PRESS_FORCE_N
-
         pressed = np.flatnonzero(np.asarray(forces_n) >= DATASET_PRESS_FORCE_N)
         return max(int(pressed[0]) - 1, 0) if pressed.size else None
 

@@ -106,8 +106,7 @@ def _force_width(samples: pd.DataFrame) -> np.ndarray:
 
 def _estimates(samples: pd.DataFrame) -> np.ndarray:
     e = samples[["elastic_estimate_pa", "hertz_estimate_pa"]].to_numpy(float)
-    e = np.log10(np.clip(np.where(np.isfinite(e) & (e > 0), e, np.nan), 1e2, 1e14))
-    return e
+    return np.log10(np.clip(np.where(np.isfinite(e) & (e > 0), e, np.nan), 1e2, 1e14))
 
 
 def baseline_ladder(

@@ -153,7 +153,6 @@ class ContactCurve:
         approaches_mm: approaches Delta [mm], increasing.
         forces_n: normal force at each approach [N], non-decreasing.
         contact_area_mm2: area of {s < Delta} inside the pad [mm^2].
-        semi_axis_mm: contact minor semi-axis a_c [mm].
         gel_depth_mm: gel compression field delta_g per approach, (K, rows, cols) [mm]
             (only when fields were requested).
         object_share: the object's share of the deformation per approach,
@@ -163,7 +162,6 @@ class ContactCurve:
     approaches_mm: np.ndarray
     forces_n: np.ndarray
     contact_area_mm2: np.ndarray
-    semi_axis_mm: np.ndarray
     gel_depth_mm: np.ndarray | None = None
     object_share: np.ndarray | None = None
 
@@ -299,7 +297,7 @@ def contact_curve(
         gel_depth = np.zeros((approaches.size, flat.size), dtype=np.float32)
         gel_depth[:, candidates] = dg
         gel_depth = gel_depth.reshape(approaches.size, *sag.shape)
-    return ContactCurve(approaches, forces, area_mm2, a_c, gel_depth, object_share)
+    return ContactCurve(approaches, forces, area_mm2, gel_depth, object_share)
 
 
 def force_curve(

@@ -187,16 +187,8 @@ def _build(
 
 @dataclass(frozen=True)
 class ObjectIdentity:
-    """What the default mix decides about an object before its geometry is drawn.
-
-    Attributes:
-        name: directory name (``obj_NNNN``).
-        index: position in the mix.
-        material: material class.
-        grade: the object's material grade.
-        shape: shape class.
-        n_grasps: number of grasps.
-    """
+    """What the default mix decides about an object before its geometry is drawn (the
+    fields as in :class:`ObjectSpec`)."""
 
     name: str
     index: int

@@ -213,8 +213,6 @@ def _base_images(look: SensorLook, size: tuple[int, int]) -> tuple[np.ndarray, .
         r = int(np.ceil(3 * sig))
         ci, cj = int(cy * h), int(cx * w)
         i0, i1, j0, j1 = max(ci - r, 0), min(ci + r + 1, h), max(cj - r, 0), min(cj + r + 1, w)
-        if i0 >= i1 or j0 >= j1:
-            continue
         ii = np.arange(i0, i1, dtype=np.float32)[:, None] - cy * h
         jj = np.arange(j0, j1, dtype=np.float32)[None, :] - cx * w
         specks[i0:i1, j0:j1] += a * np.exp(-(ii**2 + jj**2) / (2 * sig * sig))
