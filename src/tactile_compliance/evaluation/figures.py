@@ -28,6 +28,7 @@ from tactile_compliance.evaluation.loading import (
     read_store_samples,
     read_test_predictions,
     resolve_run_dir,
+    subset_rows,
 )
 from tactile_compliance.evaluation.parts import ReportParts, safe_name
 from tactile_compliance.evaluation.render import Cell, Heading, Table
@@ -317,8 +318,7 @@ def fig5(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Pa
 
 def fig8(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Path) -> None:
     """Fig. 8: predicted vs true modulus on the Shore-hardness data (Image input)."""
-    done = complete_rows(frame)
-    rows = done[done["is_shore"].astype(bool) & (done["subset_kind"] == "none")]
+    rows = subset_rows(frame, "none", shore=True)
     if rows.empty:
         return  # Table III's note already says what is missing
     inputs = (
@@ -463,8 +463,7 @@ def _subset_figure(
 ) -> None:
     """N-MSE boxes over seeds per subset, one figure and numbers table per preset."""
     parts.blocks.append(Heading(spec.heading, 2))
-    done = complete_rows(frame)
-    rows = done[(done["subset_kind"] == spec.kind) & ~done["is_shore"].astype(bool)]
+    rows = subset_rows(frame, spec.kind)
     if rows.empty:
         parts.note(
             f"{spec.name} skipped: {spec.missing}; produced by the "

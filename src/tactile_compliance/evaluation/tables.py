@@ -26,11 +26,11 @@ import pandas as pd
 
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS, rolling_windows
 from tactile_compliance.evaluation.loading import (
-    complete_rows,
     main_grid,
     read_groups,
     resolve_run_dir,
     store_header,
+    subset_rows,
 )
 from tactile_compliance.evaluation.render import Cell, Table
 from tactile_compliance.models.inputs import InputStrategy
@@ -574,8 +574,7 @@ def _runs_text(runs: Sequence[int]) -> str:
 # ============================================================================ Table III
 def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> PaperTable | None:
     """Table III: N-MSE and R² per model on the Shore-hardness data (mean ± std over seeds)."""
-    done = complete_rows(frame)
-    rows = done[done["is_shore"].astype(bool) & (done["subset_kind"] == "none")]
+    rows = subset_rows(frame, "none", shore=True)
     if rows.empty:
         return None
     metrics = ("test_nmse", "test_r2")
@@ -682,8 +681,7 @@ def softhard_subset_table(
     frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4
 ) -> PaperTable | None:
     """Runs trained and tested on the soft (< 0.275 MPa) or hard subset only."""
-    done = complete_rows(frame)
-    rows = done[(done["subset_kind"] == "softhard") & ~done["is_shore"].astype(bool)]
+    rows = subset_rows(frame, "softhard")
     if rows.empty:
         return None
     rows = rows.assign(subset_key=rows["subset_value"].astype(object))
