@@ -481,13 +481,15 @@ def _grasp_contact(
 
 
 def _slope_through_origin(x: FloatArray, y: FloatArray) -> float:
-    """Least-squares slope of ``y = k x`` (``sum(x y) / sum(x^2)``); NaN if not formable."""
+    """Least-squares slope of ``y = k x`` (``sum(x y) / sum(x^2)``); NaN if not formable,
+    not finite or not positive."""
     if x.size < 1:
         return float("nan")
     sum_xx = float(np.dot(x, x))
     if not (np.isfinite(sum_xx) and sum_xx > 0):
         return float("nan")
-    return float(np.dot(x, y)) / sum_xx
+    slope = float(np.dot(x, y)) / sum_xx
+    return slope if np.isfinite(slope) and slope > 0 else float("nan")
 
 
 def _elastic_from_contact(contact: _GraspContact) -> float:
@@ -499,10 +501,7 @@ def _elastic_from_contact(contact: _GraspContact) -> float:
     compressed_m = contact.widths_m[sel] + 2.0 * contact.d97_mm[sel] * _M_PER_MM
     strain = (length_0_m - compressed_m) / length_0_m
     stress_pa = contact.forces_n[sel] / contact.area_m2[sel]
-    slope_pa = _slope_through_origin(strain, stress_pa)
-    if not (np.isfinite(slope_pa) and slope_pa > 0):
-        return float("nan")
-    return slope_pa
+    return _slope_through_origin(strain, stress_pa)
 
 
 def _hertz_from_contact(contact: _GraspContact, constants: SensorConstants) -> float:
@@ -519,10 +518,7 @@ def _hertz_from_contact(contact: _GraspContact, constants: SensorConstants) -> f
     reduced_p0 = np.cbrt(6.0 * force_n / sphere_radius_m**2) / np.pi
     x = constants.gel_compliance_per_pa * (np.pi * contact_radius_m / 4.0) * reduced_p0
     y = contact.patch_depth_mm[sel] * _M_PER_MM
-    slope = _slope_through_origin(x, y)
-    if not (np.isfinite(slope) and slope > 0):
-        return float("nan")
-    return float(slope**1.5)
+    return float(_slope_through_origin(x, y) ** 1.5)
 
 
 def estimate_elastic_modulus_pa(

@@ -420,20 +420,23 @@ def _initial_length_m(
 
 
 def _consistent_slope(
-    x: FloatArray, y: FloatArray, depth: FloatArray, force: FloatArray, tolerance: float
+    x: list[float], y: list[float], depth: list[float], force: list[float], tolerance: float
 ) -> float:
-    """Through-origin slope over the depth/force consistent points; NaN if not formable."""
-    if x.size == 0:
+    """Through-origin slope over the depth/force consistent points; NaN if not formable,
+    not finite or not positive."""
+    if not x:
         return math.nan  # the original returned 0 here
+    xs, ys, depths, forces = (np.asarray(v) for v in (x, y, depth, force))
     with np.errstate(divide="ignore", invalid="ignore"):
-        depth_norm = depth / depth.max()
-        force_norm = force / force.max()
+        depth_norm = depths / depths.max()
+        force_norm = forces / forces.max()
         keep = (depth_norm <= force_norm + tolerance) & (depth_norm >= force_norm - tolerance)
-        sum_xx = float(np.dot(x[keep], x[keep]))
-        sum_xy = float(np.dot(x[keep], y[keep]))
+        sum_xx = float(np.dot(xs[keep], xs[keep]))
+        sum_xy = float(np.dot(xs[keep], ys[keep]))
         if sum_xx == 0.0:
             return math.nan  # 0/0 (empty mask) or a zero strain/compliance everywhere
-        return sum_xy / sum_xx
+        slope = sum_xy / sum_xx
+    return slope if (math.isfinite(slope) and slope > 0) else math.nan
 
 
 def _elastic_pa(
@@ -454,10 +457,7 @@ def _elastic_pa(
             y.append(abs(forces_n[i]) / frames.area_m2[i])
             depth.append(frames.percentile_m[i])
             force.append(forces_n[i])  # signed, as in the original's consistency mask
-    slope = _consistent_slope(
-        np.asarray(x), np.asarray(y), np.asarray(depth), np.asarray(force), constants.fit_tolerance
-    )
-    return slope if (math.isfinite(slope) and slope > 0) else math.nan
+    return _consistent_slope(x, y, depth, force, constants.fit_tolerance)
 
 
 def _hertz_pa(
@@ -492,12 +492,7 @@ def _hertz_pa(
         y.append(patch_m)
         depth.append(patch_m)
         force.append(force_n)
-    slope = _consistent_slope(
-        np.asarray(x), np.asarray(y), np.asarray(depth), np.asarray(force), constants.fit_tolerance
-    )
-    if not (math.isfinite(slope) and slope > 0):
-        return math.nan
-    return float(slope**1.5)
+    return float(_consistent_slope(x, y, depth, force, constants.fit_tolerance) ** 1.5)
 
 
 def dataset_estimates_pa(
