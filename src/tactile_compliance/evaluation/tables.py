@@ -138,11 +138,6 @@ def protocol_label(protocol: Any) -> str:
     return PROTOCOL_LABELS.get(str(protocol), str(protocol))
 
 
-def _protocol_rank(protocol: Any) -> int:
-    """Table order of an object condition (unknown ones last)."""
-    return PROTOCOLS.index(protocol) if protocol in PROTOCOLS else len(PROTOCOLS)
-
-
 def ordered(values: Iterable[Any], order: Sequence[Any]) -> list[Any]:
     """Distinct ``values``: those in ``order`` first (in that order), the rest sorted."""
     distinct = list(dict.fromkeys(v for v in values if v is not None))
@@ -274,7 +269,7 @@ def _settings(stats: pd.DataFrame, keys: list[str]) -> list[dict[str, Any]]:
     models = ordered(settings["model"], model_order())
     settings = settings.assign(
         _m=[models.index(m) for m in settings["model"]],
-        _p=[_protocol_rank(p) for p in settings["protocol"]],
+        _p=[PROTOCOLS.index(p) if p in PROTOCOLS else len(PROTOCOLS) for p in settings["protocol"]],
     ).sort_values([*(["preset"] if "preset" in keys else []), "_m", "inputs", "_p", "sampling"])
     return [dict(zip(keys, s, strict=True)) for s in settings[keys].itertuples(index=False)]
 
@@ -621,10 +616,6 @@ def window_label(k: int) -> str:
     return f"1e{round(math.log10(lo))}–1e{round(math.log10(hi))}"
 
 
-def _subset_label(kind: str, value: Any) -> str:
-    return f"{window_label(int(value))} Pa" if kind == "window" else str(value)
-
-
 def subset_summary_table(
     rows: pd.DataFrame,
     kind: str,
@@ -665,7 +656,8 @@ def subset_summary_table(
         [Cell(text=model_label(model)), Cell(text=str(inp)), *cells]
         for (model, inp), cells in zip(keys, pivot.cells, strict=True)
     ]
-    columns = ["Model", "Input"] + [_subset_label(kind, s) for s in subsets]
+    columns = ["Model", "Input"]
+    columns += [f"{window_label(int(s))} Pa" if kind == "window" else str(s) for s in subsets]
     table = Table(
         title=title,
         columns=columns,

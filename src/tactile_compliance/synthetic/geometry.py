@@ -184,10 +184,6 @@ def _sized(rng: np.random.Generator, low: float, high: float, bias: float) -> fl
     return float(low + (high - low) * u)
 
 
-def _log_uniform(rng: np.random.Generator, low: float, high: float, bias: float = 0.0) -> float:
-    return float(10 ** _sized(rng, np.log10(low), np.log10(high), bias))
-
-
 def sample_shape(
     kind: str,
     rng: np.random.Generator,
@@ -212,7 +208,8 @@ def sample_shape(
         radius = radius_mm if radius_mm else _sized(rng, 5.0, 35.0, b)
         return ShapeSpec(kind, {"radius_mm": radius}, thickness_mm=min(2 * radius, 75.0))
     if kind == "Cylinder":
-        radius = radius_mm if radius_mm else _log_uniform(rng, 1.5, 25.0, b)
+        # A log-uniform radius: every factor of R between 1.5 and 25 mm as likely.
+        radius = radius_mm or float(10 ** _sized(rng, np.log10(1.5), np.log10(25.0), b))
         length = _sized(rng, 8.0, 150.0, b)
         return ShapeSpec(
             kind, {"radius_mm": radius, "length_mm": length}, thickness_mm=min(2 * radius, 75.0)

@@ -312,13 +312,6 @@ def _noise(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
     return window
 
 
-def _pad_pixels(size: tuple[int, int]) -> tuple[int, int, int, int]:
-    """Pad size in output pixels and the crop offsets: (pad_h, pad_w, off_y, off_x)."""
-    px = pixel_size_mm(size)
-    pad_w, pad_h = round(PAD_SIZE_MM[0] / px), round(PAD_SIZE_MM[1] / px)
-    return pad_h, pad_w, (pad_h - size[0]) // 2, (pad_w - size[1]) // 2
-
-
 def gel_height_maps(
     fields_mm: np.ndarray,
     grid: PadGrid,
@@ -346,7 +339,9 @@ def gel_height_maps(
     out_depth = np.zeros((n, h, w), dtype=np.float32)
     out_contact = np.zeros((n, h, w), dtype=np.float32)
     active = np.flatnonzero(fields_mm.reshape(n, -1).max(axis=1) > 0)
-    pad_h, pad_w, off_y, off_x = _pad_pixels(size)
+    px = pixel_size_mm(size)
+    pad_w, pad_h = round(PAD_SIZE_MM[0] / px), round(PAD_SIZE_MM[1] / px)  # the whole pad
+    off_y, off_x = (pad_h - h) // 2, (pad_w - w) // 2  # the visible crop, centred
     crop = (slice(off_y, off_y + h), slice(off_x, off_x + w))
     for start in range(0, active.size, 128):
         chunk = active[start : start + 128]

@@ -22,18 +22,15 @@ import numpy as np
 __all__ = ["log_uniform", "stream"]
 
 
-def key_digest(*keys: object) -> list[int]:
-    """Stable 32-bit words that identify a tuple of keys (ints, strings, floats)."""
-    text = "\x1f".join(f"{type(k).__name__}:{k}" for k in keys).encode("utf-8")
-    digest = hashlib.blake2b(text, digest_size=16).digest()
-    return [int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4)]
-
-
 def stream(seed: int, *keys: object) -> np.random.Generator:
     """A PCG64 generator for ``seed`` and the given keys (see the module docstring)."""
     if seed < 0:
         raise ValueError(f"seed must be >= 0, got {seed}")
-    words = [seed & 0xFFFFFFFF, (seed >> 32) & 0xFFFFFFFF, *key_digest(*keys)]
+    # The keys' stable digest (ints, strings, floats), as four 32-bit words.
+    text = "\x1f".join(f"{type(k).__name__}:{k}" for k in keys).encode("utf-8")
+    digest = hashlib.blake2b(text, digest_size=16).digest()
+    words = [seed & 0xFFFFFFFF, (seed >> 32) & 0xFFFFFFFF]
+    words += [int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4)]
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence(words)))
 
 
