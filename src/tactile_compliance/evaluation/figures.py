@@ -232,12 +232,18 @@ def _best_panels(
     return panels, body, pd.DataFrame(tidy)
 
 
-def _scatter_table(
-    title: str, body: list[list[Cell]], label: str, caption: str, rows: pd.DataFrame
-) -> Table:
-    """The table under Fig. 5 / 8: which run each panel shows and how it ranks."""
-    return Table(
-        title=title,
+def _add_runs_table(
+    parts: ReportParts,
+    key: str,
+    body: list[list[Cell]],
+    tidy: pd.DataFrame,
+    caption: str,
+    rows: pd.DataFrame,
+) -> None:
+    """The table under Fig. 5 / 8 (``key``): which run each panel shows and how it ranks."""
+    parts.tables[key] = tidy
+    table = Table(
+        title=f"Fig. {key.removeprefix('fig')} runs",
         columns=[
             "Model",
             "Input",
@@ -254,8 +260,9 @@ def _scatter_table(
         provenance=describe_runs(
             rows, "one point per test sample of the chosen run (predictions.csv, split test)"
         ),
-        label=label,
+        label=f"{key}-runs",
     )
+    parts.blocks.append(table)
 
 
 def fig5(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Path) -> None:
@@ -304,16 +311,8 @@ def fig5(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Pa
             "per-sample and unseen splits); see the table below",
         ),
     )
-    parts.tables["fig5"] = tidy
-    parts.blocks.append(
-        _scatter_table(
-            "Fig. 5 runs",
-            body,
-            "fig5-runs",
-            "The run behind each panel and the share of points in its band.",
-            used,
-        )
-    )
+    caption = "The run behind each panel and the share of points in its band."
+    _add_runs_table(parts, "fig5", body, tidy, caption, used)
 
 
 def fig8(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Path) -> None:
@@ -344,10 +343,7 @@ def fig8(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Pa
         "material; band as in Fig. 5 on this data's label range.",
         describe_runs(used, "seed with the lowest test N-MSE per model"),
     )
-    parts.tables["fig8"] = tidy
-    parts.blocks.append(
-        _scatter_table("Fig. 8 runs", body, "fig8-runs", "The run behind each panel.", used)
-    )
+    _add_runs_table(parts, "fig8", body, tidy, "The run behind each panel.", used)
 
 
 # ============================================================================ Fig. 6 / 7

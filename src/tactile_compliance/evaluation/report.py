@@ -203,13 +203,8 @@ class _Builder:
     # ------------------------------------------------------------------ Tables I / II
     def paper_table_section(self, sampling: str, number: str, preset: str) -> None:
         """Table I or II: one table per (preset, store) of the main grid with ``sampling``."""
-        self.parts.blocks.append(
-            Heading(
-                f"Table {number}: {sampling} sampling"
-                + (" (Balanced strategy)" if sampling == "balanced" else ""),
-                2,
-            )
-        )
+        strategy = " (Balanced strategy)" if sampling == "balanced" else ""
+        self.parts.blocks.append(Heading(f"Table {number}: {sampling} sampling{strategy}", 2))
         built = paper_tables(self.frame, sampling, number, self.ddof)
         if not built:
             self.parts.note(
