@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS, rolling_windows
@@ -142,8 +143,8 @@ def ordered(values: Iterable[Any], order: Sequence[Any]) -> list[Any]:
 
 
 def _stats(values: Sequence[float], ddof: int) -> tuple[float, float, int]:
-    arr = pd.to_numeric(pd.Series(list(values), dtype=object), errors="coerce").dropna()
-    arr = arr.to_numpy(dtype=float)
+    """Mean, std and count of numbers without NaN."""
+    arr = np.asarray(values, dtype=float)
     n = int(arr.size)
     if n == 0:
         return math.nan, math.nan, 0
@@ -159,8 +160,7 @@ def summarise(
     out: list[dict[str, Any]] = []
     if frame.empty:
         return pd.DataFrame(columns=[*by, "metric", "mean", "std", "n", "seeds"])
-    for keys, part in frame.groupby(list(by), sort=False, dropna=False):
-        keys = keys if isinstance(keys, tuple) else (keys,)
+    for keys, part in frame.groupby(list(by), sort=False, dropna=False):  # keys: a tuple
         for metric in metrics:
             if metric not in part.columns:
                 continue
@@ -383,12 +383,6 @@ def _reference_stats(
     return pd.DataFrame(records, columns=columns, dtype=object)
 
 
-def _has_reference(rows: pd.DataFrame, name: str) -> bool:
-    """Whether any run recorded reference ``name`` (older runs have no scalar reference)."""
-    columns = [c for c in rows.columns if c.startswith(f"ref_{name}_")]
-    return bool(columns) and bool(rows[columns].notna().any(axis=None))
-
-
 def _reference_lines(
     part: pd.DataFrame, inputs: Sequence[str]
 ) -> list[tuple[str, str | None, pd.DataFrame]]:
@@ -400,7 +394,9 @@ def _reference_lines(
     """
     lines: list[tuple[str, str | None, pd.DataFrame]] = []
     for name in REFERENCE_NAMES:
-        if not _has_reference(part, name):
+        # Only references some run recorded (older runs have no scalar reference).
+        columns = [c for c in part.columns if c.startswith(f"ref_{name}_")]
+        if not columns or not part[columns].notna().any(axis=None):
             continue
         if name in _PER_STRATEGY_REFERENCES:
             lines += [(name, inp, part[part["inputs"] == inp]) for inp in inputs]
