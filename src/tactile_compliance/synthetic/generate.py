@@ -133,8 +133,9 @@ def _run_object(job: _Job) -> tuple[int, int, int]:
     """Simulate and write one object (module docstring); returns (grasps, rejected, samples)."""
     spec = job.spec
     ctx = make_context(spec, job.seed, job.options)
-    # generate_burgess_tree removed every partial directory before the jobs started.
     partial = job.out_dir / f"{PARTIAL_PREFIX}{spec.name}"
+    if partial.exists():
+        shutil.rmtree(partial)
     partial.mkdir(parents=True)
     shore = (spec.shore_00, spec.shore_a, spec.shore_d)
     write_metadata(
