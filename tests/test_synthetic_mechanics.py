@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tactile_compliance.physics.contact import hertz_force_n
 from tactile_compliance.synthetic.geometry import (
     NO_SURFACE,
     PadGrid,
@@ -21,7 +22,6 @@ from tactile_compliance.synthetic.mechanics import (
     contact_curve,
     force_curve,
     gel_compression_fields,
-    hertz_force_n,
     shell_stiffness_n_per_m,
 )
 from tactile_compliance.synthetic.rng import stream

@@ -28,6 +28,7 @@ from tactile_compliance.evaluation.loading import (
     read_store_samples,
     read_test_predictions,
     resolve_run_dir,
+    subset_rows,
 )
 from tactile_compliance.evaluation.parts import ReportParts, safe_name
 from tactile_compliance.evaluation.render import Cell, Heading, Table
@@ -46,16 +47,7 @@ from tactile_compliance.evaluation.tables import (
 from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.runs.results import PROTOCOLS
 
-__all__ = [
-    "MAX_STORES",
-    "fig1",
-    "fig5",
-    "fig6",
-    "fig7",
-    "fig8",
-    "headline_runs",
-    "learning_curves",
-]
+__all__ = ["fig1", "fig5", "fig6", "fig7", "fig8", "headline_runs", "learning_curves"]
 
 #: Fig. 1 draws at most this many stores (a results store normally uses one or two).
 MAX_STORES = 4
@@ -68,17 +60,14 @@ def fig1(
 ) -> None:
     """Fig. 1: the modulus distribution by shape of every store the runs used (and extras)."""
     parts.blocks.append(Heading("Fig. 1: dataset distribution", 2))
-    stores: list[str] = []
-    seen: set[str] = set()
+    unique: dict[str, str] = {}  # resolved path -> the first spelling of it
     for store in [
         *complete_rows(frame)["store"].dropna().astype(str),
         *frame["store"].dropna().astype(str),
         *map(str, extra_stores),
     ]:
-        resolved = str(Path(store).expanduser().resolve())
-        if resolved not in seen:
-            seen.add(resolved)
-            stores.append(store)
+        unique.setdefault(str(Path(store).expanduser().resolve()), store)
+    stores = list(unique.values())
     if not stores:
         parts.note(
             f"Fig. 1 skipped: no store recorded; produced from the store of {PRESET_HINTS['fig1']}."
@@ -129,10 +118,7 @@ def headline_runs(frame: pd.DataFrame) -> tuple[pd.DataFrame, str] | None:
         counts = part["preset"].value_counts()
         preset = sorted(counts[counts == counts.max()].index)[0]
         part = part[part["preset"] == preset]
-        return (
-            part,
-            f"preset `{preset}`, {sampling} sampling, {protocol_label(protocol)}",
-        )
+        return (part, f"preset `{preset}`, {sampling} sampling, {protocol_label(protocol)}")
     return None
 
 
@@ -176,8 +162,7 @@ def _best_panels(
                 ],
                 sel_rank=[_setting_rank(r) for r in cand.itertuples(index=False)],
                 sel_nmse=pd.to_numeric(
-                    cand["test_nmse"] if "test_nmse" in cand.columns else np.nan,
-                    errors="coerce",
+                    cand["test_nmse"] if "test_nmse" in cand.columns else np.nan, errors="coerce"
                 ),
             ).dropna(subset=["sel_nmse"])
             cand = cand.sort_values(
@@ -243,12 +228,18 @@ def _best_panels(
     return panels, body, pd.DataFrame(tidy)
 
 
-def _scatter_table(
-    title: str, body: list[list[Cell]], label: str, caption: str, rows: pd.DataFrame
-) -> Table:
-    """The table under Fig. 5 / 8: which run each panel shows and how it ranks."""
-    return Table(
-        title=title,
+def _add_runs_table(
+    parts: ReportParts,
+    key: str,
+    body: list[list[Cell]],
+    tidy: pd.DataFrame,
+    caption: str,
+    rows: pd.DataFrame,
+) -> None:
+    """The table under Fig. 5 / 8 (``key``): which run each panel shows and how it ranks."""
+    parts.tables[key] = tidy
+    table = Table(
+        title=f"Fig. {key.removeprefix('fig')} runs",
         columns=[
             "Model",
             "Input",
@@ -265,8 +256,9 @@ def _scatter_table(
         provenance=describe_runs(
             rows, "one point per test sample of the chosen run (predictions.csv, split test)"
         ),
-        label=label,
+        label=f"{key}-runs",
     )
+    parts.blocks.append(table)
 
 
 def fig5(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Path) -> None:
@@ -315,22 +307,13 @@ def fig5(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Pa
             "per-sample and unseen splits); see the table below",
         ),
     )
-    parts.tables["fig5"] = tidy
-    parts.blocks.append(
-        _scatter_table(
-            "Fig. 5 runs",
-            body,
-            "fig5-runs",
-            "The run behind each panel and the share of points in its band.",
-            used,
-        )
-    )
+    caption = "The run behind each panel and the share of points in its band."
+    _add_runs_table(parts, "fig5", body, tidy, caption, used)
 
 
 def fig8(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Path) -> None:
     """Fig. 8: predicted vs true modulus on the Shore-hardness data (Image input)."""
-    done = complete_rows(frame)
-    rows = done[done["is_shore"].astype(bool) & (done["subset_kind"] == "none")]
+    rows = subset_rows(frame, "none", shore=True)
     if rows.empty:
         return  # Table III's note already says what is missing
     inputs = (
@@ -356,10 +339,7 @@ def fig8(parts: ReportParts, frame: pd.DataFrame, results_dir: Path, fig_dir: Pa
         "material; band as in Fig. 5 on this data's label range.",
         describe_runs(used, "seed with the lowest test N-MSE per model"),
     )
-    parts.tables["fig8"] = tidy
-    parts.blocks.append(
-        _scatter_table("Fig. 8 runs", body, "fig8-runs", "The run behind each panel.", used)
-    )
+    _add_runs_table(parts, "fig8", body, tidy, "The run behind each panel.", used)
 
 
 # ============================================================================ Fig. 6 / 7
@@ -475,8 +455,7 @@ def _subset_figure(
 ) -> None:
     """N-MSE boxes over seeds per subset, one figure and numbers table per preset."""
     parts.blocks.append(Heading(spec.heading, 2))
-    done = complete_rows(frame)
-    rows = done[(done["subset_kind"] == spec.kind) & ~done["is_shore"].astype(bool)]
+    rows = subset_rows(frame, spec.kind)
     if rows.empty:
         parts.note(
             f"{spec.name} skipped: {spec.missing}; produced by the "

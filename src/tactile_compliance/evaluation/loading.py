@@ -33,8 +33,6 @@ from tactile_compliance.runs.results import (
 )
 
 __all__ = [
-    "SHORE_PRESETS",
-    "SHORE_SOURCES",
     "complete_rows",
     "load_results",
     "main_grid",
@@ -45,12 +43,18 @@ __all__ = [
     "read_test_predictions",
     "resolve_run_dir",
     "store_header",
+    "subset_rows",
 ]
 
 #: Shore-hardness data (Table III): by the store header's source, or by the preset name
 #: when the store is not reachable from where the report is built.
 SHORE_SOURCES = frozenset({"yuan"})
 SHORE_PRESETS = frozenset({"new-dataset"})
+
+
+def _blank(value: Any) -> bool:
+    """A results cell with nothing in it: None, NaN (pandas' missing value) or ``""``."""
+    return value is None or (isinstance(value, float) and math.isnan(value)) or str(value) == ""
 
 
 # ============================================================================ stores
@@ -64,7 +68,7 @@ def _header_cached(path: str) -> StoreHeader | None:
 
 def store_header(path: Any) -> StoreHeader | None:
     """A store's header, or None when the store is not reachable here."""
-    if path is None or (isinstance(path, float) and math.isnan(path)) or str(path) == "":
+    if _blank(path):
         return None
     return _header_cached(str(Path(str(path)).expanduser().resolve()))
 
@@ -88,7 +92,7 @@ def read_store_samples(store: str) -> tuple[pd.DataFrame, str] | None:
 # ============================================================================ results store
 def _subset_kind(value: Any) -> tuple[str, Any]:
     """Classify a row's ``subset``: ``none`` | ``window`` (0-6) | ``softhard`` | ``shape``."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
+    if _blank(value):
         return "none", None
     if isinstance(value, (bool, np.bool_)):
         return "shape", str(value)
@@ -175,10 +179,16 @@ def complete_rows(frame: pd.DataFrame) -> pd.DataFrame:
     return frame[frame["status"] == STATUS_COMPLETE]
 
 
+def subset_rows(frame: pd.DataFrame, kind: str, shore: bool = False) -> pd.DataFrame:
+    """Complete rows of one ``subset_kind`` (``none``: the whole dataset), on Shore-hardness
+    data (``shore``) or not."""
+    done = complete_rows(frame)
+    return done[(done["subset_kind"] == kind) & (done["is_shore"].astype(bool) == shore)]
+
+
 def main_grid(frame: pd.DataFrame) -> pd.DataFrame:
     """Complete rows of the main grid: whole dataset (no subset), not Shore data."""
-    done = complete_rows(frame)
-    return done[(done["subset_kind"] == "none") & ~done["is_shore"].astype(bool)]
+    return subset_rows(frame, "none")
 
 
 # ============================================================================ run directories
@@ -189,7 +199,7 @@ def resolve_run_dir(value: Any, results_dir: str | Path) -> Path | None:
     be the report's: try the path as is, then relative to the results directory and its
     parent, then by name under the results directory.
     """
-    if value is None or (isinstance(value, float) and math.isnan(value)) or str(value) == "":
+    if _blank(value):
         return None
     path = Path(str(value)).expanduser()
     root = Path(results_dir)

@@ -62,7 +62,9 @@ def _legend_below(fig: Figure, handles: Sequence[Artist], max_cols: int) -> None
     )
 
 
-def _save(fig: Figure, out: Path) -> Path:
+def _save(fig: Figure, out: Path, title: str = "") -> Path:
+    if title:
+        fig.suptitle(title, fontsize=11)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=DPI, bbox_inches="tight")
     return out
@@ -264,11 +266,10 @@ def plot_prediction_panels(
     ]
     _legend_below(fig, handles, max_cols=4 if ncols < 3 else 7)
     if suptitle:
-        fig.suptitle(suptitle, fontsize=11)
         # Square log-log panels leave the layout engine too little slack above two-line
         # panel titles: pad explicitly so the suptitle never touches them.
         fig.get_layout_engine().set(h_pad=0.12)
-    return _save(fig, out)
+    return _save(fig, out, suptitle)
 
 
 # ============================================================================ Fig. 6 / 7
@@ -342,9 +343,7 @@ def plot_nmse_boxes(
     axes[0].set_ylabel("Test N-MSE (normalised log modulus, lower is better)")
     handles = [Patch(color=_colour(i), alpha=0.55, label=s) for i, s in enumerate(series_order)]
     _legend_below(fig, handles, max_cols=6)
-    if title:
-        fig.suptitle(title, fontsize=11)
-    return _save(fig, out)
+    return _save(fig, out, title)
 
 
 # ============================================================================ extra
@@ -393,6 +392,4 @@ def plot_learning_curves(
         Line2D([], [], color="black", linestyle="--", label="training loss (MSE + l2)"),
     ]
     _legend_below(fig, handles, max_cols=6)
-    if title:
-        fig.suptitle(title, fontsize=11)
-    return _save(fig, out)
+    return _save(fig, out, title)

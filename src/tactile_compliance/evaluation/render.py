@@ -172,16 +172,13 @@ def render_markdown(blocks: Sequence[Block], figure_root: Path) -> str:
             out.append(block.text)
         elif isinstance(block, Note):
             out.append(f"> **Note:** {block.text}")
-        elif isinstance(block, Table):
-            parts = [f"**{block.title}.** {block.caption}".strip()]
-            parts.append(_md_table(block))
-            if block.provenance:
-                parts.append(f"*How produced:* {block.provenance}")
-            out.append("\n\n".join(parts))
-        elif isinstance(block, Figure):
-            rel = _relative(block.path, figure_root)
-            alt = block.caption.split(" — ")[0]  # "Fig. 5": the caption follows in full
-            parts = [f"![{alt}]({rel})", f"*{block.caption}*"]
+        elif isinstance(block, Table | Figure):
+            if isinstance(block, Table):
+                parts = [f"**{block.title}.** {block.caption}".strip(), _md_table(block)]
+            else:
+                alt = block.caption.split(" — ")[0]  # "Fig. 5": the caption follows in full
+                rel = _relative(block.path, figure_root)
+                parts = [f"![{alt}]({rel})", f"*{block.caption}*"]
             if block.provenance:
                 parts.append(f"*How produced:* {block.provenance}")
             out.append("\n\n".join(parts))
@@ -223,6 +220,10 @@ def _html_inline(text: str) -> str:
     return _BOLD.sub(r"<b>\1</b>", escaped)
 
 
+def _html_provenance(text: str) -> str:
+    return f'<div class="prov">How produced: {_html_inline(text)}</div>' if text else ""
+
+
 def _html_table(table: Table) -> str:
     head: list[str] = []
     if table.groups:
@@ -234,21 +235,17 @@ def _html_table(table: Table) -> str:
     body: list[str] = []
     for index, row in enumerate(table.rows):
         cls = ' class="rule"' if index in table.rules_after else ""
-        cells = []
-        for cell in row:
-            text = html.escape(cell.plain())
-            cells.append(
-                f"<td><b>{text}</b></td>" if cell.bold and not cell.empty else f"<td>{text}</td>"
-            )
+        cells = [
+            f"<td><b>{html.escape(c.plain())}</b></td>"
+            if c.bold and not c.empty
+            else f"<td>{html.escape(c.plain())}</td>"
+            for c in row
+        ]
         body.append(f"<tr{cls}>{''.join(cells)}</tr>")
     return (
         f'<div class="caption">{html.escape(table.title)}. {_html_inline(table.caption)}</div>\n'
         f"<table><thead>{''.join(head)}</thead><tbody>{''.join(body)}</tbody></table>\n"
-        + (
-            f'<div class="prov">How produced: {_html_inline(table.provenance)}</div>'
-            if table.provenance
-            else ""
-        )
+        + _html_provenance(table.provenance)
     )
 
 
@@ -283,15 +280,11 @@ def render_html(blocks: Sequence[Block], title: str) -> str:
             out.append(_html_table(block))
         elif isinstance(block, Figure):
             data = base64.b64encode(Path(block.path).read_bytes()).decode("ascii")
-            prov = (
-                f'<div class="prov">How produced: {_html_inline(block.provenance)}</div>'
-                if block.provenance
-                else ""
-            )
             out.append(
                 f'<figure><img alt="{html.escape(block.caption)}" '
                 f'src="data:image/png;base64,{data}"/>'
-                f"<figcaption>{_html_inline(block.caption)}</figcaption>{prov}</figure>"
+                f"<figcaption>{_html_inline(block.caption)}</figcaption>"
+                f"{_html_provenance(block.provenance)}</figure>"
             )
     body = "\n".join(out)
     return (

@@ -6,20 +6,22 @@ This module runs the sections in order and writes the documents; reading the sto
 What goes where (only ``status == "complete"`` rows count; each part is skipped with a note
 naming the preset that produces it when its rows are missing):
 
-* Table I / II — :func:`tables.paper_tables` (random / balanced sampling, whole dataset):
-  one column group per object condition (seen per-sample as in the paper, seen
-  grasp-grouped, unseen) and the reference rows (median, analytical, scalar GBR);
-* Table III and Fig. 8 — Shore-hardness runs (header source ``yuan`` or preset
-  ``new-dataset``);
+* Table I / II — :func:`tables.paper_tables` (random / balanced sampling, whole dataset,
+  not Shore-hardness data): one column group per object condition (seen per-sample as in
+  the paper, seen grasp-grouped, unseen) and the reference rows (median, analytical,
+  scalar GBR per input strategy);
+* Table III and Fig. 8 — Shore-hardness runs (store header source ``yuan``, or a preset
+  whose name starts with ``new-dataset`` when the store is not reachable from here);
 * Fig. 1 — the distribution of the normalised modulus by shape in each store the runs used;
 * Fig. 5 — predicted vs true modulus per material for Image and ALL of each model, from the
   ``predictions.csv`` (test split) of the run with the lowest test N-MSE, preferring
   balanced + seen runs as the paper does (grasp-grouped before per-sample) and falling
   back to what exists;
-* Fig. 6 / Fig. 7 — N-MSE box plots over seeds per rolling window / shape, with the numbers
-  in a companion table;
-* extras — per-material / shape / soft-hard errors (from ``groups.csv``), soft/hard subset
-  runs, learning curves (from ``logs/metrics.csv``), failed runs.
+* Fig. 6 / Fig. 7 — N-MSE box plots over seeds per rolling window (subset 0-6) / shape
+  name, with the numbers in a companion table;
+* extras — per-material / shape / soft-hard errors (from each run's ``groups.csv``), runs
+  trained on the ``soft`` / ``hard`` subsets, learning curves (from ``logs/metrics.csv``),
+  failed runs.
 
 Output directory::
 
@@ -70,7 +72,6 @@ __all__ = ["FORMATS", "ReportSummary", "build_report"]
 log = logging.getLogger(__name__)
 
 FORMATS: tuple[str, ...] = ("md", "html", "tex")
-_DOC_NAMES = {"md": "report.md", "html": "report.html", "tex": "report.tex"}
 
 
 @dataclass
@@ -144,7 +145,7 @@ class _Builder:
         other = len(frame) - len(done) - n_failed
         lines = [
             f"- Results store: `{self.results_dir}` — {len(frame)} rows: {len(done)} complete, "
-            f"{n_failed} failed" + (f", {other} other (unfinished)" if other else ""),
+            f"{n_failed} failed" + (f", {other} other (unfinished)" if other else "")
         ]
         presets = sorted(set(frame["preset"]))
         if presets:
@@ -202,13 +203,8 @@ class _Builder:
     # ------------------------------------------------------------------ Tables I / II
     def paper_table_section(self, sampling: str, number: str, preset: str) -> None:
         """Table I or II: one table per (preset, store) of the main grid with ``sampling``."""
-        self.parts.blocks.append(
-            Heading(
-                f"Table {number}: {sampling} sampling"
-                + (" (Balanced strategy)" if sampling == "balanced" else ""),
-                2,
-            )
-        )
+        strategy = " (Balanced strategy)" if sampling == "balanced" else ""
+        self.parts.blocks.append(Heading(f"Table {number}: {sampling} sampling{strategy}", 2))
         built = paper_tables(self.frame, sampling, number, self.ddof)
         if not built:
             self.parts.note(
@@ -353,18 +349,14 @@ def build_report(
         n_failed=int((frame["status"] == STATUS_FAILED).sum()),
     )
     _write_tables(parts, out / "tables")
-    if "md" in wanted:
-        path = out / _DOC_NAMES["md"]
-        path.write_text(render_markdown(parts.blocks, out), encoding="utf-8")
-        summary.documents["md"] = path
-    if "html" in wanted:
-        path = out / _DOC_NAMES["html"]
-        path.write_text(render_html(parts.blocks, title), encoding="utf-8")
-        summary.documents["html"] = path
-    if "tex" in wanted:
-        path = out / _DOC_NAMES["tex"]
-        path.write_text(render_latex(parts.blocks, out, title), encoding="utf-8")
-        summary.documents["tex"] = path
+    renderers = {
+        "md": lambda: render_markdown(parts.blocks, out),
+        "html": lambda: render_html(parts.blocks, title),
+        "tex": lambda: render_latex(parts.blocks, out, title),
+    }
+    for fmt in (f for f in FORMATS if f in wanted):
+        summary.documents[fmt] = out / f"report.{fmt}"
+        summary.documents[fmt].write_text(renderers[fmt](), encoding="utf-8")
     (out / "report.json").write_text(
         json.dumps(
             {

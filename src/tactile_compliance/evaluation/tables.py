@@ -1,19 +1,9 @@
 """Tables of the report, built from the loaded results frame (one row per run).
 
 This module only aggregates and lays out; reading the store and the run directories is
-:mod:`tactile_compliance.evaluation.loading`'s job.
-
-Which rows feed which table (only ``status == "complete"`` rows ever count):
-
-* Table I   — sampling ``random``,   subset none, not Shore-hardness data; one column group
-  per object condition (``protocol``: seen per-sample, seen grasp-grouped, unseen) and the
-  reference rows (median, analytical, scalar GBR per input strategy);
-* Table II  — sampling ``balanced``, subset none, not Shore-hardness data, the same layout;
-* Table III — Shore-hardness data (store header source ``yuan``, or a preset whose name
-  starts with ``new-dataset``, for when the store is not reachable from here);
-* Fig. 6 / Fig. 7 companion tables — subset 0-6 (rolling window) / a shape name;
-* extras — per-material / per-shape / soft-hard errors from each run's ``groups.csv``, and
-  runs trained on the ``soft`` / ``hard`` subsets.
+:mod:`tactile_compliance.evaluation.loading`'s job, and which rows feed which table is
+listed in :mod:`tactile_compliance.evaluation.report` (only ``status == "complete"`` rows
+ever count).
 
 Cells are ``mean ± std`` over the runs of a cell (one run per seed): the sample standard
 deviation (``ddof=1``) by default, blank for a single run. Runs of different presets or
@@ -32,15 +22,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS, rolling_windows
 from tactile_compliance.evaluation.loading import (
-    complete_rows,
     main_grid,
     read_groups,
     resolve_run_dir,
     store_header,
+    subset_rows,
 )
 from tactile_compliance.evaluation.render import Cell, Table
 from tactile_compliance.models.inputs import InputStrategy
@@ -54,8 +45,6 @@ from tactile_compliance.runs.results import (
 
 __all__ = [
     "PRESET_HINTS",
-    "PROTOCOL_LABELS",
-    "REFERENCE_LABELS",
     "SETTING_PREFERENCE",
     "SHAPE_ORDER",
     "STD_DDOF",
@@ -117,11 +106,7 @@ METRIC_LABELS: dict[str, str] = {
     "mae_decades": "MAE (decades)",
     "within_half_decade": "within ½ decade",
 }
-_LATEX_METRIC = {
-    "log10_accuracy": r"$\log_{10}$ accuracy",
-    "nmse": "N-MSE",
-    "r2": "$R^2$",
-}
+_LATEX_METRIC = {"log10_accuracy": r"$\log_{10}$ accuracy", "nmse": "N-MSE", "r2": "$R^2$"}
 #: Metrics where larger is better (for bolding); the rest are errors.
 HIGHER_IS_BETTER = frozenset({"log10_accuracy", "r2", "within_half_decade"})
 
@@ -150,11 +135,6 @@ def protocol_label(protocol: Any) -> str:
     return PROTOCOL_LABELS.get(str(protocol), str(protocol))
 
 
-def _protocol_rank(protocol: Any) -> int:
-    """Table order of an object condition (unknown ones last)."""
-    return PROTOCOLS.index(protocol) if protocol in PROTOCOLS else len(PROTOCOLS)
-
-
 def ordered(values: Iterable[Any], order: Sequence[Any]) -> list[Any]:
     """Distinct ``values``: those in ``order`` first (in that order), the rest sorted."""
     distinct = list(dict.fromkeys(v for v in values if v is not None))
@@ -163,8 +143,8 @@ def ordered(values: Iterable[Any], order: Sequence[Any]) -> list[Any]:
 
 
 def _stats(values: Sequence[float], ddof: int) -> tuple[float, float, int]:
-    arr = pd.to_numeric(pd.Series(list(values), dtype=object), errors="coerce").dropna()
-    arr = arr.to_numpy(dtype=float)
+    """Mean, std and count of numbers without NaN."""
+    arr = np.asarray(values, dtype=float)
     n = int(arr.size)
     if n == 0:
         return math.nan, math.nan, 0
@@ -180,8 +160,7 @@ def summarise(
     out: list[dict[str, Any]] = []
     if frame.empty:
         return pd.DataFrame(columns=[*by, "metric", "mean", "std", "n", "seeds"])
-    for keys, part in frame.groupby(list(by), sort=False, dropna=False):
-        keys = keys if isinstance(keys, tuple) else (keys,)
+    for keys, part in frame.groupby(list(by), sort=False, dropna=False):  # keys: a tuple
         for metric in metrics:
             if metric not in part.columns:
                 continue
@@ -286,7 +265,7 @@ def _settings(stats: pd.DataFrame, keys: list[str]) -> list[dict[str, Any]]:
     models = ordered(settings["model"], model_order())
     settings = settings.assign(
         _m=[models.index(m) for m in settings["model"]],
-        _p=[_protocol_rank(p) for p in settings["protocol"]],
+        _p=[PROTOCOLS.index(p) if p in PROTOCOLS else len(PROTOCOLS) for p in settings["protocol"]],
     ).sort_values([*(["preset"] if "preset" in keys else []), "_m", "inputs", "_p", "sampling"])
     return [dict(zip(keys, s, strict=True)) for s in settings[keys].itertuples(index=False)]
 
@@ -404,12 +383,6 @@ def _reference_stats(
     return pd.DataFrame(records, columns=columns, dtype=object)
 
 
-def _has_reference(rows: pd.DataFrame, name: str) -> bool:
-    """Whether any run recorded reference ``name`` (older runs have no scalar reference)."""
-    columns = [c for c in rows.columns if c.startswith(f"ref_{name}_")]
-    return bool(columns) and bool(rows[columns].notna().any(axis=None))
-
-
 def _reference_lines(
     part: pd.DataFrame, inputs: Sequence[str]
 ) -> list[tuple[str, str | None, pd.DataFrame]]:
@@ -421,7 +394,9 @@ def _reference_lines(
     """
     lines: list[tuple[str, str | None, pd.DataFrame]] = []
     for name in REFERENCE_NAMES:
-        if not _has_reference(part, name):
+        # Only references some run recorded (older runs have no scalar reference).
+        columns = [c for c in part.columns if c.startswith(f"ref_{name}_")]
+        if not columns or not part[columns].notna().any(axis=None):
             continue
         if name in _PER_STRATEGY_REFERENCES:
             lines += [(name, inp, part[part["inputs"] == inp]) for inp in inputs]
@@ -586,8 +561,7 @@ def _runs_text(runs: Sequence[int]) -> str:
 # ============================================================================ Table III
 def shore_table(frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4) -> PaperTable | None:
     """Table III: N-MSE and R² per model on the Shore-hardness data (mean ± std over seeds)."""
-    done = complete_rows(frame)
-    rows = done[done["is_shore"].astype(bool) & (done["subset_kind"] == "none")]
+    rows = subset_rows(frame, "none", shore=True)
     if rows.empty:
         return None
     metrics = ("test_nmse", "test_r2")
@@ -634,10 +608,6 @@ def window_label(k: int) -> str:
     return f"1e{round(math.log10(lo))}–1e{round(math.log10(hi))}"
 
 
-def _subset_label(kind: str, value: Any) -> str:
-    return f"{window_label(int(value))} Pa" if kind == "window" else str(value)
-
-
 def subset_summary_table(
     rows: pd.DataFrame,
     kind: str,
@@ -678,7 +648,8 @@ def subset_summary_table(
         [Cell(text=model_label(model)), Cell(text=str(inp)), *cells]
         for (model, inp), cells in zip(keys, pivot.cells, strict=True)
     ]
-    columns = ["Model", "Input"] + [_subset_label(kind, s) for s in subsets]
+    columns = ["Model", "Input"]
+    columns += [f"{window_label(int(s))} Pa" if kind == "window" else str(s) for s in subsets]
     table = Table(
         title=title,
         columns=columns,
@@ -694,8 +665,7 @@ def softhard_subset_table(
     frame: pd.DataFrame, ddof: int = STD_DDOF, digits: int = 4
 ) -> PaperTable | None:
     """Runs trained and tested on the soft (< 0.275 MPa) or hard subset only."""
-    done = complete_rows(frame)
-    rows = done[(done["subset_kind"] == "softhard") & ~done["is_shore"].astype(bool)]
+    rows = subset_rows(frame, "softhard")
     if rows.empty:
         return None
     rows = rows.assign(subset_key=rows["subset_value"].astype(object))

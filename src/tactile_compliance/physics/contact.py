@@ -28,7 +28,6 @@ import numpy.typing as npt
 __all__ = [
     "DEFAULT_GEL_MODULUS_PA",
     "DEFAULT_GEL_POISSON",
-    "DEFAULT_OBJECT_POISSON",
     "FINAL_PIPELINE_GEL_MODULUS_PA",
     "SensorConstants",
     "analytical_estimates_pa",
@@ -104,28 +103,17 @@ class SensorConstants:
     hertz_patch_px: int = 11
 
     def __post_init__(self) -> None:
-        positive = {
-            "gel_modulus_pa": self.gel_modulus_pa,
-            "gel_thickness_m": self.gel_thickness_m,
-            "pad_width_m": self.pad_width_m,
-            "pad_height_m": self.pad_height_m,
-            "pixel_size_m": self.pixel_size_m,
-        }
-        for name, value in positive.items():
+        lengths = ("gel_thickness_m", "pad_width_m", "pad_height_m", "pixel_size_m")
+        for name in ("gel_modulus_pa", *lengths):
+            value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"SensorConstants.{name} must be finite and > 0, got {value!r}")
-        non_negative = {
-            "contact_depth_threshold_mm": self.contact_depth_threshold_mm,
-            "min_contact_area_m2": self.min_contact_area_m2,
-            "fit_tolerance": self.fit_tolerance,
-        }
-        for name, value in non_negative.items():
+        for name in ("contact_depth_threshold_mm", "min_contact_area_m2", "fit_tolerance"):
+            value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"SensorConstants.{name} must be finite and >= 0, got {value!r}")
-        for name, value in (
-            ("gel_poisson", self.gel_poisson),
-            ("object_poisson", self.object_poisson),
-        ):
+        for name in ("gel_poisson", "object_poisson"):
+            value = getattr(self, name)
             if not (-1.0 < value <= 0.5):
                 raise ValueError(f"SensorConstants.{name} must be in (-1, 0.5], got {value!r}")
         if not (0.0 <= self.min_depth_fraction <= 1.0):
@@ -160,13 +148,10 @@ class SensorConstants:
 # ---------------------------------------------------------------------------------------
 
 
-def _is_scalar(value: object) -> bool:
-    return not isinstance(value, np.ndarray) and np.ndim(value) == 0
-
-
 def _like_inputs(result: FloatArray, *inputs: object) -> ArrayOrFloat:
-    """A float when every input was a scalar, otherwise the (broadcast) array."""
-    if all(_is_scalar(v) for v in inputs):
+    """A float when every input was a scalar (not an array, not even a 0-d one), otherwise
+    the (broadcast) array: the 'same kind' promise."""
+    if all(not isinstance(v, np.ndarray) and np.ndim(v) == 0 for v in inputs):
         return float(result)
     return result
 
@@ -269,9 +254,7 @@ def object_modulus_from_effective_pa(
     object_compliance_per_pa = 1.0 / e_star - (1.0 - nu_gel**2) / e_gel
     with np.errstate(divide="ignore", invalid="ignore"):
         result = np.where(
-            object_compliance_per_pa > 0.0,
-            (1.0 - nu_obj**2) / object_compliance_per_pa,
-            np.inf,
+            object_compliance_per_pa > 0.0, (1.0 - nu_obj**2) / object_compliance_per_pa, np.inf
         )
     # np.where sends NaN (failed estimates) to the inf branch; keep them NaN.
     result = np.where(np.isnan(object_compliance_per_pa), np.nan, result)
@@ -496,13 +479,15 @@ def _grasp_contact(
 
 
 def _slope_through_origin(x: FloatArray, y: FloatArray) -> float:
-    """Least-squares slope of ``y = k x`` (``sum(x y) / sum(x^2)``); NaN if not formable."""
+    """Least-squares slope of ``y = k x`` (``sum(x y) / sum(x^2)``); NaN if not formable,
+    not finite or not positive."""
     if x.size < 1:
         return float("nan")
     sum_xx = float(np.dot(x, x))
     if not (np.isfinite(sum_xx) and sum_xx > 0):
         return float("nan")
-    return float(np.dot(x, y)) / sum_xx
+    slope = float(np.dot(x, y)) / sum_xx
+    return slope if np.isfinite(slope) and slope > 0 else float("nan")
 
 
 def _elastic_from_contact(contact: _GraspContact) -> float:
@@ -514,10 +499,7 @@ def _elastic_from_contact(contact: _GraspContact) -> float:
     compressed_m = contact.widths_m[sel] + 2.0 * contact.d97_mm[sel] * _M_PER_MM
     strain = (length_0_m - compressed_m) / length_0_m
     stress_pa = contact.forces_n[sel] / contact.area_m2[sel]
-    slope_pa = _slope_through_origin(strain, stress_pa)
-    if not (np.isfinite(slope_pa) and slope_pa > 0):
-        return float("nan")
-    return slope_pa
+    return _slope_through_origin(strain, stress_pa)
 
 
 def _hertz_from_contact(contact: _GraspContact, constants: SensorConstants) -> float:
@@ -534,10 +516,7 @@ def _hertz_from_contact(contact: _GraspContact, constants: SensorConstants) -> f
     reduced_p0 = np.cbrt(6.0 * force_n / sphere_radius_m**2) / np.pi
     x = constants.gel_compliance_per_pa * (np.pi * contact_radius_m / 4.0) * reduced_p0
     y = contact.patch_depth_mm[sel] * _M_PER_MM
-    slope = _slope_through_origin(x, y)
-    if not (np.isfinite(slope) and slope > 0):
-        return float("nan")
-    return float(slope**1.5)
+    return float(_slope_through_origin(x, y) ** 1.5)
 
 
 def estimate_elastic_modulus_pa(
@@ -548,20 +527,10 @@ def estimate_elastic_modulus_pa(
 ) -> float:
     """Hooke (simple elastic) estimate E_elastic [Pa] of the object from a grasp sequence.
 
-    Args:
-        forces_n: normal force per frame [N], shape (T,).
-        widths_m: gripper width per frame [m], shape (T,).
-        depths_mm: gel indentation depth maps [mm] (positive into the gel), shape
-            (T, H, W), on a grid of ``constants.pixel_size_m``.
-        constants: sensor constants.
-
-    Returns:
-        The slope of stress ``F_i / A_i`` against strain
-        ``(L0 - (W_i + 2 d97_i)) / L0`` fitted through the origin, or ``nan`` when it
-        cannot be formed (no contact, no usable frame, non-positive slope).
-
-    Raises:
-        ValueError: malformed input (shapes, frame counts, NaN/inf values).
+    Arguments and errors as :func:`analytical_estimates_pa`. Returns the slope of stress
+    ``F_i / A_i`` against strain ``(L0 - (W_i + 2 d97_i)) / L0`` fitted through the
+    origin, or ``nan`` when it cannot be formed (no contact, no usable frame,
+    non-positive slope).
     """
     return _elastic_from_contact(_grasp_contact(forces_n, widths_m, depths_mm, constants))
 
@@ -575,22 +544,11 @@ def estimate_hertz_effective_modulus_pa(
     """Hertz/MDR estimate of the gel-object effective modulus E* [Pa] from a grasp sequence.
 
     This is E*, as stored in the dataset's ``hertz_estimate.pkl``; convert it to the
-    object's modulus with :func:`object_modulus_from_effective_pa`.
-
-    Args:
-        forces_n: normal force per frame [N], shape (T,).
-        widths_m: gripper width per frame [m], shape (T,).
-        depths_mm: gel indentation depth maps [mm] (positive into the gel), shape
-            (T, H, W), on a grid of ``constants.pixel_size_m``.
-        constants: sensor constants.
-
-    Returns:
-        ``k^(3/2)`` with k the through-origin slope of the patch depth against
-        ``(1 - nu_gel^2)/E_gel * (pi a / 4) * (1/pi) (6 F / R^2)^(1/3)``, or ``nan`` when
-        it cannot be formed.
-
-    Raises:
-        ValueError: malformed input (shapes, frame counts, NaN/inf values).
+    object's modulus with :func:`object_modulus_from_effective_pa`. Arguments and errors
+    as :func:`analytical_estimates_pa`. Returns ``k^(3/2)`` with k the through-origin
+    slope of the patch depth against
+    ``(1 - nu_gel^2)/E_gel * (pi a / 4) * (1/pi) (6 F / R^2)^(1/3)``, or ``nan`` when it
+    cannot be formed.
     """
     return _hertz_from_contact(_grasp_contact(forces_n, widths_m, depths_mm, constants), constants)
 
@@ -606,6 +564,13 @@ def analytical_estimates_pa(
     Same results as :func:`estimate_elastic_modulus_pa` and
     :func:`estimate_hertz_effective_modulus_pa`, but the per-frame contact analysis
     (masks, areas, percentiles, patches) is done once.
+
+    Args:
+        forces_n: normal force per frame [N], shape (T,).
+        widths_m: gripper width per frame [m], shape (T,).
+        depths_mm: gel indentation depth maps [mm] (positive into the gel), shape
+            (T, H, W), on a grid of ``constants.pixel_size_m``.
+        constants: sensor constants.
 
     Raises:
         ValueError: malformed input (shapes, frame counts, NaN/inf values).

@@ -102,18 +102,8 @@ from tactile_compliance.physics.contact import _validate_sequence
 
 __all__ = [
     "DATASET_CONSTANTS",
-    "DATASET_CONTACT_THRESHOLD_MM",
-    "DATASET_DEPTH_PERCENTILE",
-    "DATASET_FIT_TOLERANCE",
     "DATASET_GEL_MODULUS_PA",
-    "DATASET_GEL_POISSON",
-    "DATASET_L0_FALLBACK_FACTOR",
-    "DATASET_MIN_APPROACH_M",
-    "DATASET_MIN_CONTACT_AREA_M2",
-    "DATASET_MIN_DEPTH_FRACTION",
-    "DATASET_PATCH_RADIUS_PX",
     "DATASET_PRESS_FORCE_N",
-    "DATASET_PRESS_PEAK_FRACTION",
     "DATASET_PX_PER_MM",
     "DatasetEstimatorConstants",
     "dataset_estimates_pa",
@@ -131,39 +121,8 @@ densities (400 px / 35 mm and 300 px / 25.5 mm), a quirk; one axis would be ~11.
 DATASET_GEL_MODULUS_PA: float = 1.5e5
 """Gel Young's modulus [Pa] of the final published code."""
 
-DATASET_GEL_POISSON: float = 0.485
-"""Gel Poisson ratio [-]."""
-
-DATASET_CONTACT_THRESHOLD_MM: float = 0.1
-"""Depth [mm] from which a pixel counts as in contact (and the first-contact rule)."""
-
-DATASET_MIN_CONTACT_AREA_M2: float = 1e-5
-"""Smallest contact area [m^2] a frame needs to be fitted (2690 px at 16.40 px/mm)."""
-
-DATASET_DEPTH_PERCENTILE: float = 97.0
-"""Percentile [%] of the whole frame's depth used as the elastic fit's indentation."""
-
-DATASET_PATCH_RADIUS_PX: int = 5
-"""Half side [px] of the Hertz depth patch ``[r-5:r+5, c-5:c+5]`` (10 x 10 px)."""
-
-DATASET_MIN_DEPTH_FRACTION: float = 0.075
-"""Frames-kept fraction [-] of the peak depth, and of the depth-onset clip."""
-
-DATASET_FIT_TOLERANCE: float = 0.25
-"""Depth/force consistency tolerance [-] on the normalised values."""
-
-DATASET_L0_FALLBACK_FACTOR: float = 5.0
-"""``L0 = W[0]`` when the sequence's maximum depth is below this many contact
-thresholds (0.5 mm) [-]."""
-
-DATASET_MIN_APPROACH_M: float = 1e-4
-"""Hertz frames need a per-finger apparent approach ``(L0 - W)/2`` above this [m]."""
-
 DATASET_PRESS_FORCE_N: float = 2.5
 """Force [N] that starts the press clip (half the 5 N of the frame selection)."""
-
-DATASET_PRESS_PEAK_FRACTION: float = 0.9
-"""The press clip ends before the force drops below this fraction [-] of its peak."""
 
 # The original worked in metres (``0.001 * depth``); doing the same keeps the floating
 # point comparisons with the thresholds identical to it.
@@ -179,34 +138,43 @@ class DatasetEstimatorConstants:
     no longer reproduces the stored estimates.
 
     Attributes:
-        px_per_mm: pixel density [px/mm] assumed for the depth maps.
-        gel_modulus_pa: gel Young's modulus [Pa].
+        px_per_mm: pixel density [px/mm] assumed for the depth maps
+            (:data:`DATASET_PX_PER_MM`, a quirk).
+        gel_modulus_pa: gel Young's modulus [Pa] (:data:`DATASET_GEL_MODULUS_PA`).
         gel_poisson: gel Poisson ratio [-].
-        contact_threshold_mm: contact depth threshold [mm].
-        min_contact_area_m2: minimum contact area of a fitted frame [m^2].
-        depth_percentile: percentile [%] of the whole frame for the elastic depth.
-        patch_radius_px: the Hertz patch is ``[r-k:r+k, c-k:c+k]`` [px].
-        min_depth_fraction: frames-kept and depth-onset fraction [-].
-        fit_tolerance: depth/force consistency tolerance [-].
-        l0_fallback_factor: ``L0 = W[0]`` below this many contact thresholds [-].
-        min_approach_m: minimum per-finger apparent approach of a Hertz frame [m].
-        press_force_n: force [N] that starts the press clip.
-        press_peak_fraction: fraction [-] of the peak force that ends the press clip.
+        contact_threshold_mm: depth [mm] from which a pixel counts as in contact (and the
+            first-contact rule).
+        min_contact_area_m2: smallest contact area [m^2] a frame needs to be fitted
+            (2690 px at 16.40 px/mm).
+        depth_percentile: percentile [%] of the whole frame's depth used as the elastic
+            fit's indentation.
+        patch_radius_px: half side k [px] of the Hertz depth patch ``[r-k:r+k, c-k:c+k]``
+            (10 x 10 px).
+        min_depth_fraction: frames-kept fraction [-] of the peak depth, and of the
+            depth-onset clip.
+        fit_tolerance: depth/force consistency tolerance [-] on the normalised values.
+        l0_fallback_factor: ``L0 = W[0]`` when the sequence's maximum depth is below this
+            many contact thresholds (0.5 mm) [-].
+        min_approach_m: Hertz frames need a per-finger apparent approach ``(L0 - W)/2``
+            above this [m].
+        press_force_n: force [N] that starts the press clip (:data:`DATASET_PRESS_FORCE_N`).
+        press_peak_fraction: the press clip ends before the force drops below this
+            fraction [-] of its peak.
     """
 
     px_per_mm: float = DATASET_PX_PER_MM
     gel_modulus_pa: float = DATASET_GEL_MODULUS_PA
-    gel_poisson: float = DATASET_GEL_POISSON
-    contact_threshold_mm: float = DATASET_CONTACT_THRESHOLD_MM
-    min_contact_area_m2: float = DATASET_MIN_CONTACT_AREA_M2
-    depth_percentile: float = DATASET_DEPTH_PERCENTILE
-    patch_radius_px: int = DATASET_PATCH_RADIUS_PX
-    min_depth_fraction: float = DATASET_MIN_DEPTH_FRACTION
-    fit_tolerance: float = DATASET_FIT_TOLERANCE
-    l0_fallback_factor: float = DATASET_L0_FALLBACK_FACTOR
-    min_approach_m: float = DATASET_MIN_APPROACH_M
+    gel_poisson: float = 0.485
+    contact_threshold_mm: float = 0.1
+    min_contact_area_m2: float = 1e-5
+    depth_percentile: float = 97.0
+    patch_radius_px: int = 5
+    min_depth_fraction: float = 0.075
+    fit_tolerance: float = 0.25
+    l0_fallback_factor: float = 5.0
+    min_approach_m: float = 1e-4
     press_force_n: float = DATASET_PRESS_FORCE_N
-    press_peak_fraction: float = DATASET_PRESS_PEAK_FRACTION
+    press_peak_fraction: float = 0.9
 
     def __post_init__(self) -> None:
         for name in ("px_per_mm", "gel_modulus_pa"):
@@ -279,12 +247,9 @@ def _first_true(flags: npt.NDArray[np.bool_]) -> int:
 def dataset_force_press(
     forces_n: npt.ArrayLike, constants: DatasetEstimatorConstants = DATASET_CONSTANTS
 ) -> tuple[int, int] | None:
-    """The press clip by force of a whole recording, ``[start, end)``, or None (step 1).
-
-    Start one frame before the force first reaches ``constants.press_force_n`` (2.5 N);
-    end at the last frame before the force first drops below
-    ``constants.press_peak_fraction`` (90 %) of its peak after the peak, or at the peak
-    when it never drops. None when that leaves no frames (``start >= end``).
+    """The press clip by force of a whole recording, ``[start, end)`` (module docstring,
+    step 1, with ``constants.press_force_n`` and ``constants.press_peak_fraction``), or
+    None when that leaves no frames (``start >= end``).
 
     Args:
         forces_n: normal force per frame of the whole recording [N], shape (T,).
@@ -455,20 +420,23 @@ def _initial_length_m(
 
 
 def _consistent_slope(
-    x: FloatArray, y: FloatArray, depth: FloatArray, force: FloatArray, tolerance: float
+    x: list[float], y: list[float], depth: list[float], force: list[float], tolerance: float
 ) -> float:
-    """Through-origin slope over the depth/force consistent points; NaN if not formable."""
-    if x.size == 0:
+    """Through-origin slope over the depth/force consistent points; NaN if not formable,
+    not finite or not positive."""
+    if not x:
         return math.nan  # the original returned 0 here
+    xs, ys, depths, forces = (np.asarray(v) for v in (x, y, depth, force))
     with np.errstate(divide="ignore", invalid="ignore"):
-        depth_norm = depth / depth.max()
-        force_norm = force / force.max()
+        depth_norm = depths / depths.max()
+        force_norm = forces / forces.max()
         keep = (depth_norm <= force_norm + tolerance) & (depth_norm >= force_norm - tolerance)
-        sum_xx = float(np.dot(x[keep], x[keep]))
-        sum_xy = float(np.dot(x[keep], y[keep]))
+        sum_xx = float(np.dot(xs[keep], xs[keep]))
+        sum_xy = float(np.dot(xs[keep], ys[keep]))
         if sum_xx == 0.0:
             return math.nan  # 0/0 (empty mask) or a zero strain/compliance everywhere
-        return sum_xy / sum_xx
+        slope = sum_xy / sum_xx
+    return slope if (math.isfinite(slope) and slope > 0) else math.nan
 
 
 def _elastic_pa(
@@ -489,10 +457,7 @@ def _elastic_pa(
             y.append(abs(forces_n[i]) / frames.area_m2[i])
             depth.append(frames.percentile_m[i])
             force.append(forces_n[i])  # signed, as in the original's consistency mask
-    slope = _consistent_slope(
-        np.asarray(x), np.asarray(y), np.asarray(depth), np.asarray(force), constants.fit_tolerance
-    )
-    return slope if (math.isfinite(slope) and slope > 0) else math.nan
+    return _consistent_slope(x, y, depth, force, constants.fit_tolerance)
 
 
 def _hertz_pa(
@@ -527,12 +492,7 @@ def _hertz_pa(
         y.append(patch_m)
         depth.append(patch_m)
         force.append(force_n)
-    slope = _consistent_slope(
-        np.asarray(x), np.asarray(y), np.asarray(depth), np.asarray(force), constants.fit_tolerance
-    )
-    if not (math.isfinite(slope) and slope > 0):
-        return math.nan
-    return float(slope**1.5)
+    return float(_consistent_slope(x, y, depth, force, constants.fit_tolerance) ** 1.5)
 
 
 def dataset_estimates_pa(

@@ -25,13 +25,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = [
-    "ANALYTICAL_ESTIMATORS",
-    "DEFAULT_ESTIMATOR",
-    "WEDGE_UNITS",
-    "AnalyticalEstimator",
-    "SensorUnits",
-]
+from tactile_compliance.physics.contact import SensorConstants, analytical_estimates_pa
+from tactile_compliance.physics.dataset_estimates import (
+    DATASET_CONSTANTS,
+    DATASET_PRESS_FORCE_N,
+    dataset_estimates_pa,
+)
+
+__all__ = ["DEFAULT_ESTIMATOR", "WEDGE_UNITS", "AnalyticalEstimator", "SensorUnits"]
 
 ANALYTICAL_ESTIMATORS = ("dataset", "contact")
 """The estimator names, in the order docs list them."""
@@ -77,19 +78,12 @@ class AnalyticalEstimator:
         series (ValueError: malformed). ``marker_depths_mm``: the marker finger's depth
         maps, for the dataset estimator's depth-onset clip (the others ignore them)."""
         if self.name == "dataset":
-            from tactile_compliance.physics.dataset_estimates import (
-                DATASET_CONSTANTS,
-                dataset_estimates_pa,
-            )
-
             constants = DATASET_CONSTANTS
             if self.px_per_mm is not None:
                 constants = replace(constants, px_per_mm=float(self.px_per_mm))
             return dataset_estimates_pa(
                 forces_n, widths_m, depth_mm, constants, marker_depths_mm=marker_depths_mm
             )
-        from tactile_compliance.physics.contact import SensorConstants, analytical_estimates_pa
-
         sensor = SensorConstants()
         if self.px_per_mm is not None:
             sensor = SensorConstants(pixel_size_m=1e-3 / float(self.px_per_mm))
@@ -104,8 +98,6 @@ class AnalyticalEstimator:
         """
         if self.name != "dataset":
             return None
-        from tactile_compliance.physics.dataset_estimates import DATASET_PRESS_FORCE_N
-
         pressed = np.flatnonzero(np.asarray(forces_n) >= DATASET_PRESS_FORCE_N)
         return max(int(pressed[0]) - 1, 0) if pressed.size else None
 
@@ -163,15 +155,10 @@ class SensorUnits:
 
     def describe(self) -> str:
         """E.g. ``the dataset's depth heuristic at the Wedge's pixel density``."""
-        model = (
-            "the dataset's depth heuristic"
-            if self.depth_model == "dataset"
-            else ("a calibrated depth model")
-        )
+        dataset = self.depth_model == "dataset"
+        model = "the dataset's depth heuristic" if dataset else "a calibrated depth model"
         pixels = (
-            "the Wedge's pixel density"
-            if self.px_per_mm is None
-            else (f"{self.px_per_mm:.4g} px/mm")
+            "the Wedge's pixel density" if self.px_per_mm is None else f"{self.px_per_mm:.4g} px/mm"
         )
         return f"{model} at {pixels}"
 

@@ -17,10 +17,10 @@ outside the durometer scale [0, 100] or NaN raise ``ValueError`` naming the valu
 
 from __future__ import annotations
 
-from typing import TypeAlias
-
 import numpy as np
 import numpy.typing as npt
+
+from tactile_compliance.physics.contact import ArrayOrFloat, _like_inputs
 
 __all__ = [
     "modulus_pa_to_shore00",
@@ -29,9 +29,6 @@ __all__ = [
     "shore_a_to_modulus_pa_reuss",
     "shore_d_to_modulus_pa_reuss",
 ]
-
-ArrayOrFloat: TypeAlias = float | npt.NDArray[np.float64]
-"""A scalar (returned as ``float``) or a numpy array (returned as float64 array)."""
 
 _PA_PER_MPA = 1.0e6
 
@@ -63,23 +60,11 @@ _HARDNESS_MAX = 100.0
 _SHORE_ROUNDING_SLACK = 1e-9
 
 
-def _is_scalar(value: object) -> bool:
-    """True for Python/numpy scalars (not for arrays, not even 0-d ones)."""
-    return not isinstance(value, np.ndarray) and np.ndim(value) == 0
-
-
 def _as_float_array(value: ArrayOrFloat, what: str) -> npt.NDArray[np.float64]:
     try:
         return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{what} must be a number or an array of numbers, got {value!r}") from exc
-
-
-def _like_input(result: npt.NDArray[np.float64], original: object) -> ArrayOrFloat:
-    """Return a float for scalar input and an array otherwise (the 'same kind' promise)."""
-    if _is_scalar(original):
-        return float(result)
-    return result
 
 
 def _describe_bad(values: npt.NDArray[np.float64], bad: npt.NDArray[np.bool_]) -> str:
@@ -112,7 +97,7 @@ def shore00_to_modulus_pa(shore_00: ArrayOrFloat) -> ArrayOrFloat:
     """
     values = _checked_hardness(shore_00, "00")
     modulus_pa = _LARSON_A_MPA * np.exp(_LARSON_B_PER_SHORE * values) * _PA_PER_MPA
-    return _like_input(modulus_pa, shore_00)
+    return _like_inputs(modulus_pa, shore_00)
 
 
 def modulus_pa_to_shore00(modulus_pa: ArrayOrFloat) -> ArrayOrFloat:
@@ -141,7 +126,7 @@ def modulus_pa_to_shore00(modulus_pa: ArrayOrFloat) -> ArrayOrFloat:
             f"(Larson fit covers {low_pa:.4g} Pa to {high_pa:.4g} Pa)"
         )
     shore = np.clip(shore, _HARDNESS_MIN, _HARDNESS_MAX)
-    return _like_input(shore, modulus_pa)
+    return _like_inputs(shore, modulus_pa)
 
 
 def shore_a_to_modulus_pa_gent(shore_a: ArrayOrFloat) -> ArrayOrFloat:
@@ -160,7 +145,7 @@ def shore_a_to_modulus_pa_gent(shore_a: ArrayOrFloat) -> ArrayOrFloat:
     values = _checked_hardness(shore_a, "A")
     numerator = _GENT_NUMERATOR_MPA * (_GENT_OFFSET + _GENT_SLOPE * values)
     denominator = _GENT_DENOMINATOR * (_GENT_TRAVEL_MM - _GENT_TRAVEL_PER_SHORE * values)
-    return _like_input(numerator / denominator * _PA_PER_MPA, shore_a)
+    return _like_inputs(numerator / denominator * _PA_PER_MPA, shore_a)
 
 
 def shore_a_to_modulus_pa_reuss(shore_a: ArrayOrFloat) -> ArrayOrFloat:
@@ -173,7 +158,7 @@ def shore_a_to_modulus_pa_reuss(shore_a: ArrayOrFloat) -> ArrayOrFloat:
     """
     values = _checked_hardness(shore_a, "A")
     modulus_pa = np.exp(_REUSS_C_PER_SHORE * values + _REUSS_D) * _PA_PER_MPA
-    return _like_input(modulus_pa, shore_a)
+    return _like_inputs(modulus_pa, shore_a)
 
 
 def shore_d_to_modulus_pa_reuss(shore_d: ArrayOrFloat) -> ArrayOrFloat:
@@ -187,4 +172,4 @@ def shore_d_to_modulus_pa_reuss(shore_d: ArrayOrFloat) -> ArrayOrFloat:
     values = _checked_hardness(shore_d, "D")
     shifted = values + _SHORE_D_TO_A_OFFSET
     modulus_pa = np.exp(_REUSS_C_PER_SHORE * shifted + _REUSS_D) * _PA_PER_MPA
-    return _like_input(modulus_pa, shore_d)
+    return _like_inputs(modulus_pa, shore_d)

@@ -56,10 +56,7 @@ class PadGrid:
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, cols) of the grid."""
-        return (
-            round(PAD_SIZE_MM[1] / self.cell_mm),
-            round(PAD_SIZE_MM[0] / self.cell_mm),
-        )
+        return (round(PAD_SIZE_MM[1] / self.cell_mm), round(PAD_SIZE_MM[0] / self.cell_mm))
 
     def coords(self) -> tuple[np.ndarray, np.ndarray]:
         """Cell-centre coordinates (x, y) [mm], origin at the pad centre, float32."""
@@ -184,15 +181,8 @@ def _sized(rng: np.random.Generator, low: float, high: float, bias: float) -> fl
     return float(low + (high - low) * u)
 
 
-def _log_uniform(rng: np.random.Generator, low: float, high: float, bias: float = 0.0) -> float:
-    return float(10 ** _sized(rng, np.log10(low), np.log10(high), bias))
-
-
 def sample_shape(
-    kind: str,
-    rng: np.random.Generator,
-    radius_mm: float | None = None,
-    size_bias: float = 0.0,
+    kind: str, rng: np.random.Generator, radius_mm: float | None = None, size_bias: float = 0.0
 ) -> ShapeSpec:
     """Draw the geometry of an object of shape class ``kind``.
 
@@ -212,7 +202,8 @@ def sample_shape(
         radius = radius_mm if radius_mm else _sized(rng, 5.0, 35.0, b)
         return ShapeSpec(kind, {"radius_mm": radius}, thickness_mm=min(2 * radius, 75.0))
     if kind == "Cylinder":
-        radius = radius_mm if radius_mm else _log_uniform(rng, 1.5, 25.0, b)
+        # A log-uniform radius: every factor of R between 1.5 and 25 mm as likely.
+        radius = radius_mm or float(10 ** _sized(rng, np.log10(1.5), np.log10(25.0), b))
         length = _sized(rng, 8.0, 150.0, b)
         return ShapeSpec(
             kind, {"radius_mm": radius, "length_mm": length}, thickness_mm=min(2 * radius, 75.0)
@@ -221,11 +212,7 @@ def sample_shape(
         face = (_sized(rng, 5.0, 60.0, b), _sized(rng, 5.0, 60.0, b))
         return ShapeSpec(
             kind,
-            {
-                "face_u_mm": face[0],
-                "face_v_mm": face[1],
-                "edge_radius_mm": rng.uniform(0.3, 3.0),
-            },
+            {"face_u_mm": face[0], "face_v_mm": face[1], "edge_radius_mm": rng.uniform(0.3, 3.0)},
             thickness_mm=_sized(rng, 5.0, 60.0, b),
         )
     if kind == "Hex":

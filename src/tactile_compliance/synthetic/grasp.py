@@ -25,7 +25,6 @@ import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
-import cv2
 import numpy as np
 
 from tactile_compliance.data.frame_selection import AugmentedSelection
@@ -52,10 +51,12 @@ from tactile_compliance.synthetic.render import (
     difference_images,
     gel_height_maps,
     pixel_size_mm,
+    reference_frame,
     render_frames,
     render_size,
     sample_edge_glow,
     sample_sensor_look,
+    to_stored_size,
 )
 from tactile_compliance.synthetic.rng import stream
 from tactile_compliance.synthetic.textures import texture_canvas, texture_window
@@ -68,14 +69,7 @@ from tactile_compliance.synthetic.timeseries import (
     simulate_timeline,
 )
 
-__all__ = [
-    "GraspSample",
-    "ObjectContext",
-    "SimulationOptions",
-    "make_context",
-    "render_recording",
-    "simulate_grasp",
-]
+__all__ = ["GraspSample", "SimulationOptions", "make_context", "render_recording", "simulate_grasp"]
 
 
 @dataclass(frozen=True)
@@ -205,7 +199,6 @@ class GraspResult:
     samples: list[GraspSample]
     timeline: GraspTimeline
     selection: AugmentedSelection | None
-    skipped_reason: str = ""
 
 
 def _object_mechanics(spec: ObjectSpec) -> ObjectMechanics:
@@ -244,7 +237,7 @@ def _render_sequence(
         np.maximum(height, 0.0, out=height)
     if not jpeg and look.jpeg_quality:
         look = replace(look, jpeg_quality=0)
-    reference = render_frames(np.zeros((1, *size), dtype=np.float32), look, rng)[0]
+    reference = reference_frame(look, size, rng)
     frames = render_frames(height, look, rng)
     diff = difference_images(frames, reference)
     depth = reconstruct_depth(diff, markers=look.markers, solve_scale=solve_scale)
@@ -341,14 +334,7 @@ def _render_full_size(
         texture_share=gel_share,
         solve_scale=opt.depth_solve_scale,
     )
-    if size == opt.image_size:
-        return diff, depth
-    # A frame taller than the sensor's aspect: rendered wider, squeezed to the stored size.
-    target = (opt.image_size[1], opt.image_size[0])  # OpenCV's (width, height)
-    return (
-        np.stack([cv2.resize(frame, target, interpolation=cv2.INTER_AREA) for frame in diff]),
-        np.stack([cv2.resize(frame, target, interpolation=cv2.INTER_AREA) for frame in depth]),
-    )
+    return to_stored_size(diff, opt.image_size), to_stored_size(depth, opt.image_size)
 
 
 def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
@@ -377,7 +363,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     )
     window = selection_window(timeline.force_n, opt.max_aug)
     if window is None:
-        return GraspResult([], timeline, None, "peak force < 10 N or too few frames")
+        return GraspResult([], timeline, None)  # peak force < 10 N or too few frames
     press = dataset_force_press(timeline.force_n)
     lo, hi = window[0], window[2]
     if press is not None:
@@ -407,7 +393,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
         timeline.force_n, max_depth[0], max_depth[1], spec.modulus_pa, max_aug=opt.max_aug
     )
     if selection is None:
-        return GraspResult([], timeline, None, "frame selection failed")
+        return GraspResult([], timeline, None)
     elastic, hertz = _estimates(timeline, seq[0], max_depth, seq_frames, est_size[1])
 
     # Full resolution, stored frames only.
@@ -481,12 +467,6 @@ def render_recording(
         ctx.spec.geometry, PadGrid(ctx.options.render_cell_mm), poses[finger], side=finger
     )
     diff, _ = _render_full_size(
-        ctx,
-        grasp,
-        finger,
-        approach,
-        render_sag,
-        _object_mechanics(ctx.spec),
-        texture_rng,
+        ctx, grasp, finger, approach, render_sag, _object_mechanics(ctx.spec), texture_rng
     )
     return result, diff

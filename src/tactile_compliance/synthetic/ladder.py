@@ -42,13 +42,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-__all__ = [
-    "analytical_within_decade",
-    "baseline_ladder",
-    "image_statistics",
-    "knn_predict",
-    "object_folds",
-]
+__all__ = ["analytical_within_decade", "baseline_ladder", "image_statistics"]
 
 
 def object_folds(objects: np.ndarray, folds: int, seed: int) -> np.ndarray:
@@ -112,17 +106,11 @@ def _force_width(samples: pd.DataFrame) -> np.ndarray:
 
 def _estimates(samples: pd.DataFrame) -> np.ndarray:
     e = samples[["elastic_estimate_pa", "hertz_estimate_pa"]].to_numpy(float)
-    e = np.log10(np.clip(np.where(np.isfinite(e) & (e > 0), e, np.nan), 1e2, 1e14))
-    return e
+    return np.log10(np.clip(np.where(np.isfinite(e) & (e > 0), e, np.nan), 1e2, 1e14))
 
 
 def baseline_ladder(
-    samples: pd.DataFrame,
-    frames: np.ndarray,
-    *,
-    folds: int = 5,
-    seed: int = 0,
-    k: int = 25,
+    samples: pd.DataFrame, frames: np.ndarray, *, folds: int = 5, seed: int = 0, k: int = 25
 ) -> dict[str, float]:
     """Within-one-decade accuracy of each baseline (object-level cross-validation).
 

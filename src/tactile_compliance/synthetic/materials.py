@@ -47,24 +47,18 @@ from functools import lru_cache
 
 import numpy as np
 
-from tactile_compliance.synthetic.rng import stream
+from tactile_compliance.synthetic.rng import log_uniform, stream
 
 __all__ = [
     "MATERIALS",
     "SHAPES",
-    "TEXTURE_KINDS",
     "Grade",
-    "GradeEntry",
-    "MaterialModel",
     "TextureSpec",
     "draw_object_grade",
     "elastic_share",
     "grade_catalogue",
-    "grade_key",
-    "make_grade",
     "material_model",
     "object_texture",
-    "one_off_grade",
     "pore_imprint_gain",
     "stock_grade",
 ]
@@ -156,10 +150,6 @@ def pore_imprint_gain(modulus_pa: float, poisson: float) -> float:
     return float(max(share, PORE_PRINT_SHARE) / max(share, 1e-6))
 
 
-def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    return float(10.0 ** rng.uniform(np.log10(low), np.log10(high)))
-
-
 def _round_label(value: float) -> float:
     """A label as a table would write it: 3 significant digits [Pa]."""
     return float(f"{value:.3g}")
@@ -236,9 +226,9 @@ class MaterialModel:
         if self.name == "Rubber":
             u = rng.random()
             if u < 0.07:
-                return _round_label(_log_uniform(rng, 1e7, 3e9))
+                return _round_label(log_uniform(rng, 1e7, 3e9))
             if u < 0.27:
-                return _round_label(_log_uniform(rng, 1.3e4, 2e5))
+                return _round_label(log_uniform(rng, 1.3e4, 2e5))
             low, high = 5.0, float(np.log10(self.one_off_range_pa[1]))
             value = float(np.clip(rng.normal(6.0, 0.4), low, high))
             for _ in range(8):  # truncated normal by rejection (clip as a last resort)
@@ -247,7 +237,7 @@ class MaterialModel:
                     value = float(draw)
                     break
             return _round_label(10.0**value)
-        return _round_label(_log_uniform(rng, *self.one_off_range_pa))
+        return _round_label(log_uniform(rng, *self.one_off_range_pa))
 
 
 def _entries(*rows: tuple[str, float, float]) -> tuple[GradeEntry, ...]:
@@ -258,18 +248,11 @@ def _shore_grades() -> tuple[GradeEntry, ...]:
     """Silicone and rubber stock sold by nominal hardness: Shore 00 (Larson fit) and
     Shore A (Gent fit), the package's conversions, so the labels are what a table
     would compute from the nominal hardness (weights are drawn per seed)."""
-    from tactile_compliance.physics.shore import (
-        shore00_to_modulus_pa,
-        shore_a_to_modulus_pa_gent,
-    )
+    from tactile_compliance.physics.shore import shore00_to_modulus_pa, shore_a_to_modulus_pa_gent
 
     rows = [(f"Shore 00-{s}", float(shore00_to_modulus_pa(s)), 1.0) for s in (20, 30, 50)]
     rows += [(f"Shore A{s}", float(shore_a_to_modulus_pa_gent(s)), 1.0) for s in range(10, 71, 10)]
     return tuple(GradeEntry(n, _round_label(e), w) for n, e, w in rows)
-
-
-def _tex(**weights: float) -> dict[str, float]:
-    return {k: float(v) for k, v in weights.items()}
 
 
 SOLID_ELASTOMER_MAX_STRAIN = 0.9
@@ -293,7 +276,7 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.47, 0.499),
             0.15,
             {"Irregular": 56, "Sphere": 20, "Cylinder": 13, "Rectangular": 11},
-            _tex(rubbery=60, matte=20, smooth=12, organic=8),
+            dict(rubbery=60, matte=20, smooth=12, organic=8),
             max_strain=SOLID_ELASTOMER_MAX_STRAIN,
             object_spread_dex=0.03,
             one_off_share=0.46,
@@ -306,7 +289,7 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.28, 0.34),
             0.05,
             {"Irregular": 55, "Cylinder": 25, "Rectangular": 11, "Hex": 6, "Sphere": 3},
-            _tex(machined=45, smooth=25, knurled=12, matte=18),
+            dict(machined=45, smooth=25, knurled=12, matte=18),
             hollow_probability=0.15,
             object_spread_dex=0.01,
             one_off_share=0.015,
@@ -329,7 +312,7 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.35, 0.42),
             0.10,
             {"Irregular": 62, "Cylinder": 19, "Sphere": 10, "Rectangular": 7, "Hex": 2},
-            _tex(matte=45, smooth=25, knurled=8, rubbery=10, machined=12),
+            dict(matte=45, smooth=25, knurled=8, rubbery=10, machined=12),
             hollow_probability=0.30,
             object_spread_dex=0.03,
             one_off_share=0.10,
@@ -356,7 +339,7 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.30, 0.40),
             0.20,
             {"Cylinder": 33, "Irregular": 29, "Rectangular": 29, "Sphere": 5, "Hex": 4},
-            _tex(grain=75, matte=15, organic=10),
+            dict(grain=75, matte=15, organic=10),
             across_grain=True,
             object_spread_dex=0.05,
             one_off_share=0.08,
@@ -377,7 +360,7 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.05, 0.30),
             0.20,
             {"Rectangular": 75, "Cylinder": 10, "Irregular": 8, "Sphere": 7},
-            _tex(cellular=80, rubbery=12, matte=8),
+            dict(cellular=80, rubbery=12, matte=8),
             max_strain=0.75,
             object_spread_dex=0.05,
             one_off_share=0.55,
@@ -391,7 +374,7 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.30, 0.49),
             0.20,
             {"Irregular": 65, "Sphere": 23, "Cylinder": 12},
-            _tex(organic=70, rubbery=15, smooth=15),
+            dict(organic=70, rubbery=15, smooth=15),
             max_strain=SOLID_ELASTOMER_MAX_STRAIN,
             object_spread_dex=0.05,
             one_off_share=0.80,
@@ -405,7 +388,7 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.21, 0.24),
             0.05,
             {"Cylinder": 38, "Sphere": 37, "Irregular": 25},
-            _tex(smooth=80, matte=20),
+            dict(smooth=80, matte=20),
             hollow_probability=0.30,
             shell_thickness_mm=(1.5, 4.0),
             object_spread_dex=0.01,
@@ -421,7 +404,7 @@ MATERIALS: dict[str, MaterialModel] = {
             (0.20, 0.25),
             0.05,
             {"Cylinder": 50, "Irregular": 25, "Sphere": 25},
-            _tex(smooth=60, matte=40),
+            dict(smooth=60, matte=40),
             hollow_probability=0.50,
             shell_thickness_mm=(2.0, 5.0),
             object_spread_dex=0.01,
@@ -437,7 +420,7 @@ _FALLBACK = MaterialModel(
     (0.25, 0.45),
     0.15,
     {"Irregular": 50, "Cylinder": 20, "Rectangular": 15, "Sphere": 12, "Hex": 3},
-    _tex(matte=40, rubbery=20, grain=20, smooth=20),
+    dict(matte=40, rubbery=20, grain=20, smooth=20),
     max_strain=0.5,
     object_spread_dex=0.05,
     one_off_share=1.0,
@@ -449,7 +432,7 @@ _PAPER = MaterialModel(
     (0.2, 0.4),
     0.2,
     {"Rectangular": 1.0},
-    _tex(matte=50, grain=50),
+    dict(matte=50, grain=50),
     max_strain=0.6,
     object_spread_dex=0.05,
     one_off_share=1.0,
@@ -528,8 +511,8 @@ def _grade_texture(rng: np.random.Generator, weights: dict[str, float]) -> Textu
     (a_lo, a_hi), (s_lo, s_hi) = _FAMILY_RANGES[kind]
     return TextureSpec(
         kind,
-        amplitude_mm=_log_uniform(rng, a_lo, a_hi) * 1e-3,
-        scale_mm=_log_uniform(rng, s_lo, s_hi),
+        amplitude_mm=log_uniform(rng, a_lo, a_hi) * 1e-3,
+        scale_mm=log_uniform(rng, s_lo, s_hi),
         angle_rad=0.0,  # orientation is per object (a pose nuisance)
         elongation=float(rng.uniform(4.0, 12.0)),
         open_fraction=float(rng.uniform(0.1, 0.45)),
@@ -614,12 +597,12 @@ def grade_catalogue(seed: int, material: str) -> tuple[GradeEntry, ...]:
     elif model.name == "Foam":
         weights = rng.dirichlet(np.ones(3)) * 30.0
         entries += [
-            GradeEntry(f"PU foam {i + 1}", _round_label(_log_uniform(rng, 8e3, 4.5e5)), float(w))
+            GradeEntry(f"PU foam {i + 1}", _round_label(log_uniform(rng, 8e3, 4.5e5)), float(w))
             for i, w in enumerate(weights)
         ]
     elif model.name == "Food":
         entries.append(
-            GradeEntry("soft stock food", _round_label(_log_uniform(rng, 3e4, 3.3e6)), 1.0)
+            GradeEntry("soft stock food", _round_label(log_uniform(rng, 3e4, 3.3e6)), 1.0)
         )
     return tuple(entries)
 
@@ -646,8 +629,8 @@ def object_texture(grade: Grade, rng: np.random.Generator) -> TextureSpec:
         base = replace(
             base,
             kind="smooth",
-            amplitude_mm=_log_uniform(rng, a_lo, a_hi) * 1e-3,
-            scale_mm=_log_uniform(rng, s_lo, s_hi),
+            amplitude_mm=log_uniform(rng, a_lo, a_hi) * 1e-3,
+            scale_mm=log_uniform(rng, s_lo, s_hi),
         )
     return replace(
         base,

@@ -62,9 +62,7 @@ __all__ = [
     "GelModel",
     "ObjectMechanics",
     "contact_curve",
-    "default_approaches_mm",
     "force_curve",
-    "hertz_force_n",
     "shell_stiffness_n_per_m",
 ]
 
@@ -147,16 +145,6 @@ def shell_stiffness_n_per_m(
     return float(4.0 * modulus_pa * t**2 / (r * np.sqrt(3.0 * (1.0 - poisson**2))))
 
 
-def hertz_force_n(indentation_m: float, radius_m: float, effective_modulus_pa: float) -> float:
-    """Hertz sphere-on-half-space force ``F = 4/3 E* sqrt(R) delta^1.5`` [N] (for tests)."""
-    return float(4.0 / 3.0 * effective_modulus_pa * np.sqrt(radius_m) * indentation_m**1.5)
-
-
-def default_approaches_mm(count: int = 48) -> np.ndarray:
-    """Approach grid [mm] for force-approach curves: geometric, 1 um to 20 mm."""
-    return np.geomspace(1e-3, 20.0, count)
-
-
 @dataclass
 class ContactCurve:
     """Force-approach curve of one finger and the fields needed to render it.
@@ -165,7 +153,6 @@ class ContactCurve:
         approaches_mm: approaches Delta [mm], increasing.
         forces_n: normal force at each approach [N], non-decreasing.
         contact_area_mm2: area of {s < Delta} inside the pad [mm^2].
-        semi_axis_mm: contact minor semi-axis a_c [mm].
         gel_depth_mm: gel compression field delta_g per approach, (K, rows, cols) [mm]
             (only when fields were requested).
         object_share: the object's share of the deformation per approach,
@@ -175,7 +162,6 @@ class ContactCurve:
     approaches_mm: np.ndarray
     forces_n: np.ndarray
     contact_area_mm2: np.ndarray
-    semi_axis_mm: np.ndarray
     gel_depth_mm: np.ndarray | None = None
     object_share: np.ndarray | None = None
 
@@ -190,9 +176,7 @@ class ContactCurve:
         low = f < self.forces_n[0]
         if np.any(low):
             delta = np.where(
-                low,
-                self.approaches_mm[0] * (f / max(self.forces_n[0], 1e-12)) ** (2 / 3),
-                delta,
+                low, self.approaches_mm[0] * (f / max(self.forces_n[0], 1e-12)) ** (2 / 3), delta
             )
         return delta
 
@@ -248,7 +232,7 @@ def contact_curve(
     gel: GelModel,
     obj: ObjectMechanics,
     grid: PadGrid,
-    approaches_mm: np.ndarray | None = None,
+    approaches_mm: np.ndarray,
     fields: bool = False,
 ) -> ContactCurve:
     """Force-approach curve of one finger (see the module docstring).
@@ -258,12 +242,10 @@ def contact_curve(
         gel: gel parameters.
         obj: object parameters.
         grid: the pad grid (sets the cell area).
-        approaches_mm: approaches to evaluate [mm] (default :func:`default_approaches_mm`).
+        approaches_mm: approaches to evaluate [mm].
         fields: also return the gel compression fields (K, rows, cols) [mm].
     """
-    approaches = np.asarray(
-        default_approaches_mm() if approaches_mm is None else approaches_mm, dtype=np.float64
-    )
+    approaches = np.asarray(approaches_mm, dtype=np.float64)
     sag = np.asarray(sag_mm, dtype=np.float64)
     flat = sag.ravel()
     # Only cells that can ever touch matter: work on that compressed set.
@@ -313,7 +295,7 @@ def contact_curve(
         gel_depth = np.zeros((approaches.size, flat.size), dtype=np.float32)
         gel_depth[:, candidates] = dg
         gel_depth = gel_depth.reshape(approaches.size, *sag.shape)
-    return ContactCurve(approaches, forces, area_mm2, a_c, gel_depth, object_share)
+    return ContactCurve(approaches, forces, area_mm2, gel_depth, object_share)
 
 
 def force_curve(
@@ -322,60 +304,40 @@ def force_curve(
     obj: ObjectMechanics,
     grid: PadGrid,
     max_force_n: float = 90.0,
-    count: int = 32,
 ) -> ContactCurve:
     """Force-approach curve resolved where it is used: up to ``max_force_n`` [N].
 
     A coarse pass over 1 um - 20 mm brackets the approach at ``max_force_n``; the
-    returned curve has ``count`` geometric approaches from 1/400 of it up to it (the
+    returned curve has 32 geometric approaches from 1/400 of it up to it (the
     force there is ~1e-4 of the maximum; below, :meth:`ContactCurve.approach_at`
     extrapolates Hertz-like). Restricting the range keeps the work on the cells that
     can touch.
     """
-    coarse = contact_curve(sag_mm, gel, obj, grid, default_approaches_mm(16))
+    coarse = contact_curve(sag_mm, gel, obj, grid, np.geomspace(1e-3, 20.0, 16))
     # log-log interpolation of the bracket, with 20 % headroom; widen if still short.
     top = 1.2 * float(coarse.approach_at(max_force_n))
     for _ in range(4):
-        curve = contact_curve(sag_mm, gel, obj, grid, np.geomspace(top / 400.0, top, count))
+        curve = contact_curve(sag_mm, gel, obj, grid, np.geomspace(top / 400.0, top, 32))
         if curve.forces_n[-1] >= max_force_n or top >= 40.0:
             return curve
         top *= 1.5
     return curve
 
 
-def conform(
-    gel_depth_mm: np.ndarray,
-    object_share: np.ndarray | float,
-    gel: GelModel,
-    grid: PadGrid,
-    inplace: bool = False,
-) -> np.ndarray:
-    """Gel fields as a compliant object presses them (see the module docstring).
-
-    ``(1 - c_o) d_g + c_o G_sigma * d_g`` inside the contact (zero outside, where the
-    renderer's skirt drapes the membrane), ``sigma = CONFORM_SIGMA_H x h``, rescaled to
-    the volume of ``d_g`` (the same load).
-
-    Args:
-        gel_depth_mm: one field (rows, cols) or a stack (n, rows, cols) [mm], float32.
-        object_share: the object's share ``c_o`` of each field's deformation [-].
-        gel: the gel (its thickness sets sigma).
-        grid: the pad grid of the fields.
-        inplace: overwrite ``gel_depth_mm`` instead of returning a copy.
-    """
-    fields = np.asarray(gel_depth_mm, dtype=np.float32)
-    out = fields if inplace else fields.copy()
-    stack = out[None] if out.ndim == 2 else out
-    shares = np.clip(
-        np.broadcast_to(np.asarray(object_share, dtype=np.float64), stack.shape[:1]), 0.0, 1.0
-    )
+def _conform(stack: np.ndarray, object_share: np.ndarray, gel: GelModel, grid: PadGrid) -> None:
+    """Shape gel fields (n, rows, cols) [mm], float32, in place as a compliant object presses
+    them (module docstring): ``(1 - c_o) d_g + c_o G_sigma * d_g`` inside the contact (zero
+    outside, where the renderer's skirt drapes the membrane), ``sigma = CONFORM_SIGMA_H x
+    h``, rescaled to the volume of ``d_g`` (the same load); ``object_share`` is each
+    field's ``c_o`` [-]."""
+    shares = np.clip(object_share, 0.0, 1.0)
     active = np.flatnonzero(shares >= 1e-3)
     if active.size == 0:
-        return out
+        return
     touched = stack[active].max(axis=0) > 0
     rows, cols = np.flatnonzero(touched.any(axis=1)), np.flatnonzero(touched.any(axis=0))
     if rows.size == 0:
-        return out
+        return
     # The blur reaches 4 sigma (OpenCV's kernel): work on the contact's box only.
     sigma = CONFORM_SIGMA_H * gel.thickness_mm / grid.cell_mm
     m = int(np.ceil(4.0 * sigma)) + 1
@@ -403,7 +365,6 @@ def conform(
     scale = np.where(after > 0, before / np.maximum(after, 1e-30), 1.0)
     smooth *= scale.astype(np.float32)[:, None, None]
     stack[(active, *box)] = smooth
-    return out
 
 
 def gel_compression_fields(
@@ -417,7 +378,7 @@ def gel_compression_fields(
     """Gel compression fields (n, rows, cols) [mm] at each approach; zero where the
     approach is 0 (no contact), which :func:`contact_curve` cannot evaluate.
 
-    With ``conformity`` (default) each field is shaped by :func:`conform`: compliant
+    With ``conformity`` (default) each field is shaped by :func:`_conform`: compliant
     objects press soft-edged imprints, rigid ones print their geometry."""
     approaches = np.asarray(approaches_mm, dtype=np.float64)
     fields = np.zeros((approaches.size, *grid.shape), dtype=np.float32)
@@ -426,6 +387,6 @@ def gel_compression_fields(
         curve = contact_curve(sag_mm, gel, obj, grid, approaches[touching], fields=True)
         assert curve.gel_depth_mm is not None and curve.object_share is not None
         if conformity:
-            conform(curve.gel_depth_mm, curve.object_share, gel, grid, inplace=True)
+            _conform(curve.gel_depth_mm, curve.object_share, gel, grid)
         fields[touching] = curve.gel_depth_mm
     return fields

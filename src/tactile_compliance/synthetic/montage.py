@@ -28,6 +28,14 @@ _TILE = (78, 110)  # (H, W) of one tile [px]
 _CAPTION_PX = 16
 
 
+def _write(
+    image: np.ndarray, text: str, origin: tuple[int, int], scale: float, colour: int
+) -> None:
+    """Anti-aliased text in a grey ``colour``, in place."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    cv2.putText(image, text, origin, font, scale, (colour,) * 3, 1, cv2.LINE_AA)
+
+
 def _diff_tile(diff_bgr: np.ndarray) -> np.ndarray:
     stretched = np.clip((diff_bgr - 0.5) * 3.0 + 0.5, 0.0, 1.0)
     tile = (stretched * 255).astype(np.uint8)
@@ -39,16 +47,7 @@ def _depth_tile(depth_mm: np.ndarray) -> np.ndarray:
     grey = np.clip(depth_mm / peak * 255.0, 0, 255).astype(np.uint8)
     tile = cv2.applyColorMap(grey, cv2.COLORMAP_VIRIDIS)
     tile = cv2.resize(tile, (_TILE[1], _TILE[0]), interpolation=cv2.INTER_AREA)
-    cv2.putText(
-        tile,
-        f"max {peak:.2f} mm",
-        (4, _TILE[0] - 6),
-        cv2.FONT_HERSHEY_SIMPLEX,
-        0.35,
-        (255, 255, 255),
-        1,
-        cv2.LINE_AA,
-    )
+    _write(tile, f"max {peak:.2f} mm", (4, _TILE[0] - 6), 0.35, 255)
     return tile
 
 
@@ -80,30 +79,12 @@ def render_montage(out_png: str | Path, *, seed: int = 0, n_objects: int = 6) ->
             + "/".join(f"{w * 1e3:.1f}" for w in sample.widths)
             + " mm"
         )
-        cv2.putText(
-            caption,
-            text,
-            (4, _CAPTION_PX - 4),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.38,
-            (0, 0, 0),
-            1,
-            cv2.LINE_AA,
-        )
+        _write(caption, text, (4, _CAPTION_PX - 4), 0.38, 0)
         rows.append(np.concatenate([caption, row], axis=0))
     header = np.full((_CAPTION_PX, rows[0].shape[1], 3), 255, dtype=np.uint8)
     labels = ["frame 1", "frame 2", "frame 3", "marker finger, frame 3", "depth, frame 3"]
     for i, label in enumerate(labels):
-        cv2.putText(
-            header,
-            label,
-            (i * _TILE[1] + 4, _CAPTION_PX - 4),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.38,
-            (0, 0, 0),
-            1,
-            cv2.LINE_AA,
-        )
+        _write(header, label, (i * _TILE[1] + 4, _CAPTION_PX - 4), 0.38, 0)
     image = np.concatenate([header, *rows], axis=0)
     # 5 bits per channel: barely visible here, and it keeps the PNG under 300 KB.
     image = (image & 0xF8) | 0x04

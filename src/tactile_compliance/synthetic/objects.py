@@ -39,17 +39,12 @@ from tactile_compliance.synthetic.mechanics import shell_stiffness_n_per_m
 from tactile_compliance.synthetic.rng import stream
 
 __all__ = [
-    "UNKNOWN_GROUND_TRUTH",
-    "ObjectIdentity",
     "ObjectSpec",
     "TextureSpec",
     "default_identities",
     "default_objects",
     "objects_from_table",
 ]
-
-UNKNOWN_GROUND_TRUTH = frozenset(UNKNOWN_GROUND_TRUTH_OBJECTS)
-"""Objects of the real table whose label is unreliable (``used_in_training`` false)."""
 
 _HOLLOW_NAME_HINTS = (
     "bottle",
@@ -122,7 +117,6 @@ def _shore_values(material: str, modulus_pa: float) -> tuple[float | None, ...]:
 
     if material not in {"Rubber", "Foam", "Food"}:
         return (None, None, None)
-    shore_00 = None
     try:
         shore_00 = round(float(modulus_pa_to_shore00(modulus_pa)) * 2) / 2
     except ValueError:
@@ -193,16 +187,8 @@ def _build(
 
 @dataclass(frozen=True)
 class ObjectIdentity:
-    """What the default mix decides about an object before its geometry is drawn.
-
-    Attributes:
-        name: directory name (``obj_NNNN``).
-        index: position in the mix.
-        material: material class.
-        grade: the object's material grade.
-        shape: shape class.
-        n_grasps: number of grasps.
-    """
+    """What the default mix decides about an object before its geometry is drawn (the
+    fields as in :class:`ObjectSpec`)."""
 
     name: str
     index: int
@@ -313,7 +299,7 @@ def objects_from_table(
                 n_grasps,
                 radius_mm=radius_m * 1e3 if radius_m else None,
                 shore=shore,
-                used_in_training=str(name) not in UNKNOWN_GROUND_TRUTH,
+                used_in_training=str(name) not in UNKNOWN_GROUND_TRUTH_OBJECTS,
             )
         )
     return objects, skipped

@@ -46,10 +46,9 @@ import numpy as np
 
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.synthetic.geometry import PAD_SIZE_MM, PadGrid
+from tactile_compliance.synthetic.rng import log_uniform
 
 __all__ = [
-    "PIXEL_SIZE_MM_FULL",
-    "VISIBLE_SIZE_MM",
     "SensorLook",
     "difference_images",
     "gel_height_maps",
@@ -67,11 +66,6 @@ PIXEL_SIZE_MM_FULL = 35.0 / 400.0
 
 VISIBLE_SIZE_MM = (FULL_SIZE[1] * PIXEL_SIZE_MM_FULL, FULL_SIZE[0] * PIXEL_SIZE_MM_FULL)
 """Visible crop (x, y) = (30.625, 21.875) mm, centred on the pad."""
-
-# Slope -> grey-level gain that the real inversion assumes: depth = 21.5 * poisson(t)/128
-# with t ~ (diff channel combination); one unit of slope over one 0.0875 mm pixel
-# corresponds to t = 0.0875 * 128 / 21.5 = 0.521 (difference-image units).
-INVERSION_GAIN = PIXEL_SIZE_MM_FULL * 128.0 / 21.5
 
 
 def pixel_size_mm(size: tuple[int, int]) -> float:
@@ -92,6 +86,14 @@ def render_size(size: tuple[int, int]) -> tuple[int, int]:
     while round(PAD_SIZE_MM[1] / pixel_size_mm((height, width))) < height:
         width += 1
     return height, width
+
+
+def to_stored_size(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Frames (n, H', W', ...) rendered at :func:`render_size` squeezed to ``size`` (H, W)."""
+    if frames.shape[1:3] == tuple(size):
+        return frames
+    target = (size[1], size[0])  # OpenCV's (width, height)
+    return np.stack([cv2.resize(frame, target, interpolation=cv2.INTER_AREA) for frame in frames])
 
 
 @dataclass
@@ -164,11 +166,7 @@ def sample_sensor_look(rng: np.random.Generator, markers: bool) -> SensorLook:
         read_noise=float(rng.uniform(2.0, 3.0)),
         drift=(float(rng.uniform(0.001, 0.004)), float(rng.uniform(0.3, 1.0))),
         jpeg_quality=int(rng.integers(85, 96)) if rng.random() < 0.7 else 0,
-        darkening=(
-            dark_all,
-            dark_all,
-            dark_all + float(rng.uniform(0.0, 3.0)),
-        ),
+        darkening=(dark_all, dark_all, dark_all + float(rng.uniform(0.0, 3.0))),
         seed_words=tuple(int(x) for x in rng.integers(0, 2**31, size=4)),
     )
 
@@ -211,8 +209,6 @@ def _base_images(look: SensorLook, size: tuple[int, int]) -> tuple[np.ndarray, .
         r = int(np.ceil(3 * sig))
         ci, cj = int(cy * h), int(cx * w)
         i0, i1, j0, j1 = max(ci - r, 0), min(ci + r + 1, h), max(cj - r, 0), min(cj + r + 1, w)
-        if i0 >= i1 or j0 >= j1:
-            continue
         ii = np.arange(i0, i1, dtype=np.float32)[:, None] - cy * h
         jj = np.arange(j0, j1, dtype=np.float32)[None, :] - cx * w
         specks[i0:i1, j0:j1] += a * np.exp(-(ii**2 + jj**2) / (2 * sig * sig))
@@ -259,9 +255,8 @@ def sample_edge_glow(
     """Draw an edge glow (``SensorLook.edge_glow``): the gain log-uniformly from
     ``gain_range`` [grey levels per mm], the band's place and fade around the real
     Wedge's (row centre 0.6 H, sigma 0.18 H, fade 0.07 W)."""
-    lo, hi = gain_range
     return (
-        float(10 ** rng.uniform(np.log10(lo), np.log10(hi))),
+        log_uniform(rng, *gain_range),
         float(rng.uniform(0.45, 0.7)),
         float(rng.uniform(0.12, 0.25)),
         float(rng.uniform(0.05, 0.1)),
@@ -313,18 +308,8 @@ def _noise(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
     return window
 
 
-def _pad_pixels(size: tuple[int, int]) -> tuple[int, int, int, int]:
-    """Pad size in output pixels and the crop offsets: (pad_h, pad_w, off_y, off_x)."""
-    px = pixel_size_mm(size)
-    pad_w, pad_h = round(PAD_SIZE_MM[0] / px), round(PAD_SIZE_MM[1] / px)
-    return pad_h, pad_w, (pad_h - size[0]) // 2, (pad_w - size[1]) // 2
-
-
 def gel_height_maps(
-    fields_mm: np.ndarray,
-    grid: PadGrid,
-    size: tuple[int, int],
-    gel_thickness_mm: float,
+    fields_mm: np.ndarray, grid: PadGrid, size: tuple[int, int], gel_thickness_mm: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Imprint depth on the visible crop (with skirt) and the contact weight.
 
@@ -347,7 +332,9 @@ def gel_height_maps(
     out_depth = np.zeros((n, h, w), dtype=np.float32)
     out_contact = np.zeros((n, h, w), dtype=np.float32)
     active = np.flatnonzero(fields_mm.reshape(n, -1).max(axis=1) > 0)
-    pad_h, pad_w, off_y, off_x = _pad_pixels(size)
+    px = pixel_size_mm(size)
+    pad_w, pad_h = round(PAD_SIZE_MM[0] / px), round(PAD_SIZE_MM[1] / px)  # the whole pad
+    off_y, off_x = (pad_h - h) // 2, (pad_w - w) // 2  # the visible crop, centred
     crop = (slice(off_y, off_y + h), slice(off_x, off_x + w))
     for start in range(0, active.size, 128):
         chunk = active[start : start + 128]
@@ -450,11 +437,7 @@ def _shading(depth: np.ndarray, look: SensorLook, gain_maps: np.ndarray, px: flo
     return shades
 
 
-def render_frames(
-    depth_mm: np.ndarray,
-    look: SensorLook,
-    rng: np.random.Generator,
-) -> np.ndarray:
+def render_frames(depth_mm: np.ndarray, look: SensorLook, rng: np.random.Generator) -> np.ndarray:
     """Camera frames (n, H, W, 3) uint8 BGR for imprint depth maps (n, H, W) [mm].
 
     Computed on planar (channel, frame, H, W) arrays - interleaved channels would

@@ -52,6 +52,7 @@ from tactile_compliance.synthetic.render import (
     render_frames,
     render_size,
     sample_sensor_look,
+    to_stored_size,
 )
 from tactile_compliance.synthetic.rng import stream
 
@@ -185,12 +186,7 @@ def _press_video(
         jpeg_quality=0,
         _cache=sensor.look._cache,
     )
-    frames = render_frames(height, look, stream(seed, *key, "noise"))
-    if frames.shape[1:3] == tuple(size):
-        return frames
-    # A frame taller than the sensor's aspect: rendered wider, squeezed to the stored size.
-    target = (size[1], size[0])  # OpenCV's (width, height)
-    return np.stack([cv2.resize(f, target, interpolation=cv2.INTER_AREA) for f in frames])
+    return to_stored_size(render_frames(height, look, stream(seed, *key, "noise")), size)
 
 
 def generate_shore_videos(

@@ -47,12 +47,6 @@ def _blurred_noise(
     return field / (std if std > 0 else 1.0)
 
 
-def _rotate(field: np.ndarray, angle_rad: float) -> np.ndarray:
-    h, w = field.shape
-    mat = cv2.getRotationMatrix2D((w / 2, h / 2), float(np.rad2deg(angle_rad)), 1.0)
-    return cv2.warpAffine(field, mat, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-
-
 def texture_canvas(
     spec: TextureSpec, size: tuple[int, int], pixel_mm: float, rng: np.random.Generator
 ) -> np.ndarray:
@@ -81,7 +75,8 @@ def texture_canvas(
     elif kind == "grain":
         # Fibres: streaks elongated along the grain, plus the growth-ring ridges.
         streaks = _blurred_noise(rng, (h, w), (spec.elongation * scale_px, 0.6 * scale_px))
-        field = _rotate(streaks, spec.angle_rad)
+        mat = cv2.getRotationMatrix2D((w / 2, h / 2), float(np.rad2deg(spec.angle_rad)), 1.0)
+        field = cv2.warpAffine(streaks, mat, (w, h), borderMode=cv2.BORDER_REFLECT)
         field += 0.5 * np.sin(2 * np.pi * across / max(4.0 * scale_px, 3.0))
     elif kind == "cellular":
         pores = _blurred_noise(rng, (h, w), (scale_px / 2, scale_px / 2))

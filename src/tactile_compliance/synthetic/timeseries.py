@@ -43,6 +43,7 @@ from tactile_compliance.data.frame_selection import (
 )
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 from tactile_compliance.synthetic.mechanics import ContactCurve
+from tactile_compliance.synthetic.rng import log_uniform
 
 __all__ = [
     "DATASET_RIG",
@@ -112,8 +113,7 @@ class GripperRig:
             )
 
     def draw_finger_stiffness_n_per_m(self, rng: np.random.Generator) -> float:
-        lo, hi = self.finger_stiffness_n_per_m
-        return float(10 ** rng.uniform(np.log10(lo), np.log10(hi)))
+        return log_uniform(rng, *self.finger_stiffness_n_per_m)
 
 
 DATASET_RIG = GripperRig()
