@@ -118,7 +118,10 @@ def headline_runs(frame: pd.DataFrame) -> tuple[pd.DataFrame, str] | None:
         counts = part["preset"].value_counts()
         preset = sorted(counts[counts == counts.max()].index)[0]
         part = part[part["preset"] == preset]
-        return (part, f"preset `{preset}`, {sampling} sampling, {protocol_label(protocol)}")
+        return (
+            part,
+            f"preset `{preset}`, {sampling} sampling, {protocol_label(protocol)}",
+        )
     return None
 
 
@@ -162,7 +165,8 @@ def _best_panels(
                 ],
                 sel_rank=[_setting_rank(r) for r in cand.itertuples(index=False)],
                 sel_nmse=pd.to_numeric(
-                    cand["test_nmse"] if "test_nmse" in cand.columns else np.nan, errors="coerce"
+                    cand["test_nmse"] if "test_nmse" in cand.columns else np.nan,
+                    errors="coerce",
                 ),
             ).dropna(subset=["sel_nmse"])
             cand = cand.sort_values(

@@ -145,7 +145,7 @@ class _Builder:
         other = len(frame) - len(done) - n_failed
         lines = [
             f"- Results store: `{self.results_dir}` — {len(frame)} rows: {len(done)} complete, "
-            f"{n_failed} failed" + (f", {other} other (unfinished)" if other else "")
+            f"{n_failed} failed" + (f", {other} other (unfinished)" if other else ""),
         ]
         presets = sorted(set(frame["preset"]))
         if presets:

@@ -106,7 +106,11 @@ METRIC_LABELS: dict[str, str] = {
     "mae_decades": "MAE (decades)",
     "within_half_decade": "within ½ decade",
 }
-_LATEX_METRIC = {"log10_accuracy": r"$\log_{10}$ accuracy", "nmse": "N-MSE", "r2": "$R^2$"}
+_LATEX_METRIC = {
+    "log10_accuracy": r"$\log_{10}$ accuracy",
+    "nmse": "N-MSE",
+    "r2": "$R^2$",
+}
 #: Metrics where larger is better (for bolding); the rest are errors.
 HIGHER_IS_BETTER = frozenset({"log10_accuracy", "r2", "within_half_decade"})
 

@@ -254,7 +254,9 @@ def object_modulus_from_effective_pa(
     object_compliance_per_pa = 1.0 / e_star - (1.0 - nu_gel**2) / e_gel
     with np.errstate(divide="ignore", invalid="ignore"):
         result = np.where(
-            object_compliance_per_pa > 0.0, (1.0 - nu_obj**2) / object_compliance_per_pa, np.inf
+            object_compliance_per_pa > 0.0,
+            (1.0 - nu_obj**2) / object_compliance_per_pa,
+            np.inf,
         )
     # np.where sends NaN (failed estimates) to the inf branch; keep them NaN.
     result = np.where(np.isnan(object_compliance_per_pa), np.nan, result)

@@ -32,7 +32,12 @@ from tactile_compliance.physics.dataset_estimates import (
     dataset_estimates_pa,
 )
 
-__all__ = ["DEFAULT_ESTIMATOR", "WEDGE_UNITS", "AnalyticalEstimator", "SensorUnits"]
+__all__ = [
+    "DEFAULT_ESTIMATOR",
+    "WEDGE_UNITS",
+    "AnalyticalEstimator",
+    "SensorUnits",
+]
 
 ANALYTICAL_ESTIMATORS = ("dataset", "contact")
 """The estimator names, in the order docs list them."""

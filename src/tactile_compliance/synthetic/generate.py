@@ -41,8 +41,16 @@ from tactile_compliance.data.raw_layout import (
 )
 from tactile_compliance.outputs import PARTIAL_PREFIX, claim_output_dir, commit_path
 from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR
-from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
-from tactile_compliance.synthetic.objects import ObjectSpec, default_objects, objects_from_table
+from tactile_compliance.synthetic.grasp import (
+    SimulationOptions,
+    make_context,
+    simulate_grasp,
+)
+from tactile_compliance.synthetic.objects import (
+    ObjectSpec,
+    default_objects,
+    objects_from_table,
+)
 from tactile_compliance.synthetic.timeseries import RIGS
 
 __all__ = ["DEFAULT_N_OBJECTS", "GenerationError", "GenerationReport", "generate_burgess_tree"]

@@ -56,7 +56,10 @@ class PadGrid:
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, cols) of the grid."""
-        return (round(PAD_SIZE_MM[1] / self.cell_mm), round(PAD_SIZE_MM[0] / self.cell_mm))
+        return (
+            round(PAD_SIZE_MM[1] / self.cell_mm),
+            round(PAD_SIZE_MM[0] / self.cell_mm),
+        )
 
     def coords(self) -> tuple[np.ndarray, np.ndarray]:
         """Cell-centre coordinates (x, y) [mm], origin at the pad centre, float32."""
@@ -182,7 +185,10 @@ def _sized(rng: np.random.Generator, low: float, high: float, bias: float) -> fl
 
 
 def sample_shape(
-    kind: str, rng: np.random.Generator, radius_mm: float | None = None, size_bias: float = 0.0
+    kind: str,
+    rng: np.random.Generator,
+    radius_mm: float | None = None,
+    size_bias: float = 0.0,
 ) -> ShapeSpec:
     """Draw the geometry of an object of shape class ``kind``.
 
@@ -212,7 +218,11 @@ def sample_shape(
         face = (_sized(rng, 5.0, 60.0, b), _sized(rng, 5.0, 60.0, b))
         return ShapeSpec(
             kind,
-            {"face_u_mm": face[0], "face_v_mm": face[1], "edge_radius_mm": rng.uniform(0.3, 3.0)},
+            {
+                "face_u_mm": face[0],
+                "face_v_mm": face[1],
+                "edge_radius_mm": rng.uniform(0.3, 3.0),
+            },
             thickness_mm=_sized(rng, 5.0, 60.0, b),
         )
     if kind == "Hex":

@@ -467,6 +467,12 @@ def render_recording(
         ctx.spec.geometry, PadGrid(ctx.options.render_cell_mm), poses[finger], side=finger
     )
     diff, _ = _render_full_size(
-        ctx, grasp, finger, approach, render_sag, _object_mechanics(ctx.spec), texture_rng
+        ctx,
+        grasp,
+        finger,
+        approach,
+        render_sag,
+        _object_mechanics(ctx.spec),
+        texture_rng,
     )
     return result, diff

@@ -110,7 +110,12 @@ def _estimates(samples: pd.DataFrame) -> np.ndarray:
 
 
 def baseline_ladder(
-    samples: pd.DataFrame, frames: np.ndarray, *, folds: int = 5, seed: int = 0, k: int = 25
+    samples: pd.DataFrame,
+    frames: np.ndarray,
+    *,
+    folds: int = 5,
+    seed: int = 0,
+    k: int = 25,
 ) -> dict[str, float]:
     """Within-one-decade accuracy of each baseline (object-level cross-validation).
 

@@ -248,7 +248,10 @@ def _shore_grades() -> tuple[GradeEntry, ...]:
     """Silicone and rubber stock sold by nominal hardness: Shore 00 (Larson fit) and
     Shore A (Gent fit), the package's conversions, so the labels are what a table
     would compute from the nominal hardness (weights are drawn per seed)."""
-    from tactile_compliance.physics.shore import shore00_to_modulus_pa, shore_a_to_modulus_pa_gent
+    from tactile_compliance.physics.shore import (
+        shore00_to_modulus_pa,
+        shore_a_to_modulus_pa_gent,
+    )
 
     rows = [(f"Shore 00-{s}", float(shore00_to_modulus_pa(s)), 1.0) for s in (20, 30, 50)]
     rows += [(f"Shore A{s}", float(shore_a_to_modulus_pa_gent(s)), 1.0) for s in range(10, 71, 10)]

@@ -176,7 +176,9 @@ class ContactCurve:
         low = f < self.forces_n[0]
         if np.any(low):
             delta = np.where(
-                low, self.approaches_mm[0] * (f / max(self.forces_n[0], 1e-12)) ** (2 / 3), delta
+                low,
+                self.approaches_mm[0] * (f / max(self.forces_n[0], 1e-12)) ** (2 / 3),
+                delta,
             )
         return delta
 

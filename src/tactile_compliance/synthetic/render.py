@@ -166,7 +166,11 @@ def sample_sensor_look(rng: np.random.Generator, markers: bool) -> SensorLook:
         read_noise=float(rng.uniform(2.0, 3.0)),
         drift=(float(rng.uniform(0.001, 0.004)), float(rng.uniform(0.3, 1.0))),
         jpeg_quality=int(rng.integers(85, 96)) if rng.random() < 0.7 else 0,
-        darkening=(dark_all, dark_all, dark_all + float(rng.uniform(0.0, 3.0))),
+        darkening=(
+            dark_all,
+            dark_all,
+            dark_all + float(rng.uniform(0.0, 3.0)),
+        ),
         seed_words=tuple(int(x) for x in rng.integers(0, 2**31, size=4)),
     )
 
@@ -309,7 +313,10 @@ def _noise(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
 
 
 def gel_height_maps(
-    fields_mm: np.ndarray, grid: PadGrid, size: tuple[int, int], gel_thickness_mm: float
+    fields_mm: np.ndarray,
+    grid: PadGrid,
+    size: tuple[int, int],
+    gel_thickness_mm: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Imprint depth on the visible crop (with skirt) and the contact weight.
 
@@ -437,7 +444,11 @@ def _shading(depth: np.ndarray, look: SensorLook, gain_maps: np.ndarray, px: flo
     return shades
 
 
-def render_frames(depth_mm: np.ndarray, look: SensorLook, rng: np.random.Generator) -> np.ndarray:
+def render_frames(
+    depth_mm: np.ndarray,
+    look: SensorLook,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """Camera frames (n, H, W, 3) uint8 BGR for imprint depth maps (n, H, W) [mm].
 
     Computed on planar (channel, frame, H, W) arrays - interleaved channels would
