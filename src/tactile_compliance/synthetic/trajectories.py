@@ -79,7 +79,9 @@ def synthetic_trajectories(
     for name, grasp in grasps:
         if name not in specs:
             raise ValueError(f"object {name!r} is not in the default mix of {n_objects} objects")
-        ctx = contexts.setdefault(name, make_context(specs[name], seed, opt))
+        if name not in contexts:  # its texture canvases are drawn once per object
+            contexts[name] = make_context(specs[name], seed, opt)
+        ctx = contexts[name]
         result, diff_bgr = render_recording(ctx, int(grasp), finger=0, fps=fps)
         if not result.samples:
             continue  # the generator rejected this grasp too
