@@ -21,17 +21,16 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from tactile_compliance.config import (
     ConfigError,
     ExperimentConfig,
     config_from_dict,
     config_to_dict,
     save_config,
+    write_yaml,
 )
 from tactile_compliance.models import list_models
-from tactile_compliance.outputs import atomic_file, claim_output_dir
+from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.training.experiment_file import load_experiment
 from tactile_compliance.training.hpo.objectives import (
     DEFAULT_OBJECTIVE,
@@ -129,14 +128,6 @@ class TuneResult:
             "trials_csv": str(self.trials_path),
             "also": [str(p) for p in self.extra_paths],
         }
-
-
-def _write_yaml(path: Path, header: str, data: Mapping[str, Any]) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = header + yaml.safe_dump(dict(data), sort_keys=False, default_flow_style=None)
-    with atomic_file(path) as handle:
-        handle.write(text)
-    return path
 
 
 @dataclass
@@ -373,7 +364,7 @@ def tune(
         f"{budget} epochs.\n# Dotted overrides; use with `include:` in an experiment rule, "
         "or --set each line.\n"
     )
-    tuned_path = _write_yaml(search.out / "tuned.yaml", header, best_values)
+    tuned_path = write_yaml(search.out / "tuned.yaml", header, best_values)
     # The caller prints result.format() (the CLI does).
     return search.result(facade, best_values, (cost, budget), [config_path, tuned_path])
 
@@ -471,7 +462,7 @@ def tune_balance(
         f"{_OBJECTIVE_WORDS[objective]} validation N-MSE {cost:.5f} of {', '.join(models)} "
         f"after {epochs} epochs, {trials} trials.\n"
     )
-    tuned_path = _write_yaml(search.out / "tuned.yaml", header, best)
+    tuned_path = write_yaml(search.out / "tuned.yaml", header, best)
     extra_paths = []
     for base in bases:
         cfg = config_from_dict(
@@ -493,7 +484,7 @@ def tune_balance(
             "set": best,
         }
         # Named after the experiment: its runs go to runs/NAME-tuned(-quick).
-        config_path = _write_yaml(search.out / f"{spec.name}-tuned.yaml", header, experiment)
+        config_path = write_yaml(search.out / f"{spec.name}-tuned.yaml", header, experiment)
     others = [p for p in extra_paths if p != config_path]
     return search.result(
         facade,
