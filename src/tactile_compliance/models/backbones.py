@@ -22,7 +22,7 @@ Weights (``create_backbone(name, weights=...)``):
   a file named like torchvision's ``<name>-<hash>.pth`` must have a sha256 that starts
   with ``<hash>``. A file may wrap the state dict as ``{"state_dict": ..., ...}``; the
   files ``tactile-compliance pretrain`` writes do, with their provenance under
-  :data:`PRETRAIN_KEY` (read by :func:`weights_file_record`).
+  :data:`PRETRAIN_KEY` (read by ``runs.checkpoint.backbone_weights_file_record``).
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ import urllib.request
 from collections.abc import Callable, Iterator, Mapping
 from contextvars import ContextVar
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
@@ -49,16 +50,13 @@ __all__ = [
     "PRETRAIN_KEY",
     "VGG16",
     "BackboneWeightsError",
-    "BasicBlock",
-    "Bottleneck",
     "ResNet",
     "create_backbone",
     "file_sha256",
     "list_backbones",
-    "load_backbone_weights",
+    "load_mapped",
     "load_weights_file",
     "no_downloads",
-    "weights_file_record",
 ]
 
 #: Key of the provenance record (store, split, epochs, depth loss) in a weights file
@@ -472,23 +470,12 @@ def load_weights_file(backbone: nn.Module, name: str, path: str | os.PathLike[st
     load_backbone_weights(backbone, name, _load_local_state_dict(file), str(file))
 
 
-def weights_file_record(path: str | os.PathLike[str]) -> dict[str, object]:
-    """What a checkpoint records about a local backbone weights file.
-
-    Returns ``{"path", "sha256", "provenance"}``: the absolute path, the sha256 of the
-    file's bytes, and the provenance a ``pretrain`` weights file carries under
-    :data:`PRETRAIN_KEY` (None for other files, e.g. a torchvision ``.pth``).
-    """
-    file = Path(path).expanduser().resolve()
-    provenance = None
+def load_mapped(path: str | os.PathLike[str]) -> Any:
+    """``torch.load`` (CPU, weights only) memory-mapped: tensors are read only when used."""
     try:
-        # mmap: the tensors are not read, only the small provenance record.
-        loaded = torch.load(file, map_location="cpu", weights_only=True, mmap=True)
+        return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception:  # an old-format (non-zip) file cannot be mapped: read it whole
-        loaded = torch.load(file, map_location="cpu", weights_only=True)
-    if isinstance(loaded, Mapping) and isinstance(loaded.get(PRETRAIN_KEY), Mapping):
-        provenance = dict(loaded[PRETRAIN_KEY])
-    return {"path": str(file), "sha256": file_sha256(file), "provenance": provenance}
+        return torch.load(path, map_location="cpu", weights_only=True)
 
 
 def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.Module:

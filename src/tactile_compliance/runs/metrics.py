@@ -167,14 +167,12 @@ def grouped_metrics(
     df: pd.DataFrame,
     by: str | Sequence[str] = ("material", "shape", "soft_hard"),
     c: NormalisationConstants | None = None,
-    true_col: str = "modulus_pa",
-    pred_col: str = "pred_pa",
     threshold_pa: float = DEFAULT_GEL_MODULUS_PA,
 ) -> pd.DataFrame:
     """Metrics overall and per group, one row per (grouping, group).
 
     Args:
-        df: one row per prediction with ``true_col`` and ``pred_col`` (Pa) and the grouping
+        df: one row per prediction with ``modulus_pa`` and ``pred_pa`` and the grouping
             columns; ``soft_hard`` is derived from the true modulus when absent.
         by: grouping column(s), e.g. ``"material"``, ``"shape"``, ``"soft_hard"``.
         c: normalisation constants for N-MSE / R^2.
@@ -185,19 +183,19 @@ def grouped_metrics(
         ``("all", "all")``. Within a grouping, groups are sorted by name.
     """
     groupings = [by] if isinstance(by, str) else list(by)
-    missing = [col for col in (true_col, pred_col) if col not in df.columns]
+    missing = [col for col in ("modulus_pa", "pred_pa") if col not in df.columns]
     if missing:
         raise ValueError(f"grouped_metrics needs column(s) {missing}; has {list(df.columns)}")
     data = df
     if "soft_hard" in groupings and "soft_hard" not in df.columns:
-        data = df.assign(soft_hard=soft_hard_labels(df[true_col].to_numpy(), threshold_pa))
-    overall = compute_metrics(data[true_col], data[pred_col], c)
+        data = df.assign(soft_hard=soft_hard_labels(df["modulus_pa"].to_numpy(), threshold_pa))
+    overall = compute_metrics(data["modulus_pa"], data["pred_pa"], c)
     rows = [{"grouping": "all", "group": "all", **overall}]
     for grouping in groupings:
         if grouping not in data.columns:
             raise ValueError(f"cannot group by {grouping!r}: no such column")
         for group, part in data.groupby(grouping, sort=True):
-            metrics = compute_metrics(part[true_col], part[pred_col], c)
+            metrics = compute_metrics(part["modulus_pa"], part["pred_pa"], c)
             rows.append({"grouping": grouping, "group": str(group), **metrics})
     return pd.DataFrame(rows)
 

@@ -85,10 +85,8 @@ __all__ = [
     "ExperimentSpec",
     "expand_experiment",
     "experiment_preset_descriptions",
-    "is_experiment_file",
     "list_experiment_presets",
     "load_experiment",
-    "match_cell",
 ]
 
 EXPERIMENTS_DIR = "experiments"
@@ -395,11 +393,8 @@ def load_experiment(ref: str | Path, *, quick: bool = False) -> ExperimentSpec:
     config = raw.get("config", "default")
     if not isinstance(config, str):
         raise ConfigError(f"{origin}: 'config' must be a preset name or a path, got {config!r}")
-    seeds_raw = raw.get("seeds")
-    if seeds_raw is None:
-        seeds = [int(load_config(config).seed)]
-    else:
-        seeds = _parse_seeds(seeds_raw, origin)
+    seeds = raw.get("seeds")
+    seeds = [int(load_config(config).seed)] if seeds is None else _parse_seeds(seeds, origin)
     output_dir = raw.get("output_dir")
     use_paper = raw.get("paper_settings", False)
     if not isinstance(use_paper, bool):
@@ -490,12 +485,10 @@ def expand_experiment(
     (a remote Dask scheduler) write to the same place; cells that turn out identical
     (same config hash) are kept once.
     """
-    if isinstance(seeds, int):
-        seed_list = _parse_seeds(seeds, "--seeds")
-    elif seeds is not None:
-        seed_list = _parse_seeds(list(seeds), "--seeds")
-    else:
+    if seeds is None:
         seed_list = list(spec.seeds)
+    else:
+        seed_list = _parse_seeds(seeds if isinstance(seeds, int) else list(seeds), "--seeds")
     out = Path(output_dir) if output_dir is not None else spec.default_output_dir
     base = config_to_dict(load_config(spec.config))
     tail = list(overrides)

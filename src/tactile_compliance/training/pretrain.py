@@ -65,7 +65,12 @@ from tactile_compliance.data.splits import Split, make_split, make_split_from_co
 from tactile_compliance.data.store import SAMPLES_FILE, GraspStore
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import backbone_models, get_model_class
-from tactile_compliance.models.backbones import PRETRAIN_KEY, create_backbone, file_sha256
+from tactile_compliance.models.backbones import (
+    PRETRAIN_KEY,
+    create_backbone,
+    file_sha256,
+    load_mapped,
+)
 from tactile_compliance.models.top10nn import TOP10_BACKBONE, Top10Encoder
 from tactile_compliance.outputs import atomic_file, check_output_file
 from tactile_compliance.progress import progress_bar
@@ -243,31 +248,22 @@ class DepthPretrainNet(nn.Module):
 
 
 # ============================================================================ files
-def _load(path: Path) -> Any:
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-    except RuntimeError:  # not a zip archive: read it whole
-        return torch.load(path, map_location="cpu", weights_only=True)
-
-
 def is_pretrained_weights_file(path: Path) -> bool:
     """Whether ``path`` is a weights file written by :func:`pretrain` (safe to replace)."""
-    loaded = _load(Path(path))
+    loaded = load_mapped(path)
     record = loaded.get(PRETRAIN_KEY) if isinstance(loaded, Mapping) else None
     return isinstance(record, Mapping) and record.get("format") == PRETRAIN_FORMAT
 
 
 def _is_state_file(path: Path) -> bool:
-    loaded = _load(Path(path))
+    loaded = load_mapped(path)
     return isinstance(loaded, Mapping) and loaded.get("kind") == STATE_KIND
 
 
 def _set_aside_corrupt_state(path: Path) -> None:
-    """Move a damaged state file of an interrupted run (a truncated torch archive, e.g.
-    after a full disk or a crash of the file system) to ``NAME.corrupt``, never deleted,
-    with a warning, so the re-run starts afresh instead of being blocked; as ``train``
-    does with its checkpoints. A file that is no torch archive is left for
-    ``check_output_file`` to refuse (it may be the user's)."""
+    """Move a truncated torch archive at ``path`` (full disk, crash) to ``NAME.corrupt``
+    with a warning, as ``train`` does with its checkpoints, so that the re-run starts
+    afresh; any other file is left for ``check_output_file`` (it may be the user's)."""
     if not path.is_file():
         return
     try:
@@ -456,7 +452,9 @@ def pretrain(
     _set_aside_corrupt_state(state_path)
     check_output_file(state_path, "pretrain state", _is_state_file)
     if out.exists() and not overwrite:
-        return PretrainResult(out=out, provenance=dict(_load(out)[PRETRAIN_KEY]), existing=True)
+        return PretrainResult(
+            out=out, provenance=dict(load_mapped(out)[PRETRAIN_KEY]), existing=True
+        )
     if cfg.data.store is None:
         raise ValueError("no store: pass STORE (data.store)")
     store = GraspStore.open(cfg.data.store)

@@ -1,16 +1,6 @@
 """The tuning drivers: :func:`tune` (a model's hyperparameters) and :func:`tune_balance`
 (``sampling.t_balance``), and the files they write (``best.yaml``, ``tuned.yaml``, ...).
-
-The paper's settings, and how far the defaults are from them:
-
-* ``tune``: the defaults are the paper's (132 trials, Hyperband over 5-50 epochs, eta 3,
-  cost = the last epoch's validation N-MSE).
-* ``tune_balance``: the paper ran 132 trials of 50 epochs per model; the default here is
-  30 trials of 10 epochs (about 1/22 of the compute), and ``paper_budget=True``
-  (``--paper-budget``) is the paper's budget.
-* Both score a trial on its last epoch, as the published code does; ``objective="best"``
-  (``--objective best``) scores it on its best epoch instead (see ``objectives``).
-"""
+How their defaults relate to the paper's settings: see each function's docstring."""
 
 from __future__ import annotations
 
@@ -240,15 +230,9 @@ class _Search:
         paths: Sequence[Path],
         decode: bool = True,
     ) -> TuneResult:
-        """Write ``OUT/trials.csv`` and sum the search up.
-
-        Args:
-            facade: the SMAC facade after the search.
-            best: the tuned values (dotted keys).
-            cost: the best cost and the budget it was reached at (None: no budgets).
-            paths: the config to use, the tuned values, then any other written files.
-            decode: write the trials' values as config values.
-        """
+        """Write ``OUT/trials.csv`` and sum the search up: ``best`` the tuned values,
+        ``cost`` the best cost and its budget, ``paths`` the config to use, the tuned
+        values, then any other written files; ``decode``: trials' values as config values."""
         table = trials_table(facade, decode=decode)
         trials_path = self.out / "trials.csv"
         table.to_csv(trials_path, index=False)
