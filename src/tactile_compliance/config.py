@@ -406,11 +406,9 @@ _Loader.add_implicit_resolver(
 
 
 def parse_yaml(text: str, origin: str) -> Any:
-    """Parse the YAML of a config or experiment file (``origin`` names it in errors).
-
-    The one YAML reader of configuration: a duplicate key is an error (it would silently
-    drop a setting) and ``1e-4`` is a float.
-    """
+    """Parse the YAML of a config or experiment file (``origin`` names it in errors); the
+    one YAML reader of configuration (:class:`_Loader`: a duplicate key would silently drop
+    a setting)."""
     try:
         # _Loader derives from SafeLoader: no arbitrary Python objects are constructed.
         return yaml.load(text, Loader=_Loader)

@@ -378,7 +378,15 @@ def _load_imagenet_state_dict(name: str) -> dict[str, torch.Tensor]:
         raise BackboneWeightsError(_offline_message(name, url, f"download failed: {exc}")) from exc
 
 
-def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
+def load_weights_file(backbone: nn.Module, name: str, path: str | os.PathLike[str]) -> None:
+    """Load a local weights file (a state dict, or ``{"state_dict": ...}``) into
+    ``backbone`` (registered as ``name`` for the keys to ignore), checking that it fits.
+
+    Raises:
+        FileNotFoundError: no such file.
+        BackboneWeightsError: unreadable, not a state dict, or another network's.
+    """
+    path = Path(path).expanduser()
     if not path.is_file():
         raise FileNotFoundError(
             f"backbone weights file {path} does not exist; pass 'none', 'imagenet' or the "
@@ -416,7 +424,7 @@ def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
         raise BackboneWeightsError(
             f"{path} does not contain a state dict (a mapping of parameter names to tensors)"
         )
-    return dict(loaded)
+    load_backbone_weights(backbone, name, dict(loaded), str(path))
 
 
 def load_backbone_weights(
@@ -458,18 +466,6 @@ def load_backbone_weights(
     backbone.load_state_dict(filtered, strict=True)
 
 
-def load_weights_file(backbone: nn.Module, name: str, path: str | os.PathLike[str]) -> None:
-    """Load a local weights file (a state dict, or ``{"state_dict": ...}``) into
-    ``backbone`` (registered as ``name`` for the keys to ignore), checking that it fits.
-
-    Raises:
-        FileNotFoundError: no such file.
-        BackboneWeightsError: unreadable, not a state dict, or another network's.
-    """
-    file = Path(path).expanduser()
-    load_backbone_weights(backbone, name, _load_local_state_dict(file), str(file))
-
-
 def load_mapped(path: str | os.PathLike[str]) -> Any:
     """``torch.load`` (CPU, weights only) memory-mapped: tensors are read only when used."""
     try:
@@ -502,14 +498,9 @@ def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.M
         raise ValueError(f"unknown backbone {name!r}; available: {', '.join(list_backbones())}")
     backbone = _BACKBONE_FACTORIES[key]()
     weights_str = os.fspath(weights)
-    if weights_str.lower() == "none":
-        return backbone
     if weights_str.lower() == "imagenet":
         state_dict = _load_imagenet_state_dict(key)
-        source = BACKBONE_WEIGHTS_URLS[key]
-    else:
-        path = Path(weights_str).expanduser()
-        state_dict = _load_local_state_dict(path)
-        source = str(path)
-    load_backbone_weights(backbone, key, state_dict, source)
+        load_backbone_weights(backbone, key, state_dict, BACKBONE_WEIGHTS_URLS[key])
+    elif weights_str.lower() != "none":
+        load_weights_file(backbone, key, weights_str)
     return backbone

@@ -16,15 +16,8 @@ With ``E`` the true and ``E_hat`` the predicted Young's modulus (Pa),
 Comparisons at exactly 1 (or 0.5) decade count as inside; a 1e-9 decade tolerance absorbs
 floating-point error in log10.
 
-Reference predictors, computed on the same split so a model's numbers have a floor to beat:
-``median`` (the training set's median modulus for every test sample), ``analytical``
-(the sample's own analytical estimate: the elastic (Hooke) estimate, falling back to the
-Hertz estimate when the elastic one is missing, and to the training median when both are;
-estimates are clamped to the estimate range [1e2, 1e14] Pa like the model input) and
-``scalar_gbr`` (gradient-boosted trees on the input strategy's scalar inputs, no images:
-what a model could reach without the tactile frames; see :func:`scalar_reference`). The
-Hertz value is E* (gel and object in series) and is used as is: converting it to E needs
-the object's Poisson ratio, which a baseline should not know.
+Reference predictors (:func:`reference_predictions`: ``median``, ``analytical``,
+``scalar_gbr``) are computed on the same split, so a model's numbers have a floor to beat.
 """
 
 from __future__ import annotations
@@ -285,10 +278,12 @@ def reference_predictions(
     * ``median``: the median ``modulus_pa`` of ``train_samples`` for every test sample
       (the median of log10 E equals the log of the median, so it is also the best constant
       in decades for the absolute error).
-    * ``analytical``: the elastic estimate, else the Hertz estimate (E*, not converted),
-      else the training median; clamped to ``c.estimate_clamp_pa``.
+    * ``analytical``: the sample's elastic (Hooke) estimate, else its Hertz estimate, else
+      the training median; clamped to ``c.estimate_clamp_pa`` like the model input. The
+      Hertz value is E* (gel and object in series), used as is: converting it to E needs
+      the object's Poisson ratio, which a baseline should not know.
     * ``scalar_gbr`` (only with ``inputs`` given and not Image): :func:`scalar_reference`
-      on the strategy's scalar inputs, ``random_state=seed``.
+      on the strategy's scalar inputs (no images), ``random_state=seed``.
     """
     c = c or NormalisationConstants()
     if len(train_samples) == 0:

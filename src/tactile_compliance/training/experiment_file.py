@@ -215,12 +215,6 @@ def experiment_preset_descriptions(quick: bool = False) -> dict[str, str]:
 
 
 # =========================================================================== loading
-def is_experiment_file(data: Any) -> bool:
-    """Whether a parsed YAML mapping is an experiment (has any experiment-only key)."""
-    # output_dir is a key of both kinds of file, so it says nothing.
-    return isinstance(data, Mapping) and bool((SPEC_KEYS - {"output_dir"}) & set(data))
-
-
 def _locate(ref: str | Path, relative_to: Path | None) -> tuple[Any, str, Path | None, str]:
     """(file, origin, directory for relative paths, name) of an experiment reference."""
     text = str(ref)
@@ -335,7 +329,7 @@ def _read_spec(
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError(f"{origin}: the top level must be a mapping, got {type(data).__name__}")
-    if not is_experiment_file(data):
+    if not (SPEC_KEYS - {"output_dir"}) & set(data):  # output_dir: a key of both kinds
         # A plain config file (e.g. best.yaml from `tune`): one cell crossed with the seeds.
         return {"config": str(Path(file).resolve())}, origin, directory, name
     unknown = set(data) - SPEC_KEYS

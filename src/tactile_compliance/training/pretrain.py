@@ -387,29 +387,6 @@ def _cpu_copy(module: nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().to("cpu", copy=True) for k, v in module.state_dict().items()}
 
 
-def _arguments(
-    settings: PretrainSettings,
-    store: GraspStore,
-    split_record: dict[str, Any],
-    image_size: tuple[int, int],
-    cfg: ExperimentConfig,
-) -> dict[str, Any]:
-    """What must match for a state file to be resumed."""
-    return {
-        "settings": {
-            k: list(v) if isinstance(v, tuple) else v for k, v in asdict(settings).items()
-        },
-        "store": str(store.path.resolve()),
-        "store_created": store.header.created,
-        "split": split_record,
-        "image_size": list(image_size),
-        "seed": cfg.seed,
-        "augmentation": cfg.augmentation.model_dump(),
-        "image_mean": list(cfg.data.image_mean),
-        "image_std": list(cfg.data.image_std),
-    }
-
-
 def pretrain(
     cfg: ExperimentConfig,
     settings: PretrainSettings,
@@ -473,7 +450,20 @@ def pretrain(
             f"{max(image_size[1], minimum)} or larger"
         )
     constants = run_inputs.constants
-    arguments = _arguments(settings, store, split_record, image_size, cfg)
+    # What must match for a state file to be resumed.
+    arguments = {
+        "settings": {
+            k: list(v) if isinstance(v, tuple) else v for k, v in asdict(settings).items()
+        },
+        "store": str(store.path.resolve()),
+        "store_created": store.header.created,
+        "split": split_record,
+        "image_size": list(image_size),
+        "seed": cfg.seed,
+        "augmentation": cfg.augmentation.model_dump(),
+        "image_mean": list(cfg.data.image_mean),
+        "image_std": list(cfg.data.image_std),
+    }
 
     # The depth scale: the training part's depth spread (recorded; a fixed unit per file).
     sample_depth = store.read_depth(train_ids[:: max(1, len(train_ids) // 256)])

@@ -110,7 +110,6 @@ class RunData:
     """Everything data-related a run needs, prepared once."""
 
     store: GraspStore
-    samples: pd.DataFrame  # filtered
     filter_report: Any
     split: Split
     train_ids: np.ndarray  # after balancing (may repeat)
@@ -145,7 +144,6 @@ def prepare_data(cfg: ExperimentConfig, model: torch.nn.Module) -> RunData:
         )
     return RunData(
         store=store,
-        samples=samples,
         filter_report=report,
         split=split,
         train_ids=np.asarray(train_ids, dtype=np.int64),

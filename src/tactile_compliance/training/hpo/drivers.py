@@ -447,17 +447,12 @@ def tune_balance(
         f"after {epochs} epochs, {trials} trials.\n"
     )
     tuned_path = write_yaml(search.out / "tuned.yaml", header, best)
-    extra_paths = []
-    for base in bases:
-        cfg = config_from_dict(
-            config_to_dict(base),
-            [
-                "sampling.strategy=balanced",
-                f"sampling.t_balance={t_balance}",
-                f"output_dir={Path('runs') / label}",
-            ],
-        )
-        extra_paths.append(save_config(cfg, search.out / f"best-{cfg.model.name}.yaml"))
+    tuned = [
+        *(f"{key}={value}" for key, value in best.items()),
+        f"output_dir={Path('runs') / label}",
+    ]
+    tuned_cfgs = [config_from_dict(config_to_dict(base), tuned) for base in bases]
+    extra_paths = [save_config(c, search.out / f"best-{c.model.name}.yaml") for c in tuned_cfgs]
     config_path = extra_paths[0]
     spec = load_experiment(config, quick=False)
     if not spec.is_plain_config:
