@@ -67,6 +67,7 @@ __all__ = [
     "parse_yaml",
     "preset_path",
     "save_config",
+    "write_yaml",
 ]
 
 #: The store columns behind each scalar input of ``InputStrategy.needs``.
@@ -353,14 +354,11 @@ def _submodel(path: Sequence[Any]) -> type[BaseModel] | None:
     return model
 
 
-def _valid_keys(path: Sequence[Any]) -> list[str]:
-    model = _submodel(path)
-    return list(model.model_fields) if model is not None else []
-
-
 def _unknown_key_message(dotted: str, parent: Sequence[Any]) -> str:
     where = f" in '{'.'.join(map(str, parent))}'" if parent else ""
-    return f"unknown key '{dotted}'; valid keys{where}: {', '.join(_valid_keys(parent))}"
+    model = _submodel(parent)
+    valid = list(model.model_fields) if model is not None else []
+    return f"unknown key '{dotted}'; valid keys{where}: {', '.join(valid)}"
 
 
 def _format_errors(exc: ValidationError, origin: str) -> ConfigError:
@@ -408,11 +406,9 @@ _Loader.add_implicit_resolver(
 
 
 def parse_yaml(text: str, origin: str) -> Any:
-    """Parse the YAML of a config or experiment file (``origin`` names it in errors).
-
-    The one YAML reader of configuration: a duplicate key is an error (it would silently
-    drop a setting) and ``1e-4`` is a float.
-    """
+    """Parse the YAML of a config or experiment file (``origin`` names it in errors); the
+    one YAML reader of configuration (:class:`_Loader`: a duplicate key would silently drop
+    a setting)."""
     try:
         # _Loader derives from SafeLoader: no arbitrary Python objects are constructed.
         return yaml.load(text, Loader=_Loader)
@@ -520,10 +516,6 @@ def compose_yaml(
     return merge(base, data), origin
 
 
-def _resolve_raw(ref: str | Path) -> tuple[dict[str, Any], str]:
-    return compose_yaml(ref, _read_source, _deep_merge, "base", "a preset name or a path")
-
-
 # =========================================================================== overrides
 def _annotation_is_mapping(ann: Any) -> bool:
     return (
@@ -544,12 +536,12 @@ def _check_override_key(dotted: str) -> None:
         ann = field.annotation
         if isinstance(ann, type) and issubclass(ann, BaseModel):
             model = ann
-            continue
-        if i == len(parts) - 1 or _annotation_is_mapping(ann):
+        elif i == len(parts) - 1 or _annotation_is_mapping(ann):
             return  # a value, or a key inside a free mapping such as model.hparams
-        raise ConfigError(
-            f"'{'.'.join(parts[: i + 1])}' is a value, not a section; cannot set '{dotted}'"
-        )
+        else:
+            raise ConfigError(
+                f"'{'.'.join(parts[: i + 1])}' is a value, not a section; cannot set '{dotted}'"
+            )
 
 
 def _parse_override(item: str) -> tuple[str, Any]:
@@ -573,18 +565,6 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
     node[parts[-1]] = value
 
 
-def _apply_overrides_raw(data: dict[str, Any], overrides: Iterable[str]) -> dict[str, Any]:
-    data = copy.deepcopy(data)
-    for item in overrides:
-        key, value = _parse_override(item)
-        try:
-            _check_override_key(key)
-        except ConfigError as exc:
-            raise ConfigError(f"override {item!r}: {exc}") from None
-        _set_dotted(data, key, value)
-    return data
-
-
 # =========================================================================== public API
 def config_from_dict(
     data: Mapping[str, Any], overrides: Iterable[str] = (), origin: str = ""
@@ -593,7 +573,14 @@ def config_from_dict(
     if not isinstance(data, Mapping):
         raise ConfigError(f"configuration must be a mapping, got {type(data).__name__}")
     overrides = list(overrides)
-    raw = _apply_overrides_raw(dict(data), overrides)
+    raw = copy.deepcopy(dict(data))
+    for item in overrides:
+        key, value = _parse_override(item)
+        try:
+            _check_override_key(key)
+        except ConfigError as exc:
+            raise ConfigError(f"override {item!r}: {exc}") from None
+        _set_dotted(raw, key, value)
     if overrides:
         origin = f"{origin} + overrides" if origin else "overrides"
     if "base" in raw:
@@ -618,7 +605,9 @@ def load_config(
         ConfigError: (a ``ValueError``) for missing files, invalid YAML, unknown keys, wrong
             types or impossible combinations; the message names the dotted key(s).
     """
-    raw, origin = _resolve_raw(path_or_preset_name)
+    raw, origin = compose_yaml(
+        path_or_preset_name, _read_source, _deep_merge, "base", "a preset name or a path"
+    )
     return config_from_dict(raw, overrides, origin)
 
 
@@ -632,16 +621,20 @@ def config_to_dict(cfg: ExperimentConfig) -> dict[str, Any]:
     return cfg.model_dump(mode="json")
 
 
-def save_config(cfg: ExperimentConfig, path: str | Path) -> Path:
-    """Write the fully resolved configuration as YAML (atomically). Returns the path."""
+def write_yaml(path: str | Path, header: str, data: Mapping[str, Any]) -> Path:
+    """Write ``header`` (comment lines) and ``data`` as YAML, atomically. Returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = "# tactile-compliance experiment configuration (fully resolved)\n" + yaml.safe_dump(
-        config_to_dict(cfg), sort_keys=False, default_flow_style=None
-    )
+    text = header + yaml.safe_dump(dict(data), sort_keys=False, default_flow_style=None)
     with atomic_file(path) as handle:
         handle.write(text)
     return path
+
+
+def save_config(cfg: ExperimentConfig, path: str | Path) -> Path:
+    """Write the fully resolved configuration as YAML (atomically). Returns the path."""
+    header = "# tactile-compliance experiment configuration (fully resolved)\n"
+    return write_yaml(path, header, config_to_dict(cfg))
 
 
 def check_config_against_samples(

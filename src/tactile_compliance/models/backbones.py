@@ -22,7 +22,7 @@ Weights (``create_backbone(name, weights=...)``):
   a file named like torchvision's ``<name>-<hash>.pth`` must have a sha256 that starts
   with ``<hash>``. A file may wrap the state dict as ``{"state_dict": ..., ...}``; the
   files ``tactile-compliance pretrain`` writes do, with their provenance under
-  :data:`PRETRAIN_KEY` (read by :func:`weights_file_record`).
+  :data:`PRETRAIN_KEY` (read by ``runs.checkpoint.backbone_weights_file_record``).
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ import urllib.request
 from collections.abc import Callable, Iterator, Mapping
 from contextvars import ContextVar
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
@@ -49,16 +50,13 @@ __all__ = [
     "PRETRAIN_KEY",
     "VGG16",
     "BackboneWeightsError",
-    "BasicBlock",
-    "Bottleneck",
     "ResNet",
     "create_backbone",
     "file_sha256",
     "list_backbones",
-    "load_backbone_weights",
+    "load_mapped",
     "load_weights_file",
     "no_downloads",
-    "weights_file_record",
 ]
 
 #: Key of the provenance record (store, split, epochs, depth loss) in a weights file
@@ -380,7 +378,15 @@ def _load_imagenet_state_dict(name: str) -> dict[str, torch.Tensor]:
         raise BackboneWeightsError(_offline_message(name, url, f"download failed: {exc}")) from exc
 
 
-def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
+def load_weights_file(backbone: nn.Module, name: str, path: str | os.PathLike[str]) -> None:
+    """Load a local weights file (a state dict, or ``{"state_dict": ...}``) into
+    ``backbone`` (registered as ``name`` for the keys to ignore), checking that it fits.
+
+    Raises:
+        FileNotFoundError: no such file.
+        BackboneWeightsError: unreadable, not a state dict, or another network's.
+    """
+    path = Path(path).expanduser()
     if not path.is_file():
         raise FileNotFoundError(
             f"backbone weights file {path} does not exist; pass 'none', 'imagenet' or the "
@@ -418,7 +424,7 @@ def _load_local_state_dict(path: Path) -> dict[str, torch.Tensor]:
         raise BackboneWeightsError(
             f"{path} does not contain a state dict (a mapping of parameter names to tensors)"
         )
-    return dict(loaded)
+    load_backbone_weights(backbone, name, dict(loaded), str(path))
 
 
 def load_backbone_weights(
@@ -460,35 +466,12 @@ def load_backbone_weights(
     backbone.load_state_dict(filtered, strict=True)
 
 
-def load_weights_file(backbone: nn.Module, name: str, path: str | os.PathLike[str]) -> None:
-    """Load a local weights file (a state dict, or ``{"state_dict": ...}``) into
-    ``backbone`` (registered as ``name`` for the keys to ignore), checking that it fits.
-
-    Raises:
-        FileNotFoundError: no such file.
-        BackboneWeightsError: unreadable, not a state dict, or another network's.
-    """
-    file = Path(path).expanduser()
-    load_backbone_weights(backbone, name, _load_local_state_dict(file), str(file))
-
-
-def weights_file_record(path: str | os.PathLike[str]) -> dict[str, object]:
-    """What a checkpoint records about a local backbone weights file.
-
-    Returns ``{"path", "sha256", "provenance"}``: the absolute path, the sha256 of the
-    file's bytes, and the provenance a ``pretrain`` weights file carries under
-    :data:`PRETRAIN_KEY` (None for other files, e.g. a torchvision ``.pth``).
-    """
-    file = Path(path).expanduser().resolve()
-    provenance = None
+def load_mapped(path: str | os.PathLike[str]) -> Any:
+    """``torch.load`` (CPU, weights only) memory-mapped: tensors are read only when used."""
     try:
-        # mmap: the tensors are not read, only the small provenance record.
-        loaded = torch.load(file, map_location="cpu", weights_only=True, mmap=True)
+        return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception:  # an old-format (non-zip) file cannot be mapped: read it whole
-        loaded = torch.load(file, map_location="cpu", weights_only=True)
-    if isinstance(loaded, Mapping) and isinstance(loaded.get(PRETRAIN_KEY), Mapping):
-        provenance = dict(loaded[PRETRAIN_KEY])
-    return {"path": str(file), "sha256": file_sha256(file), "provenance": provenance}
+        return torch.load(path, map_location="cpu", weights_only=True)
 
 
 def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.Module:
@@ -515,14 +498,9 @@ def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.M
         raise ValueError(f"unknown backbone {name!r}; available: {', '.join(list_backbones())}")
     backbone = _BACKBONE_FACTORIES[key]()
     weights_str = os.fspath(weights)
-    if weights_str.lower() == "none":
-        return backbone
     if weights_str.lower() == "imagenet":
         state_dict = _load_imagenet_state_dict(key)
-        source = BACKBONE_WEIGHTS_URLS[key]
-    else:
-        path = Path(weights_str).expanduser()
-        state_dict = _load_local_state_dict(path)
-        source = str(path)
-    load_backbone_weights(backbone, key, state_dict, source)
+        load_backbone_weights(backbone, key, state_dict, BACKBONE_WEIGHTS_URLS[key])
+    elif weights_str.lower() != "none":
+        load_weights_file(backbone, key, weights_str)
     return backbone

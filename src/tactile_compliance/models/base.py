@@ -94,14 +94,12 @@ def check_positive_int(name: str, value: Any) -> int:
     return int(value)
 
 
-def check_sizes(name: str, value: Any, allow_empty: bool = True) -> list[int]:
-    """Validate a list of layer sizes; returned as a list so hparams stay JSON-friendly."""
+def check_sizes(name: str, value: Any) -> list[int]:
+    """Validate a list of layer sizes (may be empty); returned as a list so hparams stay
+    JSON-friendly."""
     if isinstance(value, (int, str)) or not isinstance(value, Sequence):
         raise ValueError(f"hyperparameter {name} must be a list of integers, got {value!r}")
-    sizes = [check_positive_int(f"{name}[{i}]", v) for i, v in enumerate(value)]
-    if not sizes and not allow_empty:
-        raise ValueError(f"hyperparameter {name} must not be empty")
-    return sizes
+    return [check_positive_int(f"{name}[{i}]", v) for i, v in enumerate(value)]
 
 
 def check_dropout(name: str, value: Any) -> float:

@@ -72,13 +72,10 @@ def model_display_names() -> dict[str, str]:
     are listed: call it through ``tactile_compliance.models``, which registers the
     built-in ones first.
     """
-    ranked = sorted(_REGISTRY.items(), key=lambda item: (_display_order(item[1]), item[0]))
-    return {name: getattr(cls, "display_name", "") or name for name, cls in ranked}
-
-
-def _display_order(cls: type[nn.Module]) -> int:
     # Classes that declare no order come after the declared ones (then by name).
-    return int(getattr(cls, "display_order", 1_000_000))
+    order = {name: int(getattr(cls, "display_order", 1_000_000)) for name, cls in _REGISTRY.items()}
+    ranked = sorted(_REGISTRY, key=lambda name: (order[name], name))
+    return {name: getattr(_REGISTRY[name], "display_name", "") or name for name in ranked}
 
 
 def backbone_models() -> dict[str, str]:

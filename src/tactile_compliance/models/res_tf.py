@@ -5,9 +5,7 @@ Image path: ResNet18 (or 34/50) spatial-mean features -> Linear(feature_dim, emb
 heads, feed-forward 2048, dropout 0.1) -> mean over the 3 tokens -> dropout ->
 Linear(embedding_dim, output_dim).
 
-Head: concat(image output, Linear(3, fwe)(F), Linear(3, fwe)(W)) -> decoder MLP (ELU,
-dropout) -> 1 logit; with estimates the decoder emits ``decoder_output_size`` raw values,
-concatenated with the two estimates -> estimation MLP -> 1 logit. Sigmoid at the end.
+Head: the fusion head (``models.base.FusionModel``) on the image output.
 
 The positional encoding is *added* to the token embedding, as in the published code
 (the paper's text speaks of concatenation).

@@ -27,14 +27,10 @@ from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import get_model_class, model_hyperparameters
 
 __all__ = [
-    "BATCH_CHOICES",
     "DIM_CHOICES",
     "DROPOUT_CHOICES",
     "FROM_PAPER",
     "FWE_CHOICES",
-    "GAMMA_CHOICES",
-    "HPARAMS_PREFIX",
-    "LR_CHOICES",
     "POW2_32_512",
     "SCALAR_DIM_CHOICES",
     "SIZES_CHOICES",

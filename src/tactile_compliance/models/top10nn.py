@@ -4,10 +4,8 @@ Backbone (shared by the three frames): 5 x (Conv -> BatchNorm -> ReLU) with 32..
 channels, kernels 5, 3, 3, 3, 3, stride 2, no padding; global average pool -> dropout ->
 Linear(512, 1024) -> ELU -> dropout -> Linear(1024, img_feature_size).
 
-Head: concat(3 frame features, Linear(3, fwe)(F), Linear(3, fwe)(W)) -> decoder MLP
-[512, 512, 128] (ELU, dropout) -> 1 logit; with estimates the decoder emits
-``decoder_output_size`` raw values that are concatenated with the two estimates and
-passed through the estimation decoder [64, 64, 32] -> 1 logit. Sigmoid at the end.
+Head: the fusion head (``models.base.FusionModel``) on the 3 frame features, with the
+decoder [512, 512, 128] and the estimation decoder [64, 64, 32].
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ from tactile_compliance.models.settings import (
     SearchDimension,
 )
 
-__all__ = ["LSTM_DROPOUT_MODES", "VggLstm", "check_lstm_dropout_mode", "project_steps"]
+__all__ = ["VggLstm", "project_steps"]
 
 #: Where VGG-LSTM's dropout acts: "recurrent" (the published code: the dropped-out hidden
 #: state also feeds the next step) or "output" (only the per-step output path).

@@ -31,7 +31,7 @@ import contextlib
 import math
 import os
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -43,7 +43,7 @@ from tactile_compliance.data.features import weights_fingerprint
 from tactile_compliance.data.safe_pickle import load_torch_file
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import create_model, get_model_class
-from tactile_compliance.models.backbones import no_downloads, weights_file_record
+from tactile_compliance.models.backbones import PRETRAIN_KEY, file_sha256, load_mapped, no_downloads
 from tactile_compliance.outputs import atomic_file, check_format_version
 from tactile_compliance.runs.run_inputs import RunInputs
 
@@ -155,12 +155,17 @@ def frozen_backbone_record(model: torch.nn.Module, *, seed: int | None) -> dict[
 
 def backbone_weights_file_record(model: torch.nn.Module) -> dict[str, Any] | None:
     """``{"path", "sha256", "provenance"}`` of the local weights file ``model``'s backbone
-    was initialised from (:func:`~tactile_compliance.models.backbones.weights_file_record`),
-    or None for random or ImageNet weights. Hashes the file: compute it once per run."""
+    was initialised from: its absolute path, the sha256 of its bytes and the provenance a
+    ``pretrain`` file carries under ``PRETRAIN_KEY`` (else None); None for random or
+    ImageNet weights. Hashes the file: compute it once per run."""
     weights = str(getattr(model, "backbone_weights", "none")).strip()
     if weights.lower() in ("none", "imagenet"):
         return None
-    return weights_file_record(weights)
+    file = Path(weights).expanduser().resolve()
+    loaded = load_mapped(file)  # the tensors are not read, only the provenance record
+    record = loaded.get(PRETRAIN_KEY) if isinstance(loaded, Mapping) else None
+    provenance = dict(record) if isinstance(record, Mapping) else None
+    return {"path": str(file), "sha256": file_sha256(file), "provenance": provenance}
 
 
 def save_checkpoint(

@@ -16,15 +16,8 @@ With ``E`` the true and ``E_hat`` the predicted Young's modulus (Pa),
 Comparisons at exactly 1 (or 0.5) decade count as inside; a 1e-9 decade tolerance absorbs
 floating-point error in log10.
 
-Reference predictors, computed on the same split so a model's numbers have a floor to beat:
-``median`` (the training set's median modulus for every test sample), ``analytical``
-(the sample's own analytical estimate: the elastic (Hooke) estimate, falling back to the
-Hertz estimate when the elastic one is missing, and to the training median when both are;
-estimates are clamped to the estimate range [1e2, 1e14] Pa like the model input) and
-``scalar_gbr`` (gradient-boosted trees on the input strategy's scalar inputs, no images:
-what a model could reach without the tactile frames; see :func:`scalar_reference`). The
-Hertz value is E* (gel and object in series) and is used as is: converting it to E needs
-the object's Poisson ratio, which a baseline should not know.
+Reference predictors (:func:`reference_predictions`: ``median``, ``analytical``,
+``scalar_gbr``) are computed on the same split, so a model's numbers have a floor to beat.
 """
 
 from __future__ import annotations
@@ -167,14 +160,12 @@ def grouped_metrics(
     df: pd.DataFrame,
     by: str | Sequence[str] = ("material", "shape", "soft_hard"),
     c: NormalisationConstants | None = None,
-    true_col: str = "modulus_pa",
-    pred_col: str = "pred_pa",
     threshold_pa: float = DEFAULT_GEL_MODULUS_PA,
 ) -> pd.DataFrame:
     """Metrics overall and per group, one row per (grouping, group).
 
     Args:
-        df: one row per prediction with ``true_col`` and ``pred_col`` (Pa) and the grouping
+        df: one row per prediction with ``modulus_pa`` and ``pred_pa`` and the grouping
             columns; ``soft_hard`` is derived from the true modulus when absent.
         by: grouping column(s), e.g. ``"material"``, ``"shape"``, ``"soft_hard"``.
         c: normalisation constants for N-MSE / R^2.
@@ -185,19 +176,19 @@ def grouped_metrics(
         ``("all", "all")``. Within a grouping, groups are sorted by name.
     """
     groupings = [by] if isinstance(by, str) else list(by)
-    missing = [col for col in (true_col, pred_col) if col not in df.columns]
+    missing = [col for col in ("modulus_pa", "pred_pa") if col not in df.columns]
     if missing:
         raise ValueError(f"grouped_metrics needs column(s) {missing}; has {list(df.columns)}")
     data = df
     if "soft_hard" in groupings and "soft_hard" not in df.columns:
-        data = df.assign(soft_hard=soft_hard_labels(df[true_col].to_numpy(), threshold_pa))
-    overall = compute_metrics(data[true_col], data[pred_col], c)
+        data = df.assign(soft_hard=soft_hard_labels(df["modulus_pa"].to_numpy(), threshold_pa))
+    overall = compute_metrics(data["modulus_pa"], data["pred_pa"], c)
     rows = [{"grouping": "all", "group": "all", **overall}]
     for grouping in groupings:
         if grouping not in data.columns:
             raise ValueError(f"cannot group by {grouping!r}: no such column")
         for group, part in data.groupby(grouping, sort=True):
-            metrics = compute_metrics(part[true_col], part[pred_col], c)
+            metrics = compute_metrics(part["modulus_pa"], part["pred_pa"], c)
             rows.append({"grouping": grouping, "group": str(group), **metrics})
     return pd.DataFrame(rows)
 
@@ -287,10 +278,12 @@ def reference_predictions(
     * ``median``: the median ``modulus_pa`` of ``train_samples`` for every test sample
       (the median of log10 E equals the log of the median, so it is also the best constant
       in decades for the absolute error).
-    * ``analytical``: the elastic estimate, else the Hertz estimate (E*, not converted),
-      else the training median; clamped to ``c.estimate_clamp_pa``.
+    * ``analytical``: the sample's elastic (Hooke) estimate, else its Hertz estimate, else
+      the training median; clamped to ``c.estimate_clamp_pa`` like the model input. The
+      Hertz value is E* (gel and object in series), used as is: converting it to E needs
+      the object's Poisson ratio, which a baseline should not know.
     * ``scalar_gbr`` (only with ``inputs`` given and not Image): :func:`scalar_reference`
-      on the strategy's scalar inputs, ``random_state=seed``.
+      on the strategy's scalar inputs (no images), ``random_state=seed``.
     """
     c = c or NormalisationConstants()
     if len(train_samples) == 0:

@@ -83,11 +83,6 @@ def split_protocol(condition: Any, grouping: Any = None) -> str:
     return f"seen_{row_grouping(condition, grouping)}"
 
 
-def run_key(cfg: ExperimentConfig) -> str:
-    """Identity of a grid cell: the config hash (covers model, inputs, seed, data, ...)."""
-    return config_hash(cfg)
-
-
 def _axes(cfg: ExperimentConfig) -> dict[str, Any]:
     return {
         "model": cfg.model.name,
@@ -116,7 +111,7 @@ def result_row(
 ) -> dict[str, Any]:
     """A results-store row for a finished (``result`` from ``train``) or failed run."""
     row: dict[str, Any] = {
-        "key": run_key(cfg),
+        "key": config_hash(cfg),  # covers model, inputs, seed, data, ...
         "run_name": run_name(cfg),
         "preset": preset,
         "store": cfg.data.store,

@@ -47,24 +47,9 @@ def limit_threads(threads: int | None) -> None:
         torch.set_num_threads(int(threads))
 
 
-def _require_distributed() -> Any:
-    try:
-        import distributed
-    except ImportError as exc:  # pragma: no cover - dask is a dependency of the package
-        raise ImportError(
-            "experiments and tuning run on Dask: pip install 'dask[distributed]'"
-        ) from exc
-    return distributed
-
-
 @contextmanager
 def dask_client(
-    workers: int = 1,
-    scheduler: str | None = None,
-    client: Any = None,
-    *,
-    local_directory: str | Path | None = None,
-    memory_limit: str | float | None = "auto",
+    workers: int = 1, scheduler: str | None = None, client: Any = None
 ) -> Iterator[Any]:
     """Yield a ``distributed.Client``: ``client`` as is, a scheduler's, or a local cluster's.
 
@@ -72,13 +57,12 @@ def dask_client(
         workers: local worker processes (ignored with ``scheduler`` or ``client``).
         scheduler: address ``tcp://host:port`` or path of a scheduler JSON file.
         client: an existing client (not closed on exit).
-        local_directory: scratch space of local workers (default: the system temp dir).
-        memory_limit: per local worker; ``"auto"`` shares the machine's memory out.
     """
     if client is not None:
         yield client
         return
-    distributed = _require_distributed()
+    import distributed
+
     if scheduler:
         if Path(scheduler).is_file():
             remote = distributed.Client(scheduler_file=str(scheduler), timeout="30s")
@@ -101,8 +85,7 @@ def dask_client(
             processes=True,
             dashboard_address=None,
             silence_logs=logging.ERROR,
-            local_directory=str(local_directory) if local_directory else None,
-            memory_limit=memory_limit,
+            memory_limit="auto",  # per worker: the machine's memory x threads / CPUs
         )
     local = distributed.Client(cluster)
     try:

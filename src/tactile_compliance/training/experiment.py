@@ -159,33 +159,19 @@ def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None
     safe: ``cached_features`` locks it and the second waits for the first's result.)
     Returns the number of caches checked.
     """
-    from tactile_compliance.data.features import cached_features
     from tactile_compliance.data.store import GraspStore
-    from tactile_compliance.devices import resolve_device
     from tactile_compliance.runs.run_inputs import RunInputs
-    from tactile_compliance.training.train import build_model
+    from tactile_compliance.training.train import build_model, frozen_features
 
     limit_threads(threads)
     _quiet_training_warnings()
-    done = 0
     for data in cfg_dicts:
         cfg = config_from_dict(data)
         model = build_model(cfg)
         store = GraspStore.open(cfg.data.store)
-        # The record train() resolves, so both ask for the same cache.
-        run_inputs = RunInputs.resolve(cfg, store, model)
-        device = str(resolve_device(cfg.training.device, name="training.device"))
-        cached_features(
-            store,
-            model.backbone,
-            run_inputs.image_size,
-            run_inputs.constants,
-            batch_size=max(8, cfg.training.batch_size),
-            device="cuda" if device.startswith("cuda") else "cpu",
-            progress=False,
-        )
-        done += 1
-    return done
+        run_inputs = RunInputs.resolve(cfg, store, model)  # what train() resolves
+        frozen_features(cfg, store, model, run_inputs, progress=False)
+    return len(cfg_dicts)
 
 
 def _count_attempt(run_dir: Path) -> int:
@@ -283,11 +269,7 @@ class ExperimentPlan:
     def status(self) -> dict[str, str]:
         """``{key: complete | failed | todo}`` from the results store."""
         store = ResultsStore(self.results_path)
-        out = {}
-        for cell in self.cells:
-            row = store.get(cell.key)
-            out[cell.key] = row.get("status", "todo") if row else "todo"
-        return out
+        return {cell.key: (store.get(cell.key) or {}).get("status", "todo") for cell in self.cells}
 
     def format(self) -> str:
         """One line per cell with its status (for ``--dry-run``)."""
@@ -295,9 +277,8 @@ class ExperimentPlan:
         lines = [
             f"{self.preset}: {self.spec.description}",
             f"{len(self.cells)} cells, output {self.output_dir}, results {self.results_path}",
+            *(f"  {status[cell.key]:<9} {cell.key}  {cell.label}" for cell in self.cells),
         ]
-        for cell in self.cells:
-            lines.append(f"  {status[cell.key]:<9} {cell.key}  {cell.label}")
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -362,13 +343,9 @@ class ExperimentSummary:
     failures: list[tuple[str, str]] = field(default_factory=list)
     keys: list[str] = field(default_factory=list)
 
-    @property
-    def results(self) -> ResultsStore:
-        return ResultsStore(self.results_path)
-
     def table(self) -> pd.DataFrame:
         """The rows of this experiment's cells (one per cell that has a row)."""
-        table = self.results.table()
+        table = ResultsStore(self.results_path).table()
         if table.empty:
             return table
         return table[table["key"].isin(self.keys)].reset_index(drop=True)

@@ -85,10 +85,8 @@ __all__ = [
     "ExperimentSpec",
     "expand_experiment",
     "experiment_preset_descriptions",
-    "is_experiment_file",
     "list_experiment_presets",
     "load_experiment",
-    "match_cell",
 ]
 
 EXPERIMENTS_DIR = "experiments"
@@ -217,17 +215,6 @@ def experiment_preset_descriptions(quick: bool = False) -> dict[str, str]:
 
 
 # =========================================================================== loading
-def _read_yaml(path: Path | Any, origin: str) -> Any:
-    # The config's reader: duplicate keys are errors here too.
-    return parse_yaml(path.read_text(encoding="utf-8"), origin)
-
-
-def is_experiment_file(data: Any) -> bool:
-    """Whether a parsed YAML mapping is an experiment (has any experiment-only key)."""
-    # output_dir is a key of both kinds of file, so it says nothing.
-    return isinstance(data, Mapping) and bool((SPEC_KEYS - {"output_dir"}) & set(data))
-
-
 def _locate(ref: str | Path, relative_to: Path | None) -> tuple[Any, str, Path | None, str]:
     """(file, origin, directory for relative paths, name) of an experiment reference."""
     text = str(ref)
@@ -295,38 +282,25 @@ def _merge_spec(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str,
     return out
 
 
-def _absolutise(raw: dict[str, Any], directory: Path | None) -> dict[str, Any]:
+def _absolutise(raw: Mapping[str, Any], directory: Path | None) -> dict[str, Any]:
     """Make the file-relative references of one file (config, include) absolute."""
     if directory is None:
-        return raw
+        return dict(raw)
 
-    def fix(ref: Any) -> Any:
-        if not isinstance(ref, str):
-            return ref
-        candidate = directory / ref
-        # A bare preset name stays a name; anything that exists next to the file is a path.
-        return str(candidate) if ("/" in ref or candidate.is_file()) else ref
-
-    def fix_rules(rules: Any) -> Any:
-        if not isinstance(rules, list):
-            return rules
-        fixed = []
-        for rule in rules:
-            if isinstance(rule, Mapping) and "include" in rule:
-                rule = {**rule, "include": str(directory / str(rule["include"]))}
-            fixed.append(rule)
-        return fixed
+    def fix_rule(rule: Any) -> Any:
+        if isinstance(rule, Mapping) and "include" in rule:
+            return {**rule, "include": str(directory / str(rule["include"]))}
+        return rule
 
     raw = dict(raw)
-    if "config" in raw:
-        raw["config"] = fix(raw["config"])
-    raw["rules"] = fix_rules(raw.get("rules"))
+    config = raw.get("config")
+    # A bare preset name stays a name; anything that exists next to the file is a path.
+    if isinstance(config, str) and ("/" in config or (directory / config).is_file()):
+        raw["config"] = str(directory / config)
+    rules = raw.get("rules")
+    raw["rules"] = [fix_rule(rule) for rule in rules] if isinstance(rules, list) else rules
     if isinstance(raw.get("quick"), Mapping):
-        quick = dict(raw["quick"])
-        if "config" in quick:
-            quick["config"] = fix(quick["config"])
-        quick["rules"] = fix_rules(quick.get("rules"))
-        raw["quick"] = quick
+        raw["quick"] = _absolutise(raw["quick"], directory)  # the same keys, one level down
     return raw
 
 
@@ -350,12 +324,12 @@ def _read_spec(
     file, origin, directory, name = _locate(ref, relative_to)
     if file is None:  # a bare config preset name, e.g. "default": one cell
         return {"config": str(ref)}, origin, directory, name
-    data = _read_yaml(file, origin)
+    data = parse_yaml(file.read_text(encoding="utf-8"), origin)
     if data is None:
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError(f"{origin}: the top level must be a mapping, got {type(data).__name__}")
-    if not is_experiment_file(data):
+    if not (SPEC_KEYS - {"output_dir"}) & set(data):  # output_dir: a key of both kinds
         # A plain config file (e.g. best.yaml from `tune`): one cell crossed with the seeds.
         return {"config": str(Path(file).resolve())}, origin, directory, name
     unknown = set(data) - SPEC_KEYS
@@ -364,7 +338,7 @@ def _read_spec(
             f"{origin}: unknown key(s) {sorted(unknown)}; an experiment file has "
             f"{', '.join(sorted(SPEC_KEYS))} (config keys go under 'set' as dotted keys)"
         )
-    return _absolutise(dict(data), directory), origin, directory, name
+    return _absolutise(data, directory), origin, directory, name
 
 
 def _parse_rule(raw: Any, where: str) -> Rule:
@@ -376,7 +350,7 @@ def _parse_rule(raw: Any, where: str) -> Rule:
         path = Path(str(raw["include"]))
         if not path.is_file():
             raise ConfigError(f"{where}.include: {path} does not exist")
-        included = _read_yaml(path, str(path))
+        included = parse_yaml(path.read_text(encoding="utf-8"), str(path))
         settings = {**_as_dotted_mapping(included, f"{path}"), **settings}
     if not settings:
         raise ConfigError(f"{where} changes nothing (give 'set' or 'include')")
@@ -413,11 +387,8 @@ def load_experiment(ref: str | Path, *, quick: bool = False) -> ExperimentSpec:
     config = raw.get("config", "default")
     if not isinstance(config, str):
         raise ConfigError(f"{origin}: 'config' must be a preset name or a path, got {config!r}")
-    seeds_raw = raw.get("seeds")
-    if seeds_raw is None:
-        seeds = [int(load_config(config).seed)]
-    else:
-        seeds = _parse_seeds(seeds_raw, origin)
+    seeds = raw.get("seeds")
+    seeds = [int(load_config(config).seed)] if seeds is None else _parse_seeds(seeds, origin)
     output_dir = raw.get("output_dir")
     use_paper = raw.get("paper_settings", False)
     if not isinstance(use_paper, bool):
@@ -508,12 +479,10 @@ def expand_experiment(
     (a remote Dask scheduler) write to the same place; cells that turn out identical
     (same config hash) are kept once.
     """
-    if isinstance(seeds, int):
-        seed_list = _parse_seeds(seeds, "--seeds")
-    elif seeds is not None:
-        seed_list = _parse_seeds(list(seeds), "--seeds")
-    else:
+    if seeds is None:
         seed_list = list(spec.seeds)
+    else:
+        seed_list = _parse_seeds(seeds if isinstance(seeds, int) else list(seeds), "--seeds")
     out = Path(output_dir) if output_dir is not None else spec.default_output_dir
     base = config_to_dict(load_config(spec.config))
     tail = list(overrides)
@@ -523,7 +492,7 @@ def expand_experiment(
     axes = list(spec.grid)
     linked = _linked_axes(spec.grid, base, spec.origin)
     cells: list[Cell] = []
-    seen: dict[str, int] = {}
+    seen: set[str] = set()
     duplicates = 0
     for combo in itertools.product(*(spec.grid[a] for a in axes)):
         for seed in seed_list:
@@ -556,7 +525,7 @@ def expand_experiment(
             if key in seen:
                 duplicates += 1
                 continue
-            seen[key] = len(cells)
+            seen.add(key)
             cells.append(Cell(len(cells), key, cfg, {**values, "seed": seed}))
     if duplicates:
         warnings.warn(

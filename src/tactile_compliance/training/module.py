@@ -106,13 +106,10 @@ class ComplianceModule(L.LightningModule):
             if module is self.model.backbone
         )
 
-    def _augmentation_generator(self) -> torch.Generator | None:
-        """The augmentation's own generator (seeded per run), whose state a resumed run
-        needs to draw the same augmentations as an uninterrupted one."""
-        return None if self.augmentation is None else self.augmentation.generator
-
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        generator = self._augmentation_generator()
+        # The augmentation's own generator (seeded per run): a resumed run must draw the
+        # same augmentations as an uninterrupted one.
+        generator = getattr(self.augmentation, "generator", None)
         if generator is not None:
             checkpoint[AUGMENTATION_RNG_KEY] = generator.get_state()
         # A frozen backbone is rebuilt by train() on resume (fixed seed or weights file),
@@ -124,7 +121,7 @@ class ComplianceModule(L.LightningModule):
             }
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        generator = self._augmentation_generator()
+        generator = getattr(self.augmentation, "generator", None)
         if generator is not None and AUGMENTATION_RNG_KEY in checkpoint:
             generator.set_state(checkpoint[AUGMENTATION_RNG_KEY])
         # Put this module's own frozen backbone tensors back so Lightning's strict load

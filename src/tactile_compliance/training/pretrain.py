@@ -65,7 +65,12 @@ from tactile_compliance.data.splits import Split, make_split, make_split_from_co
 from tactile_compliance.data.store import SAMPLES_FILE, GraspStore
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import backbone_models, get_model_class
-from tactile_compliance.models.backbones import PRETRAIN_KEY, create_backbone, file_sha256
+from tactile_compliance.models.backbones import (
+    PRETRAIN_KEY,
+    create_backbone,
+    file_sha256,
+    load_mapped,
+)
 from tactile_compliance.models.top10nn import TOP10_BACKBONE, Top10Encoder
 from tactile_compliance.outputs import atomic_file, check_output_file
 from tactile_compliance.progress import progress_bar
@@ -243,31 +248,22 @@ class DepthPretrainNet(nn.Module):
 
 
 # ============================================================================ files
-def _load(path: Path) -> Any:
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-    except RuntimeError:  # not a zip archive: read it whole
-        return torch.load(path, map_location="cpu", weights_only=True)
-
-
 def is_pretrained_weights_file(path: Path) -> bool:
     """Whether ``path`` is a weights file written by :func:`pretrain` (safe to replace)."""
-    loaded = _load(Path(path))
+    loaded = load_mapped(path)
     record = loaded.get(PRETRAIN_KEY) if isinstance(loaded, Mapping) else None
     return isinstance(record, Mapping) and record.get("format") == PRETRAIN_FORMAT
 
 
 def _is_state_file(path: Path) -> bool:
-    loaded = _load(Path(path))
+    loaded = load_mapped(path)
     return isinstance(loaded, Mapping) and loaded.get("kind") == STATE_KIND
 
 
 def _set_aside_corrupt_state(path: Path) -> None:
-    """Move a damaged state file of an interrupted run (a truncated torch archive, e.g.
-    after a full disk or a crash of the file system) to ``NAME.corrupt``, never deleted,
-    with a warning, so the re-run starts afresh instead of being blocked; as ``train``
-    does with its checkpoints. A file that is no torch archive is left for
-    ``check_output_file`` to refuse (it may be the user's)."""
+    """Move a truncated torch archive at ``path`` (full disk, crash) to ``NAME.corrupt``
+    with a warning, as ``train`` does with its checkpoints, so that the re-run starts
+    afresh; any other file is left for ``check_output_file`` (it may be the user's)."""
     if not path.is_file():
         return
     try:
@@ -391,29 +387,6 @@ def _cpu_copy(module: nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().to("cpu", copy=True) for k, v in module.state_dict().items()}
 
 
-def _arguments(
-    settings: PretrainSettings,
-    store: GraspStore,
-    split_record: dict[str, Any],
-    image_size: tuple[int, int],
-    cfg: ExperimentConfig,
-) -> dict[str, Any]:
-    """What must match for a state file to be resumed."""
-    return {
-        "settings": {
-            k: list(v) if isinstance(v, tuple) else v for k, v in asdict(settings).items()
-        },
-        "store": str(store.path.resolve()),
-        "store_created": store.header.created,
-        "split": split_record,
-        "image_size": list(image_size),
-        "seed": cfg.seed,
-        "augmentation": cfg.augmentation.model_dump(),
-        "image_mean": list(cfg.data.image_mean),
-        "image_std": list(cfg.data.image_std),
-    }
-
-
 def pretrain(
     cfg: ExperimentConfig,
     settings: PretrainSettings,
@@ -456,7 +429,9 @@ def pretrain(
     _set_aside_corrupt_state(state_path)
     check_output_file(state_path, "pretrain state", _is_state_file)
     if out.exists() and not overwrite:
-        return PretrainResult(out=out, provenance=dict(_load(out)[PRETRAIN_KEY]), existing=True)
+        return PretrainResult(
+            out=out, provenance=dict(load_mapped(out)[PRETRAIN_KEY]), existing=True
+        )
     if cfg.data.store is None:
         raise ValueError("no store: pass STORE (data.store)")
     store = GraspStore.open(cfg.data.store)
@@ -475,7 +450,20 @@ def pretrain(
             f"{max(image_size[1], minimum)} or larger"
         )
     constants = run_inputs.constants
-    arguments = _arguments(settings, store, split_record, image_size, cfg)
+    # What must match for a state file to be resumed.
+    arguments = {
+        "settings": {
+            k: list(v) if isinstance(v, tuple) else v for k, v in asdict(settings).items()
+        },
+        "store": str(store.path.resolve()),
+        "store_created": store.header.created,
+        "split": split_record,
+        "image_size": list(image_size),
+        "seed": cfg.seed,
+        "augmentation": cfg.augmentation.model_dump(),
+        "image_mean": list(cfg.data.image_mean),
+        "image_std": list(cfg.data.image_std),
+    }
 
     # The depth scale: the training part's depth spread (recorded; a fixed unit per file).
     sample_depth = store.read_depth(train_ids[:: max(1, len(train_ids) // 256)])

@@ -367,14 +367,7 @@ def _inspect_checkpoint(path: Path) -> tuple[ResumePoint | None, str]:
     if "epochs_done" not in state:
         # Pre-release runs saved last.ckpt without the epoch state: it cannot resume exactly.
         return None, "no epoch state (a training checkpoint of a version before 0.1.0)"
-    return (
-        ResumePoint(
-            path=path,
-            epochs_done=int(state["epochs_done"]),
-            best_epoch=int(best.get("best_epoch", -1)),
-        ),
-        "",
-    )
+    return ResumePoint(path, int(state["epochs_done"]), int(best.get("best_epoch", -1))), ""
 
 
 def _pending_best_epoch(path: Path) -> int | None:

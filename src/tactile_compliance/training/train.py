@@ -110,7 +110,6 @@ class RunData:
     """Everything data-related a run needs, prepared once."""
 
     store: GraspStore
-    samples: pd.DataFrame  # filtered
     filter_report: Any
     split: Split
     train_ids: np.ndarray  # after balancing (may repeat)
@@ -145,7 +144,6 @@ def prepare_data(cfg: ExperimentConfig, model: torch.nn.Module) -> RunData:
         )
     return RunData(
         store=store,
-        samples=samples,
         filter_report=report,
         split=split,
         train_ids=np.asarray(train_ids, dtype=np.int64),
@@ -155,13 +153,8 @@ def prepare_data(cfg: ExperimentConfig, model: torch.nn.Module) -> RunData:
 
 
 def check_frame_size(cfg: ExperimentConfig, model: torch.nn.Module, size: tuple[int, int]) -> None:
-    """Fail before a run starts when its frames ((H, W) px) are smaller than the model's
-    backbone accepts (``TactileModel.min_image_size``, declared by the backbone class,
-    e.g. 65 px for Top10NN's unpadded convolutions), instead of in Lightning's first step.
-
-    Raises:
-        ValueError: one line naming the model, the size and the setting to change.
-    """
+    """A ValueError before the run starts, not in Lightning's first step, when its frames
+    ((H, W) px) are smaller than the backbone accepts (``TactileModel.min_image_size``)."""
     minimum = int(getattr(model, "min_image_size", 1))
     height, width = (int(n) for n in size)
     if min(height, width) >= minimum:
@@ -210,18 +203,25 @@ def _tensorboard_logger(run_dir: Path, tensorboard: bool) -> Any:
         ) from err
 
 
-def _loggers(run_dir: Path, earlier_rows: list[dict[str, Any]], tensorboard: Any) -> list[Any]:
-    """The epoch log (logs/metrics.csv) always; TensorBoard on request."""
-    return [EpochLog(run_dir, earlier_rows), *([tensorboard] if tensorboard else [])]
-
-
-def _predictions_frame(
-    data: RunData, ids: np.ndarray, predicted: np.ndarray, split_name: str
-) -> pd.DataFrame:
-    rows = data.store.samples.iloc[ids][list(PREDICTION_COLUMNS)].reset_index(drop=True)
-    rows["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), data.run_inputs.constants)
-    rows["split"] = split_name
-    return rows
+def frozen_features(
+    cfg: ExperimentConfig,
+    store: GraspStore,
+    model: torch.nn.Module,
+    run_inputs: RunInputs,
+    *,
+    progress: bool,
+) -> np.ndarray:
+    """The frozen backbone's features of every store sample, computed once and cached
+    (``data.features``); ``precompute_features`` asks for the same cache as ``train``."""
+    return cached_features(
+        store,
+        model.backbone,
+        run_inputs.image_size,
+        run_inputs.constants,
+        batch_size=max(8, cfg.training.batch_size),
+        device="cuda" if _accelerator(cfg.training.device) == "gpu" else "cpu",
+        progress=progress,
+    )
 
 
 def evaluate_model(
@@ -246,7 +246,10 @@ def evaluate_model(
         predicted = predict_dataset(
             model, dataset, constants, image_size, batch_size=batch_size, device=device
         )
-        frames.append(_predictions_frame(data, ids, predicted, name))
+        rows = data.store.samples.iloc[ids][list(PREDICTION_COLUMNS)].reset_index(drop=True)
+        rows["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), constants)
+        rows["split"] = name
+        frames.append(rows)
     predictions = pd.concat(frames, ignore_index=True)
     test = predictions[predictions["split"] == "test"]
     val = predictions[predictions["split"] == "val"]
@@ -275,7 +278,6 @@ def release_memory() -> None:
     a gigabyte for VGG16) lives until a garbage-collection cycle; and glibc keeps freed
     arenas unless asked to return them. Grid workers run many cells in one process.
     """
-    import contextlib
     import ctypes
     import gc
 
@@ -354,40 +356,34 @@ def train(
         claim_output_dir(run_dir, RUN_KIND, option="--out")
     if not overwrite and (finished := _finished_result(run_dir)) is not None:
         return finished
+    started = time.perf_counter()
+    lock = run_dir / LOCK_FILE
     try:
-        with lightning_messages(verbose):
-            return _train(cfg, run_dir, progress=progress, overwrite=overwrite)
+        with lightning_messages(verbose), contextlib.ExitStack() as stack:
+            # An existing run directory is locked before anything else, so a second process
+            # fails at once; a new one only after the configuration and the store passed
+            # every check, so that a failed check leaves no directory behind.
+            locked = run_dir.is_dir()
+            if locked:  # checked above: it is ours
+                stack.enter_context(exclusive_lock(lock, "run directory", wait=False))
+            _accelerator(cfg.training.device)  # a missing GPU fails before anything is written
+            tensorboard = _tensorboard_logger(run_dir, cfg.training.tensorboard)
+            L.seed_everything(cfg.seed, workers=True, verbose=False)
+            model = build_model(cfg)
+            data = prepare_data(cfg, model)
+            check_frame_size(cfg, model, data.run_inputs.image_size)
+            if not locked:
+                claim_output_dir(run_dir, RUN_KIND, option="--out")
+                stack.enter_context(exclusive_lock(lock, "run directory", wait=False))
+            # Another process may have finished this run while this one prepared its data.
+            if not overwrite and (finished := _finished_result(run_dir)) is not None:
+                return finished
+            return _fit_and_evaluate(
+                cfg, run_dir, model, data, tensorboard, started, progress, overwrite
+            )
+        raise AssertionError("unreachable")  # pragma: no cover - the with block returns
     finally:
         release_memory()
-
-
-def _train(
-    cfg: ExperimentConfig, run_dir: Path, *, progress: bool, overwrite: bool
-) -> dict[str, Any]:
-    started = time.perf_counter()
-    with contextlib.ExitStack() as stack:
-        # An existing run directory is locked before anything else, so a second process
-        # fails at once; a new one only after the configuration and the store passed
-        # every check, so that a failed check leaves no directory behind.
-        locked = run_dir.is_dir()
-        if locked:  # train() checked it is ours
-            stack.enter_context(exclusive_lock(run_dir / LOCK_FILE, "run directory", wait=False))
-        _accelerator(cfg.training.device)  # a missing GPU fails before anything is written
-        tensorboard = _tensorboard_logger(run_dir, cfg.training.tensorboard)
-        L.seed_everything(cfg.seed, workers=True, verbose=False)
-        model = build_model(cfg)
-        data = prepare_data(cfg, model)
-        check_frame_size(cfg, model, data.run_inputs.image_size)
-        if not locked:
-            claim_output_dir(run_dir, RUN_KIND, option="--out")
-            stack.enter_context(exclusive_lock(run_dir / LOCK_FILE, "run directory", wait=False))
-        # Another process may have finished this run while this one prepared its data.
-        if not overwrite and (finished := _finished_result(run_dir)) is not None:
-            return finished
-        return _fit_and_evaluate(
-            cfg, run_dir, model, data, tensorboard, started, progress, overwrite
-        )
-    raise AssertionError("unreachable")  # pragma: no cover - the with block returns
 
 
 def _fit_and_evaluate(
@@ -421,7 +417,8 @@ def _fit_and_evaluate(
     resume = find_resume_point(run_dir)
     earlier_rows = read_earlier_rows(run_dir / EPOCH_LOG, resume.epochs_done) if resume else []
 
-    device = "cuda" if _accelerator(cfg.training.device) == "gpu" else "cpu"
+    accelerator = _accelerator(cfg.training.device)
+    device = "cuda" if accelerator == "gpu" else "cpu"
     features = None
     augmentation = None
     # A frozen backbone is recorded (how to rebuild it + its sha256), not saved: best.pt
@@ -435,15 +432,7 @@ def _fit_and_evaluate(
     weights_file = backbone_weights_file_record(model)
     if cfg.model.freeze_backbone:
         # (Augmentation is ignored here; the config's validation already warned.)
-        features = cached_features(
-            data.store,
-            model.backbone,
-            data.run_inputs.image_size,
-            data.run_inputs.constants,
-            batch_size=max(8, cfg.training.batch_size),
-            device=device,
-            progress=progress,
-        )
+        features = frozen_features(cfg, data.store, model, data.run_inputs, progress=progress)
     elif cfg.augmentation.enabled:
         augmentation = GraspAugmentation.from_config(cfg.augmentation, seed=cfg.seed)
 
@@ -487,8 +476,6 @@ def _fit_and_evaluate(
     callbacks: list[Callback] = [best, epoch_state]
     if cfg.training.patience > 0:
         callbacks.append(EarlyStopping("val_nmse", patience=cfg.training.patience, mode="min"))
-    accelerator = _accelerator(cfg.training.device)
-    loggers = _loggers(run_dir, earlier_rows, tensorboard)
     trainer = L.Trainer(
         max_epochs=cfg.training.max_epochs,
         accelerator=accelerator,
@@ -496,7 +483,7 @@ def _fit_and_evaluate(
         precision=cfg.training.precision,
         deterministic=accelerator == "cpu",
         callbacks=callbacks,
-        logger=loggers,
+        logger=[EpochLog(run_dir, earlier_rows), *([tensorboard] if tensorboard else [])],
         enable_progress_bar=progress,
         enable_model_summary=False,
         num_sanity_val_steps=0,

@@ -1,16 +1,12 @@
 """Hyperparameter tuning with SMAC3: the models' declared search spaces, epochs as budget.
 
 * :func:`tune` searches one model's hyperparameters for one input strategy with SMAC's
-  multi-fidelity facade (Hyperband over epochs, ``min_epochs``..``max_epochs``), objective
-  the validation N-MSE of the trial's last epoch (``objective="best"``: of its best
-  epoch), 132 trials by default, deterministic, as in the paper. Every trial is one call
+  multi-fidelity facade (Hyperband over epochs), as in the paper. Every trial is one call
   of the training path (:func:`tactile_compliance.training.train.train`) with
   ``training.max_epochs`` set to the trial's budget. Any registered model can be tuned:
-  its class declares the search space (``hpo_space``; defaults = its paper settings), see
-  ``models.settings``.
-* :func:`tune_balance` searches ``sampling.t_balance`` in [0, 1] (step 0.01) with cost =
-  mean validation N-MSE of the models (default: all registered) after a fixed number of
-  epochs (10 x 30 trials by default; the paper's 50 x 132 with ``--paper-budget``).
+  its class declares the search space (``hpo_space``, see ``models.settings``).
+* :func:`tune_balance` searches ``sampling.t_balance`` in [0, 1] (step 0.01), cost the
+  mean validation N-MSE of the models after a fixed number of epochs.
 
 Both write what they found as files the other commands accept directly::
 

@@ -1,16 +1,6 @@
 """The tuning drivers: :func:`tune` (a model's hyperparameters) and :func:`tune_balance`
 (``sampling.t_balance``), and the files they write (``best.yaml``, ``tuned.yaml``, ...).
-
-The paper's settings, and how far the defaults are from them:
-
-* ``tune``: the defaults are the paper's (132 trials, Hyperband over 5-50 epochs, eta 3,
-  cost = the last epoch's validation N-MSE).
-* ``tune_balance``: the paper ran 132 trials of 50 epochs per model; the default here is
-  30 trials of 10 epochs (about 1/22 of the compute), and ``paper_budget=True``
-  (``--paper-budget``) is the paper's budget.
-* Both score a trial on its last epoch, as the published code does; ``objective="best"``
-  (``--objective best``) scores it on its best epoch instead (see ``objectives``).
-"""
+How their defaults relate to the paper's settings: see each function's docstring."""
 
 from __future__ import annotations
 
@@ -21,17 +11,16 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from tactile_compliance.config import (
     ConfigError,
     ExperimentConfig,
     config_from_dict,
     config_to_dict,
     save_config,
+    write_yaml,
 )
 from tactile_compliance.models import list_models
-from tactile_compliance.outputs import atomic_file, claim_output_dir
+from tactile_compliance.outputs import claim_output_dir
 from tactile_compliance.training.experiment_file import load_experiment
 from tactile_compliance.training.hpo.objectives import (
     DEFAULT_OBJECTIVE,
@@ -129,14 +118,6 @@ class TuneResult:
             "trials_csv": str(self.trials_path),
             "also": [str(p) for p in self.extra_paths],
         }
-
-
-def _write_yaml(path: Path, header: str, data: Mapping[str, Any]) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = header + yaml.safe_dump(dict(data), sort_keys=False, default_flow_style=None)
-    with atomic_file(path) as handle:
-        handle.write(text)
-    return path
 
 
 @dataclass
@@ -249,15 +230,9 @@ class _Search:
         paths: Sequence[Path],
         decode: bool = True,
     ) -> TuneResult:
-        """Write ``OUT/trials.csv`` and sum the search up.
-
-        Args:
-            facade: the SMAC facade after the search.
-            best: the tuned values (dotted keys).
-            cost: the best cost and the budget it was reached at (None: no budgets).
-            paths: the config to use, the tuned values, then any other written files.
-            decode: write the trials' values as config values.
-        """
+        """Write ``OUT/trials.csv`` and sum the search up: ``best`` the tuned values,
+        ``cost`` the best cost and its budget, ``paths`` the config to use, the tuned
+        values, then any other written files; ``decode``: trials' values as config values."""
         table = trials_table(facade, decode=decode)
         trials_path = self.out / "trials.csv"
         table.to_csv(trials_path, index=False)
@@ -373,7 +348,7 @@ def tune(
         f"{budget} epochs.\n# Dotted overrides; use with `include:` in an experiment rule, "
         "or --set each line.\n"
     )
-    tuned_path = _write_yaml(search.out / "tuned.yaml", header, best_values)
+    tuned_path = write_yaml(search.out / "tuned.yaml", header, best_values)
     # The caller prints result.format() (the CLI does).
     return search.result(facade, best_values, (cost, budget), [config_path, tuned_path])
 
@@ -471,18 +446,13 @@ def tune_balance(
         f"{_OBJECTIVE_WORDS[objective]} validation N-MSE {cost:.5f} of {', '.join(models)} "
         f"after {epochs} epochs, {trials} trials.\n"
     )
-    tuned_path = _write_yaml(search.out / "tuned.yaml", header, best)
-    extra_paths = []
-    for base in bases:
-        cfg = config_from_dict(
-            config_to_dict(base),
-            [
-                "sampling.strategy=balanced",
-                f"sampling.t_balance={t_balance}",
-                f"output_dir={Path('runs') / label}",
-            ],
-        )
-        extra_paths.append(save_config(cfg, search.out / f"best-{cfg.model.name}.yaml"))
+    tuned_path = write_yaml(search.out / "tuned.yaml", header, best)
+    tuned = [
+        *(f"{key}={value}" for key, value in best.items()),
+        f"output_dir={Path('runs') / label}",
+    ]
+    tuned_cfgs = [config_from_dict(config_to_dict(base), tuned) for base in bases]
+    extra_paths = [save_config(c, search.out / f"best-{c.model.name}.yaml") for c in tuned_cfgs]
     config_path = extra_paths[0]
     spec = load_experiment(config, quick=False)
     if not spec.is_plain_config:
@@ -493,7 +463,7 @@ def tune_balance(
             "set": best,
         }
         # Named after the experiment: its runs go to runs/NAME-tuned(-quick).
-        config_path = _write_yaml(search.out / f"{spec.name}-tuned.yaml", header, experiment)
+        config_path = write_yaml(search.out / f"{spec.name}-tuned.yaml", header, experiment)
     others = [p for p in extra_paths if p != config_path]
     return search.result(
         facade,

@@ -122,16 +122,17 @@ def base_config(
     """
     inputs = canonical_inputs(inputs)
     spec = load_experiment(config, quick=quick)
+    # The cell an experiment is filtered to, or the overrides of a plain config.
+    chosen = [f"model.name={model}", f"inputs={inputs}"]
+    if condition:
+        chosen.append(f"split.condition={condition}")
     if not spec.is_plain_config:
-        where = [f"model.name={model}", f"inputs={inputs}"]
-        if condition:
-            where.append(f"split.condition={condition}")
         cells = expand_experiment(
             spec,
             seeds=[seed] if seed is not None else spec.seeds[:1],
             store=store,
             overrides=overrides,
-            where=where,
+            where=chosen,
         )
         if not cells:
             raise ConfigError(
@@ -139,14 +140,11 @@ def base_config(
                 + (f" and condition {condition}" if condition else "")
             )
         return cells[0].cfg
-    extra = [f"model.name={model}", f"inputs={inputs}"]
     if store is not None:
-        extra.append(f"data.store={json.dumps(str(Path(store).resolve()))}")
+        chosen.append(f"data.store={json.dumps(str(Path(store).resolve()))}")
     if seed is not None:
-        extra.append(f"seed={seed}")
-    if condition:
-        extra.append(f"split.condition={condition}")
-    return load_config(spec.config, [*extra, *overrides])
+        chosen.append(f"seed={seed}")
+    return load_config(spec.config, [*chosen, *overrides])
 
 
 def check_store(base: ExperimentConfig) -> None:
@@ -190,16 +188,12 @@ def _train_trial(cfg: ExperimentConfig, trials_dir: str) -> dict[str, Any]:
 
 @dataclass
 class _Objective:
-    """A SMAC target function: a picklable object (Dask ships it to the workers).
-
-    ``__call__`` bodies are fingerprinted by SMAC (below): changing one makes SMAC refuse
-    to continue searches started before the change.
-    """
+    """A SMAC target function: a picklable object (Dask ships it to the workers)."""
 
     @property
     def __code__(self) -> Any:
         # SMAC fingerprints a target function by its bytecode (to decide whether an old run
-        # may be continued); give it the bytecode of __call__.
+        # may be continued): changing a __call__ body makes it refuse older searches.
         return type(self).__call__.__code__
 
 

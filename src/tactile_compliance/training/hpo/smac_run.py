@@ -65,13 +65,9 @@ def search_name(prefix: str, *parts: Any) -> str:
 
 # =========================================================================== resuming
 def _reconcile_previous_run(scenario: Any) -> None:
-    """Let SMAC continue an earlier run that differs only in its trial budget.
-
-    SMAC continues a run only when the saved scenario equals the new one; otherwise it asks
-    on stdin. The directory name already pins everything that defines the search, so the
-    only differences left are the number of trials and time limits: write the new values
-    into the saved scenario (and un-finish it when more trials are asked for).
-    """
+    """Let SMAC continue an earlier run that differs only in its trial budget: the
+    directory name pins everything else, so write the new trial and time limits into the
+    saved scenario (and un-finish it when more trials are asked for)."""
     directory = Path(scenario.output_directory)
     saved_path = directory / "scenario.json"
     if not saved_path.exists():
