@@ -201,7 +201,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "normalisation",
         "analytical estimates are not clamped to [1e2, 1e14] Pa before log10",
         "data/normalisation.py",
-        "clamped = torch.clamp(x, lo, hi) if isinstance(x, torch.Tensor) else np.clip(x, lo, hi)",
+        "clamped = _torch().clamp(x, lo, hi) if _is_tensor(x) else np.clip(x, lo, hi)",
         "clamped = x",
     ),
     _m(
@@ -275,7 +275,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "restore-best-tracks-last",
         "restore",
         "the best-checkpoint callback keeps every epoch (best = last)",
-        "training/train.py",
+        "training/resume.py",
         "if score < self.best:",
         "if True:",
     ),
@@ -283,8 +283,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         "checkpoint-records-wrong-inputs",
         "restore",
         "the checkpoint records inputs=ALL whatever the model's strategy",
-        "runs/checkpoint.py",
-        '"inputs": model.inputs.value,',
+        "runs/run_inputs.py",
+        '"inputs": self.inputs.value,',
         '"inputs": "ALL",',
     ),
     # ------------------------------------------------------------------ augmentation
