@@ -479,7 +479,7 @@ def draw_frames(curves: dict[str, dict[str, list]], label: str, path: Path) -> N
                 strong = (frame.astype(np.float32) - 127.5) * FRAMES_GAIN + 127.5
                 ax.imshow(np.clip(strong, 0, 255).astype(np.uint8)[..., ::-1])  # BGR -> RGB
     fig.tight_layout()
-    fig.savefig(path, dpi=80, pil_kwargs={"optimize": True})
+    fig.savefig(path, dpi=64, pil_kwargs={"optimize": True})  # photographs: keep it small
     plt.close(fig)
 
 
