@@ -473,3 +473,22 @@ def test_a_pre_release_training_checkpoint_is_set_aside_naming_the_version(tmp_p
     with pytest.warns(RuntimeWarning, match=r"version before 0\.1\.0.*starting the run over"):
         assert find_resume_point(tmp_path) is None
     assert not last.exists() and last.with_name(LAST_CHECKPOINT + ".corrupt").is_file()
+
+
+def test_the_epoch_log_reader_skips_lines_without_an_epoch(tmp_path: Path) -> None:
+    from tactile_compliance.runs.layout import read_epoch_log
+    from tactile_compliance.training.resume import read_earlier_rows
+
+    log = tmp_path / "metrics.csv"
+    # Train and validation lines of two epochs, a line without an epoch and one cut short.
+    lines = ["epoch,train_loss,val_nmse", "0,0.5,", "0,,0.2", ",0.4,", "1,0.3,", "1.0,,0.1", "2,0."]
+    log.write_text("\n".join(lines), encoding="utf-8")
+    rows = read_epoch_log(log)
+    assert [epoch for epoch, _ in rows] == [0, 0, 1, 1, 2]
+    assert rows[2][1]["train_loss"] == "0.3"
+    # A resumed run after one epoch keeps epoch 0's lines, without their empty cells.
+    assert read_earlier_rows(log, 1) == [
+        {"epoch": "0", "train_loss": "0.5"},
+        {"epoch": "0", "val_nmse": "0.2"},
+    ]
+    assert read_earlier_rows(tmp_path / "missing.csv", 1) == []

@@ -421,12 +421,28 @@ def _preset_dir() -> Any:
     return importlib.resources.files("tactile_compliance") / "configs"
 
 
-def list_presets() -> list[str]:
-    """Names of the packaged presets (``tactile_compliance/configs/*.yaml``)."""
-    directory = _preset_dir()
+def yaml_names(directory: Any) -> list[str]:
+    """Sorted names (without ``.yaml``) of the YAML files in a packaged ``directory``."""
     if not directory.is_dir():
         return []
     return sorted(p.name[: -len(".yaml")] for p in directory.iterdir() if p.name.endswith(".yaml"))
+
+
+def list_presets() -> list[str]:
+    """Names of the packaged presets (``tactile_compliance/configs/*.yaml``)."""
+    return yaml_names(_preset_dir())
+
+
+def split_reference(ref: str | Path, relative_to: Path | None) -> tuple[Path, str, bool]:
+    """A config or experiment reference as the user wrote it: its path (relative ones
+    resolved against ``relative_to``), its name without ``.yaml``, and whether it is a bare
+    name (no directory part), which may name a packaged preset."""
+    path = Path(ref)
+    if relative_to is not None and not path.is_absolute():
+        path = relative_to / path
+    text = str(ref)
+    stem = text[: -len(".yaml")] if text.endswith(".yaml") else text
+    return path, stem, isinstance(ref, str) and "/" not in text and "\\" not in text
 
 
 def preset_path(name: str) -> Any:
@@ -444,16 +460,11 @@ def _read_source(
     ref: str | Path, relative_to: Path | None
 ) -> tuple[dict[str, Any], str, Path | None]:
     """Raw mapping of a config file or preset, its display name and its directory."""
-    path = Path(ref)
-    if relative_to is not None and not path.is_absolute():
-        path = relative_to / path
-    text = str(ref)
-    stem = text[: -len(".yaml")] if text.endswith(".yaml") else text
-    is_bare_name = isinstance(ref, str) and "/" not in text and "\\" not in text
+    path, stem, is_bare_name = split_reference(ref, relative_to)
     is_preset = is_bare_name and (_preset_dir() / f"{stem}.yaml").is_file()
     if path.is_file():
         body, origin, directory = path.read_text(encoding="utf-8"), str(path), path.parent
-    elif is_preset or (is_bare_name and not text.endswith((".yaml", ".yml"))):
+    elif is_preset or (is_bare_name and not str(ref).endswith((".yaml", ".yml"))):
         # preset_path raises, naming the presets, for a name that is none of them.
         body = preset_path(stem).read_text(encoding="utf-8")
         origin, directory = f"preset {stem}", None

@@ -10,6 +10,7 @@ One process at a time trains in a run directory: it holds ``outputs.exclusive_lo
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import json
 from pathlib import Path
@@ -30,6 +31,25 @@ LOCK_FILE = ".lock"
 #: The columns of predictions.csv taken from the store: a sample's identity and label
 #: ("sample_id" ... "modulus_pa"); the prediction follows as "pred_pa".
 PREDICTION_COLUMNS = SAMPLE_COLUMNS[: SAMPLE_COLUMNS.index("modulus_pa") + 1]
+
+
+def read_epoch_log(path: str | Path) -> list[tuple[int, dict[str, str]]]:
+    """The lines of an epoch log (:data:`EPOCH_LOG`) with a readable epoch, as
+    ``(epoch, line)``; a line without one is skipped (cut short by a kill, or a line that
+    older versions wrote in place).
+
+    Raises:
+        OSError, csv.Error, UnicodeDecodeError: the file cannot be read.
+    """
+    with open(path, newline="", encoding="utf-8") as handle:
+        rows = list(csv.DictReader(handle))
+    out = []
+    for row in rows:
+        try:
+            out.append((int(float(row.get("epoch") or "nan")), row))  # NaN raises too
+        except ValueError:
+            continue
+    return out
 
 
 def config_hash(cfg: ExperimentConfig) -> str:

@@ -76,6 +76,8 @@ from tactile_compliance.config import (
     list_presets,
     load_config,
     parse_yaml,
+    split_reference,
+    yaml_names,
 )
 from tactile_compliance.models import paper_settings
 from tactile_compliance.runs.layout import config_hash, run_name
@@ -201,10 +203,7 @@ def _experiments_dir() -> Any:
 
 def list_experiment_presets() -> list[str]:
     """Names of the packaged experiment presets (each also has a ``--quick`` variant)."""
-    directory = _experiments_dir()
-    if not directory.is_dir():
-        return []
-    return sorted(p.name[: -len(".yaml")] for p in directory.iterdir() if p.name.endswith(".yaml"))
+    return yaml_names(_experiments_dir())
 
 
 def experiment_preset_descriptions(quick: bool = False) -> dict[str, str]:
@@ -217,12 +216,7 @@ def experiment_preset_descriptions(quick: bool = False) -> dict[str, str]:
 # =========================================================================== loading
 def _locate(ref: str | Path, relative_to: Path | None) -> tuple[Any, str, Path | None, str]:
     """(file, origin, directory for relative paths, name) of an experiment reference."""
-    text = str(ref)
-    path = Path(ref)
-    if relative_to is not None and not path.is_absolute():
-        path = relative_to / path
-    stem = text[: -len(".yaml")] if text.endswith(".yaml") else text
-    bare = isinstance(ref, str) and "/" not in text and "\\" not in text
+    path, stem, bare = split_reference(ref, relative_to)
     if bare and (_experiments_dir() / f"{stem}.yaml").is_file():
         return _experiments_dir() / f"{stem}.yaml", f"experiment preset {stem}", None, stem
     if path.is_file():
@@ -231,7 +225,7 @@ def _locate(ref: str | Path, relative_to: Path | None) -> tuple[Any, str, Path |
         return None, f"config preset {stem}", None, stem
     presets = ", ".join(list_experiment_presets())
     raise ConfigError(
-        f"no experiment file or preset named {text!r} (experiment presets: {presets})"
+        f"no experiment file or preset named {str(ref)!r} (experiment presets: {presets})"
     )
 
 

@@ -37,6 +37,7 @@ from tactile_compliance.runs.layout import (
     LAST_CHECKPOINT,
     PREVIOUS_CHECKPOINT,
     RESULT_FILE,
+    read_epoch_log,
 )
 
 __all__ = [
@@ -324,19 +325,14 @@ class EpochLog(Logger):
 def read_earlier_rows(path: Path, epochs_done: int) -> list[dict[str, Any]]:
     """The log lines of the epochs a resumed run keeps (epoch < ``epochs_done``)."""
     try:
-        with open(path, newline="", encoding="utf-8") as handle:
-            rows = list(csv.DictReader(handle))
+        rows = read_epoch_log(path)
     except (OSError, csv.Error, UnicodeDecodeError):
         return []
-    kept = []
-    for row in rows:
-        try:
-            epoch = int(float(row.get("epoch") or "nan"))
-        except ValueError:
-            continue  # a line cut short by a kill (older versions wrote in place)
-        if epoch < epochs_done:
-            kept.append({k: v for k, v in row.items() if k is not None and v not in ("", None)})
-    return kept
+    return [
+        {k: v for k, v in row.items() if k is not None and v not in ("", None)}
+        for epoch, row in rows
+        if epoch < epochs_done
+    ]
 
 
 @dataclass

@@ -30,7 +30,7 @@ from tactile_compliance.config import (
     config_to_dict,
     load_config,
 )
-from tactile_compliance.runs.layout import EPOCH_LOG, config_hash
+from tactile_compliance.runs.layout import EPOCH_LOG, config_hash, read_epoch_log
 from tactile_compliance.training.cluster import limit_threads
 from tactile_compliance.training.experiment import precompute_features
 from tactile_compliance.training.experiment_file import expand_experiment, load_experiment
@@ -71,14 +71,12 @@ def last_epoch_val_nmse(run_dir: str | Path) -> float:
     """
     path = Path(run_dir) / EPOCH_LOG
     try:
-        with open(path, newline="", encoding="utf-8") as handle:
-            rows = list(csv.DictReader(handle))
+        rows = read_epoch_log(path)
     except (OSError, csv.Error, UnicodeDecodeError) as err:
         raise ValueError(f"{path}: cannot read the epoch log ({err})") from err
     last: tuple[int, float] | None = None
-    for row in rows:
+    for epoch, row in rows:
         try:
-            epoch = int(float(row.get("epoch") or "nan"))  # NaN (no epoch) raises too
             value = float(row.get("val_nmse") or "nan")
         except ValueError:
             continue
