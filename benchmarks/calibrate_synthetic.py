@@ -297,18 +297,19 @@ def real_transfer_probes(  # type: ignore[no-untyped-def]
 
     y = np.log10(samples["modulus_pa"].to_numpy(dtype=np.float64))
     real = inputs(real_samples, real_image)
-    keys = real_samples[["object", "grasp"]].astype(str).agg("/".join, axis=1).to_numpy()
     result = {}
     for name, x in inputs(samples, image).items():
         model = HistGradientBoostingRegressor(random_state=seed).fit(x, y)
-        predicted = model.predict(real[name])
+        rows = real_samples[["object", "grasp", "modulus_pa"]].assign(
+            log_pa=model.predict(real[name])
+        )
         grasps = [
             {
-                "object": real_samples["object"].to_numpy()[keys == key][0],
-                "true_pa": float(real_samples["modulus_pa"].to_numpy()[keys == key][0]),
-                "probe_pa": float(10 ** predicted[keys == key].mean()),
+                "object": obj,
+                "true_pa": float(g["modulus_pa"].iloc[0]),
+                "probe_pa": float(10 ** g["log_pa"].mean()),
             }
-            for key in dict.fromkeys(keys)
+            for (obj, _), g in rows.groupby(["object", "grasp"], sort=False)
         ]
         result[name] = {
             "score": score(grasps, "probe_pa"),

@@ -158,9 +158,14 @@ def simulated_grasps(
 CONTACT_GREY = 15
 
 
+def contact_mask(diff: np.ndarray) -> np.ndarray:
+    """Where frames (..., H, W, 3; difference around 0) are in contact (CONTACT_GREY)."""
+    return np.abs(diff).max(axis=-1) > CONTACT_GREY / 255
+
+
 def contact_share(diff: np.ndarray) -> np.ndarray:
-    """Share of each frame (..., H, W, 3; difference around 0) in contact (CONTACT_GREY)."""
-    return (np.abs(diff).max(axis=-1) > CONTACT_GREY / 255).mean(axis=(-2, -1))
+    """Share of each frame (..., H, W, 3; difference around 0) in contact."""
+    return contact_mask(diff).mean(axis=(-2, -1))
 
 
 def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
@@ -173,9 +178,9 @@ def image_stats(store_path: Path) -> dict[str, dict[str, float]]:
     out = {}
     for label, rows in chosen.groupby("object"):
         frames = store.load_frames(rows.sample_id.to_numpy()) - 0.5  # (n, 3, H, W, RGB)
-        shares = contact_share(frames)  # (n, 3)
         diff = frames[:, 2]
-        contact = np.abs(diff).max(axis=-1) > CONTACT_GREY / 255  # (n, H, W)
+        contact = contact_mask(diff)  # (n, H, W)
+        shares = contact_share(frames)  # (n, 3)
         out[str(label)] = {
             "contact_share": float(contact.mean()),
             # Contact area against force over the three selected frames.
@@ -530,15 +535,15 @@ def print_gel_mechanics(radius_mm: float = 21.3) -> dict[str, list[float]]:
     """The generator's contact mechanics alone: the geometric contact area of a rigid ball
     (the golf ball's radius [mm]) as a share of the visible frame, at
     :data:`CURVE_FORCES_N`, for each of :data:`GEL_VARIANTS` (no rendering, no rig)."""
-    from tactile_compliance.synthetic.geometry import PadGrid
+    from tactile_compliance.synthetic.geometry import PadGrid, Pose, ShapeSpec, sag_map
     from tactile_compliance.synthetic.mechanics import GelModel, ObjectMechanics, force_curve
     from tactile_compliance.synthetic.render import VISIBLE_SIZE_MM
     from tactile_compliance.synthetic.timeseries import RIGS
 
     grid = PadGrid(0.25)
+    ball = ShapeSpec("Sphere", {"radius_mm": radius_mm}, thickness_mm=2 * radius_mm)
+    sag = sag_map(ball, grid, Pose(offset_mm=(0.0, 0.0), angle_rad=0.0, tilt=(0.0, 0.0)))
     x, y = grid.coords()
-    r2 = x.astype(np.float64) ** 2 + y.astype(np.float64) ** 2
-    sag = np.where(r2 < radius_mm**2, radius_mm - np.sqrt(np.maximum(radius_mm**2 - r2, 0)), 1e3)
     # The visible crop, where the images' contact share is counted.
     visible = (np.abs(x) < VISIBLE_SIZE_MM[0] / 2) & (np.abs(y) < VISIBLE_SIZE_MM[1] / 2)
     golf = ObjectMechanics(8.5e8, size_mm=2 * radius_mm)
