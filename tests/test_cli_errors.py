@@ -13,7 +13,7 @@ Where each mistake of issue 29 is tested:
   OpenCV's warnings; a config typo reported before torch and Lightning load; ``--device
   cuda`` without a GPU; every ``device`` default;
 - tests/test_cli_help.py: values outside the choices (``--fingers markeless``, ...),
-  unknown options, missing arguments; ``live --source`` and a forgotten source;
+  unknown options, missing arguments; a forgotten ``live`` source;
 - tests/test_recording.py: ``live`` without an estimate (estimates missing, frame size,
   clock mismatch, too weak a grasp); ``record`` of a grasp without estimates;
 - tests/test_inference.py: ``predict`` where no sample has the checkpoint's inputs.
@@ -129,14 +129,9 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
         "an experiment on a missing store": (
             [
                 *("experiment", "table1", "--quick", "--store", str(tmp / "no-store")),
-                *("--output-dir", str(tmp / "runs"), "--results", str(tmp / "results")),
+                *("--out", str(tmp / "runs"), "--results", str(tmp / "results")),
             ],
             ["store not found", "no-store"],
-            [],
-        ),
-        "an option under its new and its old name": (
-            ["train", "--out", str(tmp / "a"), "--run-dir", str(tmp / "b")],
-            ["give --out only (--run-dir is its old name)"],
             [],
         ),
         "split-summary given two directories": (

@@ -427,7 +427,7 @@ def _experiment(grid: Path, store, out: Path, trace: Path) -> subprocess.Popen:
     """``tactile-compliance experiment`` as a user runs it, in its own process group (the
     driver and its Dask workers), every training epoch traced."""
     command = [sys.executable, "-m", "tactile_compliance.cli", "experiment", str(grid)]
-    command += ["--store", str(store.path), "--output-dir", str(out), "--workers", "1"]
+    command += ["--store", str(store.path), "--out", str(out), "--workers", "1"]
     return subprocess.Popen(
         command,
         env=traced_env(trace.parent / "site", trace),

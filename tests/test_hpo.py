@@ -404,7 +404,7 @@ def _tune_command(store, out: Path, trace: Path) -> subprocess.Popen:
     """``tactile-compliance tune`` as a user runs it (serial trials in its own process),
     every training epoch traced."""
     command = [sys.executable, "-m", "tactile_compliance.cli", "tune", "top10nn"]
-    command += ["--inputs", "Image", "--store", str(store.path), "--output-dir", str(out)]
+    command += ["--inputs", "Image", "--store", str(store.path), "--out", str(out)]
     command += [f"--set={override}" for override in TOP10]
     command += ["--trials", str(KILL_TRIALS), "--min-epochs", str(KILL_EPOCHS)]
     command += ["--max-epochs", str(KILL_EPOCHS)]

@@ -77,13 +77,13 @@ def _commands(user: Path, user_file: Path, store: Path) -> dict[str, list[str]]:
             "32x32",
         ],
         "split --out (a file)": ["split", str(store), "--out", str(user_file)],
-        "experiment --output-dir": [
+        "experiment --out": [
             "experiment",
             "table1",
             "--quick",
             "--store",
             str(store),
-            "--output-dir",
+            "--out",
             str(user),
         ],
         "experiment --results": [
@@ -92,14 +92,14 @@ def _commands(user: Path, user_file: Path, store: Path) -> dict[str, list[str]]:
             "--quick",
             "--store",
             str(store),
-            "--output-dir",
+            "--out",
             str(user.parent / "fresh-runs"),
             "--results",
             str(user),
         ],
         "report --out": ["report", str(store), "--out", str(user)],
-        "train --run-dir": ["train", "--set", f"data.store={store}", "--run-dir", str(user)],
-        "tune --output-dir": [
+        "train --out": ["train", "--set", f"data.store={store}", "--out", str(user)],
+        "tune --out": [
             "tune",
             "top10nn",
             "--store",
@@ -110,12 +110,12 @@ def _commands(user: Path, user_file: Path, store: Path) -> dict[str, list[str]]:
             "1",
             "--max-epochs",
             "1",
-            "--output-dir",
+            "--out",
             str(user),
         ],
         "export --onnx (a file)": ["export", str(store / "no-run"), "--onnx", str(user_file)],
         "export --safetensors": ["export", str(store / "no-run"), "--safetensors", str(user)],
-        "tune-balance --output-dir": [
+        "tune-balance --out": [
             "tune-balance",
             "--store",
             str(store),
@@ -125,7 +125,7 @@ def _commands(user: Path, user_file: Path, store: Path) -> dict[str, list[str]]:
             "1",
             "--epochs",
             "1",
-            "--output-dir",
+            "--out",
             str(user),
         ],
         "demo --out": ["demo", "--out", str(user), "--mode", "ci"],

@@ -360,7 +360,7 @@ def test_pretrain_train_predict_through_the_cli(depth_store, tmp_path):
         app,
         [
             "train",
-            "--run-dir",
+            "--out",
             str(tmp_path / "run"),
             *("--set", f"data.store={depth_store.path}"),
             *("--set", "model.name=res_tf"),

@@ -225,7 +225,7 @@ def test_cli_train_and_evaluate(toy_store, tmp_path):
         "data.image_size=[72,72]",
         "--set",
         "training.max_epochs=1",
-        "--run-dir",
+        "--out",
         str(tmp_path / "cli-run"),
     ]
     result = runner.invoke(app, args)

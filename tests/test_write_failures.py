@@ -121,13 +121,13 @@ def test_train_on_a_full_disk_is_one_line_with_exit_code_1(tmp_path, monkeypatch
     store = make_toy_store(tmp_path / "store", n_objects=6, grasps=2)
     monkeypatch.setattr(torch, "save", _torch_full_disk)
     args = ["train", "--set", f"data.store={store.path}", "--set", "data.image_size=[72,72]"]
-    args += ["--set", "training.max_epochs=1", "--run-dir", str(tmp_path / "run")]
+    args += ["--set", "training.max_epochs=1", "--out", str(tmp_path / "run")]
     assert "No space left on device" in _one_line(runner.invoke(app, args), EXIT_FAILED)
 
 
 def test_a_huge_image_size_is_refused_before_a_run_directory_exists(tmp_path):
     args = ["train", "--set", f"data.store={tmp_path}", "--set", "data.image_size=[20000,20000]"]
-    args += ["--run-dir", str(tmp_path / "run")]
+    args += ["--out", str(tmp_path / "run")]
     assert "out of range" in _one_line(runner.invoke(app, args), EXIT_BAD_INPUT)
     assert not (tmp_path / "run").exists()
 

@@ -182,39 +182,6 @@ def _main_with_one_line_errors(main: Any, *args: Any, **kwargs: Any) -> Any:
     sys.exit(code if isinstance(code, int) else 0)
 
 
-#: Options that became a command's last argument (docs/cli.md): command -> the old option,
-#: which still parses for one release, hidden. Not a declared option like the other old
-#: names (`_renamed`): the argument it fills follows a variadic one (`live CHECKPOINT...
-#: SOURCE`), which click could only parse with both arguments optional.
-_OPTIONS_NOW_ARGUMENTS = {"live": "--source"}
-
-
-def _option_as_last_argument(args: list[str], option: str, ctx: Any = None) -> list[str]:
-    """``args`` with ``option VALUE`` (or ``option=VALUE``) moved to the end as the last
-    positional argument; unchanged without the option."""
-    rest: list[str] = []
-    values: list[str] = []
-    remaining = iter(args)
-    for arg in remaining:
-        if arg == "--":  # everything after it is positional already
-            rest += [arg, *remaining]
-            break
-        if arg == option:
-            value = next(remaining, None)
-            if value is None:
-                raise _click_errors.UsageError(f"Option '{option}' requires an argument.", ctx)
-            values.append(value)
-        elif arg.startswith(f"{option}="):
-            values.append(arg[len(option) + 1 :])
-        else:
-            rest.append(arg)
-    if not values:
-        return args
-    if len(values) > 1:
-        raise _click_errors.UsageError(f"give the source once ({option} is its old name)", ctx)
-    return [*rest, values[0]] if "--" in rest else [*rest, "--", values[0]]
-
-
 class _Command(TyperCommand):
     """A command with the help display and the one-line usage errors above."""
 
@@ -222,21 +189,18 @@ class _Command(TyperCommand):
         return _plain_params(super().get_params(ctx))
 
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
-        old = _OPTIONS_NOW_ARGUMENTS.get(self.name or "")
-        if old is None:
-            return super().parse_args(ctx, args)
         try:
-            return super().parse_args(ctx, _option_as_last_argument(args, old, ctx))
+            return super().parse_args(ctx, args)
         except _click_errors.MissingParameter as err:
-            # One value only fills the last argument (the source), so click would name the
-            # variadic one before it as missing, where a source was probably forgotten.
-            param = err.param
-            if param is None or param.nargs != -1:
+            # One value only fills the last argument (`live CHECKPOINT... SOURCE`), so click
+            # names the variadic one before it as missing, where the last was forgotten.
+            if err.param is None or err.param.nargs != -1:
+                raise
+            last = [p for p in self.params if p.param_type_name == "argument"][-1]
+            if err.param is last:
                 raise
             raise _click_errors.UsageError(
-                f"give {param.metavar}... and then SOURCE (the source is an "
-                f"argument now, no longer {old})",
-                ctx,
+                f"give {err.param.metavar}... and then {last.metavar}", ctx
             ) from None
 
     def main(self, *args: Any, **kwargs: Any) -> Any:
@@ -301,16 +265,6 @@ def _fail(message: str, code: int = EXIT_FAILED) -> None:
 def _json(document: Any) -> str:
     """JSON as the commands print (--json) and write it: indented, paths as strings."""
     return json.dumps(document, indent=2, default=str)
-
-
-def _renamed(value: Any, old_value: Any, name: str, old_name: str) -> Any:
-    """An option's value given under its name or its old name (a hidden alias kept for one
-    release after a rename to the scheme in docs/cli.md)."""
-    if old_value is None:
-        return value
-    if value is not None and value != old_value:
-        raise typer.BadParameter(f"give {name} only ({old_name} is its old name)")
-    return old_value
 
 
 def _size_option(size: str | None) -> tuple[int, int] | None:
@@ -703,9 +657,6 @@ def train(
             "--out", help="Run directory to write (default: the config's output_dir/NAME)."
         ),
     ] = None,
-    run_dir_alias: Annotated[
-        Optional[Path], typer.Option("--run-dir", hidden=True, help="The old name of --out.")
-    ] = None,
     overwrite: Annotated[bool, typer.Option(help="Retrain a finished run.")] = False,
     size: Annotated[
         Optional[str],
@@ -736,7 +687,6 @@ def train(
     Writes a run directory (config, split, checkpoints, per-epoch log, predictions,
     metrics.json). Re-running resumes an interrupted run or returns a finished one.
     """
-    run_dir = _renamed(run_dir, run_dir_alias, "--out", "--run-dir")
     image_size = _size_option(size)
     sized = [f"data.image_size=[{image_size[0]},{image_size[1]}]"] if image_size else []
     # The config first, before torch loads: a typo is reported at once.
@@ -911,9 +861,6 @@ OutputDirOption = Annotated[
     Optional[Path],
     typer.Option("--out", help="Where run directories go.", show_default="the preset's"),
 ]
-OutputDirAlias = Annotated[
-    Optional[Path], typer.Option("--output-dir", hidden=True, help="The old name of --out.")
-]
 QuickOption = Annotated[
     bool, typer.Option("--quick", help="The preset's small variant for a 2-core CPU.")
 ]
@@ -958,7 +905,6 @@ def experiment(
     workers: WorkersOption = 1,
     scheduler: SchedulerOption = None,
     output_dir: OutputDirOption = None,
-    output_dir_alias: OutputDirAlias = None,
     results: Annotated[
         Optional[Path], typer.Option(help="Results store directory (default: runs/results).")
     ] = None,
@@ -990,7 +936,6 @@ def experiment(
     """
     from tactile_compliance.training.experiment import plan_experiment, run_experiment
 
-    output_dir = _renamed(output_dir, output_dir_alias, "--out", "--output-dir")
     common = dict(
         quick=quick,
         seeds=seeds,
@@ -1042,7 +987,6 @@ def tune(
     scheduler: SchedulerOption = None,
     threads: ThreadsOption = None,
     output_dir: OutputDirOption = None,
-    output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
     as_json: TuneJsonOption = False,
 ) -> None:
@@ -1094,7 +1038,6 @@ def tune_balance(
     scheduler: SchedulerOption = None,
     threads: ThreadsOption = None,
     output_dir: OutputDirOption = None,
-    output_dir_alias: OutputDirAlias = None,
     overwrite: Annotated[bool, typer.Option(help="Start the search afresh.")] = False,
     as_json: TuneJsonOption = False,
 ) -> None:
@@ -1119,8 +1062,6 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
     from tactile_compliance.training import hpo
 
     options["overrides"] = options["overrides"] or []
-    alias = options.pop("output_dir_alias")
-    options["output_dir"] = _renamed(options["output_dir"], alias, "--out", "--output-dir")
     as_json = options.pop("as_json")
     result = getattr(hpo, name)(**options)
     typer.echo(_json(result.to_dict()) if as_json else result.format())
