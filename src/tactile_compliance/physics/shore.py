@@ -1,18 +1,6 @@
-"""Shore durometer hardness -> Young's modulus (and back for Shore 00).
+"""Shore durometer hardness -> Young's modulus (and back for Shore 00): empirical fits.
 
-Durometer readings are empirical, so every conversion here is an empirical fit with a
-limited range of validity; they are what the GelSight datasets used to turn hardness
-labels into moduli (see ``docs/physics.md`` and DATA_FORMATS.md section 3).
-
-Every function accepts a Python number or a numpy array and returns the same kind:
-a ``float`` for a scalar input, an ``np.ndarray`` (float64) otherwise. Hardness values
-outside the durometer scale [0, 100] or NaN raise ``ValueError`` naming the value.
-
-- Shore 00 (silicones, Larson 2017): ``E[MPa] = 0.0037 * exp(0.0718 * S00)``.
-- Shore A (Gent 1958, as the dataset applied it):
-  ``E[MPa] = 0.0981 (56 + 7.62336 S) / (0.137505 (254 - 2.4 S))``.
-- Shore A / D exponential fit ("Reuss"): ``E[MPa] = exp(0.0235 S - 0.6403)`` with
-  ``S = S_A`` for Shore A and ``S = S_D + 50`` for Shore D.
+See docs/physics.md, "Shore hardness -> Young's modulus".
 """
 
 from __future__ import annotations
