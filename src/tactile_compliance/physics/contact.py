@@ -6,6 +6,7 @@ mechanics" and "The analytical estimates on a grasp sequence (ours)".
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeAlias
 
@@ -49,6 +50,25 @@ _M_PER_MM = 1.0e-3
 _DEPTH_PERCENTILE = 97.0
 
 
+_FIELD_RULES: dict[str, Callable[[float], bool]] = {
+    "finite and > 0": lambda value: bool(np.isfinite(value) and value > 0),
+    "finite and >= 0": lambda value: bool(np.isfinite(value) and value >= 0),
+    "in (-1, 0.5]": lambda value: -1.0 < value <= 0.5,
+    "in [0, 1]": lambda value: 0.0 <= value <= 1.0,
+    "in [0, 100]": lambda value: 0.0 <= value <= 100.0,
+}
+
+
+def _check_fields(constants: object, rules: dict[str, tuple[str, ...]]) -> None:
+    """Raise ValueError naming the first field of a constants dataclass that breaks its
+    rule (a key of :data:`_FIELD_RULES`), checked in the order given."""
+    for rule, names in rules.items():
+        for name in names:
+            value = getattr(constants, name)
+            if not _FIELD_RULES[rule](value):
+                raise ValueError(f"{type(constants).__name__}.{name} must be {rule}, got {value!r}")
+
+
 @dataclass(frozen=True)
 class SensorConstants:
     """Constants of the GelSight Wedge sensor and of the analytical pipeline.
@@ -72,24 +92,25 @@ class SensorConstants:
     hertz_patch_px: int = 11
 
     def __post_init__(self) -> None:
-        lengths = ("gel_thickness_m", "pad_width_m", "pad_height_m", "pixel_size_m")
-        for name in ("gel_modulus_pa", *lengths):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"SensorConstants.{name} must be finite and > 0, got {value!r}")
-        for name in ("contact_depth_threshold_mm", "min_contact_area_m2", "fit_tolerance"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"SensorConstants.{name} must be finite and >= 0, got {value!r}")
-        for name in ("gel_poisson", "object_poisson"):
-            value = getattr(self, name)
-            if not (-1.0 < value <= 0.5):
-                raise ValueError(f"SensorConstants.{name} must be in (-1, 0.5], got {value!r}")
-        if not (0.0 <= self.min_depth_fraction <= 1.0):
-            raise ValueError(
-                f"SensorConstants.min_depth_fraction must be in [0, 1], "
-                f"got {self.min_depth_fraction!r}"
-            )
+        _check_fields(
+            self,
+            {
+                "finite and > 0": (
+                    "gel_modulus_pa",
+                    "gel_thickness_m",
+                    "pad_width_m",
+                    "pad_height_m",
+                    "pixel_size_m",
+                ),
+                "finite and >= 0": (
+                    "contact_depth_threshold_mm",
+                    "min_contact_area_m2",
+                    "fit_tolerance",
+                ),
+                "in (-1, 0.5]": ("gel_poisson", "object_poisson"),
+                "in [0, 1]": ("min_depth_fraction",),
+            },
+        )
         patch = self.hertz_patch_px
         if (
             isinstance(patch, bool)

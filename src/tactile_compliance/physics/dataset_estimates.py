@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from tactile_compliance.physics.contact import _validate_sequence
+from tactile_compliance.physics.contact import _check_fields, _validate_sequence
 
 __all__ = [
     "DATASET_CONSTANTS",
@@ -82,41 +82,23 @@ class DatasetEstimatorConstants:
     press_peak_fraction: float = 0.9
 
     def __post_init__(self) -> None:
-        for name in ("px_per_mm", "gel_modulus_pa"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(
-                    f"DatasetEstimatorConstants.{name} must be finite and > 0, got {value!r}"
-                )
-        for name in (
-            "contact_threshold_mm",
-            "min_contact_area_m2",
-            "fit_tolerance",
-            "l0_fallback_factor",
-            "min_approach_m",
-            "press_force_n",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(
-                    f"DatasetEstimatorConstants.{name} must be finite and >= 0, got {value!r}"
-                )
-        if not (-1.0 < self.gel_poisson <= 0.5):
-            raise ValueError(
-                f"DatasetEstimatorConstants.gel_poisson must be in (-1, 0.5], "
-                f"got {self.gel_poisson!r}"
-            )
-        if not (0.0 <= self.depth_percentile <= 100.0):
-            raise ValueError(
-                f"DatasetEstimatorConstants.depth_percentile must be in [0, 100], "
-                f"got {self.depth_percentile!r}"
-            )
-        for name in ("min_depth_fraction", "press_peak_fraction"):
-            value = getattr(self, name)
-            if not (0.0 <= value <= 1.0):
-                raise ValueError(
-                    f"DatasetEstimatorConstants.{name} must be in [0, 1], got {value!r}"
-                )
+        _check_fields(
+            self,
+            {
+                "finite and > 0": ("px_per_mm", "gel_modulus_pa"),
+                "finite and >= 0": (
+                    "contact_threshold_mm",
+                    "min_contact_area_m2",
+                    "fit_tolerance",
+                    "l0_fallback_factor",
+                    "min_approach_m",
+                    "press_force_n",
+                ),
+                "in (-1, 0.5]": ("gel_poisson",),
+                "in [0, 100]": ("depth_percentile",),
+                "in [0, 1]": ("min_depth_fraction", "press_peak_fraction"),
+            },
+        )
         radius = self.patch_radius_px
         if isinstance(radius, bool) or not isinstance(radius, (int, np.integer)) or radius < 1:
             raise ValueError(

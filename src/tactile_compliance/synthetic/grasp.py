@@ -356,6 +356,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     render_sags = [sag_map(spec.geometry, render_grid, poses[f], side=f) for f in range(2)]
     est_size = opt.estimator_size
     seq = []
+    max_depth = np.zeros((2, timeline.force_n.size))
     for f in range(2):
         _, depth = _render_sequence(
             timeline.approach_mm[f, seq_frames],
@@ -370,9 +371,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
             jpeg=False,
         )
         seq.append(depth)
-    max_depth = np.zeros((2, timeline.force_n.size))
-    for f in range(2):
-        max_depth[f, seq_frames] = seq[f].reshape(seq_frames.size, -1).max(axis=1)
+        max_depth[f, seq_frames] = depth.reshape(seq_frames.size, -1).max(axis=1)
     selection = select_frames(
         timeline.force_n, max_depth[0], max_depth[1], spec.modulus_pa, max_aug=opt.max_aug
     )
