@@ -121,11 +121,8 @@ def shore_a_to_modulus_pa_gent(shore_a: ArrayOrFloat) -> ArrayOrFloat:
     """Young's modulus [Pa] from Shore A hardness [0-100] (Gent 1958, dataset variant).
 
     ``E[MPa] = 0.0981 (56 + 7.62336 S) / (0.137505 (254 - 2.4 S))``: the form that
-    reproduces the "Gent, Shore A" column of the dataset's object table (Burgess et al.),
-    e.g. S = 50 gives 2.33 MPa and S = 90 gives 13.9 MPa. The relation as usually quoted
-    has ``2.54 S`` in the denominator (up to 50 % higher moduli, and a pole at S = 100);
-    with ``2.4 S`` the pole lies at S = 105.8, outside the scale, so every hardness in
-    [0, 100] gives a finite modulus (41.7 MPa at S = 100).
+    reproduces the "Gent, Shore A" column of the dataset's object table (2.4, not the usual
+    2.54: see the constants above and docs/physics.md).
 
     Raises:
         ValueError: a hardness outside [0, 100] or NaN.
