@@ -1,10 +1,8 @@
-"""Physics of a GelSight grasp: Shore hardness conversions, contact mechanics and the
-analytical Young's-modulus estimators (Hooke and Hertz/MDR): ours (``contact``) and the
-dataset-compatible one whose values the public dataset stored (``dataset_estimates``).
+"""Physics of a GelSight grasp: Shore hardness conversions, contact mechanics and the two
+analytical Young's-modulus estimators. See docs/physics.md.
 
-See ``docs/physics.md`` for the formulas, units and constants. The package's public names
-are those of ``contact``, ``dataset_estimates`` and ``shore`` (each module's ``__all__`` is
-the one list).
+The public names are those of ``contact``, ``dataset_estimates`` and ``shore`` (each
+module's ``__all__`` is the one list).
 """
 
 from tactile_compliance.physics import contact, dataset_estimates, shore

@@ -1,24 +1,12 @@
-"""Contact mechanics of a GelSight grasp and the two analytical modulus estimators.
+"""Contact mechanics of a GelSight grasp and our analytical estimators (Hooke, Hertz/MDR).
 
-What is here:
-
-- :class:`SensorConstants`: the sensor / gel constants of the original pipeline, with units.
-- Effective (reduced) modulus of two bodies in contact and its inversion for the object.
-- Hertz sphere-on-flat helpers (contact radius, indentation, force, peak pressure).
-- The two analytical estimators of Burgess et al. (2024), run on a whole grasp sequence
-  (T frames of force [N], gripper width [m] and gel depth map [mm]):
-  ``E_elastic`` (Hooke fit of stress against strain) and ``E*_hertz`` (Hertz/MDR fit),
-  exactly as described in ``DATA_FORMATS.md`` section 2 and ``docs/physics.md``.
-
-Conventions: SI units everywhere except depth maps, which are in millimetres as in the
-dataset (``depth.pkl``), positive into the gel. Scalars in -> ``float`` out; arrays in ->
-float64 arrays out (numpy broadcasting). Physically degenerate grasps (no contact, no
-usable frames, a non-positive fitted slope) give ``nan`` estimates; malformed input
-(wrong shapes, NaN) raises ``ValueError``.
+SI units, depth maps in mm (positive into the gel). See docs/physics.md, "Contact
+mechanics" and "The analytical estimates on a grasp sequence (ours)".
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeAlias
 
@@ -62,31 +50,32 @@ _M_PER_MM = 1.0e-3
 _DEPTH_PERCENTILE = 97.0
 
 
+_FIELD_RULES: dict[str, Callable[[float], bool]] = {
+    "finite and > 0": lambda value: bool(np.isfinite(value) and value > 0),
+    "finite and >= 0": lambda value: bool(np.isfinite(value) and value >= 0),
+    "in (-1, 0.5]": lambda value: -1.0 < value <= 0.5,
+    "in [0, 1]": lambda value: 0.0 <= value <= 1.0,
+    "in [0, 100]": lambda value: 0.0 <= value <= 100.0,
+}
+
+
+def _check_fields(constants: object, rules: dict[str, tuple[str, ...]]) -> None:
+    """Raise ValueError naming the first field of a constants dataclass that breaks its
+    rule (a key of :data:`_FIELD_RULES`), checked in the order given."""
+    for rule, names in rules.items():
+        for name in names:
+            value = getattr(constants, name)
+            if not _FIELD_RULES[rule](value):
+                raise ValueError(f"{type(constants).__name__}.{name} must be {rule}, got {value!r}")
+
+
 @dataclass(frozen=True)
 class SensorConstants:
     """Constants of the GelSight Wedge sensor and of the analytical pipeline.
 
-    Attributes:
-        gel_modulus_pa: Young's modulus of the gel [Pa]. 2.75e5 Pa is the paper's value
-            (Shore 00 60 through the Larson fit); the final published pipeline of
-            Burgess et al. used 1.5e5 Pa (``FINAL_PIPELINE_GEL_MODULUS_PA``).
-        gel_poisson: Poisson ratio of the gel [-].
-        object_poisson: Poisson ratio assumed for the object [-].
-        gel_thickness_m: gel layer thickness [m].
-        pad_width_m: sensing pad width [m] (long side, 400 px in the warped frame).
-        pad_height_m: sensing pad height [m] (short side, 300 px in the warped frame).
-        pixel_size_m: side of one depth-map pixel [m]. The camera frame is warped to
-            400 x 300 px over the 35 x 25.5 mm pad (about 11.4 px/mm); the stored
-            250 x 350 frames are a 25-px-per-side crop of it, so the pixel size is the same.
-        contact_depth_threshold_mm: depth [mm] from which a pixel counts as in contact.
-        min_contact_area_m2: frames with a smaller contact area [m^2] are not fitted.
-        min_depth_fraction: frames whose max depth is below this fraction [-] of the
-            sequence's peak depth are not fitted.
-        fit_tolerance: a frame enters the fits only if
-            ``|d/d_max - F/F_max| <= fit_tolerance`` [-] (depth and force must agree on
-            where the frame lies in the press).
-        hertz_patch_px: side [px] of the square patch around the deepest pixel whose
-            mean depth is the Hertz indentation (odd, so the patch is centred).
+    Units are in the names (Poisson ratios and fractions are [-]); docs/physics.md,
+    "Sensor constants", gives each one's meaning and origin. The gel modulus is the
+    paper's; the final published code used 1.5e5 Pa (``FINAL_PIPELINE_GEL_MODULUS_PA``).
     """
 
     gel_modulus_pa: float = DEFAULT_GEL_MODULUS_PA
@@ -103,24 +92,25 @@ class SensorConstants:
     hertz_patch_px: int = 11
 
     def __post_init__(self) -> None:
-        lengths = ("gel_thickness_m", "pad_width_m", "pad_height_m", "pixel_size_m")
-        for name in ("gel_modulus_pa", *lengths):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"SensorConstants.{name} must be finite and > 0, got {value!r}")
-        for name in ("contact_depth_threshold_mm", "min_contact_area_m2", "fit_tolerance"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"SensorConstants.{name} must be finite and >= 0, got {value!r}")
-        for name in ("gel_poisson", "object_poisson"):
-            value = getattr(self, name)
-            if not (-1.0 < value <= 0.5):
-                raise ValueError(f"SensorConstants.{name} must be in (-1, 0.5], got {value!r}")
-        if not (0.0 <= self.min_depth_fraction <= 1.0):
-            raise ValueError(
-                f"SensorConstants.min_depth_fraction must be in [0, 1], "
-                f"got {self.min_depth_fraction!r}"
-            )
+        _check_fields(
+            self,
+            {
+                "finite and > 0": (
+                    "gel_modulus_pa",
+                    "gel_thickness_m",
+                    "pad_width_m",
+                    "pad_height_m",
+                    "pixel_size_m",
+                ),
+                "finite and >= 0": (
+                    "contact_depth_threshold_mm",
+                    "min_contact_area_m2",
+                    "fit_tolerance",
+                ),
+                "in (-1, 0.5]": ("gel_poisson", "object_poisson"),
+                "in [0, 1]": ("min_depth_fraction",),
+            },
+        )
         patch = self.hertz_patch_px
         if (
             isinstance(patch, bool)
@@ -230,14 +220,8 @@ def object_modulus_from_effective_pa(
 ) -> ArrayOrFloat:
     """The object's Young's modulus E [Pa] from the gel-object effective modulus E* [Pa].
 
-    Inverts ``1/E* = (1 - nu_gel^2)/E_gel + (1 - nu_obj^2)/E``:
-    ``E = (1 - nu_obj^2) / (1/E* - (1 - nu_gel^2)/E_gel)``.
-
-    The gel alone already bounds E* from above by ``E_gel / (1 - nu_gel^2)`` (about
-    3.6e5 Pa for the paper's gel). An E* at or above that bound (``1/E* - gel term <= 0``)
-    is what a rigid or stiffer-than-measurable object gives, so ``np.inf`` is returned:
-    the measurement only says "much stiffer than the gel". ``nan`` estimates (grasps the
-    estimators could not fit) pass through as ``nan``.
+    ``inf`` for an E* at or above the gel's cap ``E_gel / (1 - nu_gel^2)`` (rigid as far as
+    the sensor can tell), ``nan`` stays ``nan``; docs/physics.md, "E* -> the object's E".
 
     Raises:
         ValueError: E* <= 0, a gel modulus that is NaN or <= 0, a Poisson ratio outside
@@ -527,12 +511,8 @@ def estimate_elastic_modulus_pa(
     depths_mm: npt.ArrayLike,
     constants: SensorConstants = SensorConstants(),
 ) -> float:
-    """Hooke (simple elastic) estimate E_elastic [Pa] of the object from a grasp sequence.
-
-    Arguments and errors as :func:`analytical_estimates_pa`. Returns the slope of stress
-    ``F_i / A_i`` against strain ``(L0 - (W_i + 2 d97_i)) / L0`` fitted through the
-    origin, or ``nan`` when it cannot be formed (no contact, no usable frame,
-    non-positive slope).
+    """Hooke (simple elastic) estimate E_elastic [Pa] of the object from a grasp sequence,
+    ``nan`` when it cannot be formed. Arguments and errors as :func:`analytical_estimates_pa`.
     """
     return _elastic_from_contact(_grasp_contact(forces_n, widths_m, depths_mm, constants))
 
@@ -543,14 +523,9 @@ def estimate_hertz_effective_modulus_pa(
     depths_mm: npt.ArrayLike,
     constants: SensorConstants = SensorConstants(),
 ) -> float:
-    """Hertz/MDR estimate of the gel-object effective modulus E* [Pa] from a grasp sequence.
-
-    This is E*, as stored in the dataset's ``hertz_estimate.pkl``; convert it to the
-    object's modulus with :func:`object_modulus_from_effective_pa`. Arguments and errors
-    as :func:`analytical_estimates_pa`. Returns ``k^(3/2)`` with k the through-origin
-    slope of the patch depth against
-    ``(1 - nu_gel^2)/E_gel * (pi a / 4) * (1/pi) (6 F / R^2)^(1/3)``, or ``nan`` when it
-    cannot be formed.
+    """Hertz/MDR estimate of the gel-object effective modulus E* [Pa] from a grasp sequence,
+    ``nan`` when it cannot be formed; :func:`object_modulus_from_effective_pa` converts it
+    to the object's E. Arguments and errors as :func:`analytical_estimates_pa`.
     """
     return _hertz_from_contact(_grasp_contact(forces_n, widths_m, depths_mm, constants), constants)
 

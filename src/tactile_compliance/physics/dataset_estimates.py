@@ -1,93 +1,7 @@
-"""The analytical estimates exactly as the public dataset stored them.
+"""The analytical estimates exactly as the public dataset stored them, quirks included.
 
-The GelSight Young's-modulus dataset (Burgess et al. 2024) ships two analytical estimates
-per grasp, ``elastic_estimate.pkl`` (a Hooke fit) and ``hertz_estimate.pkl`` (a Hertz/MDR
-fit, E*). They were made by the authors' published code (GelSight-lab/
-TactileEstimateModulus: the default ``fit_modulus_simple()`` and ``fit_modulus_hertz_MDR()``
-of ``EstimateModulus``, driven by ``preprocess_grasp()``). :func:`dataset_estimates_pa`
-is an independent re-implementation of that generator, written from a reading of the code,
-with the same constants, masks, fits and fallbacks, *including its quirks*. A model trained
-on the stored estimates must be fed estimates made this way (no train/serve skew); the
-physically cleaner estimator of :mod:`tactile_compliance.physics.contact` gives other
-numbers for the same grasp (``docs/physics.md``, "The dataset's estimator and ours").
-
-Pipeline (the steps inside :func:`dataset_estimates_pa` with ``preprocess=True``):
-
-1. *Press clip by force*: start one frame before the force first reaches 2.5 N (frame 0
-   if it never does); end at the last frame before the force first drops below 90 % of
-   its peak after the peak, or at the peak when it never drops. If start >= end the
-   series is kept whole.
-2. *Depth-onset clip*: inside that window, drop the frames before the first frame whose
-   maximum depth reaches 7.5 % of the window's maximum, taking the earlier of the two
-   fingers when the marker finger's depth maps are given.
-3. *Width interpolation*: runs of repeated width readings (the gripper encoder updates
-   slower than the camera) are replaced by a straight line to the next different reading;
-   the scan stops at the first reading equal to the last one.
-4. The two fits below, on the clipped series.
-
-Per frame (depths converted to metres first, as the original did):
-
-* contact mask ``depth >= 0.1 mm``; area ``A = count * (1 mm / 16.40)^2``;
-* ``p97`` = 97th percentile of the *whole frame*; ``patch`` = mean of the 10 x 10 patch
-  ``[r-5:r+5, c-5:c+5]`` at the first deepest pixel ``(r, c)``.
-* ``L0``: ``W[0]`` when the whole clipped sequence is shallower than 0.5 mm, else
-  ``W[i_c] + 2 p97[i_c]`` with ``i_c`` the first frame with ``p97 >= 0.1 mm`` (frame 0
-  when there is none).
-
-Elastic (Hooke): frames with ``max depth >= 0.075 max_j p97_j``, a non-empty mask,
-``dL = L0 - (W + 2 p97) >= 0`` and ``A >= 1e-5 m^2`` give points
-``(dL / L0, |F| / A)``; of these, the points with ``|p97/max(p97) - F/max(F)| <= 0.25``
-(maxima over the points) are fitted with a line through the origin.
-
-Hertz/MDR: frames with ``max depth >= 0.075 max_j patch_j``, a non-empty mask,
-``delta = (L0 - W)/2 > 0.1 mm``, ``|F| > 0``, ``A >= 1e-5 m^2`` and ``patch > 0`` give
-``R = a^2 / delta`` (``a = sqrt(A/pi)``) and the point
-``((1 - nu_gel^2)/E_gel * (pi a / 4) * (1/pi)(6 |F| / R^2)^(1/3), patch)``; after the same
-consistency mask (on ``patch`` and ``|F|``) the through-origin slope ``k`` gives
-``E* = k^(3/2)``.
-
-Quirks of the original, reproduced on purpose (each one changes the stored numbers):
-
-* **Pixel size**: 16.40 px/mm, ``sqrt((400/35)^2 + (300/25.5)^2)``: the norm of the two
-  axes' pixel densities of the 400 x 300 px warp of the 35 x 25.5 mm pad, instead of one
-  axis' ~11.4 px/mm. Areas come out (11.43/16.40)^2 = 0.49 times the physical ones, which
-  also moves the 1e-5 m^2 minimum contact to 2690 px (on a 250 x 350 frame, 3.1 %).
-* **Gel modulus** 1.5e5 Pa (the paper's Shore 00 60 gives 2.75e5 Pa).
-* **Whole-frame percentile**: the 97th percentile over every pixel of the frame, so it is
-  the background's depth (about 0: the elastic fit has no usable depth) whenever the
-  imprint covers less than 3 % of the frame; the frames-kept rule compares a frame's
-  *maximum* with 7.5 % of the largest *percentile* (elastic) or *patch mean* (Hertz).
-* **L0 fallback**: a sequence shallower than 0.5 mm (5x the contact threshold) takes
-  ``L0 = W[0]``, the first width without any gel indentation; when no frame's percentile
-  reaches 0.1 mm but the sequence is deeper than 0.5 mm, ``i_c`` falls back to frame 0
-  (numpy's ``argmax`` of an all-False array).
-* **Asymmetric 10 x 10 patch** ``[r-5:r+5, c-5:c+5]`` with Python slicing: the deepest
-  pixel is the 6th of 10 rows/columns; at the bottom/right border the patch is cut short;
-  within 5 px of the top/left border the start index is *negative* and counts from the
-  other end, so the slice is usually empty (mean NaN: the frame leaves the Hertz fit and,
-  because a NaN maximum compares False, the 7.5 % frames-kept rule is switched off for
-  every frame) or, in frames less than 10 px high (or wide), takes rows (columns) from
-  elsewhere.
-  On a flat-topped imprint the first deepest pixel is the imprint's top-left corner, so
-  the patch averages a quarter imprint and three quarters background.
-* **Consistency mask after the fit filters**: depth and force are normalised by their
-  maxima over the points that passed the other filters, not over the sequence; the
-  elastic mask uses the signed force, the Hertz mask ``|F|``.
-* **Strain >= 0 filter** (elastic) and **approach > 0.1 mm** filter (Hertz, in metres:
-  ``(L0 - W)/2 > 1e-4``).
-* **Depth reference**: the original reconstructed the force-sensing finger's depth from
-  difference images against the *first frame of the recording*, but the marker finger's
-  (used only for the depth-onset clip) against the *first frame of the force clip*.
-
-Where the original returned 0 (no frame passed the filters) or NaN (0/0: no frame passed
-the consistency mask, all strains zero, a zero maximum percentile or force), this module
-returns ``nan``. The filters keep both fits' x and y non-negative, so a negative slope
-cannot occur; a non-positive or non-finite result would be ``nan`` too. The dataset
-importer treats zero or negative estimates as implausible and NaN as a failed fit, so
-nothing the original could store as a usable value is lost. Malformed input raises
-``ValueError``.
-
-Only numpy (and the standard library) is used.
+An independent re-implementation of the authors' generator. See docs/physics.md, "The
+dataset's estimator and ours" and "The dataset's estimator, step by step".
 """
 
 from __future__ import annotations
@@ -98,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from tactile_compliance.physics.contact import _validate_sequence
+from tactile_compliance.physics.contact import _check_fields, _validate_sequence
 
 __all__ = [
     "DATASET_CONSTANTS",
@@ -133,33 +47,24 @@ _M_PER_MM = 0.001
 class DatasetEstimatorConstants:
     """The constants of the dataset's estimator, with units; defaults are the dataset's.
 
-    Change them only to study the estimator (or to run it on rescaled depth maps, e.g.
-    ``px_per_mm / 4`` and ``patch_radius_px=1`` on a quarter-size frame): any other value
-    no longer reproduces the stored estimates.
+    Change them only to study the estimator or to run it on rescaled depth maps
+    (docs/physics.md): any other value no longer reproduces the stored estimates.
 
     Attributes:
-        px_per_mm: pixel density [px/mm] assumed for the depth maps
-            (:data:`DATASET_PX_PER_MM`, a quirk).
-        gel_modulus_pa: gel Young's modulus [Pa] (:data:`DATASET_GEL_MODULUS_PA`).
+        px_per_mm: pixel density [px/mm] assumed for the depth maps (16.40, a quirk).
+        gel_modulus_pa: gel Young's modulus [Pa].
         gel_poisson: gel Poisson ratio [-].
-        contact_threshold_mm: depth [mm] from which a pixel counts as in contact (and the
-            first-contact rule).
-        min_contact_area_m2: smallest contact area [m^2] a frame needs to be fitted
-            (2690 px at 16.40 px/mm).
-        depth_percentile: percentile [%] of the whole frame's depth used as the elastic
-            fit's indentation.
-        patch_radius_px: half side k [px] of the Hertz depth patch ``[r-k:r+k, c-k:c+k]``
-            (10 x 10 px).
-        min_depth_fraction: frames-kept fraction [-] of the peak depth, and of the
-            depth-onset clip.
+        contact_threshold_mm: depth [mm] from which a pixel is in contact (and first contact).
+        min_contact_area_m2: smallest contact area [m^2] of a fitted frame (2690 px).
+        depth_percentile: percentile [%] of the whole frame's depth, the elastic indentation.
+        patch_radius_px: half side k [px] of the Hertz patch ``[r-k:r+k, c-k:c+k]``.
+        min_depth_fraction: frames-kept and depth-onset fraction [-] of the peak depth.
         fit_tolerance: depth/force consistency tolerance [-] on the normalised values.
-        l0_fallback_factor: ``L0 = W[0]`` when the sequence's maximum depth is below this
-            many contact thresholds (0.5 mm) [-].
-        min_approach_m: Hertz frames need a per-finger apparent approach ``(L0 - W)/2``
-            above this [m].
-        press_force_n: force [N] that starts the press clip (:data:`DATASET_PRESS_FORCE_N`).
-        press_peak_fraction: the press clip ends before the force drops below this
-            fraction [-] of its peak.
+        l0_fallback_factor: ``L0 = W[0]`` below this many contact thresholds of depth [-].
+        min_approach_m: smallest per-finger approach ``(L0 - W)/2`` of a Hertz frame [m].
+        press_force_n: force [N] that starts the press clip.
+        press_peak_fraction: the press ends before the force drops below this fraction [-]
+            of its peak.
     """
 
     px_per_mm: float = DATASET_PX_PER_MM
@@ -177,41 +82,23 @@ class DatasetEstimatorConstants:
     press_peak_fraction: float = 0.9
 
     def __post_init__(self) -> None:
-        for name in ("px_per_mm", "gel_modulus_pa"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(
-                    f"DatasetEstimatorConstants.{name} must be finite and > 0, got {value!r}"
-                )
-        for name in (
-            "contact_threshold_mm",
-            "min_contact_area_m2",
-            "fit_tolerance",
-            "l0_fallback_factor",
-            "min_approach_m",
-            "press_force_n",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(
-                    f"DatasetEstimatorConstants.{name} must be finite and >= 0, got {value!r}"
-                )
-        if not (-1.0 < self.gel_poisson <= 0.5):
-            raise ValueError(
-                f"DatasetEstimatorConstants.gel_poisson must be in (-1, 0.5], "
-                f"got {self.gel_poisson!r}"
-            )
-        if not (0.0 <= self.depth_percentile <= 100.0):
-            raise ValueError(
-                f"DatasetEstimatorConstants.depth_percentile must be in [0, 100], "
-                f"got {self.depth_percentile!r}"
-            )
-        for name in ("min_depth_fraction", "press_peak_fraction"):
-            value = getattr(self, name)
-            if not (0.0 <= value <= 1.0):
-                raise ValueError(
-                    f"DatasetEstimatorConstants.{name} must be in [0, 1], got {value!r}"
-                )
+        _check_fields(
+            self,
+            {
+                "finite and > 0": ("px_per_mm", "gel_modulus_pa"),
+                "finite and >= 0": (
+                    "contact_threshold_mm",
+                    "min_contact_area_m2",
+                    "fit_tolerance",
+                    "l0_fallback_factor",
+                    "min_approach_m",
+                    "press_force_n",
+                ),
+                "in (-1, 0.5]": ("gel_poisson",),
+                "in [0, 100]": ("depth_percentile",),
+                "in [0, 1]": ("min_depth_fraction", "press_peak_fraction"),
+            },
+        )
         radius = self.patch_radius_px
         if isinstance(radius, bool) or not isinstance(radius, (int, np.integer)) or radius < 1:
             raise ValueError(
@@ -247,13 +134,9 @@ def _first_true(flags: npt.NDArray[np.bool_]) -> int:
 def dataset_force_press(
     forces_n: npt.ArrayLike, constants: DatasetEstimatorConstants = DATASET_CONSTANTS
 ) -> tuple[int, int] | None:
-    """The press clip by force of a whole recording, ``[start, end)`` (module docstring,
-    step 1, with ``constants.press_force_n`` and ``constants.press_peak_fraction``), or
-    None when that leaves no frames (``start >= end``).
-
-    Args:
-        forces_n: normal force per frame of the whole recording [N], shape (T,).
-        constants: the estimator's constants.
+    """The press clip by force ``[start, end)`` of a whole recording's forces [N], (T,), or
+    None when that leaves no frames (docs/physics.md, "The dataset's estimator, step by
+    step", step 1).
 
     Raises:
         ValueError: not a finite, non-empty 1-D array.
@@ -278,18 +161,14 @@ def dataset_press_window(
     marker_max_depth_mm: npt.ArrayLike | None = None,
     constants: DatasetEstimatorConstants = DATASET_CONSTANTS,
 ) -> tuple[int, int]:
-    """The frames ``[start, end)`` of a whole recording that the dataset's fits used.
+    """The frames ``[start, end)`` of a whole recording that the dataset's fits used: the
+    press clip by force, then the depth-onset clip (docs/physics.md, steps 1-2).
 
     Args:
         forces_n: normal force per frame of the whole recording [N], shape (T,).
         max_depth_mm: maximum depth per frame of the force-sensing finger [mm], (T,).
         marker_max_depth_mm: the same for the marker finger [mm], (T,), or None to use the
-            force-sensing finger alone (the original took the earlier onset of the two).
-        constants: the estimator's constants.
-
-    Returns:
-        ``(start, end)`` with ``0 <= start < end <= T``: the press clip by force, then the
-        depth-onset clip (module docstring, steps 1-2).
+            force-sensing finger alone.
 
     Raises:
         ValueError: arrays that are not 1-D, of different lengths, empty or not finite.
@@ -306,8 +185,7 @@ def dataset_press_window(
     # Without a press the original warned "no press" and went on with the whole series.
     start, end = dataset_force_press(forces, constants) or (0, n_frames)
 
-    # The original compared the force-sensing finger's depths in metres and the marker
-    # finger's in millimetres; scaling keeps its rounding at the 7.5 % boundary.
+    # The original's units: metres for this finger, mm for the marker finger (docs).
     depth_series[0] = _M_PER_MM * depth_series[0]
     onsets = []
     for series in depth_series:
@@ -317,15 +195,8 @@ def dataset_press_window(
 
 
 def interpolate_repeated_widths(widths_m: npt.ArrayLike) -> FloatArray:
-    """The original's width interpolation over repeated readings [m] (a new array).
-
-    A run of equal readings starting at ``i`` becomes a straight line from ``W[i]`` to the
-    first later reading that differs, ``W[k]`` (``W[k]`` itself is kept). The scan stops
-    at the first reading equal to the last one, so a final plateau (and anything after a
-    reading that happens to equal the last) is left as recorded.
-
-    Args:
-        widths_m: gripper width per frame [m], shape (T,).
+    """The original's width interpolation over repeated readings of ``widths_m`` [m], (T,),
+    as a new array (docs/physics.md, step 3).
 
     Raises:
         ValueError: not a finite 1-D array.
@@ -382,7 +253,7 @@ class _Frames:
 def _patch_mean_m(frame_m: FloatArray, radius_px: int) -> float:
     row, col = np.unravel_index(int(np.argmax(frame_m)), frame_m.shape)
     # Deliberately plain Python slicing with possibly negative starts: that is what the
-    # stored estimates were made with (see the module docstring).
+    # stored estimates were made with (docs/physics.md).
     patch = frame_m[row - radius_px : row + radius_px, col - radius_px : col + radius_px]
     return float(patch.mean()) if patch.size else math.nan
 
@@ -506,23 +377,10 @@ def dataset_estimates_pa(
 ) -> tuple[float, float]:
     """Both analytical estimates ``(E_elastic [Pa], E*_hertz [Pa])`` as the dataset made them.
 
-    Same arguments and conventions as
-    :func:`tactile_compliance.physics.contact.analytical_estimates_pa`, but the series is
-    the *whole recording* of one grasp, as the original's driver loaded it: this function
-    clips it to the press, to the depth onset and interpolates repeated widths itself
-    (module docstring, steps 1-3), then runs the two fits with the dataset's constants and
-    quirks.
-
-    What the caller must do to reproduce a stored value:
-
-    * pass every recorded frame (not a pre-clipped series: the force clip is not
-      idempotent, a second pass would also cut the hold after the peak);
-    * leave out grasps the original skipped entirely (peak force < 10 N, a width that
-      never changes, fewer than three frames to sample): they have no stored estimate;
-    * supply depth maps on the original pixel grid (250 x 350 px, positive into the gel,
-      force-sensing finger, reconstructed against the recording's first frame) and, for an
-      exact depth-onset clip, the marker finger's maps (against the force clip's first
-      frame, as the original did).
+    Same conventions as :func:`tactile_compliance.physics.contact.analytical_estimates_pa`,
+    but the series is the *whole recording* of one grasp, which this function clips and
+    interpolates itself. What the caller must do to reproduce a stored value: see
+    docs/physics.md, "The dataset's estimator and ours".
 
     Args:
         forces_n: normal force per frame [N], shape (T,).
@@ -530,8 +388,7 @@ def dataset_estimates_pa(
         depths_mm: depth maps of the force-sensing (markerless) finger [mm], (T, H, W).
         constants: the estimator's constants; the defaults are the dataset's.
         marker_depths_mm: depth maps of the marker finger [mm], (T, H', W'), used only for
-            the depth-onset clip; None uses the force-sensing finger alone, which can only
-            start the clip later than the original did.
+            the depth-onset clip; None uses the force-sensing finger alone.
         preprocess: False skips steps 1-3 for a series that is already clipped and
             interpolated exactly as the original's driver did.
 

@@ -1,19 +1,6 @@
 """The analytical estimators as objects, so data, checkpoints and live use agree on one.
 
-Two estimators compute the same pair ``(E_elastic [Pa], E*_hertz [Pa])`` from a grasp's
-force [N], width [m] and depth [mm] series:
-
-* ``"dataset"``: :func:`~tactile_compliance.physics.dataset_estimates.dataset_estimates_pa`,
-  the code that made the public dataset's ``elastic_estimate.pkl`` / ``hertz_estimate.pkl``
-  (Burgess et al.), quirks included. Real data, the synthetic generator and ``record``
-  use it (:data:`DEFAULT_ESTIMATOR`).
-* ``"contact"``: :func:`~tactile_compliance.physics.contact.analytical_estimates_pa`, this
-  project's physically cleaner variant (``docs/physics.md`` compares the two).
-
-A model trained on one estimator's values must be fed the same estimator's values at
-inference (no train/serve skew): stores record its name, training puts the object into
-the run's input record (``runs.run_inputs.RunInputs``), and the streaming estimator calls
-its :meth:`AnalyticalEstimator.estimate` from its :meth:`AnalyticalEstimator.window_start`.
+See docs/physics.md, "Which estimator runs where".
 """
 
 from __future__ import annotations

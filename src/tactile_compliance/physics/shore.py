@@ -1,18 +1,6 @@
-"""Shore durometer hardness -> Young's modulus (and back for Shore 00).
+"""Shore durometer hardness -> Young's modulus (and back for Shore 00): empirical fits.
 
-Durometer readings are empirical, so every conversion here is an empirical fit with a
-limited range of validity; they are what the GelSight datasets used to turn hardness
-labels into moduli (see ``docs/physics.md`` and DATA_FORMATS.md section 3).
-
-Every function accepts a Python number or a numpy array and returns the same kind:
-a ``float`` for a scalar input, an ``np.ndarray`` (float64) otherwise. Hardness values
-outside the durometer scale [0, 100] or NaN raise ``ValueError`` naming the value.
-
-- Shore 00 (silicones, Larson 2017): ``E[MPa] = 0.0037 * exp(0.0718 * S00)``.
-- Shore A (Gent 1958, as the dataset applied it):
-  ``E[MPa] = 0.0981 (56 + 7.62336 S) / (0.137505 (254 - 2.4 S))``.
-- Shore A / D exponential fit ("Reuss"): ``E[MPa] = exp(0.0235 S - 0.6403)`` with
-  ``S = S_A`` for Shore A and ``S = S_D + 50`` for Shore D.
+See docs/physics.md, "Shore hardness -> Young's modulus".
 """
 
 from __future__ import annotations
@@ -133,11 +121,8 @@ def shore_a_to_modulus_pa_gent(shore_a: ArrayOrFloat) -> ArrayOrFloat:
     """Young's modulus [Pa] from Shore A hardness [0-100] (Gent 1958, dataset variant).
 
     ``E[MPa] = 0.0981 (56 + 7.62336 S) / (0.137505 (254 - 2.4 S))``: the form that
-    reproduces the "Gent, Shore A" column of the dataset's object table (Burgess et al.),
-    e.g. S = 50 gives 2.33 MPa and S = 90 gives 13.9 MPa. The relation as usually quoted
-    has ``2.54 S`` in the denominator (up to 50 % higher moduli, and a pole at S = 100);
-    with ``2.4 S`` the pole lies at S = 105.8, outside the scale, so every hardness in
-    [0, 100] gives a finite modulus (41.7 MPa at S = 100).
+    reproduces the "Gent, Shore A" column of the dataset's object table (2.4, not the usual
+    2.54: see the constants above and docs/physics.md).
 
     Raises:
         ValueError: a hardness outside [0, 100] or NaN.

@@ -1,15 +1,8 @@
 """Physically grounded synthetic GelSight grasps: the project's default dataset and fixture.
 
-* :func:`generate_burgess_tree` writes the raw layout of the GelSight Young's-modulus
-  dataset (per-object ``metadata.json``, ``grasp=g/augmentation=k/*.pkl``), so the
-  Burgess importer runs on it unchanged.
-* :func:`generate_shore_videos` writes press videos named like the Shore-hardness
-  dataset (``{SHAPE}_{hardness:02d}_{n}.avi``) for the Yuan importer.
-* :func:`render_montage` draws the documentation montage.
-
-Physics and parameters: ``docs/synthetic.md`` and the module docstrings
-(``mechanics``, ``timeseries``, ``render``, ``materials``, ``geometry``; the photometric
-  depth reconstruction is ``data.photometric``, shared with recorded real grasps).
+:func:`generate_burgess_tree` writes the Young's-modulus dataset's raw layout,
+:func:`generate_shore_videos` Shore-hardness press videos, :func:`render_montage` the
+documentation montage. See docs/synthetic.md.
 """
 
 from typing import Any

@@ -1,22 +1,6 @@
-"""Generate a synthetic dataset in the raw GelSight Young's-modulus layout.
+"""Generate a synthetic dataset in the raw GelSight Young's-modulus layout, resumably.
 
-``generate_burgess_tree`` simulates objects (the default mix or the rows of an object
-table), runs them over worker processes, and writes each finished object atomically.
-Re-running on the same directory skips the objects that are already complete, so an
-interrupted run resumes where it stopped; ``generation.json`` at the root records the
-parameters, and a resume with different parameters is refused instead of mixing two
-datasets. The output of an object depends only on (seed, object name, options): the
-same seed gives byte-identical files whatever the worker count, and generating a
-subset of the objects gives exactly the same objects.
-
-Each object is written by :mod:`~tactile_compliance.data.raw_layout` into a hidden
-``.partial-{object}`` directory and renamed into place only when complete, so an
-interrupted run never leaves a half-written object that looks finished (importers skip
-hidden directories). Images and depth maps are stored as ``dtype``: float16 by default
-(the difference images are multiples of 1/255 offset by 0.5, which float16 represents to
-2.4e-4, well inside half a grey level, and it halves a full-size tree to ~4.2 MB per
-sample directory); float32 or float64, what the real files hold, for byte-size fidelity.
-Every ``.pkl`` is protocol 4: the same bytes for the same array.
+See docs/synthetic.md, "Usage" (determinism, resume, layout and the float16 choice).
 """
 
 from __future__ import annotations
@@ -138,7 +122,7 @@ class _Job:
 
 
 def _run_object(job: _Job) -> tuple[int, int, int]:
-    """Simulate and write one object (module docstring); returns (grasps, rejected, samples)."""
+    """Simulate and write one object atomically; returns (grasps, rejected, samples)."""
     spec = job.spec
     ctx = make_context(spec, job.seed, job.options)
     partial = job.out_dir / f"{PARTIAL_PREFIX}{spec.name}"

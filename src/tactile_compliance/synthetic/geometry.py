@@ -1,17 +1,7 @@
-"""Object geometry as sag maps on the sensor pad.
+"""Object geometry as sag maps on the sensor pad, and the grasp poses.
 
-A *sag map* ``s(x, y) >= 0`` [mm] is the height of the object's surface below its
-apex plane (the plane of first contact, parallel to the gel), sampled on the pad grid.
-Where the object has no surface over a pad cell the sag is :data:`NO_SURFACE`.
-Contact at an approach ``Delta`` [mm] covers ``{s < Delta}`` with interference
-``Delta - s``.
-
-Shapes (the real table's classes): spheres (R 5-35 mm), cylinders (R 1.5-25 mm, axis in
-the pad plane), rectangular boxes (5-60 mm faces, rounded edges, small tilt), hex
-prisms (grasped across flats or across corners) and irregular objects (the minimum
-over 2-6 primitives - caps, studs, threads, wedges - on a gently curved base with a
-smooth random field). Each grasp re-poses the object (in-plane rotation, offset, tilt);
-the two fingers see opposite sides of it.
+A sag map ``s(x, y) >= 0`` [mm] is the object's surface height below its apex plane;
+:data:`NO_SURFACE` where it has none. See docs/synthetic.md, "Geometry".
 """
 
 from __future__ import annotations

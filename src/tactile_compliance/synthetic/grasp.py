@@ -1,22 +1,6 @@
 """Simulate one grasp end to end: mechanics -> time series -> frames -> depth -> estimates.
 
-Per grasp (both fingers):
-
-1. pose the object on each pad and build its sag maps (``geometry``);
-2. force-approach curves of the gel/object foundations (``mechanics``);
-3. the grasp's time series (``timeseries.simulate_timeline``);
-4. a *low-resolution* photometric sequence of every frame the selection and the
-   estimators look at (rendered and reconstructed exactly like the stored frames, at
-   ``estimator_scale`` of the full size - a quarter by default - because the
-   estimators need ~40 depth maps per finger and only 3 x up to 5 are stored);
-5. the published frame selection (three frames, up to five time shifts);
-6. the two analytical estimates with the public dataset's own estimator
-   (``tactile_compliance.physics.dataset_estimates``, quirks included) on the clipped
-   low-resolution sequence (pixel pitch and Hertz patch scaled accordingly);
-7. full-resolution rendering + photometric depth of only the stored frames.
-
-Sensors (gel thickness/modulus, lighting, background, finger stiffness) belong to a
-*session* shared by several objects, like the real recording days.
+See docs/synthetic.md, "One grasp, step by step".
 """
 
 from __future__ import annotations
@@ -372,6 +356,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     render_sags = [sag_map(spec.geometry, render_grid, poses[f], side=f) for f in range(2)]
     est_size = opt.estimator_size
     seq = []
+    max_depth = np.zeros((2, timeline.force_n.size))
     for f in range(2):
         _, depth = _render_sequence(
             timeline.approach_mm[f, seq_frames],
@@ -386,9 +371,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
             jpeg=False,
         )
         seq.append(depth)
-    max_depth = np.zeros((2, timeline.force_n.size))
-    for f in range(2):
-        max_depth[f, seq_frames] = seq[f].reshape(seq_frames.size, -1).max(axis=1)
+        max_depth[f, seq_frames] = depth.reshape(seq_frames.size, -1).max(axis=1)
     selection = select_frames(
         timeline.force_n, max_depth[0], max_depth[1], spec.modulus_pa, max_aug=opt.max_aug
     )

@@ -1,34 +1,7 @@
 """The baseline ladder: is a (synthetic) dataset hard in the way the real one is?
 
-Cheap baselines, each a k-nearest-neighbour regressor of ``log10 E`` (the median of
-the neighbours' labels, so uninformative inputs fall back to the constant) on one input set,
-scored by within-one-decade accuracy with *object-level* cross-validation (no object
-is ever in both training and test folds):
-
-=================  ============================================================
-median             the training median label
-constant           the same kNN on a random feature (no information: what the learner
-                   does knowing nothing; with bimodal labels it beats the median, which
-                   falls between the modes)
-one_pixel          the RGB value of one pixel of the first frame, a quarter of the way
-                   in from the top-left corner (a leakage check: sensor session,
-                   background and noise must not carry the label)
-force_width        the width change W0 - W2, W1 - W2 and the final width W2
-estimates          log10 of the two analytical estimates
-image_stats_fw     texture statistics inside the contact of the last frame (fine/coarse
-                   energy ratio, orientation coherence); plus the force/width features
-oracle_material    the training median label of the sample's material
-=================  ============================================================
-
-The design targets (SYNTHETIC_DATA.md): one pixel within ~5 points of the constant;
-estimates alone below 0.5; image statistics + F/W above F/W alone; the material
-oracle far above everything. Since solid soft objects stop bottoming out (issue 17,
-``materials.SOLID_ELASTOMER_MAX_STRAIN``) the kNN on the estimates reads 0.50-0.54,
-above the design's prototype value of 0.47; what anchors the estimates to the real data
-is the share of raw estimates within one decade (:func:`analytical_within_decade`,
-Burgess et al.: 28.9 %), which ``main`` prints too (docs/synthetic.md, "Baseline
-ladder"). Run ``python -m tactile_compliance.synthetic.ladder STORE`` on an imported
-store to print the table.
+Run ``python -m tactile_compliance.synthetic.ladder STORE`` on an imported store to print
+the table. See docs/synthetic.md, "Baseline ladder" (the rungs and the targets).
 """
 
 from __future__ import annotations

@@ -1,42 +1,7 @@
 """Material catalogue of the synthetic generator: material grades, physics, shapes, surfaces.
 
-The real object table (DATA_FORMATS.md section 1) is the model for every number here.
-Its labels are per *material grade*, not per object: 287 objects carry only 108
-distinct moduli, and 224 of them share their exact modulus with another object (steel
-2.0e11 Pa, aluminium 7.0e10, ABS 2.35e9, pine 1.0e10, a few silicone hardnesses, ...).
-An unseen test object is therefore usually a new object of a grade seen in training,
-and whatever the images show of the grade (surface, shapes, how it deforms) is a cue.
-
-The generator follows that structure:
-
-* **Materials** keep the real frequencies (Rubber .28, Metal .25, Plastic .24, Wood .08,
-  Foam .06, Food .03, Glass .03, Ceramic .015) and shape mix.
-* **Grades.** Every object belongs to a :class:`Grade`: either a *stock grade* of its
-  material's catalogue (handbook metals, plastics, woods and glasses; silicone and
-  rubber stock sold by nominal Shore hardness, whose labels are the package's Shore
-  conversions of those nominal values; a few foam and food stock grades drawn once per
-  dataset seed) or a *one-off* grade of its own (a found object whose hardness was
-  measured on it: a continuous label). The share of one-offs per material follows the
-  real table (rubber 46 %, foam 55 %, food 80 %, plastic 10 %, metal 1.5 %).
-* A grade fixes, once per dataset seed: its handbook label; its **physical modulus**
-  ``E_grade = label x 10^N(0, mismatch_dex)`` (handbook values are not the modulus of
-  the particular stock: grade, temper, cure, anisotropy, Shore-conversion error; wood
-  loaded across the grain divides by U(10, 20), a per-species ratio); its Poisson
-  ratio; its **surface** (a texture family of the material and that family's
-  parameters: see :data:`TEXTURE_KINDS`); and its **shape tendencies** (the material's
-  shape weights tilted per grade, a size tendency, a hollow probability).
-* Each object then draws its geometry and poses, a small **per-object spread** of the
-  modulus ``E_object = E_grade x 10^N(0, object_spread_dex)`` (alloy temper barely moves
-  E: 0.01 dex for metal, glass, ceramic; moulding and crystallinity 0.03 for plastics;
-  cure and mix ratio 0.03 for rubber; density and moisture 0.05 for foam, food and
-  wood), and a per-object variation of its grade's surface (amplitude x 10^N(0, 0.1),
-  scale x 10^N(0, 0.06); paint or lacquer on 5-15 % of metal, plastic and wood objects).
-
-Determinism: a grade depends only on ``(seed, grade key)`` (``rng.stream(seed, "grade",
-key)``) and the catalogue only on ``(seed, material)``, so an object depends only on
-``(seed, object name)``. The key of a stock grade is ``"{material}/{label:.4g}"``, the
-same in the default mix and in a user table (objects of one table ``(material, label)``
-share the grade).
+The real object table is the model for every number here. See docs/synthetic.md,
+"Objects and material grades".
 """
 
 from __future__ import annotations

@@ -1,49 +1,7 @@
 """Contact mechanics of a gel pad pressed against an object: closed form, per cell.
 
-The gel and the object are two *foundations in series* on the pad grid. For an
-approach ``Delta`` [mm] (rigid-body motion of the finger towards the object, per side)
-the contact is ``M = {s < Delta}`` (``s`` the object's sag map) and each contact cell
-carries the interference ``w = Delta - s``. The gel and the object share it:
-
-    delta_g + delta_o = w,
-    delta_g = l_g p / (E_c + p / eps_g),       (gel: saturates at strain eps_g)
-    delta_o = l_o p / (E_o' + p / eps_o),      (object: densification / bulging limit)
-
-with ``p`` the contact pressure [Pa] and the *depths of influence* [mm]
-
-    l_g = 1 / (2 / (pi a_c) + 1 / h),          l_o = 1 / (2 / (pi a_c) + 2 / L),
-
-``a_c`` the contact's minor semi-axis, ``h`` the gel thickness, ``L`` the object's size
-along the grasp axis. ``l = pi a / 2`` is exact for a flat punch on a half-space
-(``F = 2 a E* delta``) and within 6 % of Hertz for a sphere; ``1/h`` makes a wide
-contact on the thin gel behave like a layer. ``E_c`` is the gel's plane-strain modulus
-stiffened towards the confined modulus of a thin bonded, nearly incompressible layer
-(``(1 - nu)^2 / (1 - 2 nu)`` times the plane-strain modulus, ~11.6 E for nu = 0.485).
-``E_o' = E_o / (1 - nu_o^2)``. Eliminating the two deflections gives a quadratic in
-``p`` with exactly one positive root, taken in its cancellation-free form.
-
-The force is ``F(Delta) = dA * sum(p)``; the curve is monotone and is inverted by
-interpolation. Once ``E_o'`` is ~10x the gel's, ``delta_o`` is negligible: imprint depth,
-contact area and approach stop depending on E_o (the saturation that makes hard
-objects hard to tell apart). Hollow objects add the shell spring
-``k_shell = 4 E t^2 / (R sqrt(3 (1 - nu^2)))`` in series (per contact).
-
-Calibration (see ``tests/test_synthetic_mechanics.py``): a rigid R = 25 mm sphere at
-60 N sinks ~1.2 mm into a 5 mm gel; a rigid flat covering the pad <= 0.2 mm.
-
-*Conformity* (the rendered fields only, :func:`gel_compression_fields`). The cells of
-the foundations are independent, so a uniform pressure would press a flat-bottomed,
-sharp-walled imprint whatever the object's stiffness. That is right for a rigid object
-(the gel surface takes the object's shape: it prints its geometry, edges included), but
-a compliant object transmits a smooth pressure and the gel answers with its own smooth
-response: a uniformly loaded elastic surface sags less at the edge of the load than in
-its middle (2/pi of it on a half-space), and a thin bonded layer spreads a load over
-about its own thickness. The rendered gel field is therefore
-``(1 - c_o) d_g + c_o G_sigma * d_g`` inside the contact, with ``c_o`` the object's share
-of the deformation (0 for a rigid object, -> 1 for a soft one) and ``G_sigma`` a
-Gaussian of ``sigma = CONFORM_SIGMA_H x h``, rescaled to the imprint's volume: soft
-objects give soft-edged, dished imprints, hard ones keep their edges. Force curves are
-unchanged.
+Gel and object are two foundations in series; lengths in mm, pressures in Pa. See
+docs/synthetic.md, "Mechanics" (the model, its limits, the conformity of rendered fields).
 """
 
 from __future__ import annotations
@@ -83,7 +41,7 @@ class GelModel:
         thickness_mm: gel thickness h [mm].
         max_strain: saturating compressive strain of the gel [-].
         confinement_kappa: ``(a_c / h)^2`` at which the layer is halfway stiffened
-            towards its confined modulus [-]; calibrated (see the module docstring).
+            towards its confined modulus [-]; calibrated (docs/synthetic.md, "Mechanics").
     """
 
     modulus_pa: float = DEFAULT_GEL_MODULUS_PA
@@ -237,16 +195,9 @@ def contact_curve(
     approaches_mm: np.ndarray,
     fields: bool = False,
 ) -> ContactCurve:
-    """Force-approach curve of one finger (see the module docstring).
-
-    Args:
-        sag_mm: the object's sag map on ``grid`` [mm].
-        gel: gel parameters.
-        obj: object parameters.
-        grid: the pad grid (sets the cell area).
-        approaches_mm: approaches to evaluate [mm].
-        fields: also return the gel compression fields (K, rows, cols) [mm].
-    """
+    """Force-approach curve of one finger at ``approaches_mm`` [mm] for the sag map
+    ``sag_mm`` [mm] on ``grid``; ``fields`` also returns the gel compression fields
+    (K, rows, cols) [mm]."""
     approaches = np.asarray(approaches_mm, dtype=np.float64)
     sag = np.asarray(sag_mm, dtype=np.float64)
     flat = sag.ravel()
@@ -328,7 +279,7 @@ def force_curve(
 
 def _conform(stack: np.ndarray, object_share: np.ndarray, gel: GelModel, grid: PadGrid) -> None:
     """Shape gel fields (n, rows, cols) [mm], float32, in place as a compliant object presses
-    them (module docstring): ``(1 - c_o) d_g + c_o G_sigma * d_g`` inside the contact (zero
+    them: ``(1 - c_o) d_g + c_o G_sigma * d_g`` inside the contact (zero
     outside, where the renderer's skirt drapes the membrane), ``sigma = CONFORM_SIGMA_H x
     h``, rescaled to the volume of ``d_g`` (the same load); ``object_share`` is each
     field's ``c_o`` [-]."""

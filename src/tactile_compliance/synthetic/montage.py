@@ -1,12 +1,6 @@
-"""A montage of synthetic grasps for the documentation.
+"""A montage of synthetic grasps for the documentation (docs/synthetic.md, the top image).
 
-One row per object (default mix, first grasp, augmentation 0): the three stored
-difference images of the markerless finger, the last one of the marker finger (all
-with contrast x3 around 0.5, converted to RGB for display) and the reconstructed depth
-of the last frame (viridis, scaled to its maximum). The caption gives material, shape,
-label and the force / width at the three frames.
-
-Regenerate the documentation image with::
+Regenerate it with::
 
     python -m tactile_compliance.synthetic.montage docs/images/synthetic_montage.png
 """

@@ -1,18 +1,7 @@
 """Synthetic objects: the default mix that follows the real object table, or a user table.
 
-An :class:`ObjectSpec` holds everything that is fixed for an object across its grasps:
-its material grade (``materials.Grade``: the label - ground-truth Young's modulus, a
-handbook value shared by all objects of the grade -, the grade's physical modulus,
-Poisson ratio, surface family and shape tendencies), the object's own modulus (the
-grade's x a small per-object spread), hollowness, geometry and surface texture (the
-grade's, varied per object). Every block comes from its own random stream
-(``rng.stream``); geometry, poses and the sensor session never see the label, and the
-grade's cues (surface, shape tendencies) are drawn independently of its label value.
-
-Default objects are named neutrally (``obj_0000``, ``obj_0001``, ...): nothing in a name
-gives the label away. With an object table (the real CSV format) the table's labels,
-materials, shapes, names, radii and trial counts are used, one simulated object per row
-with a valid modulus; all rows of one ``(material, label)`` share one grade.
+An :class:`ObjectSpec` holds everything fixed for an object across its grasps. See
+docs/synthetic.md, "Objects and material grades".
 """
 
 from __future__ import annotations

@@ -1,39 +1,8 @@
 """GelSight-like rendering of gel indentation fields into camera frames and difference images.
 
-Pipeline for one frame (all intensities in grey levels, 0-255, BGR channel order as
-OpenCV reads the real camera):
-
-1. *Gel height map* (imprint depth ``D`` [mm], positive into the gel): the gel
-   compression field of the mechanics, plus a *skirt* around the contact - the
-   membrane cannot step, it drapes - made with the Taxim-style trick: successive
-   Gaussian blurs with ``sigma = h x (1, .5, .25, .12)`` (h the gel thickness),
-   re-imposing the core ``{D > 0.4 max D}`` after each; then resampled from the pad
-   grid onto the visible crop (30.6 x 21.9 mm at 0.0875 mm/px for 250 x 350) and
-   the object's surface texture added where it touches (weak material cue).
-2. *Shading*: normals from the height gradient; three coloured lights laid out like
-   the GelSight Wedge - green from the left edge, red from the top, blue from the
-   bottom - at elevations of 25-40 deg; Lambertian, each light's strength falling off
-   away from its edge, soft saturation near 255. The gains are such that the real
-   pipeline's photometric inversion (``G - (R+B)/2`` ~ x-slope, ``B - R`` ~ y-slope,
-   ``data.photometric``) recovers the imprint within ~+-25 %, with cross-talk and spatial bias.
-3. *Background*: a parametric model of a Wedge no-contact frame (lavender-grey
-   centre, blue band at the bottom, red tint at the top, green at the left edge,
-   smooth blotches, bright specks; markers on the marker finger).
-4. *Edge glow* (rigs that show it, ``SensorLook.edge_glow``): the green light enters
-   the gel at the left edge; where the gel near that edge is compressed, that light
-   scatters towards the camera. On the real Wedge this gives a cyan-green band along
-   the left edge, strongest at about 0.6 of the height and fading over ~2 mm, that
-   grows with the gel's compression there: wide contacts (soft objects, blocks) light
-   it strongly, a small rigid contact hardly. Modelled as ``gain x mean imprint depth
-   of the left strip``, saturating softly at ``EDGE_GLOW_MAX_GREY``, times a fixed
-   colour, a Gaussian row profile and an exponential fade from the edge
-   (docs/synthetic.md, "Against real grasps").
-5. *Noise*: per-frame gain/offset drift, read noise sigma 2-3 grey levels, optional
-   JPEG compression (the real frames came through an MJPEG stream), uint8 quantisation.
-
-The difference image is ``(frame - GaussianBlur11x11(reference)) / 255 + 0.5`` with the
-reference the first (contact-free) frame, exactly like the real pipeline; both are
-uint8 before the subtraction, so values are multiples of 1/255 offset by 0.5.
+Intensities in grey levels (0-255), BGR as OpenCV reads the real camera. See
+docs/synthetic.md, "Rendering" (the steps below: height map, shading, background, edge
+glow, noise) and "The green edge's glow".
 """
 
 from __future__ import annotations

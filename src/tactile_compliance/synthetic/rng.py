@@ -1,16 +1,6 @@
 """Keyed, independent random streams for the synthetic generator.
 
-Every random quantity is drawn from a stream identified by ``(seed, key, ...)``, e.g.
-``stream(seed, "obj_0012", "grasp", 3, "noise")``. Streams are built from a
-``numpy.random.SeedSequence`` whose entropy is the seed plus a stable 64-bit digest of
-the keys, so
-
-* the same seed gives the same numbers on every machine and in every process
-  (no dependence on iteration order, worker count or Python's salted ``hash``);
-* generating a subset of the objects (or of the grasps) gives exactly the same
-  samples as generating all of them;
-* nuisance parameters (geometry, gel, lighting, noise) come from streams that never
-  see the label, so they are statistically independent of the Young's modulus.
+See docs/synthetic.md, "Determinism".
 """
 
 from __future__ import annotations
@@ -23,7 +13,7 @@ __all__ = ["log_uniform", "stream"]
 
 
 def stream(seed: int, *keys: object) -> np.random.Generator:
-    """A PCG64 generator for ``seed`` and the given keys (see the module docstring)."""
+    """A PCG64 generator for ``seed`` and the given keys (docs/synthetic.md, "Determinism")."""
     if seed < 0:
         raise ValueError(f"seed must be >= 0, got {seed}")
     # The keys' stable digest (ints, strings, floats), as four 32-bit words.

@@ -1,25 +1,7 @@
 """Synthetic Shore-hardness press videos, named like the Yuan et al. (2017) dataset.
 
-Each object is a silicone sample of Shore 00 hardness 8-87 (Young's modulus from the
-Larson fit, ``tactile_compliance.physics.shore``) with one of the dataset's shape
-families; each press is a video ``{SHAPE}_{hardness:02d}_{n}.avi`` (MJPG, 30 fps) of a
-GelSight pressed into the sample by hand: a force rising to a 5-25 N peak (or until the
-sample has given way by 3-6 mm, whichever comes first), a short hold and the release.
-The frames are raw camera images (BGR in the file, as OpenCV writes them), rendered with
-the same mechanics and optics as the grasp generator. One sensor records every press of
-a dataset (its gel, lighting and membrane are drawn once per seed). The gel of this
-older sensor is marked, and pressing brightens the membrane, so the deepest press is the
-brightest frame - the rule the importer uses to pick it.
-
-The hardness cue is physical: the sample and the gel share each press as two springs in
-series (``synthetic.mechanics``), so a soft sample sinks around the sensor and leaves a
-shallow, wide gel imprint, a hard one a deep imprint of its shape. docs/synthetic.md
-(Shore section) has the measurements that shaped :data:`SILICONE_MAX_STRAIN`,
-:data:`STOP_DEPTH_MM` and the one-sensor rule.
-
-Shape families (file prefix -> geometry): ``BASIC`` hemispheres, ``CYLINDER``,
-``FLAT`` (box faces), ``EDGE`` (prism edges), ``CORNER`` and ``MOULD`` (irregular
-relief, like chocolate moulds).
+See docs/synthetic.md, "Shore-hardness press videos" (the hardness cue and the
+measurements behind :data:`SILICONE_MAX_STRAIN`, :data:`STOP_DEPTH_MM` and one sensor).
 """
 
 from __future__ import annotations

@@ -1,22 +1,7 @@
-"""Surface textures of objects, as height fields imprinted on the gel.
+"""Surface textures of objects, as height fields [mm] imprinted on the gel.
 
-Textures are material cues of the real data: machining lay lines, knurling, wood grain,
-foam pores, rubber moulding, food skins, the matte roughness of moulded plastic. Every
-object has its material grade's surface family with the grade's parameters, varied a
-little per object (``materials.object_texture``). They are generated once per object
-and finger side on a canvas twice the image size (heights in mm, zero mean); each
-grasp takes a randomly placed, randomly flipped window, so repeated grasps of an object
-show the same surface at different places. The renderer scales the imprint by the
-gel's share of the deformation (a soft object's texture flattens instead of printing
-into the gel) and applies it only where the object touches.
-
-Detail finer than the image resolves is not drawn at full amplitude: a camera pixel
-averages the membrane over its footprint, so a texture whose scale is below two
-pixels keeps only ``scale / (2 px)`` of its amplitude (the standard deviation of a
-random surface averaged over a pixel larger than its correlation length; for a
-periodic lay, roughly the first lobe of the pixel's sinc response) and is drawn at the
-smallest scale the grid can hold. Without it a low-resolution store would show
-fine textures as full-contrast pixel noise or Nyquist stripes, a cue no camera gives.
+See docs/synthetic.md, "Surface families" (the families, and why detail below two pixels
+is attenuated).
 """
 
 from __future__ import annotations

@@ -1,32 +1,6 @@
 """Grasp time series (force, width, approach per frame) and the real frame-selection rules.
 
-Timeline of one grasp, recorded at 30 fps (frame times jittered by ~2 ms):
-
-* *approach*: the gripper closes at 0.0375 m/s from 0.08 m; the recording starts
-  0.2-0.6 s before contact. Before contact ``W = 0.08 - 0.0375 t``.
-* *loading*: ``F(t) = F_t [1 - (1 - u)^q]``, ``u`` = time since contact / loading time,
-  ``q ~ U(1.5, 3)``, target ``F_t ~ N(60, 2)`` N (the rig's ``peak_force_n``); loading
-  time = controller time ``U(0.3, 0.7)`` s + closure / 0.0375 m/s, so soft objects
-  (large closure) load longer.
-* *hold*: 0.45-0.7 s at ``F_t`` with ~1 % ripple; then *release* (0.1-0.25 s) and a
-  few frames after.
-
-Each finger's approach follows its force-approach curve, ``Delta_i(F)``; the true
-width is ``W = W_contact - Delta_1 - Delta_2 - F / K_f - 2 F / k_shell`` (finger/mount
-compliance ``K_f ~ logU(1e5, 6e5)`` N/m per session, the rig's
-``finger_stiffness_n_per_m``), plus, in a third of the grasps, 0.2-1.5 mm of
-*seating* (the object rotates or beds in while the force rises). Measured width:
-``W - 0.5 mm + N(0, 15 um)`` in 50 um encoder steps, 0-50 ms late, updated every 2-4
-frames (stair steps). Measured force: ``F x N(1, 0.02) + N(0, 0.15) N offset +
-N(0, 0.05) N noise``, 0-40 ms late.
-
-Frame selection follows the published preprocessing (DATA_FORMATS.md section 1) with
-the one implementation of the rule, ``data.frame_selection`` (also used when recording
-real grasps): ``i_start`` = first F >= 5 N, ``i_peak`` = first F >= 0.975 F_max,
-three indices by ``linspace``, contact shifts from the 7.5 % depth rule, augmentations
-while ``F >= 0.95 F_max``; for the estimates (``synthetic.grasp``) the sequence is
-clipped to the press (2.5 N, 90 % of peak), to the first frame with 7.5 % of the peak
-depth, and stair-stepped widths are linearly interpolated.
+See docs/synthetic.md, "Time series and frame selection".
 """
 
 from __future__ import annotations

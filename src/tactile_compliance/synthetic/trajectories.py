@@ -1,12 +1,7 @@
 """Whole grasp recordings from the synthetic generator, for streaming estimators.
 
-The generator stores only the three selected frames of each grasp. A streaming
-estimator needs the whole recording: :func:`synthetic_trajectories` re-simulates grasps
-of a ``generate_burgess_tree`` dataset from their (seed, object, grasp) key, which gives
-exactly the stored grasps' time series, and renders every frame (new draws of the same
-sensor noise). :func:`camera_recording` gives one grasp as a camera would film it: raw
-uint8 BGR frames and the sensor's no-contact frame, for replaying through the live
-sensor sources (``acquisition.sensors``) in tests and demos.
+The generator stores three frames per grasp; this re-simulates a stored grasp from its
+(seed, object, grasp) key and renders every frame. See docs/synthetic.md, "Usage".
 """
 
 from __future__ import annotations
