@@ -199,17 +199,12 @@ def import_burgess(
 
     Args:
         src_dir: the unpacked ``gelsight_youngs_modulus_dataset/`` directory.
-        out_dir: the store to create (refused if it exists, unless ``overwrite``).
         object_table: CSV with the dataset's columns; when given, labels come from it.
-        fingers: which sensor's images to import; ``both`` gives two samples per grasp
-            and augmentation.
-        image_size: (height, width) in pixels to resize to; default keeps the source size.
-            Either way the source frames must have the dataset's majority size; samples of
-            another size are skipped and reported.
-        strict: stop at the first problem instead of skipping and reporting.
-        overwrite: replace an existing store (atomically, only once the new one is
-            complete); only a store is ever replaced.
-        progress: show a progress bar.
+        fingers: ``both`` gives two samples per grasp and augmentation.
+        image_size: (height, width) px to resize the dataset's majority-size frames to
+            (samples of another size are skipped and reported); None keeps the size.
+        strict: stop at the first problem instead of skipping and reporting it.
+        overwrite: replace an existing store (only a store).
         source_name: recorded in the store header; default ``synthetic`` for trees written
             by the generator (they hold ``generation.json``), else ``burgess``.
         depth: keep each sample's three depth maps (its own finger's ``depth*.pkl``) in

@@ -363,31 +363,23 @@ class UnreadableTorchFileError(ValueError):
         self.reason = reason
 
 
-def load_torch_file(
-    path: str | Path, what: str, *, map_location: Any = "cpu", mmap: bool = False
-) -> Any:
+def load_torch_file(path: str | Path, what: str, *, map_location: Any = "cpu") -> Any:
     """``torch.load(path, weights_only=True)`` (never executes pickled code), whose errors
     say in one line what the file is instead of torch's several lines, which end by
     advising ``weights_only=False``, the unsafe load this project never does.
 
     Args:
-        path: the file.
         what: what the caller expected, for the message ("checkpoint", "backbone weights").
-        map_location: as for ``torch.load``.
-        mmap: map the tensors instead of reading them (zip-format files only).
 
     Raises:
         UnreadableTorchFileError: not a file of ``torch.save``, a damaged one, or one that
             holds Python objects beyond tensors and plain containers.
     """
-    import zipfile
-
     import torch
 
     path = Path(path)
-    mappable = mmap and zipfile.is_zipfile(path)  # an old-format file cannot be mapped
     try:
-        return torch.load(path, map_location=map_location, weights_only=True, mmap=mappable)
+        return torch.load(path, map_location=map_location, weights_only=True)
     except Exception as err:  # torch raises several types for foreign or damaged files
         raise UnreadableTorchFileError(path, what, _torch_file_problem(path, err)) from err
 

@@ -301,17 +301,10 @@ def make_split(
     """Split ``samples`` into train / validation / test sample ids.
 
     Args:
-        samples: the (filtered, subset) samples table.
-        condition: ``"seen"`` (objects may recur across splits) or ``"unseen"`` (by object).
-        grouping: for ``seen``: ``"grasp"`` (default; a grasp's samples stay together) or
-            ``"per_sample"`` (the paper's leaky protocol). ``unseen`` always groups by
-            object (the saved split records ``grouping="object"``); ``per_sample`` with
-            ``unseen`` is an error.
-        seed: seed of this run's split (same seed + same table -> same split, regardless
-            of row order).
-        test_fraction: share of samples in test (paper 0.2).
-        val_fraction: share of the *remaining* samples in validation (paper 0.2).
-        stratify: interleave shape x material strata so every split mirrors their mix.
+        condition, grouping: docs/protocol.md, "3. Splits"; ``unseen`` always groups by
+            object (the saved split records ``grouping="object"``).
+        test_fraction: share of samples in test; val_fraction: share of the *remaining*
+            samples in validation (paper 0.2 each).
         subset: recorded in the split's metadata (the caller applies :func:`select_subset`).
         metadata: extra JSON-serialisable information to store with the split.
     """
