@@ -1,29 +1,7 @@
-"""Batched training augmentation with the same random parameters for the three frames.
+"""Training augmentation of grasp batches: one set of flips and colour jitter per sample,
+shared by its three frames, plus per-pixel noise; the identity in eval mode.
 
-Pipeline (paper, applied to a whole sample with probability 0.9):
-
-1. random horizontal flip (p 0.5) and random vertical flip (p 0.5),
-2. ``ColorJitter(brightness 0.4, contrast 0.4, saturation 0.5, hue 0.3)``,
-3. additive Gaussian noise, sigma 15/255, clipped to [0, 1];
-
-then (outside this module) per-channel normalisation with
-:func:`tactile_compliance.data.normalisation.normalise_images`.
-
-The three frames of a grasp show one contact developing over time; flipping or re-colouring
-them differently would create a physically impossible sequence. The flips and the colour
-jitter therefore draw one set of parameters per *sample* and apply it to all frames
-(``kornia.augmentation.VideoSequential(same_on_frame=True)``). The noise is sensor noise and
-is drawn independently for every pixel of every frame (its sigma is the shared parameter).
-
-Training only: in ``eval()`` mode the module is the identity, so a model that owns one can
-never augment validation or test data by accident, and the validation loss is comparable
-between epochs. Frozen-backbone runs train on cached image features, which cannot be
-augmented (the config warns when both are enabled).
-
-Randomness: with ``seed`` given, the module owns a ``torch.Generator``; each call draws a
-seed from it and runs kornia inside ``torch.random.fork_rng`` so the global RNG is neither
-used nor disturbed (same seed -> same augmented batches). Without a seed the global torch
-RNG is used (seed it with ``torch.manual_seed``).
+See docs/protocol.md, "5. Augmentation (training only)".
 """
 
 from __future__ import annotations
@@ -56,12 +34,10 @@ class GraspAugmentation(nn.Module):
     """Augment a batch of grasps ``(B, T frames, 3, H, W)`` with values in [0, 1].
 
     Args:
-        probability: per-sample probability of applying the whole pipeline (paper 0.9).
-        hflip: probability of a horizontal flip (given the pipeline is applied).
-        vflip: probability of a vertical flip.
+        probability: per-sample probability of applying the whole pipeline (paper 0.9);
+            the flip probabilities apply given that.
         brightness, contrast, saturation, hue: ``ColorJitter`` ranges (torchvision semantics).
-        noise_std: standard deviation of the additive Gaussian noise, image units
-            (15/255 = 15 grey levels).
+        noise_std: sigma of the additive Gaussian noise, image units (15/255 = 15 grey levels).
         seed: seed of the module's own generator; None uses the global torch RNG.
     """
 

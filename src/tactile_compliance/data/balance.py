@@ -1,23 +1,7 @@
-"""The paper's "Balanced" strategy: oversample rare modulus ranges in train and validation.
+"""The paper's "Balanced" strategy: oversample rare modulus bins of train and validation,
+spreading the copies over each bin's objects; test is never touched.
 
-Per subset (train, and validation separately; test is never touched):
-
-1. normalise the labels (log10 min-max) and cut ``[min, max]`` of *this subset* into
-   ``n_bins`` (9) uniform bins;
-2. ``thresh = int(t_balance * largest bin count)``;
-3. every non-empty bin with ``count <= thresh`` receives ``thresh - count`` extra samples,
-   spread over the bin's objects as evenly as possible: each extra sample goes to the object
-   that currently has the fewest samples in the bin (ties broken by a seeded random order),
-   and is a uniformly drawn copy (with replacement) of one of that object's samples in the bin.
-
-Only existing samples are duplicated, no bin shrinks, and every non-empty bin ends with at
-least ``thresh`` samples. Spreading over objects matters because a bin is often dominated
-by one or two objects: duplicating samples at random would mostly repeat those objects.
-The copies receive the random training augmentation like every training sample.
-
-Worked example (``docs/protocol.md``): counts ``[40, 10, 0, 4, ...]`` with ``t_balance=0.5``
-give ``thresh = 20``: bin 0 is untouched, bin 1 gets 10 copies, bin 3 gets 16, empty bins
-stay empty.
+See docs/protocol.md, "4. Balanced strategy".
 """
 
 from __future__ import annotations
@@ -73,8 +57,7 @@ def balance_indices(
         t_balance: in [0, 1]; bins are raised to ``int(t_balance * largest bin count)``.
         n_bins: number of uniform bins on the normalised label (paper: 9).
         seed: seed of the tie-breaking and of the draws (same seed -> same ids).
-        label_constants: label normalisation (binning is in log space; the range does not
-            change the bins, it is accepted for consistency with the rest of the pipeline).
+        label_constants: label normalisation (its range does not change the bins).
 
     Returns:
         int64 array: every original id once (input order), then the duplicates.

@@ -1,16 +1,7 @@
-"""Importer for the GelSight Young's-modulus dataset layout (Burgess et al. 2024).
+"""Importer for the GelSight Young's-modulus dataset layout (Burgess et al. 2024), real or
+generated: each (grasp, augmentation, finger) becomes one store sample.
 
-The layout and its file readers are :mod:`~tactile_compliance.data.raw_layout` (see also
-``docs/data.md``). The synthetic generator writes the same layout, so this one importer
-serves real and synthetic data. Each (grasp, augmentation, finger) becomes one store sample.
-
-The frame size is the majority over the dataset: a first pass reads only the shape each
-image pickle declares (:func:`~tactile_compliance.data.safe_pickle.peek_array_shape`, a
-few hundred bytes per file); samples of another size are skipped and reported. A bad
-file skips its sample (or object), never the import; see ``docs/data.md``. So does a
-physically implausible value (a negative force, a width in millimetres, an infinite or
-negative estimate, float frames that are no difference image in [0, 1]): the rules of
-:mod:`~tactile_compliance.data.plausibility`, the same the store and the estimator apply.
+See docs/data.md, "Importing the GelSight Young's-modulus dataset" and "Bad input".
 """
 
 from __future__ import annotations
@@ -208,24 +199,16 @@ def import_burgess(
 
     Args:
         src_dir: the unpacked ``gelsight_youngs_modulus_dataset/`` directory.
-        out_dir: the store to create (refused if it exists, unless ``overwrite``).
         object_table: CSV with the dataset's columns; when given, labels come from it.
-        fingers: which sensor's images to import; ``both`` gives two samples per grasp
-            and augmentation.
-        image_size: (height, width) in pixels to resize to; default keeps the source size.
-            Either way the source frames must have the dataset's majority size; samples of
-            another size are skipped and reported.
-        strict: stop at the first problem instead of skipping and reporting.
-        overwrite: replace an existing store (atomically, only once the new one is
-            complete); only a store is ever replaced.
-        progress: show a progress bar.
+        fingers: ``both`` gives two samples per grasp and augmentation.
+        image_size: (height, width) px to resize the dataset's majority-size frames to
+            (samples of another size are skipped and reported); None keeps the size.
+        strict: stop at the first problem instead of skipping and reporting it.
+        overwrite: replace an existing store (only a store).
         source_name: recorded in the store header; default ``synthetic`` for trees written
             by the generator (they hold ``generation.json``), else ``burgess``.
         depth: keep each sample's three depth maps (its own finger's ``depth*.pkl``) in
-            the store, area-averaged to a quarter of the frame size per side, float16 mm
-            (:func:`~tactile_compliance.data.store.depth_size_for`). On by default: the
-            importer reads the depth files anyway (for ``depth_max_mm``), and they add
-            about 4 % to the store; they are what ``pretrain`` learns from.
+            the store (docs/data.md, "Depth maps").
 
     Raises:
         DataImportError: one of its subclasses (``import_report``) when the import cannot

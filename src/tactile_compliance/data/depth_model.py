@@ -1,27 +1,7 @@
-"""A sensor's own depth model, calibrated from presses of a ball of known radius.
+"""A sensor's own depth model (colour and position -> slope, integrated inside the contact
+mask), calibrated from presses of a ball of known radius.
 
-The dataset's heuristic (``data.photometric``, ``model="dataset"``) maps colour to slope with
-constants fitted once on one Wedge. Any other GelSight-type sensor has other lights, another
-gel and another pixel pitch, so, as GelSight's own SDK and Taxim do, this module learns the
-map from presses of a ball whose shape is known:
-
-1. For each press, the contact circle (found automatically, :func:`find_contact_circle`, or
-   given) and the ball radius give the surface slope of every pixel inside it: the
-   spherical cap ``depth = sqrt(R^2 - rho^2) - sqrt(R^2 - a^2)`` has slope
-   ``-x / sqrt(R^2 - rho^2)`` along x (and likewise y). Pixels far from the contact have slope 0.
-2. A small multilayer perceptron (5 -> 32 -> 32 -> 2, ReLU) maps a pixel's difference-image
-   colour (B, G, R, centred on 0) and its position (x, y in [-1, 1]) to the two slopes.
-   Position is an input because the lights fall off across the gel (vignetting), so one
-   colour means different slopes in the corner and the centre.
-3. At use, slopes are kept only inside the *contact mask* (pixels whose colour change is
-   above the noise measured on the presses' untouched pixels, grown by a margin), and
-   integrated with the same Poisson solver as the dataset heuristic. Outside the mask the
-   slope and the depth are exactly 0, so drift, vignetting changes and noise cannot
-   integrate into bowls.
-
-The model works on the project's difference images (``data.image_ops.difference_images``),
-so ``record`` and ``live`` feed it what they already compute. It is plain numbers (a few
-thousand floats) and serialises to JSON (:meth:`CalibratedDepthModel.to_dict`).
+See docs/sensors.md, "The model".
 """
 
 from __future__ import annotations
@@ -111,11 +91,9 @@ def contact_magnitude(diff: np.ndarray) -> np.ndarray:
 
 
 def find_contact_circle(diff: np.ndarray, min_radius_px: float = 3.0) -> ContactCircle:
-    """The contact circle of a ball press in one difference image (H, W, 3).
-
-    The largest region where the colour change exceeds half its peak, holes filled (the
-    centre of a ball press is flat, so its colour barely changes); the region's centroid
-    is the centre and its equivalent-area radius the radius.
+    """The contact circle of a ball press in one difference image (H, W, 3): centroid and
+    equivalent-area radius of the largest region above half the peak colour change, holes
+    filled (the centre of a ball press is flat, so its colour barely changes).
 
     Raises:
         ValueError: no region of at least ``min_radius_px`` (nothing presses the gel).
@@ -140,11 +118,9 @@ def find_contact_circle(diff: np.ndarray, min_radius_px: float = 3.0) -> Contact
 def sphere_slopes(
     shape: tuple[int, int], circle: ContactCircle, ball_radius_mm: float, px_per_mm: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Surface slopes of a ball's spherical cap pressed into the gel.
-
-    Returns ``(slope_x, slope_y, inside)``: d depth / d x and d depth / d y [mm/mm] of
-    ``depth = sqrt(R^2 - rho^2) - sqrt(R^2 - a^2)`` (positive into the gel) on an (H, W)
-    grid, x along columns and y along rows, and the mask of pixels inside the contact.
+    """``(slope_x, slope_y, inside)``: d depth / d x and d depth / d y [mm/mm] of a pressed
+    ball's spherical cap (positive into the gel) on an (H, W) grid, x along columns, and the
+    mask of pixels inside the contact.
 
     Raises:
         ValueError: the contact circle is not smaller than the ball.
@@ -323,8 +299,7 @@ class CalibratedDepthModel:
 
 
 def _noise_level(presses: list[BallPress]) -> float:
-    """Colour-change magnitude of untouched pixels: a high percentile over every press's
-    pixels farther than ``_BACKGROUND_GAP`` contact radii (and at least 2 mm) away."""
+    """Colour-change magnitude of untouched pixels (``_NOISE_QUANTILE`` over every press)."""
     values = [contact_magnitude(p.diff)[_far_mask(p.diff.shape[:2], p.circle)] for p in presses]
     return float(np.percentile(np.concatenate(values), _NOISE_QUANTILE))
 
@@ -348,9 +323,6 @@ def fit_depth_model(
 
     Args:
         presses: difference images of one sensor, all the same size, with their circles.
-        ball_radius_mm: the ball's radius [mm].
-        px_per_mm: the sensor's pixel density [px/mm].
-        epochs: passes of Adam over the training pixels.
         seed: for the initial weights, the background sample and the batch order.
         background_per_press: untouched pixels (slope 0) sampled from each press.
 

@@ -1,31 +1,7 @@
-"""Frozen-backbone feature cache: image features computed once per store and backbone.
+"""Frozen-backbone feature cache: image features computed once per store and backbone,
+under ``STORE/features/KEY/``.
 
-With a frozen backbone, a model's image path is a fixed function of the frames, so
-its output can be computed once and reused by every run, seed and tuning trial. That is
-what makes seed grids and SMAC feasible on a CPU: the heads train in seconds on
-(N, 3, feature_dim) arrays instead of pushing 3 frames per sample through VGG16 each epoch.
-
-Cache layout, next to the store (``STORE/features/KEY/``)::
-
-    features.f16     float16 array (N_store, 3, feature_dim), C order
-    meta.json        backbone class, weights fingerprint, image size, normalisation, shape
-    lock             ``outputs.exclusive_lock``-ed by the one process computing the cache
-
-``KEY`` = backbone class + sha256 of the backbone's weights + image size + the image
-normalisation: a different backbone initialisation can never reuse stale features.
-Computation is resumable: progress is recorded after every chunk in ``progress.json`` and
-the finished array is renamed into place atomically.
-
-Several processes may ask for the same cache at once (Dask grid workers, parallel SMAC
-trials): the first takes an exclusive ``fcntl.flock`` on ``KEY/lock`` and computes, the
-others wait on the lock and then find the finished array. The kernel releases the lock
-when its holder dies, so a killed computation is resumed by the next process. Reading a
-finished cache takes no lock. On NFS, Linux implements ``flock`` with the server's record
-locks, so the lock holds across hosts. Where no lock is available (Windows, a file system
-that refuses ``flock``: a warning says so) compute each cache in one process first.
-
-Augmentation cannot be applied to cached features (it acts on images); training warns
-when both are requested.
+See docs/data.md, "The frozen-backbone feature cache".
 """
 
 from __future__ import annotations

@@ -1,25 +1,8 @@
 """Real force readings as a robot logs them: single-frame spikes, the no-contact baseline,
-and whether a recording starts in contact.
+and whether a recording starts in contact (pure functions, applied by
+``acquisition.recording.Readings`` for ``record`` and ``live``).
 
-Real grasps (the public dataset's own rig, ``../shared/reference-data/real/wedge-grasps``)
-show three quirks the generator does not make by itself:
-
-* **single-frame spikes**: one reading far off both neighbours (-70 N in one frame of a
-  24 N hold, in other recordings of the same rig). Left in, a negative spike ends the
-  capture as a "release" (force below half its maximum) and a positive one moves
-  ``F_max`` and with it the peak frame. :func:`find_force_spikes` finds them and replaces
-  each by the median of its (up to four) neighbours;
-* **baselines that are not zeroed** (the readings of an empty gripper sit at -0.12 to
-  +0.16 N on the 15 grasps; +-0.5 N on the rig in general). :func:`force_baseline`
-  estimates the no-contact level from the flat ends of the recording;
-* **recordings that start in light contact** (the force already 0.1-1.3 N above the
-  baseline and rising at the first frame, on 8 of the 15): their first frame is no clean
-  no-contact reference. :meth:`ForceBaseline.contact_n` tells by how much a reading lies
-  above the baseline.
-
-These are pure functions of a force series; ``acquisition.recording.Readings`` (what
-``record`` and ``live`` read the robot's log with) applies them, so both commands see the
-same corrected forces and report the same findings.
+See docs/inference.md, "Real readings: spikes, baselines, a start in contact".
 """
 
 from __future__ import annotations

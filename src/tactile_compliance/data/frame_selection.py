@@ -1,31 +1,7 @@
-"""The dataset's frame-selection and augmentation rule: which frames of a grasp recording
-become the three frames of each stored sample.
+"""The dataset's frame-selection and time-shift augmentation rule: which frames of a grasp
+recording become the three frames of each stored sample.
 
-This is the published preprocessing (``DATA_FORMATS.md``, "How the three frames were
-chosen"), i.e. a rule about how the *dataset* is made from a recording, not about the
-physics of the contact; so it lives in ``data/``, the lowest layer that everything making
-or reading such recordings may import: the synthetic generator (``synthetic.timeseries``,
-``synthetic.grasp``), recording your own grasps (``acquisition.recording``) and the
-streaming estimator (``inference.streaming``) all call the functions here, so they pick
-the same frames.
-
-* :func:`select_frame_indices`: the three frames. ``i_start`` = first frame with
-  F >= 5 N, ``i_peak`` = first frame with F >= 0.975 F_max, the three frames =
-  ``i_start + floor(linspace(0, i_peak - i_start, 3))``; with per-frame timestamps the
-  frames nearest in time to ``linspace(t_start, t_peak, 3)`` instead (a tie goes to the
-  earlier frame, so at a constant frame rate it is exactly the index rule). None when no
-  frame reaches 5 N, the peak stays below 10 N, or fewer than three distinct frames lie
-  between the start and the peak.
-* :func:`augment_selection`: the published code's time-shift augmentations on top of it.
-  Augmentation k shifts all three frames by +k while the force at the shifted last frame
-  stays >= 0.95 F_max (F_max over the clip ``[i_start, i_peak + 1 + max_aug)``); with
-  per-finger maximum depths (mm, one value per frame) each finger's first frame moves to
-  its contact (the first frame of the clip with >= 7.5 % of the finger's peak depth, at
-  most ``max_aug - 1`` frames on; the forces' first frame moves by the smaller shift).
-  The count is capped as the published code capped it: at most ``max(i_1 - i_0, 2)``,
-  one when the three frames span fewer than three frames, none reaching past the clip,
-  and for objects of >= 5e5 Pa none whose first frame is already >= 80 % as deep as its
-  last on every finger.
+See docs/data.md, "How the three frames of a sample are chosen".
 """
 
 from __future__ import annotations
@@ -162,7 +138,7 @@ def select_frame_indices(
     min_peak_force_n: float = MIN_PEAK_FORCE_N,
 ) -> FrameSelection | None:
     """The dataset's three-frame selection on a force sequence (N), or None if not yet
-    possible (module docstring), chosen in time with ``timestamps_s`` ((T,) s, increasing).
+    possible (docs/data.md), chosen in time with ``timestamps_s`` ((T,) s, increasing).
 
     ``window=n`` spreads the frames over the last ``n`` frames up to the peak (the
     streaming variant; see ``inference.streaming``), ``window_s`` (s, needs timestamps)
@@ -276,7 +252,7 @@ def augment_selection(
     max_aug: int = MAX_AUGMENTATIONS,
     contact_shift: bool = True,
 ) -> AugmentedSelection | None:
-    """The published frame selection and its time-shift augmentations (module docstring).
+    """The published frame selection and its time-shift augmentations (docs/data.md).
 
     Args:
         forces_n: (T,) measured force of the whole recording [N].
@@ -287,7 +263,6 @@ def augment_selection(
             are no contact shifts and no hard-object rule.
         modulus_pa: the object's Young's modulus [Pa] (the label), for the hard-object
             rule; None: the rule does not apply.
-        max_aug: augmentations at most.
         contact_shift: move each finger's first frame to its contact (the published
             code); False keeps the three frames of :func:`select_frame_indices` on every
             finger (one frame set per augmentation, as ``record`` writes).

@@ -1,29 +1,7 @@
-"""What an importer skipped and why, the import errors, and the path checks, shared by
-every importer.
+"""What an importer skipped and why, the import errors (one :class:`DataImportError`
+subclass per cause; nothing is left behind), and the path checks, shared by every importer.
 
-Importers never stop at the first bad file (unless ``strict``): they record the problem
-against the file or object it concerns, skip that sample or object, and carry on. The
-report is printed at the end and returned to the caller.
-
-What stops an import is one exception, a :class:`DataImportError`, and nothing is left
-behind (no store, no partial directory, no parent directory the import created):
-
-======================== ===============================================================
-exception                meaning
-======================== ===============================================================
-:class:`ImportPathError` the source or ``--out`` path is unusable: source missing,
-                         ``--out`` inside the source or the source inside ``--out``,
-                         ``--out`` exists and is not a store (``--overwrite`` only ever
-                         replaces a store), or is a link or a file
-:class:`StoreExistsError` ``--out`` is an existing store and ``--overwrite`` is not
-                         given (also a ``FileExistsError``)
-``ObjectTableError``     the ``--objects`` table cannot be read (``object_table``)
-:class:`NothingImportedError` no sample could be imported (the report says why)
-:class:`StrictModeError` ``strict``: the first problem
-:class:`ImportWriteError` writing the store failed (full disk, permissions, I/O error)
-======================== ===============================================================
-
-Each carries the :class:`ImportReport` so far as ``report`` (None before the import began).
+See docs/data.md, "Bad input: what is skipped and reported, what stops an import".
 """
 
 from __future__ import annotations
@@ -108,10 +86,8 @@ def import_paths(src_dir: str | Path, out_dir: str | Path, overwrite: bool) -> t
     (:func:`~tactile_compliance.data.store.recover_interrupted_writes`).
 
     Raises:
-        ImportPathError: the source directory does not exist; ``out_dir`` is the source
-            or inside it, or the source is inside ``out_dir``; ``out_dir`` exists and is
-            not a GraspStore (a file, a link, a directory without the store marker or
-            ``header.json`` + ``samples.parquet``): ``overwrite`` never deletes those.
+        ImportPathError: the source is missing, the two paths nest, or ``out_dir`` exists
+            and is not a GraspStore (``overwrite`` never deletes those).
         StoreExistsError: ``out_dir`` is a store and ``overwrite`` is false.
     """
     src, out = Path(src_dir), Path(out_dir)
@@ -207,14 +183,8 @@ def store_writing(
 
 @dataclass
 class ImportReport:
-    """Counts and per-file problems of one import run.
-
-    ``frame_values`` is the number of frame values written (samples x 3 frames x H x W x
-    3 channels), ``clipped_frame_values`` how many of them the store's uint8 encoding
-    clipped (a difference beyond -127/+128 grey levels, stored as -127/+128), in
-    ``samples_with_clipped_frames`` samples: a few saturated pixels are normal, a large
-    share says the source's frames are not what the store can hold.
-    """
+    """Counts and per-file problems of one import run; the clipped frame values are
+    explained in docs/data.md, "The encoding clips large differences"."""
 
     source: str
     source_dir: str

@@ -1,30 +1,8 @@
-"""Normalisation of labels, analytical estimates, force, width and images.
+"""Normalisation of labels, analytical estimates, force, width and images: one function per
+quantity (and its inverse where a model output is read back), every constant in
+:class:`NormalisationConstants`, which checkpoints store. Numpy or torch in, the same out.
 
-One function normalises each quantity and (where a model output has to be read back) one
-function inverts it. Every constant lives in :class:`NormalisationConstants`, which travels
-with the experiment configuration (``ExperimentConfig.normalisation_constants()``) and is
-stored in every checkpoint (``to_dict`` / ``from_dict``), so a trained model can always be
-read back on the scale it was trained on.
-
-Conventions (both prior codebases, see ``DATA_FORMATS.md``):
-
-* label ``y = (log10 E - log10 E_min) / (log10 E_max - log10 E_min)``, default range
-  [1e3, 1e12] Pa; [1e3, 1e7] Pa for the Shore-hardness (Yuan) data trained alone.
-  Labels outside the range are *not* clipped: they map outside [0, 1], which keeps the
-  function invertible and makes out-of-range data visible in the metrics.
-* analytical estimates: clamp to [1e2, 1e14] Pa, then ``(log10 E_hat - 2) / 12``.
-  Clamping (instead of failing) matters because fits on stiff objects can return tiny or
-  even non-positive moduli; NaN stays NaN.
-* force / 60 N (the grasp's force threshold), width / 0.08 m (the gripper's opening).
-* images: per-channel ``(x - mean) / std`` with difference-image statistics, channel order
-  as stored in the GraspStore (RGB). The statistics are the published ones
-  (:data:`PUBLISHED_IMAGE_MEAN_BGR`, :data:`PUBLISHED_IMAGE_STD_BGR`) reversed: the
-  published code normalised the dataset's pickles as they are, in OpenCV's BGR order,
-  while our importer flips frames to RGB.
-
-All functions accept numpy arrays (or scalars / sequences) and torch tensors, and return
-the same kind they were given. Torch inputs are never validated element-wise (no host
-synchronisation inside training loops); numpy inputs are.
+See docs/protocol.md, "2. Normalisation".
 """
 
 from __future__ import annotations
@@ -90,22 +68,18 @@ class NormalisationConstants:
     """All normalisation constants of one dataset (units in the field names).
 
     Attributes:
-        label_log10_min: log10 of the lower end of the label range (Pa), default 3 (1e3 Pa).
-        label_log10_max: log10 of the upper end of the label range (Pa), default 12 (1e12 Pa).
+        label_log10_min, label_log10_max: the label range, log10 Pa (default 1e3-1e12 Pa).
         estimate_clamp_pa: analytical estimates are clamped to this range (Pa) before log10.
-        estimate_log10_min: offset of the estimate normalisation (log10 Pa).
-        estimate_log10_span: span of the estimate normalisation (decades).
-        force_scale_n: force divisor (N); 60 N is the grasp's force threshold.
-        width_scale_m: width divisor (m); 0.08 m is the gripper's maximum opening.
-        image_mean: per-channel mean of the difference images in [0, 1], in the store's
-            channel order **R, G, B**: the published BGR statistics
-            (:data:`PUBLISHED_IMAGE_MEAN_BGR`) reversed.
-        image_std: per-channel standard deviation of the difference images, R, G, B
-            (:data:`PUBLISHED_IMAGE_STD_BGR` reversed).
+        estimate_log10_min, estimate_log10_span: the estimates' offset (log10 Pa) and span
+            (decades).
+        force_scale_n: 60 N, the grasp's force threshold; width_scale_m: 0.08 m, the
+            gripper's maximum opening.
+        image_mean, image_std: per channel, difference images in [0, 1], in the store's
+            order **R, G, B** (the published BGR statistics reversed).
 
-    Checkpoints store these values (:meth:`to_dict`) and are read back with
-    :meth:`from_dict`, so a model keeps the statistics it was trained with even when the
-    defaults change (models trained before the channel-order fix keep the BGR tuple).
+    Checkpoints store these values (:meth:`to_dict` / :meth:`from_dict`), so a model keeps
+    the statistics it was trained with (models trained before the channel-order fix keep
+    the BGR tuple).
     """
 
     label_log10_min: float = 3.0

@@ -1,28 +1,7 @@
-"""Photometric depth reconstruction of difference images, as the real GelSight pipeline does.
+"""Depth maps [mm] from difference images: the public dataset's photometric heuristic (the
+one function for real and rendered frames) and the one Poisson solver every depth model uses.
 
-Real frames (``acquisition.recording`` writes ``depth.pkl`` for recorded grasps) and the
-synthetic generator's rendered frames both go through this one function.
-
-From a difference image (BGR, centred on 0.5) the real pipeline takes the gradients
-
-    gx = G - (B + R) / 2,     gy = B - R,     g <- g / sqrt(1 - g^2) / 128,
-
-integrates them with a Poisson solver (zero depth on the image border, discrete sine
-transform) and scales by 21.5 (a fit against a calibration ball) to get millimetres.
-Running exactly that on the rendered images gives the synthetic ``depth.pkl`` the
-errors of the real one: spatially varying light strength, red/blue cross-talk,
-saturation on steep walls, noise integrated into low-frequency bowls, markers.
-
-Differences from the original code, both deliberate and small: the solver uses the
-consistent DST-I eigenvalues (the original divides by ``cos(pi k / (N + 2))`` terms and
-mixes DST-II with DST-I eigenvalues), and the interior is zero-padded to a length whose
-FFT is fast (the border condition moves a few pixels out). For image sizes other than
-250 x 350 the scale follows the pixel size (the frame is taken to span the dataset's
-field of view, 350 px of 0.0875 mm across), so depths stay in millimetres.
-
-On the marker finger, marker pixels (dark blobs of the difference image) are masked
-and their gradients filled from the neighbourhood before integration, as the original
-``demark`` step does.
+See docs/sensors.md and, for rendered frames, docs/synthetic.md ("Rendering").
 """
 
 from __future__ import annotations
@@ -41,7 +20,8 @@ __all__ = [
 ]
 
 DEPTH_TO_MM = 21.5
-"""Scale of the Poisson solution [mm per unit] of the real pipeline at 0.0875 mm/px."""
+"""Scale of the Poisson solution [mm per unit] of the real pipeline at 0.0875 mm/px (its fit
+against a calibration ball)."""
 
 CALIBRATION_WIDTH_PX = 350
 """Width [px] of the frames ``DEPTH_TO_MM`` was fitted on (the dataset's 250 x 350 crop);
@@ -78,7 +58,11 @@ def _fast_length(n: int) -> int:
 
 @lru_cache(maxsize=16)
 def _inverse_eigenvalues(rows: int, cols: int) -> np.ndarray:
-    """1 / eigenvalues of the 5-point Laplacian with Dirichlet borders (DST-I basis)."""
+    """1 / eigenvalues of the 5-point Laplacian with Dirichlet borders (DST-I basis).
+
+    Deliberately not the original's: it divides by ``cos(pi k / (N + 2))`` terms, mixing
+    DST-II with DST-I eigenvalues.
+    """
     ky = 2.0 * np.cos(np.pi * np.arange(1, rows + 1) / (rows + 1)) - 2.0
     kx = 2.0 * np.cos(np.pi * np.arange(1, cols + 1) / (cols + 1)) - 2.0
     return (1.0 / (ky[:, None] + kx[None, :])).astype(np.float32)
@@ -113,6 +97,8 @@ def poisson_depth(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
     f = np.zeros((n, h, w), dtype=np.float32)
     f[:, :-1, 1:] += gx[:, :-1, 1:] - gx[:, :-1, :-1]
     f[:, 1:, :-1] += gy[:, 1:, :-1] - gy[:, :-1, :-1]
+    # Zero-padded to a fast FFT length (unlike the original): the border condition moves a
+    # few pixels out.
     rows, cols = _fast_length(h - 2), _fast_length(w - 2)
     padded = np.zeros((n, rows, cols), dtype=np.float32)
     padded[:, : h - 2, : w - 2] = f[:, 1:-1, 1:-1]
@@ -179,7 +165,7 @@ def reconstruct_depth(
     gx = gx / np.sqrt(np.maximum(1.0 - gx * gx, 1e-3)) / 128.0
     gy = gy / np.sqrt(np.maximum(1.0 - gy * gy, 1e-3)) / 128.0
     marker_mask = None
-    if markers:
+    if markers:  # the original's ``demark`` step
         dark = channel_sum < 3.0 * (0.5 - _MARKER_THRESHOLD)
         # Grow each marker blob by one pixel (its soft rim) before filling.
         marker_mask = dark.copy()

@@ -1,24 +1,7 @@
-"""Physically plausible values: one set of rules for the importers, the store and the estimator.
+"""Physically plausible values: one set of rules (``RULES``) for the importers, the store and
+the estimator; NaN means "missing" and is left to each of them.
 
-A value outside its rule is a physically impossible reading (a negative force, a width in
-millimetres, an infinite estimate, float frames that are no difference image in [0, 1]),
-never a real grasp. The
-same rules are applied at three places, so a value the estimator would reject at
-prediction time is never imported silently:
-
-* the importers (:mod:`~tactile_compliance.data.burgess`, :mod:`~tactile_compliance.data.
-  yuan`) skip such a sample and report it with the value, the unit and the range;
-* the store (:func:`~tactile_compliance.data.store.validate_samples`, used by
-  ``GraspStore.open``, and ``GraspStoreWriter.append``) refuses such a table or row;
-* the estimator (:data:`tactile_compliance.inference.input_checks.SCALAR_SPECS`,
-  ``check_frames``) rejects such an input with a ``ValueError``.
-
-NaN is not judged here: it means "missing" (the Shore videos have no force, width or
-estimates), and each consumer decides whether a missing value is allowed.
-
-The ranges are wide on purpose: they must never reject a real sample of the public
-dataset (forces up to ~60 N, widths up to ~0.08 m, estimates 1e2-1e14 Pa), only values
-that cannot be measured at all. The table is in ``docs/data.md``.
+See docs/data.md, "Plausible values: one set of rules".
 """
 
 from __future__ import annotations
@@ -45,10 +28,8 @@ __all__ = [
     "format_number",
 ]
 
-#: numpy dtype kinds that hold numbers: signed and unsigned integers, floats. Everything
-#: else (bool, complex, datetime, timedelta, strings, structured, object) is refused, never
-#: cast: ``complex -> float`` drops the imaginary part and ``datetime64 -> float`` gives
-#: days since 1970, both silently.
+#: numpy dtype kinds that hold numbers (signed, unsigned integers, floats); everything else
+#: is refused, never cast (docs/data.md, "Plausible values").
 NUMERIC_KINDS = "iuf"
 
 
@@ -225,9 +206,7 @@ FORCE = PlausibleRange(
     reason="a grasp pushes, so never < 0 N; the dataset's grasps reach ~60 N, the "
     "synthetic ones ~90 N; 1000 N catches unit mix-ups",
 )
-#: Gripper width (opening) at the three frames of a grasp. The reading carries the
-#: encoder's calibration offset (the synthetic generator models -0.5 mm, as measured), so
-#: a thin object squeezed flat reads slightly below 0 m: -0.2 mm occurs in generated data.
+#: Gripper width (opening) at the three frames of a grasp.
 WIDTH = PlausibleRange(
     quantity="width",
     unit="m",
@@ -258,13 +237,7 @@ MODULUS = PlausibleRange(
     "default label range [1e3, 1e12] Pa does not clip, so values outside it are kept",
 )
 #: Float difference images, ``(frame - blurred reference) / 255 + 0.5``; 1 = 255 grey
-#: levels. uint8 frames (0..255, the store's encoding) always fit. Real difference images
-#: lie in [0, 1] but for a few saturated pixels: the synthetic generator's full-size
-#: frames reach -0.21 and 1.13, in at most 0.12 % of a sample's values. The store's uint8
-#: encoding saturates those to [0, 1] (so does the estimator). A frame with more than 1 %
-#: of its values outside is no difference image: 0..255 floats, normalised frames, a
-#: missing +0.5 offset. Nothing can lie beyond [-0.5, 1.5]: (0 - 255) / 255 + 0.5 and
-#: (255 - 0) / 255 + 0.5.
+#: levels. The limits are (0 - 255) / 255 + 0.5 and (255 - 0) / 255 + 0.5.
 FRAME = PlausibleRange(
     quantity="frame value",
     unit="full scale",
@@ -321,10 +294,8 @@ MAX_FRAME_SIDE_PX = 4096
 
 
 def check_size(size: object, what: str = "size") -> tuple[int, int]:
-    """``size`` as (height, width) px: two integers in ``[1, MAX_FRAME_SIDE_PX]``.
-
-    Refuses floats (72.7), booleans, text and negative or huge sides with one line, before
-    anything is allocated.
+    """``size`` as (height, width) px: two integers in ``[1, MAX_FRAME_SIDE_PX]`` (not
+    floats, booleans or text), checked before anything is allocated.
 
     Raises:
         ValueError: naming ``what`` and the value.

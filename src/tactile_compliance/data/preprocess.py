@@ -1,32 +1,7 @@
-"""The sample filter: which samples of a GraspStore an experiment may use, and why not the rest.
+"""The sample filter: which samples of a GraspStore an experiment may use (eight switchable
+rules, counted per rule in a :class:`FilterReport`), and why not the rest.
 
-Rules, applied in this order (each switchable in ``FilterConfig``; see ``docs/protocol.md``):
-
-1. ``fingers``               keep only the configured sensor fingers (``data.fingers``);
-2. ``exclude_objects``       objects with unknown ground truth (13 by default);
-3. ``exclude_materials``     materials the paper drops (``Paper``);
-4. ``missing_estimates``     a non-finite elastic or Hertz estimate;
-5. ``no_force_increase``     ``F[2] <= F[0]`` (the grasp never squeezed);
-6. ``no_width_decrease``     ``W[2] >= W[0]`` (the gripper never closed);
-7. ``no_depth_increase``     ``max depth[2] <= max depth[1]`` (no deeper imprint at the end),
-                             judged on the markerless finger's depth for both fingers;
-8. ``single_sample_objects`` objects left with a single sample (cannot be split or validated).
-
-Rules 4-7 come from the paper ("removing all samples with missing values for estimation,
-recorded force change, width change"), rule 8 too. A missing value (NaN) fails rules 5-7:
-an unverifiable increase is treated like no increase. A rule whose columns are entirely NaN
-(or absent) in the input, e.g. the Shore-hardness videos have no force, width, estimates or
-depth, is *not applicable*: it is skipped and reported as such instead of removing everything.
-Exclusion lists match case-insensitively, and the report says how many listed names were
-actually present, so a typo does not silently exclude nothing.
-
-Rule 7 follows the published code (mfkuhlmann/youngs-modulus-estimation,
-``src/dataset/k_fold_youngs_data_module.py``, ``prepare_data``): every sample of a grasp
-and augmentation, whichever finger's images it holds, is judged on the markerless
-finger's ``depth.pkl``; ``depth_markers.pkl`` decides only when the marker finger is used
-alone. So both fingers' samples of one press are kept or dropped together. A sample
-whose markerless sibling is not in the table (skipped at import) is judged on its own
-finger's depth, and the report's note counts them.
+See docs/protocol.md, "1. Sample filter".
 """
 
 from __future__ import annotations
@@ -194,9 +169,15 @@ def _usable_columns(samples: pd.DataFrame, columns: Sequence[str]) -> list[str]:
 def _depth_trend(
     samples: pd.DataFrame, df: pd.DataFrame, fingers: Sequence[str] | None
 ) -> tuple[np.ndarray, np.ndarray, str]:
-    """Max depth (mm) of frames 1 and 2 that judge each row of ``df`` in rule 7 (module
-    docstring), and a note. The markerless sibling is looked up in ``samples``, the
-    unfiltered table, so one removed by the finger selection still counts."""
+    """Max depth (mm) of frames 1 and 2 that judge each row of ``df`` in rule 7, and a note.
+
+    As the published code (mfkuhlmann/youngs-modulus-estimation,
+    ``src/dataset/k_fold_youngs_data_module.py``, ``prepare_data``): every sample of a press
+    is judged on the markerless finger's depth, unless the marker finger is used alone. The
+    markerless sibling is looked up in ``samples``, the unfiltered table, so one removed by
+    the finger selection still counts; a sample without one (skipped at import) is judged on
+    its own depth, and the note counts those.
+    """
     first_col, last_col = DEPTH_TREND_COLUMNS
     own_first = df[first_col].to_numpy(dtype=float)
     own_last = df[last_col].to_numpy(dtype=float)

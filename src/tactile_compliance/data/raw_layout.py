@@ -1,25 +1,9 @@
-"""The raw layout of the GelSight Young's-modulus dataset (Burgess et al. 2024): its one
-reader and its one writer.
+"""The raw layout of the GelSight Young's-modulus dataset (Burgess et al. 2024): its names,
+its one reader (``import burgess``, ``predict``) and its one writer (the generator,
+``record``); every ``.pkl`` is read with the allow-list unpickler and checked against its
+file's plausibility rule (:data:`FILE_RULES`).
 
-::
-
-    ROOT/{object}/metadata.json
-    ROOT/{object}/grasp={g}/augmentation={k}/RGB.pkl            (3, H, W, 3) BGR difference images
-                                             RGB_markers.pkl    same, the other finger (markers)
-                                             depth.pkl, depth_markers.pkl   (3, H, W) mm
-                                             forces.pkl (3,) N, widths.pkl (3,) m
-                                             elastic_estimate.pkl, hertz_estimate.pkl  () Pa
-                                                 (absent where the fit failed)
-    ROOT/generation.json                     the generator's manifest (synthetic trees)
-    ROOT/recording.json                      ``record``'s depth model and px/mm
-
-Every ``.pkl`` is a pickled numpy array, read with the allow-list unpickler
-(:mod:`~tactile_compliance.data.safe_pickle`) and checked against its file's plausibility
-rule (:data:`FILE_RULES`). The importer (``import burgess``) and ``predict`` read with
-:func:`load_frames`, :func:`load_vector`, :func:`load_estimate` and :func:`load_depth`;
-the generator and ``record`` write with :func:`write_metadata` and :func:`write_sample`.
-:data:`VIDEO_SUFFIXES` is the one list of video files that ``import yuan`` and ``predict``
-accept.
+See docs/data.md, "Importing the GelSight Young's-modulus dataset".
 """
 
 from __future__ import annotations
@@ -174,10 +158,8 @@ def _implausible(name: str, values: np.ndarray) -> None:
 
 
 def _load_array(path: Path) -> np.ndarray:
-    """A numeric array (integer or float dtype) from an untrusted pickle, or SampleError.
-
-    Other dtypes (bool, complex, datetime, timedelta, text, structured) are refused, never
-    cast: a cast would drop an imaginary part or turn a date into a number."""
+    """A numeric array (integer or float dtype, never cast) from an untrusted pickle, or
+    SampleError."""
     if not path.is_file():
         raise SampleError(f"missing file: {path.name}")
     try:
@@ -227,13 +209,9 @@ def load_estimate(directory: Path, name: str) -> float:
 
 
 def load_frames(directory: Path, name: str, expected_hw: tuple[int, int] | None) -> np.ndarray:
-    """Difference images as float32 RGB (3, H, W, 3); the files store BGR.
-
-    Values must be a difference image in [0, 1] by the frame rule
-    (:data:`~tactile_compliance.data.plausibility.FRAME`: one grey level of tolerance, at
-    most 1 % saturated values, none beyond [-0.5, 1.5]); the store's uint8 encoding would
-    otherwise clip them silently.
-    """
+    """Difference images as float32 RGB (3, H, W, 3); the files store BGR. Values must pass
+    the frame rule (``plausibility.FRAME``): the store's uint8 encoding would otherwise clip
+    them silently."""
     array = _load_array(directory / name)
     if (
         array.ndim != 4

@@ -1,23 +1,8 @@
 """Load pickled numpy arrays from untrusted dataset files without executing code or
-allocating what the file merely declares (and write them as the dataset does:
-:func:`dump_numpy_pickle`, for the generator and recorded grasps).
+allocating what the file merely declares (an allow-list unpickler, size checks before any
+allocation, an opcode walk before unpickling), and write them as the dataset does.
 
-Unpickling calls whatever callables the file names, so a crafted ``.pkl`` can run
-arbitrary code. The dataset's pickles only ever contain numpy arrays, numpy scalars
-and dtypes, so :class:`NumpyOnlyUnpickler` resolves exactly the handful of globals
-numpy needs to rebuild those and rejects everything else *before* it is called.
-
-A pickle can also make the loader allocate far more memory than the file holds: a
-97-byte file can ask numpy for an uninitialised (3, 4000, 4000, 3) array, or declare a
-3 GB byte string that the unpickler reserves before it finds the file too short. So:
-
-- the array constructors the allow-list hands out check the declared shape and dtype
-  against :data:`MAX_ARRAY_ELEMENTS` / :data:`MAX_ARRAY_BYTES` before numpy allocates
-  (:class:`ArrayTooLargeError`);
-- before unpickling, :func:`check_pickle_stream` walks the opcodes and rejects any length
-  or memo index that the file cannot back, and files over :data:`MAX_PICKLE_BYTES`;
-- :func:`peek_array_shape` reads an array's declared shape from the first few hundred
-  bytes of a file, without loading its data (the importer's frame-size pass).
+See docs/data.md, "Untrusted pickles: what the loader refuses".
 """
 
 from __future__ import annotations
@@ -378,31 +363,23 @@ class UnreadableTorchFileError(ValueError):
         self.reason = reason
 
 
-def load_torch_file(
-    path: str | Path, what: str, *, map_location: Any = "cpu", mmap: bool = False
-) -> Any:
+def load_torch_file(path: str | Path, what: str, *, map_location: Any = "cpu") -> Any:
     """``torch.load(path, weights_only=True)`` (never executes pickled code), whose errors
     say in one line what the file is instead of torch's several lines, which end by
     advising ``weights_only=False``, the unsafe load this project never does.
 
     Args:
-        path: the file.
         what: what the caller expected, for the message ("checkpoint", "backbone weights").
-        map_location: as for ``torch.load``.
-        mmap: map the tensors instead of reading them (zip-format files only).
 
     Raises:
         UnreadableTorchFileError: not a file of ``torch.save``, a damaged one, or one that
             holds Python objects beyond tensors and plain containers.
     """
-    import zipfile
-
     import torch
 
     path = Path(path)
-    mappable = mmap and zipfile.is_zipfile(path)  # an old-format file cannot be mapped
     try:
-        return torch.load(path, map_location=map_location, weights_only=True, mmap=mappable)
+        return torch.load(path, map_location=map_location, weights_only=True)
     except Exception as err:  # torch raises several types for foreign or damaged files
         raise UnreadableTorchFileError(path, what, _torch_file_problem(path, err)) from err
 

@@ -1,23 +1,7 @@
-"""Train / validation / test splits, analysis subsets, and their persistence.
+"""Train / validation / test splits (by object, grasp or sample, seeded, optionally
+stratified), analysis subsets, and their persistence as sample ids in JSON.
 
-Protocol (paper: test 20 %, validation 20 % of the rest; one split per run seed):
-
-* ``unseen``: groups are objects, so no test or validation object is ever seen in training.
-* ``seen`` + ``grasp`` (default): groups are grasps ``(object, grasp)``. Both fingers and all
-  time-shifted copies of one grasp are near-duplicates; keeping them in one split stops the
-  test set from containing copies of training samples, while objects still recur.
-* ``seen`` + ``per_sample``: every sample is its own group. This reproduces the published
-  code's protocol and is optimistic (copies of a test grasp are in the training set).
-
-Sizes are fractions of *samples*. Groups are visited in a seeded random order and taken
-until the sample count is as close as possible to the target, so each split is within one
-group of its target. With ``stratify=True`` the visiting order interleaves the
-shape x material strata (systematic sampling within each stratum), so every prefix, and
-hence every split, holds about the same share of each stratum.
-
-A :class:`Split` stores sample ids (the GraspStore's ``sample_id``), never row positions of a
-filtered table, and saves to / loads from JSON so every run's split can be reproduced and
-audited (``tactile-compliance split STORE --condition unseen --seed 3 --out split.json``).
+See docs/protocol.md, "3. Splits".
 """
 
 from __future__ import annotations
@@ -317,17 +301,10 @@ def make_split(
     """Split ``samples`` into train / validation / test sample ids.
 
     Args:
-        samples: the (filtered, subset) samples table.
-        condition: ``"seen"`` (objects may recur across splits) or ``"unseen"`` (by object).
-        grouping: for ``seen``: ``"grasp"`` (default; a grasp's samples stay together) or
-            ``"per_sample"`` (the paper's leaky protocol). ``unseen`` always groups by
-            object (the saved split records ``grouping="object"``); ``per_sample`` with
-            ``unseen`` is an error.
-        seed: seed of this run's split (same seed + same table -> same split, regardless
-            of row order).
-        test_fraction: share of samples in test (paper 0.2).
-        val_fraction: share of the *remaining* samples in validation (paper 0.2).
-        stratify: interleave shape x material strata so every split mirrors their mix.
+        condition, grouping: docs/protocol.md, "3. Splits"; ``unseen`` always groups by
+            object (the saved split records ``grouping="object"``).
+        test_fraction: share of samples in test; val_fraction: share of the *remaining*
+            samples in validation (paper 0.2 each).
         subset: recorded in the split's metadata (the caller applies :func:`select_subset`).
         metadata: extra JSON-serialisable information to store with the split.
     """

@@ -1,34 +1,8 @@
-"""GraspStore: the one on-disk format every data source is imported into.
+"""GraspStore: the one on-disk format every data source is imported into (frames as uint8
+difference images, memory-mapped; optional float16 depth maps; a checked table), and its
+atomic writer.
 
-A store is a directory::
-
-    STORE/
-      .tactile-compliance.json  marker, kind "store" (what --overwrite checks)
-      header.json       format version, frame shape, channel order, source, creation parameters
-      samples.parquet   one row per sample (labels, F, W, estimates, provenance)
-      frames.u8         raw uint8 array (N, 3 frames, H, W, 3 channels), RGB, memory-mapped
-      depth.f16         optional: float16 gel depth maps in mm (N, 3 frames, h, w), see below
-
-Frames are difference images (values centred near 0.5) quantised to uint8 at the
-camera's own step (:func:`frames_to_uint8`): a 7,840-sample full-resolution store is 6.2 GB
-on disk instead of 25 GB of float32, read lazily so nothing is loaded into RAM until a
-sample is asked for. Differences beyond -127..+128 grey levels are clipped, and the writer
-counts them (:attr:`GraspStoreWriter.clipped_frame_values`) for the import report.
-
-Depth maps (optional, ``header.json`` ``depth_size``; stores without them open unchanged):
-the gel's indentation depth of every frame in mm, as the dataset's ``depth*.pkl`` give it,
-area-averaged down to :func:`depth_size_for` the frame size (a quarter of each side,
-rounded up: 24x32 for 96x128 frames, 63x88 for 250x350) and stored as float16. float16
-holds -65504..65504 mm with a relative step of 2**-11 (0.0005 mm at 1 mm, 0.002 mm at
-4 mm, far below the reconstruction's own error); NaN marks a sample without a depth file.
-At a quarter of each side they add 4 % to the frames' bytes. They are the label-free
-target of tactile pretraining (``training.pretrain``).
-
-Stores are written by :class:`GraspStoreWriter`, atomically (its guarantees are listed
-there): an interrupted import never leaves a directory that looks like a complete store.
-Opening a store checks its table (:func:`validate_samples`), including the physical
-plausibility of F, W, E and the label (:mod:`~tactile_compliance.data.plausibility`, the
-rules the importers and the estimator apply too).
+See docs/data.md, "The GraspStore format (version 1)".
 """
 
 from __future__ import annotations
@@ -171,11 +145,8 @@ def frames_to_uint8(frames: np.ndarray) -> np.ndarray:
     neighbouring grey levels, while ``floor`` keeps every level and the decoder
     (:func:`frames_from_uint8`, ``(u + 0.5) / 255``) recovers the value exactly. Arbitrary
     floats are reproduced within half a grey level, without bias. uint8 input (raw camera
-    frames) is stored unchanged.
-
-    Only differences k of -127..+128 grey levels fit (:data:`MIN_DIFFERENCE_LEVEL`,
-    :data:`MAX_DIFFERENCE_LEVEL`): any value below 0 or from 1 + 1/255 up is clipped to
-    the nearest end, and :func:`encode_frames` counts it.
+    frames) is stored unchanged; differences beyond :data:`MIN_DIFFERENCE_LEVEL` ..
+    :data:`MAX_DIFFERENCE_LEVEL` are clipped (:func:`encode_frames` counts them).
     """
     return encode_frames(frames)[0]
 
@@ -213,11 +184,8 @@ def _column_numbers(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
 def validate_samples(samples: pd.DataFrame) -> list[str]:
     """What is wrong with a store's table, one message per problem (empty: nothing).
 
-    Checks what every later step relies on: all of :data:`SAMPLE_COLUMNS`; ``sample_id``
-    equal to the row number (the index into ``frames.u8``); every numeric column within
-    its rule of :data:`COLUMN_RULES` or NaN (missing), but ``modulus_pa``, the training
-    label, is never NaN. A column of another dtype (datetime, complex, bool) is a problem
-    of its own, never cast. Messages name the column and the first bad (0-based) rows.
+    The checks are listed in docs/data.md ("Opening a store checks its table"); messages
+    name the column and the first bad (0-based) rows.
     """
     problems = []
     missing = [c for c in SAMPLE_COLUMNS if c not in samples.columns]
@@ -313,17 +281,8 @@ def _partial_owner_gone(partial: Path) -> bool:
 
 
 def recover_interrupted_writes(path: str | Path) -> list[Path]:
-    """Tidy what killed writers of the store ``path`` left next to it; returns what was
-    removed or restored.
-
-    - ``.NAME.partial-*`` directories holding :data:`PARTIAL_MARKER` whose process (same
-      host, same PID and start time) no longer runs are deleted. Directories of live
-      writers, of other hosts, or without the marker are left alone.
-    - ``.NAME.old-PID-*`` (the previous store, moved aside while a new one was swapped
-      in) whose process no longer runs: put back as ``NAME`` when ``NAME`` is missing
-      (the swap never finished, the old store survives), deleted when ``NAME`` exists.
-      Only when it is a store (:func:`is_store_dir`).
-    """
+    """Tidy what killed writers of the store ``path`` left next to it (docs/data.md, "A
+    killed import"); returns what was removed or restored."""
     path = Path(path)
     parent = path.parent
     touched: list[Path] = []
@@ -522,9 +481,8 @@ class GraspStore:
     def open(cls, path: str | Path, *, validate: bool = True) -> GraspStore:
         """Open an existing store; raises :class:`StoreError` naming what is wrong.
 
-        ``validate`` (default) also checks the table with :func:`validate_samples`: a NaN
-        or negative modulus, a missing column or a wrong sample_id is an error here, not
-        a silent NaN loss in training. ``validate=False`` opens it anyway (to inspect).
+        ``validate`` (default) also checks the table with :func:`validate_samples`;
+        ``validate=False`` opens a store with bad values anyway (to inspect).
         """
         path = Path(path)
         if not path.is_dir():
@@ -779,21 +737,8 @@ class GraspStoreWriter:
         with GraspStoreWriter(out, image_size=(250, 350), source="burgess") as writer:
             writer.append(frames, {"object": "foam_cube", "modulus_pa": 2e4, ...})
 
-    Guarantees:
-
-    - ``overwrite`` replaces only a store (:func:`is_store_dir`); any other existing path
-      raises :class:`NotAStoreError` and is left untouched.
-    - Samples go to a hidden sibling ``.NAME.partial-XXXXXXXX`` holding
-      :data:`PARTIAL_MARKER` (PID, host, process start time). :meth:`commit` writes the
-      table, the marker and ``header.json`` there, then renames it to ``NAME``; an old
-      store is moved aside to ``.NAME.old-PID-XXXX`` for the swap and then deleted.
-    - An ``OSError`` while writing (full disk, ...) raises :class:`StoreWriteError` after
-      removing the temporary directory and the parent directories the writer created;
-      a failed swap puts the old store back.
-    - A killed writer's leftovers are tidied by the next writer to the same path
-      (:func:`recover_interrupted_writes`).
-    - Directories and files are created with the default modes, so the umask decides
-      (not 0700/0600).
+    Its guarantees (atomic, ``overwrite`` replaces only a store, nothing left on an error,
+    a killed writer tidied by the next): docs/data.md, "Writing, replacing, interruptions".
     """
 
     def __init__(
@@ -901,12 +846,9 @@ class GraspStoreWriter:
         by a writer without ``depth_size``. NaN is allowed (missing), inf and
         |depth| > :data:`MAX_ABS_DEPTH_MM` are not.
 
-        Raises ``ValueError`` for a bad sample (shape, dtype, NaN frames, float frames that
-        are no difference images in [0, 1] by the frame rule, which the uint8 encoding
-        would clip; unknown field, a value that is no number or outside its plausibility
-        rule (modulus, force, width, estimates: :data:`COLUMN_RULES`), text that is not
-        UTF-8): nothing is written for it. The few saturated pixels the frame rule allows
-        are clipped by the encoding and counted in :attr:`clipped_frame_values`.
+        Raises ``ValueError`` for a bad sample (shape, dtype, NaN frames, frames or values
+        outside their plausibility rule, an unknown field, text that is not UTF-8): nothing
+        is written for it.
         """
         if self._closed:
             raise RuntimeError("writer is closed")

@@ -1,19 +1,7 @@
-"""Importer for the Shore-hardness GelSight video dataset (Yuan et al. 2017).
+"""Importer for the Shore-hardness GelSight video dataset (Yuan et al. 2017): one press
+video per sample, three raw frames (first, midway, brightest), labels from Shore 00.
 
-One ``.avi`` per press, named ``{SHAPE}_{hardness:02d}_{n}.avi`` (e.g. ``BASIC_34_2.avi``).
-Three frames are kept per video: the first frame, the frame with the highest mean grey
-level (the deepest press; OpenCV's weighted grey, as in the published code) and the frame
-midway between them. Labels come from the Shore 00 hardness through Larson's conversion;
-there is no force, width or estimate.
-Frames are stored as raw camera images (``frame_kind: raw`` in the store header), in RGB.
-
-Every file with a video suffix (``raw_layout.VIDEO_SUFFIXES``, e.g. ``.avi``, ``.mp4``,
-the same list ``predict`` accepts) is a candidate: it is imported when its name matches
-and OpenCV decodes it, otherwise it is skipped and reported with the reason. The store's
-frame size is the most common size among the videos (read from their headers) unless
-``image_size`` is given; other videos are resized to it. A label outside the plausible modulus range
-(:mod:`~tactile_compliance.data.plausibility`, shared with the other importer, the store
-and the estimator) skips its video with a report; the frames are uint8, always in range.
+See docs/data.md, "Importing the Shore-hardness videos".
 """
 
 from __future__ import annotations
