@@ -263,6 +263,16 @@ def _settings(stats: pd.DataFrame, keys: list[str]) -> list[dict[str, Any]]:
     return [dict(zip(keys, s, strict=True)) for s in settings[keys].itertuples(index=False)]
 
 
+def _model_inputs(frame: pd.DataFrame, inputs: Sequence[str]) -> list[tuple[Any, str]]:
+    """The (model, input strategy) pairs with rows in ``frame``, models in display order."""
+    return [
+        (m, i)
+        for m in ordered(frame["model"], model_order())
+        for i in inputs
+        if ((frame["model"] == m) & (frame["inputs"] == i)).any()
+    ]
+
+
 def _setting_cells(setting: Mapping[str, Any]) -> list[Cell]:
     """The Model, Input and Split cells of a row that stands for one run setting."""
     return [
@@ -601,12 +611,7 @@ def subset_summary_table(
         subsets = [k for k in range(N_ROLLING_WINDOWS) if k in set(rows["subset_key"])]
     else:
         subsets = ordered(rows["subset_key"], SHAPE_ORDER)
-    keys = [
-        (m, i)
-        for m in ordered(rows["model"], model_order())
-        for i in ordered(rows["inputs"], InputStrategy.names())
-        if ((rows["model"] == m) & (rows["inputs"] == i)).any()
-    ]
+    keys = _model_inputs(rows, ordered(rows["inputs"], InputStrategy.names()))
     pivot = _pivot(
         stats,
         [{"model": m, "inputs": i} for m, i in keys],
@@ -696,12 +701,7 @@ def group_metric_tables(
     inputs = ordered(data["inputs"], InputStrategy.names())
     if {"Image", "ALL"} <= set(inputs):
         inputs = ["Image", "ALL"]
-    keys = [
-        (m, i)
-        for m in ordered(data["model"], model_order())
-        for i in inputs
-        if ((data["model"] == m) & (data["inputs"] == i)).any()
-    ]
+    keys = _model_inputs(data, inputs)
     group_order = []
     for grouping in ("soft_hard", "material", "shape"):
         names = data.loc[data["grouping"] == grouping, "group"].astype(str)

@@ -20,6 +20,7 @@ __all__ = [
     "model_display_names",
     "model_hyperparameters",
     "register_model",
+    "takes_any_hparam",
 ]
 
 _REGISTRY: dict[str, type[nn.Module]] = {}
@@ -95,6 +96,12 @@ def model_hyperparameters(name: str) -> dict[str, Any]:
     }
 
 
+def takes_any_hparam(name: str) -> bool:
+    """Whether model ``name``'s constructor takes ``**kwargs`` (any hyperparameter)."""
+    parameters = inspect.signature(get_model_class(name).__init__).parameters.values()
+    return any(p.kind is p.VAR_KEYWORD for p in parameters)
+
+
 def create_model(name: str, inputs: InputStrategy | str = "ALL", **hparams: Any) -> nn.Module:
     """Build registered model ``name`` (case-insensitive) for input strategy ``inputs``;
     hyperparameters not given take the paper's defaults.
@@ -105,9 +112,7 @@ def create_model(name: str, inputs: InputStrategy | str = "ALL", **hparams: Any)
     """
     cls = get_model_class(name)
     strategy = InputStrategy.parse(inputs)
-    signature = inspect.signature(cls.__init__)
-    takes_var_kwargs = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
-    if not takes_var_kwargs:
+    if not takes_any_hparam(name):
         valid = model_hyperparameters(name)
         unknown = sorted(set(hparams) - set(valid))
         if unknown:

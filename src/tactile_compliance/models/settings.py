@@ -13,7 +13,11 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from tactile_compliance.models.inputs import InputStrategy
-from tactile_compliance.models.registry import get_model_class, model_hyperparameters
+from tactile_compliance.models.registry import (
+    get_model_class,
+    model_hyperparameters,
+    takes_any_hparam,
+)
 
 __all__ = [
     "DIM_CHOICES",
@@ -186,9 +190,7 @@ def search_dimensions(model: str, inputs: InputStrategy | str) -> list[SearchDim
     strategy = InputStrategy.parse(inputs)
     paper = paper_settings(model, strategy)
     constructor = model_hyperparameters(model)
-    takes_any = any(
-        p.kind is p.VAR_KEYWORD for p in inspect.signature(cls.__init__).parameters.values()
-    )
+    takes_any = takes_any_hparam(model)
     dimensions: list[SearchDimension] = []
     seen: set[str] = set()
     # A class without a declaration still tunes its training settings.
