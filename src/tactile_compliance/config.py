@@ -1,28 +1,7 @@
 """Typed, validated experiment configuration (YAML presets + command-line overrides).
 
-One :class:`ExperimentConfig` describes a run completely: data (store, label range, fingers),
-the sample filter, the split protocol, the sampling strategy, the input strategy,
-augmentation, model and training settings, the seed and the output directory.
-
-Loading::
-
-    cfg = load_config("default")                              # packaged preset
-    cfg = load_config("my_run.yaml", ["split.condition=unseen", "training.lr=1e-4"])
-
-* Every section forbids unknown keys; the error names the dotted key and lists the valid
-  keys of its section (a typo such as ``split.conditon`` never passes silently).
-* Wrong types / out-of-range values raise :class:`ConfigError` (a ``ValueError``) naming the
-  dotted path, the problem and the value given.
-* Overrides are ``dotted.key=value``; the value is parsed as YAML (``3`` -> int,
-  ``1e-4`` -> float, ``null`` -> None, ``[1, 2]`` -> list, ``Sphere`` -> str).
-* A YAML file may start from another preset or file with ``base: NAME_OR_PATH`` and only
-  list what differs (mappings are merged key by key).
-* Impossible combinations raise (Shore-hardness data with inputs other than Image,
-  ``per_sample`` grouping with the unseen condition); questionable ones warn (augmentation
-  with a frozen backbone: cached features cannot be augmented).
-
-Presets live in ``tactile_compliance/configs/*.yaml`` inside the installed package
-(:func:`list_presets`), so they are available without a source checkout.
+One :class:`ExperimentConfig` describes a run completely. Loading, overrides, ``base:``,
+errors and every key: docs/protocol.md, section 7.
 """
 
 from __future__ import annotations
@@ -605,12 +584,8 @@ def config_from_dict(
 def load_config(
     path_or_preset_name: str | Path = "default", overrides: Iterable[str] = ()
 ) -> ExperimentConfig:
-    """Load a YAML file or packaged preset, apply ``key.sub=value`` overrides, validate.
-
-    Args:
-        path_or_preset_name: a path to a YAML file, or the name of a packaged preset
-            (``list_presets()``), e.g. ``"default"``.
-        overrides: ``dotted.key=value`` strings; the value is parsed as YAML.
+    """Load a YAML file or packaged preset (``list_presets()``), apply ``dotted.key=value``
+    overrides (values parsed as YAML), validate.
 
     Raises:
         ConfigError: (a ``ValueError``) for missing files, invalid YAML, unknown keys, wrong
@@ -651,12 +626,8 @@ def save_config(cfg: ExperimentConfig, path: str | Path) -> Path:
 def check_config_against_samples(
     cfg: ExperimentConfig, samples: Any, source: str | None = None
 ) -> None:
-    """Raise ConfigError when the data cannot feed the configured inputs.
-
-    Checks, at run time, what the config alone cannot know: that the columns the input
-    strategy needs (force, width, estimates) hold data, and that ``data.source`` (when not
-    ``auto``) matches the store's ``source`` header.
-    """
+    """Raise ConfigError when the data cannot feed the configured inputs (their columns
+    hold no data) or ``data.source`` (when not ``auto``) is not the store's ``source``."""
     if source is not None and cfg.data.source not in ("auto", source):
         raise ConfigError(f"data.source={cfg.data.source} but the store's source is {source!r}")
     for need in cfg.strategy.needs:

@@ -1,9 +1,7 @@
 """The one-command demo: synthetic data -> stores -> quick experiment grids -> report.
 
-``tactile-compliance demo`` is the main job on a fresh machine: it exercises every layer
-(generator, importers, filters, splits, balancing, the three models, the grid runner,
-the report) on built-in synthetic data, within minutes on a 2-core CPU. ``--mode ci`` runs
-the same path on a tiny dataset and a few grid cells, in seconds, for the test suite.
+It exercises every layer on built-in synthetic data within minutes on a 2-core CPU;
+``--mode ci`` runs the same path in seconds, for the test suite.
 """
 
 from __future__ import annotations

@@ -1,9 +1,5 @@
 """Where a model runs: the one default device and the one resolver of ``auto``.
 
-Every command and Python entry point that runs a model (``train``'s
-``training.device``, ``pretrain``, ``evaluate``, ``predict``, ``live``,
-``ComplianceEstimator``, ``EnsembleEstimator``, ``from_pretrained``, ...) defaults to
-:data:`DEFAULT_DEVICE` and passes what it was given through :func:`resolve_device`.
 torch is imported when a device is resolved, not with this module.
 """
 

@@ -1,21 +1,7 @@
 """What a command may write to: never a path it did not create.
 
-Every command that writes a directory (a report, an experiment's runs, a tuning search, a
-demo) *claims* it first with :func:`claim_output_dir`:
-
-* a path that does not exist, or an empty directory, becomes the command's: a marker file
-  ``.tactile-compliance.json`` records which kind of output it is;
-* a directory whose marker names the same kind is reused (re-runs continue or refresh
-  their own files);
-* anything else (a directory of the user's files, another command's output) is refused
-  with :class:`OutputExistsError`, before anything is written.
-
-A directory without a marker is never adopted by its contents: the package never shipped
-a version that wrote none (``recognise`` is for a directory that a concurrent command of
-the same kind is creating). Single output files (a split, an ONNX model, a
-JSON report) go through :func:`check_output_file`: an existing file is replaced only when
-it is recognisably an output of the same kind. Every file a command writes goes through
-:func:`atomic_file`: a reader never sees half of it.
+Output directories are claimed (:func:`claim_output_dir`), output files checked
+(:func:`check_output_file`), and every file is written whole (:func:`atomic_file`).
 """
 
 from __future__ import annotations
@@ -122,19 +108,16 @@ def claim_output_dir(
     option: str = "--out",
     create: bool = True,
 ) -> Path:
-    """Make ``path`` the output directory of a ``kind`` command, or refuse.
+    """Make ``path`` the output directory of a ``kind`` command (new or empty: marked;
+    marked as ``kind``: reused), or refuse.
 
     Args:
-        path: the directory the user named.
         kind: what writes it ("report", "experiment", "demo", ...).
         recognise: tells an unmarked directory that a concurrent command of this kind is
             creating (adopted).
         option: the command-line option that names ``path``, for the error message.
         create: False only checks (the same refusals) and creates nothing, for a command
             that must read its inputs before it may create its output.
-
-    Returns:
-        ``path`` as a Path, existing and marked.
 
     Raises:
         OutputExistsError: ``path`` is a file, another kind's output, or a non-empty
@@ -151,6 +134,8 @@ def claim_output_dir(
             raise OutputExistsError(
                 f"{out} holds the output of `{found}`, not of `{kind}`; choose another {option}"
             )
+        # Never adopted by its contents: no released version wrote a directory without a
+        # marker.
         if any(out.iterdir()) and not (recognise is not None and recognise(out)):
             raise OutputExistsError(
                 f"{out} is not empty and was not created by tactile-compliance {kind}; "
@@ -164,20 +149,9 @@ def claim_output_dir(
 
 
 def check_format_version(found: Any, supported: int, what: str) -> None:
-    """Refuse a file of another format version than the one this package writes.
-
-    The package never shipped another format of any file kind (0.1.0 is its first
-    release), so one version is read per kind, not a history: anything else is one line
-    naming both versions.
-
-    Args:
-        found: the ``format_version`` the file records.
-        supported: the one version this package reads and writes.
-        what: the file and its kind, for the message ("PATH: checkpoint").
-
-    Raises:
-        ValueError: ``found`` is not an integer, or not ``supported``.
-    """
+    """Refuse (ValueError, one line naming both versions) a ``format_version`` other than
+    the one ``supported`` version this package writes; ``what`` names the file and its
+    kind ("PATH: checkpoint")."""
     if isinstance(found, bool) or not isinstance(found, int):
         raise ValueError(f"{what} format_version {found!r} is not an integer")
     if found != supported:
@@ -192,11 +166,8 @@ def check_format_version(found: Any, supported: int, what: str) -> None:
 def check_output_file(
     path: str | Path, what: str, recognise: Callable[[Path], bool], option: str = "--out"
 ) -> Path:
-    """Refuse to replace an existing file unless ``recognise`` says it is a ``what``.
-
-    Raises:
-        OutputExistsError: ``path`` is a directory, or a file that is not a ``what``.
-    """
+    """Refuse (OutputExistsError) a directory, or an existing file unless ``recognise``
+    says it is a ``what``."""
     out = Path(path)
     if out.is_dir():
         raise OutputExistsError(f"{out} is a directory; {option} names the {what} file to write")
@@ -228,20 +199,14 @@ def atomic_file(
     path: str | Path, mode: str = "w", *, unique: bool = False, encoding: str | None = None
 ) -> Iterator[IO[Any]]:
     """Write ``path`` all at once: yields a temp file next to it, then fsyncs it and
-    renames it over ``path``.
-
-    A reader (or a process started after a crash) sees the old file or the new one, never
-    a part. When the block raises (a full disk, Ctrl-C) the temp file is removed and
-    ``path`` is untouched. The file is created like ``open()`` creates one: its mode
-    follows the umask.
+    renames it over ``path``, so a reader sees the old file or the new one, never a part.
+    When the block raises, the temp file is removed and ``path`` is untouched. The file's
+    mode follows the umask, as with ``open()``.
 
     Args:
-        path: the file to (re)write.
-        mode: ``"w"`` (text) or ``"wb"`` (binary).
+        mode: ``"w"`` (text, UTF-8 unless ``encoding``) or ``"wb"`` (binary).
         unique: name the temp file ``NAME.PID.RANDOM.tmp`` instead of ``NAME.tmp``, for
-            files that several processes may write at once (results-store rows); a
-            single writer (a locked run directory) uses ``NAME.tmp``.
-        encoding: text encoding (default UTF-8 in text mode).
+            files that several processes may write at once (results-store rows).
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
@@ -264,18 +229,13 @@ def atomic_file(
 
 
 def commit_path(partial: str | Path, final: str | Path, *, replace: bool = False) -> None:
-    """Rename a finished temporary directory (or file) ``partial`` to ``final``: the one
-    atomic commit of the store, the generators and ``record``.
-
-    Everything is written into ``partial`` (a hidden sibling of ``final``) first, so a
-    reader or a process started after a kill sees the whole of ``final`` or nothing.
+    """Rename a finished temporary directory (or file) ``partial``, a hidden sibling of
+    ``final``, to ``final``: the one atomic commit of the store, the generators and
+    ``record``.
 
     Args:
-        partial: the complete temporary directory or file, next to ``final``.
-        final: where it goes.
         replace: an existing ``final`` is moved aside (``.NAME.old-PID-RANDOM``), replaced
-            and then deleted; if the second rename fails it is put back. Without
-            ``replace`` an existing ``final`` is an error.
+            and then deleted; if the second rename fails it is put back.
 
     Raises:
         FileExistsError: ``final`` exists and ``replace`` is False (``partial`` is left
@@ -303,13 +263,8 @@ def commit_path(partial: str | Path, final: str | Path, *, replace: bool = False
 
 
 def exchange_directories(first: str | Path, second: str | Path) -> None:
-    """Swap two directories' names at once (Linux ``renameat2(RENAME_EXCHANGE)``).
-
-    A reader, or a process started after a kill, sees one directory or the other under
-    each name, never a mix of their files. Where the exchange is not available (another
-    OS, an old kernel or file system) two renames are used: a kill between them leaves
-    ``first`` under a hidden ``.NAME.old-PID`` name next to it (nothing is lost).
-    """
+    """Swap two directories' names at once (Linux ``renameat2(RENAME_EXCHANGE)``); elsewhere
+    two renames, where a kill between them leaves ``first`` as a hidden ``.NAME.old-PID``."""
     first, second = Path(first), Path(second)
     try:
         import ctypes
@@ -359,29 +314,19 @@ def exclusive_lock(
 ) -> Iterator[Path]:
     """Hold an exclusive ``flock`` on the file ``path`` (created if needed): the one lock.
 
-    The file records its holder (``pid PID on HOST since TIME``) while it is held. The
-    kernel releases the lock when its holder dies, however it dies, so a lock file left by
-    a killed process is simply taken over. The file is never deleted: unlinking it while
-    another process waits on the old inode would let a third process lock a new file and
-    enter at the same time.
+    The file records its holder (``pid PID on HOST since TIME``) while it is held. It is
+    never deleted: unlinking it while another process waits on the old inode would let a
+    third process lock a new file and enter at the same time.
 
     Args:
-        path: the lock file.
-        what: what the lock protects, for the messages ("the feature cache", "run
-            directory").
-        wait: True waits until the lock is free (short critical sections several
-            processes may enter: a feature cache computed once, a dataset's object table
-            updated by concurrent ``record``s). False fails at once (a run directory, an
-            experiment's output: one process at a time, a second one is a mistake).
-
-    Where ``flock`` is unavailable (Windows, a file system that refuses it), a waiting
-    lock runs the block unlocked with a warning naming ``what``; a non-waiting one lets the
-    recorded PID decide (a live process on this host, or any process on another host,
-    holds it).
+        what: what the lock protects, for the messages ("the feature cache").
+        wait: True waits until the lock is free (short sections several processes may
+            enter); False fails at once (a run directory: a second process is a mistake).
+            Without ``flock``, a waiting lock runs unlocked with a warning and a
+            non-waiting one lets the recorded PID decide.
 
     Raises:
-        DirectoryLockedError: ``wait=False`` and another process holds the lock (one line
-            naming the lock file and the holder).
+        DirectoryLockedError: ``wait=False`` and another process holds the lock.
     """
     path = Path(path)
     busy = (

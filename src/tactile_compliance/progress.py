@@ -42,13 +42,11 @@ def progress_bar(
     """A rich bar on stderr for the duration of the ``with`` block.
 
     Args:
-        description: what is being done ("Importing objects").
         total: the number of steps, or None when unknown.
         enabled: False gives a bar that does nothing (``--no-progress``, workers, tests).
         fields: extra values shown after the count, with their start values.
         fields_format: how to show them, a rich format string using
             ``{task.fields[NAME]}`` (e.g. ``"best {task.fields[best]}"``).
-        eta: show the estimated time remaining.
     """
     if not enabled:
         yield ProgressBar()

@@ -1,12 +1,8 @@
 """sim2real: a model for a real GelSight rig, trained on synthetic grasps only.
 
-``tactile-compliance sim2real --out DIR`` generates grasps with the generator set to a
-real rig (``simulate --rig``: the press force, the stiffness and the sensor's edge glow),
-imports them, trains the packaged ``sim2real`` configuration and copies the best epoch to
-``DIR/best.pt``, which ``predict`` and ``live`` take like any checkpoint. Nothing in it
-sees a real grasp: the rig is the only thing fitted on real recordings, and with
-quantities a user measures on their own rig (docs/synthetic.md, "Against real grasps").
-How well it transfers is measured by ``benchmarks/real_grasps.py`` (docs/results.md).
+Generates grasps of a real rig (``simulate --rig``), imports them, trains the packaged
+``sim2real`` configuration and copies the best epoch to ``DIR/best.pt``. See
+docs/results.md, "A model trained on simulation only".
 """
 
 from __future__ import annotations
@@ -113,10 +109,7 @@ def run_sim2real(
             generated objects, the store and a finished or interrupted run are kept).
         rig: a rig of ``synthetic.timeseries.RIGS`` (``simulate --rig``).
         mode: ``full`` or ``ci`` (a tiny run for tests).
-        seed: generation and training seed.
         workers: generator processes (default: all CPUs).
-        device: training device (``auto``, ``cpu``, ``cuda``, ``cuda:N``).
-        progress: show progress bars (on stderr).
         echo: where the import report goes (``--json`` sends it to stderr).
 
     Raises:

@@ -39,14 +39,9 @@ def evaluate_run(
     backbone_weights: str | Path | None = None,
     device: str = DEFAULT_DEVICE,
 ) -> Evaluation:
-    """Metrics of a run's best checkpoint.
-
-    Without ``store``: on the run's own test split (``split.json``), which reproduces the
-    numbers in ``metrics.json``. With ``store``: on every sample of that store that passes
-    the run's sample filter (e.g. a model trained on one dataset tested on another).
-    ``backbone_weights``: a local copy of a frozen backbone's weights file (see
-    ``training.checkpoint.load_checkpoint``). ``device``: ``auto`` (a CUDA GPU when torch
-    sees one, else the CPU), ``cpu``, ``cuda`` or ``cuda:N``.
+    """Metrics of a run's best checkpoint on its own test split (``split.json``: the
+    numbers of ``metrics.json``), or on every sample of ``store`` that passes the run's
+    sample filter. ``backbone_weights``: a local copy of a frozen backbone's weights file.
     """
     run_dir = Path(run_dir)
     loaded = load_checkpoint(run_dir / BEST_FILE, device, backbone_weights=backbone_weights)

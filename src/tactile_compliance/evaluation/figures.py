@@ -1,10 +1,6 @@
 """The report's figures: which runs each draws, and its PNG, caption and numbers table.
 
-One function per figure (Fig. 1, 5, 6, 7, 8 and the learning curves); each writes its
-heading, figure, companion table or "skipped" note into a
-:class:`~tactile_compliance.evaluation.parts.ReportParts`. Drawing is
-:mod:`~tactile_compliance.evaluation.plots`' job and reading run files is
-:mod:`~tactile_compliance.evaluation.loading`'s; this module only selects and describes.
+One function per figure; drawing is :mod:`plots`' job, reading run files :mod:`loading`'s.
 """
 
 from __future__ import annotations
@@ -105,11 +101,8 @@ def fig1(
 
 # ============================================================================ Fig. 5 / 8
 def headline_runs(frame: pd.DataFrame) -> tuple[pd.DataFrame, str] | None:
-    """The runs of the preferred setting (balanced + seen grasp-grouped first) and its name.
-
-    Within a setting, the preset with the most runs wins (ties: the first by name), so a
-    quick preset next to the full one never decides what Fig. 5 and the extras show.
-    """
+    """The runs of the preferred setting and its name; within it, the preset with the most
+    runs (ties: the first by name), so a quick preset never decides what Fig. 5 shows."""
     rows = main_grid(frame)
     for sampling, protocol in SETTING_PREFERENCE:
         part = rows[(rows["sampling"] == sampling) & (rows["protocol"] == protocol)]
@@ -148,8 +141,7 @@ def _best_panels(
 ) -> tuple[list[plots.ScatterPanel | str], list[list[Cell]], pd.DataFrame]:
     """Per input x model, the lowest-N-MSE run that has predictions: panel, table row, numbers.
 
-    Candidates are ranked: runs in ``preferred`` first, then by setting preference, then
-    by N-MSE; a candidate whose predictions cannot be found is passed over for the next.
+    Ranked: runs in ``preferred`` first, then by setting preference, then by N-MSE.
     """
     panels: list[plots.ScatterPanel | str] = []
     body: list[list[Cell]] = []

@@ -1,10 +1,7 @@
 """Reading what the report is built from: the results store and the files its runs left.
 
-Everything here touches the file system; nothing builds a table or a figure. The results
-store becomes one frame (one row per run, plus the columns the report selects on), and
-each run directory yields its ``predictions.csv``, ``groups.csv``, ``logs/metrics.csv`` and
-the label range of its ``config.yaml``. A file that is missing or unreadable comes back as
-``None``: a run directory moved since the grid ran must cost one panel, not the report.
+A run file that is missing or unreadable comes back as ``None``: a run directory moved
+since the grid ran must cost one panel, not the report.
 """
 
 from __future__ import annotations
@@ -119,18 +116,16 @@ def _protocol(condition: Any, grouping: Any) -> str | None:
 
 
 def load_results(results_dir: str | Path) -> pd.DataFrame:
-    """All rows of the results store plus derived columns used for selection.
+    """All rows of the results store plus the columns the report selects on.
 
-    Added columns: ``subset_kind`` / ``subset_value`` (see :func:`_subset_kind`),
-    ``protocol`` (the object condition, one of ``runs.results.PROTOCOLS``: what every
-    table groups by where the paper has Seen/UnSeen, so per-sample and grasp-grouped seen
-    runs are never pooled), ``store_source`` (the store header's ``source``, None when the
-    store is not reachable) and ``is_shore`` (Shore-hardness data: Table III material).
-    ``grouping`` is filled in for rows written before it was recorded (``grasp``).
+    Added: ``subset_kind`` / ``subset_value`` (:func:`_subset_kind`), ``protocol`` (the
+    object condition, one of ``runs.results.PROTOCOLS``), ``store_source`` (None when the
+    store is not reachable) and ``is_shore`` (Table III data); ``grouping`` is filled in
+    for rows written before it was recorded.
 
     Raises:
-        FileNotFoundError: ``results_dir`` does not exist (a typo should not yield an
-            empty report that looks like "no results").
+        FileNotFoundError: ``results_dir`` does not exist (a typo must not look like an
+            empty store).
     """
     path = Path(results_dir)
     if not path.is_dir():
@@ -139,22 +134,10 @@ def load_results(results_dir: str | Path) -> pd.DataFrame:
         frame = pd.DataFrame(columns=["key", "preset", "status", "store"])
     else:
         frame = ResultsStore(path).table()
-    for column, default in (
-        ("preset", ""),
-        ("store", None),
-        ("status", None),
-        ("model", None),
-        ("inputs", None),
-        ("condition", None),
-        ("grouping", None),
-        ("sampling", None),
-        ("seed", None),
-        ("subset", None),
-        ("run_dir", None),
-        ("error", None),
-    ):
+    needed = ("preset", "store", "status", "model", "inputs", "condition", "grouping")
+    for column in (*needed, "sampling", "seed", "subset", "run_dir", "error"):
         if column not in frame.columns:
-            frame[column] = default
+            frame[column] = None
     frame["preset"] = frame["preset"].fillna("").astype(str)
     pairs = list(zip(frame["condition"], frame["grouping"], strict=True))
     frame["grouping"] = [row_grouping(c, g) for c, g in pairs]
@@ -162,11 +145,7 @@ def load_results(results_dir: str | Path) -> pd.DataFrame:
     kinds = [_subset_kind(v) for v in frame["subset"].tolist()]
     frame["subset_kind"] = [k for k, _ in kinds]
     frame["subset_value"] = pd.Series([v for _, v in kinds], index=frame.index, dtype=object)
-    sources = []
-    for store in frame["store"].tolist():
-        header = store_header(store)
-        sources.append(None if header is None else header.source)
-    frame["store_source"] = sources
+    frame["store_source"] = [getattr(store_header(s), "source", None) for s in frame["store"]]
     frame["is_shore"] = [
         (src in SHORE_SOURCES) or any(preset.startswith(p) for p in SHORE_PRESETS)
         for src, preset in zip(frame["store_source"], frame["preset"], strict=True)
@@ -193,12 +172,8 @@ def main_grid(frame: pd.DataFrame) -> pd.DataFrame:
 
 # ============================================================================ run directories
 def resolve_run_dir(value: Any, results_dir: str | Path) -> Path | None:
-    """Find a run directory recorded as ``value`` (absolute, or relative to where the grid ran).
-
-    Grids usually write ``runs/NAME`` relative to their working directory, which need not
-    be the report's: try the path as is, then relative to the results directory and its
-    parent, then by name under the results directory.
-    """
+    """Find a run directory recorded as ``value`` (absolute, or relative to where the grid
+    ran, which need not be here: docs/reporting.md, "Which rows feed which part")."""
     if _blank(value):
         return None
     path = Path(str(value)).expanduser()
@@ -214,8 +189,7 @@ def resolve_run_dir(value: Any, results_dir: str | Path) -> Path | None:
 def read_test_predictions(run_dir: Path | None) -> pd.DataFrame | None:
     """The test-split rows of a run's ``predictions.csv`` with positive moduli, or None.
 
-    A file without the modulus columns raises (``KeyError``): it is a broken run, which
-    the report names in a note rather than skipping silently.
+    A file without the modulus columns raises ``KeyError``: a broken run gets a note.
     """
     if run_dir is None or not (run_dir / "predictions.csv").is_file():
         return None

@@ -1,9 +1,7 @@
 """What a report collects while it is built: document blocks, figures, tables and notes.
 
-The sections of :mod:`~tactile_compliance.evaluation.report` and the figures of
-:mod:`~tactile_compliance.evaluation.figures` all write into one :class:`ReportParts`, so
-the order of the blocks is the order of the document and every figure and table is
-registered under the key its files are named after.
+Every section writes into one :class:`ReportParts`, so the order of the blocks is the
+order of the document.
 """
 
 from __future__ import annotations
@@ -26,15 +24,7 @@ def safe_name(text: str) -> str:
 
 @dataclass
 class ReportParts:
-    """The growing report.
-
-    Attributes:
-        blocks: the document, in order (rendered as Markdown, HTML and LaTeX).
-        figures: figure id -> PNG (the id is also the figure's label).
-        tables: table id -> tidy numbers (written as ``tables/ID.csv``).
-        latex_tables: table id -> table (written as ``tables/ID.tex``).
-        notes: one line per skipped or degraded part (each also a block).
-    """
+    """The growing report; figure and table ids name their files (``tables/ID.csv``)."""
 
     blocks: list[Block] = field(default_factory=list)
     figures: dict[str, Path] = field(default_factory=dict)

@@ -1,15 +1,7 @@
-"""Figures of the report (PNG), drawn headless.
+"""Figures of the report (PNG), drawn headless on :class:`matplotlib.figure.Figure`.
 
-Figures are built on :class:`matplotlib.figure.Figure` directly rather than through
-``pyplot``: no global backend switch (importing this module never changes a notebook's
-backend), no global figure registry to leak memory across a long report, and it always
-renders with Agg.
-
-* Fig. 1 — :func:`plot_dataset_distribution`: normalised modulus histogram stacked by shape.
-* Fig. 5 / 8 — :func:`plot_prediction_panels`: predicted vs true modulus per material, with
-  the paper's y = x line, the gel's 0.275 MPa line and the grey N-MSE band.
-* Fig. 6 / 7 — :func:`plot_nmse_boxes`: N-MSE over seeds per subset and model.
-* extra — :func:`plot_learning_curves`: validation N-MSE and training loss per epoch.
+Not through ``pyplot``: importing this module never switches a notebook's backend, and
+no global figure registry leaks memory across a long report.
 """
 
 from __future__ import annotations
@@ -78,13 +70,8 @@ def plot_dataset_distribution(
     title: str = "Dataset distribution",
     bins: int = 30,
 ) -> Path:
-    """Histogram of the normalised Young's modulus, stacked by object shape (paper Fig. 1).
-
-    Args:
-        samples: a store's samples table (``modulus_pa``, ``shape``).
-        out: PNG path.
-        constants: label range of the normalisation (the paper's [1e3, 1e12] Pa by default).
-    """
+    """Histogram of the normalised Young's modulus of a store's ``samples``, stacked by
+    object shape (paper Fig. 1); ``constants``: the label range ([1e3, 1e12] Pa by default)."""
     c = constants or NormalisationConstants()
     data = samples[np.isfinite(samples["modulus_pa"]) & (samples["modulus_pa"] > 0)]
     y = normalise_modulus(data["modulus_pa"].to_numpy(dtype=float), c)
@@ -175,9 +162,6 @@ def plot_prediction_panels(
 ) -> Path:
     """Predicted vs true modulus, log-log, coloured by material (paper Fig. 5 / Fig. 8).
 
-    Each panel: red y = x line, blue vertical line at the gel's 0.275 MPa, grey band
-    ``[E / f, E * f]`` with f = 10^(span sqrt(N-MSE)), the N-MSE in the title and the share
-    of points inside the band in the corner. Panels share axes and the material colours.
     A string in ``panels`` leaves that slot empty with the string written in it (e.g. "no
     run"), so the grid keeps its layout (models across, input strategies down).
     """
@@ -289,9 +273,8 @@ def plot_nmse_boxes(
 ) -> Path:
     """Box plots of N-MSE over seeds: one box per (x, series), grouped along x, per panel.
 
-    Boxes span the quartiles with a line at the median; whiskers reach the farthest point
-    within 1.5 IQR (matplotlib's default, as in the paper's captions). Individual runs are
-    overlaid as dots because a handful of seeds is easier to read as points.
+    Whiskers: matplotlib's 1.5 IQR, as in the paper; runs are also drawn as dots, because
+    a handful of seeds is easier to read as points.
     """
     panels = list(panel_order) if panel else [None]
     width_per_panel = max(4.5, 0.75 * len(x_order) * max(1, len(series_order)) ** 0.5 + 1.5)

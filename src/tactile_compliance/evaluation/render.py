@@ -1,11 +1,6 @@
 """A tiny document model (headings, paragraphs, tables, figures) and its three renderers.
 
-The report is assembled once as a list of blocks and then written as Markdown, HTML and
-LaTeX, so the three formats can never disagree about a number. Tables carry numbers
-(mean, std) rather than preformatted strings wherever possible, so each renderer can
-typeset them its own way (``**0.8990 ± 0.0094**`` in Markdown, ``$\\mathbf{0.8990} \\pm
-\\mathbf{0.0094}$`` in LaTeX, like the paper).
-
+Tables carry numbers, not strings, so each renderer typesets them its own way.
 Plain f-strings, no template engine: the package must not grow a dependency for this.
 """
 
@@ -72,19 +67,9 @@ def format_mean_std(mean: float | None, std: float | None = None, digits: int = 
 
 @dataclass
 class Table:
-    """A table with optional grouped column headers and horizontal rules between row groups.
-
-    Attributes:
-        title: short name ("Table I — preset table1").
-        columns: one label per column (the lowest header row).
-        rows: body rows, each a list of :class:`Cell` (len == len(columns)).
-        groups: optional upper header row as ``(label, span)`` pairs covering all columns.
-        rules_after: body row indices after which a horizontal rule separates row groups.
-        caption: what the table shows (rendered above it).
-        provenance: how the numbers were produced (rendered below it).
-        label: a file-name-safe identifier (LaTeX label, per-table files).
-        latex_columns: optional replacement of ``columns`` in LaTeX (e.g. math markup).
-    """
+    """A table. ``groups``: an upper header row of ``(label, span)`` pairs; ``rules_after``:
+    body rows followed by a rule; ``caption`` goes above, ``provenance`` below; ``label``
+    is file-name safe; ``latex_columns``: ``columns`` with LaTeX markup."""
 
     title: str
     columns: list[str]
@@ -105,11 +90,8 @@ class Heading:
 
 @dataclass
 class Paragraph:
-    """Running text; ``code`` spans are written with backticks and rendered per format.
-
-    Text whose every line starts with ``- `` is a bulleted list: Markdown reads it as one
-    as it stands, the other formats take the entries from :attr:`items`.
-    """
+    """Running text with backtick ``code`` spans; text whose every line starts with ``- `` is
+    a bulleted list (Markdown reads it as one, the other formats use :attr:`items`)."""
 
     text: str
 
@@ -250,11 +232,8 @@ def _html_table(table: Table) -> str:
 
 
 def render_html(blocks: Sequence[Block], title: str) -> str:
-    """One self-contained HTML file: figures are embedded as base64 PNG data URIs.
-
-    A contents list of the level-2 sections follows the title, so a reader can jump
-    straight to a figure.
-    """
+    """One self-contained HTML file (figures as base64 PNG data URIs), with a contents
+    list of the level-2 sections after the title."""
     out: list[str] = []
     sections = [b for b in blocks if isinstance(b, Heading) and b.level == 2]
     anchors = {id(b): f"s{i}" for i, b in enumerate(sections)}
@@ -326,12 +305,8 @@ _TEX_PATTERN = re.compile(
 
 
 def tex_escape(text: str) -> str:
-    """Escape LaTeX specials and map the few Unicode symbols the report uses.
-
-    Anything beyond Latin script that is left (an emoji in an error message, say) becomes
-    ``?``: pdflatex would otherwise stop on it, and one odd character must not cost the
-    whole document.
-    """
+    """Escape LaTeX specials and map the few Unicode symbols the report uses; anything else
+    beyond Latin script (an emoji in an error message) becomes ``?``, or pdflatex stops."""
     escaped = _TEX_PATTERN.sub(lambda m: _TEX_SPECIAL[m.group(0)], text)
     return "".join(ch if ord(ch) < 0x250 else "?" for ch in escaped)
 

@@ -1,33 +1,6 @@
 """``build_report``: the paper's tables and figures from a results store, as MD / HTML / LaTeX.
 
-This module runs the sections in order and writes the documents; reading the store is
-:mod:`loading`'s job, the tables :mod:`tables`', the figures :mod:`figures`'.
-
-What goes where (only ``status == "complete"`` rows count; each part is skipped with a note
-naming the preset that produces it when its rows are missing):
-
-* Table I / II — :func:`tables.paper_tables` (random / balanced sampling, whole dataset,
-  not Shore-hardness data): one column group per object condition (seen per-sample as in
-  the paper, seen grasp-grouped, unseen) and the reference rows (median, analytical,
-  scalar GBR per input strategy);
-* Table III and Fig. 8 — Shore-hardness runs (store header source ``yuan``, or a preset
-  whose name starts with ``new-dataset`` when the store is not reachable from here);
-* Fig. 1 — the distribution of the normalised modulus by shape in each store the runs used;
-* Fig. 5 — predicted vs true modulus per material for Image and ALL of each model, from the
-  ``predictions.csv`` (test split) of the run with the lowest test N-MSE, preferring
-  balanced + seen runs as the paper does (grasp-grouped before per-sample) and falling
-  back to what exists;
-* Fig. 6 / Fig. 7 — N-MSE box plots over seeds per rolling window (subset 0-6) / shape
-  name, with the numbers in a companion table;
-* extras — per-material / shape / soft-hard errors (from each run's ``groups.csv``), runs
-  trained on the ``soft`` / ``hard`` subsets, learning curves (from ``logs/metrics.csv``),
-  failed runs.
-
-Output directory::
-
-    OUT/report.md  report.html (self-contained)  report.tex  report.json
-    OUT/figures/*.png
-    OUT/tables/*.tex (one booktabs table per file)  tables/*.csv (the tidy numbers)
+Runs the sections in order and writes the documents. See docs/reporting.md.
 """
 
 from __future__ import annotations
@@ -147,13 +120,12 @@ class _Builder:
             f"- Results store: `{self.results_dir}` — {len(frame)} rows: {len(done)} complete, "
             f"{n_failed} failed" + (f", {other} other (unfinished)" if other else ""),
         ]
-        presets = sorted(set(frame["preset"]))
-        if presets:
-            counts = []
-            for preset in presets:
-                rows = frame[frame["preset"] == preset]
-                ok = int((rows["status"] == STATUS_COMPLETE).sum())
-                counts.append(f"`{preset or '(none)'}` ({ok}/{len(rows)} complete)")
+        counts = [
+            f"`{preset or '(none)'}` ({(rows['status'] == STATUS_COMPLETE).sum()}/{len(rows)} "
+            "complete)"
+            for preset, rows in frame.groupby("preset", sort=True)
+        ]
+        if counts:
             lines.append(f"- Presets: {', '.join(counts)}")
         if not done.empty:
             cell_keys = ["preset", "model", "inputs", "protocol", "sampling"]
@@ -298,13 +270,7 @@ def build_report(
         formats: any of ``md``, ``html``, ``tex`` (a list or ``"md,html"``).
         stores: extra GraspStore directories to draw in Fig. 1 (besides the runs' stores).
         ddof: delta degrees of freedom of the std over seeds (1: sample std).
-        title: the document title.
-        strict: re-raise errors inside a section instead of turning them into a note
-            (tests use it; a user wants the rest of the report even if one part breaks).
-
-    Returns:
-        A :class:`ReportSummary` with the written files, the numbers of every table and
-        the notes about skipped parts.
+        strict: re-raise errors inside a section instead of turning them into a note.
 
     Raises:
         FileNotFoundError: ``results_dir`` does not exist.

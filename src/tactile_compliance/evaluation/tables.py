@@ -1,17 +1,7 @@
 """Tables of the report, built from the loaded results frame (one row per run).
 
-This module only aggregates and lays out; reading the store and the run directories is
-:mod:`tactile_compliance.evaluation.loading`'s job, and which rows feed which table is
-listed in :mod:`tactile_compliance.evaluation.report` (only ``status == "complete"`` rows
-ever count).
-
-Cells are ``mean ± std`` over the runs of a cell (one run per seed): the sample standard
-deviation (``ddof=1``) by default, blank for a single run. Runs of different presets or
-stores are never pooled into one cell: each (preset, store) pair gets its own table, so a
-quick preset can never silently mix with the full one.
-
-Every aggregate also comes back as a tidy DataFrame (``cells``) so tests and scripts can
-check numbers without parsing Markdown.
+Only aggregates and lays out; each table also comes back as tidy numbers (``cells``).
+See docs/reporting.md, "How the numbers are made".
 """
 
 from __future__ import annotations
@@ -219,11 +209,10 @@ def describe_runs(frame: pd.DataFrame, extra: str = "") -> str:
     if frame.empty:
         return "no runs"
     presets = ", ".join(f"`{p}`" for p in sorted(set(frame["preset"])) if p) or "(no preset)"
-    stores = []
-    for store in dict.fromkeys(frame["store"].tolist()):
-        header = store_header(store)
-        source = header.source if header else "header not reachable"
-        stores.append(f"`{store}` (source {source})")
+    stores = [
+        f"`{store}` (source {getattr(store_header(store), 'source', 'header not reachable')})"
+        for store in dict.fromkeys(frame["store"].tolist())
+    ]
     seeds = sorted(int(s) for s in frame["seed"].dropna().tolist())
     sizes = ""
     if "image_size" in frame.columns:
@@ -274,6 +263,16 @@ def _settings(stats: pd.DataFrame, keys: list[str]) -> list[dict[str, Any]]:
     return [dict(zip(keys, s, strict=True)) for s in settings[keys].itertuples(index=False)]
 
 
+def _model_inputs(frame: pd.DataFrame, inputs: Sequence[str]) -> list[tuple[Any, str]]:
+    """The (model, input strategy) pairs with rows in ``frame``, models in display order."""
+    return [
+        (m, i)
+        for m in ordered(frame["model"], model_order())
+        for i in inputs
+        if ((frame["model"] == m) & (frame["inputs"] == i)).any()
+    ]
+
+
 def _setting_cells(setting: Mapping[str, Any]) -> list[Cell]:
     """The Model, Input and Split cells of a row that stands for one run setting."""
     return [
@@ -303,11 +302,8 @@ def _pivot(
 ) -> _Pivot:
     """Lay :func:`summarise` records out as rows x columns: the one layout of every table.
 
-    A cell shows the record whose grouping fields and ``metric`` equal those of its row
-    and its column (a column may carry more fields, for the tidy rows only); a missing
-    record shows ``–``. With ``bold``, each column's best mean over the rows is bold and
-    the tidy rows carry ``bold``. A tidy row is ``head``, the row's and the column's
-    fields, then the numbers.
+    A cell is the record matching its row's and column's fields (``–`` if none); a column
+    may carry extra fields for the tidy rows only. ``bold``: each column's best is bold.
     """
     fields = [c for c in stats.columns if c not in ("mean", "std", "n", "seeds")]
     lookup = {tuple(getattr(r, f) for f in fields): r for r in stats.itertuples(index=False)}
@@ -359,13 +355,8 @@ _PAPER_METRICS = ("log10_accuracy", "nmse")
 def _reference_stats(
     lines: Sequence[tuple[str, str | None, pd.DataFrame]], protocols: Sequence[str], ddof: int
 ) -> pd.DataFrame:
-    """:func:`summarise` records of the reference rows: one value per seed (the mean over
-    that seed's runs), ``model`` ``ref_NAME``.
-
-    Every run of a seed carries the reference on its own test split; runs of one seed and
-    object condition share the split, so averaging per seed first keeps the std an
-    over-seeds std instead of counting each split once per model and input.
-    """
+    """:func:`summarise` records of the reference rows (``model`` ``ref_NAME``), averaged
+    per seed first (docs/reporting.md, "How the numbers are made")."""
     records = []
     for name, inputs, rows in lines:
         for protocol in protocols:
@@ -390,12 +381,8 @@ def _reference_stats(
 def _reference_lines(
     part: pd.DataFrame, inputs: Sequence[str]
 ) -> list[tuple[str, str | None, pd.DataFrame]]:
-    """The reference rows of a paper table: (name, input strategy or None, its runs).
-
-    Median and analytical do not depend on the input strategy (one row each, over all
-    runs); the scalar reference does (one row per strategy of the table; Image has no
-    scalar inputs, so its row shows ``–``).
-    """
+    """The reference rows of a paper table: (name, input strategy or None, its runs); only
+    the scalar reference has one row per input strategy."""
     lines: list[tuple[str, str | None, pd.DataFrame]] = []
     for name in REFERENCE_NAMES:
         # Only references some run recorded (older runs have no scalar reference).
@@ -414,16 +401,8 @@ def paper_tables(
 ) -> list[PaperTable]:
     """Table I (``sampling="random"``) or II (``"balanced"``): one table per (preset, store).
 
-    Rows: model x input strategy, then the reference predictors: median, analytical, and
-    the scalar GBR per input strategy (runs recorded before it existed have none, and then
-    no such rows). Column groups: one per object condition that has runs, in the order of
-    ``runs.results.PROTOCOLS`` (Seen per-sample (paper), Seen grasp-grouped, UnSeen), each
-    with log10 accuracy and N-MSE; a condition without runs is left out and named in the
-    caption. Best model cell per column in bold (references are never bolded: they are
-    floors, not contenders).
-
-    The tidy cells carry ``protocol`` (the column group) and ``condition`` / ``grouping``
-    (the split settings it stands for).
+    Layout: docs/reporting.md, "Tables I and II". The tidy cells carry ``protocol`` (the
+    column group) and the ``condition`` / ``grouping`` it stands for.
     """
     rows = main_grid(frame)
     rows = rows[rows["sampling"] == sampling]
@@ -632,12 +611,7 @@ def subset_summary_table(
         subsets = [k for k in range(N_ROLLING_WINDOWS) if k in set(rows["subset_key"])]
     else:
         subsets = ordered(rows["subset_key"], SHAPE_ORDER)
-    keys = [
-        (m, i)
-        for m in ordered(rows["model"], model_order())
-        for i in ordered(rows["inputs"], InputStrategy.names())
-        if ((rows["model"] == m) & (rows["inputs"] == i)).any()
-    ]
+    keys = _model_inputs(rows, ordered(rows["inputs"], InputStrategy.names()))
     pivot = _pivot(
         stats,
         [{"model": m, "inputs": i} for m, i in keys],
@@ -711,9 +685,8 @@ def group_metric_tables(
 ) -> list[PaperTable]:
     """Per-material / per-shape / soft-hard test errors from each run's ``groups.csv``.
 
-    ``rows`` are the runs of one setting (one preset, sampling and object condition); columns are
-    model x input strategy (Image and ALL when both exist, as in Fig. 5, else all inputs);
-    one table per metric (N-MSE, log10 accuracy), mean ± std over seeds.
+    ``rows``: the runs of one setting; one table per metric, columns model x input
+    strategy (Image and ALL when both exist, else all inputs).
     """
     frames = []
     for row in rows.itertuples(index=False):
@@ -728,12 +701,7 @@ def group_metric_tables(
     inputs = ordered(data["inputs"], InputStrategy.names())
     if {"Image", "ALL"} <= set(inputs):
         inputs = ["Image", "ALL"]
-    keys = [
-        (m, i)
-        for m in ordered(data["model"], model_order())
-        for i in inputs
-        if ((data["model"] == m) & (data["inputs"] == i)).any()
-    ]
+    keys = _model_inputs(data, inputs)
     group_order = []
     for grouping in ("soft_hard", "material", "shape"):
         names = data.loc[data["grouping"] == grouping, "group"].astype(str)

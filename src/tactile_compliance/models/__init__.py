@@ -1,9 +1,6 @@
 """The compliance models (Top10NN, VGG-LSTM, Res-Tf), their backbones and the registry.
 
-Build a model by name: ``create_model("res_tf", inputs="ImageFW")``; see
-``list_models()`` for the names and ``docs/models.md`` for the architectures. The
-paper's per-model settings and search spaces are declared on the model classes and read
-with ``paper_settings(name, inputs)`` / ``search_dimensions(name, inputs)``.
+Build a model by name: ``create_model("res_tf", inputs="ImageFW")``; see docs/models.md.
 """
 
 from __future__ import annotations

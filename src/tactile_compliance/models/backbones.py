@@ -1,28 +1,7 @@
 """Image backbones (VGG16, ResNet18/34/50) defined in the project, torchvision-compatible.
 
-torchvision cannot be installed next to the CPU torch used here, so the backbones are
-written out with exactly torchvision's parameter names. A state dict saved by torchvision
-(for example the official ImageNet files) therefore loads into them unchanged; only the
-final classification layer (``classifier.6`` of VGG16, ``fc`` of the ResNets) is ignored,
-because the models here use the backbones as feature extractors.
-
-Every backbone maps ``(N, 3, H, W)`` float images to ``(N, feature_dim)`` features and
-exposes ``feature_dim`` and ``min_input_size`` (the smallest H and W it accepts).
-
-Weights (``create_backbone(name, weights=...)``):
-
-* ``"none"``: random initialisation (torchvision's initialisation scheme). Never touches
-  the network.
-* ``"imagenet"``: the official torchvision ImageNet file, through
-  ``torch.hub.load_state_dict_from_url`` (cached under ``torch.hub.get_dir()``,
-  sha256-checked). Without internet access this fails within seconds with a message that
-  names the local-file alternative. Inside :func:`no_downloads` (checkpoint loading) only
-  the cached file is used.
-* a filesystem path: a local state dict, loaded with ``torch.load(weights_only=True)``;
-  a file named like torchvision's ``<name>-<hash>.pth`` must have a sha256 that starts
-  with ``<hash>``. A file may wrap the state dict as ``{"state_dict": ..., ...}``; the
-  files ``tactile-compliance pretrain`` writes do, with their provenance under
-  :data:`PRETRAIN_KEY` (read by ``runs.checkpoint.backbone_weights_file_record``).
+Each maps ``(N, 3, H, W)`` images to ``(N, feature_dim)`` and has ``min_input_size``;
+weights: docs/models.md, "Backbone weights".
 """
 
 from __future__ import annotations
@@ -102,11 +81,7 @@ _VGG16_CONFIG: list[int | str] = [
 
 
 class VGG16(nn.Module):
-    """VGG16 up to fc7: conv features, 7x7 adaptive pool, Linear-ReLU-Dropout-Linear.
-
-    Output: ``(N, 4096)``. The module indices match torchvision's ``vgg16`` (``features.0``
-    ... ``features.28``, ``classifier.0``, ``classifier.3``), so its weights load directly.
-    """
+    """VGG16 up to fc7, ``(N, 4096)``; module indices as in torchvision's ``vgg16``."""
 
     feature_dim: int = 4096
     # Five 2x2 max-pools without padding: anything smaller than 32 pixels pools to nothing.
@@ -134,9 +109,6 @@ class VGG16(nn.Module):
             nn.Dropout(p=dropout),
             nn.Linear(4096, 4096),
         )
-        self._init_weights()
-
-    def _init_weights(self) -> None:
         # torchvision's scheme, so "none" weights behave like an untrained torchvision model.
         for module in self.modules():
             if isinstance(module, nn.Conv2d):
@@ -148,7 +120,6 @@ class VGG16(nn.Module):
                 nn.init.zeros_(module.bias)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Map ``(N, 3, H, W)`` images to ``(N, 4096)`` fc7 features."""
         x = self.features(x)
         x = self.avgpool(x)
         return self.classifier(torch.flatten(x, 1))
@@ -166,11 +137,7 @@ def _conv1x1(in_planes: int, out_planes: int, stride: int = 1) -> nn.Conv2d:
 
 
 class _ResidualBlock(nn.Module):
-    """``relu(branch(x) + shortcut(x))``; subclasses build the branch in ``_build_branch``.
-
-    The shortcut is ``downsample`` (or the identity), as in torchvision, so the blocks
-    keep its parameter names.
-    """
+    """``relu(branch(x) + downsample(x))`` (torchvision's names); subclasses build the branch."""
 
     expansion: int = 1
 
@@ -189,7 +156,6 @@ class _ResidualBlock(nn.Module):
         raise NotImplementedError
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Residual block forward pass."""
         identity = x if self.downsample is None else self.downsample(x)
         return self.relu(self._branch(x) + identity)
 
@@ -228,11 +194,8 @@ class Bottleneck(_ResidualBlock):
 
 
 class ResNet(nn.Module):
-    """ResNet trunk without ``avgpool``/``fc``; output = spatial mean of ``layer4``.
-
-    Parameter names are torchvision's (``conv1``, ``bn1``, ``layer1``..``layer4``,
-    ``downsample.0``/``downsample.1``). Output: ``(N, 512 * block.expansion)``.
-    """
+    """ResNet trunk without ``avgpool``/``fc`` (torchvision's parameter names); output:
+    the spatial mean of ``layer4``, ``(N, 512 * block.expansion)``."""
 
     # The stem and every stage pad their inputs, so even a 1x1 image yields features.
     min_input_size: int = 1
@@ -271,7 +234,6 @@ class ResNet(nn.Module):
         return nn.Sequential(*layers)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Map ``(N, 3, H, W)`` images to ``(N, feature_dim)`` features."""
         x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
         x = self.layer4(self.layer3(self.layer2(self.layer1(x))))
         return x.mean(dim=(2, 3))
@@ -320,12 +282,8 @@ def _offline_message(name: str, url: str, reason: str) -> str:
 
 
 def _probe(url: str, timeout: float = _PROBE_TIMEOUT_S) -> None:
-    """Open (and close) a TCP connection to the host that would serve ``url``.
-
-    Raises OSError quickly when there is no route, so an offline machine fails in seconds
-    rather than waiting on urllib's long default timeouts. Honours an HTTPS proxy from the
-    environment by probing the proxy instead of the origin.
-    """
+    """Connect to the host (or HTTPS proxy) that would serve ``url``: OSError in seconds
+    on an offline machine instead of urllib's long timeouts."""
     proxy = urllib.request.getproxies().get("https")
     parsed = urllib.parse.urlsplit(proxy if proxy else url)
     host = parsed.hostname
@@ -338,12 +296,8 @@ def _probe(url: str, timeout: float = _PROBE_TIMEOUT_S) -> None:
 
 @contextlib.contextmanager
 def no_downloads() -> Iterator[None]:
-    """Within this block, ``"imagenet"`` weights come from the torch.hub cache only.
-
-    A missing file raises ``FileNotFoundError`` (naming the ``--weights PATH``
-    alternative) instead of downloading: loading a checkpoint must work offline and
-    must not fetch half a gigabyte behind the user's back.
-    """
+    """Within this block, ``"imagenet"`` weights come from the torch.hub cache only: loading
+    a checkpoint must work offline and never fetch half a gigabyte behind the user's back."""
     token = _DOWNLOADS_ALLOWED.set(False)
     try:
         yield
@@ -380,12 +334,7 @@ def _load_imagenet_state_dict(name: str) -> dict[str, torch.Tensor]:
 
 def load_weights_file(backbone: nn.Module, name: str, path: str | os.PathLike[str]) -> None:
     """Load a local weights file (a state dict, or ``{"state_dict": ...}``) into
-    ``backbone`` (registered as ``name`` for the keys to ignore), checking that it fits.
-
-    Raises:
-        FileNotFoundError: no such file.
-        BackboneWeightsError: unreadable, not a state dict, or another network's.
-    """
+    ``backbone`` (``name``: which keys to ignore), checking that it fits."""
     path = Path(path).expanduser()
     if not path.is_file():
         raise FileNotFoundError(
@@ -430,12 +379,8 @@ def load_weights_file(backbone: nn.Module, name: str, path: str | os.PathLike[st
 def load_backbone_weights(
     backbone: nn.Module, name: str, state_dict: Mapping[str, torch.Tensor], source: str
 ) -> None:
-    """Copy ``state_dict`` into ``backbone``, ignoring only the torchvision classifier keys.
-
-    Raises:
-        BackboneWeightsError: listing missing and unexpected keys, or shape mismatches, with
-            ``source`` (a path or URL) named so the user knows which file is wrong.
-    """
+    """Copy ``state_dict`` into ``backbone``, ignoring only the torchvision classifier keys;
+    a misfit is a BackboneWeightsError naming ``source`` (a path or URL) and the keys."""
     ignored = _IGNORED_PREFIXES.get(name, ())
     filtered = {k: v for k, v in state_dict.items() if not k.startswith(ignored)}
     own = backbone.state_dict()
@@ -478,19 +423,14 @@ def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.M
     """Build a per-frame image encoder ``(N, 3, H, W) -> (N, feature_dim)``.
 
     Args:
-        name: one of :func:`list_backbones` (``vgg16``, ``resnet18``, ``resnet34``,
-            ``resnet50``), case-insensitive.
-        weights: ``"none"`` (random init, no network), ``"imagenet"`` (official torchvision
-            file via torch.hub, needs internet unless cached) or the path of a local
-            state dict.
-
-    Returns:
-        The backbone, with attributes ``feature_dim`` and ``min_input_size``.
+        name: one of :func:`list_backbones`, case-insensitive.
+        weights: ``"none"``, ``"imagenet"`` or the path of a local state dict
+            (docs/models.md, "Backbone weights").
 
     Raises:
         ValueError: unknown backbone name.
-        BackboneWeightsError: "imagenet" without internet (fast, names the local-file
-            alternative), or a weights file that is corrupted or does not fit.
+        BackboneWeightsError: "imagenet" without internet, or a weights file that is
+            corrupted or does not fit.
         FileNotFoundError: a weights path that does not exist.
     """
     key = name.strip().lower()

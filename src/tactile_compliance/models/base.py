@@ -1,25 +1,6 @@
 """Shared interface of the compliance models: backbone + head, input checks, metadata.
 
-Every model is split into ``self.backbone`` (a per-frame image encoder,
-``(N, 3, H, W) -> (N, feature_dim)``) and a head that consumes the three frames' features
-plus the enabled scalar inputs. The split exists so that, with a frozen backbone, the
-image features can be computed once and cached: ``forward(frames, ...)`` is exactly
-``forward_features(encode_frames(frames), ...)``.
-
-Input conventions (all already normalised by the data pipeline):
-
-* ``frames``: ``(B, 3, 3, H, W)`` float; three frames of three channels.
-* ``force``: ``(B, 3)``, F / 60 N, one value per frame.
-* ``width``: ``(B, 3)``, W / 0.08 m, one value per frame.
-* ``estimates``: ``(B, 2)``, normalised log10 of the (elastic, Hertz) analytical estimates.
-
-Output: ``(B,)`` in (0, 1), the normalised log10 Young's modulus (sigmoid).
-
-An input that the strategy enables must be given (``ValueError`` naming it otherwise).
-An input the strategy disables is *ignored* when passed, so one data loader can feed
-models of every strategy; it never reaches the computation.
-
-:class:`FusionModel` adds the Burgess-style fusion head that Top10NN and Res-Tf share.
+Input shapes, normalisation and the backbone/head split: docs/models.md, "Common interface".
 """
 
 from __future__ import annotations
@@ -73,11 +54,8 @@ _SCALAR_INPUTS: dict[str, tuple[int, str]] = {
 def make_mlp(
     in_features: int, hidden_sizes: Sequence[int], out_features: int, dropout: float
 ) -> nn.Sequential:
-    """Linear -> ELU -> Dropout for every hidden size, then a plain Linear to the output.
-
-    The last layer has no activation: its outputs are either logits for the final sigmoid
-    or the "raw" values that the estimation decoder combines with the estimates.
-    """
+    """Linear -> ELU -> Dropout for every hidden size, then a plain Linear (logits, or the
+    raw values the estimation decoder combines with the estimates)."""
     layers: list[nn.Module] = []
     previous = in_features
     for size in hidden_sizes:
@@ -112,27 +90,8 @@ def check_dropout(name: str, value: Any) -> float:
 class TactileModel(nn.Module):
     """Base class: input checks, the backbone/head split and self-describing metadata.
 
-    Subclasses set ``self.backbone`` and implement :meth:`_head`. Class attributes:
-
-    * ``model_name``: the registry name (set by ``register_model``).
-    * ``hparam_checks``: constructor hyperparameter -> its check, in the order
-      ``hparams`` lists them (:meth:`check_hparams`; subclasses build theirs with
-      :meth:`extend_checks`); ``inputs`` and ``backbone_weights`` are no hyperparameters.
-    * ``default_training``: the paper's training settings for this model
-      (``lr``, ``batch_size``, ``gamma``; ``gamma=None`` = no learning-rate decay).
-    * ``tuned_configs``: per input strategy, tuned ``model`` and ``training`` overrides
-      from the paper where it reports them (the constructor defaults and
-      ``default_training`` hold for the other strategies).
-    * ``hpo_space``: the tuning search space, :class:`SearchDimension` s whose defaults
-      are the paper settings (``models.settings.search_dimensions``).
-    * ``recommended_image_size``: ``(H, W)`` the frames should be resized to, or None.
-    * ``pretrained_backbone``: whether the constructor takes ``backbone_weights``.
-    * ``display_name`` / ``display_order``: how and where the report lists the model
-      (empty name: the registry name; lower order first).
-    * ``pretrain_backbones``: the backbone names ``pretrain`` can train for this model.
-
-    ``models.settings.paper_settings(name, inputs)`` reads the paper settings as the
-    dotted overrides that experiment presets apply.
+    Subclasses set ``self.backbone`` and implement :meth:`_head`; the class attributes
+    are described in docs/models.md, "Common interface".
     """
 
     model_name: ClassVar[str] = ""
@@ -185,10 +144,8 @@ class TactileModel(nn.Module):
 
     # ------------------------------------------------------------------ forward
     def encode_frames(self, frames: Tensor) -> Tensor:
-        """Run the backbone on every frame: ``(B, 3, 3, H, W) -> (B, 3, feature_dim)``.
-
-        This is what a feature cache stores (with the backbone frozen and in eval mode).
-        """
+        """Run the backbone on every frame: ``(B, 3, 3, H, W) -> (B, 3, feature_dim)``, what
+        a feature cache stores."""
         if not isinstance(frames, Tensor) or frames.dim() != 5:
             shape = tuple(frames.shape) if isinstance(frames, Tensor) else type(frames)
             raise ValueError(
@@ -216,10 +173,7 @@ class TactileModel(nn.Module):
     def forward(
         self, frames: Tensor, force: Scalar = None, width: Scalar = None, estimates: Scalar = None
     ) -> Tensor:
-        """Predict the normalised log10 modulus ``(B,)`` from frames and scalar inputs.
-
-        Inputs disabled by ``self.inputs`` are ignored even when passed.
-        """
+        """Predict the normalised log10 modulus ``(B,)``; disabled inputs are ignored."""
         return self.forward_features(self.encode_frames(frames), force, width, estimates)
 
     def forward_features(
@@ -271,12 +225,7 @@ class TactileModel(nn.Module):
 
 
 class FusionModel(TactileModel):
-    """A model with the Burgess-style fusion head (Top10NN, Res-Tf).
-
-    concat(image vector, Linear(3->fwe)(F), Linear(3->fwe)(W)) -> decoder MLP; with
-    estimates the decoder emits ``decoder_output_size`` raw values that an estimation
-    MLP combines with the 2 normalised estimates. Towers exist only for enabled inputs,
-    so a disabled input has no weights at all.
+    """A model with the Burgess-style fusion head (Top10NN, Res-Tf; docs/models.md).
 
     Subclasses extend ``hparam_checks`` (:meth:`extend_checks`), call
     :meth:`_build_fusion_head` and implement :meth:`_image_vector`.
@@ -301,8 +250,7 @@ class FusionModel(TactileModel):
     )
 
     def _build_fusion_head(self, image_dim: int) -> None:
-        """Build the towers and decoders from ``self.hparams`` for an image vector of
-        ``image_dim`` values."""
+        """The towers and decoders, from ``self.hparams``."""
         hp = self.hparams
         decoder_in = image_dim
         if self.inputs.uses_force:

@@ -1,17 +1,6 @@
-"""Dropout with a faster random mask on the CPU.
-
-``nn.Dropout`` draws its CPU mask with ``bernoulli_``: one 32-bit Mersenne-Twister number
-and a float comparison per element, about 1 ms for a 72 x 2048 activation on this
-project's 2-core machine, 5x the rest of the layer's element-wise work. It was 10 % of
-every Res-Tf head step on cached features (19 dropout layers). :class:`Dropout` draws one
-64-bit number per *four* elements instead and splits it into four 15-bit uniform lanes,
-5x faster. Same distribution up to the rounding of ``p`` to a multiple of 2^-15 (0.1 ->
-0.100006); the output is rescaled by that rounded ``p``, so its mean is exact. The
-random numbers come from torch's global generator, so ``torch.manual_seed`` still fixes
-them. Other devices (CUDA draws masks with Philox, fast already), eval mode and
-``inplace=True`` fall back to ``nn.Dropout``.
-
-Parameter-free, so swapping it in does not change a model's ``state_dict``.
+"""Dropout with a faster random mask on the CPU: four 15-bit lanes per 64-bit random
+number; same distribution up to ``p`` rounded to a multiple of 2^-15. See docs/models.md,
+"CPU speed-ups in the heads".
 """
 
 from __future__ import annotations
@@ -46,7 +35,8 @@ def keep_probability(p: float) -> float:
 
 
 class Dropout(nn.Dropout):
-    """``nn.Dropout`` with :func:`keep_mask` on the CPU (see the module docstring)."""
+    """``nn.Dropout`` with :func:`keep_mask` on the CPU; elsewhere, in eval mode and
+    ``inplace``, ``nn.Dropout`` itself."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not self.training or self.p == 0.0 or self.inplace or x.device.type != "cpu":

@@ -1,9 +1,5 @@
-"""The four input strategies of the paper (Image, ImageF, ImageFW, ALL).
-
-Every model takes the three tactile frames; the strategy decides which of the scalar
-inputs (normal force F, gripper width W, analytical estimates E) the model also sees.
-A disabled input is absent from the model: it has no parameters and no path to the
-output (the published code fed zero tensors through live weights instead).
+"""The four input strategies of the paper (Image, ImageF, ImageFW, ALL): which scalar
+inputs a model sees besides the frames. See docs/models.md, "Input strategies".
 """
 
 from __future__ import annotations
@@ -12,11 +8,8 @@ from enum import Enum
 
 
 class InputStrategy(str, Enum):
-    """Which inputs a model uses besides the tactile frames.
-
-    The values are the names the paper uses in its tables, so ``str(strategy.value)``
-    can go straight into reports and configuration files.
-    """
+    """Which inputs a model uses besides the tactile frames; the values are the paper's
+    names, so they go straight into reports and configuration files."""
 
     IMAGE = "Image"
     IMAGE_F = "ImageF"
@@ -55,15 +48,9 @@ class InputStrategy(str, Enum):
 
     @classmethod
     def parse(cls, value: InputStrategy | str) -> InputStrategy:
-        """Turn a user-supplied name into a strategy.
-
-        Accepts a member, its value or its member name in any case and with ``_``/``-``
-        ignored ("image", "ImageFW", "image_fw", "all"), because these names arrive from
-        the command line and YAML files where the paper's capitalisation is easy to miss.
-
-        Raises:
-            ValueError: for an unknown name; the message lists the valid names.
-        """
+        """A member, its value or its member name, in any case and with ``_``/``-`` ignored
+        ("image_fw"): the names arrive from the command line and YAML files, where the
+        paper's capitalisation is easy to miss. ValueError lists the valid names."""
         if isinstance(value, cls):
             return value
         if not isinstance(value, str):

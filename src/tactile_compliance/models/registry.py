@@ -1,8 +1,5 @@
 """Model registry: ``register_model`` / ``create_model`` / ``list_models`` (timm style).
-
-Training, tuning and inference code only ever call :func:`create_model` with a name, an
-input strategy and hyperparameters, so a new model becomes usable everywhere by decorating
-its class with ``@register_model("my_model")`` and importing its module once.
+Adding a model: docs/models.md, "Adding a model".
 """
 
 from __future__ import annotations
@@ -23,6 +20,7 @@ __all__ = [
     "model_display_names",
     "model_hyperparameters",
     "register_model",
+    "takes_any_hparam",
 ]
 
 _REGISTRY: dict[str, type[nn.Module]] = {}
@@ -31,15 +29,9 @@ ModelT = TypeVar("ModelT", bound=type[nn.Module])
 
 
 def register_model(name: str) -> Callable[[ModelT], ModelT]:
-    """Class decorator that makes a model available to :func:`create_model` as ``name``.
-
-    The class must accept ``inputs`` as its first argument and its hyperparameters as
-    keyword arguments; the decorator sets ``cls.model_name = name`` so a checkpoint can
-    record which model it holds.
-
-    Raises:
-        ValueError: when ``name`` is already taken by a different class.
-    """
+    """Class decorator that makes a model available to :func:`create_model` as ``name``
+    (and sets ``cls.model_name``, which checkpoints record). The class takes ``inputs``
+    first and its hyperparameters as keyword arguments; a name taken is a ValueError."""
     key = name.strip().lower()
     if not key:
         raise ValueError("model name must not be empty")
@@ -65,13 +57,9 @@ def list_models() -> list[str]:
 
 
 def model_display_names() -> dict[str, str]:
-    """Registered name -> display name, in display order (the paper's for the built-ins).
-
-    Read from each class's ``display_name`` and ``display_order`` (``TactileModel``), so
-    the report's tables and figures need no list of their own. Only the registered models
-    are listed: call it through ``tactile_compliance.models``, which registers the
-    built-in ones first.
-    """
+    """Registered name -> display name, in display order, from each class's
+    ``display_name`` and ``display_order``; call it through ``tactile_compliance.models``,
+    which registers the built-in models first."""
     # Classes that declare no order come after the declared ones (then by name).
     order = {name: int(getattr(cls, "display_order", 1_000_000)) for name, cls in _REGISTRY.items()}
     ranked = sorted(_REGISTRY, key=lambda name: (order[name], name))
@@ -79,12 +67,8 @@ def model_display_names() -> dict[str, str]:
 
 
 def backbone_models() -> dict[str, str]:
-    """Pretrainable backbone name -> the registered model that uses it.
-
-    Read from each class's ``pretrain_backbones``, so ``pretrain`` takes a new model's
-    backbone without a map of its own (registered models by name, each class's backbones
-    in its own order).
-    """
+    """Pretrainable backbone name -> the registered model that uses it, from each class's
+    ``pretrain_backbones``."""
     return {
         backbone: name
         for name in list_models()
@@ -93,11 +77,7 @@ def backbone_models() -> dict[str, str]:
 
 
 def get_model_class(name: str) -> type[nn.Module]:
-    """The class registered as ``name`` (case-insensitive).
-
-    Raises:
-        ValueError: unknown name; the message lists the available models.
-    """
+    """The class registered as ``name`` (case-insensitive); ValueError lists the models."""
     key = name.strip().lower() if isinstance(name, str) else name
     if key not in _REGISTRY:
         raise ValueError(
@@ -107,10 +87,7 @@ def get_model_class(name: str) -> type[nn.Module]:
 
 
 def model_hyperparameters(name: str) -> dict[str, Any]:
-    """The constructor keyword arguments of model ``name`` and their defaults.
-
-    ``inputs`` is left out (it is passed separately). Useful for configs and HPO spaces.
-    """
+    """The constructor keyword arguments of model ``name`` (but ``inputs``) and their defaults."""
     signature = inspect.signature(get_model_class(name).__init__)
     return {
         p.name: p.default
@@ -119,23 +96,23 @@ def model_hyperparameters(name: str) -> dict[str, Any]:
     }
 
 
-def create_model(name: str, inputs: InputStrategy | str = "ALL", **hparams: Any) -> nn.Module:
-    """Build registered model ``name`` for input strategy ``inputs``.
+def takes_any_hparam(name: str) -> bool:
+    """Whether model ``name``'s constructor takes ``**kwargs`` (any hyperparameter)."""
+    parameters = inspect.signature(get_model_class(name).__init__).parameters.values()
+    return any(p.kind is p.VAR_KEYWORD for p in parameters)
 
-    Args:
-        name: a name from :func:`list_models` (case-insensitive).
-        inputs: an :class:`InputStrategy` or its name ("Image", "imagefw", "all", ...).
-        **hparams: constructor hyperparameters; anything not given uses the paper's default.
+
+def create_model(name: str, inputs: InputStrategy | str = "ALL", **hparams: Any) -> nn.Module:
+    """Build registered model ``name`` (case-insensitive) for input strategy ``inputs``;
+    hyperparameters not given take the paper's defaults.
 
     Raises:
-        ValueError: unknown model name, unknown input strategy or unknown
-            hyperparameter (the message names it and lists the valid ones).
+        ValueError: unknown model name, input strategy or hyperparameter (the message
+            names it and lists the valid ones).
     """
     cls = get_model_class(name)
     strategy = InputStrategy.parse(inputs)
-    signature = inspect.signature(cls.__init__)
-    takes_var_kwargs = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
-    if not takes_var_kwargs:
+    if not takes_any_hparam(name):
         valid = model_hyperparameters(name)
         unknown = sorted(set(hparams) - set(valid))
         if unknown:

@@ -1,14 +1,5 @@
-"""Res-Tf: ResNet features per frame, a Transformer encoder over the three frames.
-
-Image path: ResNet18 (or 34/50) spatial-mean features -> Linear(feature_dim, embedding_dim)
-+ fixed sinusoidal positional encoding of the 3 positions -> TransformerEncoder (layers,
-heads, feed-forward 2048, dropout 0.1) -> mean over the 3 tokens -> dropout ->
-Linear(embedding_dim, output_dim).
-
-Head: the fusion head (``models.base.FusionModel``) on the image output.
-
-The positional encoding is *added* to the token embedding, as in the published code
-(the paper's text speaks of concatenation).
+"""Res-Tf: ResNet features per frame, a Transformer encoder over the three frames, and
+the fusion head. Architecture: docs/models.md, "Res-Tf".
 """
 
 from __future__ import annotations
@@ -63,26 +54,17 @@ def _check_resnet(name: str, value: Any) -> str:
 
 @register_model("res_tf")
 class ResTf(FusionModel):
-    """Res-Tf, the ResNet + Transformer model of the paper (defaults: tuned ALL config).
+    """Res-Tf, the ResNet + Transformer model of the paper (defaults: its tuned ALL config).
 
     Args:
-        inputs: input strategy (Image, ImageF, ImageFW, ALL).
         backbone: "resnet18" (paper), "resnet34" or "resnet50".
-        num_layers: Transformer encoder layers (tuned ALL: 4).
-        num_heads: attention heads; must divide ``embedding_dim`` (tuned ALL: 2).
-        embedding_dim: token size (tuned ALL: 256).
-        output_dim: size of the image output after the Transformer (tuned ALL: 512).
-        video_dropout: dropout before the image output layer (tuned ALL: 0.1).
-        transformer_dropout: dropout inside the Transformer layers (0.1).
-        dim_feedforward: Transformer feed-forward size (2048).
+        num_heads: attention heads; must divide ``embedding_dim`` (the token size).
+        output_dim: size of the image output after the Transformer.
+        video_dropout: dropout before the image output layer.
         fwe_size: output size of the force and width towers Linear(3, fwe_size).
-        decoder_sizes: decoder hidden sizes (tuned ALL: [512]).
-        decoder_dropout: decoder dropout (tuned ALL: 0.3).
         decoder_output_size: raw decoder outputs combined with the estimates (with E only).
-        estimation_sizes: estimation decoder hidden sizes (tuned ALL: [64]).
-        estimation_dropout: estimation decoder dropout (tuned ALL: 0.1).
-        backbone_weights: "none", "imagenet" or a path to a torchvision ResNet state dict.
-            Recorded in ``self.backbone_weights``, not in ``hparams``.
+        backbone_weights: "none", "imagenet" or a path to a torchvision ResNet state dict;
+            recorded in ``self.backbone_weights``, not in ``hparams``.
     """
 
     hparam_checks = FusionModel.extend_checks(

@@ -1,17 +1,6 @@
-"""The per-model paper settings and tuning search spaces, read from the model classes.
-
-Each model class declares, as class-level data (see ``TactileModel``):
-
-* ``default_training``: the paper's training settings (``lr``, ``batch_size``, ``gamma``);
-* ``tuned_configs``: per input strategy, the paper's tuned ``model`` hyperparameters and
-  ``training`` settings where it reports them (other strategies use the constructor
-  defaults and ``default_training``);
-* ``hpo_space``: its tuning search space, a tuple of :class:`SearchDimension`.
-
-This module is the one reader of that data: :func:`paper_settings` turns it into the
-dotted overrides that experiment presets apply (``paper_settings: true``), and
-:func:`search_dimensions` resolves the search space of one input strategy, its defaults
-taken from the paper settings, for the SMAC tuner.
+"""The per-model paper settings and tuning search spaces, read from the model classes'
+``default_training``, ``tuned_configs`` and ``hpo_space``: the one reader of that data.
+See docs/models.md, "Paper settings and search spaces".
 """
 
 from __future__ import annotations
@@ -24,7 +13,11 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from tactile_compliance.models.inputs import InputStrategy
-from tactile_compliance.models.registry import get_model_class, model_hyperparameters
+from tactile_compliance.models.registry import (
+    get_model_class,
+    model_hyperparameters,
+    takes_any_hparam,
+)
 
 __all__ = [
     "DIM_CHOICES",
@@ -87,17 +80,9 @@ def _magnitude(value: Any) -> float | None:
 
 @dataclass(frozen=True)
 class SearchDimension:
-    """One hyperparameter a tuner searches: the config key it sets and its choices.
-
-    Attributes:
-        key: the dotted config key (``training.lr``, ``model.hparams.num_layers``).
-        choices: the values as the config takes them (layer sizes as tuples, ``None``
-            for "off").
-        needs: scalar inputs ("force", "width", "estimates") the hyperparameter belongs
-            to: it is searched when the input strategy uses any of them (empty: always).
-        default: where a search starts; class declarations leave it at
-            :data:`FROM_PAPER` and :func:`search_dimensions` fills in the paper setting.
-    """
+    """One hyperparameter a tuner searches: the config key it sets, its choices, the scalar
+    inputs it ``needs`` (empty: always searched) and where a search starts (``default``;
+    :func:`search_dimensions` fills in :data:`FROM_PAPER`)."""
 
     key: str
     choices: tuple[Any, ...]
@@ -139,11 +124,8 @@ class SearchDimension:
 
     def nearest(self, value: Any) -> Any:
         """The choice equal to ``value``, else the closest one (log scale for positive
-        numbers, layer lists by their first size), else the first choice.
-
-        The paper's settings are not always on the published grid (lr 1.1e-4, batch 24),
-        and a search should still start next to them.
-        """
+        numbers, layer lists by their first size), else the first choice: the paper's
+        settings are not always on the published grid (lr 1.1e-4, batch 24)."""
         target = _canonical(value)
         for choice in self.choices:
             if _canonical(choice) == target:
@@ -184,16 +166,9 @@ def _tuned(cls: type, strategy: InputStrategy) -> Mapping[str, Mapping[str, Any]
 
 
 def paper_settings(model: str, inputs: InputStrategy | str) -> dict[str, Any]:
-    """The paper's settings of registered ``model`` for ``inputs``, as dotted overrides.
-
-    ``default_training`` as ``training.*``, overlaid with the strategy's
-    ``tuned_configs`` (``training.*`` and ``model.hparams.*``). E.g.
-    ``paper_settings("vgg_lstm", "ALL") == {"training.lr": 3e-4,
-    "training.batch_size": 16, "training.gamma": 0.97974}``.
-
-    Raises:
-        ValueError: unknown model or input strategy.
-    """
+    """The paper's settings of registered ``model`` for ``inputs``, as dotted overrides:
+    ``default_training`` as ``training.*``, overlaid with the strategy's ``tuned_configs``
+    (``training.*`` and ``model.hparams.*``)."""
     cls = get_model_class(model)
     tuned = _tuned(cls, InputStrategy.parse(inputs))
     training = {**getattr(cls, "default_training", {}), **tuned.get("training", {})}
@@ -204,11 +179,8 @@ def paper_settings(model: str, inputs: InputStrategy | str) -> dict[str, Any]:
 
 
 def search_dimensions(model: str, inputs: InputStrategy | str) -> list[SearchDimension]:
-    """The search space that registered ``model`` declares (``hpo_space``) for ``inputs``.
-
-    Dimensions of inputs the strategy disables are left out. A default left at
-    :data:`FROM_PAPER` becomes the paper setting (:func:`paper_settings`, else the
-    constructor default), or the choice nearest to it; without either, the first choice.
+    """The search space that registered ``model`` declares (``hpo_space``) for ``inputs``,
+    with the defaults filled in (docs/models.md, "Paper settings and search spaces").
 
     Raises:
         ValueError: unknown model or strategy, or a declaration that names a keyword
@@ -218,9 +190,7 @@ def search_dimensions(model: str, inputs: InputStrategy | str) -> list[SearchDim
     strategy = InputStrategy.parse(inputs)
     paper = paper_settings(model, strategy)
     constructor = model_hyperparameters(model)
-    takes_any = any(
-        p.kind is p.VAR_KEYWORD for p in inspect.signature(cls.__init__).parameters.values()
-    )
+    takes_any = takes_any_hparam(model)
     dimensions: list[SearchDimension] = []
     seen: set[str] = set()
     # A class without a declaration still tunes its training settings.

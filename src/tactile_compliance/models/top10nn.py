@@ -1,11 +1,5 @@
-"""Top10NN: the baseline of Burgess et al., a small CNN trained from scratch.
-
-Backbone (shared by the three frames): 5 x (Conv -> BatchNorm -> ReLU) with 32..512
-channels, kernels 5, 3, 3, 3, 3, stride 2, no padding; global average pool -> dropout ->
-Linear(512, 1024) -> ELU -> dropout -> Linear(1024, img_feature_size).
-
-Head: the fusion head (``models.base.FusionModel``) on the 3 frame features, with the
-decoder [512, 512, 128] and the estimation decoder [64, 64, 32].
+"""Top10NN: the baseline of Burgess et al., a small CNN trained from scratch, and the
+fusion head. Architecture: docs/models.md, "Top10NN".
 """
 
 from __future__ import annotations
@@ -49,10 +43,7 @@ def _min_input_size() -> int:
 
 
 class Top10Encoder(nn.Module):
-    """The per-frame CNN of Top10NN: ``(N, 3, H, W) -> (N, img_feature_size)``.
-
-    Needs frames of at least 65x65 pixels (five unpadded stride-2 convolutions).
-    """
+    """The per-frame CNN of Top10NN: ``(N, 3, H, W) -> (N, img_feature_size)``."""
 
     min_input_size: int = _min_input_size()
 
@@ -79,28 +70,21 @@ class Top10Encoder(nn.Module):
         self.feature_dim: int = img_feature_size
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Encode ``(N, 3, H, W)`` frames into ``(N, img_feature_size)`` features."""
         return self.fc(self.conv(x).mean(dim=(2, 3)))
 
 
 @register_model("top10nn")
 class Top10NN(FusionModel):
-    """Top10NN baseline (Burgess et al.), trained from scratch.
+    """Top10NN baseline (Burgess et al.), trained from scratch (defaults: the paper's).
 
     Args:
-        inputs: input strategy (Image, ImageF, ImageFW, ALL).
-        img_feature_size: per-frame image feature size (paper: 128).
-        image_dropout: dropout inside the image encoder (paper: 0.3).
+        img_feature_size: per-frame image feature size.
         fwe_size: output size of the force and width towers, Linear(3, fwe_size) each.
-        decoder_sizes: hidden sizes of the decoder (paper: [512, 512, 128]).
-        decoder_dropout: dropout after each decoder hidden layer (paper: 0.3).
-        decoder_output_size: raw decoder outputs fed to the estimation decoder with E
-            (paper: 3); unused without E (the decoder then emits one logit).
-        estimation_sizes: hidden sizes of the estimation decoder (paper: [64, 64, 32]).
-        estimation_dropout: dropout in the estimation decoder (paper: 0.3).
+        decoder_output_size: raw decoder outputs fed to the estimation decoder with E;
+            unused without E (the decoder then emits one logit).
         backbone_weights: "none" (random init, the paper) or a path to a
-            :class:`Top10Encoder` state dict, e.g. one written by ``tactile-compliance
-            pretrain --backbone top10nn-cnn``. There are no ImageNet weights.
+            :class:`Top10Encoder` state dict (``pretrain --backbone top10nn-cnn``); there
+            are no ImageNet weights.
     """
 
     hparam_checks = FusionModel.extend_checks(

@@ -1,20 +1,5 @@
 """VGG-LSTM (LRCN): VGG16 fc7 features per frame, an LSTM cell over the three frames.
-
-Per time step t: concat(fc7_t, Linear(1, d_F)(F_t), Linear(1, d_W)(W_t),
-Linear(1, d_el)(E_elastic), Linear(1, d_hz)(E_hertz)) -> LSTMCell -> dropout ->
-Linear(hidden, 1) = y_t (only enabled scalars are concatenated; the two estimates are the
-same at every step). Output: sigmoid(softmax(w) . (y_1, y_2, y_3)) with a learnable
-3-vector w initialised to ones (equal weights at the start).
-
-Where the dropout sits (``lstm_dropout_mode``): the published code overwrites the hidden
-state with its dropped-out copy, so the dropped h_t feeds both y_t and step t + 1 (the
-cell state c_t is never dropped, and every step draws a fresh mask). That is the default,
-``"recurrent"``. ``"output"`` drops only the path to y_t and carries the intact h_t
-forward (this project's behaviour before issue 20). Both draw the same masks in the same
-order, and in eval mode (no dropout) they are the same model.
-
-The paper resizes frames to 224x224 for the ImageNet-pretrained VGG16
-(``recommended_image_size``); the model itself accepts any size >= 32.
+Architecture and ``lstm_dropout_mode``: docs/models.md, "VGG-LSTM".
 """
 
 from __future__ import annotations
@@ -61,13 +46,9 @@ def check_lstm_dropout_mode(name: str, value: Any) -> str:
 
 class _ProjectSteps(torch.autograd.Function):
     """``linear(cat([image, scalars], -1), weight, bias)`` whose backward computes the
-    input gradient only for the inputs that need it.
-
-    Autograd differentiates a concatenation as one tensor: once the scalar embeddings need
-    a gradient, it computes the gradient of the whole (3B x ~4.2k) LSTM input, image
-    columns included, a 0.4 GFLOP product per VGG-LSTM head step (~15 % of it) whose
-    result is thrown away when the image features are cached. Slicing the weight instead
-    makes autograd build a full-size weight gradient per slice (slower still).
+    input gradient only for the inputs that need it (docs/models.md, "CPU speed-ups in
+    the heads"). Slicing the weight instead makes autograd build a full-size weight
+    gradient per slice (slower still).
     """
 
     @staticmethod
@@ -128,21 +109,16 @@ def project_steps(
 
 @register_model("vgg_lstm")
 class VggLstm(TactileModel):
-    """VGG-LSTM, the LRCN model of the paper.
+    """VGG-LSTM, the LRCN model of the paper (defaults: its tuned settings).
 
     Args:
-        inputs: input strategy (Image, ImageF, ImageFW, ALL).
-        hidden_size: LSTM hidden size (tuned: 256).
-        lstm_dropout: dropout probability on the LSTM hidden state (tuned: 0.2).
-        lstm_dropout_mode: "recurrent" (default, the published code): the dropped-out
-            hidden state feeds the per-step linear and the next LSTM step; "output": only
-            the per-step linear sees the dropped-out state, the next step gets the intact
-            one. The cell state is never dropped; each step draws a fresh mask.
+        lstm_dropout: dropout probability on the LSTM hidden state.
+        lstm_dropout_mode: "recurrent" (the published code: the dropped-out hidden state
+            also feeds the next step) or "output" (only the per-step linear sees it).
         force_dim, width_dim, elastic_dim, hertz_dim: sizes of the Linear(1, d)
-            embeddings of F_t, W_t, E_elastic and E_hertz (tuned: 32 each).
-        backbone_weights: "none" (random init), "imagenet" (official torchvision VGG16,
-            needs internet or the torch.hub cache) or a path to a VGG16 state dict.
-            Recorded in ``self.backbone_weights``, not in ``hparams``.
+            embeddings of F_t, W_t, E_elastic and E_hertz.
+        backbone_weights: "none", "imagenet" or a path to a VGG16 state dict; recorded
+            in ``self.backbone_weights``, not in ``hparams``.
     """
 
     hparam_checks = TactileModel.extend_checks(
