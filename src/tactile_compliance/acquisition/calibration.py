@@ -1,14 +1,5 @@
-"""Calibration to your own sensor: frame geometry, no-contact reference, pixel pitch, depth.
-
-A :class:`SensorCalibration` is one JSON file (``tactile-compliance calibrate SOURCE --out
-sensor.json``, extended by ``calibrate-depth``) holding the frame geometry, the no-contact
-reference frame (the per-pixel median of frames recorded with nothing touching the gel, as
-a lossless PNG inside the JSON, so one file travels with nothing to lose), the pixel
-density and the sensor's own depth model fitted on ball presses (:func:`calibrate_depth`).
-With a calibration every grasp is differenced against this reference instead of its own
-first frame, so a grasp that starts in contact still gets correct difference images, and
-sources opened with it (:meth:`SensorCalibration.open`) refuse frames of another camera
-size. See docs/sensors.md.
+"""Calibration to your own sensor: frame geometry, no-contact reference, pixel pitch and
+depth model, in one JSON file. See docs/inference.md, "Calibration", and docs/sensors.md.
 """
 
 from __future__ import annotations
@@ -226,12 +217,8 @@ MAX_SATURATED_SHARE = 0.5
 
 
 def reference_problem(reference: np.ndarray) -> str | None:
-    """Why a no-contact reference (H, W, 3) uint8 cannot be a lit sensor's, or None.
-
-    A uniform (grey, black) or overexposed (white) reference gives difference images that
-    are the frames themselves or clipped: the model then estimates from garbage (6e8 Pa
-    became 2.7e8 Pa, a white one 8.7e11 Pa), so it is refused, naming the consequence.
-    """
+    """Why a no-contact reference (H, W, 3) uint8 cannot be a lit sensor's (uniform or
+    overexposed), or None."""
     grey = reference.astype(np.float32).mean(axis=2)
     std = float(grey.std())
     if std < MIN_REFERENCE_STD:
@@ -275,15 +262,12 @@ def calibrate(
     **options: Any,
 ) -> SensorCalibration:
     """Record the no-contact reference of the sensor at ``spec``: the per-pixel median of
-    its first ``n_frames`` good frames (nothing may touch the gel meanwhile).
+    its first ``n_frames`` good frames (the median removes read noise and a passing
+    flicker).
 
     Args:
-        spec: a source spec (``sensors.open_source``).
-        geometry: warp / crop / resize; default the source's preset. Its ``input_size``
-            is set to the camera frame size seen, so later frames of another size are
-            refused.
-        n_frames: frames to take the median of (the median removes read noise and a
-            passing flicker).
+        geometry: default the source's preset; its ``input_size`` becomes the camera
+            frame size seen.
         out: also write the calibration there (JSON).
         options: for ``open_source`` (``fps`` / ``timestamps_csv`` of a folder).
 
@@ -442,16 +426,13 @@ def calibrate_depth(
     """Fit a sensor's depth model on presses of a ball of known radius.
 
     Args:
-        presses: ``(name, uint8 BGR frame)`` sensor frames (after the geometry), each with
-            the ball pressed somewhere (:func:`read_images`, :func:`capture_presses`).
+        presses: ``(name, uint8 BGR frame)`` sensor frames (after the geometry).
         ball_radius_mm: the ball's radius [mm].
         px_per_mm: the sensor frames' pixel density [px/mm].
-        reference: the no-contact frame; default the ``sensor``'s reference, else the
-            per-pixel median of the presses (right when the ball is elsewhere in each).
-        sensor: a calibration (``calibrate``) to extend: its geometry and reference carry
-            over.
-        circles: given contact circles by press name; the others are found.
-        source: what the presses came from (kept in the calibration).
+        reference: the no-contact frame; default the ``sensor``'s, else the per-pixel
+            median of the presses.
+        sensor: a calibration to extend: its geometry and reference carry over.
+        circles: given contact circles [px] by press name; the others are found.
         epochs, seed: of the regressor fit.
 
     Raises:
@@ -531,11 +512,8 @@ def capture_presses(
     max_frames: int = 10_000,
     **options: Any,
 ) -> list[tuple[str, np.ndarray]]:
-    """Frames of a live source that show a new ball press, until ``n_presses`` are taken.
-
-    A frame counts as a press when a contact region is found against the reference and its
-    centre is more than one contact radius away from every press taken so far (a press
-    held still gives one frame, not many).
+    """Frames of a live source that show a new ball press, until ``n_presses`` are taken
+    (a press held still gives one frame: a new centre must be a contact radius away).
 
     Raises:
         ValueError: no reference (give ``sensor`` or ``reference``).

@@ -1,39 +1,7 @@
 """Record your own grasps in the raw layout of the public dataset, ready for ``import burgess``.
 
-One call records one grasp: frames from a sensor (``sensors``), force and width from the
-robot (a callback ``timestamp_s -> (force_n, width_m)`` or a CSV of timestamped readings
-``timestamp_s,force_n,width_m``, linearly interpolated to each frame's time). It writes::
-
-    OUT/{object}/metadata.json                       object_name, youngs_modulus [Pa],
-                                                     material, shape, Shore hardness
-    OUT/{object}/grasp={g}/augmentation={k}/RGB.pkl  (3, H, W, 3) float32 BGR difference images
-                                            depth.pkl          (3, H, W) float32 mm
-                                            forces.pkl         (3,) float64 N
-                                            widths.pkl         (3,) float64 m
-                                            elastic_estimate.pkl, hertz_estimate.pkl  0-d Pa
-                                                (absent where the fit failed, as in the dataset)
-                                            RGB_markers.pkl, depth_markers.pkl (second sensor)
-    OUT/dataset_objects_and_compliance.csv           the object table, one row per object
-    OUT/recording.json                               depth model and px/mm of every grasp
-
-as the dataset made it (``DATA_FORMATS.md``, "How the three frames were chosen"): the
-three frames of each augmentation by the rule of ``data.frame_selection``
-(:func:`augmented_indices`, the generator's rule too); difference images
-``(frame - GaussianBlur11x11(reference)) / 255 + 0.5`` against the calibration's
-no-contact frame, or the recording's first frame; depth maps by
-``data.photometric.reconstruct_depth`` with the calibration's depth model
-(``calibrate-depth``), or the dataset heuristic without one (the marker sensor with its
-markers masked); the analytical estimates by the dataset's estimator on the whole
-recording (it clips the press itself), at the calibration's pixel density (the Wedge's
-16.40 px/mm without one).
-
-The grasp number is the next free one; a grasp directory is written under a hidden name
-and renamed into place, so nothing existing is ever overwritten and an interrupted
-recording leaves no half grasp. A frame without a reading in range, of the wrong size or
-with a time going backwards is skipped and reported (:attr:`RecordedGrasp.skipped`).
-What ``record`` guarantees about ``OUT`` (the directories it writes into, the lock on
-``OUT/.record.lock``, the object table, failed writes, checked names and readings) is
-listed in docs/data.md, "Recording your own grasps: what ``record`` guarantees".
+See docs/inference.md, "Record and train on your own objects", and docs/data.md,
+"Recording your own grasps: what ``record`` guarantees".
 """
 
 from __future__ import annotations
@@ -135,11 +103,9 @@ _OBJECT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
 OUTPUT_KIND = "record"
 """The ``outputs.claim_output_dir`` kind of a dataset directory that ``record`` writes."""
 
-LOCK_FILE = ".record.lock"
-"""``flock``-ed while one ``record`` writes into the dataset (see the module)."""
+LOCK_FILE = ".record.lock"  # flock-ed while one record writes into the dataset
 
-READINGS_COLUMNS = ["timestamp_s", "force_n", "width_m"]
-"""The columns of a readings CSV (s, N, m)."""
+READINGS_COLUMNS = ["timestamp_s", "force_n", "width_m"]  # s, N, m
 
 ReadingsCallback = Callable[[float], tuple[float, float]]
 """``timestamp_s -> (force_n, width_m)``; raise :class:`ReadingError` for no reading."""
@@ -152,11 +118,8 @@ class ReadingError(ValueError):
 # ---------------------------------------------------------------------- readings
 @dataclass
 class Readings:
-    """Timestamped force and width readings from the robot, interpolated to frame times.
-
-    Real logs are checked as they are read (``data.force_readings``): single-frame force
-    spikes are replaced by the median of their neighbours and listed in :attr:`spikes`,
-    and the no-contact baseline is estimated (:attr:`baseline`) but not subtracted.
+    """Timestamped force and width readings from the robot, interpolated to frame times;
+    spikes replaced, the baseline estimated (docs/inference.md, "Real readings").
 
     Attributes:
         timestamp_s: (N,) reading times in s, strictly increasing, on the frames' clock.
@@ -198,15 +161,7 @@ class Readings:
             )
         self.raw_force_n = self.force_n
         self.force_n, self.spikes = find_force_spikes(self.raw_force_n, self.timestamp_s)
-        # The baseline is reported, not subtracted. The public dataset chose its frames
-        # (first F >= 5 N, first F >= 0.975 F_max) and fitted its estimator constants on
-        # this rig's unzeroed readings, and the generator reproduces such offsets (sd
-        # 0.15 N); subtracting would select frames by another rule than the data the
-        # models learned from. On the 15 real grasps subtracting the estimated baseline
-        # (-0.12..+0.16 N) moves one selection by one frame, and the estimate is itself
-        # uncertain by about as much as it is large (where a grasp starts and ends with an
-        # empty gripper, its two ends differ by 0.02-0.14 N). Beyond +-0.5 N record warns
-        # (BASELINE_WARN_N).
+        # Reported, not subtracted: why in docs/inference.md, "Real readings".
         self.baseline = force_baseline(self.force_n)
 
     @classmethod
@@ -214,8 +169,7 @@ class Readings:
         """Read a CSV with columns ``timestamp_s,force_n,width_m`` (s, N, m).
 
         Raises:
-            ValueError: a missing column, a value that is not a number, times not
-                increasing. OSError: the file cannot be read.
+            ValueError: not such a CSV, or bad values. OSError: the file cannot be read.
         """
         path = Path(path)
         table = _readings_table(path)
@@ -262,12 +216,8 @@ def _readings_table(path: Path) -> pd.DataFrame | None:
 
 
 class FollowedReadings:
-    """Readings from a CSV that the robot is still writing (``timestamp_s,force_n,width_m``).
-
-    For a live sensor: a frame newer than the last reading re-reads the file (when it
-    changed) until a reading at or after the frame's time is there, for at most
-    ``wait_s`` seconds, then it is a :class:`ReadingError` for that frame. An incomplete
-    last line (the robot mid-write) is ignored until it is complete. The file may not
+    """Readings from a CSV that the robot is still writing: a frame waits up to ``wait_s``
+    s for a reading at or after its time (docs/inference.md, "``live``"). The file may not
     exist yet when the capture starts.
     """
 
@@ -307,7 +257,7 @@ class FollowedReadings:
     @property
     def spikes(self) -> list[ForceSpike]:
         """Spikes replaced in the log so far (the newest reading is judged once the next
-        one is there: a spike needs a neighbour on each side)."""
+        one is there)."""
         return [] if self.readings is None else self.readings.spikes
 
     @property
@@ -377,13 +327,9 @@ def capture_grasp(
     release_fraction: float = 0.5,
     min_peak_force_n: float = MIN_PEAK_FORCE_N,
 ) -> CapturedGrasp:
-    """Read frames and readings until the source ends, the grasp is released or
-    ``max_frames`` good frames are in.
-
-    The grasp is released when, after the force reached ``min_peak_force_n``, it falls
-    below ``release_fraction`` x its maximum (the streaming estimator's rule). Bad frames
-    and frames without a reading are skipped and listed, never fatal; Ctrl-C ends the
-    capture and keeps what was recorded.
+    """Read frames and readings until the source ends, the grasp is released (the
+    streaming estimator's rule), ``max_frames`` good frames are in, or Ctrl-C. Bad frames
+    and frames without a reading are skipped and listed.
 
     Args:
         markers_source: a second sensor (the marker finger), read in lockstep: its i-th
@@ -443,13 +389,11 @@ def augmented_indices(
     max_depth_mm: Sequence[np.ndarray] = (),
     timestamps_s: Sequence[float] | np.ndarray | None = None,
 ) -> list[tuple[int, int, int]]:
-    """The dataset's three frames of each augmentation k = 0, 1, ... (frame indices).
+    """The dataset's three frames (indices) of each augmentation k = 0, 1, ...
+    (``data.frame_selection.augment_selection``; docs/inference.md, "Record and train").
 
-    The rule of ``data.frame_selection.augment_selection``, the generator's too:
-    augmentation 0 is the frames ``live`` selects (in time when ``timestamps_s`` are
-    given), augmentation k shifts them by +k while the force stays >= 0.95 F_max, with the
-    published code's caps on the count (the hard-object one reads ``modulus_pa`` and
-    ``max_depth_mm``, the per-frame maximum depths in mm of every sensor).
+    ``modulus_pa`` [Pa] and ``max_depth_mm`` (per-frame maximum depths in mm of every
+    sensor) feed the published code's hard-object cap.
 
     Raises:
         ValueError: no selection (no frame reaches 5 N, the peak stays below 10 N, or
@@ -527,10 +471,9 @@ class RecordedGrasp:
         estimates_pa: (elastic E, Hertz E*) in Pa, NaN where not estimable.
         n_frames: frames captured; skipped: frames left out, with the reason.
         object_table: the object table written or updated.
-        warnings: what looked wrong in the readings or the reference (force spikes
-            replaced, a baseline beyond +-0.5 N, a first frame in contact, a reference
-            that does not fit); the grasp is written all the same.
-        checks: the numbers behind them (:func:`check_recording`).
+        warnings: what looked wrong in the readings or the reference
+            (:func:`check_recording`); the grasp is written all the same.
+        checks: the numbers behind them.
     """
 
     path: Path
@@ -669,10 +612,7 @@ def write_grasp(
     Args:
         reference, markers_reference: the no-contact frame of each sensor; default the
             calibration's, else the first frame.
-        max_aug: augmentations at most.
-        sensor, markers_sensor: the sensors' calibrations: their depth models and the
-            first one's pixel density make the depth maps and the estimates (None: the
-            dataset heuristic and the Wedge's 16.40 px/mm).
+        sensor, markers_sensor: the sensors' calibrations (depth models, pixel density).
 
     Raises:
         ValueError: the grasp has no frame selection (nothing is written), or the object
@@ -784,13 +724,8 @@ def write_grasp(
 
 
 def claim_dataset_dir(out_dir: str | Path, *, create: bool = True) -> Path:
-    """Make ``out_dir`` a dataset directory of ``record`` (``outputs.claim_output_dir``).
-
-    Accepted: a new or empty directory, one ``record`` marked, and one that a concurrent
-    ``record`` is creating (its lock, its marker). Refused with ``OutputExistsError``: a
-    GraspStore, a run directory, any other command's output or a directory of other files.
-    ``create=False`` only checks.
-    """
+    """Make ``out_dir`` a dataset directory of ``record`` (``outputs.claim_output_dir``;
+    docs/data.md, "Recording your own grasps"). ``create=False`` only checks."""
     return claim_output_dir(out_dir, OUTPUT_KIND, recognise=_is_unmarked_recording, create=create)
 
 
@@ -804,19 +739,14 @@ def _is_unmarked_recording(path: Path) -> bool:
 
 
 # ---------------------------------------------------------------------- checks
+# Mean |reference - first frame| in grey levels (0..255) beyond which the reference is of
+# another session (docs/inference.md, "Real readings").
 REFERENCE_MISMATCH_GREY = 8.0
-"""A reference whose mean |difference| from the first frame exceeds this (grey levels of
-0..255) is not a no-contact frame of this sensor session: first frames of the 15 real
-grasps differ from each other by 0.8-3.5, from the rig's ``init_frame_unwarped.png`` by
-26-28 (it is from another session, with red and blue swapped)."""
 
 
 def reference_frame(image: np.ndarray, geometry: Any, frame_shape: tuple[int, ...]) -> np.ndarray:
-    """A no-contact image as a reference for frames of ``frame_shape`` (H, W, 3).
-
-    The image is either a camera frame, which the source's ``geometry``
-    (``sensors.FrameGeometry``: warp, crop, resize) turns into a sensor frame, or already a
-    sensor frame of ``frame_shape``.
+    """A no-contact image, a camera frame (``geometry``, a ``sensors.FrameGeometry``,
+    applies) or a sensor frame, as a reference for frames of ``frame_shape`` (H, W, 3).
 
     Raises:
         FrameSizeError: it is neither.
@@ -876,15 +806,8 @@ def check_recording(
     reference_from_start: bool = False,
     remedy: str = "--reference IMAGE, or a --calibration recorded before the grasp",
 ) -> tuple[list[str], dict[str, Any]]:
-    """Warnings about a recording's readings and reference, and the numbers behind them.
-
-    * every force spike the readings replaced (``Readings.spikes``), with its frame;
-    * a no-contact baseline beyond +-``BASELINE_WARN_N`` (``Readings.baseline``);
-    * a first frame in contact (its force above the baseline; ``ForceBaseline.contact_n``)
-      while the reference was taken from the start of this recording (its first frame,
-      or a calibration of the same replayed file);
-    * a reference unlike the first frame (another session or lighting, or red and blue
-      swapped).
+    """Warnings about a recording's readings and reference, and the numbers behind them
+    (the table in docs/inference.md, "Real readings").
 
     Args:
         readings: a :class:`Readings` (or any callback; one without ``spikes`` and
@@ -963,23 +886,15 @@ def record_grasp(
     stop_on_release: bool = True,
     max_aug: int = MAX_AUGMENTATIONS,
 ) -> RecordedGrasp:
-    """Capture one grasp from ``source`` with ``readings`` and write it (see the module).
-
-    What looks wrong is reported in the result's ``warnings`` (see
-    :func:`check_recording`), never silently used and never fatal.
+    """Capture one grasp from ``source`` with ``readings`` and write it; what looks wrong
+    is in the result's ``warnings`` (docs/inference.md, "Record and train").
 
     Args:
-        source: an open frame source (``sensors.open_source``; with a calibration, open
-            it with ``calibration.open(spec)`` so the geometry matches the reference).
+        source: an open frame source (with a calibration: ``calibration.open(spec)``, so
+            the geometry matches the reference).
         readings: ``timestamp_s -> (force_n, width_m)``, e.g. ``Readings.from_csv(path)``.
-        calibration: its reference frame is the no-contact frame (default: the first
-            recorded frame); its depth model and pixel density make the depth maps and
-            the analytical estimates (default: the dataset heuristic, 16.40 px/mm).
-        reference: a no-contact image (uint8 BGR), a camera frame (the source's geometry
-            is applied) or a sensor frame; replaces the calibration's reference (for a
-            recording whose first frames already show contact).
-        markers_source, markers_calibration: a second sensor (the marker finger).
-        max_frames, stop_on_release: when the capture stops (see :func:`capture_grasp`).
+        reference: a no-contact uint8 BGR camera or sensor frame; replaces the
+            calibration's reference.
 
     Raises:
         OutputExistsError: ``out_dir`` exists and is not a dataset ``record`` wrote

@@ -1,20 +1,6 @@
-"""Live frame sources: tactile sensor cameras, replayed videos and folders of frames.
-
-Every source yields ``(timestamp_s, frame)``: the frame's time in seconds and a uint8 BGR
-image ``(H, W, 3)`` already cut to the sensor's pad by the source's :class:`FrameGeometry`
-(warp, crop, resize). Sources are context managers and iterators::
-
-    with open_source("mini:0") as source:          # a GelSight Mini on /dev/video0
-        for timestamp_s, frame in source:
-            ...
-
-A video file gives its own frame times, so a replay keeps the recording's timing; live
-devices and streams take ``time.monotonic()`` on arrival; a folder takes a CSV of times or
-a frame rate. Errors are one line each: :class:`SensorError` (an ``OSError``: the source
-fails) and the :class:`FrameError` kinds (``ValueError``: one frame is unusable, the
-source goes on, so :func:`iter_frames` can skip it). :func:`open_source` parses the spec
-strings of the presets (GelSight Mini, GelSight Wedge over HTTP MJPEG, DIGIT through the
-optional, non-commercial ``digit-interface``, any camera, a video or URL, a folder).
+"""Frame sources (sensor cameras, replayed videos, folders of frames) yielding
+``(timestamp_s, uint8 BGR frame)`` cut to the pad. See docs/inference.md, "Live sensors,
+calibration and your own grasps".
 """
 
 from __future__ import annotations
@@ -84,23 +70,15 @@ Corners = tuple[tuple[float, float], tuple[float, float], tuple[float, float], t
 class FrameGeometry:
     """How a camera frame becomes a sensor frame: warp, then crop, then resize.
 
-    Sizes are (height, width) in pixels, like the rest of the package.
-
     Attributes:
-        input_size: the camera frame size (H, W) px this geometry expects; frames of
-            another size are refused (:class:`FrameSizeError`). None accepts any size
-            (all frames of one source must still agree).
-        warp_corners: four (x, y) points in the camera frame [px], in the order top-left,
-            top-right, bottom-right, bottom-left, mapped onto the corners of a
-            ``warp_size`` image by a perspective transform (the pad's corners). None: no
-            warp.
-        warp_size: (H, W) px of the warped image (the Wedge rig: (300, 400)).
-        crop_px: pixels removed from each side after the warp (the Wedge rig: 25).
-        crop_fraction: share of the height (top and bottom) and of the width (left and
-            right) removed from each side, after ``crop_px`` (the Mini: 1/7, the
-            border of the gel outside the lit pad).
-        output_size: (H, W) px of the final frame (resized with area averaging when
-            shrinking); None keeps the cropped size.
+        input_size: the camera frame size (H, W) px expected; None accepts any size.
+        warp_corners: the pad's four (x, y) px corners in the camera frame (top-left,
+            top-right, bottom-right, bottom-left), warped onto ``warp_size``; None: no warp.
+        warp_size: (H, W) px of the warped image.
+        crop_px: pixels removed from each side after the warp.
+        crop_fraction: share of the height and of the width removed from each side,
+            after ``crop_px``.
+        output_size: (H, W) px of the final frame; None keeps the cropped size.
     """
 
     input_size: tuple[int, int] | None = None
@@ -198,8 +176,7 @@ class FrameGeometry:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> FrameGeometry:
-        """Inverse of :meth:`to_dict` (the checks make its lists tuples); unknown keys are
-        an error."""
+        """Inverse of :meth:`to_dict`; unknown keys are an error."""
         unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"unknown frame geometry field(s) {sorted(unknown)}")
@@ -207,11 +184,8 @@ class FrameGeometry:
 
 
 def _checked_corners(points: Any) -> Corners:
-    """Four finite (x, y) px points spanning a convex quadrilateral of area >= 1 px².
-
-    Collinear or crossed corners make a degenerate perspective transform: the warped
-    "reference" would be a smear or all zero, and every difference image wrong.
-    """
+    """Four finite (x, y) px points spanning a convex quadrilateral of area >= 1 px²
+    (others make a degenerate warp: a smeared or black reference)."""
     try:
         corners = tuple((float(x), float(y)) for x, y in points)
     except (TypeError, ValueError) as err:
@@ -238,16 +212,12 @@ def _checked_corners(points: Any) -> Corners:
 PLAIN_GEOMETRY = FrameGeometry()
 """Frames as the camera delivers them."""
 
-MINI_CAPTURE_SIZE = (2464, 3280)
-"""(H, W) px the GelSight Mini is asked for (MJPG, nominally 25 fps, about 18 on Linux);
-it may deliver another mode."""
+MINI_CAPTURE_SIZE = (2464, 3280)  # (H, W) px asked for; the Mini may deliver another mode
 
+# The manufacturer's examples crop the gel's unlit border (1/7 per side) and resize.
 MINI_GEOMETRY = FrameGeometry(crop_fraction=1.0 / 7.0, output_size=(240, 320))
-"""GelSight Mini: 1/7 of each side cropped (the gel's unlit border), resized to 320 x 240
-(W x H), as the manufacturer's examples do."""
 
-WEDGE_CAMERA_SIZE = (480, 640)
-"""(H, W) px of the Wedge rig's camera (the public dataset, 30 fps over HTTP MJPEG)."""
+WEDGE_CAMERA_SIZE = (480, 640)  # (H, W) px of the public dataset's Wedge rig
 
 WEDGE_GEOMETRY = FrameGeometry(
     input_size=WEDGE_CAMERA_SIZE,
@@ -255,10 +225,8 @@ WEDGE_GEOMETRY = FrameGeometry(
     warp_size=(300, 400),
     crop_px=25,
 )
-"""GelSight Wedge: 640 x 480 warped to 400 x 300 (W x H), 25 px cropped per side ->
-350 x 250, the dataset's frames. The default corners are the whole camera frame (a plain
-resize); the rig's pad corners come from a calibration (``tactile-compliance calibrate
---corners``)."""
+"""GelSight Wedge: the dataset's 250 x 350 frames; the default corners are the whole
+camera frame, the pad's come from ``calibrate --corners``."""
 
 
 # ---------------------------------------------------------------------- sources
@@ -276,11 +244,8 @@ class FrameSource(Protocol):
 
 
 class FrameSourceBase:
-    """Applies the geometry, checks sizes and timestamps; subclasses implement ``_grab``.
-
-    ``_grab()`` returns ``(timestamp_s, raw_bgr_frame)`` or None at the end of the
-    stream, and raises :class:`SensorError` when the device fails.
-    """
+    """Applies the geometry, checks sizes and timestamps; subclasses implement ``_grab``:
+    ``(timestamp_s, raw_bgr_frame)``, None at the end, :class:`SensorError` on failure."""
 
     #: What the source reads, for messages (a path, URL, device).
     name: str = "source"
@@ -373,15 +338,8 @@ def iter_frames(
 
 
 class StampedOnArrival(FrameSourceBase):
-    """A live source read by a background thread, so each frame is stamped when it arrives.
-
-    A live device stamps a frame with ``time.monotonic()`` when it is read. A loop that
-    spends longer on a frame than the frame period (the estimator: ~175 ms per frame on a
-    2-core CPU against a GelSight Mini's ~55 ms) would read frames late, stamp them late
-    and pair them with the wrong force. Here a thread reads the device as fast as it
-    delivers, keeping every frame and its arrival time in a queue; the consumer takes them
-    in order, however slow it is. :attr:`pending` tells the consumer how far behind it is
-    (``live`` then skips provisional estimates, never frames or their times).
+    """A live source read by a background thread, so each frame is stamped when it arrives
+    (docs/inference.md, "Clocks: frames stamped on arrival").
 
     Args:
         inner: the source to read (its geometry applies, its own stamps are the times).
@@ -459,15 +417,10 @@ class VideoCaptureSource(FrameSourceBase):
     """An OpenCV ``VideoCapture``: a camera index, a device path, a video file or a URL.
 
     Args:
-        target: camera index (``0``), device path (``/dev/v4l/by-id/...``), video file or
-            stream URL (``http://host:port/stream.mjpg``).
-        geometry: warp / crop / resize of every frame.
-        capture_size: (H, W) px to ask a live camera for (ignored for files).
-        fourcc: pixel format to ask a live camera for, e.g. ``"MJPG"``.
-        fps: frame rate to ask a live camera for.
+        capture_size, fourcc, fps: the mode to ask a live camera for ((H, W) px, e.g.
+            ``"MJPG"``, frames/s); ignored for files.
         timestamps: ``"auto"`` (files: the video's own frame times; devices and streams:
             ``time.monotonic()``), ``"video"`` or ``"clock"``.
-        name: how messages name the source.
 
     Raises:
         SensorError: nothing could be opened at ``target`` (no such camera, file or stream).
@@ -544,7 +497,7 @@ def gelsight_mini(
     timestamps: str = "auto",
 ) -> VideoCaptureSource:
     """A GelSight Mini (a UVC camera) by index, ``/dev/v4l/by-id/...`` path or a replayed
-    video of one: ``capture_size`` MJPG requested, then ``geometry`` (1/7 crop, 320 x 240)."""
+    video of one."""
     return VideoCaptureSource(
         device,
         geometry,
@@ -562,26 +515,18 @@ def gelsight_wedge(
     *,
     timestamps: str = "auto",
 ) -> VideoCaptureSource:
-    """A GelSight Wedge streaming MJPEG over HTTP (or a replayed video of one).
-
-    ``corners``: the pad's four corners (x, y) px in the 640 x 480 camera frame
-    (top-left, top-right, bottom-right, bottom-left); default: those of ``geometry``.
-    """
+    """A GelSight Wedge streaming MJPEG over HTTP (or a replayed video of one); ``corners``
+    replaces the geometry's ``warp_corners``."""
     if corners is not None:
         geometry = replace(geometry, warp_corners=corners)
     return VideoCaptureSource(url, geometry, timestamps=timestamps, name=f"GelSight Wedge {url}")
 
 
 class DigitSource(FrameSourceBase):
-    """A DIGIT sensor through the optional ``digit-interface`` package.
-
-    ``digit-interface`` is under a non-commercial licence, so it is never installed with
-    this project: install it yourself (``pip install digit-interface``) if its licence
-    suits your use. Timestamps are ``time.monotonic()`` at arrival.
+    """A DIGIT sensor through the optional, non-commercial ``digit-interface`` package
+    (docs/inference.md, "Live sensors, calibration and your own grasps").
 
     Args:
-        serial: the DIGIT's serial number (``D12345``).
-        geometry: crop / resize of every frame (default: as delivered, 320 x 240 at QVGA).
         resolution: ``"QVGA"`` or ``"VGA"`` (``Digit.STREAMS``); None keeps the default.
         fps: frame rate of that stream (e.g. 60 or 30); None keeps the default.
 
@@ -640,10 +585,9 @@ class DigitSource(FrameSourceBase):
 
 
 class FolderSource(FrameSourceBase):
-    """Image files of a folder in name order (``.png``, ``.jpg``, ``.bmp``, ``.tif``).
-
-    Timestamps come from ``timestamps_csv`` (columns ``file,timestamp_s``, or one column
-    ``timestamp_s`` in name order) or from ``fps`` (frame i at ``i / fps`` s).
+    """Image files of a folder in name order; timestamps come from ``timestamps_csv``
+    (columns ``file,timestamp_s``, or one column ``timestamp_s`` in name order) or from
+    ``fps`` (frame i at ``i / fps`` s).
 
     Raises:
         SensorError: no such folder or no image in it.
@@ -720,13 +664,8 @@ def open_source(
     fps: float | None = None,
     timestamps_csv: str | Path | None = None,
 ) -> FrameSourceBase:
-    """Open the source a spec string names.
-
-    Specs: ``mini:0`` / ``mini:/dev/v4l/by-id/...`` / ``mini:replay.avi`` (GelSight Mini),
-    ``wedge:http://host:port/stream.mjpg`` (GelSight Wedge), ``digit:D12345``,
-    ``camera:0`` (any camera, frames as delivered), ``video:path.avi`` (a video or URL),
-    ``folder:dir`` (image files; needs ``fps`` or ``timestamps_csv``), or a plain path /
-    index / URL (a folder, a video, a camera index, a stream).
+    """Open the source a spec string names (the table in docs/inference.md, "Live
+    sensors, calibration and your own grasps").
 
     Args:
         geometry: replaces the preset's warp/crop/resize (a calibration's geometry).

@@ -1,12 +1,5 @@
 """Inference: load a checkpoint, predict Young's modulus (Pa), stream, ensemble, export.
-
-:class:`ComplianceEstimator` (a PyTorch checkpoint or an exported safetensors directory)
-and :class:`OnnxEstimator` (an ONNX file) share :class:`BaseEstimator`'s ``predict(frames,
-force, width, estimates)``; :class:`StreamingEstimator` takes a live sensor's frames one at
-a time and :class:`EnsembleEstimator` combines checkpoints (mean and interval in decades);
-:func:`export_onnx` and :func:`export_safetensors` export; :func:`predict_path` and
-:func:`live_estimates` are the ``predict`` and ``live`` commands. Each module's contents:
-``docs/inference.md``, "Files".
+Each module's contents: docs/inference.md, "Files".
 """
 
 from tactile_compliance.data.frame_selection import select_frame_indices

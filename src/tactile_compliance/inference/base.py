@@ -1,11 +1,7 @@
-"""The ``predict`` API every estimator shares, whatever runs the network.
+"""The ``predict`` API every estimator shares: checks, normalisation, read-back to Pa.
 
-:class:`BaseEstimator` owns what must not depend on the runtime: input validation and
-scalar normalisation (``input_checks.prepare_inputs``), bounded chunks, and reading the
-outputs back to Pa (:class:`Prediction`). A subclass loads its network and implements
-:meth:`BaseEstimator._forward` on one prepared chunk (``ComplianceEstimator``: a PyTorch
-checkpoint; ``OnnxEstimator``: an ONNX file), so both treat inputs identically and differ
-only by the network's round-off.
+Subclasses only run the network (:meth:`BaseEstimator._forward`). See docs/inference.md,
+"One preprocessing path" and "ONNX export".
 """
 
 from __future__ import annotations
@@ -86,8 +82,6 @@ class Prediction:
 class BaseEstimator(ABC):
     """A network plus the checkpoint's preprocessing: predicts Young's modulus in Pa.
 
-    ``predict`` accepts one grasp or a batch, validates everything (``ValueError`` with a
-    clear message on bad input) and applies the checkpoint's normalisation constants.
     Subclasses set the attributes below when they load and implement :meth:`_forward`.
 
     Attributes:
@@ -140,15 +134,14 @@ class BaseEstimator(ABC):
         channel_order: str = "RGB",
         batch_size: int = 64,
     ) -> Prediction:
-        """Young's modulus of one grasp or a batch.
+        """Young's modulus of one grasp or a batch (docs/inference.md, "Inputs").
 
         Args:
             frames: three difference images ``(3, H, W, 3)`` or a batch
                 ``(B, 3, H, W, 3)``; uint8 or float in [0, 1]; RGB unless ``channel_order``.
-            force: normal force in N at the three frames, ``(3,)`` / ``(B, 3)``
-                (required by ImageF, ImageFW, ALL).
-            width: gripper width in m at the three frames (required by ImageFW, ALL).
-            estimates: (elastic E, Hertz E*) in Pa, ``(2,)`` / ``(B, 2)`` (required by ALL).
+            force: normal force in N at the three frames, ``(3,)`` / ``(B, 3)``.
+            width: gripper width in m at the three frames.
+            estimates: (elastic E, Hertz E*) in Pa, ``(2,)`` / ``(B, 2)``.
             channel_order: ``"RGB"`` (store order) or ``"BGR"`` (OpenCV).
             batch_size: grasps per forward pass (memory bound, not a result change).
 
@@ -156,9 +149,7 @@ class BaseEstimator(ABC):
             :class:`Prediction` with floats for one grasp, (B,) arrays for a batch.
 
         Raises:
-            ValueError: bad shapes, dtypes, ranges, NaN, or an input the checkpoint's
-                strategy needs is missing. The ranges are the plausibility rules the
-                importers and the store share (``data.plausibility``, ``docs/data.md``).
+            ValueError: a bad or missing input, named with its unit and shape.
         """
         prepared = prepare_inputs(
             frames,

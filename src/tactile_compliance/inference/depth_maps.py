@@ -1,9 +1,5 @@
-"""``tactile-compliance depth``: depth maps of tactile frames, as files a user can open.
-
-Each frame becomes ``OUT/<stem>.npy`` (float32 (H, W), mm, positive into the gel) and, on
-request, ``OUT/<stem>.png``: the depth in a perceptual colour map (matplotlib's viridis
-order from OpenCV), 0 mm black-blue to the frame's peak yellow, with the peak written in
-the corner so two pictures are never compared by colour alone.
+"""``tactile-compliance depth``: depth maps of tactile frames, as ``.npy`` files and
+pictures. See docs/sensors.md, "The commands".
 """
 
 from __future__ import annotations
@@ -45,10 +41,8 @@ def write_depth_maps(
 
     Args:
         frames: ``(file name, uint8 BGR frame)``, sensor frames of the reference's size.
-        out_dir: a new directory, or one this command wrote before.
         sensor: its depth model (None: the dataset heuristic) and its reference.
         reference: the no-contact frame, replacing the sensor's.
-        png: also write the coloured picture.
 
     Raises:
         ValueError: no reference, a frame of another size, two frames with one stem.

@@ -1,15 +1,6 @@
-"""Uncertainty from an ensemble of checkpoints (e.g. the 10 seeds of one configuration).
-
-Every member predicts log10 E; the ensemble reports their mean (so the modulus is the
-geometric mean of the members' moduli) and a central interval in decades,
-
-    mean +- z * scale * std,      z = Phi^-1((1 + level) / 2)   (1.2816 for level 0.8),
-
-with ``std`` the members' standard deviation (ddof=1). Seeds of one configuration agree
-more with each other than with the truth, so the raw interval (``scale = 1``) is usually
-too narrow. :func:`fit_interval_scale` finds the ``scale`` that makes a share ``level`` of
-a validation split's true values fall inside; :func:`ensemble_calibration` fits it on the
-runs' validation split and reports the coverage on their test split (``docs/inference.md``).
+"""Uncertainty from an ensemble of checkpoints: the members' mean log10 E and a central
+interval ``mean +- z * scale * std`` in decades. See docs/inference.md, "Uncertainty from
+an ensemble".
 """
 
 from __future__ import annotations
@@ -136,16 +127,13 @@ def _expand(paths: str | Path | Iterable[str | Path]) -> list[Path]:
 
 
 class EnsembleEstimator:
-    """Several estimators (:class:`ComplianceEstimator` or ONNX) combined in log10 space.
-
-    Members may differ in model, strategy and label range (each reads its own output back
-    to Pa); the ensemble needs the union of their inputs.
+    """Several estimators combined in log10 space; they may differ in model, strategy and
+    label range.
 
     Args:
         members: at least one estimator (two or more for a non-degenerate interval).
         level: nominal coverage of the interval (0.8 = 80 %).
-        scale: interval inflation factor (1 = raw member spread; see
-            :func:`fit_interval_scale`).
+        scale: interval inflation factor (1 = raw member spread).
     """
 
     def __init__(
@@ -190,11 +178,8 @@ class EnsembleEstimator:
         return len(self.members)
 
     def members_log10(self, *inputs: Any, **options: Any) -> np.ndarray:
-        """log10 E of every member: (members,) for one grasp, (members, B) for a batch.
-
-        ``inputs`` and ``options`` are those of ``BaseEstimator.predict`` (frames, force,
-        width, estimates; channel_order, batch_size): each member validates what it uses.
-        """
+        """log10 E of every member: (members,) for one grasp, (members, B) for a batch
+        (``BaseEstimator.predict``'s arguments)."""
         return np.stack(
             [
                 np.asarray(m.predict(*inputs, **options).log10_modulus_pa, dtype=np.float64)
@@ -249,11 +234,8 @@ def ensemble_calibration(
     device: str = DEFAULT_DEVICE,
     batch_size: int = 64,
 ) -> dict[str, Any]:
-    """Coverage of the ensemble interval on the runs' held-out test split.
-
-    All runs must share one split (train the seeds with a fixed ``split.seed``): the
-    interval scale is fitted on the validation split and the coverage is measured on the
-    test split, which no member has seen.
+    """Coverage of the ensemble interval on the runs' test split, with the scale fitted on
+    their validation split (the runs must share one split).
 
     Returns:
         ``n_members``, ``n_val``, ``n_test``, ``level``, ``coverage_raw`` (scale 1),

@@ -1,17 +1,7 @@
-"""The task-level inference API: a checkpoint in, Young's modulus in Pa out.
+"""``ComplianceEstimator``: a PyTorch checkpoint in, Young's modulus in Pa out.
 
-```python
-from tactile_compliance.inference import ComplianceEstimator
-
-estimator = ComplianceEstimator.from_checkpoint("runs/RUN/best.pt")
-result = estimator.predict(frames, force=[8.1, 31.0, 58.7], width=[0.050, 0.047, 0.044])
-result.modulus_pa, result.log10_modulus_pa
-```
-
-This module loads a PyTorch checkpoint and runs it; input checks, batching and the result
-are ``BaseEstimator``'s, and the forward pass is ``runs.forward.forward_batch``, the one
-training and ``evaluate`` call, so a checkpoint gives the same numbers as on the
-evaluation path.
+The forward pass is ``runs.forward.forward_batch``, the evaluation path's. See
+docs/inference.md.
 """
 
 from __future__ import annotations
@@ -83,10 +73,8 @@ class ComplianceEstimator(BaseEstimator):
     ) -> ComplianceEstimator:
         """Load a ``best.pt`` checkpoint (or a run directory holding one).
 
-        Loading never executes pickled code (``weights_only=True``) and never downloads
-        backbone weights. A checkpoint of a frozen-backbone run stores the head only and
-        rebuilds the backbone from its recorded seed or weights file (``imagenet``: the
-        torch.hub cache); ``backbone_weights`` names a local copy of that file instead.
+        ``backbone_weights``: a local copy of a frozen backbone's weights file (nothing is
+        downloaded; see docs/inference.md, "Command line").
         """
         file = resolve_checkpoint(path)
         device = resolve_device(device)
@@ -101,12 +89,8 @@ class ComplianceEstimator(BaseEstimator):
     ) -> ComplianceEstimator:
         """Load a directory written by ``tactile-compliance export CHECKPOINT --safetensors DIR``.
 
-        The directory holds ``model.safetensors`` (the whole state dict, a frozen backbone
-        included), ``config.json`` and a model card ``README.md``: the Hugging Face hub's
-        layout, read locally (no hub dependency, nothing downloaded). The model is rebuilt
-        by the same function as :meth:`from_checkpoint`'s, so both give the same
-        predictions. Needs the ``safetensors`` package (``pip install
-        'tactile-compliance[export]'``).
+        Nothing is downloaded; needs ``safetensors`` (docs/inference.md, "Deployable
+        weights").
 
         Raises:
             FileNotFoundError: no such directory, or ``config.json`` or
@@ -123,15 +107,11 @@ class ComplianceEstimator(BaseEstimator):
         )
 
     def save_pretrained(self, path: str | Path, *, license: str = "other") -> dict[str, Any]:
-        """Write this model as a safetensors directory that :meth:`from_pretrained` loads:
-        ``model.safetensors``, ``config.json`` and a model card ``README.md`` (what
-        ``tactile-compliance export CHECKPOINT --safetensors DIR`` writes).
+        """Write what ``export --safetensors DIR`` writes, for :meth:`from_pretrained`.
 
-        ``path`` must be new, empty or an earlier export (never a folder of other files).
-        The estimator must come from a file (:meth:`from_checkpoint` or
-        :meth:`from_pretrained`), whose sha256 the card records. ``license``: the card's
-        licence (an SPDX identifier; ``other``: the weights follow the licence of their
-        training data).
+        ``path``: new, empty or an earlier export. The estimator must come from a file,
+        whose sha256 the card records. ``license``: an SPDX identifier (``other``: the
+        weights follow the licence of their training data).
 
         Returns:
             ``out``, ``files`` (name -> bytes), ``config`` (what ``config.json`` holds).

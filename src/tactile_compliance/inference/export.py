@@ -1,16 +1,6 @@
 """Export a checkpoint: its full forward pass to ONNX (checked against PyTorch), or its
-weights to a safetensors directory with a config and a model card (:func:`export_safetensors`,
-format in ``inference/pretrained.py``).
-
-The ONNX graph takes *already normalised* inputs (``frames`` (batch, 3, 3, H, W), and the
-scalar inputs the strategy uses, ``force`` (batch, 3), ``width`` (batch, 3), ``estimates``
-(batch, 2)) and returns ``modulus_normalised`` (batch,), with a dynamic batch axis and H, W
-fixed to the checkpoint's. The checkpoint's ``run_inputs`` travels in the ONNX metadata
-(key ``tactile_compliance``), so ``onnx.OnnxEstimator`` preprocesses like
-``ComplianceEstimator``. The TorchScript-based exporter (``dynamo=False``: the dynamo one
-needs ``onnxscript``, not a dependency) cannot export ``AdaptiveAvgPool2d`` with a dynamic
-batch axis, so each such pool is replaced by the same averaging as two fixed matrix
-products (exact). Table and details: docs/inference.md, "ONNX export".
+weights to a safetensors directory (``inference/pretrained.py``). See docs/inference.md,
+"ONNX export" (graph inputs, exporter, the pool rewrite) and "Deployable weights".
 """
 
 from __future__ import annotations
@@ -174,13 +164,10 @@ def export_onnx(
 
     Args:
         checkpoint: ``best.pt`` or a run directory.
-        out: the ``.onnx`` file to write (replaced atomically); its frame size is the
-            checkpoint's (``RunInputs.image_size``).
-        opset: ONNX opset version.
+        out: the ``.onnx`` file to write (replaced atomically).
         check: run onnxruntime on random inputs at ``check_batch_sizes`` and compare.
         atol: largest acceptable absolute difference of the normalised output.
-        backbone_weights: a local copy of a frozen backbone's weights file (see
-            ``ComplianceEstimator.from_checkpoint``).
+        backbone_weights: a local copy of a frozen backbone's weights file.
 
     Returns:
         A report: ``onnx_path``, ``inputs`` (name -> shape), ``output``, ``image_size``,
@@ -206,8 +193,8 @@ def export_onnx(
         # Written by name into the temp file, which atomic_file then renames into place.
         with atomic_file(out, "wb", unique=True) as handle:
             with warnings.catch_warnings():
-                # The TorchScript exporter is deprecated (see the module docstring) and warns
-                # about shape-dependent Python code that is constant for a fixed frame size.
+                # The TorchScript exporter is deprecated (docs/inference.md, "Exporter") and
+                # warns about shape-dependent Python code, constant for a fixed frame size.
                 warnings.simplefilter("ignore")
                 torch.onnx.export(
                     wrapper,
@@ -335,19 +322,8 @@ def export_safetensors(
     backbone_weights: str | Path | None = None,
     license: str = DEFAULT_LICENSE,
 ) -> dict[str, Any]:
-    """Write a checkpoint as ``model.safetensors`` + ``config.json`` + a model card ``README.md``.
-
-    A frozen backbone is rebuilt and verified as ``from_checkpoint`` does and written with
-    the head, so the directory is self-contained; the card's metrics come from the run's
-    ``metrics.json`` next to the checkpoint when there is one.
-
-    Args:
-        checkpoint: ``best.pt`` or a run directory.
-        out: a new or empty directory, or an earlier export, never one of other files
-            (``outputs.claim_output_dir``, kind ``pretrained``).
-        backbone_weights: a local copy of a frozen backbone's weights file.
-        license: the model card's licence (an SPDX identifier such as ``mit``; default
-            ``other``: the weights follow the licence of their training data).
+    """Write a checkpoint as ``model.safetensors`` + ``config.json`` + a model card ``README.md``
+    (``out``: new, empty or an earlier export; ``license``: an SPDX identifier or ``other``).
 
     Returns:
         ``out``, ``files`` (name -> bytes), ``config`` (what ``config.json`` holds).

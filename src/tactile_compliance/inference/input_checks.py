@@ -1,12 +1,5 @@
 """Validation of user input for the inference API, and conversion to a model batch.
-
-Everything a robot program hands to ``BaseEstimator.predict`` (argument conventions and
-units there) passes through :func:`prepare_inputs`: shapes, dtypes, ranges and NaN are
-checked with a ``ValueError`` that names the argument, the expected shape/unit and what it
-got; the scalars are then normalised by ``data.normalisation`` as ``model_inputs`` does for
-training, so the batch is what ``forward_batch`` receives on the evaluation path. Frames
-stay in the store's encoding (uint8, or float in [0, 1]). The plausible ranges are the rules
-of ``data.plausibility``, shared with the importers and the store (``docs/data.md``).
+See docs/inference.md, "Inputs" and "One preprocessing path".
 """
 
 from __future__ import annotations
@@ -46,9 +39,7 @@ __all__ = [
     "prepare_inputs",
 ]
 
-#: Tolerance on the [0, 1] range of float frames: one grey level, so frames decoded from
-#: the store (``(u + 0.5) / 255`` reaches 1.002) and float16 round-off pass unchanged. The
-#: frame rule's own (``data.plausibility.FRAME``, shared with the importer and the store).
+#: One grey level: frames decoded from the store (``(u + 0.5) / 255`` reaches 1.002) pass.
 _RANGE_TOLERANCE = FRAME.tolerance
 #: The smallest and largest value a stored frame decodes to, ``(0 + 0.5) / 255`` and
 #: ``(255 + 0.5) / 255`` (float32, exactly as ``frames_from_uint8`` computes them).
@@ -58,7 +49,7 @@ _DECODED_RANGE = tuple(frames_from_uint8(np.array([0, 255], dtype=np.uint8)).tol
 @dataclass(frozen=True)
 class ScalarSpec:
     """What one scalar input is, its shape per grasp, its plausibility rule and its
-    normalisation; ``unit`` and ``high`` are read from ``rule`` (``data.plausibility``)."""
+    normalisation."""
 
     size: int
     meaning: str
@@ -75,10 +66,8 @@ class ScalarSpec:
         return self.rule.high
 
 
-#: Scalar inputs: shape per grasp and plausibility rule (unit, range, why). The ranges
-#: catch the usual unit mix-ups (width in mm; a force already normalised is *not* caught:
-#: F/60 N is still a valid force) without rejecting real grasps: the dataset's grasps
-#: reach ~60 N and the gripper opens to 0.08 m.
+#: The ranges catch unit mix-ups (width in mm) without rejecting real grasps (~60 N, the
+#: gripper opens to 0.08 m); a normalised force F/60 N is still a valid force.
 SCALAR_SPECS: dict[str, ScalarSpec] = {
     "force": ScalarSpec(
         NUM_FRAMES,
@@ -119,15 +108,11 @@ class PreparedInputs:
     batch: dict[str, torch.Tensor]
     single: bool
 
-    def __len__(self) -> int:
-        return int(self.batch["frames"].shape[0])
-
     def chunks(self, batch_size: int) -> list[dict[str, torch.Tensor]]:
         """The batch cut into pieces of at most ``batch_size`` grasps (bounded memory)."""
-        n = len(self)
         return [
             {key: value[start : start + batch_size] for key, value in self.batch.items()}
-            for start in range(0, n, batch_size)
+            for start in range(0, len(self.batch["frames"]), batch_size)
         ]
 
 
@@ -139,17 +124,11 @@ def _shape(value: Any) -> str:
 def check_frames(
     frames: Any, *, channel_order: str = "RGB", min_size: int = 1
 ) -> tuple[torch.Tensor, bool]:
-    """Validate frames; returns ``((B, 3, H, W, 3) tensor, single)``.
+    """Validate frames; returns ``((B, 3, H, W, 3) tensor, single)``, RGB.
 
-    uint8 stays uint8 (the store's encoding, decoded by ``prepare_frames``); floats become
-    float32 and must be difference images in [0, 1] by the frame rule
-    (``data.plausibility.FRAME``, shared with the importer and the store): within one
-    grey level, but for at most 1 % of a grasp's values (saturated pixels), none beyond
-    [-0.5, 1.5]. Those few values are saturated exactly like the store's encoding
-    saturates them, to ``[0.5 / 255, 255.5 / 255]``; a frame decoded from the store lies
-    within that range and passes unchanged, so it gives exactly the uint8 frame's result.
-    ``channel_order="BGR"`` flips the channels (OpenCV images) so the model always sees
-    RGB.
+    uint8 stays uint8 (the store's encoding); floats become float32, checked by the frame
+    rule (``data.plausibility.FRAME``) and saturated like the store's encoding, so a frame
+    decoded from the store gives exactly the uint8 frame's result.
 
     Raises:
         ValueError: wrong type, shape, dtype, NaN/inf, values outside [0, 1] beyond what
@@ -219,11 +198,8 @@ def check_frames(
 
 def check_scalar(name: str, value: Any, batch: int, single: bool) -> np.ndarray:
     """Validate one scalar input in its physical unit; returns float64 ``(batch, size)``.
-
-    Only integers and floats are accepted: bool, complex, datetime and text are refused,
-    never cast (a cast would drop an imaginary part or turn a date into a number). The
-    range is the input's plausibility rule (``spec.rule``, shared with the importers and
-    the store).
+    Bool, complex, datetime and text are refused, never cast (a cast would drop an
+    imaginary part or turn a date into a number).
 
     Raises:
         ValueError: not numeric, wrong shape, NaN/inf, or outside the plausible range.
@@ -290,20 +266,14 @@ def prepare_inputs(
     channel_order: str = "RGB",
     describe: str = "this model",
 ) -> PreparedInputs:
-    """Validate frames and the scalar inputs the strategy needs; normalise the scalars.
-
-    Inputs the strategy does not use are ignored without validation (like the models do),
-    so one call site can feed estimators of every strategy.
+    """Validate frames and the scalar inputs the strategy needs (others are ignored);
+    normalise the scalars.
 
     Args:
-        frames: see ``BaseEstimator.predict``.
         scalars: ``{"force": ..., "width": ..., "estimates": ...}`` in N, m and Pa; None
             entries count as absent.
-        inputs: the checkpoint's input strategy.
-        constants: the checkpoint's normalisation constants.
-        min_size: smallest frame side the model accepts (after resizing).
-        channel_order: ``"RGB"`` (default, the store's order) or ``"BGR"`` (OpenCV).
-        describe: how error messages name the estimator (e.g. its checkpoint).
+        min_size: smallest frame side the model accepts [px].
+        describe: how error messages name the estimator.
     """
     tensor, single = check_frames(frames, channel_order=channel_order, min_size=min_size)
     batch_size = int(tensor.shape[0])

@@ -1,15 +1,5 @@
-"""Live estimation: a frame source plus force/width readings through the streaming estimator.
-
-:func:`live_estimates` is the library side of ``tactile-compliance live``. Each good frame
-is paired with the robot's reading at its time, differenced once against the calibration's
-no-contact frame or the grasp's first frame, and fed to every member's
-:class:`~tactile_compliance.inference.streaming.StreamingEstimator` as a BGR difference
-image in the store's encoding; ALL checkpoints get the analytical estimates from the same
-difference image's depth map, as ``record`` stores them. So a grasp recorded with
-``record`` and predicted after ``import burgess`` gets the estimate ``live`` gives.
-Several checkpoints each run their own stream (the selection depends only on the force,
-so all select the same frames) and their latest estimates are combined with
-``EnsembleEstimator.combine``.
+"""Live estimation (``tactile-compliance live``): a frame source plus force/width readings
+through one streaming estimator per checkpoint. See docs/inference.md, "``live``".
 """
 
 from __future__ import annotations
@@ -82,31 +72,18 @@ def live_estimates(
     scale: float = 1.0,
     readings_offset_s: float = 0.0,
 ) -> Iterator[dict[str, Any]]:
-    """Run ``source`` through streaming estimators; yield one dict per event.
-
-    Events (``{"event": KIND, ...}``): ``estimate`` (provisional or final:
-    ``StreamEstimate.to_dict()`` plus ``timestamp_s``; with several members also
-    ``std_decades``, ``interval_pa``, ``level`` and ``members_log10``), ``skipped`` (a bad
-    frame or one without a reading; the loop goes on), ``warning`` (what ``record`` warns
-    about: ``recording.check_recording`` at the first frame, every force spike the readings
-    replaced) and ``no_estimate`` (the stream ended without one; ``reason`` says why). The
-    loop ends after the final estimate (the grasp was released) or with the source.
+    """Run ``source`` through streaming estimators; yield one dict per event:
+    ``estimate``, ``skipped``, ``warning`` or ``no_estimate`` (``{"event": KIND, ...}``).
 
     Args:
         members: one estimator, or several for an ensemble interval.
         source: an open frame source (open it with the calibration's geometry).
         readings: ``timestamp_s -> (force_n, width_m)``.
-        calibration: its reference frame is the no-contact frame (default: the first
-            frame); its depth model and pixel density make the depth maps and the
-            analytical estimates (default: the dataset heuristic at 16.40 px/mm).
-        window: ``StreamingEstimator``'s window in frames (None: the whole trajectory).
-        window_s: the same in seconds, from the source's timestamps (not with ``window``).
+        calibration: the no-contact frame, depth model and pixel density (default: the
+            first frame, the dataset heuristic at 16.40 px/mm).
+        window, window_s: ``StreamingEstimator``'s window in frames or seconds.
         level, scale: the ensemble interval (``EnsembleEstimator``).
-        readings_offset_s: added to a frame's time to find its reading: the readings'
-            clock minus the source's (``docs/inference.md``, "Clocks").
-
-    A live device is read by a background thread (``sensors.StampedOnArrival``), so the
-    final estimate is the one a replay of the same frames gives.
+        readings_offset_s: the readings' clock minus the source's, in s.
     """
     if not math.isfinite(readings_offset_s):
         raise ValueError(

@@ -1,11 +1,6 @@
-"""Run an exported ONNX file with onnxruntime behind the estimator API.
-
-:class:`OnnxEstimator` is the ONNX sibling of
-:class:`~tactile_compliance.inference.estimator.ComplianceEstimator`: input checks,
-normalisation and the result are :class:`~tactile_compliance.inference.base.BaseEstimator`'s,
-with the constants stored in the file's metadata, so both agree to the export's parity.
-Writing and checking the file is :mod:`tactile_compliance.inference.export`; the names the
-two modules agree on (metadata key, output name, input names) are defined here.
+"""``OnnxEstimator``: an exported ONNX file run with onnxruntime behind the estimator API;
+the names ``export`` and it agree on (metadata key, output and input names) are defined
+here. See docs/inference.md, "ONNX export".
 """
 
 from __future__ import annotations
@@ -46,10 +41,6 @@ def _ort_session(path: str | Path, threads: int | None = None) -> Any:
 
 class OnnxEstimator(BaseEstimator):
     """The ``predict`` API of :class:`ComplianceEstimator` on an exported ONNX file.
-
-    Preprocessing is the project's own (``prepare_inputs`` + ``prepare_frames``) with the
-    checkpoint's ``RunInputs`` stored in the file, so both estimators agree to the
-    export's parity.
 
     Args:
         path: an ``.onnx`` file written by :func:`~tactile_compliance.inference.export.

@@ -1,8 +1,5 @@
 """The ``predict`` command's library side: read a source, run a checkpoint, report.
-
-:func:`predict_path` reads a store, a raw grasp directory or a video with the readers of
-``sources.py``, predicts every readable grasp and scores it against the labels when the
-source has them; :func:`format_predictions` is the command's text output.
+See docs/inference.md, "Command line".
 """
 
 from __future__ import annotations
@@ -31,21 +28,11 @@ def predict_path(
     batch_size: int = 64,
     backbone_weights: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Predict every grasp under ``path`` with ``checkpoint``: the ``predict`` command.
-
-    ``checkpoint``: ``best.pt``, its run directory, or a directory written by ``export
-    --safetensors`` (as ``live`` takes). ``backbone_weights``: a local copy of a frozen
-    backbone's weights file (see ``ComplianceEstimator.from_checkpoint``).
-
-    Samples missing an input the checkpoint needs (e.g. NaN estimates in a store) are
-    skipped and listed with the reason; everything else is predicted in batches.
+    """Predict every grasp under ``path`` with ``checkpoint`` (as ``load_members`` takes
+    it); samples missing an input the checkpoint needs are skipped with the reason.
 
     Returns:
-        A JSON-serialisable dict: ``checkpoint`` (what the model is), ``source`` (path,
-        kind, counts), ``predictions`` (one dict per sample: identification, ``pred_pa``,
-        ``pred_log10_pa``, and ``true_pa``/``error_decades`` when the truth is known),
-        ``skipped`` and ``summary`` (geometric mean, and the paper's metrics when every
-        predicted sample has a known modulus).
+        The JSON report shown in docs/inference.md, "Command line".
     """
     from tactile_compliance.inference.live import load_members
 
@@ -126,7 +113,7 @@ def _refuse_when_nothing_is_usable(
     path: str | Path, checkpoint: str, inputs: InputStrategy, reasons: list[str]
 ) -> None:
     """A ValueError naming why no sample of ``path`` can be predicted, and which input
-    strategies could (before, `predict` printed only "Skipped N samples" and exit 0)."""
+    strategies could."""
     lacking = {name for name in inputs.needs if any(name in reason for reason in reasons)}
     could = [s.value for s in InputStrategy if not lacking & set(s.needs)]
     raise ValueError(

@@ -1,15 +1,6 @@
-"""Deployable weights: a directory of ``model.safetensors``, ``config.json`` and ``README.md``.
-
-The Hugging Face hub's layout (weights, a JSON config, a model card), read and written
-locally without the hub: :func:`load_pretrained` (behind
-``ComplianceEstimator.from_pretrained``) and :func:`write_pretrained` (behind ``export
---safetensors``). ``model.safetensors`` holds the **whole** state dict, a frozen backbone
-included, so loading needs no weights file or seed (where the backbone came from stays in
-``config.json``, ``frozen_backbone``); ``config.json`` holds the model's name and
-hyperparameters, the ``run_inputs`` record, the training store's provenance, configuration
-and metrics; ``README.md`` is the model card made from it (:func:`model_card`). The model
-is rebuilt by ``runs.checkpoint.rebuild_model``, as ``best.pt`` checkpoints are. See
-docs/inference.md, "Deployable weights (safetensors)".
+"""Deployable weights: a directory of ``model.safetensors`` (the whole state dict, a frozen
+backbone included), ``config.json`` and the model card ``README.md``, read and written
+locally. See docs/inference.md, "Deployable weights (safetensors)".
 """
 
 from __future__ import annotations
@@ -111,9 +102,8 @@ def run_evaluation(checkpoint: Path) -> dict[str, Any] | None:
 
 
 def _without_local_paths(value: Any) -> Any:
-    """``value`` with every absolute path (a string such as ``/home/me/stores/ym``) cut to
-    its last part (``ym``): an export is shared, the folders of the machine that made it
-    are not. Relative paths and other strings stay."""
+    """``value`` with every absolute path (``/home/me/stores/ym``) cut to its last part
+    (``ym``); relative paths and other strings stay."""
     if isinstance(value, dict):
         return {key: _without_local_paths(item) for key, item in value.items()}
     if isinstance(value, list):
@@ -134,15 +124,12 @@ def pretrained_config(
     license: str = DEFAULT_LICENSE,
 ) -> dict[str, Any]:
     """The ``config.json`` of an exported model (plain JSON values only), without the
-    exporting machine's absolute paths (store, dataset and run folders: their last part).
+    exporting machine's absolute paths.
 
     Args:
-        estimator: the loaded checkpoint (a ``ComplianceEstimator``); its ``meta`` is the
-            checkpoint's description.
-        checkpoint: the checkpoint file it was loaded from (hashed).
-        evaluation: the run's ``metrics.json`` (test/val metrics, split sizes), if any.
-        license: the model card's licence (an SPDX identifier such as ``mit``, or
-            ``other``).
+        checkpoint: the checkpoint file ``estimator`` was loaded from (hashed).
+        evaluation: the run's ``metrics.json``, if any.
+        license: an SPDX identifier such as ``mit``, or ``other``.
     """
     meta = estimator.meta
     # A model loaded from an export has its whole state dict (no record) but keeps the
@@ -190,7 +177,7 @@ def _payload(config: dict[str, Any], state_dict: dict[str, torch.Tensor]) -> dic
         "run_inputs": config["run_inputs"],
         "hparams": config.get("hparams") or {},
         "backbone_weights": config.get("backbone_weights", "none"),
-        "backbone": None,  # the state dict is whole (see the module docstring)
+        "backbone": None,  # the state dict is whole
         "seed": checkpoint.get("seed"),
         "package_version": checkpoint.get("package_version"),
         "metrics": checkpoint.get("metrics") or {},
@@ -210,14 +197,8 @@ def write_pretrained(
     evaluation: dict[str, Any] | None = None,
     license: str = DEFAULT_LICENSE,
 ) -> dict[str, Any]:
-    """Write ``estimator``'s model as a safetensors directory (claimed, never a user's).
-
-    Args:
-        estimator: a ``ComplianceEstimator`` loaded from ``checkpoint``.
-        out: the directory; new, empty, or an earlier export (its files are replaced).
-        checkpoint: the checkpoint file (its sha256 goes into ``config.json``).
-        evaluation: the run's ``metrics.json``, for the card.
-        license: the model card's licence (see :func:`pretrained_config`).
+    """Write ``estimator``'s model as a safetensors directory (claimed, never a user's;
+    arguments as :func:`pretrained_config`'s).
 
     Returns:
         A report: ``out``, ``files`` (name -> bytes), ``config`` (the written config).
@@ -292,7 +273,7 @@ def _save_tensors(st: Any, tensors: dict[str, torch.Tensor], path: str) -> None:
 
 
 def load_pretrained(path: str | Path, device: str | torch.device = DEFAULT_DEVICE) -> LoadedModel:
-    """Rebuild the model of an exported directory (see the module docstring).
+    """Rebuild the model of an exported directory with ``runs.checkpoint.rebuild_model``.
 
     Raises:
         FileNotFoundError: no such directory, or one without ``config.json`` or
@@ -457,12 +438,7 @@ def _metrics_section(config: dict[str, Any]) -> list[str]:
 
 
 def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
-    """The ``README.md`` of an exported model, generated from its ``config.json``.
-
-    Sections: model, inputs (strategy, frame size, channel order, image statistics,
-    scalar normalisation), training data (synthetic or real, the store's provenance),
-    evaluation (metrics with their split protocol), intended use and limits, loading.
-    """
+    """The ``README.md`` of an exported model, generated from its ``config.json``."""
     run_inputs = config["run_inputs"]
     norm = run_inputs["normalisation"]
     strategy = InputStrategy.parse(run_inputs["inputs"])

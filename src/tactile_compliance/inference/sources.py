@@ -1,16 +1,5 @@
-"""Read grasps for prediction from a GraspStore, a raw dataset directory or a press video.
-
-All readers return a :class:`GraspBatch` in the store's conventions (uint8 RGB frames
-``(B, 3, H, W, 3)``, force in N, width in m, estimates in Pa) and reuse the importers'
-own code, so a grasp read here reaches the model exactly as it would through
-``tactile-compliance import`` + the evaluation path:
-
-* GraspStore directory (``header.json``): frames and columns as stored.
-* Raw dataset directory (``{object}/grasp={g}/augmentation={k}/``, a grasp directory or
-  an object directory): the Burgess importer's safe readers (allow-list unpickler,
-  BGR -> RGB flip), its resize, and the store's uint8 quantisation.
-* Video (``.avi``, ...): the Shore-hardness importer's decoder and press-frame rule
-  (first, midway, brightest frame); raw frames, no force/width/estimates.
+"""Read grasps for prediction from a GraspStore, a raw dataset directory or a press video,
+through the importers' own readers. See docs/inference.md, "Command line".
 """
 
 from __future__ import annotations
@@ -172,17 +161,13 @@ def read_grasp_dir(
     fingers: FingerChoice = "both",
     image_size: tuple[int, int] | None = None,
 ) -> GraspBatch:
-    """Grasps of a raw dataset directory in the GelSight Young's-modulus layout.
-
-    Accepts an augmentation directory (``.../grasp=g/augmentation=k/`` with ``RGB.pkl``,
-    ``forces.pkl``, ...), a grasp directory (all its augmentations) or an object directory
-    (all grasps). One sample per (augmentation, finger), like the importer.
+    """Grasps of a raw augmentation, grasp or object directory; one sample per
+    (augmentation, finger), like the importer.
 
     Args:
-        path: the directory.
         fingers: ``markerless`` (``RGB.pkl``), ``markers`` (``RGB_markers.pkl``) or both.
-        image_size: (H, W) px to resize to with the importer's resize (the training
-            store's size); None keeps the files' size.
+        image_size: (H, W) px to resize to with the importer's resize; None keeps the
+            files' size.
 
     Raises:
         ValueError: no sample directory found, an unsafe/corrupt pickle, a wrong shape.
@@ -300,11 +285,8 @@ def _read_sample_dir(
 
 # ---------------------------------------------------------------------- videos
 def read_video(path: str | Path, *, image_size: tuple[int, int] | None = None) -> GraspBatch:
-    """One press video -> one sample (first, midway, brightest frame; raw RGB frames).
-
-    Uses the Shore-hardness importer's decoder and frame rule; there is no force, width
-    or estimate, so only ``Image`` checkpoints (trained on raw frames) can use it.
-    """
+    """One press video -> one sample of raw RGB frames (the Shore-hardness importer's
+    decoder and frame rule), with no force, width or estimates."""
     video = Path(path)
     frames = read_video_frames(video)  # ValueError when unreadable
     chosen = frames[list(select_press_frames(frames))]
@@ -338,10 +320,8 @@ def read_source(
     fingers: FingerChoice = "both",
     image_size: tuple[int, int] | None = None,
 ) -> GraspBatch:
-    """Dispatch on what ``path`` is: a store, a raw grasp/object directory or a video.
-
-    ``image_size`` resizes raw sources (not stores, which are used as stored).
-    """
+    """Dispatch on what ``path`` is: a store (used as stored), a raw grasp/object directory
+    or a video (both resized to ``image_size``)."""
     path = Path(path)
     if not path.exists():
         raise ValueError(f"{path}: no such file or directory")

@@ -1,19 +1,6 @@
-"""Streaming estimation from a live sensor: frames with force/width readings one at a time.
-
-The dataset chose its three frames after the grasp (``data.frame_selection``: from the
-first frame with F >= 5 N to the first with F >= 0.975 F_max). :class:`StreamingEstimator`
-applies the same rule to the frames so far (F_max = the largest force *so far*), so every
-new frame while the gripper loads gives a refined provisional estimate. The estimate is
-final when the grasp is released (force below ``release_fraction`` x F_max) or on
-:meth:`StreamingEstimator.finish`; it then equals :func:`predict_trajectory` (the batch
-estimate) on the same recording.
-
-With timestamps (``timestamp_s=``, ``timestamps_s=``) the frames are selected in time, so
-an uneven frame rate picks the same moments of the press; ``window=n`` (frames) and
-``window_s=`` (seconds) spread the three frames over the last part of the press only.
-Frames are difference images (``frame_kind="difference"``) or raw uint8 camera frames
-(``frame_kind="raw"``, differenced against ``reference``, default the first frame).
-See ``docs/inference.md``, "Streaming from a live sensor".
+"""Streaming estimation: frames with force/width readings one at a time, estimates as
+soon as the dataset's frame rule allows. See docs/inference.md, "Streaming from a live
+sensor".
 """
 
 from __future__ import annotations
@@ -146,25 +133,8 @@ class _Buffer:
 class StreamingEstimator:
     """Feed frames + force/width one at a time; get an estimate as soon as possible.
 
-    ```python
-    stream = estimator.stream()                         # or StreamingEstimator(estimator)
-    for timestamp_s, frame, force_n, width_m in sensor:
-        estimate = stream.update(frame, force_n, width_m, timestamp_s=timestamp_s)
-        if estimate is not None:                        # provisional, then refinements
-            print(estimate.modulus_pa, estimate.final)
-    final = stream.finish()                             # or: emitted on release
-    ```
-
-    Every update needs a frame and the normal force (N): the selection is by force, so
-    even Image models need it; the gripper width (m) when the checkpoint uses width. ALL
-    checkpoints need the analytical estimates (elastic E, Hertz E*) in Pa: given once
-    (``estimates_pa=``, here or with any update) or computed from a depth map given with
-    every update (``depth_mm=``).
-
     Args:
-        estimator: a :class:`~tactile_compliance.inference.estimator.ComplianceEstimator`
-            or :class:`~tactile_compliance.inference.onnx.OnnxEstimator` (any
-            :class:`~tactile_compliance.inference.base.BaseEstimator`).
+        estimator: any :class:`~tactile_compliance.inference.base.BaseEstimator`.
         window: None (whole trajectory, the dataset's rule) or n >= 3 (last n frames).
         window_s: the same in time: the last ``window_s`` seconds up to the peak (needs
             ``timestamp_s`` with every update); exclusive with ``window``.
@@ -241,7 +211,6 @@ class StreamingEstimator:
         self._done = False
         self._has_depth: bool | None = None
         self._has_times: bool | None = None
-        self.history: list[StreamEstimate] = []
 
     @property
     def state(self) -> str:
@@ -318,27 +287,22 @@ class StreamingEstimator:
         timestamp_s: float | None = None,
         provisional: bool = True,
     ) -> StreamEstimate | None:
-        """Add one frame and its readings; returns a new estimate or None.
-
-        An estimate is returned when the three selected frames change (a refinement) and
-        when the grasp ends (``final=True``). After the final estimate the stream ignores
-        further frames until :meth:`reset`.
+        """Add one frame and its readings; returns a new estimate (a refinement or the
+        final one) or None. After the final estimate, frames are ignored until :meth:`reset`.
 
         Args:
             frame: (H, W, 3) difference image or raw frame (see ``frame_kind``).
             estimates_pa: (elastic E, Hertz E*) in Pa, replaces earlier values.
             depth_mm: (H', W') gel depth map in mm of this frame, to compute the estimates
                 on the fly (give it with every frame or never).
-            timestamp_s: when the frame was captured, in s on any clock that only moves
-                forward (e.g. ``time.monotonic()`` or the camera's); give it with every
-                frame or never. With timestamps the frames are selected in time.
+            timestamp_s: capture time in s on a clock that only moves forward; with every
+                frame or never.
             provisional: False adds the frame without a provisional estimate (a consumer
                 that is behind its sensor catches up); the final estimate is the same.
 
         Raises:
-            ValueError: a bad frame or reading, or a timestamp that does not increase. The
-                frame is then not added and the frames buffered so far are kept, so the
-                caller can skip it and go on.
+            ValueError: a bad frame, reading or timestamp; the frame is not added, the
+                stream goes on.
         """
         if self._done:
             return None
@@ -513,7 +477,6 @@ class StreamingEstimator:
         else:
             estimate = self._predict(selection, estimates, final)
         self._last, self._last_key = estimate, key
-        self.history.append(estimate)
         return estimate
 
     def _predict(
