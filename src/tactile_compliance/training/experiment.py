@@ -37,9 +37,9 @@ from tactile_compliance.outputs import (
 )
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.layout import (
-    KEEP_CHECKPOINTS,
     LOCK_FILE,
     RUN_KIND,
+    check_keep_checkpoints,
     prune_checkpoints,
 )
 from tactile_compliance.runs.results import (
@@ -472,11 +472,7 @@ def run_experiment(
         ExperimentError: a store is missing, or another driver holds the results store.
         KeyboardInterrupt: after cancelling the pending cells (finished rows are kept).
     """
-    if keep_checkpoints not in KEEP_CHECKPOINTS:
-        raise ConfigError(
-            f"keep_checkpoints must be one of {', '.join(KEEP_CHECKPOINTS)}, "
-            f"got {keep_checkpoints!r}"
-        )
+    check_keep_checkpoints(keep_checkpoints)
     started = time.perf_counter()
     plan = plan_experiment(preset_or_path, **plan_options)
     if not plan.cells:
