@@ -1,7 +1,5 @@
-"""What training, evaluation and inference share about a run.
+"""What training, evaluation and inference share about a run: checkpoints, the forward
+path, metrics, the grids' results store and the run directory's names (``layout``).
 
-Checkpoints (``checkpoint``), the forward path (``forward``), metrics (``metrics``), the
-results store of grids (``results``) and the names of a run directory and its files
-(``layout``). This layer sits below training, evaluation and inference, so none of them
-has to import another.
+This layer sits below training, evaluation and inference, so none has to import another.
 """

@@ -1,28 +1,8 @@
-"""Self-describing model checkpoints (``best.pt``).
+"""Self-describing model checkpoints (``best.pt``), loadable with ``weights_only=True``.
 
-A checkpoint holds everything needed to use the model without the run directory or
-the config file: weights, model name, hyperparameters, the run's input record
-(``run_inputs``: :class:`~tactile_compliance.runs.run_inputs.RunInputs`, the frame sizes,
-normalisation constants, input strategy, sensor and analytical estimator), the
-data/split/training configuration, the seed, which backbone weights were used and the
-package version.
-It contains only tensors and plain Python values, so it loads with
-``torch.load(weights_only=True)``: no pickled code is ever executed.
-
-A frozen backbone is a fixed function (random initialisation from
-:data:`FROZEN_BACKBONE_SEED`, the ImageNet file or a local file), so storing it in every
-run's checkpoint only costs disk: 0.53 GB for VGG16, against a few MB for the head. With
-``frozen_backbone=`` :func:`save_checkpoint` stores the head only plus a ``backbone``
-record, ``{"weights": "none" | "imagenet" | PATH, "seed": int | None, "sha256": ...,
-"summary": ...}``, and :func:`load_checkpoint` rebuilds the backbone from it (never
-downloading) and checks its sha256 before loading the head. Fine-tuned backbones are
-stored whole.
-
-A backbone initialised from a local weights file (frozen or fine-tuned), e.g. one written
-by ``tactile-compliance pretrain``, is also recorded as ``backbone_weights_file``:
-``{"path", "sha256", "provenance"}`` (:func:`backbone_weights_file_record`), so a
-checkpoint says which file, byte for byte, its backbone started from, and where that file
-came from (store, split, epochs, depth loss).
+A frozen backbone is recorded (how to rebuild it, its sha256), not stored. See
+docs/training.md, "Checkpoints describe themselves", and docs/models.md ("Recorded
+downstream") for ``backbone_weights_file``.
 """
 
 from __future__ import annotations
@@ -125,17 +105,10 @@ def _same_up_to_rounding(
 def frozen_backbone_record(model: torch.nn.Module, *, seed: int | None) -> dict[str, Any]:
     """How to rebuild ``model``'s frozen backbone, for a head-only checkpoint.
 
-    Args:
-        model: a model whose ``backbone`` is frozen; ``model.backbone_weights`` says where
-            its weights came from (``"none"``, ``"imagenet"`` or a file).
-        seed: the seed the random backbone was created under (see
-            :func:`create_seeded_model`); ignored for ImageNet or file weights.
-
-    Returns:
-        ``{"weights", "seed", "sha256", "summary"}``: the weights source (a file as an
-        absolute path), the seed (None unless random), the sha256 of the backbone's
-        tensors (:func:`~tactile_compliance.data.features.weights_fingerprint`) and a
-        small per-tensor summary used to tell float rounding from other weights.
+    ``{"weights", "seed", "sha256", "summary"}``: the weights source (``none``, ``imagenet``
+    or a file's absolute path), the ``seed`` the random backbone was created under
+    (:func:`create_seeded_model`; None unless random), the sha256 of the backbone's tensors
+    and a small per-tensor summary that tells float rounding from other weights.
     """
     weights = str(getattr(model, "backbone_weights", "none")).strip()
     if weights.lower() in ("none", "imagenet"):
@@ -180,22 +153,14 @@ def save_checkpoint(
     backbone_weights_file: dict[str, Any] | None = None,
     store: dict[str, Any] | None = None,
 ) -> Path:
-    """Write ``model`` and its description to ``path`` (atomically: see
-    :func:`~tactile_compliance.runs.layout.atomic_file`).
+    """Write ``model`` and its description to ``path`` (atomically).
 
-    ``run_inputs``: the run's input record (:meth:`RunInputs.resolve`), stored as is.
-
-    ``frozen_backbone``: the :func:`frozen_backbone_record` of a model trained with a
-    frozen backbone; the backbone's tensors are then left out and rebuilt on loading.
-    Compute the record once, before training: it describes the backbone the head was
-    trained on (and the feature cache was computed with), and hashing VGG16 takes ~0.6 s.
-
-    ``backbone_weights_file``: the :func:`backbone_weights_file_record` of the weights
-    file the backbone was initialised from (None: random or ImageNet weights).
-
-    ``store``: the training store's provenance (its path and ``header.json``: source,
-    creation time and parameters, package version), so a model card can say what the
-    model was trained on even where that store is gone.
+    ``frozen_backbone``: the :func:`frozen_backbone_record` of a frozen backbone, whose
+    tensors are then left out. Compute it once, before training: it describes the backbone
+    the head was trained on (and the feature cache computed with), and hashing VGG16 takes
+    ~0.6 s. ``backbone_weights_file``: :func:`backbone_weights_file_record` (None: random
+    or ImageNet weights). ``store``: the training store's path and ``header.json``, so a
+    model card can say what the model was trained on even where that store is gone.
     """
     path = Path(path)
     state = {
@@ -342,9 +307,7 @@ def check_state_dict(source: str | Path, state_dict: Any) -> None:
     (int8, bool: ``load_state_dict`` would cast it silently), NaN or inf values, or a
     weight matrix or kernel (>= 2 dimensions) that is all zero (a dead layer: the model
     predicts a constant). BatchNorm's ``num_batches_tracked`` counters are integers.
-
-    Raises:
-        ValueError: one line naming the file and the first bad tensor.
+    The ValueError names the file and the first bad tensor.
     """
     if not isinstance(state_dict, dict) or not state_dict:
         raise ValueError(f"{source}: holds no weights (an empty or missing state dict)")
@@ -387,9 +350,6 @@ def rebuild_model(
             when the state dict is the head only; everything else is kept as ``meta``.
         device: where the model goes (``auto``: a CUDA GPU when torch sees one).
         backbone_weights: see :func:`load_checkpoint`.
-
-    Raises:
-        ValueError: weights that do not fit the described model.
     """
     path = Path(source)
     # Every loaded number is checked before it is used: a tampered or damaged file fails

@@ -1,8 +1,7 @@
 """The one forward path from a data batch to a prediction.
 
-Training, validation, testing, ``evaluate`` and the inference API all call
-:func:`forward_batch`, so frames are always resized, (optionally) augmented and normalised
-the same way, and cached features are used whenever the batch carries them.
+Training, evaluation and the inference API all call :func:`forward_batch`, so frames are
+always prepared the same way and cached features are used whenever a batch carries them.
 """
 
 from __future__ import annotations

@@ -1,11 +1,7 @@
 """A run directory's names, and how its files are written and who may write them.
 
-Training writes these files, evaluation and inference read them, and grids and tuning
-name their runs with :func:`run_name`. The full layout of a run directory is described
-in ``training/train.py``.
-
-One process at a time trains in a run directory: it holds ``outputs.exclusive_lock`` on
-:data:`LOCK_FILE` without waiting, so a second one fails at once naming the holder.
+One process at a time trains in a run directory (it holds :data:`LOCK_FILE`). See
+docs/training.md, "The run directory".
 """
 
 from __future__ import annotations
@@ -15,7 +11,7 @@ import hashlib
 import json
 from pathlib import Path
 
-from tactile_compliance.config import ExperimentConfig, config_to_dict
+from tactile_compliance.config import ConfigError, ExperimentConfig, config_to_dict
 from tactile_compliance.data.store import SAMPLE_COLUMNS
 
 RESULT_FILE = "metrics.json"
@@ -36,10 +32,7 @@ PREDICTION_COLUMNS = SAMPLE_COLUMNS[: SAMPLE_COLUMNS.index("modulus_pa") + 1]
 def read_epoch_log(path: str | Path) -> list[tuple[int, dict[str, str]]]:
     """The lines of an epoch log (:data:`EPOCH_LOG`) with a readable epoch, as
     ``(epoch, line)``; a line without one is skipped (cut short by a kill, or a line that
-    older versions wrote in place).
-
-    Raises:
-        OSError, csv.Error, UnicodeDecodeError: the file cannot be read.
+    older versions wrote in place). An unreadable file raises what reading it raised.
     """
     with open(path, newline="", encoding="utf-8") as handle:
         rows = list(csv.DictReader(handle))
@@ -84,19 +77,22 @@ RUN_KIND = "run"
 KEEP_CHECKPOINTS = ("all", "best", "none")
 
 
+def check_keep_checkpoints(keep: str) -> str:
+    """``keep`` if it is one of :data:`KEEP_CHECKPOINTS`, else a ConfigError."""
+    if keep not in KEEP_CHECKPOINTS:
+        raise ConfigError(
+            f"keep_checkpoints must be one of {', '.join(KEEP_CHECKPOINTS)}, got {keep!r}"
+        )
+    return keep
+
+
 def prune_checkpoints(run_dir: str | Path, keep: str) -> None:
     """Delete the checkpoints of a finished run that ``keep`` does not keep.
 
-    ``checkpoints/last.ckpt`` only serves to resume an interrupted run, and with a
-    fine-tuned VGG16 backbone it weighs over half a gigabyte (more with optimizer state; a
-    frozen one is left out): a finished run does not need it. ``best.pt`` is what
-    ``evaluate`` and inference load. Deletes only these files of the run's own layout.
+    ``checkpoints/`` only serves to resume; ``best.pt`` is what ``evaluate`` and inference
+    load. Deletes only these files of the run's own layout.
     """
-    if keep not in KEEP_CHECKPOINTS:
-        raise ValueError(
-            f"keep_checkpoints must be one of {', '.join(KEEP_CHECKPOINTS)}, got {keep!r}"
-        )
-    if keep == "all":
+    if check_keep_checkpoints(keep) == "all":
         return
     import shutil
 

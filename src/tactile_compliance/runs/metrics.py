@@ -1,23 +1,6 @@
 """Metrics of the paper and cheap extras, overall and per group, plus reference predictors.
 
-With ``E`` the true and ``E_hat`` the predicted Young's modulus (Pa),
-``d = log10 E_hat - log10 E`` (decades) and ``y = (log10 E - a) / (b - a)`` the normalised label
-(``[a, b]`` = log10 of the label range, [3, 12] by default):
-
-* ``log10_accuracy``     = mean(|d| <= 1)                (paper; "within one decade")
-* ``nmse``               = mean((y_hat - y)^2)            (paper; on normalised labels, so it
-  depends on the label range: one decade of error is (1/9)^2 = 0.0123 on [1e3, 1e12])
-* ``r2``                 = 1 - sum((y_hat - y)^2) / sum((y - mean y)^2)   (sklearn convention:
-  1 for a perfect fit of constant labels, else 0 when the labels are constant; R^2 on ``y``
-  equals R^2 on log10 E because the normalisation is affine)
-* ``mae_decades``        = mean(|d|)
-* ``within_half_decade`` = mean(|d| <= 0.5)
-
-Comparisons at exactly 1 (or 0.5) decade count as inside; a 1e-9 decade tolerance absorbs
-floating-point error in log10.
-
-Reference predictors (:func:`reference_predictions`: ``median``, ``analytical``,
-``scalar_gbr``) are computed on the same split, so a model's numbers have a floor to beat.
+See docs/protocol.md, section 6 "Metrics", for the definitions and the reference predictors.
 """
 
 from __future__ import annotations
@@ -69,9 +52,7 @@ _TOL_DECADES = 1e-9
 REFERENCE_NAMES: tuple[str, ...] = ("median", "analytical", "scalar_gbr")
 #: Hyperparameters of the scalar reference: scikit-learn's defaults, written out so that a
 #: new scikit-learn release cannot change the reference silently, with early stopping off
-#: (by default it switches on above 10,000 samples and then fits on a random 90 % of the
-#: training split only). Untuned on purpose: a reference tuned against the test split
-#: would not be a reference.
+#: (docs/protocol.md, section 6).
 SCALAR_GBR_PARAMS: dict[str, Any] = {
     "loss": "squared_error",
     "learning_rate": 0.1,
@@ -200,11 +181,8 @@ def scalar_features(
 ) -> tuple[np.ndarray, tuple[str, ...]]:
     """The scalar inputs of ``inputs`` as a feature matrix, and the column names.
 
-    Forces F (N, 3 columns) with ImageF, ImageFW and ALL; widths W (m, 3 columns) with
-    ImageFW and ALL; with ALL also log10 of the elastic and Hertz estimates (Pa), clamped to
-    ``c.estimate_clamp_pa`` as the models see them (so a non-positive estimate becomes the
-    lower clamp instead of an undefined log). NaN stays NaN: the trees route missing values
-    to a learned side. Image has no scalar inputs: an ``(n, 0)`` matrix.
+    Forces (N), widths (m) and log10 of the clamped estimates (Pa), as the strategy has
+    them; NaN stays NaN. Image has no scalar inputs: an ``(n, 0)`` matrix.
     """
     c = c or NormalisationConstants()
     strategy = InputStrategy.parse(inputs)
@@ -232,14 +210,7 @@ def scalar_reference(
     """Gradient-boosted trees on the scalar inputs only: predictions (Pa) for ``test_samples``.
 
     A ``HistGradientBoostingRegressor`` (:data:`SCALAR_GBR_PARAMS`, ``random_state=seed``)
-    is fitted on ``train_samples`` alone, with :func:`scalar_features` as inputs and the
-    normalised label ``normalise_modulus(E)`` as target, and its predictions are mapped back
-    to Pa. It answers "what do the images add?": a model that beats the median and the
-    analytical estimate but not this reference has learned nothing from the frames that
-    the force, width and estimates did not already say.
-
-    Returns:
-        None for the Image strategy (no scalar inputs, so no such reference).
+    fitted on ``train_samples`` alone, target the normalised label; None for Image.
     """
     c = c or NormalisationConstants()
     strategy = InputStrategy.parse(inputs)
@@ -272,18 +243,8 @@ def reference_predictions(
 ) -> dict[str, np.ndarray]:
     """Predictions (Pa) of the reference predictors for ``test_samples``, in row order.
 
-    Only ``train_samples`` are ever fitted on; of ``test_samples`` the references read the
-    inputs (estimates, forces, widths), never ``modulus_pa``.
-
-    * ``median``: the median ``modulus_pa`` of ``train_samples`` for every test sample
-      (the median of log10 E equals the log of the median, so it is also the best constant
-      in decades for the absolute error).
-    * ``analytical``: the sample's elastic (Hooke) estimate, else its Hertz estimate, else
-      the training median; clamped to ``c.estimate_clamp_pa`` like the model input. The
-      Hertz value is E* (gel and object in series), used as is: converting it to E needs
-      the object's Poisson ratio, which a baseline should not know.
-    * ``scalar_gbr`` (only with ``inputs`` given and not Image): :func:`scalar_reference`
-      on the strategy's scalar inputs (no images), ``random_state=seed``.
+    ``median``, ``analytical`` and, with ``inputs`` given and not Image, ``scalar_gbr``;
+    only ``train_samples`` are fitted on, and no test label is read (docs/protocol.md, 6).
     """
     c = c or NormalisationConstants()
     if len(train_samples) == 0:

@@ -1,32 +1,6 @@
 """The results store: one row per run of a grid, kept as one JSON file per run.
 
-Layout: ``RESULTS/rows/{key}.json``. One file per run means concurrent workers never
-write the same file, each write is atomic (temp file + rename), and a crashed writer can
-never corrupt other rows. :meth:`ResultsStore.table` flattens all rows into a pandas
-DataFrame for reports.
-
-Row schema (flat; metrics prefixed by where they come from):
-
-- identity: ``key`` (the run's config hash, seed included), ``run_name``, ``run_dir``,
-  ``preset``, ``store``;
-- axes: ``model``, ``inputs``, ``condition``, ``grouping`` (``grasp`` | ``per_sample``
-  under ``seen``; ``object`` under ``unseen``, as the saved split records it),
-  ``sampling``, ``seed``, ``subset`` (None, a rolling-window index 0-6, a shape name,
-  ``soft``/``hard``), ``t_balance``;
-- outcome: ``status`` (``complete`` | ``failed``), ``error``, ``attempts``,
-  ``wall_time_s``, ``finished`` (UTC ISO time);
-- metrics: ``test_*`` and ``val_*`` (``n``, ``log10_accuracy``, ``nmse``, ``r2``,
-  ``mae_decades``, ``within_half_decade``), ``ref_median_*``, ``ref_analytical_*`` and,
-  for strategies with scalar inputs, ``ref_scalar_gbr_*`` (the reference predictors on the
-  same test split, ``runs.metrics.reference_predictions``), ``best_epoch``, ``best_val_nmse``,
-  ``epochs_trained``, ``n_train``, ``n_val``, ``n_test``, ``backbone_weights``,
-  ``backbone_weights_sha256`` (of a local weights file, e.g. from ``pretrain``),
-  ``freeze_backbone``, ``image_size``.
-
-The object condition of a run (the column groups of Tables I and II) is the pair
-(``condition``, ``grouping``); :func:`split_protocol` names it with one of
-:data:`PROTOCOLS` and :data:`PROTOCOL_LABELS` says it in words. Rows written before
-``grouping`` was recorded are grasp-grouped (the only seen grouping of the presets then).
+See docs/experiments.md, "What lands where", for the layout and the row's columns.
 """
 
 from __future__ import annotations
@@ -61,21 +35,14 @@ PROTOCOL_LABELS: dict[str, str] = {
 
 
 def row_grouping(condition: Any, grouping: Any) -> str:
-    """A row's ``grouping``: ``object`` under unseen, else ``grasp`` unless ``per_sample``.
-
-    A missing ``grouping`` (rows written before it was recorded) means ``grasp``.
-    """
+    """A row's ``grouping``: ``object`` under unseen, else ``grasp`` (also when missing)."""
     if str(condition) == "unseen":
         return "object"
     return "per_sample" if str(grouping) == "per_sample" else "grasp"
 
 
 def split_protocol(condition: Any, grouping: Any = None) -> str:
-    """One of :data:`PROTOCOLS` for a run's ``split.condition`` and ``split.grouping``.
-
-    Raises:
-        ValueError: a condition other than seen/unseen.
-    """
+    """One of :data:`PROTOCOLS` for a run's ``split.condition`` and ``split.grouping``."""
     if str(condition) == "unseen":
         return "unseen"
     if str(condition) != "seen":

@@ -1,19 +1,6 @@
 """Dask clients for grids and tuning: a local cluster by default, or an existing scheduler.
 
-* ``workers=N`` starts a ``LocalCluster`` of N single-threaded worker *processes* (torch
-  releases the GIL, but Lightning, the data pipeline and the feature cache do not, and a
-  crashed run must not take the driver down). Each task runs torch single-threaded unless
-  told otherwise (``threads``): N workers then use N cores, and a run never fights its
-  neighbours for cores (multi-threaded torch slows down many times over on a busy CPU,
-  while independent runs scale almost linearly).
-* ``scheduler=ADDRESS`` connects to a running scheduler (``tcp://host:8786``) or reads a
-  scheduler file (``dask scheduler --scheduler-file FILE``); the workers of that cluster
-  (started by hand, by ``dask-jobqueue`` on SLURM/PBS, ...) must have this package
-  installed and see the same file system paths (store, output directory).
-* ``client=`` passes an existing ``distributed.Client`` (Python API only); it is not closed.
-
-Every cluster this module starts is closed again on exit, also after an exception or
-Ctrl-C, so no worker processes are left behind.
+See docs/experiments.md, "Dask: local, existing scheduler, SLURM/PBS".
 """
 
 from __future__ import annotations

@@ -1,40 +1,6 @@
 """Experiment grids on Dask: expand a grid, run every cell through ``train``, record it.
 
-``run_experiment("table1", quick=True, workers=2)`` expands the experiment (see
-``training/experiment_file.py`` for the YAML format), skips the cells whose row in the
-results store is ``complete``, and runs the others on a Dask cluster (local by default,
-or an existing scheduler), one task per cell. Each task calls the one training path,
-:func:`tactile_compliance.training.train.train`, and writes its row to the results store
-(``runs/results.py``: one atomic JSON file per cell, so concurrent workers never clash).
-
-Reliability:
-
-* **Idempotent.** A cell is identified by its config hash. Re-running the same command
-  skips complete cells, retries failed ones and resumes interrupted ones from
-  ``checkpoints/last.ckpt`` (``train`` does that), so no cell ever runs twice to completion
-  and none is silently lost.
-* **Failures stay local.** An exception in a cell is caught in the worker and recorded as a
-  ``failed`` row with the error and traceback; the grid goes on. A worker process that dies
-  (killed, out of memory) is restarted by Dask and the cell is re-run on a healthy worker,
-  resuming from its checkpoint; once it has died more often than
-  ``distributed.scheduler.allowed-failures`` allows (3 by default: at the 4th death) Dask
-  gives up and the cell is recorded as failed. ``attempts`` counts every start of a cell.
-* **A damaged checkpoint** (cut short, or failing its checksums) is moved aside to
-  ``last.ckpt.corrupt`` and the run resumes from ``last.prev.ckpt`` (one epoch earlier),
-  or starts over if that one is damaged too, instead of failing forever.
-* **Feature caches** (frozen backbones) are computed before the cells that need them, one
-  task per model, so two workers never compute the same cache at the same time.
-* **One driver per experiment.** A lock file stops a second ``experiment`` process from
-  running the same output directory concurrently.
-
-Layout (defaults: ``runs/NAME`` or ``runs/NAME-quick``, and one results store next to them,
-shared by every experiment under ``runs/``, which is what ``report`` reads)::
-
-    runs/
-      results/rows/KEY.json  one row per cell of every experiment (runs/results.py)
-      table1-quick/
-        experiment.json      the resolved experiment (spec + the cells' keys and labels)
-        RUN_NAME/            one run directory per cell (training/train.py)
+See docs/experiments.md, "Running a grid" (layout, resuming, failures, Dask).
 """
 
 from __future__ import annotations
@@ -71,9 +37,9 @@ from tactile_compliance.outputs import (
 )
 from tactile_compliance.progress import progress_bar
 from tactile_compliance.runs.layout import (
-    KEEP_CHECKPOINTS,
     LOCK_FILE,
     RUN_KIND,
+    check_keep_checkpoints,
     prune_checkpoints,
 )
 from tactile_compliance.runs.results import (
@@ -152,12 +118,9 @@ def _backbone_signature(cfg: ExperimentConfig) -> str:
 
 
 def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None = None) -> int:
-    """Compute (or find) the frozen-backbone feature cache of each config, one after another.
+    """Compute (or find) the frozen-backbone feature cache of each config; return their count.
 
-    Run as one Dask task per model before the cells that need the caches, so cells start
-    with their cache ready. (Two processes asking for one cache at once would also be
-    safe: ``cached_features`` locks it and the second waits for the first's result.)
-    Returns the number of caches checked.
+    One Dask task per model, run before the cells that need the caches.
     """
     from tactile_compliance.data.store import GraspStore
     from tactile_compliance.runs.run_inputs import RunInputs
@@ -214,8 +177,7 @@ def run_cell(
 
     Never raises for a failing run: the error and traceback go into the row. ``after`` is
     only a dependency (the feature-cache task), so Dask starts the cell once it is done.
-    ``keep_checkpoints``: ``best`` (delete ``checkpoints/last.ckpt`` once the run is
-    complete), ``all`` or ``none`` (also ``best.pt``; metrics and predictions stay).
+    ``keep_checkpoints`` as for :func:`run_experiment`.
     """
     del after
     from tactile_compliance.runs.layout import run_name
@@ -498,7 +460,7 @@ def run_experiment(
             several threads per cell are slower than several workers on a busy CPU).
         keep_checkpoints: what a finished run keeps: ``best`` (``best.pt``, default),
             ``all`` (also ``checkpoints/last.ckpt``) or ``none`` (metrics, predictions and
-            logs only; frozen-backbone runs keep only their head, ~18 MB for VGG-LSTM).
+            logs only).
         progress: show a progress bar of cells done / failed.
 
     Returns:
@@ -510,11 +472,7 @@ def run_experiment(
         ExperimentError: a store is missing, or another driver holds the results store.
         KeyboardInterrupt: after cancelling the pending cells (finished rows are kept).
     """
-    if keep_checkpoints not in KEEP_CHECKPOINTS:
-        raise ConfigError(
-            f"keep_checkpoints must be one of {', '.join(KEEP_CHECKPOINTS)}, "
-            f"got {keep_checkpoints!r}"
-        )
+    check_keep_checkpoints(keep_checkpoints)
     started = time.perf_counter()
     plan = plan_experiment(preset_or_path, **plan_options)
     if not plan.cells:

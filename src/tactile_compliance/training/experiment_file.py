@@ -1,56 +1,7 @@
-"""Experiment grids: a small YAML format that expands into one validated config per cell.
+"""Experiment files: a small YAML format that expands into one validated config per cell.
 
-An experiment file (the packaged ones live in ``tactile_compliance/configs/experiments``)
-says which base configuration to start from, what to change for every cell, which axes to
-cross, which seeds to run, and which extra settings apply to some cells only::
-
-    description: "Table I: 3 models x 4 input strategies x seen/unseen, random sampling"
-    config: default              # base config: preset name or path (relative to this file)
-    set:                         # dotted overrides for every cell
-      data.store: stores/ym
-      sampling.strategy: random
-    grid:                        # cartesian product, first axis outermost
-      model.name: [top10nn, vgg_lstm, res_tf]
-      inputs: [Image, ImageF, ImageFW, ALL]
-      objects:                   # a linked axis: each value sets several keys together
-        - {split.condition: seen, split.grouping: grasp}
-        - {split.condition: seen, split.grouping: per_sample}
-        - {split.condition: unseen}
-    seeds: 10                    # n -> seeds 0..n-1, or an explicit list
-    paper_settings: true         # each cell gets its model's paper settings (lr, batch, ...)
-    rules:                       # extra overrides for the cells that match, in order
-      - when: {model.name: vgg_lstm}
-        set: {training.lr: 3.0e-4, training.batch_size: 16}
-      - when: {model.name: res_tf, inputs: ALL}
-        include: ../tuning/res_tf-ALL/tuned.yaml   # dotted overrides written by `tune`
-    quick:                       # --quick: merged over the above
-      seeds: 2
-      set: {training.max_epochs: 5}
-      rules: [...]               # appended after the rules above
-
-A grid axis is either a configuration key with its values, or a *linked axis*: a name
-that is not a configuration key (``objects`` above), whose values are all mappings of
-dotted keys set together. The three object conditions of the paper's tables are one: the config
-keys ``split.condition`` and ``split.grouping`` cannot be crossed freely (``unseen`` with
-``per_sample`` is a configuration error), so the grid lists the valid pairs. Two axes
-may not set the same key.
-
-``extends: NAME_OR_PATH`` starts from another experiment file (``set`` and ``grid`` are
-merged key by key, ``rules`` appended, everything else replaced). A plain configuration
-file (one that ``train`` accepts, e.g. the ``best.yaml`` written by ``tune``) is also an
-experiment: a single cell, crossed with the seeds.
-
-``paper_settings: true`` applies, to every cell, the paper settings that its model
-class declares for its input strategy (``models.paper_settings(model, inputs)``: the
-model's training settings and, where the paper tuned them, its hyperparameters), so that
-presets do not repeat them.
-
-A cell's config is built in this order, later steps winning: base config, ``set``, the
-grid values, the seed, the paper settings (with ``paper_settings: true``), matching
-``rules`` (matched against the cell's values *before* the paper settings and any rule
-are applied), then command-line overrides (``--set``, ``--store``). Every cell is
-validated like any other configuration, so a typo fails before anything runs and the
-error names the cell and the key.
+The packaged ones live in ``tactile_compliance/configs/experiments``. See
+docs/experiments.md, "Experiment files".
 """
 
 from __future__ import annotations
@@ -181,10 +132,7 @@ class Cell:
 
     @property
     def label(self) -> str:
-        """Short human-readable description, e.g. ``res_tf ALL seen random seed 3``.
-
-        A per-sample seen split says so: ``res_tf ALL seen per_sample random seed 3``.
-        """
+        """E.g. ``res_tf ALL seen random seed 3`` (``... seen per_sample ...`` for that split)."""
         cfg = self.cfg
         parts = [cfg.model.name, cfg.inputs, cfg.split.condition]
         if cfg.split.condition == "seen" and cfg.split.grouping == "per_sample":

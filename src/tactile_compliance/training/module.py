@@ -1,9 +1,7 @@
 """The LightningModule: loss, optimiser, learning-rate schedule, validation N-MSE.
 
-Loss = MSE(sigmoid output, normalised label) + ``l2_weight * sum_i ||theta_i||_2`` over the
-trainable parameter tensors. The l2 term is the published code's form (a sum of
-*unsquared* L2 norms per tensor, weight 5e-5), not PyTorch's ``weight_decay``; its weight
-is a hyperparameter (``training.l2_weight``).
+The loss's l2 term is the published code's (a sum of *unsquared* norms per tensor), not
+PyTorch's ``weight_decay``. See docs/training.md, "What one run does", step 5.
 """
 
 from __future__ import annotations
@@ -32,12 +30,8 @@ def add_sum_of_norms_gradient(
     params: list[torch.nn.Parameter], norms: list[torch.Tensor], weight: float
 ) -> None:
     """Add the gradient of ``weight * sum_i ||p_i||_2``, ``weight * p_i / ||p_i||``, to
-    every ``p_i.grad`` in place (zero for an all-zero tensor).
-
-    The l2 term used to be part of the loss graph. Autograd then built ``p * scale`` as a
-    new tensor and summed it with the data gradient: two passes over millions of head
-    parameters and a fresh allocation every step (a third of a VGG-LSTM head step at
-    first, still ~10 % with a custom backward). One ``add_`` per tensor is a single pass.
+    every ``p_i.grad`` in place (zero for an all-zero tensor): one pass instead of
+    differentiating the term (benchmarks/README.md, "What made the heads faster").
     """
     for param, norm in zip(params, torch.stack(norms).tolist() if norms else [], strict=True):
         # An all-zero tensor has no l2 gradient (autograd's norm gives it 0 as well).
@@ -144,8 +138,7 @@ class ComplianceModule(L.LightningModule):
 
     def _reset_epoch_state(self) -> None:
         # Per-step bookkeeping is kept out of Lightning: listing the parameters walks every
-        # backbone module, and each self.log() call costs ~0.6 ms; on a head over cached
-        # features (a step of 10-30 ms) both were measurable.
+        # backbone module, and each self.log() call costs ~0.6 ms (benchmarks/README.md).
         self._trainable: list[torch.nn.Parameter] = self.trainable_parameters()
         self._train_sums = torch.zeros(2, dtype=torch.float64, device=self.device)
         self._train_count = 0

@@ -1,40 +1,7 @@
 """Tactile pretraining: a backbone learns contact geometry from the store's depth maps.
 
-Every sample of the GelSight dataset (and of the generator) comes with the gel's depth
-map of each frame (``depth*.pkl``, mm), which the importer keeps in the store
-(``GraspStore.read_depth``). They are a label-free signal of exactly the contact geometry
-compliance depends on. :func:`pretrain` trains an image backbone (``resnet18``, ``vgg16``,
-``top10nn-cnn``; the project's own definitions) with a light decoder to predict, from each
-difference image, its depth map (MSE on depth / the training depths' standard deviation)
-and its contact mask (``depth >= 0.1 mm``, binary cross-entropy).
-
-The decoder reads the backbone's *output vector* (the pooled ResNet features, VGG16's fc7,
-Top10NN's image features), not an intermediate feature map: a frozen backbone gives the
-downstream head exactly that vector (and the feature cache stores it), so that is what has
-to describe the contact. The decoder (a linear map to a coarse grid, three 2x upsampling
-convolutions) is discarded after pretraining.
-
-No test object is ever seen: only the *training* part of a split is used (``split_file``,
-or the split ``train`` would draw from the same configuration and seed, through the one
-split function ``data.splits.make_split_from_config``), so neither the test objects nor
-the validation objects that select the downstream run's epoch enter pretraining. A
-validation part of the training objects (by object, ``make_split`` again) decides early
-stopping and which epoch's weights are kept.
-
-Augmentation (training batches only) reuses ``data/augment.py`` for the photometric part
-(colour jitter, noise); flips are drawn here and applied to frames and depth maps
-alike, so the target stays aligned with the image.
-
-Output: a weights file ``{"state_dict": backbone tensors, PRETRAIN_KEY: provenance}``
-that ``model.backbone_weights=PATH`` loads (``models.backbones``); the provenance names
-the store (path, creation time, sha256 of its table), the split (file + sha256, or
-condition + seed), the epochs, the final depth loss and the cost. Checkpoints of runs that
-use it record the file's sha256 and this provenance (``runs.checkpoint``).
-
-Resume: after every epoch the full state (weights, optimiser, early stopping, RNG states)
-is written atomically to ``OUT.pretrain-state.pt``; a re-run with the same arguments
-continues after the last finished epoch, and the state file is removed once ``OUT`` is
-written. Neither file is written over unless it is recognisably this command's.
+Only the training objects of a split are read; the weights file carries its provenance.
+See docs/models.md, "Tactile pretraining" (what is learned, data, resume, the file).
 """
 
 from __future__ import annotations
@@ -409,7 +376,6 @@ def pretrain(
         out: the weights file to write (``.pt``).
         split_file: a saved split (``tactile-compliance split``, a run's ``split.json``)
             instead of drawing one from ``cfg``.
-        progress: show a progress bar.
         device: ``auto`` (a CUDA GPU when torch sees one, else the CPU), ``cpu`` or
             ``cuda[:N]``.
         overwrite: retrain when ``out`` already holds a pretrained weights file.

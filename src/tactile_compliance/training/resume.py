@@ -1,11 +1,7 @@
 """The resume engine of :func:`~tactile_compliance.training.train.train`.
 
-What a run directory must hold for a killed or interrupted run to continue after its last
-finished epoch and end with exactly the result of an uninterrupted run: the epoch-end
-checkpoint and its commit (:class:`EpochState`), the best epoch's weights
-(:class:`BestCheckpoint`), the epoch log continued across restarts (:class:`EpochLog`),
-and where a re-run starts (:func:`find_resume_point`). ``train.py`` builds the run and
-hands these to Lightning.
+Epoch-end checkpoints and their commit, the best epoch's weights, the epoch log across
+restarts and where a re-run starts. See docs/training.md, "Interrupted runs resume exactly".
 """
 
 from __future__ import annotations
@@ -55,21 +51,9 @@ __all__ = [
 
 # ======================================================================= resumable state
 #
-# What a kill or Ctrl-C can lose is the epoch in progress, nothing before it:
-#
-# * at the end of every epoch (on_train_epoch_end) Lightning's full checkpoint is written
-#   to ``checkpoints/last.ckpt.tmp``: weights, optimiser, scheduler, the loops' progress,
-#   every callback's state (the best-epoch tracker, early stopping, EpochState below with
-#   the global RNG states and ``should_stop``) and the augmentation generator;
-# * it is *committed* once Lightning has finished the epoch's bookkeeping (scheduler step,
-#   the epoch's log rows), i.e. at the next epoch's start or at the end of training: it is
-#   fsynced, the committed ``last.ckpt`` becomes ``last.prev.ckpt`` (a hard link, so a
-#   ``last.ckpt`` exists at every instant), the temp file is renamed to ``last.ckpt`` and
-#   a new best epoch's weights (``checkpoints/best.pending.pt``) become ``best.pt``.
-#
-# A re-run resumes from ``last.ckpt`` (or ``last.prev.ckpt`` if that one is unreadable)
-# and, because the RNG states are restored where the uninterrupted run was at that
-# moment, computes exactly what the uninterrupted run would have.
+# An epoch's checkpoint is staged at its end (on_train_epoch_end) and committed once
+# Lightning has finished the epoch's bookkeeping (scheduler step, the epoch's log rows):
+# at the next epoch's start or at the end of training.
 
 PENDING_BEST = "best.pending.pt"
 _STAGED_SUFFIX = ".tmp"
@@ -154,7 +138,7 @@ class BestCheckpoint(Callback):
 
 
 class EpochState(Checkpoint):
-    """Writes Lightning's full checkpoint at the end of every epoch (see above).
+    """Writes Lightning's full checkpoint at the end of every epoch and commits it (above).
 
     A ``Checkpoint`` subclass: Lightning then adds no ModelCheckpoint of its own, and runs
     this callback's epoch-end hook after early stopping's and the module's, so the saved

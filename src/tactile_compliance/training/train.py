@@ -1,31 +1,8 @@
 """``train(config) -> result``: the one training path used by single runs, grids and tuning.
 
-One call: open the store, filter, split (saved), balance, build the model, optionally
-cache frozen-backbone features, fit with early stopping on validation N-MSE, restore the
-BEST epoch's weights, evaluate on the untouched test split, and write a run directory::
-
-    RUN_DIR/
-      .lock                flock-ed by the one process training here (holder's PID)
-      config.yaml          the resolved configuration
-      split.json           the sample ids of train / val / test (reloadable)
-      filter_report.json   how many samples each filter rule removed
-      checkpoints/last.ckpt       Lightning's full state after the last finished epoch
-      checkpoints/last.prev.ckpt  the same one epoch earlier (if last.ckpt is unreadable)
-      best.pt              self-describing best checkpoint (see runs/checkpoint.py)
-      logs/metrics.csv     per-epoch train loss and validation N-MSE
-      predictions.csv      val + test predictions, one row per sample
-      groups.csv           test metrics per material, shape, soft/hard
-      metrics.json         the result returned by train()
-
-A run whose ``metrics.json`` exists is complete and is returned as is. Any other run
-resumes after its last finished epoch (``checkpoints/last.ckpt``, written atomically at
-the end of every epoch) and ends with exactly the result of an uninterrupted run: the
-global RNG states, the augmentation generator and every callback's state are part of the
-checkpoint. A configuration or store that fails its checks writes nothing (not even the
-run directory); a second process on the same run directory fails at once
-(:class:`~tactile_compliance.outputs.DirectoryLockedError`). The resume engine
-(epoch-end checkpoints, their commit, where a re-run starts) is
-:mod:`tactile_compliance.training.resume`.
+The resume engine (epoch-end checkpoints, their commit, where a re-run starts) is
+:mod:`tactile_compliance.training.resume`. See docs/training.md ("What one run does",
+"The run directory", "Interrupted runs resume exactly").
 """
 
 from __future__ import annotations
@@ -337,12 +314,10 @@ def train(
 ) -> dict[str, Any]:
     """Train and evaluate one configuration; returns the metrics dict (also metrics.json).
 
-    Resumes an interrupted run from its last finished epoch (see the module docstring).
+    Resumes an interrupted run from its last finished epoch (docs/training.md).
 
     Args:
-        cfg: a validated experiment configuration.
         run_dir: where to write; default ``cfg.output_dir / run_name(cfg)``.
-        progress: show progress bars.
         overwrite: retrain even when the run directory holds a finished result.
         verbose: show Lightning's start-up messages and its housekeeping warnings
             (:func:`lightning_messages`).

@@ -1,6 +1,7 @@
-"""The tuning drivers: :func:`tune` (a model's hyperparameters) and :func:`tune_balance`
-(``sampling.t_balance``), and the files they write (``best.yaml``, ``tuned.yaml``, ...).
-How their defaults relate to the paper's settings: see each function's docstring."""
+"""The tuning drivers, :func:`tune` and :func:`tune_balance`, and the files they write.
+
+See docs/experiments.md, "Tuning (SMAC3)".
+"""
 
 from __future__ import annotations
 
@@ -293,8 +294,7 @@ def tune(
         min_epochs, max_epochs: Hyperband budget range (epochs).
         eta: Hyperband's halving rate.
         objective: a trial's cost: the validation N-MSE of its ``"last"`` epoch (the
-            published code; the trial trains its whole budget, no early stopping) or of
-            its ``"best"`` epoch (with the base config's early stopping).
+            published code; no early stopping) or of its ``"best"`` one.
         seed: training seed of every trial and SMAC's seed.
         workers: parallel trials on a local Dask cluster (1: in this process).
         scheduler: address or scheduler-file of a running Dask scheduler.
@@ -302,7 +302,6 @@ def tune(
         output_dir: default ``tuning/MODEL-INPUTS`` (``-quick`` appended for quick).
         overwrite: start over instead of continuing an earlier run in ``output_dir``.
         threads: torch threads per trial (default: 1 with Dask, torch's default without).
-        progress: show a progress bar.
     """
     smac = require_smac()
     if not 1 <= min_epochs <= max_epochs:
@@ -357,11 +356,7 @@ def balance_budget(
     epochs: int | None = None, trials: int | None = None, paper_budget: bool = False
 ) -> tuple[int, int]:
     """``tune_balance``'s (epochs per model and trial, trials): the given values, else the
-    CPU-sized defaults (10, 30), or with ``paper_budget`` the paper's (50, 132).
-
-    Raises:
-        ConfigError: a value below 1.
-    """
+    CPU-sized defaults, or with ``paper_budget`` the paper's; a value below 1 is an error."""
     if epochs is None:
         epochs = PAPER_BALANCE_EPOCHS if paper_budget else BALANCE_EPOCHS
     if trials is None:
@@ -395,24 +390,12 @@ def tune_balance(
 ) -> TuneResult:
     """Tune ``sampling.t_balance`` in [0, 1] (step 0.01) with SMAC3's BO facade.
 
-    Cost of a value: the mean, over ``models`` (default: every registered model), of the
-    validation N-MSE after ``epochs`` epochs of balanced training: of the last epoch
-    (``objective="last"``, the published code; trials train all ``epochs``, no early
-    stopping) or of the best one (``"best"``). Note that validation is balanced too
-    (``sampling.balance_validation``, as in the paper), so the cost also depends on how
-    the validation set is oversampled; pass ``--set sampling.balance_validation=false`` to
-    score on the untouched validation split.
-
-    Budget: ``epochs`` per model and trial and ``trials`` default to
-    :data:`BALANCE_EPOCHS` x :data:`BALANCE_TRIALS` (10 x 30, sized for a CPU);
-    ``paper_budget=True`` makes the defaults the paper's
-    :data:`PAPER_BALANCE_EPOCHS` x :data:`PAPER_BALANCE_TRIALS` (50 x 132). An explicit
-    ``epochs`` or ``trials`` wins over either.
-
-    Writes ``OUT/tuned.yaml`` (``sampling.strategy``/``t_balance``), ``OUT/best-MODEL.yaml``
-    per model, and, when ``config`` is an experiment NAME, ``OUT/NAME-tuned.yaml``: that
-    experiment with the tuned value (``experiment OUT/NAME-tuned.yaml``, plus ``--quick``
-    for its quick variant).
+    Cost of a value: the mean over ``models`` (default: every registered model) of the
+    validation N-MSE of the ``objective`` epoch after ``epochs`` epochs of balanced
+    training. ``epochs`` x ``trials`` default to 10 x 30, or the paper's 50 x 132 with
+    ``paper_budget`` (:func:`balance_budget`). Writes ``OUT/tuned.yaml``,
+    ``OUT/best-MODEL.yaml`` per model and, when ``config`` is an experiment NAME,
+    ``OUT/NAME-tuned.yaml``. See docs/experiments.md, "tune-balance".
     """
     smac = require_smac()
     from ConfigSpace import ConfigurationSpace, Integer

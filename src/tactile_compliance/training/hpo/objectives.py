@@ -1,15 +1,7 @@
 """What a tuning trial trains: its base configuration and the SMAC target functions.
 
-A trial is one call of the training path (:func:`tactile_compliance.training.train.train`)
-on the base config plus the trial's values. Its cost (``objective``):
-
-* ``"last"`` (default; the published code): the validation N-MSE of the trial's last
-  epoch. As published, the trial trains its whole budget: early stopping is off
-  (``training.patience=0``). Hyperband compares configurations by their score after
-  ``budget`` epochs, which is this; the best epoch of a noisy validation curve is a
-  minimum over epochs and flatters noisy configurations.
-* ``"best"``: the run's best validation N-MSE (``best_val_nmse``), with the base
-  config's early stopping: the epoch ``train`` keeps and tests.
+A trial is one ``train`` call; its cost is the validation N-MSE of its last or best
+epoch. See docs/experiments.md, "Tuning (SMAC3)", for why ``last`` is the default.
 """
 
 from __future__ import annotations
@@ -63,11 +55,9 @@ def check_objective(objective: str) -> str:
 
 
 def last_epoch_val_nmse(run_dir: str | Path) -> float:
-    """The validation N-MSE of the last validated epoch of a run, read from its epoch
-    log (``RUN_DIR/logs/metrics.csv``: ``epoch`` and ``val_nmse`` columns).
+    """The validation N-MSE of a run's last validated epoch, from its epoch log.
 
-    Raises:
-        ValueError: no epoch log, or no finite validation N-MSE in it.
+    A ValueError when there is no epoch log or no finite validation N-MSE in it.
     """
     path = Path(run_dir) / EPOCH_LOG
     try:
@@ -90,9 +80,7 @@ def last_epoch_val_nmse(run_dir: str | Path) -> float:
 
 
 def trial_cost(result: Mapping[str, Any], objective: str) -> float:
-    """A trial's cost from its ``train`` result: the validation N-MSE of the ``"last"``
-    epoch (a ``last_val_nmse`` field when the result has one, else the run's epoch log)
-    or of the ``"best"`` one (``best_val_nmse``)."""
+    """A trial's cost: the validation N-MSE of its ``"last"`` or ``"best"`` epoch."""
     if check_objective(objective) == "best":
         return float(result["best_val_nmse"])
     if result.get("last_val_nmse") is not None:
@@ -164,8 +152,7 @@ def prepare_features(base: ExperimentConfig, client: Any, threads: int | None) -
 
 
 def _objective_overrides(objective: str) -> list[str]:
-    """Config overrides a trial needs for ``objective``: scored on its last epoch, it
-    trains its whole budget, as the published trials did (no early stopping)."""
+    """Scored on its last epoch, a trial trains its whole budget (as the published ones)."""
     return ["training.patience=0"] if check_objective(objective) == "last" else []
 
 
@@ -199,8 +186,7 @@ class _Objective:
 class TrialObjective(_Objective):
     """SMAC target function: validation N-MSE of ``base`` + a configuration, budget epochs.
 
-    The training seed is the base config's, so trials differ only in their
-    hyperparameters (SMAC is deterministic here).
+    The training seed is the base config's, so trials differ only in their hyperparameters.
     """
 
     base: dict[str, Any]

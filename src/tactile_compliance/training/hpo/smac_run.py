@@ -55,8 +55,7 @@ def require_smac() -> Any:
 
 
 def search_name(prefix: str, *parts: Any) -> str:
-    """A SMAC run name that hashes everything defining the search (and SMAC's version),
-    so that a different search never continues an old one's history."""
+    """A SMAC run name hashing what defines the search (and SMAC's version)."""
     import smac
 
     blob = json.dumps([*parts, smac.version], sort_keys=True, default=str)
@@ -93,11 +92,8 @@ def _reconcile_previous_run(scenario: Any) -> None:
 def _forget_unfinished_trials(directory: Path) -> None:
     """Drop trials an interrupted SMAC run saved as RUNNING, so that they run again.
 
-    SMAC saves a trial as RUNNING when it is handed out; if the process dies before the
-    result comes back, a resumed SMAC would count it as a trial forever without a result.
-    Dropped, it runs again when SMAC proposes it again (its run directory then resumes from
-    its checkpoint); SMAC does not save its random state, so it may propose another
-    configuration instead.
+    SMAC saves a trial as RUNNING when it hands it out; a resumed SMAC would otherwise
+    count it forever without a result.
     """
     from smac.runhistory.enumerations import StatusType
 
@@ -171,10 +167,7 @@ def _progress_callback(bar: ProgressBar) -> Any:
 def trial_cluster(
     workers: int, scheduler: str | None, client: Any, threads: int | None
 ) -> Iterator[tuple[Any, int | None]]:
-    """(Dask client or None for serial trials, torch threads per trial).
-
-    Parallel trials run single-threaded unless told otherwise (one trial per core).
-    """
+    """(Dask client or None for serial trials, torch threads per trial: 1 when parallel)."""
     if workers <= 1 and scheduler is None and client is None:
         yield None, threads
         return
@@ -196,9 +189,8 @@ def run_smac(
 ) -> tuple[Any, Any]:
     """Start or continue the search of ``scenario``: (the facade, its incumbent).
 
-    Raises:
-        TuneError: no trial finished, or an earlier run in the directory that SMAC
-            cannot continue (without ``overwrite``).
+    A TuneError when no trial finished, or (without ``overwrite``) when an earlier run in
+    the directory cannot be continued.
     """
     logging.getLogger("smac").setLevel(logging.ERROR)
     _reconcile_previous_run(scenario)
@@ -238,12 +230,8 @@ def run_smac(
 def _hash_independent_maximizer(facade_cls: Any, scenario: Any) -> Any:
     """The facade's acquisition maximizer, made independent of Python's string hashing.
 
-    SMAC's local search (2.4) collects its start points in a ``set`` of configurations and
-    lists it: their order, and so every configuration proposed after the initial design,
-    then depends on ``PYTHONHASHSEED``, which Python draws anew for every process. Three
-    identical ``tune`` runs proposed different configurations from trial 4 on. Sorting the
-    start points by their vector makes the search a function of the seed and the trial
-    costs only (checked with three hash seeds in tests/test_hpo.py).
+    SMAC 2.4's local search lists its start points from a ``set``; sorting them by their
+    vector makes the search reproducible. See docs/experiments.md, "Reproducibility".
     """
     maximizer = facade_cls.get_acquisition_maximizer(scenario)
     local_search = getattr(maximizer, "_local_search", None)

@@ -1,10 +1,7 @@
-"""The SMAC side of a model's search space: build it, and read a configuration back.
+"""The SMAC side of a model's search space (declared by its class, ``hpo_space``).
 
-The search space itself is declared by each model class (``hpo_space``, see
-``models.settings``); this module only turns it into a ConfigSpace space whose
-hyperparameter names are the dotted config keys they set (``training.lr``,
-``model.hparams.num_layers``), and a SMAC configuration back into config values and
-``dotted.key=value`` overrides.
+Hyperparameter names are the dotted config keys they set (``training.lr``,
+``model.hparams.num_layers``), so a SMAC configuration reads back as overrides.
 """
 
 from __future__ import annotations
@@ -62,14 +59,9 @@ def _categorical(dimension: SearchDimension) -> Any:
 
 
 def search_space(model: str, inputs: str = "ALL", seed: int = 0) -> Any:
-    """The search space registered ``model`` declares for input strategy ``inputs``.
+    """The ConfigSpace space of categoricals that ``model`` declares for ``inputs``.
 
-    A ConfigSpace ``ConfigurationSpace`` of categoricals, one per dimension of
-    ``models.search_dimensions(model, inputs)`` (dimensions of disabled inputs left out,
-    defaults = the model's paper settings).
-
-    Raises:
-        ConfigError: unknown model or input strategy.
+    One per ``models.search_dimensions(model, inputs)``; defaults are the paper settings.
     """
     from ConfigSpace import ConfigurationSpace
 
