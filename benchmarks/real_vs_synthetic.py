@@ -345,17 +345,16 @@ def outer_radius_mm(diff: np.ndarray) -> float:
     """Equivalent radius [mm] of the largest region inside :data:`OUTER_GREY`, holes filled,
     away from the glow strip, in one difference image (H, W, 3; 0.5 = no change); NaN
     without one."""
+    from tactile_compliance.data.depth_model import largest_region
     from tactile_compliance.synthetic.render import VISIBLE_SIZE_MM
 
     grey = np.abs(np.asarray(diff, dtype=np.float32) - 0.5).max(axis=-1) * 255
     grey = cv2.GaussianBlur(grey, (0, 0), OUTER_BLUR_PX)
     grey[:, : int(GLOW_STRIP * grey.shape[1])] = 0
-    count, labels, stats, _ = cv2.connectedComponentsWithStats((grey > OUTER_GREY).astype(np.uint8))
-    if count < 2:
+    outline = largest_region(grey > OUTER_GREY)
+    if outline is None:
         return float("nan")
-    largest = (labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
-    outline, _ = cv2.findContours(largest, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    filled = cv2.drawContours(np.zeros_like(largest), outline, -1, 1, thickness=-1)
+    filled = cv2.drawContours(np.zeros(grey.shape, np.uint8), [outline], -1, 1, thickness=-1)
     mm_per_px = VISIBLE_SIZE_MM[0] / grey.shape[1]
     return float(np.sqrt(filled.sum() / np.pi) * mm_per_px)
 

@@ -176,6 +176,20 @@ def test_cli_writes_both_formats_and_needs_one(tmp_path, top10nn_run):
     assert result.exit_code == 2 and "--safetensors" in result.output
 
 
+def test_load_tells_an_export_from_a_checkpoint(tmp_path, top10nn_run):
+    """`ComplianceEstimator.load` (what `predict` and `live` use): a directory holding
+    model.safetensors is an export, a run directory a checkpoint; both give one model."""
+    export_safetensors(top10nn_run, tmp_path / "model")
+    exported = ComplianceEstimator.load(tmp_path / "model")
+    checkpoint = ComplianceEstimator.load(top10nn_run)
+    assert exported.source == str(tmp_path / "model")
+    assert checkpoint.source.endswith("best.pt")
+    inputs = _inputs()
+    np.testing.assert_allclose(
+        _predict(exported, inputs), _predict(checkpoint, inputs), rtol=0, atol=1e-5
+    )
+
+
 def test_from_pretrained_errors(tmp_path, top10nn_run, monkeypatch):
     export_safetensors(top10nn_run, tmp_path / "model")
     model = tmp_path / "model"

@@ -22,6 +22,7 @@ __all__ = [
     "ContactCircle",
     "find_contact_circle",
     "fit_depth_model",
+    "largest_region",
 ]
 
 DEPTH_MODEL_FORMAT = "tactile-compliance-depth-model"
@@ -90,6 +91,13 @@ def contact_magnitude(diff: np.ndarray) -> np.ndarray:
     return np.sqrt((dev * dev).sum(axis=2))
 
 
+def largest_region(mask: np.ndarray) -> np.ndarray | None:
+    """The outline (an OpenCV contour) of the largest region of a binary (H, W) mask, by the
+    area its outer edge encloses, so holes count as inside; None for an empty mask."""
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return max(contours, key=cv2.contourArea) if contours else None
+
+
 def find_contact_circle(diff: np.ndarray, min_radius_px: float = 3.0) -> ContactCircle:
     """The contact circle of a ball press in one difference image (H, W, 3): centroid and
     equivalent-area radius of the largest region above half the peak colour change, holes
@@ -102,9 +110,8 @@ def find_contact_circle(diff: np.ndarray, min_radius_px: float = 3.0) -> Contact
     peak = float(np.percentile(mag, 99.9))
     if not peak >= _MIN_CONTACT_MAGNITUDE:  # NaN too; else the mask holds the peak's pixels
         raise ValueError("no contact region found (the frame looks like the reference)")
-    mask = (mag > _CIRCLE_FRACTION * peak).astype(np.uint8)
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    outline = max(contours, key=cv2.contourArea)
+    outline = largest_region(mag > _CIRCLE_FRACTION * peak)
+    assert outline is not None  # the mask holds the peak's pixels
     moments = cv2.moments(outline)
     radius = math.sqrt(moments["m00"] / math.pi)
     if radius < min_radius_px:

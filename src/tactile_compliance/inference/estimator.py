@@ -106,6 +106,23 @@ class ComplianceEstimator(BaseEstimator):
             loaded.model, loaded.run_inputs, meta=loaded.meta, device=device, source=str(path)
         )
 
+    @classmethod
+    def load(
+        cls,
+        path: str | Path,
+        device: str | torch.device = DEFAULT_DEVICE,
+        *,
+        backbone_weights: str | Path | None = None,
+    ) -> ComplianceEstimator:
+        """A checkpoint (``best.pt`` or a run directory, :meth:`from_checkpoint`) or a
+        directory of ``export --safetensors`` (:meth:`from_pretrained`), told by its files:
+        what ``predict`` and ``live`` accept."""
+        from tactile_compliance.inference.pretrained import WEIGHTS_FILE
+
+        if (Path(path) / WEIGHTS_FILE).is_file():
+            return cls.from_pretrained(path, device=device)
+        return cls.from_checkpoint(path, device=device, backbone_weights=backbone_weights)
+
     def save_pretrained(self, path: str | Path, *, license: str = "other") -> dict[str, Any]:
         """Write what ``export --safetensors DIR`` writes, for :meth:`from_pretrained`.
 

@@ -33,7 +33,6 @@ from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.inference.ensemble import EnsembleEstimator
 from tactile_compliance.inference.estimator import ComplianceEstimator
-from tactile_compliance.inference.pretrained import WEIGHTS_FILE
 from tactile_compliance.inference.streaming import StreamEstimate, StreamingEstimator
 from tactile_compliance.physics.estimators import WEDGE_UNITS
 
@@ -51,11 +50,7 @@ def load_members(
     if not checkpoints:
         raise ValueError("give at least one checkpoint")
     return [
-        ComplianceEstimator.from_pretrained(p, device=device)
-        if (Path(p) / WEIGHTS_FILE).is_file()
-        else ComplianceEstimator.from_checkpoint(
-            p, device=device, backbone_weights=backbone_weights
-        )
+        ComplianceEstimator.load(p, device=device, backbone_weights=backbone_weights)
         for p in checkpoints
     ]
 

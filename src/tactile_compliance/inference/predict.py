@@ -28,15 +28,18 @@ def predict_path(
     batch_size: int = 64,
     backbone_weights: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Predict every grasp under ``path`` with ``checkpoint`` (as ``load_members`` takes
-    it); samples missing an input the checkpoint needs are skipped with the reason.
+    """Predict every grasp under ``path`` with ``checkpoint`` (as
+    :meth:`ComplianceEstimator.load` takes it); samples missing an input the checkpoint
+    needs are skipped with the reason.
 
     Returns:
         The JSON report shown in docs/inference.md, "Command line".
     """
-    from tactile_compliance.inference.live import load_members
+    from tactile_compliance.inference.estimator import ComplianceEstimator
 
-    [estimator] = load_members([checkpoint], device=device, backbone_weights=backbone_weights)
+    estimator = ComplianceEstimator.load(
+        checkpoint, device=device, backbone_weights=backbone_weights
+    )
     source = read_source(path, fingers=fingers, image_size=estimator.run_inputs.store_image_size)
     needed = estimator.required_inputs
     if source.kind == "video" and needed:
