@@ -347,10 +347,9 @@ def format_real_transfer(result: dict) -> str:
 def _rows(store, finger: str):  # type: ignore[no-untyped-def]
     """A store's samples of one finger ("all": every row) and their uint8 frames."""
     samples = store.samples
-    rows = np.arange(len(samples))
     if finger != "all":
-        rows = rows[(samples["finger"] == finger).to_numpy()]
-    return samples.iloc[rows].reset_index(drop=True), store.read_block(0, len(store))[rows]
+        samples = samples[samples["finger"] == finger].reset_index(drop=True)
+    return samples, store.read_samples(samples["sample_id"].to_numpy())
 
 
 def format_table(result: dict) -> str:
