@@ -43,6 +43,7 @@ from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.store import GraspStore, GraspStoreWriter
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.forward import forward_batch
+from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.training.module import ComplianceModule
 
 # The peak is read from /proc/self/status (VmHWM, this process's own address space):
@@ -155,10 +156,11 @@ def bench_heads(store: GraspStore, n: int, repeats: int = 2) -> None:
             .standard_normal((len(store), 3, model.feature_dim))
             .astype(np.float16)
         )
-        dataset = GraspDataset(store, ids, constants, features)
+        dataset = GraspDataset(store, ids, constants, "ALL", features)
+        run_inputs = RunInputs(store.image_size, store.image_size, constants, "ALL")
         for precision in ("32", "bf16-mixed"):
             module = ComplianceModule(
-                model, constants, None, lr=1e-4, gamma=0.98, l2_weight=5e-5, freeze_backbone=True
+                model, run_inputs, lr=1e-4, gamma=0.98, l2_weight=5e-5, freeze_backbone=True
             )
             seconds = [
                 _epoch_seconds(module, dataset, batch_size, precision) for _ in range(repeats)
@@ -177,15 +179,16 @@ def bench_finetune(store: GraspStore, n_batches: int, n_epoch: int) -> None:
     for model_name, size in sizes.items():
         model = create_model(model_name)
         batch_size = int(model.default_training.get("batch_size", 32))
-        module = ComplianceModule(model, constants, size, lr=1e-4, gamma=None, l2_weight=5e-5)
+        run_inputs = RunInputs(size, store.image_size, constants, "ALL")
+        module = ComplianceModule(model, run_inputs, lr=1e-4, gamma=None, l2_weight=5e-5)
         optimiser = module.configure_optimizers()
         optimiser = optimiser["optimizer"] if isinstance(optimiser, dict) else optimiser
-        dataset = GraspDataset(store, np.arange(batch_size * (n_batches + 1)), constants)
+        dataset = GraspDataset(store, np.arange(batch_size * (n_batches + 1)), constants, "ALL")
         loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size)
         timings = []
         for index, batch in enumerate(loader):
             start = time.perf_counter()
-            prediction = forward_batch(model, batch, constants, size)
+            prediction = forward_batch(model, batch, run_inputs)
             loss = torch.mean((prediction - batch["label"]) ** 2)
             optimiser.zero_grad()
             loss.backward()

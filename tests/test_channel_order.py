@@ -74,7 +74,7 @@ def test_red_is_stored_in_channel_0(red_store: GraspStore) -> None:
 
 def test_red_reaches_the_model_normalised_with_the_red_statistics(red_store: GraspStore) -> None:
     constants = NormalisationConstants()
-    dataset = GraspDataset(red_store, [0], constants)
+    dataset = GraspDataset(red_store, [0], constants, "Image")
     batch = dataset.batch([0])
     x = prepare_frames(batch["frames"], constants)  # (1, 3 frames, 3 channels, H, W)
     assert x.shape == (1, 3, 3, *SIZE)

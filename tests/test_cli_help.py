@@ -88,8 +88,8 @@ def test_the_choices_are_the_library_vocabularies() -> None:
     the vocabulary of its home in the library."""
     from tactile_compliance.config import SplitConfig
     from tactile_compliance.data import raw_layout
+    from tactile_compliance.data.inputs import InputStrategy
     from tactile_compliance.demo import PLANS
-    from tactile_compliance.models.inputs import InputStrategy
     from tactile_compliance.runs.layout import KEEP_CHECKPOINTS
     from tactile_compliance.training.hpo.objectives import OBJECTIVES
     from tactile_compliance.training.pretrain import PRETRAIN_BACKBONES

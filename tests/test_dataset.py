@@ -23,7 +23,7 @@ def test_batch_loader_equals_per_sample_collation(toy_store, cached, shuffle):
     if cached:
         rng = np.random.default_rng(0)
         features = rng.standard_normal((len(toy_store), 3, 8)).astype(np.float16)
-    dataset = GraspDataset(toy_store, ids, NormalisationConstants(), features)
+    dataset = GraspDataset(toy_store, ids, NormalisationConstants(), "ALL", features)
     torch.manual_seed(0)
     plain = list(DataLoader(dataset, batch_size=4, shuffle=shuffle))
     torch.manual_seed(0)

@@ -67,7 +67,7 @@ def test_onnx_estimator_agrees_with_the_pytorch_estimator(tmp_path):
     export_onnx(checkpoint, tmp_path / "m.onnx")
     torch_estimator = ComplianceEstimator.from_checkpoint(checkpoint)
     onnx_estimator = OnnxEstimator(tmp_path / "m.onnx")
-    assert onnx_estimator.required_inputs == ("force", "width", "estimates")
+    assert onnx_estimator.required_inputs == ("frames", "force", "width", "estimates")
     rng = np.random.default_rng(0)
     for batch in (1, 5):  # dynamic batch size at run time
         frames = rng.integers(90, 170, size=(batch, 3, 40, 56, 3), dtype=np.uint8)

@@ -121,7 +121,7 @@ class _TinyTunable(TactileModel):
         self.backbone = create_backbone("resnet18")
         self.out = nn.Linear(3 * self.backbone.feature_dim, 1)
 
-    def _head(self, features, force, width, estimates):
+    def _head(self, features, scalars):
         return self.out(features.flatten(1)).squeeze(1)
 
 

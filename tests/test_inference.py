@@ -144,7 +144,9 @@ def test_single_grasp_gives_floats_equal_to_its_batch_row(runs, toy_store):
     batch = estimator.predict(toy_store.frames[ids], **inputs)
     single = estimator.predict(toy_store.frames[2], **{k: v[2] for k, v in inputs.items()})
     assert isinstance(single.modulus_pa, float) and not single.batched and batch.batched
-    assert single.modulus_pa == pytest.approx(batch.modulus_pa[2], rel=1e-6)
+    # float32 kernels sum in another order for a batch of 1 than of 4 (1.2e-6 relative
+    # measured on this VM, 5e-7 decades): far below any real difference, which is decades.
+    assert single.modulus_pa == pytest.approx(batch.modulus_pa[2], rel=1e-5)
     assert single.log10_modulus_pa == pytest.approx(np.log10(single.modulus_pa))
     json.dumps(single.to_dict())
     json.dumps(batch.to_dict())
@@ -172,7 +174,7 @@ def test_float_frames_bgr_and_lists_give_the_same_estimate(runs, toy_store):
 
 def test_inputs_the_strategy_does_not_use_are_ignored(runs, toy_store):
     estimator = ComplianceEstimator.from_checkpoint(runs["res_tf_image_s0"])
-    assert estimator.required_inputs == ()
+    assert estimator.required_inputs == ("frames",)
     frames = toy_store.frames[:2]
     plain = estimator.predict(frames).modulus_pa
     with_junk = estimator.predict(frames, force=[[np.nan] * 3] * 2, width="junk").modulus_pa
@@ -205,7 +207,7 @@ def _frames_with_nan():
 
 
 BAD_INPUTS = {
-    "frames None": ({"frames": None}, "frames are required"),
+    "frames None": ({"frames": None}, r"needs `frames` \(three difference images"),
     "frames 2-D": ({"frames": np.zeros((40, 48), np.uint8)}, r"frames must have shape"),
     "two frames": ({"frames": GOOD["frames"][:2]}, r"frames must have shape"),
     "four channels": ({"frames": np.zeros((3, 40, 48, 4), np.uint8)}, r"frames must have shape"),
@@ -263,7 +265,7 @@ def test_good_input_passes_and_bad_options_are_rejected(estimator_all):
 
 def test_a_resizing_checkpoint_still_rejects_frames_too_small_to_hold_a_contact(estimator_all):
     # Frames are resized to the checkpoint's size, but a 1x1 "frame" is a wrong array.
-    from tactile_compliance.inference.base import MIN_FRAME_SIDE_PX
+    from tactile_compliance.data.inputs import MIN_FRAME_SIDE_PX
 
     assert estimator_all.run_inputs.image_size == (72, 72)
     side = MIN_FRAME_SIDE_PX
@@ -362,7 +364,7 @@ def test_predict_path_skips_samples_missing_an_input(runs, toy_store, tmp_path):
     assert len(lines) == 1 and lines[0].startswith("error: "), result.output
     assert f"none of its {len(samples)} samples can be predicted" in lines[0]
     assert f"missing estimates (NaN): {len(samples)}" in lines[0]
-    assert "a checkpoint of Image or ImageF or ImageFW inputs can" in lines[0]
+    assert "a checkpoint of Image or ImageF or ImageFW or FW or DepthFW inputs can" in lines[0]
 
 
 def _write_video(path, size=(40, 48)):

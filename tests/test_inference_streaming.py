@@ -315,7 +315,7 @@ def test_ensemble_mean_and_interval_from_members():
         frames[idx], force[idx], width[idx]
     )
     assert wide.half_width_decades == pytest.approx(2 * single.half_width_decades)
-    assert ensemble.required_inputs == ("force", "width")
+    assert ensemble.required_inputs == ("frames", "force", "width")
 
 
 def test_interval_scale_fit_reaches_the_level_and_no_more():

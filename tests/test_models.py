@@ -36,8 +36,9 @@ from tactile_compliance.models.settings import (
     search_dimensions,
 )
 
-MODELS = list_models()
-STRATEGIES = list(InputStrategy)
+MODELS = [m for m in list_models() if get_model_class(m).takes_images]  # images
+#: The strategies the image models take (frame-free ones go to scalar_mlp, tested below).
+STRATEGIES = [s for s in InputStrategy if s.image is not None]
 BATCH = 2
 
 # Substrings that every parameter of an input's tower carries (the models' naming
@@ -46,11 +47,7 @@ TOWER_MARKERS = {"force": "force", "width": "width", "estimates": "estimat"}
 
 
 def _uses(strategy: InputStrategy, input_name: str) -> bool:
-    return {
-        "force": strategy.uses_force,
-        "width": strategy.uses_width,
-        "estimates": strategy.uses_estimates,
-    }[input_name]
+    return strategy.uses(input_name)
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -125,16 +122,25 @@ def perturbed(batch: dict[str, torch.Tensor], input_name: str, column: int | Non
 # ----------------------------------------------------------------- InputStrategy
 
 
-def test_input_strategy_flags() -> None:
+def test_input_strategy_inputs() -> None:
+    # Written out, not read from the table: the table is what is tested.
     table = {
-        InputStrategy.IMAGE: (False, False, False),
-        InputStrategy.IMAGE_F: (True, False, False),
-        InputStrategy.IMAGE_FW: (True, True, False),
-        InputStrategy.ALL: (True, True, True),
+        "Image": ("frames",),
+        "ImageF": ("frames", "force"),
+        "ImageFW": ("frames", "force", "width"),
+        "ALL": ("frames", "force", "width", "estimates"),
+        "FW": ("force", "width"),
+        "FWE": ("force", "width", "estimates"),
+        "DepthFW": ("depth", "force", "width"),
+        "DepthALL": ("depth", "force", "width", "estimates"),
     }
-    for strategy, flags in table.items():
-        assert (strategy.uses_force, strategy.uses_width, strategy.uses_estimates) == flags
-    assert [s.value for s in InputStrategy] == ["Image", "ImageF", "ImageFW", "ALL"]
+    assert [s.value for s in InputStrategy] == list(table)
+    for name, inputs in table.items():
+        strategy = InputStrategy.parse(name)
+        assert strategy.input_names == inputs
+        assert strategy.scalar_names == tuple(n for n in inputs if n not in ("frames", "depth"))
+        assert (strategy.image is None) == (inputs[0] not in ("frames", "depth"))
+        assert strategy.in_paper == (name in ("Image", "ImageF", "ImageFW", "ALL"))
 
 
 @pytest.mark.parametrize(
@@ -242,7 +248,8 @@ def test_disabled_inputs_have_no_parameters(get_model, name: str, strategy: Inpu
 
 @pytest.mark.parametrize("name", MODELS)
 def test_parameter_count_grows_with_inputs(get_model, name: str) -> None:
-    counts = [sum(p.numel() for p in get_model(name, s).parameters()) for s in STRATEGIES]
+    paper = [s for s in STRATEGIES if s.in_paper]
+    counts = [sum(p.numel() for p in get_model(name, s).parameters()) for s in paper]
     assert counts == sorted(counts) and len(set(counts)) == len(counts), counts
 
 
@@ -258,7 +265,7 @@ def test_forward_equals_forward_features(get_model, name: str, strategy: InputSt
         per_frame = torch.stack([model.backbone(frames[:, t]) for t in range(3)], dim=1)
         assert per_frame.shape == (BATCH, 3, model.feature_dim)
         cached = model.forward_features(
-            per_frame, batch["force"], batch["width"], batch["estimates"]
+            per_frame, force=batch["force"], width=batch["width"], estimates=batch["estimates"]
         )
     torch.testing.assert_close(direct, cached, rtol=1e-5, atol=1e-6)
 
@@ -285,24 +292,41 @@ def test_bad_shapes_raise_clear_errors(get_model, name: str) -> None:
     model = get_model(name, InputStrategy.ALL).eval()
     batch = make_batch(model)
     with pytest.raises(ValueError, match="frames"):
-        model(batch["frames"][:, 0], batch["force"], batch["width"], batch["estimates"])
+        model(
+            batch["frames"][:, 0],
+            force=batch["force"],
+            width=batch["width"],
+            estimates=batch["estimates"],
+        )
     with pytest.raises(ValueError, match="frames"):
-        model(batch["frames"][:, :2], batch["force"], batch["width"], batch["estimates"])
+        model(
+            batch["frames"][:, :2],
+            force=batch["force"],
+            width=batch["width"],
+            estimates=batch["estimates"],
+        )
     if model.min_image_size > 1:
         too_small = torch.zeros(BATCH, 3, 3, model.min_image_size - 1, 80)
         with pytest.raises(ValueError, match="at least"):
-            model(too_small, batch["force"], batch["width"], batch["estimates"])
+            model(
+                too_small, force=batch["force"], width=batch["width"], estimates=batch["estimates"]
+            )
     with pytest.raises(ValueError, match="`force`"):
-        model(batch["frames"], batch["force"][:, :2], batch["width"], batch["estimates"])
+        model(
+            batch["frames"],
+            force=batch["force"][:, :2],
+            width=batch["width"],
+            estimates=batch["estimates"],
+        )
     with pytest.raises(ValueError, match="features"):
         model.forward_features(torch.zeros(BATCH, 3, model.feature_dim + 1))
     # float64 scalars (straight from numpy) are accepted.
     with torch.no_grad():
         out = model(
             batch["frames"],
-            batch["force"].double(),
-            batch["width"].double(),
-            batch["estimates"].double(),
+            force=batch["force"].double(),
+            width=batch["width"].double(),
+            estimates=batch["estimates"].double(),
         )
     assert out.dtype == torch.float32
 
@@ -415,7 +439,7 @@ def test_vgg_lstm_dropout_modes(get_model, get_features) -> None:
             seen_in, seen_out, handle = _recorded_dropout(model)
             torch.manual_seed(5)
             with torch.no_grad():
-                logits[mode] = model._head(features, **scalars)
+                logits[mode] = model._head(features, scalars)
                 states, expected = _lstm_steps_with_masks(
                     model, features, scalars, seen_out, recurrent=mode == "recurrent"
                 )
@@ -433,9 +457,7 @@ def test_vgg_lstm_dropout_modes(get_model, get_features) -> None:
         recurrent.eval()
         output.eval()
         with torch.no_grad():
-            assert torch.equal(
-                recurrent._head(features, **scalars), output._head(features, **scalars)
-            )
+            assert torch.equal(recurrent._head(features, scalars), output._head(features, scalars))
     finally:
         recurrent.train(was_training)
         del output
@@ -547,7 +569,7 @@ def test_register_a_new_model() -> None:
             self.backbone = create_backbone("resnet18")
             self.out = nn.Linear(3 * self.backbone.feature_dim, 1)
 
-        def _head(self, features, force, width, estimates):
+        def _head(self, features, scalars):
             return self.out(features.flatten(1)).squeeze(1)
 
     try:
@@ -639,3 +661,45 @@ def test_search_dimension_validation() -> None:
             search_dimensions("broken_space_model", "ALL")
     finally:
         registry_module._REGISTRY.pop("broken_space_model", None)
+
+
+# ------------------------------------------------------------------ frame-free model
+
+
+@pytest.mark.parametrize("strategy", [InputStrategy.FW, InputStrategy.FWE], ids=str)
+def test_scalar_mlp_reads_its_scalars_and_nothing_else(strategy: InputStrategy) -> None:
+    torch.manual_seed(0)
+    model = create_model("scalar_mlp", strategy).eval()
+    batch = {k: v for k, v in make_batch(model).items() if k != "frames"}
+    with torch.no_grad():
+        out = model(**batch)
+        assert out.shape == (BATCH,) and ((out > 0) & (out < 1)).all()
+        for name in ("force", "width", "estimates"):
+            changed = model(**perturbed(batch, name))
+            # Each input it takes moves the output; the one it does not take is ignored.
+            assert torch.equal(changed, out) != strategy.uses(name), name
+    with pytest.raises(ValueError, match="needs `width`"):
+        model(force=batch["force"])
+
+
+@pytest.mark.parametrize(
+    ("model", "inputs", "message"),
+    [
+        ("top10nn", "FW", "reads frames or depth maps, but inputs=FW has none"),
+        ("res_tf", "FWE", "inputs=FWE has none"),
+        ("scalar_mlp", "ALL", "takes no images, but inputs=ALL includes frames"),
+        ("scalar_mlp", "DepthFW", "includes depth"),
+    ],
+)
+def test_a_model_refuses_a_strategy_it_cannot_take(model: str, inputs: str, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        create_model(model, inputs)
+
+
+@pytest.mark.parametrize("name", ["top10nn", "res_tf"])
+def test_a_depth_strategy_has_the_same_architecture_as_its_frame_strategy(name: str) -> None:
+    # Depth maps enter the backbone as three equal channels: same weights, other images.
+    frames = create_model(name, "ALL")
+    depth = create_model(name, "DepthALL")
+    shapes = {k: tuple(v.shape) for k, v in frames.state_dict().items()}
+    assert shapes == {k: tuple(v.shape) for k, v in depth.state_dict().items()}

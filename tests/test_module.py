@@ -6,6 +6,7 @@ import torch
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.models import create_model
 from tactile_compliance.models.vgg_lstm import project_steps
+from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.training.module import (
     ComplianceModule,
     add_sum_of_norms_gradient,
@@ -42,8 +43,7 @@ def test_training_step_gradient_is_mse_plus_l2(l2_weight: float) -> None:
     model = create_model("res_tf", inputs="ALL", num_layers=1, dim_feedforward=32).eval()
     module = ComplianceModule(
         model,
-        NormalisationConstants(),
-        None,
+        RunInputs((224, 224), (224, 224), NormalisationConstants(), "ALL"),
         lr=1e-3,
         gamma=None,
         l2_weight=l2_weight,
@@ -63,7 +63,7 @@ def test_training_step_gradient_is_mse_plus_l2(l2_weight: float) -> None:
     assert all(p.grad is None for p in model.backbone.parameters())
     module.zero_grad(set_to_none=True)
     prediction = model.forward_features(
-        batch["features"], batch["force"], batch["width"], batch["estimates"]
+        batch["features"], force=batch["force"], width=batch["width"], estimates=batch["estimates"]
     )
     reference = torch.mean((prediction - batch["label"]) ** 2)
     reference = reference + l2_weight * sum(p.norm(2) for p in module.trainable_parameters())
@@ -100,7 +100,7 @@ def test_vgg_lstm_head_is_the_lstm_cell_recurrence() -> None:
         outputs.append(model.output(hidden))
     expected = torch.cat(outputs, dim=1) @ torch.softmax(model.step_weights, dim=0)
     with torch.no_grad():
-        got = model._head(features, force, width, estimates)
+        got = model._head(features, {"force": force, "width": width, "estimates": estimates})
     assert torch.allclose(got, expected.detach(), atol=1e-6)
 
 

@@ -22,6 +22,7 @@ import torch
 from burgess_tree import dump, write_tree
 from tactile_compliance.data import plausibility, raw_layout, store
 from tactile_compliance.data.burgess import import_burgess
+from tactile_compliance.data.inputs import INPUTS
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import RULES, PlausibleRange
 from tactile_compliance.data.store import GraspStore, GraspStoreWriter, StoreError
@@ -34,7 +35,7 @@ BAD_SAMPLE = ("foam_block", 0, 1)  # (object, grasp, augmentation) that gets the
 
 # ---------------------------------------------------------------------- the rules table
 def test_every_rule_has_a_unit_a_range_and_a_reason():
-    assert set(RULES) == {"force", "width", "estimate", "modulus", "frame value"}
+    assert set(RULES) == {"force", "width", "estimate", "modulus", "frame value", "depth"}
     for name, rule in RULES.items():
         assert rule.quantity == name
         assert rule.unit.strip(), name
@@ -50,10 +51,11 @@ def test_every_rule_has_a_unit_a_range_and_a_reason():
 
 def test_the_consumers_read_the_same_rules():
     # Estimator: its ranges are the rules themselves, not literals of its own.
-    assert input_checks.SCALAR_SPECS["force"].rule is plausibility.FORCE
-    assert input_checks.SCALAR_SPECS["width"].rule is plausibility.WIDTH
-    assert input_checks.SCALAR_SPECS["estimates"].rule is plausibility.ESTIMATE
-    assert input_checks.SCALAR_SPECS["force"].high == plausibility.FORCE.high
+    assert INPUTS["force"].rule is plausibility.FORCE
+    assert INPUTS["width"].rule is plausibility.WIDTH
+    assert INPUTS["estimates"].rule is plausibility.ESTIMATE
+    assert INPUTS["depth"].rule is plausibility.DEPTH
+    assert INPUTS["frames"].rule is plausibility.FRAME
     assert plausibility.FRAME.tolerance == input_checks._RANGE_TOLERANCE
     # Store columns and importer files.
     assert store.COLUMN_RULES["modulus_pa"] is plausibility.MODULUS
@@ -426,5 +428,5 @@ def test_estimator_saturates_frames_like_the_store():
     stored = frames_from_uint8(frames_to_uint8(raw))
     np.testing.assert_array_equal(checked[0, 0, 0, 0].numpy(), stored[0, 0, 0])
     assert float(checked.max()) <= float(stored.max())
-    decoded = frames_from_uint8(np.array([0, 7, 128, 255], np.uint8).repeat(18).reshape(3, 4, 2, 3))
+    decoded = frames_from_uint8(np.array([0, 7, 128, 255], np.uint8).repeat(144).reshape(3, 8, 8, 3))
     np.testing.assert_array_equal(input_checks.check_frames(decoded)[0][0].numpy(), decoded)

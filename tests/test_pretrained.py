@@ -92,8 +92,7 @@ def _inputs(batch: int = 5, seed: int = 0) -> dict:
 
 
 def _predict(estimator: ComplianceEstimator, inputs: dict) -> np.ndarray:
-    scalars = {k: inputs[k] for k in estimator.required_inputs}
-    return estimator.predict(inputs["frames"], **scalars).log10_modulus_pa
+    return estimator.predict(**{k: inputs[k] for k in estimator.required_inputs}).log10_modulus_pa
 
 
 @pytest.mark.parametrize("which", ["top10nn_run", "res_tf_head_only"])

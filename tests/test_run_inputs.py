@@ -120,9 +120,8 @@ def test_predict_live_onnx_and_evaluation_agree_across_frame_sizes(setup):
     constants = loaded.run_inputs.constants
     evaluated = predict_dataset(
         loaded.model,
-        GraspDataset(store, ids, constants),
-        constants,
-        loaded.run_inputs.image_size,
+        GraspDataset(store, ids, constants, loaded.run_inputs.inputs),
+        loaded.run_inputs,
     )
     evaluated_log10 = np.log10(denormalise_modulus(evaluated.astype(np.float64), constants))
     # 1e-4 decades, as for ONNX and live below: the two paths batch the samples

@@ -244,13 +244,13 @@ def test_cli_train_and_evaluate(toy_store, tmp_path):
 def test_finetune_last_block_trains_only_that_block(model_name, block):
     from tactile_compliance.data.normalisation import NormalisationConstants
     from tactile_compliance.models import create_model
+    from tactile_compliance.runs.run_inputs import RunInputs
     from tactile_compliance.training.module import ComplianceModule
 
     model = create_model(model_name)
     module = ComplianceModule(
         model,
-        NormalisationConstants(),
-        None,
+        RunInputs((224, 224), (224, 224), NormalisationConstants(), "ALL"),
         lr=1e-3,
         gamma=None,
         l2_weight=0.0,

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_compliance.data.store import GraspStore, GraspStoreWriter
+from tactile_compliance.data.store import GraspStore, GraspStoreWriter, depth_size_for
 
 MATERIALS = ("Foam", "Rubber", "Plastic", "Metal")
 SHAPES = ("Sphere", "Cylinder")
@@ -61,15 +61,30 @@ def make_sample(
     return np.clip(frames, 0, 1), columns
 
 
+def toy_depth(log_e: float, size: tuple[int, int]) -> np.ndarray:
+    """Depth maps (3, h, w) mm at the store's depth size for frames of ``size``: a dome
+    whose depth grows with softness over the press (no random draw, so a store with depth
+    maps has the same frames and columns as one without)."""
+    height, width = depth_size_for(size)
+    yy, xx = np.mgrid[0:height, 0:width]
+    radius_sq = ((yy - height / 2) / height) ** 2 + ((xx - width / 2) / width) ** 2
+    softness = (11.0 - log_e) / 7.0
+    peaks = 0.2 + 1.2 * softness * np.array([1.0, 2.0, 3.0]) / 3
+    return (peaks[:, None, None] * np.exp(-radius_sq / 0.05)).astype(np.float32)
+
+
 def make_toy_store(
     path: Path,
     n_objects: int = 16,
     grasps: int = 4,
     size: tuple[int, int] = (32, 32),
     seed: int = 0,
+    depth: bool = False,
 ) -> GraspStore:
+    """The toy store; ``depth`` adds depth maps (:func:`toy_depth`) to every sample."""
     rng = np.random.default_rng(seed)
-    with GraspStoreWriter(path, size, "toy") as writer:
+    depth_size = depth_size_for(size) if depth else None
+    with GraspStoreWriter(path, size, "toy", depth_size=depth_size) as writer:
         for index in range(n_objects):
             log_e = 4.0 + 7.0 * index / max(1, n_objects - 1)  # 1e4 .. 1e11 Pa
             for grasp in range(grasps):
@@ -87,6 +102,7 @@ def make_toy_store(
                             **columns,
                             "source_path": f"toy/{index}/{grasp}",
                         },
+                        toy_depth(log_e, size) if depth else None,
                     )
     return GraspStore.open(path)
 

@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib
 import json
@@ -38,7 +39,9 @@ _debug = False  # --debug: let errors raise with their traceback
 Fingers = Literal["markerless", "markers", "both"]  # data.raw_layout.FingerChoice
 Condition = Literal["seen", "unseen"]  # config.SplitConfig.condition
 Grouping = Literal["grasp", "per_sample"]  # config.SplitConfig.grouping
-Inputs = Literal["Image", "ImageF", "ImageFW", "ALL"]  # models.inputs.InputStrategy
+Inputs = Literal[  # data.inputs.InputStrategy
+    "Image", "ImageF", "ImageFW", "ALL", "FW", "FWE", "DepthFW", "DepthALL"
+]
 Objective = Literal["last", "best"]  # training.hpo.objectives.OBJECTIVES
 KeepCheckpoints = Literal["all", "best", "none"]  # runs.layout.KEEP_CHECKPOINTS
 Backbone = Literal[  # training.pretrain.PRETRAIN_BACKBONES
@@ -1150,7 +1153,8 @@ def export(
 
 SOURCE_HELP = (
     "Frame source: mini:0, mini:/dev/v4l/by-id/..., wedge:http://host:port/stream.mjpg, "
-    "digit:SERIAL, camera:0, video:FILE, folder:DIR, or a plain path."
+    "digit:SERIAL, camera:0, video:FILE, folder:DIR, or a plain path; `live` also takes "
+    "none (no camera: a frame-free model on --readings alone)."
 )
 SourceArg = Annotated[str, typer.Argument(help=SOURCE_HELP)]
 CalibrationOption = Annotated[
@@ -1175,15 +1179,26 @@ FolderTimesOption = Annotated[
 ]
 
 
+#: ``live``'s source for a frame-free model: no camera, the readings alone.
+NO_CAMERA = "none"
+
+
 def _readings(path: Path, source: Any) -> Any:
     """The readings CSV: read once for a replay; followed while the robot writes it for a
     live device (each frame waits up to 1 s for its reading)."""
-    from tactile_compliance.acquisition.recording import FollowedReadings, Readings
+    from tactile_compliance.acquisition.recording import FollowedReadings
 
     if source.live:  # the robot may create the file after the start; its folder must exist
         if not path.parent.is_dir():
             raise ValueError(f"--readings {path}: no such folder: {path.parent}")
         return FollowedReadings(path)
+    return _recorded_readings(path)
+
+
+def _recorded_readings(path: Path) -> Any:
+    """A recorded readings CSV, read once."""
+    from tactile_compliance.acquisition.recording import Readings
+
     if not path.is_file():
         raise ValueError(f"--readings {path}: no such file")
     try:
@@ -1512,13 +1527,18 @@ def live(
     if not 0 < level < 1:
         raise typer.BadParameter(f"--level must lie between 0 and 1 (exclusive), got {level}")
     members = load_members(checkpoints, device=device, backbone_weights=weights)
-    frames, sensor = _open_source(source, calibration, fps, timestamps)
+    no_camera = source.strip().lower() == NO_CAMERA
+    frames, sensor = (
+        (contextlib.nullcontext(), None)
+        if no_camera
+        else _open_source(source, calibration, fps, timestamps)
+    )
     final = False
     with frames:
-        table = _readings(readings, frames)
+        table = _recorded_readings(readings) if no_camera else _readings(readings, frames)
         for event in live_estimates(
             members,
-            frames,
+            None if no_camera else frames,
             table,
             calibration=sensor,
             window=window,

@@ -17,13 +17,12 @@ from typing import Any, Literal, get_args, get_origin
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import FilterRules
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS
-from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
 from tactile_compliance.devices import DEFAULT_DEVICE
-from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.outputs import atomic_file
 
 __all__ = [
@@ -49,8 +48,12 @@ __all__ = [
     "write_yaml",
 ]
 
-#: The store columns behind each scalar input of ``InputStrategy.needs``.
-_NEED_COLUMNS = {"force": FORCE_COLUMNS, "width": WIDTH_COLUMNS, "estimates": ESTIMATE_COLUMNS}
+#: ``model.name: auto`` and ``training.lr: auto`` resolve to these, by whether the input
+#: strategy has an image input: the paper's Top10NN at its published rate, or the
+#: frame-free scalar MLP at the rate it was measured with (docs/models.md, "ScalarMLP").
+AUTO = "auto"
+AUTO_MODEL = {True: "top10nn", False: "scalar_mlp"}
+AUTO_LR = {True: 3e-6, False: 1e-3}
 _DEFAULT_NORM = NormalisationConstants()
 
 
@@ -208,7 +211,9 @@ class AugmentationConfig(_Section):
 class ModelConfig(_Section):
     """Which model and its hyperparameters (names as in ``models.registry``)."""
 
-    name: str = "top10nn"
+    name: str = Field(
+        AUTO, description="a registered model; auto: top10nn, or scalar_mlp for frame-free inputs"
+    )
     hparams: dict[str, Any] = Field(default_factory=dict)
     backbone_weights: str = Field(
         "none", description="none | imagenet | path to a state dict (sha256-checked)"
@@ -233,7 +238,9 @@ class TrainingConfig(_Section):
 
     max_epochs: int = Field(200, ge=1)
     patience: int = Field(30, ge=0, description="epochs without val N-MSE improvement")
-    lr: float = Field(3e-6, gt=0.0)
+    lr: float = Field(
+        AUTO_LR[True], gt=0.0, description="Adam rate; auto: 3e-6, or 1e-3 for frame-free inputs"
+    )
     batch_size: int = Field(32, ge=1)
     gamma: float | None = Field(None, gt=0.0, le=1.0, description="StepLR gamma; null = none")
     l2_weight: float = Field(5e-5, ge=0.0)
@@ -275,6 +282,28 @@ class ExperimentConfig(_Section):
     seed: int = Field(0, ge=0)
     output_dir: str = "runs"
 
+    @model_validator(mode="before")
+    @classmethod
+    def _resolve_auto(cls, data: Any) -> Any:
+        # ``auto`` model and rate follow the strategy (AUTO_MODEL, AUTO_LR); resolved here,
+        # once, so every reader of the config sees a concrete model name and rate.
+        if not isinstance(data, dict):
+            return data
+        try:
+            has_image = InputStrategy.parse(data.get("inputs", "ALL")).image is not None
+        except ValueError:
+            return data  # the inputs field reports it
+        data = dict(data)
+        for section, key, table in (("model", "name", AUTO_MODEL), ("training", "lr", AUTO_LR)):
+            values = data.get(section)
+            if values is None or isinstance(values, dict):
+                values = dict(values or {})
+                value = values.get(key, AUTO)
+                if isinstance(value, str) and value.strip().lower() == AUTO:
+                    values[key] = table[has_image]
+                data[section] = values
+        return data
+
     @field_validator("inputs", mode="before")
     @classmethod
     def _inputs(cls, v: Any) -> Any:
@@ -283,11 +312,21 @@ class ExperimentConfig(_Section):
 
     @model_validator(mode="after")
     def _combinations(self) -> ExperimentConfig:
-        if self.data.source == "yuan" and self.inputs != "Image":
+        if self.data.source == "yuan" and self.strategy.input_names != ("frames",):
             raise ValueError(
-                f"inputs={self.inputs} needs {'/'.join(self.strategy.needs)}, but "
-                "data.source=yuan (Shore-hardness videos) has no force, width or estimates; "
-                "use inputs: Image"
+                f"inputs={self.inputs} takes {', '.join(self.strategy.input_names)}, but "
+                "data.source=yuan (Shore-hardness videos) has frames only; use inputs: Image"
+            )
+        image = self.strategy.image
+        if self.model.freeze_backbone and (image is None or image.name != "frames"):
+            raise ValueError(
+                f"model.freeze_backbone caches RGB frame features, but inputs={self.inputs} "
+                f"takes {'no images' if image is None else image.name}; set it to false"
+            )
+        if image is None and self.model.finetune != "all":
+            raise ValueError(
+                f"model.finetune={self.model.finetune} needs a backbone, but "
+                f"inputs={self.inputs} takes no images; use finetune: all"
             )
         if self.split.condition == "unseen" and self.split.grouping == "per_sample":
             raise ValueError(
@@ -313,7 +352,7 @@ class ExperimentConfig(_Section):
 
     @property
     def strategy(self) -> InputStrategy:
-        """The input strategy (what it needs: ``.needs``, ``.uses_force``, ...)."""
+        """The input strategy (its inputs: ``.inputs``, ``.image``, ``.scalars``)."""
         return InputStrategy.parse(self.inputs)
 
 
@@ -630,12 +669,10 @@ def check_config_against_samples(
     hold no data) or ``data.source`` (when not ``auto``) is not the store's ``source``."""
     if source is not None and cfg.data.source not in ("auto", source):
         raise ConfigError(f"data.source={cfg.data.source} but the store's source is {source!r}")
-    for need in cfg.strategy.needs:
-        empty = [
-            c for c in _NEED_COLUMNS[need] if c not in samples.columns or samples[c].isna().all()
-        ]
+    for spec in cfg.strategy.scalars:
+        empty = [c for c in spec.columns if c not in samples.columns or samples[c].isna().all()]
         if empty:
             raise ConfigError(
-                f"inputs={cfg.inputs} needs {need}, but column(s) {empty} are missing or all "
-                f"NaN in this data (source {source or 'unknown'}); use inputs: Image"
+                f"inputs={cfg.inputs} needs {spec.name}, but column(s) {empty} are missing or "
+                f"all NaN in this data (source {source or 'unknown'}); use inputs: Image"
             )

@@ -19,61 +19,54 @@ from torch.utils.data import (
     SequentialSampler,
 )
 
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.data.normalisation import (
     NormalisationConstants,
-    normalise_estimates,
-    normalise_force,
+    normalise_depth,
     normalise_images,
     normalise_modulus,
-    normalise_width,
 )
-from tactile_compliance.data.store import (
-    ESTIMATE_COLUMNS,
-    FORCE_COLUMNS,
-    FRAME_DECODE_OFFSET,
-    WIDTH_COLUMNS,
-    GraspStore,
-)
+from tactile_compliance.data.store import FRAME_DECODE_OFFSET, GraspStore
 
 
 @dataclass(frozen=True)
 class ModelInputs:
-    """Normalised per-sample inputs (numpy float32), aligned with ``sample_ids``."""
+    """Normalised per-sample scalar inputs and labels (numpy float32), aligned with
+    ``sample_ids``.
 
-    sample_ids: np.ndarray  # (N,) int64 store rows (may repeat after balancing)
-    force: np.ndarray  # (N, 3) F / 60 N
-    width: np.ndarray  # (N, 3) W / 0.08 m
-    estimates: np.ndarray  # (N, 2) normalised log10 (elastic, Hertz)
-    label: np.ndarray  # (N,) normalised log10 modulus
+    Attributes:
+        sample_ids: (N,) int64 store rows (may repeat after balancing).
+        scalars: the strategy's scalar inputs by name, each (N, size), normalised by its
+            ``data.inputs.INPUTS`` entry (force F / 60 N, width W / 0.08 m, ...).
+        label: (N,) normalised log10 modulus.
+    """
+
+    sample_ids: np.ndarray
+    scalars: dict[str, np.ndarray]
+    label: np.ndarray
 
 
 def model_inputs(
-    samples: pd.DataFrame, sample_ids: Sequence[int] | np.ndarray, constants: NormalisationConstants
+    samples: pd.DataFrame,
+    sample_ids: Sequence[int] | np.ndarray,
+    constants: NormalisationConstants,
+    inputs: InputStrategy | str,
 ) -> ModelInputs:
-    """Normalised force, width, estimates and labels of ``sample_ids`` (store rows).
+    """Normalised scalar inputs of strategy ``inputs`` and labels of ``sample_ids`` (store
+    rows); only the strategy's columns are read.
 
     Missing values (NaN, e.g. no estimates in the Shore-hardness data) become 0 after
     normalisation; the configuration forbids strategies that would use such inputs.
     """
     ids = np.asarray(sample_ids, dtype=np.int64)
     rows = samples.iloc[ids]
-
-    def block(columns: Sequence[str]) -> np.ndarray:
-        return rows[list(columns)].to_numpy(dtype=np.float64)
-
-    def clean(values: np.ndarray) -> np.ndarray:
-        return np.nan_to_num(np.asarray(values, dtype=np.float32), nan=0.0)
-
-    return ModelInputs(
-        sample_ids=ids,
-        force=clean(normalise_force(block(FORCE_COLUMNS), constants)),
-        width=clean(normalise_width(block(WIDTH_COLUMNS), constants)),
-        estimates=clean(normalise_estimates(block(ESTIMATE_COLUMNS), constants)),
-        label=np.asarray(
-            normalise_modulus(rows["modulus_pa"].to_numpy(dtype=np.float64), constants),
-            dtype=np.float32,
-        ),
-    )
+    scalars = {}
+    for spec in InputStrategy.parse(inputs).scalars:
+        assert spec.normalise is not None  # every scalar has one (data.inputs checks)
+        values = spec.normalise(rows[list(spec.columns)].to_numpy(dtype=np.float64), constants)
+        scalars[spec.name] = np.nan_to_num(np.asarray(values, dtype=np.float32), nan=0.0)
+    label = normalise_modulus(rows["modulus_pa"].to_numpy(dtype=np.float64), constants)
+    return ModelInputs(ids, scalars, np.asarray(label, dtype=np.float32))
 
 
 def prepare_frames(
@@ -115,11 +108,59 @@ def prepare_frames(
     return normalise_images(x.contiguous(), constants, channel_axis=2)
 
 
-class GraspDataset(Dataset):
-    """Samples of a store as dicts of tensors; frames stay uint8 until the batch transform.
+def prepare_depth(
+    depth_mm: torch.Tensor,
+    constants: NormalisationConstants,
+    image_size: tuple[int, int] | None = None,
+) -> torch.Tensor:
+    """Store depth maps -> model images, shaped like :func:`prepare_frames`' output.
 
-    With ``features`` (a cached (N_store, 3, D) array of frozen-backbone features) the
-    items carry ``features`` instead of ``frames``, and no image is read at all.
+    Args:
+        depth_mm: (B, 3 frames, h, w) depth in mm; NaN (no depth) counts as 0 mm.
+        image_size: (height, width) px the model expects; None keeps the size.
+
+    Returns:
+        (B, 3 frames, 3 channels, h, w) float32: ``depth / depth_scale_mm`` on every
+        channel, so the image backbones take depth maps unchanged.
+    """
+    if depth_mm.dim() != 4 or depth_mm.shape[1] != 3:
+        raise ValueError(f"depth maps must have shape (B, 3, h, w), got {tuple(depth_mm.shape)}")
+    x = torch.nan_to_num(normalise_depth(depth_mm.float(), constants), nan=0.0)
+    batch, n_frames, height, width = x.shape
+    if image_size is not None and (height, width) != tuple(image_size):
+        x = F.interpolate(
+            x.reshape(batch * n_frames, 1, height, width),
+            size=tuple(image_size),
+            mode="bilinear",
+            align_corners=False,
+            antialias=True,
+        ).reshape(batch, n_frames, *image_size)
+    return x.unsqueeze(2).expand(-1, -1, 3, -1, -1).contiguous()
+
+
+def prepare_images(
+    name: str,
+    images: torch.Tensor,
+    constants: NormalisationConstants,
+    image_size: tuple[int, int] | None = None,
+    augmentation: torch.nn.Module | None = None,
+) -> torch.Tensor:
+    """The image input ``name`` (``"frames"`` or ``"depth"``, a ``data.inputs.INPUTS``
+    image) as the backbone takes it, ``(B, 3, 3, h, w)``; ``augmentation`` (photometric
+    and flips of RGB frames) applies to frames only."""
+    if name == "frames":
+        return prepare_frames(images, constants, image_size, augmentation)
+    if name == "depth":
+        return prepare_depth(images, constants, image_size)
+    raise ValueError(f"{name!r} is no image input")
+
+
+class GraspDataset(Dataset):
+    """Samples of a store as dicts of tensors, with what strategy ``inputs`` takes and
+    nothing else: ``sample_id``, ``label``, its scalar inputs, and its image input
+    (``frames`` uint8 until the batch transform, or ``depth`` in mm) unless ``features``
+    (a cached (N_store, 3, D) array of frozen-backbone features) stands in for it; then no
+    image is read at all.
     """
 
     def __init__(
@@ -127,11 +168,15 @@ class GraspDataset(Dataset):
         store: GraspStore,
         sample_ids: Sequence[int] | np.ndarray,
         constants: NormalisationConstants,
+        inputs: InputStrategy | str,
         features: np.ndarray | None = None,
     ) -> None:
         self.store = store
-        self.inputs = model_inputs(store.samples, sample_ids, constants)
+        self.strategy = InputStrategy.parse(inputs)
+        self.inputs = model_inputs(store.samples, sample_ids, constants, self.strategy)
         self.features = features
+        if self.strategy.uses("depth") and features is None:
+            store.require_depth()
 
     def __len__(self) -> int:
         return len(self.inputs.sample_ids)
@@ -146,20 +191,21 @@ class GraspDataset(Dataset):
         cost ~0.2 ms on cached features, about as long as a head's training step on it)."""
         pos = np.asarray(positions, dtype=np.int64)
         ids = self.inputs.sample_ids[pos]
-        out = {
-            "sample_id": torch.from_numpy(ids.copy()),
-            "force": torch.from_numpy(self.inputs.force[pos]),
-            "width": torch.from_numpy(self.inputs.width[pos]),
-            "estimates": torch.from_numpy(self.inputs.estimates[pos]),
-            "label": torch.from_numpy(self.inputs.label[pos]),
-        }
+        out = {"sample_id": torch.from_numpy(ids.copy())}
+        out |= {name: torch.from_numpy(v[pos]) for name, v in self.inputs.scalars.items()}
+        out["label"] = torch.from_numpy(self.inputs.label[pos])
+        image = self.strategy.image
+        if image is None:
+            return out
         if self.features is not None:
             order = np.argsort(ids, kind="stable")  # sorted reads are sequential on disk
             features = np.empty((len(ids), *self.features.shape[1:]), dtype=np.float32)
             features[order] = self.features[ids[order]]
             out["features"] = torch.from_numpy(features)
-        else:
+        elif image.name == "frames":
             out["frames"] = torch.from_numpy(self.store.read_samples(ids))
+        else:
+            out["depth"] = torch.from_numpy(self.store.read_depth(ids))
         return out
 
 

@@ -55,6 +55,7 @@ __all__ = [
     "NormalisationConstants",
     "denormalise_images",
     "denormalise_modulus",
+    "normalise_depth",
     "normalise_estimates",
     "normalise_force",
     "normalise_images",
@@ -73,7 +74,8 @@ class NormalisationConstants:
         estimate_log10_min, estimate_log10_span: the estimates' offset (log10 Pa) and span
             (decades).
         force_scale_n: 60 N, the grasp's force threshold; width_scale_m: 0.08 m, the
-            gripper's maximum opening.
+            gripper's maximum opening; depth_scale_mm: 1 mm, about a grasp's peak
+            indentation (depth maps are divided by it).
         image_mean, image_std: per channel, difference images in [0, 1], in the store's
             order **R, G, B** (the published BGR statistics reversed).
 
@@ -89,6 +91,7 @@ class NormalisationConstants:
     estimate_log10_span: float = 12.0
     force_scale_n: float = 60.0
     width_scale_m: float = 0.08
+    depth_scale_mm: float = 1.0
     image_mean: tuple[float, float, float] = PUBLISHED_IMAGE_MEAN_BGR[::-1]
     image_std: tuple[float, float, float] = PUBLISHED_IMAGE_STD_BGR[::-1]
 
@@ -98,7 +101,7 @@ class NormalisationConstants:
         # is read, before it can turn into a NaN or a 9e256 Pa estimate.
         for name in ("label_log10_min", "label_log10_max", "estimate_log10_min"):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
-        for name in ("estimate_log10_span", "force_scale_n", "width_scale_m"):
+        for name in ("estimate_log10_span", "force_scale_n", "width_scale_m", "depth_scale_mm"):
             object.__setattr__(self, name, _finite(name, getattr(self, name), positive=True))
         # Coerce lists (from JSON/YAML) to tuples so instances stay hashable and comparable.
         for name, length in (("estimate_clamp_pa", 2), ("image_mean", 3), ("image_std", 3)):
@@ -256,6 +259,12 @@ def normalise_width(width_m: Any, c: NormalisationConstants | None = None) -> An
     """Gripper width (m) -> ``W / width_scale_m`` (0.08 m by default)."""
     c = c or NormalisationConstants()
     return _unwrap_scalar(_as_array(width_m) / c.width_scale_m, width_m)
+
+
+def normalise_depth(depth_mm: Any, c: NormalisationConstants | None = None) -> Any:
+    """Depth maps (mm) -> ``depth / depth_scale_mm`` (1 mm by default); NaN stays NaN."""
+    c = c or NormalisationConstants()
+    return _unwrap_scalar(_as_array(depth_mm) / c.depth_scale_mm, depth_mm)
 
 
 # ---------------------------------------------------------------------- images

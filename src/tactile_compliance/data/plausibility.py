@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "DEPTH",
     "ESTIMATE",
     "FORCE",
     "FRAME",
@@ -250,10 +251,19 @@ FRAME = PlausibleRange(
     saturated_share=0.01,
     limits=(-0.5, 1.5),
 )
+#: Gel depth maps (indentation into the gel); NaN marks a pixel without depth.
+DEPTH = PlausibleRange(
+    quantity="depth",
+    unit="mm",
+    low=-100.0,
+    high=100.0,
+    reason="a gel is a few mm thick (the Wedge's 5.5 mm), so |depth| beyond 100 mm is no "
+    "depth map (metres or pixels)",
+)
 
 #: Every rule, by quantity: what ``docs/data.md`` tabulates.
 RULES: dict[str, PlausibleRange] = {
-    rule.quantity: rule for rule in (FORCE, WIDTH, ESTIMATE, MODULUS, FRAME)
+    rule.quantity: rule for rule in (FORCE, WIDTH, ESTIMATE, MODULUS, FRAME, DEPTH)
 }
 
 

@@ -27,6 +27,7 @@ import pandas as pd
 
 from tactile_compliance import __version__
 from tactile_compliance.data.plausibility import (
+    DEPTH,
     ESTIMATE,
     FORCE,
     FRAME,
@@ -66,7 +67,7 @@ FRAMES_PER_SAMPLE = 3
 #: Depth maps are stored at ``ceil(H / DEPTH_DOWNSAMPLE) x ceil(W / DEPTH_DOWNSAMPLE)``.
 DEPTH_DOWNSAMPLE = 4
 #: Largest stored |depth| in mm: a gel is a few mm thick, so anything beyond is no depth map.
-MAX_ABS_DEPTH_MM = 100.0
+MAX_ABS_DEPTH_MM = DEPTH.high
 
 FORCE_COLUMNS = ("force_n_0", "force_n_1", "force_n_2")
 WIDTH_COLUMNS = ("width_m_0", "width_m_1", "width_m_2")
@@ -161,6 +162,17 @@ def depth_size_for(image_size: tuple[int, int]) -> tuple[int, int]:
     """The stored depth-map size (h, w) px for frames of ``image_size`` (H, W) px."""
     height, width = image_size
     return (-(-int(height) // DEPTH_DOWNSAMPLE), -(-int(width) // DEPTH_DOWNSAMPLE))
+
+
+def store_depth_maps(depth_mm: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
+    """Depth maps (n, H, W) mm at a sensor's resolution as a store of frames ``image_size``
+    (H, W) px keeps them: area-averaged to :func:`depth_size_for`, float32 mm; what the
+    importer stores and what a depth-map model reads."""
+    # Imported here: cv2 loads with it, and the command line reads the store module to
+    # check a config before anything heavy.
+    from tactile_compliance.data.image_ops import resize_frames
+
+    return resize_frames(np.asarray(depth_mm, dtype=np.float32), depth_size_for(image_size))
 
 
 def _column_numbers(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:

@@ -55,15 +55,11 @@ def evaluate_run(
         grasp_store = GraspStore.open(store)
         kept, _ = filter_samples(grasp_store.samples, cfg)
         ids = kept["sample_id"].to_numpy(dtype=np.int64)
-    constants = loaded.run_inputs.constants
-    dataset = GraspDataset(grasp_store, ids, constants)
+    run_inputs = loaded.run_inputs
+    constants = run_inputs.constants
+    dataset = GraspDataset(grasp_store, ids, constants, run_inputs.inputs)
     predicted = predict_dataset(
-        loaded.model,
-        dataset,
-        constants,
-        loaded.run_inputs.image_size,
-        batch_size=batch_size,
-        device=device,
+        loaded.model, dataset, run_inputs, batch_size=batch_size, device=device
     )
     predictions = grasp_store.samples.iloc[ids][list(PREDICTION_COLUMNS)].reset_index(drop=True)
     predictions["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), constants)

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.evaluation import plots
 from tactile_compliance.evaluation.loading import (
@@ -40,7 +41,6 @@ from tactile_compliance.evaluation.tables import (
     subset_summary_table,
     window_label,
 )
-from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.runs.results import PROTOCOLS
 
 __all__ = ["fig1", "fig5", "fig6", "fig7", "fig8", "headline_runs", "learning_curves"]

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.data.splits import N_ROLLING_WINDOWS, rolling_windows
 from tactile_compliance.evaluation.loading import (
     main_grid,
@@ -24,7 +25,6 @@ from tactile_compliance.evaluation.loading import (
     subset_rows,
 )
 from tactile_compliance.evaluation.render import Cell, Table
-from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.runs.metrics import REFERENCE_NAMES
 from tactile_compliance.runs.results import (
     PROTOCOL_LABELS,

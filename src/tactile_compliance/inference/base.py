@@ -18,12 +18,7 @@ from tactile_compliance.inference.input_checks import prepare_inputs
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.run_inputs import RunInputs
 
-__all__ = ["MIN_FRAME_SIDE_PX", "BaseEstimator", "Prediction", "to_plain"]
-
-#: Frames must be at least this many pixels high and wide, even when they are resized: a
-#: smaller tactile frame holds no contact geometry (a thumbnail, a single pixel), and
-#: upscaling it would only hide the mistake.
-MIN_FRAME_SIDE_PX = 8
+__all__ = ["BaseEstimator", "Prediction", "to_plain"]
 
 
 def to_plain(value: Any) -> Any:
@@ -115,52 +110,60 @@ class BaseEstimator(ABC):
 
     @property
     def required_inputs(self) -> tuple[str, ...]:
-        """Scalar inputs ``predict`` needs besides the frames, e.g. ``("force", "width")``."""
-        return self.inputs.needs
+        """The inputs ``predict`` needs (``data.inputs.INPUTS`` names, image first), e.g.
+        ``("frames", "force", "width")`` or, frame-free, ``("force", "width")``."""
+        return self.inputs.input_names
 
     @abstractmethod
     def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
-        """Normalised outputs y (b,) of one chunk of ``input_checks.PreparedInputs``:
-        ``frames`` in the store's encoding (the subclass resizes and normalises them for
-        its network) and the normalised scalars the strategy uses."""
+        """Normalised outputs y (b,) of one chunk of ``input_checks.PreparedInputs``: the
+        strategy's image input as given (``runs.forward.model_arguments`` resizes and
+        normalises it) and its normalised scalars."""
 
     def predict(
         self,
-        frames: Any,
+        frames: Any = None,
         force: Any = None,
         width: Any = None,
         estimates: Any = None,
         *,
         channel_order: str = "RGB",
         batch_size: int = 64,
+        **other_inputs: Any,
     ) -> Prediction:
         """Young's modulus of one grasp or a batch (docs/inference.md, "Inputs").
+
+        Give the inputs of the model's strategy (:attr:`required_inputs`) by name, in
+        physical units; inputs it does not take are ignored, so one call serves an
+        ensemble of several strategies.
 
         Args:
             frames: three difference images ``(3, H, W, 3)`` or a batch
                 ``(B, 3, H, W, 3)``; uint8 or float in [0, 1]; RGB unless ``channel_order``.
+                None for a frame-free or depth model.
             force: normal force in N at the three frames, ``(3,)`` / ``(B, 3)``.
             width: gripper width in m at the three frames.
             estimates: (elastic E, Hertz E*) in Pa, ``(2,)`` / ``(B, 2)``.
-            channel_order: ``"RGB"`` (store order) or ``"BGR"`` (OpenCV).
+            channel_order: ``"RGB"`` (store order) or ``"BGR"`` (OpenCV) of ``frames``.
             batch_size: grasps per forward pass (memory bound, not a result change).
+            other_inputs: the table's other inputs (``data.inputs.INPUTS``), e.g.
+                ``depth=`` depth maps ``(3, h, w)`` / ``(B, 3, h, w)`` in mm.
 
         Returns:
             :class:`Prediction` with floats for one grasp, (B,) arrays for a batch.
 
         Raises:
-            ValueError: a bad or missing input, named with its unit and shape.
+            ValueError: a bad, missing or unknown input, named with its unit and shape.
         """
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        given = {"frames": frames, "force": force, "width": width, "estimates": estimates}
         prepared = prepare_inputs(
-            frames,
-            {"force": force, "width": width, "estimates": estimates},
+            {**given, **other_inputs},
             inputs=self.inputs,
             constants=self.constants,
-            min_size=MIN_FRAME_SIDE_PX,
             channel_order=channel_order,
             describe=f"{self.kind} {self.source} ({self.model_name})",
         )
-        if batch_size < 1:
-            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
         y = np.concatenate([self._forward(chunk) for chunk in prepared.chunks(batch_size)])
         return Prediction.from_normalised(y, self.constants, prepared.single)

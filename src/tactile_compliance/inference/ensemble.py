@@ -14,10 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from tactile_compliance.data.inputs import INPUTS
 from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.inference.base import BaseEstimator, to_plain
 from tactile_compliance.inference.estimator import ComplianceEstimator
-from tactile_compliance.models import InputStrategy
 
 __all__ = [
     "EnsembleEstimator",
@@ -169,10 +169,9 @@ class EnsembleEstimator:
 
     @property
     def required_inputs(self) -> tuple[str, ...]:
-        """Union of the members' scalar inputs, in the canonical order."""
+        """Union of the members' inputs, in table order (``data.inputs.INPUTS``)."""
         needed = {name for m in self.members for name in m.required_inputs}
-        # ALL uses every scalar input, so its ``needs`` is the canonical order.
-        return tuple(n for n in InputStrategy.ALL.needs if n in needed)
+        return tuple(n for n in INPUTS if n in needed)
 
     def __len__(self) -> int:
         return len(self.members)
@@ -209,7 +208,7 @@ class EnsembleEstimator:
 
     def predict(
         self,
-        frames: Any,
+        frames: Any = None,
         force: Any = None,
         width: Any = None,
         estimates: Any = None,
@@ -217,11 +216,19 @@ class EnsembleEstimator:
         level: float | None = None,
         channel_order: str = "RGB",
         batch_size: int = 64,
+        **other_inputs: Any,
     ) -> EnsemblePrediction:
         """Mean and interval of the members for one grasp or a batch (same inputs as
-        :meth:`ComplianceEstimator.predict`; each member validates what it uses)."""
+        :meth:`ComplianceEstimator.predict`; each member validates what it uses, so
+        members of different strategies share one call)."""
         members = self.members_log10(
-            frames, force, width, estimates, channel_order=channel_order, batch_size=batch_size
+            frames,
+            force,
+            width,
+            estimates,
+            channel_order=channel_order,
+            batch_size=batch_size,
+            **other_inputs,
         )
         return self.combine(members, level)
 
@@ -270,8 +277,8 @@ def ensemble_calibration(
         members, truth = [], []
         for start in range(0, len(ids), 256):  # bounded memory on full-size stores
             batch = read_store(store, ids[start : start + 256])
-            scalars = batch.scalars(needed)
-            members.append(ensemble.members_log10(batch.frames, **scalars, batch_size=batch_size))
+            given = batch.inputs(needed)
+            members.append(ensemble.members_log10(**given, batch_size=batch_size))
             truth.append(np.log10(batch.rows["modulus_pa"].to_numpy(np.float64)))
         return np.concatenate(members, axis=1), np.concatenate(truth)
 

@@ -38,6 +38,10 @@ def resolve_checkpoint(path: str | Path) -> Path:
     return path
 
 
+def _size(size: tuple[int, int] | None) -> list[int] | None:
+    return None if size is None else list(size)
+
+
 class ComplianceEstimator(BaseEstimator):
     """A trained PyTorch model plus its own preprocessing: predicts Young's modulus in Pa.
 
@@ -165,8 +169,8 @@ class ComplianceEstimator(BaseEstimator):
             "checkpoint": self.source,
             "model": self.model_name,
             "inputs": self.inputs.value,
-            "required_inputs": ["frames", *self.required_inputs],
-            "image_size": list(self.run_inputs.image_size),
+            "required_inputs": list(self.required_inputs),
+            "image_size": _size(self.run_inputs.image_size),
             "label_range_pa": [lo, hi],
             "backbone_weights": str(getattr(self.model, "backbone_weights", "none")),
             "seed": self.meta.get("seed"),
@@ -176,7 +180,7 @@ class ComplianceEstimator(BaseEstimator):
         }
 
     def __repr__(self) -> str:
-        size = "x".join(map(str, self.run_inputs.image_size))
+        size = "x".join(map(str, self.run_inputs.image_size or ("none",)))
         return (
             f"ComplianceEstimator({self.model_name}, inputs={self.inputs.value}, "
             f"image_size={size}, checkpoint={self.source!r})"
@@ -187,7 +191,7 @@ class ComplianceEstimator(BaseEstimator):
     def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
         """Normalised outputs of one prepared chunk, through ``forward_batch``."""
         chunk = {key: value.to(self.device) for key, value in chunk.items()}
-        y = forward_batch(self.model, chunk, self.constants, self.run_inputs.image_size)
+        y = forward_batch(self.model, chunk, self.run_inputs)
         return y.float().cpu().numpy()
 
     # ------------------------------------------------------------------ streaming

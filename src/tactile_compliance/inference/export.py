@@ -16,8 +16,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from tactile_compliance.data.inputs import INPUTS
 from tactile_compliance.inference.estimator import ComplianceEstimator
-from tactile_compliance.inference.input_checks import SCALAR_SPECS
 from tactile_compliance.inference.onnx import (
     ONNX_METADATA_KEY,
     OUTPUT_NAME,
@@ -53,8 +53,9 @@ class _ExportWrapper(nn.Module):
         self.names = names
 
     def forward(self, *args: torch.Tensor) -> torch.Tensor:
-        kwargs = dict(zip(self.names[1:], args[1:], strict=True))
-        return self.model(args[0], **kwargs)
+        named = dict(zip(self.names, args, strict=True))
+        images = next((named.pop(n) for n in self.names if INPUTS[n].kind == "image"), None)
+        return self.model(images, **named)
 
 
 def _pool_matrix(size_in: int, size_out: int) -> torch.Tensor:
@@ -113,14 +114,25 @@ def _exportable(model: nn.Module, names: list[str], example: tuple[torch.Tensor,
     return model
 
 
+def _input_shape(name: str, batch: Any, image_size: tuple[int, int] | None) -> list[Any]:
+    """The graph's shape of input ``name``: prepared images (B, 3, 3, H, W), scalars (B, n)."""
+    if INPUTS[name].kind == "image":
+        assert image_size is not None  # a strategy with an image has an image size
+        return [batch, 3, 3, *image_size]
+    return [batch, INPUTS[name].size]
+
+
 def _example_inputs(
-    names: list[str], batch: int, image_size: tuple[int, int], seed: int = 0
+    names: list[str], batch: int, image_size: tuple[int, int] | None, seed: int = 0
 ) -> tuple[torch.Tensor, ...]:
-    """Normalised-looking random inputs (frames ~ N(0, 1), scalars in [0, 1])."""
+    """Normalised-looking random inputs (images ~ N(0, 1), scalars in [0, 1])."""
     gen = torch.Generator().manual_seed(seed)
-    tensors = [torch.randn(batch, 3, 3, *image_size, generator=gen)]
-    tensors += [torch.rand(batch, SCALAR_SPECS[n].size, generator=gen) for n in names[1:]]
-    return tuple(tensors)
+    return tuple(
+        torch.randn(*_input_shape(n, batch, image_size), generator=gen)
+        if INPUTS[n].kind == "image"
+        else torch.rand(*_input_shape(n, batch, image_size), generator=gen)
+        for n in names
+    )
 
 
 def _is_our_onnx(path: Path) -> bool:
@@ -180,10 +192,10 @@ def export_onnx(
     require_onnx()
     out = check_output_file(out, "ONNX model", _is_our_onnx, option="--onnx")
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
-    height, width = estimator.run_inputs.image_size
+    image_size = estimator.run_inputs.image_size
     names = onnx_input_names(estimator.inputs)
     model = estimator.model.cpu().eval()
-    example = _example_inputs(names, 2, (height, width))
+    example = _example_inputs(names, 2, image_size)
     wrapper = _ExportWrapper(_exportable(model, names, example), names).eval()
     # The folders this export creates (deepest first): removed again if it fails, so a
     # failed export leaves no empty folder behind.
@@ -221,14 +233,9 @@ def export_onnx(
         "checkpoint": estimator.source,
         "model": estimator.model_name,
         "strategy": estimator.inputs.value,
-        "inputs": {
-            name: ["batch", 3, 3, height, width]
-            if name == "frames"
-            else ["batch", SCALAR_SPECS[name].size]
-            for name in names
-        },
+        "inputs": {name: _input_shape(name, "batch", image_size) for name in names},
         "output": {OUTPUT_NAME: ["batch"]},
-        "image_size": [height, width],
+        "image_size": None if image_size is None else list(image_size),
         "opset": opset,
         "exporter": "torch.onnx.export(dynamo=False) (TorchScript-based)",
         "torch_version": torch.__version__,
@@ -237,7 +244,7 @@ def export_onnx(
         "atol": atol,
     }
     if check:
-        diff = onnx_parity(out, model, names, (height, width), check_batch_sizes)
+        diff = onnx_parity(out, model, names, image_size, check_batch_sizes)
         report.update(
             max_abs_diff=diff, parity_ok=diff <= atol, batch_sizes_checked=list(check_batch_sizes)
         )
@@ -253,16 +260,17 @@ def onnx_parity(
     path: str | Path,
     model: nn.Module,
     names: list[str],
-    image_size: tuple[int, int],
+    image_size: tuple[int, int] | None,
     batch_sizes: tuple[int, ...] = (1, 3),
 ) -> float:
     """Largest |ONNX - PyTorch| of the normalised output over random inputs."""
     session = _ort_session(path)
+    wrapper = _ExportWrapper(model, names).eval()
     worst = 0.0
     for i, batch in enumerate(batch_sizes):
         inputs = _example_inputs(names, batch, image_size, seed=100 + i)
         with torch.no_grad():
-            expected = model(inputs[0], **dict(zip(names[1:], inputs[1:], strict=True)))
+            expected = wrapper(*inputs)
         got = session.run([OUTPUT_NAME], {n: t.numpy() for n, t in zip(names, inputs, strict=True)})
         worst = max(worst, float(np.max(np.abs(got[0] - expected.numpy()))))
     return worst
@@ -291,6 +299,11 @@ def _write_metadata(path: Path, estimator: ComplianceEstimator, names: list[str]
     onnx.save(proto, str(path))
 
 
+def _images(size: list[int] | None) -> str:
+    """``images 48x64`` or ``no images`` (a frame-free model), for the reports."""
+    return "no images" if size is None else f"images {size[0]}x{size[1]}"
+
+
 def format_export_report(report: dict[str, Any]) -> str:
     """Human-readable text of an :func:`export_onnx` report (what the CLI prints)."""
     inputs = ", ".join(
@@ -299,8 +312,7 @@ def format_export_report(report: dict[str, Any]) -> str:
     lines = [
         f"Wrote {report['onnx_path']} ({report['file_size_bytes'] / 1e6:.1f} MB, opset "
         f"{report['opset']}, {report['exporter']})",
-        f"Model     {report['model']} inputs={report['strategy']}, frames "
-        f"{report['image_size'][0]}x{report['image_size'][1]}",
+        f"Model     {report['model']} inputs={report['strategy']}, {_images(report['image_size'])}",
         f"Inputs    {inputs} (normalised; see docs/inference.md)",
         f"Output    {OUTPUT_NAME} (batch,) = (log10 E - lo) / (hi - lo)",
     ]
@@ -344,12 +356,11 @@ def format_safetensors_report(report: dict[str, Any]) -> str:
     config = report["config"]
     sizes = ", ".join(f"{name} {size / 1e6:.2f} MB" for name, size in report["files"].items())
     run_inputs = config["run_inputs"]
-    height, width = run_inputs["image_size"]
     return "\n".join(
         [
             f"Wrote {report['out']} ({sizes})",
-            f"Model     {config['model_name']} inputs={run_inputs['inputs']}, frames "
-            f"{height}x{width} {run_inputs['channel_order']}",
+            f"Model     {config['model_name']} inputs={run_inputs['inputs']}, "
+            f"{_images(run_inputs['image_size'])} {run_inputs['channel_order']}",
             f"Load      ComplianceEstimator.from_pretrained({report['out']!r})",
         ]
     )

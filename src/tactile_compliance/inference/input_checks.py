@@ -4,36 +4,32 @@ See docs/inference.md, "Inputs" and "One preprocessing path".
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 
-from tactile_compliance.data.normalisation import (
-    NormalisationConstants,
-    normalise_estimates,
-    normalise_force,
-    normalise_width,
+from tactile_compliance.data.inputs import (
+    INPUTS,
+    MIN_FRAME_SIDE_PX,
+    NUM_FRAMES,
+    InputStrategy,
 )
+from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import (
-    ESTIMATE,
-    FORCE,
+    DEPTH,
     FRAME,
-    WIDTH,
-    PlausibleRange,
     as_real_number,
     dtype_problem,
     format_number,
 )
 from tactile_compliance.data.store import frames_from_uint8
-from tactile_compliance.models import NUM_FRAMES, InputStrategy
 
 __all__ = [
-    "SCALAR_SPECS",
     "PreparedInputs",
-    "ScalarSpec",
+    "check_depth",
     "check_frames",
     "check_scalar",
     "prepare_inputs",
@@ -46,73 +42,28 @@ _RANGE_TOLERANCE = FRAME.tolerance
 _DECODED_RANGE = tuple(frames_from_uint8(np.array([0, 255], dtype=np.uint8)).tolist())
 
 
-@dataclass(frozen=True)
-class ScalarSpec:
-    """What one scalar input is, its shape per grasp, its plausibility rule and its
-    normalisation."""
-
-    size: int
-    meaning: str
-    rule: PlausibleRange
-    hint: str
-    normalise: Callable[[np.ndarray, NormalisationConstants], Any]
-
-    @property
-    def unit(self) -> str:
-        return self.rule.unit
-
-    @property
-    def high(self) -> float:
-        return self.rule.high
-
-
-#: The ranges catch unit mix-ups (width in mm) without rejecting real grasps (~60 N, the
-#: gripper opens to 0.08 m); a normalised force F/60 N is still a valid force.
-SCALAR_SPECS: dict[str, ScalarSpec] = {
-    "force": ScalarSpec(
-        NUM_FRAMES,
-        "normal force at the three frames",
-        FORCE,
-        "pass the raw reading in newtons (the model divides by 60 N itself)",
-        normalise_force,
-    ),
-    "width": ScalarSpec(
-        NUM_FRAMES,
-        "gripper width at the three frames",
-        WIDTH,
-        "pass metres, not millimetres (the gripper opens to 0.08 m)",
-        normalise_width,
-    ),
-    "estimates": ScalarSpec(
-        2,
-        "analytical estimates (elastic E, Hertz E*)",
-        ESTIMATE,
-        "values are clamped to [1e2, 1e14] Pa like in training; NaN means 'missing' and "
-        "cannot be used by an ALL model",
-        normalise_estimates,
-    ),
-}
-
-
 @dataclass
 class PreparedInputs:
-    """A validated batch, ready for ``forward_batch``.
+    """A validated batch, ready for ``runs.forward.model_arguments``.
 
     Attributes:
-        batch: ``frames`` (B, 3, H, W, 3) uint8 or float32 tensor in the store's encoding,
-            plus the normalised float32 scalars the strategy uses (``force``, ``width``,
-            ``estimates``; shape (B, 3), (B, 3), (B, 2)).
+        batch: the strategy's inputs by name, and nothing else: ``frames`` (B, 3, H, W, 3)
+            uint8 or float32 tensor in the store's encoding, ``depth`` (B, 3, h, w) float32
+            in mm, and the normalised float32 scalars (``force`` (B, 3), ``width`` (B, 3),
+            ``estimates`` (B, 2)).
+        size: the number of grasps B.
         single: the caller passed one grasp (unbatched arrays); results are unwrapped.
     """
 
     batch: dict[str, torch.Tensor]
+    size: int
     single: bool
 
     def chunks(self, batch_size: int) -> list[dict[str, torch.Tensor]]:
         """The batch cut into pieces of at most ``batch_size`` grasps (bounded memory)."""
         return [
             {key: value[start : start + batch_size] for key, value in self.batch.items()}
-            for start in range(0, len(self.batch["frames"]), batch_size)
+            for start in range(0, self.size, batch_size)
         ]
 
 
@@ -121,9 +72,7 @@ def _shape(value: Any) -> str:
     return str(tuple(shape)) if shape is not None else type(value).__name__
 
 
-def check_frames(
-    frames: Any, *, channel_order: str = "RGB", min_size: int = 1
-) -> tuple[torch.Tensor, bool]:
+def check_frames(frames: Any, *, channel_order: str = "RGB") -> tuple[torch.Tensor, bool]:
     """Validate frames; returns ``((B, 3, H, W, 3) tensor, single)``, RGB.
 
     uint8 stays uint8 (the store's encoding); floats become float32, checked by the frame
@@ -132,15 +81,13 @@ def check_frames(
 
     Raises:
         ValueError: wrong type, shape, dtype, NaN/inf, values outside [0, 1] beyond what
-            the frame rule allows, or frames smaller than ``min_size`` pixels.
+            the frame rule allows, or frames smaller than ``MIN_FRAME_SIDE_PX``.
     """
     order = str(channel_order).upper()
     if order not in ("RGB", "BGR"):
         raise ValueError(f"channel_order must be 'RGB' or 'BGR', got {channel_order!r}")
     if isinstance(frames, torch.Tensor):
         array = frames.detach().cpu().numpy()
-    elif frames is None:
-        raise ValueError("frames are required: three difference images (3, H, W, 3), RGB")
     else:
         try:
             array = np.asarray(frames)
@@ -159,10 +106,9 @@ def check_frames(
     if array.shape[0] == 0:
         raise ValueError("frames: empty batch (B = 0)")
     height, width = array.shape[2:4]
-    if min(height, width) < min_size:
-        raise ValueError(
-            f"frames are {height}x{width} px; this model needs at least {min_size}x{min_size}"
-        )
+    if min(height, width) < MIN_FRAME_SIDE_PX:
+        side = MIN_FRAME_SIDE_PX
+        raise ValueError(f"frames are {height}x{width} px; models need at least {side}x{side}")
     if array.dtype == np.uint8:
         # np.array copies memmaps/read-only views: torch cannot wrap non-writable memory.
         tensor = torch.from_numpy(np.array(array, dtype=np.uint8, copy=True))
@@ -204,7 +150,7 @@ def check_scalar(name: str, value: Any, batch: int, single: bool) -> np.ndarray:
     Raises:
         ValueError: not numeric, wrong shape, NaN/inf, or outside the plausible range.
     """
-    spec = SCALAR_SPECS[name]
+    spec = INPUTS[name]
     rule = spec.rule
     what = f"`{name}` ({spec.meaning}, {spec.unit})"
     array = _numeric_array(value, what)
@@ -213,7 +159,7 @@ def check_scalar(name: str, value: Any, batch: int, single: bool) -> np.ndarray:
         array = array[0]
     if array.shape != expected:
         got = "a scalar" if array.ndim == 0 else f"shape {tuple(array.shape)}"
-        raise ValueError(f"{what} must have shape {expected} to match the frames, got {got}")
+        raise ValueError(f"{what} must have shape {expected} to match the other inputs, got {got}")
     finite = np.isfinite(array)
     if not finite.all():
         raise ValueError(f"{what} contains NaN/inf ({int((~finite).sum())} values); {spec.hint}")
@@ -256,40 +202,93 @@ def _numeric_array(value: Any, what: str) -> np.ndarray:
     return np.asarray(array, dtype=np.float64)
 
 
+def check_depth(depth: Any) -> tuple[torch.Tensor, bool]:
+    """Validate depth maps in mm; returns ``((B, 3, h, w) float32 tensor, single)``.
+
+    NaN marks a pixel without depth (the store's convention) and is kept; the model reads
+    it as 0 mm.
+
+    Raises:
+        ValueError: not numeric, wrong shape, inf, values beyond the depth rule
+            (``data.plausibility.DEPTH``), or maps smaller than ``MIN_FRAME_SIDE_PX``.
+    """
+    what = f"`depth` ({INPUTS['depth'].meaning}, mm)"
+    array = _numeric_array(depth, what)
+    if array.ndim not in (3, 4) or array.shape[-3] != NUM_FRAMES:
+        raise ValueError(
+            f"{what} must have shape ({NUM_FRAMES}, h, w) for one grasp or "
+            f"(B, {NUM_FRAMES}, h, w) for a batch, got {_shape(array)}"
+        )
+    single = array.ndim == 3
+    if single:
+        array = array[None]
+    if array.shape[0] == 0:
+        raise ValueError("depth: empty batch (B = 0)")
+    height, width = array.shape[2:]
+    if min(height, width) < MIN_FRAME_SIDE_PX:
+        raise ValueError(
+            f"depth maps are {height}x{width} px; models need at least "
+            f"{MIN_FRAME_SIDE_PX}x{MIN_FRAME_SIDE_PX}"
+        )
+    if np.isinf(array).any():
+        raise ValueError(f"{what} contains inf values; {INPUTS['depth'].hint}")
+    finite = array[np.isfinite(array)]
+    if finite.size and (DEPTH.below(finite).any() or DEPTH.above(finite).any()):
+        raise ValueError(
+            f"{what} must lie in the plausible depth range {DEPTH.interval()}, got "
+            f"[{format_number(float(finite.min()))}, {format_number(float(finite.max()))}]; "
+            f"{INPUTS['depth'].hint}"
+        )
+    return torch.from_numpy(np.array(array, dtype=np.float32, copy=True)), single
+
+
 def prepare_inputs(
-    frames: Any,
-    scalars: Mapping[str, Any],
+    given: Mapping[str, Any],
     *,
     inputs: InputStrategy | str,
     constants: NormalisationConstants,
-    min_size: int = 1,
     channel_order: str = "RGB",
     describe: str = "this model",
 ) -> PreparedInputs:
-    """Validate frames and the scalar inputs the strategy needs (others are ignored);
-    normalise the scalars.
+    """Validate the inputs strategy ``inputs`` takes and normalise its scalars.
 
     Args:
-        scalars: ``{"force": ..., "width": ..., "estimates": ...}`` in N, m and Pa; None
-            entries count as absent.
-        min_size: smallest frame side the model accepts [px].
+        given: input name -> value (``frames``, ``depth``, ``force`` in N, ``width`` in
+            m, ``estimates`` in Pa, as ``data.inputs.INPUTS`` describes them); None
+            entries count as absent. Inputs the strategy does not take are ignored and not
+            validated: an ensemble passes every member the same inputs, and a member must
+            not fail on an input only another member uses.
         describe: how error messages name the estimator.
+
+    Raises:
+        ValueError: a missing input (named with its meaning, unit and shape), an unknown
+            input name, or an input that fails its check; all inputs must describe the
+            same number of grasps.
     """
-    tensor, single = check_frames(frames, channel_order=channel_order, min_size=min_size)
-    batch_size = int(tensor.shape[0])
-    batch: dict[str, torch.Tensor] = {"frames": tensor}
     strategy = InputStrategy.parse(inputs)
-    for name in strategy.needs:
-        value = scalars.get(name)
-        if value is None:
-            spec = SCALAR_SPECS[name]
-            shape = f"({spec.size},)" if single else f"(B, {spec.size})"
-            raise ValueError(
-                f"{describe} uses inputs={strategy.value} and needs `{name}` ({spec.meaning}, "
-                f"{spec.unit}, shape {shape}), got None"
-            )
-        physical = check_scalar(name, value, batch_size, single)
+    unknown = sorted(set(given) - set(INPUTS))
+    if unknown:
+        raise ValueError(f"unknown input(s) {unknown}; inputs are {', '.join(INPUTS)}")
+    missing = [spec for spec in strategy.inputs if given.get(spec.name) is None]
+    if missing:
+        needed = "; ".join(spec.describe() for spec in missing)
+        raise ValueError(f"{describe} uses inputs={strategy.value} and needs {needed}, got None")
+    batch: dict[str, torch.Tensor] = {}
+    image = strategy.image
+    if image is not None:  # the image comes first and tells the number of grasps
+        if image.name == "frames":
+            batch["frames"], single = check_frames(given["frames"], channel_order=channel_order)
+        else:
+            batch["depth"], single = check_depth(given["depth"])
+        size = int(batch[image.name].shape[0])
+    else:
+        shape = np.shape(given[strategy.inputs[0].name])
+        single = len(shape) <= 1
+        size = 1 if single else int(shape[0])
+    for spec in strategy.scalars:
+        physical = check_scalar(spec.name, given[spec.name], size, single)
+        assert spec.normalise is not None  # every scalar has one (data.inputs checks)
         # float64 normalisation then float32, exactly like model_inputs() on the store.
-        normalised = np.asarray(SCALAR_SPECS[name].normalise(physical, constants), dtype=np.float32)
-        batch[name] = torch.from_numpy(normalised)
-    return PreparedInputs(batch=batch, single=single)
+        normalised = np.asarray(spec.normalise(physical, constants), dtype=np.float32)
+        batch[spec.name] = torch.from_numpy(normalised)
+    return PreparedInputs(batch=batch, size=size, single=single)

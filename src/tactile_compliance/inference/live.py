@@ -57,7 +57,7 @@ def load_members(
 
 def live_estimates(
     members: Sequence[BaseEstimator],
-    source: FrameSourceBase,
+    source: FrameSourceBase | None,
     readings: ReadingsCallback,
     *,
     calibration: SensorCalibration | None = None,
@@ -70,9 +70,19 @@ def live_estimates(
     """Run ``source`` through streaming estimators; yield one dict per event:
     ``estimate``, ``skipped``, ``warning`` or ``no_estimate`` (``{"event": KIND, ...}``).
 
+    A background thread (``StampedOnArrival``) reads a live device, so each frame is
+    stamped when it arrives, not when the estimator gets to it; replays are read in line.
+    ``estimate`` events carry the ensemble's mean, interval and the frames used
+    (``format_live_event``), provisional while the gripper closes and ``final`` on
+    release; ``skipped`` names a frame that had no usable reading; ``warning`` a check of
+    the recording (reference, force spikes); ``no_estimate`` ends a grasp that gave none,
+    with its cause.
+
     Args:
         members: one estimator, or several for an ensemble interval.
-        source: an open frame source (open it with the calibration's geometry).
+        source: an open frame source (open it with the calibration's geometry); None: no
+            camera, for frame-free members (``FW``, ``FWE``), which then run on the
+            readings' own timestamps (``readings`` must be a recorded ``Readings``).
         readings: ``timestamp_s -> (force_n, width_m)``.
         calibration: the no-contact frame, depth model and pixel density (default: the
             first frame, the dataset heuristic at 16.40 px/mm).
@@ -86,6 +96,9 @@ def live_estimates(
         )
     if not members:
         raise ValueError("give at least one estimator")
+    if source is None:
+        yield from _readings_only(members, readings, window, window_s, level, scale)
+        return
     reader = None
     if source.live and not isinstance(source, StampedOnArrival):
         source = reader = StampedOnArrival(source)
@@ -105,7 +118,9 @@ def live_estimates(
             )
             for member in members
         ]
-        needs_depth = "estimates" in ensemble.required_inputs
+        # Depth maps feed the analytical estimates and the depth-map models; both are in the
+        # units of the depth model and pixel density they were made with.
+        needs_depth = bool({"estimates", "depth"} & set(ensemble.required_inputs))
         if needs_depth:
             units = WEDGE_UNITS if calibration is None else calibration.units
             for member in members:
@@ -193,6 +208,51 @@ def live_estimates(
     finally:
         if reader is not None:
             reader.stop()  # the caller owns the inner source and closes it
+
+
+def _readings_only(
+    members: Sequence[BaseEstimator],
+    readings: ReadingsCallback,
+    window: int | None,
+    window_s: float | None,
+    level: float,
+    scale: float,
+) -> Iterator[dict[str, Any]]:
+    """``live_estimates`` without a camera: frame-free members fed the recorded readings
+    at their own timestamps (the events are the same)."""
+    for member in members:
+        if member.inputs.image is not None:
+            raise ValueError(
+                f"checkpoint {member.source} (inputs={member.inputs.value}) reads "
+                f"{member.inputs.image.name}, but the source `none` gives no camera: name a "
+                f"sensor or video, or use a frame-free checkpoint (FW, FWE)"
+            )
+    times = getattr(readings, "timestamp_s", None)
+    if times is None:
+        raise ValueError("the source `none` needs recorded readings (a CSV), not a live log")
+    ensemble = EnsembleEstimator(list(members), level=level, scale=scale)
+    streams = [StreamingEstimator(m, window=window, window_s=window_s) for m in members]
+    for timestamp_s in np.asarray(times, dtype=np.float64):
+        force_n, width_m = checked_reading(readings, float(timestamp_s))
+        emitted = [
+            stream.update(None, force_n, width_m, timestamp_s=float(timestamp_s))
+            for stream in streams
+        ]
+        if any(e is not None for e in emitted):
+            event = _combine(ensemble, streams, float(timestamp_s))
+            if event is not None:
+                yield event
+                if event["final"]:
+                    return
+        if all(stream.state == "done" for stream in streams):
+            break
+    finals = [stream.finish() for stream in streams]
+    if any(f is not None for f in finals):
+        event = _combine(ensemble, streams, None)
+        if event is not None:
+            yield event
+            return
+    yield {"event": "no_estimate", "reason": _no_estimate_reason(streams[0], [], False)}
 
 
 def _no_estimate_reason(stream: StreamingEstimator, skips: list[str], needs_depth: bool) -> str:

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from tactile_compliance.data.dataset import prepare_frames
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.inference.base import BaseEstimator
-from tactile_compliance.models import InputStrategy
+from tactile_compliance.runs.forward import model_arguments
 from tactile_compliance.runs.run_inputs import RunInputs
 
 __all__ = ["ONNX_METADATA_KEY", "OUTPUT_NAME", "OnnxEstimator", "onnx_input_names"]
@@ -24,8 +24,9 @@ OUTPUT_NAME = "modulus_normalised"
 
 
 def onnx_input_names(inputs: InputStrategy | str) -> list[str]:
-    """Graph input names for a strategy: ``frames`` plus the enabled scalar inputs."""
-    return ["frames", *InputStrategy.parse(inputs).needs]
+    """Graph input names for a strategy: its inputs' names (``data.inputs.INPUTS``), image
+    first; the image input enters the graph prepared, (B, 3, 3, H, W)."""
+    return list(InputStrategy.parse(inputs).input_names)
 
 
 def _ort_session(path: str | Path, threads: int | None = None) -> Any:
@@ -67,8 +68,11 @@ class OnnxEstimator(BaseEstimator):
 
     def _forward(self, chunk: dict[str, torch.Tensor]) -> np.ndarray:
         """Normalised outputs of one prepared chunk through onnxruntime; the graph takes
-        frames resized and normalised, here by ``prepare_frames`` as ``forward_batch`` does."""
-        frames = prepare_frames(chunk["frames"], self.constants, self.run_inputs.image_size)
-        feed = {"frames": frames.numpy()}
-        feed.update({name: chunk[name].numpy() for name in self.input_names[1:]})
+        the image input resized and normalised, here by ``model_arguments``, the one
+        forward path's preparation."""
+        images, scalars = model_arguments(chunk, self.run_inputs)
+        feed = {name: tensor.numpy() for name, tensor in scalars.items()}
+        image = self.run_inputs.inputs.image
+        if image is not None:
+            feed[image.name] = images.numpy()
         return self.session.run([OUTPUT_NAME], feed)[0]

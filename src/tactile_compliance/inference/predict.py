@@ -42,20 +42,28 @@ def predict_path(
     )
     source = read_source(path, fingers=fingers, image_size=estimator.run_inputs.store_image_size)
     needed = estimator.required_inputs
-    if source.kind == "video" and needed:
+    scalar_names = estimator.inputs.scalar_names
+    if source.kind == "video" and scalar_names:
         raise ValueError(
             f"{path}: a video carries no force, width or estimates, but checkpoint "
-            f"{estimator.source} (inputs={estimator.inputs.value}) needs {', '.join(needed)}; "
-            f"use an Image checkpoint"
+            f"{estimator.source} (inputs={estimator.inputs.value}) needs "
+            f"{', '.join(scalar_names)}; use an Image checkpoint"
         )
-    if "estimates" in needed:
+    if "depth" in needed and source.depth_mm is None:
+        raise ValueError(
+            f"{path}: checkpoint {estimator.source} (inputs={estimator.inputs.value}) reads "
+            f"depth maps, but this {source.kind.replace('_', ' ')} holds none; predict from "
+            f"a store imported with its depth maps (`import burgess SRC --out STORE`), or "
+            f"run `live` with the sensor's --calibration"
+        )
+    if {"estimates", "depth"} & set(needed):
         estimator.run_inputs.sensor.check_same(
             source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
         )
-    scalars = source.scalars(needed)
+    scalars = source.inputs(scalar_names)
     usable = np.ones(len(source), dtype=bool)
     reasons: list[str] = [""] * len(source)
-    for name in needed:
+    for name in scalar_names:
         missing = ~np.all(np.isfinite(scalars[name]), axis=1)
         for i in np.flatnonzero(missing & usable):
             reasons[i] = f"missing {name} (NaN)"
@@ -68,9 +76,7 @@ def predict_path(
     chunk = max(1, int(batch_size)) * 4  # bound memory on large stores
     for start in range(0, ids.size, chunk):
         part = ids[start : start + chunk]
-        prediction = estimator.predict(
-            source.frames[part], **source.scalars(needed, part), batch_size=batch_size
-        )
+        prediction = estimator.predict(**source.inputs(needed, part), batch_size=batch_size)
         pred_pa[part] = prediction.modulus_pa
         pred_log10[part] = prediction.log10_modulus_pa
 
@@ -117,8 +123,8 @@ def _refuse_when_nothing_is_usable(
 ) -> None:
     """A ValueError naming why no sample of ``path`` can be predicted, and which input
     strategies could."""
-    lacking = {name for name in inputs.needs if any(name in reason for reason in reasons)}
-    could = [s.value for s in InputStrategy if not lacking & set(s.needs)]
+    lacking = {name for name in inputs.scalar_names if any(name in r for r in reasons)}
+    could = [s.value for s in InputStrategy if not lacking & set(s.input_names)]
     raise ValueError(
         f"{path}: none of its {len(reasons)} samples can be predicted by {checkpoint} "
         f"(inputs={inputs.value}): {skip_reasons([{'reason': r} for r in reasons])}; "
@@ -135,10 +141,10 @@ def skip_reasons(skipped: list[dict[str, Any]]) -> str:
 def format_predictions(report: dict[str, Any], max_rows: int = 20) -> str:
     """Human-readable text of a :func:`predict_path` report (what the CLI prints)."""
     ckpt, source, summary = report["checkpoint"], report["source"], report["summary"]
-    size = "x".join(map(str, ckpt["image_size"]))
+    size = "x".join(map(str, ckpt["image_size"])) if ckpt["image_size"] else "none"
     lines = [
         f"Checkpoint  {ckpt['checkpoint']}  ({ckpt['model']}, inputs {ckpt['inputs']}, "
-        f"frames {size})",
+        f"images {size})",
         f"Source      {source['path']}  ({source['kind']}, {source['samples']} samples)",
     ]
     predictions = report["predictions"]

@@ -19,7 +19,6 @@ import torch
 from tactile_compliance import __version__
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.devices import DEFAULT_DEVICE
-from tactile_compliance.inference.input_checks import SCALAR_SPECS
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.models.backbones import file_sha256
 from tactile_compliance.outputs import (
@@ -144,7 +143,7 @@ def pretrained_config(
         "model_name": estimator.model_name,
         "hparams": dict(meta.get("hparams") or {}),
         "run_inputs": estimator.run_inputs.to_dict(),
-        "required_inputs": ["frames", *estimator.required_inputs],
+        "required_inputs": list(estimator.required_inputs),
         "frames_per_sample": 3,
         "frame_kind": _FRAME_KIND,
         "backbone_weights": str(meta.get("backbone_weights", "none")),
@@ -437,13 +436,41 @@ def _metrics_section(config: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _inputs_line(strategy: InputStrategy, scalars: list[str]) -> str:
+    """What the model reads, in words: its image input and its scalars."""
+    image = strategy.image
+    what = (
+        "no images"
+        if image is None
+        else {"frames": "three tactile frames"}.get(
+            image.name, f"the {image.name} maps of three tactile frames"
+        )
+    )
+    return what + (f" plus {', '.join(scalars)} at the same three frames." if scalars else " only.")
+
+
+def _image_lines(strategy: InputStrategy, config: dict[str, Any]) -> list[str]:
+    """The card's lines on the image input's size and encoding (none: frame-free)."""
+    run_inputs = config["run_inputs"]
+    image = strategy.image
+    if image is None:
+        return []
+    height, width = run_inputs["image_size"]
+    if image.name == "depth":
+        return [f"- Depth maps: in mm, resized to **{height} x {width} px** (H x W)."]
+    return [
+        f"- Frames: {config.get('frame_kind')}; resized to **{height} x {width} px** (H x W); "
+        f'channel order **{run_inputs["channel_order"]}** (pass `channel_order="BGR"` for '
+        "OpenCV frames)."
+    ]
+
+
 def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
     """The ``README.md`` of an exported model, generated from its ``config.json``."""
     run_inputs = config["run_inputs"]
     norm = run_inputs["normalisation"]
     strategy = InputStrategy.parse(run_inputs["inputs"])
-    scalars = [f"{name} ({SCALAR_SPECS[name].unit})" for name in strategy.needs]
-    height, width = run_inputs["image_size"]
+    scalars = [f"{spec.name} ({spec.unit})" for spec in strategy.scalars]
     lo, hi = NormalisationConstants.from_dict(norm).label_range_pa
     frozen = config.get("frozen_backbone")
     weights = config.get("backbone_weights", "none")
@@ -496,11 +523,8 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
         "",
         "## Inputs",
         "",
-        f"- Input strategy: **{strategy.value}**: three tactile frames"
-        + (f" plus {', '.join(scalars)} at the same three frames." if scalars else " only."),
-        f"- Frames: {config.get('frame_kind')}; resized to **{height} x {width} px** (H x W); "
-        f'channel order **{run_inputs["channel_order"]}** (pass `channel_order="BGR"` for '
-        "OpenCV frames).",
+        f"- Input strategy: **{strategy.value}**: " + _inputs_line(strategy, scalars),
+        *_image_lines(strategy, config),
         "- The three frames: first frame with F >= 5 N, first frame with F >= 0.975 F_max, and "
         "the frame midway between them (in time when timestamps are given).",
         f"- Image statistics (per channel {run_inputs['channel_order']}, on [0, 1] "
@@ -537,11 +561,8 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
         "from tactile_compliance.inference import ComplianceEstimator",
         "",
         'estimator = ComplianceEstimator.from_pretrained("DIR")',
-        "result = estimator.predict(frames, "
-        + ", ".join(
-            {"force": "force=F_N", "width": "width=W_M", "estimates": "estimates=E_PA"}[n]
-            for n in strategy.needs
-        )
+        "result = estimator.predict("
+        + ", ".join(f"{spec.name}={spec.name.upper()}" for spec in strategy.inputs)
         + ")",
         "```",
         "",

@@ -69,7 +69,9 @@ class GraspBatch:
         frame_kind: ``difference`` or ``raw`` (videos and Shore-hardness stores).
         unreadable: raw sample directories that could not be read (``grasp``,
             ``augmentation``, ``source_path``, ``reason``); skipped like the importer does.
-        sensor_units: depth model and pixel density of ``estimates_pa``.
+        sensor_units: depth model and pixel density of ``estimates_pa`` and ``depth_mm``.
+        depth_mm: (B, 3, h, w) depth maps in mm as the store keeps them (a
+            :class:`StoreDepth` for a whole store), None when the source holds none.
     """
 
     frames: np.ndarray | StoreFrames
@@ -81,14 +83,21 @@ class GraspBatch:
     frame_kind: str
     unreadable: list[dict[str, Any]] = field(default_factory=list)
     sensor_units: SensorUnits = WEDGE_UNITS
+    depth_mm: np.ndarray | StoreDepth | None = None
 
     def __len__(self) -> int:
         return len(self.frames)
 
-    def scalars(self, names: Sequence[str], ids: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """The ``predict`` inputs ``names`` (``force``, ``width``, ``estimates``) of rows
-        ``ids`` (all by default)."""
-        columns = {"force": self.force_n, "width": self.width_m, "estimates": self.estimates_pa}
+    def inputs(self, names: Sequence[str], ids: np.ndarray | None = None) -> dict[str, Any]:
+        """The ``predict`` inputs ``names`` (``data.inputs.INPUTS`` names) of rows ``ids``
+        (all by default), in their physical units."""
+        columns = {
+            "frames": self.frames,
+            "depth": self.depth_mm,
+            "force": self.force_n,
+            "width": self.width_m,
+            "estimates": self.estimates_pa,
+        }
         return {name: columns[name][slice(None) if ids is None else ids] for name in names}
 
 
@@ -130,8 +139,12 @@ def read_store(path: str | Path, ids: np.ndarray | list[int] | None = None) -> G
     # The whole store stays on disk (a full-size store is several GB); callers index it
     # chunk by chunk. An explicit id list is read now.
     frames = StoreFrames(store) if ids is None else StoreFrames(store)[idx]
+    depth = None
+    if store.has_depth:
+        depth = StoreDepth(store) if ids is None else StoreDepth(store)[idx]
     return GraspBatch(
         frames=frames,
+        depth_mm=depth,
         force_n=samples[list(FORCE_COLUMNS)].to_numpy(np.float64),
         width_m=samples[list(WIDTH_COLUMNS)].to_numpy(np.float64),
         estimates_pa=samples[list(ESTIMATE_COLUMNS)].to_numpy(np.float64),
@@ -140,6 +153,19 @@ def read_store(path: str | Path, ids: np.ndarray | list[int] | None = None) -> G
         frame_kind=str(store.header.creation_parameters.get("frame_kind", "difference")),
         sensor_units=store.sensor_units,
     )
+
+
+class StoreDepth(StoreFrames):
+    """A store's depth maps, read on demand (``GraspStore.read_depth``), float32 mm."""
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return tuple(self.store.depth.shape)  # type: ignore[union-attr]
+
+    def __getitem__(self, index: Any) -> np.ndarray:
+        """Depth maps (n, 3, h, w) mm of sample positions (an array, list or slice)."""
+        positions = np.arange(len(self))[index] if isinstance(index, slice) else index
+        return self.store.read_depth(positions)
 
 
 # ---------------------------------------------------------------------- raw dataset dirs

@@ -20,7 +20,7 @@ from tactile_compliance.data.frame_selection import (
     select_frame_indices,
 )
 from tactile_compliance.data.image_ops import difference_images
-from tactile_compliance.data.store import frames_to_uint8
+from tactile_compliance.data.store import frames_to_uint8, store_depth_maps
 from tactile_compliance.models import NUM_FRAMES
 from tactile_compliance.physics.estimators import AnalyticalEstimator
 
@@ -123,7 +123,7 @@ class _Buffer:
     """Frames and readings since the stream started; old frames are dropped by offset."""
 
     offset: int = 0  # global index of frames[0]
-    frames: list[np.ndarray] = field(default_factory=list)
+    frames: list[np.ndarray | None] = field(default_factory=list)  # None: frame-free model
     depths: list[np.ndarray | None] = field(default_factory=list)
     forces: list[float] = field(default_factory=list)  # every frame (cheap), global index
     widths: list[float] = field(default_factory=list)
@@ -291,10 +291,13 @@ class StreamingEstimator:
         final one) or None. After the final estimate, frames are ignored until :meth:`reset`.
 
         Args:
-            frame: (H, W, 3) difference image or raw frame (see ``frame_kind``).
+            frame: (H, W, 3) difference image or raw frame (see ``frame_kind``); None for
+                a model without frames (``FW``, ``FWE``: no camera needed), ignored by one.
             estimates_pa: (elastic E, Hertz E*) in Pa, replaces earlier values.
-            depth_mm: (H', W') gel depth map in mm of this frame, to compute the estimates
-                on the fly (give it with every frame or never).
+            depth_mm: (H', W') gel depth map in mm of this frame (give it with every frame
+                or never): the estimates are computed from it on the fly, and a depth-map
+                model (``DepthFW``, ``DepthALL``) reads it, resized as the store keeps
+                depth maps (``data.store.store_depth_maps``).
             timestamp_s: capture time in s on a clock that only moves forward; with every
                 frame or never.
             provisional: False adds the frame without a provisional estimate (a consumer
@@ -306,7 +309,18 @@ class StreamingEstimator:
         """
         if self._done:
             return None
-        array = self._check_frame(frame)
+        uses = self.estimator.required_inputs
+        if "frames" in uses and frame is None:
+            raise ValueError(
+                f"this checkpoint uses inputs={self.estimator.inputs.value}: every update "
+                f"needs a frame"
+            )
+        array = self._check_frame(frame) if "frames" in uses else None
+        if "depth" in uses and depth_mm is None:
+            raise ValueError(
+                f"this checkpoint uses inputs={self.estimator.inputs.value}: every update "
+                f"needs depth_mm (the frame's depth map in mm)"
+            )
         force = _check_reading("force_n", force_n, "N")
         if width_m is None and "width" in self.estimator.required_inputs:
             raise ValueError(
@@ -322,7 +336,7 @@ class StreamingEstimator:
             self._has_depth = has_depth
         elif has_depth != self._has_depth:
             raise ValueError("depth_mm must be given with every frame of a grasp or never")
-        if self.frame_kind == "raw" and self._reference is None:
+        if array is not None and self.frame_kind == "raw" and self._reference is None:
             # The first frame of a grasp recording shows the gel without contact.
             self._reference = array.copy()
 
@@ -332,7 +346,7 @@ class StreamingEstimator:
             buf.times.append(time_s)
         buf.forces.append(force)
         buf.widths.append(width)
-        buf.frames.append(array.copy())
+        buf.frames.append(None if array is None else array.copy())
         buf.depths.append(np.asarray(depth_mm, dtype=np.float64) if has_depth else None)
         self._trim()
 
@@ -486,13 +500,21 @@ class StreamingEstimator:
         forces = tuple(float(buf.forces[i]) for i in idx)
         widths_all = np.asarray(buf.widths)[list(idx)]
         widths = None if np.isnan(widths_all).any() else tuple(float(w) for w in widths_all)
-        frames = np.stack([buf.frames[i - buf.offset] for i in idx])
+        uses = self.estimator.required_inputs
+        images: dict[str, Any] = {}
+        if "frames" in uses:
+            frames = np.stack([buf.frames[i - buf.offset] for i in idx])  # type: ignore[misc]
+            images["frames"] = _as_difference_images(frames, self.frame_kind, self._reference)
+        if "depth" in uses:
+            depths = np.stack([buf.depths[i - buf.offset] for i in idx])  # type: ignore[misc]
+            size = self.estimator.run_inputs.store_image_size
+            images["depth"] = store_depth_maps(depths, size)
         prediction: Prediction = self.estimator.predict(
-            _as_difference_images(frames, self.frame_kind, self._reference),
             force=np.asarray(forces),
             width=None if widths is None else np.asarray(widths),
             estimates=estimates,
             channel_order=self.channel_order,
+            **images,
         )
         return StreamEstimate(
             modulus_pa=float(prediction.modulus_pa),

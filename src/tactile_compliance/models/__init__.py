@@ -8,11 +8,10 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-# InputStrategy is torch-free and needed by config.py, which the command line loads to
-# check a config before anything heavy: the rest (torch, the networks) loads on first
-# use of a name below (PEP 562), and that first use imports the three model modules,
-# which registers them.
-from tactile_compliance.models.inputs import InputStrategy
+# InputStrategy (data.inputs) is torch-free and re-exported here for the models' users;
+# the rest (torch, the networks) loads on first use of a name below (PEP 562), and that
+# first use imports the model modules, which registers them.
+from tactile_compliance.data.inputs import InputStrategy
 
 #: Public name -> the module of this package that defines it.
 _LAZY = {
@@ -30,6 +29,7 @@ _LAZY = {
     "model_hyperparameters": "registry",
     "register_model": "registry",
     "ResTf": "res_tf",
+    "ScalarMLP": "scalar_mlp",
     "SearchDimension": "settings",
     "paper_settings": "settings",
     "search_dimensions": "settings",
@@ -37,7 +37,7 @@ _LAZY = {
     "VggLstm": "vgg_lstm",
 }
 #: Importing these modules registers the built-in models.
-_MODEL_MODULES = ("res_tf", "top10nn", "vgg_lstm")
+_MODEL_MODULES = ("res_tf", "scalar_mlp", "top10nn", "vgg_lstm")
 
 
 def __getattr__(name: str) -> Any:
@@ -57,6 +57,7 @@ __all__ = [
     "FusionModel",
     "InputStrategy",
     "ResTf",
+    "ScalarMLP",
     "SearchDimension",
     "TactileModel",
     "Top10NN",

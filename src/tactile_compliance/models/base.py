@@ -13,7 +13,13 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor, nn
 
-from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.data.inputs import (
+    INPUTS,
+    MIN_FRAME_SIDE_PX,
+    NUM_FRAMES,
+    InputSpec,
+    InputStrategy,
+)
 from tactile_compliance.models.settings import (
     DROPOUT_CHOICES,
     FWE_CHOICES,
@@ -34,21 +40,11 @@ __all__ = [
     "make_mlp",
 ]
 
-#: Frames per sample (start, middle, end of the grasp).
-NUM_FRAMES = 3
-
-#: One scalar input (force, width or estimates, ``(B, n)``); None when not given, and
-#: always None in the head when the input strategy disables it.
+#: One scalar input (``(B, n)``); None when not given.
 Scalar = Tensor | None
 
 #: Validates one hyperparameter: ``check(name, value)`` returns the value to store.
 HparamCheck = Callable[[str, Any], Any]
-
-_SCALAR_INPUTS: dict[str, tuple[int, str]] = {
-    "force": (NUM_FRAMES, "normal force F, normalised F / 60 N"),
-    "width": (NUM_FRAMES, "gripper width W, normalised W / 0.08 m"),
-    "estimates": (2, "analytical estimates E (elastic, Hertz), normalised log10"),
-}
 
 
 def make_mlp(
@@ -104,12 +100,20 @@ class TactileModel(nn.Module):
     display_name: ClassVar[str] = ""
     display_order: ClassVar[int] = 1_000_000
     pretrain_backbones: ClassVar[tuple[str, ...]] = ()
+    #: Whether the model reads an image input (frames or depth maps) through a backbone;
+    #: False for a model of the scalars alone, which refuses strategies with images.
+    takes_images: ClassVar[bool] = True
+    #: The scalar inputs (``data.inputs.INPUTS`` names) its head can take; None: any.
+    scalar_inputs: ClassVar[frozenset[str] | None] = frozenset({"force", "width", "estimates"})
 
     backbone: nn.Module
 
     def __init__(self, inputs: InputStrategy | str, hparams: dict[str, Any]) -> None:
         super().__init__()
         self.inputs: InputStrategy = InputStrategy.parse(inputs)
+        problem = self.strategy_problem(self.inputs)
+        if problem:
+            raise ValueError(problem)
         try:
             # Round-trip so the stored dict is exactly what a checkpoint will give back.
             self.hparams: dict[str, Any] = json.loads(json.dumps(hparams))
@@ -118,6 +122,27 @@ class TactileModel(nn.Module):
         # What the backbone was initialised from, for reports; not part of hparams because
         # a checkpoint must rebuild the architecture without downloading anything.
         self.backbone_weights: str = "none"
+
+    @classmethod
+    def strategy_problem(cls, strategy: InputStrategy | str) -> str | None:
+        """Why this model cannot take ``strategy``'s inputs (one line), or None."""
+        strategy = InputStrategy.parse(strategy)
+        name = cls.model_name or cls.__name__
+        if cls.takes_images and strategy.image is None:
+            return (
+                f"model {name} reads frames or depth maps, but inputs={strategy.value} has "
+                f"none; a frame-free strategy trains model scalar_mlp (the default for it)"
+            )
+        if not cls.takes_images and strategy.image is not None:
+            return (
+                f"model {name} takes no images, but inputs={strategy.value} includes "
+                f"{strategy.image.name}; use a frame-free strategy (FW, FWE)"
+            )
+        allowed = cls.scalar_inputs
+        extra = [n for n in strategy.scalar_names if allowed is not None and n not in allowed]
+        if extra:
+            return f"model {name} cannot take input(s) {', '.join(extra)} (inputs={strategy.value})"
+        return None
 
     @classmethod
     def extend_checks(cls, **checks: HparamCheck) -> Mapping[str, HparamCheck]:
@@ -139,27 +164,31 @@ class TactileModel(nn.Module):
 
     @property
     def min_image_size(self) -> int:
-        """Smallest frame height/width the backbone accepts."""
-        return int(getattr(self.backbone, "min_input_size", 1))
+        """Smallest image height/width [px] the model is trained on: the input rule's
+        ``data.inputs.MIN_FRAME_SIDE_PX`` or the backbone's own minimum, the larger."""
+        return max(MIN_FRAME_SIDE_PX, int(getattr(self.backbone, "min_input_size", 1)))
 
     # ------------------------------------------------------------------ forward
     def encode_frames(self, frames: Tensor) -> Tensor:
-        """Run the backbone on every frame: ``(B, 3, 3, H, W) -> (B, 3, feature_dim)``, what
-        a feature cache stores."""
+        """Run the backbone on every image: ``(B, 3, 3, H, W) -> (B, 3, feature_dim)``, what
+        a feature cache stores. The images are the strategy's image input as
+        ``runs.forward.prepare_images`` gives them: RGB frames, or depth maps repeated on
+        the three channels."""
         if not isinstance(frames, Tensor) or frames.dim() != 5:
             shape = tuple(frames.shape) if isinstance(frames, Tensor) else type(frames)
             raise ValueError(
-                f"frames must be a tensor of shape (B, {NUM_FRAMES}, 3, H, W), got {shape}"
+                f"frames (the image input) must be a tensor of shape (B, {NUM_FRAMES}, 3, H, W), "
+                f"got {shape}"
             )
         batch, n_frames, channels, height, width = frames.shape
         if n_frames != NUM_FRAMES or channels != 3:
             raise ValueError(
-                f"frames must have shape (B, {NUM_FRAMES}, 3, H, W) "
-                f"({NUM_FRAMES} RGB frames), got {tuple(frames.shape)}"
+                f"frames (the image input) must have shape (B, {NUM_FRAMES}, 3, H, W) "
+                f"({NUM_FRAMES} frames of 3 channels), got {tuple(frames.shape)}"
             )
         if min(height, width) < self.min_image_size:
             raise ValueError(
-                f"{type(self).__name__} needs frames of at least "
+                f"{type(self).__name__} needs images of at least "
                 f"{self.min_image_size}x{self.min_image_size} pixels, got {height}x{width}"
             )
         if not frames.is_floating_point():
@@ -170,54 +199,68 @@ class TactileModel(nn.Module):
         features = self.backbone(frames.reshape(batch * n_frames, channels, height, width))
         return features.reshape(batch, n_frames, -1)
 
-    def forward(
-        self, frames: Tensor, force: Scalar = None, width: Scalar = None, estimates: Scalar = None
-    ) -> Tensor:
-        """Predict the normalised log10 modulus ``(B,)``; disabled inputs are ignored."""
-        return self.forward_features(self.encode_frames(frames), force, width, estimates)
+    def forward(self, frames: Tensor | None = None, **scalars: Scalar) -> Tensor:
+        """Predict the normalised log10 modulus ``(B,)`` from the strategy's image input
+        ``frames`` (prepared RGB frames or depth maps, see :meth:`encode_frames`; None for
+        a frame-free model) and its scalar inputs, normalised, by name (``force=``,
+        ``width=``, ``estimates=``); inputs the strategy does not use are ignored, unknown
+        names refused."""
+        features = None if self.inputs.image is None else self.encode_frames(frames)
+        return self.forward_features(features, **scalars)
 
-    def forward_features(
-        self, features: Tensor, force: Scalar = None, width: Scalar = None, estimates: Scalar = None
-    ) -> Tensor:
+    def forward_features(self, features: Tensor | None, **scalars: Scalar) -> Tensor:
         """Same as :meth:`forward` but from cached features ``(B, 3, feature_dim)``."""
-        if (
-            not isinstance(features, Tensor)
-            or features.dim() != 3
-            or features.shape[1] != NUM_FRAMES
-            or features.shape[2] != self.feature_dim
-        ):
-            shape = tuple(features.shape) if isinstance(features, Tensor) else features
-            raise ValueError(
-                f"features must have shape (B, {NUM_FRAMES}, {self.feature_dim}), got {shape}"
-            )
-        batch = features.shape[0]
-        given = {"force": force, "width": width, "estimates": estimates}
-        # Disabled inputs become None here, so they never reach the head.
-        scalars = {
-            name: self._check_scalar(name, tensor, batch, features.dtype)
-            if name in self.inputs.needs
-            else None
-            for name, tensor in given.items()
+        unknown = sorted(set(scalars) - set(INPUTS))
+        if unknown:
+            raise ValueError(f"unknown input(s) {unknown}; inputs are {', '.join(INPUTS)}")
+        if self.inputs.image is None:
+            if features is not None:
+                raise ValueError(f"{type(self).__name__} takes no images or image features")
+            given = [v for n, v in scalars.items() if self.inputs.uses(n) and v is not None]
+            batch = int(given[0].shape[0]) if given and isinstance(given[0], Tensor) else 0
+            dtype = next(self.parameters()).dtype
+        else:
+            if (
+                not isinstance(features, Tensor)
+                or features.dim() != 3
+                or features.shape[1] != NUM_FRAMES
+                or features.shape[2] != self.feature_dim
+            ):
+                shape = tuple(features.shape) if isinstance(features, Tensor) else features
+                raise ValueError(
+                    f"features must have shape (B, {NUM_FRAMES}, {self.feature_dim}), got {shape}"
+                )
+            batch, dtype = features.shape[0], features.dtype
+        # Only the strategy's inputs reach the head, checked, in table order.
+        checked = {
+            spec.name: self._check_scalar(spec, scalars.get(spec.name), batch, dtype)
+            for spec in self.inputs.scalars
         }
-        logits = self._head(features, scalars["force"], scalars["width"], scalars["estimates"])
-        return torch.sigmoid(logits.reshape(batch))
+        logits = self._head(features, checked)
+        # reshape(-1), not (batch): an ONNX trace must keep the batch size dynamic.
+        return torch.sigmoid(logits.reshape(-1))
 
-    def _check_scalar(self, name: str, tensor: Scalar, batch: int, dtype: torch.dtype) -> Tensor:
-        size, meaning = _SCALAR_INPUTS[name]
+    def _check_scalar(
+        self, spec: InputSpec, tensor: Scalar, batch: int, dtype: torch.dtype
+    ) -> Tensor:
         if tensor is None:
             raise ValueError(
-                f"{type(self).__name__} with inputs={self.inputs.value} needs `{name}` "
-                f"({meaning}, shape (B, {size})), got None"
+                f"{type(self).__name__} with inputs={self.inputs.value} needs `{spec.name}` "
+                f"({spec.meaning}, normalised, shape (B, {spec.size})), got None"
             )
-        if not isinstance(tensor, Tensor) or tuple(tensor.shape) != (batch, size):
+        if not isinstance(tensor, Tensor) or tuple(tensor.shape) != (batch, spec.size):
             shape = tuple(tensor.shape) if isinstance(tensor, Tensor) else type(tensor)
-            raise ValueError(f"`{name}` ({meaning}) must have shape ({batch}, {size}), got {shape}")
+            raise ValueError(
+                f"`{spec.name}` ({spec.meaning}) must have shape ({batch}, {spec.size}), "
+                f"got {shape}"
+            )
         # Data pipelines often hand over float64 (numpy); match the features instead of
         # failing inside a Linear layer.
         return tensor.to(dtype=dtype)
 
-    def _head(self, features: Tensor, force: Scalar, width: Scalar, estimates: Scalar) -> Tensor:
-        """Map features and the enabled inputs (others are None) to ``(B,)`` logits."""
+    def _head(self, features: Tensor | None, scalars: dict[str, Tensor]) -> Tensor:
+        """Map image features (None for a frame-free model) and the strategy's scalar
+        inputs (name -> normalised ``(B, size)``, in table order) to ``(B,)`` logits."""
         raise NotImplementedError
 
     def extra_repr(self) -> str:
@@ -225,12 +268,15 @@ class TactileModel(nn.Module):
 
 
 class FusionModel(TactileModel):
-    """A model with the Burgess-style fusion head (Top10NN, Res-Tf; docs/models.md).
+    """A model with the Burgess-style fusion head (Top10NN, Res-Tf; docs/models.md): it
+    takes any scalar input of the table (a tower each, the estimates through the
+    estimation decoder).
 
     Subclasses extend ``hparam_checks`` (:meth:`extend_checks`), call
     :meth:`_build_fusion_head` and implement :meth:`_image_vector`.
     """
 
+    scalar_inputs: ClassVar[frozenset[str] | None] = None
     hparam_checks = TactileModel.extend_checks(
         fwe_size=check_positive_int,
         decoder_sizes=check_sizes,
@@ -253,15 +299,16 @@ class FusionModel(TactileModel):
         """The towers and decoders, from ``self.hparams``."""
         hp = self.hparams
         decoder_in = image_dim
-        if self.inputs.uses_force:
-            self.force_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
-            decoder_in += hp["fwe_size"]
-        if self.inputs.uses_width:
-            self.width_encoder = nn.Linear(NUM_FRAMES, hp["fwe_size"])
-            decoder_in += hp["fwe_size"]
-        decoder_out = hp["decoder_output_size"] if self.inputs.uses_estimates else 1
+        # One tower per scalar input but the estimates (``<name>_encoder``, built in table
+        # order: force, width), whose output joins the image vector in the decoder.
+        for spec in self.inputs.scalars:
+            if spec.name != "estimates":
+                setattr(self, f"{spec.name}_encoder", nn.Linear(spec.size, hp["fwe_size"]))
+                decoder_in += hp["fwe_size"]
+        uses_estimates = self.inputs.uses("estimates")
+        decoder_out = hp["decoder_output_size"] if uses_estimates else 1
         self.decoder = make_mlp(decoder_in, hp["decoder_sizes"], decoder_out, hp["decoder_dropout"])
-        if self.inputs.uses_estimates:
+        if uses_estimates:
             self.estimation_decoder = make_mlp(
                 decoder_out + 2, hp["estimation_sizes"], 1, hp["estimation_dropout"]
             )
@@ -270,13 +317,10 @@ class FusionModel(TactileModel):
         """The image part of the fusion input, ``(B, 3, feature_dim) -> (B, image_dim)``."""
         raise NotImplementedError
 
-    def _head(self, features: Tensor, force: Scalar, width: Scalar, estimates: Scalar) -> Tensor:
+    def _head(self, features: Tensor | None, scalars: dict[str, Tensor]) -> Tensor:
         parts = [self._image_vector(features)]
-        if force is not None:
-            parts.append(self.force_encoder(force))
-        if width is not None:
-            parts.append(self.width_encoder(width))
+        parts += [getattr(self, f"{n}_encoder")(v) for n, v in scalars.items() if n != "estimates"]
         out = self.decoder(torch.cat(parts, dim=1))
-        if estimates is not None:
-            out = self.estimation_decoder(torch.cat([out, estimates], dim=1))
+        if "estimates" in scalars:
+            out = self.estimation_decoder(torch.cat([out, scalars["estimates"]], dim=1))
         return out.squeeze(1)

@@ -10,7 +10,7 @@ from typing import Any, TypeVar
 
 from torch import nn
 
-from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.data.inputs import InputStrategy
 
 __all__ = [
     "backbone_models",

@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from tactile_compliance.models.inputs import InputStrategy
+from tactile_compliance.data.inputs import InputStrategy, scalar_inputs
 from tactile_compliance.models.registry import (
     get_model_class,
     model_hyperparameters,
@@ -35,7 +35,7 @@ __all__ = [
 
 #: Config section of a model's constructor keyword arguments.
 HPARAMS_PREFIX = "model.hparams."
-_SCALAR_INPUTS = InputStrategy.ALL.needs  # ("force", "width", "estimates")
+_SCALAR_INPUTS = tuple(spec.name for spec in scalar_inputs())
 _TUNED_SECTIONS = frozenset({"model", "training"})
 
 # The value sets of the published search spaces (categorical, as in the published code).
@@ -115,7 +115,8 @@ class SearchDimension:
 
     def applies_to(self, inputs: InputStrategy | str) -> bool:
         """Whether the dimension is searched for input strategy ``inputs``."""
-        return not self.needs or bool(set(self.needs) & set(InputStrategy.parse(inputs).needs))
+        strategy = InputStrategy.parse(inputs)
+        return not self.needs or bool(set(self.needs) & set(strategy.scalar_names))
 
     def is_choice(self, value: Any) -> bool:
         """Whether ``value`` is one of the choices (a list equals a tuple of the same sizes)."""

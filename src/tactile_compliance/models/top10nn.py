@@ -11,6 +11,7 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor, nn
 
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.models.backbones import load_weights_file
 from tactile_compliance.models.base import (
     NUM_FRAMES,
@@ -19,7 +20,6 @@ from tactile_compliance.models.base import (
     check_positive_int,
 )
 from tactile_compliance.models.dropout import use_fast_dropout
-from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
 from tactile_compliance.models.settings import DROPOUT_CHOICES, POW2_32_512, SearchDimension
 

@@ -10,16 +10,15 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor, nn
 
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.models.backbones import create_backbone
 from tactile_compliance.models.base import (
     NUM_FRAMES,
-    Scalar,
     TactileModel,
     check_dropout,
     check_positive_int,
 )
 from tactile_compliance.models.dropout import use_fast_dropout
-from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.registry import register_model
 from tactile_compliance.models.settings import (
     DROPOUT_CHOICES,
@@ -167,13 +166,13 @@ class VggLstm(TactileModel):
 
         step_in = self.backbone.feature_dim
         # Embeddings exist only for enabled inputs: a disabled input has no weights.
-        if self.inputs.uses_force:
+        if self.inputs.uses("force"):
             self.force_encoder = nn.Linear(1, hp["force_dim"])
             step_in += hp["force_dim"]
-        if self.inputs.uses_width:
+        if self.inputs.uses("width"):
             self.width_encoder = nn.Linear(1, hp["width_dim"])
             step_in += hp["width_dim"]
-        if self.inputs.uses_estimates:
+        if self.inputs.uses("estimates"):
             self.estimate_encoder = nn.ModuleDict(
                 {
                     "elastic": nn.Linear(1, hp["elastic_dim"]),
@@ -189,7 +188,9 @@ class VggLstm(TactileModel):
         self.step_weights = nn.Parameter(torch.ones(NUM_FRAMES))
         use_fast_dropout(self)
 
-    def _head(self, features: Tensor, force: Scalar, width: Scalar, estimates: Scalar) -> Tensor:
+    def _head(self, features: Tensor | None, scalars: dict[str, Tensor]) -> Tensor:
+        assert features is not None  # takes_images: the base class encoded them
+        force, width, estimates = (scalars.get(n) for n in ("force", "width", "estimates"))
         batch = features.shape[0]
         constant: list[torch.Tensor] = []
         if estimates is not None:

@@ -11,13 +11,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.data.normalisation import (
     NormalisationConstants,
     denormalise_modulus,
     normalise_modulus,
 )
-from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
-from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
@@ -181,20 +180,21 @@ def scalar_features(
 ) -> tuple[np.ndarray, tuple[str, ...]]:
     """The scalar inputs of ``inputs`` as a feature matrix, and the column names.
 
-    Forces (N), widths (m) and log10 of the clamped estimates (Pa), as the strategy has
-    them; NaN stays NaN. Image has no scalar inputs: an ``(n, 0)`` matrix.
+    Each scalar input's store columns (``data.inputs.INPUTS``) in its physical unit (N,
+    m), log10 of the clamped values for inputs that span decades (the estimates, Pa), as
+    the strategy has them; NaN stays NaN. Image has no scalar inputs: an ``(n, 0)`` matrix.
     """
     c = c or NormalisationConstants()
     strategy = InputStrategy.parse(inputs)
-    groups = {"force": FORCE_COLUMNS, "width": WIDTH_COLUMNS, "estimates": ESTIMATE_COLUMNS}
-    names = tuple(column for need in strategy.needs for column in groups[need])
+    names = tuple(column for spec in strategy.scalars for column in spec.columns)
+    in_decades = {column for spec in strategy.scalars if spec.decades for column in spec.columns}
     missing = [column for column in names if column not in samples.columns]
     if missing:
         raise ValueError(f"the {strategy} scalar reference needs column(s) {missing}")
     # A copy (np.array, not to_numpy): pandas may hand out a read-only view of its data.
     values = np.array(samples[list(names)], dtype=np.float64).reshape(len(samples), len(names))
     for index, column in enumerate(names):
-        if column in ESTIMATE_COLUMNS:
+        if column in in_decades:
             lo, hi = c.estimate_clamp_pa
             values[:, index] = np.log10(np.clip(values[:, index], lo, hi))  # NaN stays NaN
     return values, names
@@ -214,7 +214,7 @@ def scalar_reference(
     """
     c = c or NormalisationConstants()
     strategy = InputStrategy.parse(inputs)
-    if not strategy.needs:
+    if not strategy.scalars:
         return None
     if len(train_samples) == 0:
         raise ValueError("the training set is empty; nothing to fit the scalar reference on")

@@ -7,9 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import check_size
-from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.physics.estimators import (
     DEFAULT_ESTIMATOR,
     WEDGE_UNITS,
@@ -30,7 +30,8 @@ class RunInputs:
     """What a trained model takes and how its training data was made.
 
     Attributes:
-        image_size: (H, W) px the model's frames are resized to.
+        image_size: (H, W) px the model's image input (frames or depth maps) is resized
+            to; None for a frame-free strategy.
         store_image_size: (H, W) px of the training store's frames; readers of raw
             sources (grasp directories, videos) resize to it first, as the importer did.
         constants: normalisation constants (frames, scalars, label range).
@@ -40,7 +41,7 @@ class RunInputs:
         channel_order: of the frames the model sees (:data:`CHANNEL_ORDER`).
     """
 
-    image_size: tuple[int, int]
+    image_size: tuple[int, int] | None
     store_image_size: tuple[int, int]
     constants: NormalisationConstants
     inputs: InputStrategy
@@ -50,9 +51,15 @@ class RunInputs:
 
     def __post_init__(self) -> None:
         set_field = object.__setattr__  # a frozen dataclass normalises its own fields
-        for name in ("image_size", "store_image_size"):
-            set_field(self, name, check_size(getattr(self, name), name))
         set_field(self, "inputs", InputStrategy.parse(self.inputs))
+        set_field(self, "store_image_size", check_size(self.store_image_size, "store_image_size"))
+        if (self.image_size is None) != (self.inputs.image is None):
+            raise ValueError(
+                f"image_size must be given exactly when inputs={self.inputs.value} has an "
+                f"image input, got {self.image_size!r}"
+            )
+        if self.image_size is not None:
+            set_field(self, "image_size", check_size(self.image_size, "image_size"))
         set_field(self, "estimator", self.estimator.at(self.sensor.px_per_mm))
         if self.channel_order != CHANNEL_ORDER:
             raise ValueError(f"channel_order must be {CHANNEL_ORDER!r}, got {self.channel_order!r}")
@@ -67,9 +74,11 @@ class RunInputs:
         image_size: tuple[int, int] | None = None,
     ) -> RunInputs:
         """The record of a run of ``cfg`` on ``store`` with ``model`` (an instance or a
-        class). The frame size is ``image_size`` (``pretrain --size``), else
-        ``cfg.data.image_size``, else the model's ``recommended_image_size``, else the
-        store's; the estimator the store's (``GraspStore.analytical_estimator``)."""
+        class). The image size (frames or depth maps) is ``image_size`` (``pretrain
+        --size``), else ``cfg.data.image_size``, else the model's
+        ``recommended_image_size``, else the store's frame size; None for a frame-free
+        strategy. The estimator is the store's (``GraspStore.analytical_estimator``)."""
+        strategy = InputStrategy.parse(cfg.inputs)
         size = (
             image_size
             or cfg.data.image_size
@@ -77,10 +86,10 @@ class RunInputs:
             or store.image_size
         )
         return cls(
-            image_size=tuple(size),  # type: ignore[arg-type]
+            image_size=None if strategy.image is None else tuple(size),  # type: ignore[arg-type]
             store_image_size=store.image_size,
             constants=cfg.normalisation_constants(),
-            inputs=InputStrategy.parse(cfg.inputs),
+            inputs=strategy,
             sensor=store.sensor_units,
             estimator=store.analytical_estimator,
         )
@@ -88,7 +97,7 @@ class RunInputs:
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON values; inverse of :meth:`from_dict`."""
         return {
-            "image_size": list(self.image_size),
+            "image_size": None if self.image_size is None else list(self.image_size),
             "store_image_size": list(self.store_image_size),
             "channel_order": self.channel_order,
             "normalisation": self.constants.to_dict(),

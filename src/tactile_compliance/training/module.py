@@ -12,8 +12,8 @@ from typing import Any
 import lightning as L
 import torch
 
-from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.runs.forward import forward_batch
+from tactile_compliance.runs.run_inputs import RunInputs
 
 #: Where a training checkpoint keeps the augmentation generator's state.
 AUGMENTATION_RNG_KEY = "augmentation_rng_state"
@@ -57,8 +57,7 @@ class ComplianceModule(L.LightningModule):
     def __init__(
         self,
         model: torch.nn.Module,
-        constants: NormalisationConstants,
-        image_size: tuple[int, int] | None,
+        run_inputs: RunInputs,
         *,
         lr: float,
         gamma: float | None,
@@ -70,8 +69,7 @@ class ComplianceModule(L.LightningModule):
     ) -> None:
         super().__init__()
         self.model = model
-        self.constants = constants
-        self.image_size = image_size
+        self.run_inputs = run_inputs
         self.lr = lr
         self.gamma = gamma
         self.l2_weight = l2_weight
@@ -153,8 +151,7 @@ class ComplianceModule(L.LightningModule):
         return forward_batch(
             self._forward_model,  # type: ignore[arg-type]
             batch,
-            self.constants,
-            self.image_size,
+            self.run_inputs,
             self.augmentation if augment else None,
         )
 

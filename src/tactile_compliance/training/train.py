@@ -129,10 +129,15 @@ def prepare_data(cfg: ExperimentConfig, model: torch.nn.Module) -> RunData:
     )
 
 
-def check_frame_size(cfg: ExperimentConfig, model: torch.nn.Module, size: tuple[int, int]) -> None:
-    """A ValueError before the run starts, not in Lightning's first step, when its frames
-    ((H, W) px) are smaller than the backbone accepts (``TactileModel.min_image_size``)."""
-    minimum = int(getattr(model, "min_image_size", 1))
+def check_frame_size(
+    cfg: ExperimentConfig, model: torch.nn.Module, size: tuple[int, int] | None
+) -> None:
+    """A ValueError before the run starts, not in Lightning's first step, when its images
+    ((H, W) px; None: a frame-free run, nothing to check) are smaller than the model
+    accepts (``TactileModel.min_image_size``, the one rule)."""
+    if size is None:
+        return
+    minimum = int(model.min_image_size)
     height, width = (int(n) for n in size)
     if min(height, width) >= minimum:
         return
@@ -216,12 +221,13 @@ def evaluate_model(
     scalar inputs (none for Image), fitted with ``random_state=seed``; the references are
     fitted on the split's training rows (before balancing) and scored on its test rows.
     """
-    constants, image_size = data.run_inputs.constants, data.run_inputs.image_size
+    run_inputs = data.run_inputs
+    constants = run_inputs.constants
     frames = []
     for name, ids in (("val", data.split.val_ids), ("test", data.split.test_ids)):
-        dataset = GraspDataset(data.store, ids, constants, features)
+        dataset = GraspDataset(data.store, ids, constants, run_inputs.inputs, features)
         predicted = predict_dataset(
-            model, dataset, constants, image_size, batch_size=batch_size, device=device
+            model, dataset, run_inputs, batch_size=batch_size, device=device
         )
         rows = data.store.samples.iloc[ids][list(PREDICTION_COLUMNS)].reset_index(drop=True)
         rows["pred_pa"] = denormalise_modulus(predicted.astype(np.float64), constants)
@@ -408,12 +414,15 @@ def _fit_and_evaluate(
     if cfg.model.freeze_backbone:
         # (Augmentation is ignored here; the config's validation already warned.)
         features = frozen_features(cfg, data.store, model, data.run_inputs, progress=progress)
-    elif cfg.augmentation.enabled:
+    elif cfg.augmentation.enabled and data.run_inputs.inputs.uses("frames"):
+        # The photometric pipeline is for RGB frames: depth maps and scalars go unchanged.
         augmentation = GraspAugmentation.from_config(cfg.augmentation, seed=cfg.seed)
 
     def loader(ids: np.ndarray, shuffle: bool) -> DataLoader:
         return batch_loader(
-            GraspDataset(data.store, ids, data.run_inputs.constants, features),
+            GraspDataset(
+                data.store, ids, data.run_inputs.constants, data.run_inputs.inputs, features
+            ),
             cfg.training.batch_size,
             shuffle=shuffle,
             num_workers=cfg.training.num_workers,
@@ -421,8 +430,7 @@ def _fit_and_evaluate(
 
     module = ComplianceModule(
         model,
-        data.run_inputs.constants,
-        data.run_inputs.image_size,
+        data.run_inputs,
         lr=cfg.training.lr,
         gamma=cfg.training.gamma,
         l2_weight=cfg.training.l2_weight,
@@ -503,7 +511,9 @@ def _fit_and_evaluate(
         "backbone_weights": str(getattr(model, "backbone_weights", "none")),
         "backbone_weights_sha256": weights_file["sha256"] if weights_file else None,
         "freeze_backbone": cfg.model.freeze_backbone,
-        "image_size": list(data.run_inputs.image_size),
+        "image_size": None
+        if data.run_inputs.image_size is None
+        else list(data.run_inputs.image_size),
         "n_train": len(data.train_ids),
         "n_val": len(data.val_ids),
         "n_test": len(data.split.test_ids),

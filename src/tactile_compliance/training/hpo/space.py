@@ -11,8 +11,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from tactile_compliance.config import ConfigError
+from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.models import list_models, search_dimensions
-from tactile_compliance.models.inputs import InputStrategy
 from tactile_compliance.models.settings import SearchDimension
 
 __all__ = ["canonical_inputs", "plain", "search_space", "trial_overrides", "trial_values"]

@@ -1,0 +1,171 @@
+"""The strategies beyond the paper (FW, FWE, DepthFW) through every surface: train, the
+estimator API, ONNX, safetensors, ``predict`` and ``live`` (docs/models.md, "Input
+strategies")."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from tactile_compliance.cli import app
+from tactile_compliance.config import load_config
+from tactile_compliance.data.inputs import INPUTS, InputStrategy
+from tactile_compliance.inference import ComplianceEstimator
+from tactile_compliance.training.train import train
+from toy_store import make_toy_store
+
+STRATEGIES = ("FW", "FWE", "DepthFW")
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    return make_toy_store(tmp_path_factory.mktemp("depth") / "store", n_objects=8, depth=True)
+
+
+@pytest.fixture(scope="module")
+def runs(store: Any, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("runs")
+    made = {}
+    for inputs in STRATEGIES:
+        overrides = [
+            f"data.store={store.path}",
+            f"output_dir={out}",
+            f"inputs={inputs}",
+            "training.max_epochs=3",
+            "training.batch_size=16",
+        ]
+        if inputs == "DepthFW":  # Top10NN needs 65 px; the toy depth maps are 8x8
+            overrides += ["data.image_size=[72,72]", "training.lr=1e-3"]
+        made[inputs] = out / inputs
+        train(load_config("default", overrides), run_dir=made[inputs], progress=False)
+    return made
+
+
+def test_a_frame_free_strategy_trains_the_frame_free_model_without_naming_it(runs) -> None:
+    for inputs in ("FW", "FWE"):
+        config = json.loads((runs[inputs] / "metrics.json").read_text())
+        assert config["model"] == "scalar_mlp", config
+        assert config["image_size"] is None
+    depth = json.loads((runs["DepthFW"] / "metrics.json").read_text())
+    assert depth["model"] == "top10nn" and depth["image_size"] == [72, 72]
+
+
+def _given(store: Any, ids: np.ndarray) -> dict[str, Any]:
+    """Every input of the table for store rows ``ids``, in physical units."""
+    rows = store.samples.iloc[ids]
+    given: dict[str, Any] = {"frames": store.read_samples(ids), "depth": store.read_depth(ids)}
+    for spec in INPUTS.values():
+        if spec.kind == "scalar":
+            given[spec.name] = rows[list(spec.columns)].to_numpy(np.float64)
+    return given
+
+
+@pytest.mark.parametrize("inputs", STRATEGIES)
+def test_predict_needs_only_the_strategy_inputs_and_names_a_missing_one(
+    runs, store, inputs: str
+) -> None:
+    estimator = ComplianceEstimator.from_checkpoint(runs[inputs])
+    strategy = InputStrategy.parse(inputs)
+    ids = np.arange(6)
+    given = _given(store, ids)
+    needed = {name: given[name] for name in strategy.input_names}
+    assert estimator.required_inputs == strategy.input_names
+    result = estimator.predict(**needed)
+    assert result.modulus_pa.shape == (6,) and np.all(np.isfinite(result.modulus_pa))
+    # The other inputs change nothing, and are not even validated.
+    junk = {n: "junk" for n in INPUTS if n not in strategy.input_names}
+    np.testing.assert_array_equal(estimator.predict(**needed, **junk).modulus_pa, result.modulus_pa)
+    # One grasp unbatched gives the same value as in the batch.
+    single = estimator.predict(**{n: v[2] for n, v in needed.items()})
+    assert single.modulus_pa == pytest.approx(float(result.modulus_pa[2]), rel=1e-5)
+    for name in strategy.input_names:
+        with pytest.raises(ValueError, match=f"needs `{name}` \\("):
+            estimator.predict(**{n: v for n, v in needed.items() if n != name})
+
+
+def test_the_predictions_are_the_runs_own(runs, store) -> None:
+    # predict on the store gives what train wrote for its test split.
+    for inputs in STRATEGIES:
+        frame = pd.read_csv(runs[inputs] / "predictions.csv")
+        test = frame[frame["split"] == "test"]
+        estimator = ComplianceEstimator.from_checkpoint(runs[inputs])
+        ids = test["sample_id"].to_numpy()
+        needed = _given(store, ids)
+        got = estimator.predict(**{n: needed[n] for n in estimator.required_inputs})
+        np.testing.assert_allclose(
+            got.log10_modulus_pa, np.log10(test["pred_pa"].to_numpy()), atol=1e-5
+        )
+
+
+@pytest.mark.parametrize("inputs", STRATEGIES)
+def test_onnx_safetensors_and_predict_agree(runs, store, tmp_path, inputs: str) -> None:
+    runner = CliRunner()
+    onnx_path = tmp_path / "model.onnx"
+    result = runner.invoke(app, ["export", str(runs[inputs]), "--onnx", str(onnx_path)])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(
+        app, ["export", str(runs[inputs]), "--safetensors", str(tmp_path / "st")]
+    )
+    assert result.exit_code == 0, result.output
+    from tactile_compliance.inference.onnx import OnnxEstimator
+
+    torch_estimator = ComplianceEstimator.from_checkpoint(runs[inputs])
+    onnx_estimator = OnnxEstimator(onnx_path)
+    pretrained = ComplianceEstimator.from_pretrained(tmp_path / "st")
+    strategy = InputStrategy.parse(inputs)
+    assert onnx_estimator.input_names == list(strategy.input_names)
+    given = _given(store, np.arange(5))
+    needed = {n: given[n] for n in strategy.input_names}
+    expected = torch_estimator.predict(**needed).log10_modulus_pa
+    np.testing.assert_allclose(onnx_estimator.predict(**needed).log10_modulus_pa, expected, atol=1e-4)
+    np.testing.assert_array_equal(pretrained.predict(**needed).log10_modulus_pa, expected)
+    card = (tmp_path / "st" / "README.md").read_text()
+    assert f"**{inputs}**" in card and "predict(" + strategy.input_names[0] in card
+
+    # `predict` reads the store's inputs, depth maps included.
+    result = runner.invoke(app, ["predict", str(runs[inputs]), str(store.path), "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.output)
+    assert report["summary"]["n_predicted"] == len(store)
+
+
+def _readings_csv(path: Path) -> Path:
+    """A grasp's readings: the force rises to 30 N and falls, the width closes."""
+    times = np.arange(40) / 30.0
+    force = np.concatenate([np.linspace(0, 30, 25), np.linspace(30, 2, 15)])
+    width = 0.05 - 0.01 * force / 30
+    pd.DataFrame({"timestamp_s": times, "force_n": force, "width_m": width}).to_csv(
+        path, index=False
+    )
+    return path
+
+
+def test_live_runs_a_frame_free_model_on_readings_alone(runs, tmp_path) -> None:
+    csv = _readings_csv(tmp_path / "readings.csv")
+    result = CliRunner().invoke(
+        app, ["live", str(runs["FW"]), "none", "--readings", str(csv), "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    events = [json.loads(line) for line in result.output.splitlines() if line.startswith("{")]
+    final = [e for e in events if e.get("final")]
+    assert len(final) == 1 and np.isfinite(final[0]["modulus_pa"])
+    # The same three readings through the estimator give the same value.
+    estimator = ComplianceEstimator.from_checkpoint(runs["FW"])
+    direct = estimator.predict(force=final[0]["force_n"], width=final[0]["width_m"])
+    assert final[0]["modulus_pa"] == pytest.approx(direct.modulus_pa, rel=1e-6)
+
+
+def test_live_none_with_a_frame_model_says_why_in_one_line(runs, tmp_path) -> None:
+    csv = _readings_csv(tmp_path / "readings.csv")
+    result = CliRunner().invoke(app, ["live", str(runs["DepthFW"]), "none", "--readings", str(csv)])
+    assert result.exit_code != 0
+    assert "gives no camera" in result.output and "FW, FWE" in result.output
+    assert "Traceback" not in result.output
