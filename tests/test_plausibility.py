@@ -428,5 +428,6 @@ def test_estimator_saturates_frames_like_the_store():
     stored = frames_from_uint8(frames_to_uint8(raw))
     np.testing.assert_array_equal(checked[0, 0, 0, 0].numpy(), stored[0, 0, 0])
     assert float(checked.max()) <= float(stored.max())
-    decoded = frames_from_uint8(np.array([0, 7, 128, 255], np.uint8).repeat(144).reshape(3, 8, 8, 3))
+    levels = np.array([0, 7, 128, 255], np.uint8).repeat(144).reshape(3, 8, 8, 3)
+    decoded = frames_from_uint8(levels)
     np.testing.assert_array_equal(input_checks.check_frames(decoded)[0][0].numpy(), decoded)
