@@ -67,7 +67,9 @@ def make_toy_store(
     grasps: int = 4,
     size: tuple[int, int] = (32, 32),
     seed: int = 0,
+    units: dict[str, object] | None = None,
 ) -> GraspStore:
+    """``units``: the rows' unit columns (``store.UNIT_COLUMNS``); default the dataset's."""
     rng = np.random.default_rng(seed)
     with GraspStoreWriter(path, size, "toy") as writer:
         for index in range(n_objects):
@@ -86,6 +88,7 @@ def make_toy_store(
                             "shape": SHAPES[index % 2],
                             **columns,
                             "source_path": f"toy/{index}/{grasp}",
+                            **(units or {}),
                         },
                     )
     return GraspStore.open(path)

@@ -106,12 +106,11 @@ def live_estimates(
             for member in members
         ]
         needs_depth = "estimates" in ensemble.required_inputs
-        if needs_depth:
-            units = WEDGE_UNITS if calibration is None else calibration.units
-            for member in members:
-                member.run_inputs.sensor.check_same(
-                    units, trained=f"checkpoint {member.source}", used="this sensor"
-                )
+        units = WEDGE_UNITS if calibration is None else calibration.units
+        for member in members:
+            member.run_inputs.check_sensor(
+                units, trained=f"checkpoint {member.source}", used="this sensor"
+            )
 
         skipped: list[FrameError] = []
         reported: set[int] = set()  # force spikes reported (a followed log finds them late)

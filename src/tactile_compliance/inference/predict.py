@@ -48,10 +48,9 @@ def predict_path(
             f"{estimator.source} (inputs={estimator.inputs.value}) needs {', '.join(needed)}; "
             f"use an Image checkpoint"
         )
-    if "estimates" in needed:
-        estimator.run_inputs.sensor.check_same(
-            source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
-        )
+    estimator.run_inputs.check_sensor(
+        source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
+    )
     scalars = source.scalars(needed)
     usable = np.ones(len(source), dtype=bool)
     reasons: list[str] = [""] * len(source)
