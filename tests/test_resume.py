@@ -492,3 +492,27 @@ def test_the_epoch_log_reader_skips_lines_without_an_epoch(tmp_path: Path) -> No
         {"epoch": "0", "val_nmse": "0.2"},
     ]
     assert read_earlier_rows(tmp_path / "missing.csv", 1) == []
+
+
+def test_a_resumed_run_says_so_in_one_line_and_lists_its_resumes_in_metrics_json(
+    toy_store, tmp_path, capsys
+):
+    run_dir = tmp_path / "run"
+    cfg = _quick(toy_store.path, tmp_path)  # 3 epochs, quiet (verbose=False)
+    first = train(cfg, run_dir=run_dir, progress=False)
+    assert first["resumed_from_epoch"] == []
+    assert "resuming" not in capsys.readouterr().err
+    # Killed in its last epoch: last.ckpt holds epochs 0 and 1 (what last.prev.ckpt holds).
+    checkpoints = run_dir / "checkpoints"
+    (run_dir / "metrics.json").unlink()
+    os.replace(checkpoints / "last.prev.ckpt", checkpoints / "last.ckpt")
+    again = train(cfg, run_dir=run_dir, progress=False)
+    assert f"resuming {run_dir} after epoch 2 of 3" in capsys.readouterr().err.splitlines()
+    assert again["resumed_from_epoch"] == [2]
+    assert again["test"] == first["test"]
+    # Killed again, after the last epoch and before metrics.json: both resumes are listed.
+    (run_dir / "metrics.json").unlink()
+    third = train(cfg, run_dir=run_dir, progress=False)
+    assert f"resuming {run_dir} after epoch 3 of 3" in capsys.readouterr().err.splitlines()
+    assert third["resumed_from_epoch"] == [2, 3]
+    assert json.loads((run_dir / "metrics.json").read_text())["resumed_from_epoch"] == [2, 3]

@@ -80,8 +80,10 @@ def make_toy_store(
     size: tuple[int, int] = (32, 32),
     seed: int = 0,
     depth: bool = False,
+    units: dict[str, object] | None = None,
 ) -> GraspStore:
-    """The toy store; ``depth`` adds depth maps (:func:`toy_depth`) to every sample."""
+    """The toy store; ``depth`` adds depth maps (:func:`toy_depth`) to every sample;
+    ``units``: the rows' unit columns (``store.UNIT_COLUMNS``); default the dataset's."""
     rng = np.random.default_rng(seed)
     depth_size = depth_size_for(size) if depth else None
     with GraspStoreWriter(path, size, "toy", depth_size=depth_size) as writer:
@@ -101,6 +103,7 @@ def make_toy_store(
                             "shape": SHAPES[index % 2],
                             **columns,
                             "source_path": f"toy/{index}/{grasp}",
+                            **(units or {}),
                         },
                         toy_depth(log_e, size) if depth else None,
                     )

@@ -57,7 +57,7 @@ from tactile_compliance.data.raw_layout import (
     grasp_dir,
     numbered_dirs,
     read_metadata,
-    read_units_file,
+    tree_units,
     write_metadata,
     write_sample,
     write_units_file,
@@ -71,7 +71,7 @@ from tactile_compliance.outputs import (
     exclusive_lock,
     output_kind,
 )
-from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, WEDGE_UNITS
+from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, WEDGE_UNITS, GraspUnits
 
 __all__ = [
     "OBJECT_TABLE_FILE",
@@ -674,13 +674,8 @@ def write_grasp(
     out.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(out / LOCK_FILE, what=f"the dataset {out}"):
         claim_dataset_dir(out)
-        # A grasp in other units (depth model, px/mm) than the dataset's would mix estimates.
-        units = WEDGE_UNITS if sensor is None else sensor.units
-        recorded = read_units_file(out)
-        if recorded is None:
-            write_units_file(out, units)
-        else:
-            recorded.check_same(units, trained=f"{out} (its earlier grasps)", used="this recording")
+        units = GraspUnits(WEDGE_UNITS if sensor is None else sensor.units, estimator.name)
+        _check_dataset_units(out, units)
         object_dir = out / info.name
         new_object = not object_dir.exists()
         object_dir.mkdir(parents=True, exist_ok=True)
@@ -689,6 +684,7 @@ def write_grasp(
         created_metadata = False
         try:
             created_metadata = _write_metadata(object_dir, info)
+            write_units_file(partial, units)  # committed with the grasp, never apart
             for k, idx in enumerate(indices):
                 sel = list(idx)
                 write_sample(
@@ -721,6 +717,32 @@ def write_grasp(
         skipped=list(captured.skipped),
         object_table=table,
     )
+
+
+def _check_dataset_units(out: Path, units: GraspUnits) -> None:
+    """Refuse a grasp whose estimates would not be in the units of the dataset's earlier
+    grasps, each read from its own ``units.json`` (``raw_layout.tree_units``), so a deleted
+    or copied file relabels nothing. The caller holds the dataset's lock.
+
+    Raises:
+        ValueError: other units (naming both and an earlier grasp), or a dataset whose
+            grasps are already in two.
+    """
+    grasps = [
+        directory
+        for child in sorted(out.iterdir())
+        if child.is_dir() and not child.name.startswith(".")
+        for _, directory in numbered_dirs(child, GRASP_DIR)
+    ]
+    if not grasps:
+        return
+    earlier = tree_units(grasps).units
+    if earlier != units:
+        raise ValueError(
+            f"{out} holds grasps with {earlier.describe()} (e.g. {grasps[0]}), this recording "
+            f"has {units.describe()}: their estimates would be mixed; nothing written (record "
+            "into another dataset)"
+        )
 
 
 def claim_dataset_dir(out_dir: str | Path, *, create: bool = True) -> Path:

@@ -19,6 +19,7 @@ from tactile_compliance.data.image_ops import resize_frames
 from tactile_compliance.data.import_report import (
     ImportPathError,
     ImportReport,
+    ImportUnitsError,
     import_paths,
     store_writing,
     utf8_problem,
@@ -41,10 +42,11 @@ from tactile_compliance.data.raw_layout import (
     load_vector,
     numbered_dirs,
     read_metadata,
-    recorded_units,
+    sample_grasp_dir,
+    tree_units,
 )
 from tactile_compliance.data.safe_pickle import peek_array_shape
-from tactile_compliance.data.store import GraspStoreWriter, depth_size_for
+from tactile_compliance.data.store import UNIT_COLUMNS, GraspStoreWriter, depth_size_for
 from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR
 from tactile_compliance.progress import progress_bar
 
@@ -167,9 +169,10 @@ def majority_frame_size(
 
 
 def _tree_estimator(src: Path) -> str:
-    """The analytical estimator (``physics.estimators`` name) that made a tree's estimates:
-    the one a generated tree's manifest names, else ``DEFAULT_ESTIMATOR`` (the public
-    dataset's own code, and ``record``'s trees). ImportPathError: a manifest naming none."""
+    """The analytical estimator (``physics.estimators`` name) of a tree's grasps that name
+    no units (``raw_layout.tree_units``): the one a generated tree's manifest names, else
+    ``DEFAULT_ESTIMATOR`` (the public dataset's own code). ImportPathError: a manifest
+    naming none."""
     manifest = src / SYNTHETIC_MANIFEST
     if not manifest.is_file():
         return DEFAULT_ESTIMATOR.name
@@ -236,8 +239,18 @@ def import_burgess(
             samples.extend((label, g, k, d) for g, k, d in _sample_dirs(object_dir, report))
     image_files = [FINGER_FILES[finger][0] for finger in finger_names]
     source_hw, sizes = majority_frame_size(samples, image_files, progress)
-    # Before anything is written: a damaged record or manifest stops here.
-    units, estimator = recorded_units(src), _tree_estimator(src)
+    # Before anything is written: a damaged manifest or units file, or grasps in two units,
+    # stop here. Grasps without units.json (the public dataset's) take the dataset's
+    # heuristic, and the report says how many did.
+    try:
+        found = tree_units(
+            (sample_grasp_dir(d) for _, _, _, d in samples), unnamed_estimator=_tree_estimator(src)
+        )
+    except ValueError as err:
+        raise ImportUnitsError(f"{src}: {err}; nothing was imported", report=report) from None
+    report.units = found.units.describe()
+    report.grasps_without_units = len(found.unnamed)
+    unit_columns = dict(zip(UNIT_COLUMNS, found.units.to_row(), strict=True))
 
     def store_depth_size() -> tuple[int, int] | None:
         size = image_size or source_hw
@@ -257,8 +270,6 @@ def import_burgess(
                 "source_image_size": list(source_hw),
                 "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
                 "frame_kind": "difference",
-                "analytical_estimator": estimator,
-                "sensor": units.to_dict(),
                 "depth": bool(depth),
             },
             overwrite=overwrite,
@@ -302,6 +313,7 @@ def import_burgess(
                     "elastic_estimate_pa": elastic_pa,
                     "hertz_estimate_pa": hertz_pa,
                     **{f"depth_max_mm_{i}": depth_max_mm[i] for i in range(3)},
+                    **unit_columns,
                     "source_path": str((aug_dir / image_file).relative_to(src)),
                 }
                 if target.append(frames, row, aug_dir / image_file, depth_maps):

@@ -51,6 +51,11 @@ class StrictModeError(DataImportError):
     """Strict mode: the first problem stops the import."""
 
 
+class ImportUnitsError(DataImportError):
+    """The source's grasps are in two units (estimator, depth model, pixel density), or a
+    grasp's units file is damaged: their estimates cannot share a store."""
+
+
 class ImportWriteError(DataImportError):
     """Writing the store failed (full disk, permissions, I/O error); nothing was left."""
 
@@ -198,6 +203,11 @@ class ImportReport:
     frame_values: int = 0
     clipped_frame_values: int = 0
     samples_with_clipped_frames: int = 0
+    #: What the imported estimates are in (``GraspUnits.describe``); "" when not known.
+    units: str = ""
+    #: Grasps without a units file (``raw_layout.UNITS_FILE``: the public dataset's), taken
+    #: to be in the dataset's units by its heuristic.
+    grasps_without_units: int = 0
 
     def require_sources(self, sources: Sequence[Path], src: Path, expected: str) -> None:
         """Fail the import when the source directory holds nothing to import.
@@ -242,10 +252,22 @@ class ImportReport:
             "clipped_frame_values": self.clipped_frame_values,
             "clipped_frame_share": self.clipped_frame_share,
             "samples_with_clipped_frames": self.samples_with_clipped_frames,
+            "units": self.units,
+            "grasps_without_units": self.grasps_without_units,
             "seconds": round(self.seconds, 3),
             "problems": [{"path": p, "reason": r} for p, r in self.problems],
             "problem_counts": dict(self.reasons()),
         }
+
+    def units_line(self) -> str:
+        """What the estimates are in, and whether that was read or assumed."""
+        if not self.grasps_without_units:
+            return f"Units: {self.units} (each grasp's units.json)."
+        return (
+            f"Units: {self.grasps_without_units} grasp(s) name no units (no units.json, as in "
+            f"the public dataset): their estimates are taken, by the dataset's heuristic, to "
+            f"be from {self.units}."
+        )
 
     def format(self, max_listed: int = 20) -> str:
         """Human-readable summary: totals, counts per reason, the first problems."""
@@ -260,6 +282,8 @@ class ImportReport:
                 f"({100 * self.clipped_frame_share:.4f} %) in {self.samples_with_clipped_frames} "
                 "samples (differences beyond -127/+128 grey levels, stored as -127/+128)."
             )
+        if self.units:
+            lines.append(self.units_line())
         if self.problems:
             lines.append(f"Skipped {len(self.problems)} item(s):")
             lines += [f"  {count:6d}  {reason}" for reason, count in self.reasons().most_common()]

@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import math
 import re
+from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -27,7 +29,7 @@ from tactile_compliance.data.safe_pickle import (
 )
 from tactile_compliance.data.store import FRAMES_PER_SAMPLE
 from tactile_compliance.outputs import atomic_file
-from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
+from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, WEDGE_UNITS, GraspUnits
 
 FingerChoice = Literal["markerless", "markers", "both"]
 
@@ -57,9 +59,11 @@ ESTIMATE_FILES = ("elastic_estimate.pkl", "hertz_estimate.pkl")
 METADATA_FILE = "metadata.json"
 #: Written by the generator at the root of a generated tree.
 SYNTHETIC_MANIFEST = "generation.json"
-RECORDING_UNITS_FILE = "recording.json"
-"""What ``record`` writes next to its object table: the depth model and pixel density of its
-grasps (``physics.estimators.SensorUnits``)."""
+UNITS_FILE = "units.json"
+"""Written into every grasp directory (``grasp=g/``) by ``record`` and the generator, with
+the grasp: the analytical estimator, depth model and pixel density its estimates were made
+with (``physics.estimators.GraspUnits``). The public dataset's grasps have none
+(:func:`tree_units`)."""
 #: The dtypes the writer stores images and depth maps in (forces, widths, estimates: float64).
 ALLOWED_DTYPES = ("float16", "float32", "float64")
 #: The plausibility rule of each file's values (both fingers' image files: frames).
@@ -251,34 +255,78 @@ def load_depth(
     return maxima, resize_frames(depth.astype(np.float32), depth_size)
 
 
-def read_units_file(directory: Path) -> SensorUnits | None:
-    """The units ``record`` wrote into ``directory`` (:data:`RECORDING_UNITS_FILE`), or None.
+def read_units_file(grasp_directory: Path) -> GraspUnits | None:
+    """The units in a grasp directory's :data:`UNITS_FILE`, or None when it has none.
 
     Raises:
-        ValueError: a damaged record (its estimates' units would be unknown).
+        ValueError: a damaged file, naming it (its estimates' units would be unknown).
     """
-    path = Path(directory) / RECORDING_UNITS_FILE
+    path = Path(grasp_directory) / UNITS_FILE
     if not path.is_file():
         return None
     try:
-        return SensorUnits.from_dict(json.loads(path.read_text(encoding="utf-8")))
-    except (OSError, ValueError) as err:
-        raise ValueError(f"{path}: cannot read the recording's units ({err})") from err
+        return GraspUnits.from_dict(json.loads(path.read_text(encoding="utf-8")))
+    except (OSError, ValueError, TypeError) as err:
+        raise ValueError(f"{path}: cannot read the grasp's units ({err})") from err
 
 
-def recorded_units(src: Path) -> SensorUnits:
-    """The units of a tree's estimates: what ``record`` wrote (in ``src`` or up to two
-    directories above, so an object or grasp directory of a recording finds it), else the
-    dataset's Wedge.
+@dataclass(frozen=True)
+class TreeUnits:
+    """The one set of units of a tree's grasps (:func:`tree_units`).
+
+    Attributes:
+        units: what every grasp's estimates are in.
+        unnamed: the grasp directories without :data:`UNITS_FILE` (the public dataset's,
+            or copied from one), taken to be in ``units`` by the dataset heuristic.
+    """
+
+    units: GraspUnits
+    unnamed: tuple[Path, ...] = ()
+
+
+def tree_units(
+    grasp_directories: Iterable[Path], *, unnamed_estimator: str = DEFAULT_ESTIMATOR.name
+) -> TreeUnits:
+    """The units of a set of grasps, each read from its own :data:`UNITS_FILE` (no
+    dataset-wide record, so copying objects between datasets or deleting a file cannot
+    relabel another grasp's estimates).
+
+    A grasp without the file is taken, explicitly (:attr:`TreeUnits.unnamed`), to be in
+    the public dataset's units: its depth heuristic at the Wedge's pixel density, with
+    ``unnamed_estimator`` (a generated tree's manifest names it; else the dataset's own).
 
     Raises:
-        ValueError: a damaged record.
+        ValueError: grasps in two units (one line naming a grasp of each and both units),
+            or a damaged file.
     """
-    for directory in (src, *src.resolve().parents[:2]):
+    heuristic = GraspUnits(WEDGE_UNITS, unnamed_estimator)
+    first: tuple[Path, GraspUnits] | None = None
+    unnamed: list[Path] = []
+    for directory in dict.fromkeys(Path(d) for d in grasp_directories):  # each grasp once
         units = read_units_file(directory)
-        if units is not None:
-            return units
-    return WEDGE_UNITS
+        if units is None:
+            unnamed.append(directory)
+            units = heuristic
+        if first is None:
+            first = (directory, units)
+        elif units != first[1]:
+            named = {first[0]: first[1], directory: units}
+            shown = [
+                f"{path} has {u.describe()}"
+                + (" (no units.json: the dataset's heuristic)" if path in unnamed else "")
+                for path, u in named.items()
+            ]
+            raise ValueError(
+                f"grasps in two units: {shown[0]}, {shown[1]}; their estimates cannot be "
+                "mixed: keep each sensor's grasps in a dataset of their own"
+            )
+    return TreeUnits(first[1] if first else heuristic, tuple(unnamed))
+
+
+def sample_grasp_dir(sample_directory: Path) -> Path:
+    """The grasp directory of a sample (augmentation) directory: its parent, where
+    :data:`UNITS_FILE` lies."""
+    return Path(sample_directory).parent
 
 
 # ---------------------------------------------------------------------- writing
@@ -323,9 +371,11 @@ def write_metadata(
     return path
 
 
-def write_units_file(directory: Path, units: SensorUnits) -> Path:
-    """Write the units of a recording's estimates (:data:`RECORDING_UNITS_FILE`)."""
-    path = directory / RECORDING_UNITS_FILE
+def write_units_file(grasp_directory: Path, units: GraspUnits) -> Path:
+    """Write a grasp's :data:`UNITS_FILE` (into the caller's temporary grasp or object
+    directory, so the grasp and its units are committed together)."""
+    path = Path(grasp_directory) / UNITS_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
     _write_json(path, units.to_dict())
     return path
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import math
 import os
 import re
 import secrets
@@ -47,8 +48,9 @@ from tactile_compliance.outputs import (
     process_start,
 )
 from tactile_compliance.physics.estimators import (
-    DEFAULT_ESTIMATOR,
+    DATASET_UNITS,
     AnalyticalEstimator,
+    GraspUnits,
     SensorUnits,
 )
 
@@ -73,6 +75,11 @@ FORCE_COLUMNS = ("force_n_0", "force_n_1", "force_n_2")
 WIDTH_COLUMNS = ("width_m_0", "width_m_1", "width_m_2")
 ESTIMATE_COLUMNS = ("elastic_estimate_pa", "hertz_estimate_pa")
 DEPTH_COLUMNS = ("depth_max_mm_0", "depth_max_mm_1", "depth_max_mm_2")
+#: What each row's analytical estimates were made with (``physics.estimators.GraspUnits``):
+#: the estimator's name, the depth model and the pixel density in px/mm (NaN: the
+#: estimator's own, the Wedge's). Every row carries them, so a store never relabels a
+#: grasp; :attr:`GraspStore.units` refuses a store whose rows disagree.
+UNIT_COLUMNS = ("analytical_estimator", "depth_model", "px_per_mm")
 # Column order of samples.parquet. Units: forces in N, widths in m, moduli and
 # estimates in Pa, depths in mm. Missing values are NaN (e.g. the Shore-hardness
 # videos have no force, width, estimates or depth).
@@ -83,6 +90,7 @@ SAMPLE_COLUMNS: tuple[str, ...] = (
     *WIDTH_COLUMNS,
     *ESTIMATE_COLUMNS,
     *DEPTH_COLUMNS,
+    *UNIT_COLUMNS,
     "source_path",
 )
 #: The plausibility rule of each numeric column. NaN (missing) is allowed in all of them
@@ -93,7 +101,15 @@ COLUMN_RULES: dict[str, PlausibleRange] = {
     **{column: WIDTH for column in WIDTH_COLUMNS},
     **{column: ESTIMATE for column in ESTIMATE_COLUMNS},
 }
-_STRING_COLUMNS = ("object", "finger", "material", "shape", "source_path")
+_STRING_COLUMNS = (
+    "object",
+    "finger",
+    "material",
+    "shape",
+    "analytical_estimator",
+    "depth_model",
+    "source_path",
+)
 _INT_COLUMNS = ("sample_id", "grasp", "augmentation")
 
 
@@ -224,6 +240,11 @@ def validate_samples(samples: pd.DataFrame) -> list[str]:
                 f"column sample_id must equal the row number (it indexes {FRAMES_FILE}); "
                 f"{wrong.size} row(s) differ: {first(wrong, 'sample_id')}"
             )
+    if all(c in samples.columns for c in UNIT_COLUMNS) and len(samples):
+        for row, problem in _unit_problems(samples):
+            problems.append(
+                f"columns {', '.join(UNIT_COLUMNS)}: {problem}; {first(row, 'depth_model')}"
+            )
     for column, rule in COLUMN_RULES.items():
         if column not in samples.columns:
             continue
@@ -246,6 +267,25 @@ def validate_samples(samples: pd.DataFrame) -> list[str]:
                 f"column {column} must be {rule.requirement()}{missing}; {bad.size} bad "
                 f"row(s): {first(bad, column)}"
             )
+    return problems
+
+
+def row_units(estimator: Any, depth_model: Any, px_per_mm: Any) -> GraspUnits:
+    """A row's :data:`UNIT_COLUMNS` as ``GraspUnits`` (ValueError: invalid values)."""
+    px = as_real_number(px_per_mm)
+    sensor = SensorUnits(str(depth_model), None if math.isnan(px) else px)
+    return GraspUnits(sensor, str(estimator))
+
+
+def _unit_problems(samples: pd.DataFrame) -> list[tuple[np.ndarray, str]]:
+    """(rows, why) for each distinct invalid combination of a table's unit columns."""
+    problems = []
+    columns = samples[list(UNIT_COLUMNS)]
+    for key, rows in columns.groupby(list(UNIT_COLUMNS), dropna=False, sort=False).indices.items():
+        try:
+            row_units(*key)
+        except (TypeError, ValueError) as err:
+            problems.append((np.sort(rows), str(err)))
     return problems
 
 
@@ -538,18 +578,43 @@ class GraspStore:
         return self.header.image_size
 
     @property
+    def units(self) -> GraspUnits:
+        """What the stored analytical estimates were made with, read from the rows
+        (:data:`UNIT_COLUMNS`); an empty store is in ``DATASET_UNITS``.
+
+        Raises:
+            StoreError: rows in two units (naming a row of each): their estimates cannot
+                be used together.
+        """
+        columns = self.samples[list(UNIT_COLUMNS)]
+        groups = columns.groupby(list(UNIT_COLUMNS), dropna=False, sort=False).indices
+        if not groups:
+            return DATASET_UNITS
+        found = [(row_units(*key), int(rows.min())) for key, rows in groups.items()]
+        found.sort(key=lambda item: item[1])
+        if len({units for units, _ in found}) > 1:
+            (one, a), (other, b) = found[:2]
+            name = self.samples["object"]
+            raise StoreError(
+                f"{self.path}: rows in two units: sample {a} ({name.iloc[a]}) has "
+                f"{one.describe()}, sample {b} ({name.iloc[b]}) {other.describe()}; their "
+                "estimates cannot be used together: import each sensor's grasps into a "
+                "store of their own"
+            )
+        return found[0][0]
+
+    @property
     def analytical_estimator(self) -> AnalyticalEstimator:
-        """The estimator that made the stored analytical estimates, at the store's pixel
-        density: the one ``import burgess`` names (``creation_parameters``), else
-        ``DEFAULT_ESTIMATOR`` (Shore-hardness ``yuan`` stores have no estimates)."""
-        name = self.header.creation_parameters.get("analytical_estimator")
-        return AnalyticalEstimator(name or DEFAULT_ESTIMATOR.name, self.sensor_units.px_per_mm)
+        """The estimator that made the stored analytical estimates, at their pixel density
+        (:attr:`units`; StoreError: rows in two units)."""
+        units = self.units
+        return AnalyticalEstimator(units.estimator, units.sensor.px_per_mm)
 
     @property
     def sensor_units(self) -> SensorUnits:
-        """Depth model and pixel density of the stored analytical estimates (what ``record``
-        calibrated); stores of the public dataset and the generator are the Wedge's."""
-        return SensorUnits.from_dict(self.header.creation_parameters.get("sensor"))
+        """Depth model and pixel density of the stored analytical estimates (:attr:`units`;
+        StoreError: rows in two units)."""
+        return self.units.sensor
 
     @property
     def has_depth(self) -> bool:
@@ -695,6 +760,14 @@ class GraspStore:
         }
 
 
+#: A row that names no units is in the public dataset's (``DATASET_UNITS``): the writer's
+#: callers that hold estimates (``import burgess``) always name them.
+_DEFAULTS = {
+    "analytical_estimator": DATASET_UNITS.estimator,
+    "depth_model": DATASET_UNITS.sensor.depth_model,
+}
+
+
 def _normalise_row(row: dict[str, Any], sample_id: int) -> dict[str, Any]:
     unknown = set(row) - set(SAMPLE_COLUMNS)
     if unknown:
@@ -704,7 +777,7 @@ def _normalise_row(row: dict[str, Any], sample_id: int) -> dict[str, Any]:
         if column == "sample_id":
             out[column] = sample_id
         elif column in _STRING_COLUMNS:
-            text = str(row.get(column, ""))
+            text = str(row.get(column, _DEFAULTS.get(column, "")))
             try:
                 text.encode("utf-8")
             except UnicodeEncodeError:
@@ -719,6 +792,7 @@ def _normalise_row(row: dict[str, Any], sample_id: int) -> dict[str, Any]:
                 out[column] = as_real_number(value)
             except ValueError as err:
                 raise ValueError(f"{column}: {err}") from None
+    row_units(*(out[column] for column in UNIT_COLUMNS))  # ValueError: invalid units
     for column, rule in COLUMN_RULES.items():
         value = out[column]
         if column == "modulus_pa" and not rule.contains(value):

@@ -42,6 +42,11 @@ def evaluate_run(
     """Metrics of a run's best checkpoint on its own test split (``split.json``: the
     numbers of ``metrics.json``), or on every sample of ``store`` that passes the run's
     sample filter. ``backbone_weights``: a local copy of a frozen backbone's weights file.
+
+    Raises:
+        ValueError: the checkpoint takes estimates (ALL inputs) and the store's are in
+            other units (``RunInputs.check_sensor``, as ``predict`` and ``live`` refuse).
+        StoreError: the store's rows are in two units.
     """
     run_dir = Path(run_dir)
     loaded = load_checkpoint(run_dir / BEST_FILE, device, backbone_weights=backbone_weights)
@@ -56,6 +61,12 @@ def evaluate_run(
         kept, _ = filter_samples(grasp_store.samples, cfg)
         ids = kept["sample_id"].to_numpy(dtype=np.int64)
     run_inputs = loaded.run_inputs
+    # The check predict and live make: estimates in other units than the training data's.
+    run_inputs.check_sensor(
+        grasp_store.sensor_units,
+        trained=f"checkpoint {run_dir / BEST_FILE}",
+        used=f"store {grasp_store.path}",
+    )
     constants = run_inputs.constants
     dataset = GraspDataset(grasp_store, ids, constants, run_inputs.inputs)
     predicted = predict_dataset(

@@ -121,12 +121,11 @@ def live_estimates(
         # Depth maps feed the analytical estimates and the depth-map models; both are in the
         # units of the depth model and pixel density they were made with.
         needs_depth = bool({"estimates", "depth"} & set(ensemble.required_inputs))
-        if needs_depth:
-            units = WEDGE_UNITS if calibration is None else calibration.units
-            for member in members:
-                member.run_inputs.sensor.check_same(
-                    units, trained=f"checkpoint {member.source}", used="this sensor"
-                )
+        units = WEDGE_UNITS if calibration is None else calibration.units
+        for member in members:
+            member.run_inputs.check_sensor(
+                units, trained=f"checkpoint {member.source}", used="this sensor"
+            )
 
         skipped: list[FrameError] = []
         reported: set[int] = set()  # force spikes reported (a followed log finds them late)

@@ -56,10 +56,9 @@ def predict_path(
             f"a store imported with its depth maps (`import burgess SRC --out STORE`), or "
             f"run `live` with the sensor's --calibration"
         )
-    if {"estimates", "depth"} & set(needed):
-        estimator.run_inputs.sensor.check_same(
-            source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
-        )
+    estimator.run_inputs.check_sensor(
+        source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
+    )
     scalars = source.inputs(scalar_names)
     usable = np.ones(len(source), dtype=bool)
     reasons: list[str] = [""] * len(source)

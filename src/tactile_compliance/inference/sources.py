@@ -26,8 +26,9 @@ from tactile_compliance.data.raw_layout import (
     load_frames,
     load_vector,
     read_metadata,
-    recorded_units,
     sample_dirs,
+    sample_grasp_dir,
+    tree_units,
 )
 from tactile_compliance.data.store import (
     ESTIMATE_COLUMNS,
@@ -258,7 +259,8 @@ def read_grasp_dir(
         kind="grasp_dir",
         frame_kind="difference",
         unreadable=unreadable,
-        sensor_units=recorded_units(Path(root)),
+        # Each grasp's own units.json; ValueError: grasps in two units.
+        sensor_units=tree_units(sample_grasp_dir(d) for _, _, d in dirs).units.sensor,
     )
 
 

@@ -20,9 +20,11 @@ from tactile_compliance.physics.dataset_estimates import (
 )
 
 __all__ = [
+    "DATASET_UNITS",
     "DEFAULT_ESTIMATOR",
     "WEDGE_UNITS",
     "AnalyticalEstimator",
+    "GraspUnits",
     "SensorUnits",
 ]
 
@@ -105,9 +107,9 @@ class SensorUnits:
 
     The estimates count contact pixels and read depths, so their values depend on the depth
     model and the pixel density: estimates of a Mini with its calibrated model at
-    12.5 px/mm are not in the units of the public dataset's Wedge. Stores record this
-    (``creation_parameters["sensor"]``), checkpoints copy it, and inference compares it
-    with the calibration it runs on.
+    12.5 px/mm are not in the units of the public dataset's Wedge. Each grasp records it
+    (:class:`GraspUnits`, in its raw directory and its store rows), checkpoints copy it, and
+    inference compares it with the data it runs on (``RunInputs.check_sensor``).
 
     Attributes:
         depth_model: ``"dataset"`` (the public dataset's heuristic) or ``"calibrated"``
@@ -175,3 +177,46 @@ class SensorUnits:
 
 WEDGE_UNITS = SensorUnits()
 """The public dataset's units: its depth heuristic at the Wedge's pixel density."""
+
+
+@dataclass(frozen=True)
+class GraspUnits:
+    """What one grasp's analytical estimates were made with: the raw layout keeps it in
+    each grasp directory (``data.raw_layout.UNITS_FILE``) and a store in each of its rows
+    (``data.store.UNIT_COLUMNS``), so merging or deleting files cannot relabel a grasp.
+    Checkpoints keep the two parts apart (``RunInputs.sensor``, ``RunInputs.estimator``).
+
+    Attributes:
+        sensor: depth model and pixel density (``physics.estimators.SensorUnits``).
+        estimator: the analytical estimator's name (``physics.estimators``).
+    """
+
+    sensor: SensorUnits = WEDGE_UNITS
+    estimator: str = DEFAULT_ESTIMATOR.name
+
+    def __post_init__(self) -> None:
+        AnalyticalEstimator(self.estimator)  # ValueError: unknown estimator
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.sensor.to_dict(), "analytical_estimator": self.estimator}
+
+    def to_row(self) -> tuple[str, str, float]:
+        """(estimator, depth model, px/mm; NaN: the estimator's own), a store row's unit
+        columns in their order (``data.store.UNIT_COLUMNS``)."""
+        px = self.sensor.px_per_mm
+        return self.estimator, self.sensor.depth_model, math.nan if px is None else float(px)
+
+    @classmethod
+    def from_dict(cls, data: Any) -> GraspUnits:
+        """Read :meth:`to_dict` (ValueError: not a mapping, a field missing or invalid)."""
+        if not isinstance(data, dict) or not {"depth_model", "analytical_estimator"} <= set(data):
+            raise ValueError("expected depth_model, px_per_mm and analytical_estimator")
+        return cls(SensorUnits.from_dict(data), str(data["analytical_estimator"]))
+
+    def describe(self) -> str:
+        """E.g. ``the dataset estimator on a calibrated depth model at 11 px/mm``."""
+        return f"the {self.estimator} estimator on {self.sensor.describe()}"
+
+
+DATASET_UNITS = GraspUnits()
+"""The public dataset's grasps (which name no units): its estimator on :data:`WEDGE_UNITS`."""

@@ -94,6 +94,17 @@ class RunInputs:
             estimator=store.analytical_estimator,
         )
 
+    def check_sensor(self, units: SensorUnits, *, trained: str, used: str) -> None:
+        """Refuse data whose analytical estimates or depth maps are in other units than the
+        training data's, when this run takes either (ALL, FWE, DepthFW, DepthALL; the
+        others are not checked): the one check of ``predict``, ``live`` and ``evaluate``.
+
+        Raises:
+            ValueError: one line naming ``trained`` and ``used`` and both units.
+        """
+        if self.inputs.uses("estimates") or self.inputs.uses("depth"):
+            self.sensor.check_same(units, trained=trained, used=used)
+
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON values; inverse of :meth:`from_dict`."""
         return {

@@ -22,9 +22,10 @@ from tactile_compliance.data.raw_layout import (
     grasp_dir,
     write_metadata,
     write_sample,
+    write_units_file,
 )
 from tactile_compliance.outputs import PARTIAL_PREFIX, claim_output_dir, commit_path
-from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR
+from tactile_compliance.physics.estimators import DATASET_UNITS, DEFAULT_ESTIMATOR
 from tactile_compliance.synthetic.grasp import (
     SimulationOptions,
     make_context,
@@ -145,6 +146,8 @@ def _run_object(job: _Job) -> tuple[int, int, int]:
             result = simulate_grasp(ctx, g)
             if not result.samples:
                 rejected += 1
+            else:  # the manifest's estimator, on the Wedge's units (as the dataset)
+                write_units_file(grasp_dir(partial, g), DATASET_UNITS)
             for k, sample in enumerate(result.samples):
                 fingers = {
                     "markerless": (sample.rgb, sample.depth),

@@ -154,6 +154,9 @@ class EpochState(Checkpoint):
         self.staged = directory / (LAST_CHECKPOINT + _STAGED_SUFFIX)
         #: Epochs finished, this process's and those of the checkpoint it resumed from.
         self.epochs_done = 0
+        #: The epoch (0-based) each resume of this run started from, oldest first; kept in
+        #: the checkpoint, so a run resumed twice lists both (``metrics.json``).
+        self.resumed_from_epoch: list[int] = []
         self._has_staged = False
         self._best_owed = False  # the pending best belongs to the epoch being committed
         self._trainer: L.Trainer | None = None
@@ -174,11 +177,15 @@ class EpochState(Checkpoint):
             # Early stopping's decision of this epoch: a resumed run must not train on.
             "should_stop": bool(trainer.should_stop),
             "rng": _rng_states(),
+            "resumed_from_epoch": list(self.resumed_from_epoch),
         }
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        # Lightning calls this only when a run resumes from a checkpoint: one more resume.
         self._restored = dict(state_dict)
         self.epochs_done = int(state_dict.get("epochs_done", 0))
+        earlier = [int(epoch) for epoch in state_dict.get("resumed_from_epoch", [])]
+        self.resumed_from_epoch = [*earlier, self.epochs_done]
 
     def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         # Lightning has restored the checkpoint (callbacks before this hook on a single

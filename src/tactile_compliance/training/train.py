@@ -11,6 +11,7 @@ import contextlib
 import json
 import logging
 import signal
+import sys
 import threading
 import time
 import warnings
@@ -320,7 +321,10 @@ def train(
 ) -> dict[str, Any]:
     """Train and evaluate one configuration; returns the metrics dict (also metrics.json).
 
-    Resumes an interrupted run from its last finished epoch (docs/training.md).
+    Resumes an interrupted run from its last finished epoch (docs/training.md), and says
+    so in one line on stderr whatever ``verbose`` (:func:`resume_line`); ``metrics.json``
+    lists the epoch each resume started from (``resumed_from_epoch``, empty: never
+    interrupted).
 
     Args:
         run_dir: where to write; default ``cfg.output_dir / run_name(cfg)``.
@@ -367,6 +371,12 @@ def train(
         release_memory()
 
 
+def resume_line(run_dir: Path, epochs_done: int, max_epochs: int) -> str:
+    """``resuming RUN after epoch N of M``: ``N`` epochs of ``max_epochs`` are finished and
+    the run continues with epoch ``N`` (0-based, as ``logs/metrics.csv`` counts)."""
+    return f"resuming {run_dir} after epoch {epochs_done} of {max_epochs}"
+
+
 def _fit_and_evaluate(
     cfg: ExperimentConfig,
     run_dir: Path,
@@ -397,6 +407,9 @@ def _fit_and_evaluate(
     checkpoint_dir.mkdir(exist_ok=True)
     resume = find_resume_point(run_dir)
     earlier_rows = read_earlier_rows(run_dir / EPOCH_LOG, resume.epochs_done) if resume else []
+    if resume is not None:  # quiet or not: a resume must never pass for a fresh start
+        line = resume_line(run_dir, resume.epochs_done, cfg.training.max_epochs)
+        print(line, file=sys.stderr, flush=True)
 
     accelerator = _accelerator(cfg.training.device)
     device = "cuda" if accelerator == "gpu" else "cpu"
@@ -522,6 +535,7 @@ def _fit_and_evaluate(
         # A run resumed after early stopping trains nothing, and Lightning then leaves
         # current_epoch one short.
         "epochs_trained": max(trainer.current_epoch, epoch_state.epochs_done),
+        "resumed_from_epoch": epoch_state.resumed_from_epoch,
         "wall_time_s": round(time.perf_counter() - started, 2),
         **metrics,
     }
