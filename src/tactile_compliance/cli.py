@@ -1162,11 +1162,11 @@ FolderFpsOption = Annotated[
     typer.Option("--fps", min=0, help="Frame rate of a folder of frames (or give --timestamps)."),
 ]
 ReadingsOption = Annotated[
-    Path,
+    Optional[Path],
     typer.Option(
         "--readings",
         help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot writes "
-        "it when the source is a live device.",
+        "it when the source is a live device. Not with a rosbag: source (the bag has them).",
     ),
 ]
 FolderTimesOption = Annotated[
@@ -1175,11 +1175,25 @@ FolderTimesOption = Annotated[
 ]
 
 
-def _readings(path: Path, source: Any) -> Any:
+def _readings(path: Path | None, source: Any) -> Any:
     """The readings CSV: read once for a replay; followed while the robot writes it for a
-    live device (each frame waits up to 1 s for its reading)."""
+    live device (each frame waits up to 1 s for its reading). A bag's own readings when
+    the source is a ``rosbag:`` (which carries them)."""
     from tactile_compliance.acquisition.recording import FollowedReadings, Readings
 
+    bag_readings = getattr(source, "readings", None)
+    if bag_readings is not None:
+        if path is not None:
+            raise typer.BadParameter(
+                f"--readings {path}: the source {source.name} carries its own force and "
+                "width topics; give one or the other"
+            )
+        return bag_readings
+    if path is None:
+        raise typer.BadParameter(
+            "--readings CSV is required (timestamp_s,force_n,width_m), except for a "
+            "rosbag: source, which carries them"
+        )
     if source.live:  # the robot may create the file after the start; its folder must exist
         if not path.parent.is_dir():
             raise ValueError(f"--readings {path}: no such folder: {path.parent}")
@@ -1204,6 +1218,42 @@ def _open_source(
         return open_source(spec, **options), None
     loaded = SensorCalibration.load(calibration)
     return loaded.open(spec, **options), loaded
+
+
+@app.command()
+def estimate(
+    source: SourceArg,
+    readings: ReadingsOption = None,
+    calibration: CalibrationOption = None,
+    reference: Annotated[
+        Optional[Path],
+        typer.Option(
+            help="A no-contact frame (image file: a camera frame, or one already cut to the "
+            "sensor frame); replaces the calibration's reference and the first frame."
+        ),
+    ] = None,
+    max_frames: Annotated[
+        Optional[int], typer.Option(min=1, help="Stop after this many frames (default: release).")
+    ] = None,
+    fps: FolderFpsOption = None,
+    timestamps: FolderTimesOption = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """The analytical estimates of one grasp (elastic E, Hertz E*), without a model.
+
+    The values `record` would store, in the sensor's units, with how far such estimates
+    were from the truth on real grasps. Nothing is written."""
+    from tactile_compliance.acquisition.calibration import read_image
+    from tactile_compliance.acquisition.estimates import estimate_recording
+
+    no_contact = None if reference is None else read_image(reference)
+    frames, sensor = _open_source(source, calibration, fps, timestamps)
+    with frames:
+        table = _readings(readings, frames)
+        result = estimate_recording(
+            frames, table, calibration=sensor, reference=no_contact, max_frames=max_frames
+        )
+    typer.echo(_json(result.to_dict()) if as_json else result.format())
 
 
 @app.command()
@@ -1463,17 +1513,28 @@ def record(
     typer.echo(_json(result.to_dict()) if as_json else f"{result.format()}\n{next_step}")
 
 
+def _refuse_a_model_as_source(source: str) -> None:
+    """`live MODEL --readings CSV` (the source forgotten) names its mistake, not a video."""
+    path = Path(source)
+    model_files = ("best.pt", "model.safetensors")
+    if path.suffix in (".pt", ".onnx") or any((path / name).is_file() for name in model_files):
+        raise typer.BadParameter(
+            f"{source} is a model, not a frame source: give CHECKPOINTS... and then SOURCE "
+            "(or only a SOURCE for the analytical estimates without a model)"
+        )
+
+
 @app.command()
 def live(
     checkpoints: Annotated[
-        list[Path],
+        Optional[list[Path]],
         typer.Argument(
             help="best.pt, a run directory or an `export --safetensors` directory; several "
-            "give an ensemble interval."
+            "give an ensemble interval; none: the analytical estimates alone."
         ),
-    ],
-    source: SourceArg,
-    readings: ReadingsOption,
+    ] = None,
+    source: SourceArg = ...,  # `...`: required (after the optional CHECKPOINTS)
+    readings: ReadingsOption = None,
     calibration: CalibrationOption = None,
     window: Annotated[
         Optional[int], typer.Option(min=3, help="Estimate from the last N frames (default: all).")
@@ -1502,7 +1563,8 @@ def live(
 ) -> None:
     """Stream a sensor (or a replayed video) through the estimator.
 
-    Provisional estimates while the gripper closes, the final one on release."""
+    Provisional estimates while the gripper closes, the final one on release. Without a
+    checkpoint, the analytical estimates (those of `estimate`)."""
     from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
 
     if window is not None and window_s is not None:
@@ -1511,7 +1573,11 @@ def live(
         raise typer.BadParameter(f"--window-s must be > 0 s, got {window_s}")
     if not 0 < level < 1:
         raise typer.BadParameter(f"--level must lie between 0 and 1 (exclusive), got {level}")
-    members = load_members(checkpoints, device=device, backbone_weights=weights)
+    if not checkpoints:  # `live SOURCE`: the analytical estimates, no model
+        _refuse_a_model_as_source(source)
+    members = (
+        load_members(checkpoints, device=device, backbone_weights=weights) if checkpoints else []
+    )
     frames, sensor = _open_source(source, calibration, fps, timestamps)
     final = False
     with frames:
