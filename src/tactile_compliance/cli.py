@@ -1079,14 +1079,53 @@ def predict(
     ] = "both",
     device: DeviceOption = DEFAULT_DEVICE,
     weights: BackboneWeightsOption = None,
+    calibration: Annotated[
+        Optional[Path],
+        typer.Option(help="Sensor calibration JSON for a rosbag: source (from `calibrate`)."),
+    ] = None,
 ) -> None:
-    """Estimate Young's modulus for every grasp of a store, raw directory or video."""
+    """Estimate Young's modulus for every grasp of a store, raw directory or video.
+
+    A rosbag:BAG source is one grasp: the final estimate `live` gives on it."""
+    if str(source).startswith("rosbag:"):
+        _predict_bag(checkpoint, str(source), calibration, device, weights, as_json)
+        return
+    if calibration is not None:
+        raise typer.BadParameter("--calibration is for a rosbag: source")
     from tactile_compliance.inference.predict import format_predictions, predict_path
 
     result = predict_path(
         checkpoint, source, device=device, fingers=fingers, backbone_weights=weights
     )
     typer.echo(_json(result) if as_json else format_predictions(result))
+
+
+def _predict_bag(
+    checkpoint: Path,
+    spec: str,
+    calibration: Path | None,
+    device: str,
+    weights: Path | None,
+    as_json: bool,
+) -> None:
+    """`predict CHECKPOINT rosbag:BAG`: the bag's grasp through `live`'s loop, its final
+    estimate printed (warnings and skipped frames on stderr)."""
+    from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
+
+    members = load_members([checkpoint], device=device, backbone_weights=weights)
+    frames, sensor = _open_source(spec, calibration, None, None)
+    with frames:
+        for event in live_estimates(members, frames, _readings(None, frames), calibration=sensor):
+            if event["event"] == "no_estimate":
+                _fail(f"no estimate: {event['reason']}", EXIT_BAD_INPUT)
+            if event["event"] in ("warning", "skipped"):
+                typer.echo(format_live_event(event), err=True)
+            elif event.get("final"):
+                event = {"source": frames.name, **event}
+                text = f"{frames.name}: {format_live_event(event)}"
+                typer.echo(_json(event) if as_json else text)
+                return
+    _fail("no estimate", EXIT_BAD_INPUT)  # pragma: no cover - live ends with final or none
 
 
 @app.command()
@@ -1150,7 +1189,8 @@ def export(
 
 SOURCE_HELP = (
     "Frame source: mini:0, mini:/dev/v4l/by-id/..., wedge:http://host:port/stream.mjpg, "
-    "digit:SERIAL, camera:0, video:FILE, folder:DIR, or a plain path."
+    "digit:SERIAL, camera:0, video:FILE, folder:DIR, rosbag:BAG[,image=TOPIC,force=TOPIC,"
+    "width=TOPIC] (docs/ros2.md), or a plain path."
 )
 SourceArg = Annotated[str, typer.Argument(help=SOURCE_HELP)]
 CalibrationOption = Annotated[
@@ -1181,14 +1221,17 @@ def _readings(path: Path | None, source: Any) -> Any:
     the source is a ``rosbag:`` (which carries them)."""
     from tactile_compliance.acquisition.recording import FollowedReadings, Readings
 
-    bag_readings = getattr(source, "readings", None)
+    bag_readings = getattr(source, "readings_arrays", None)  # a rosbag: source
     if bag_readings is not None:
         if path is not None:
             raise typer.BadParameter(
                 f"--readings {path}: the source {source.name} carries its own force and "
                 "width topics; give one or the other"
             )
-        return bag_readings
+        try:
+            return Readings(*bag_readings)
+        except ValueError as err:
+            raise ValueError(f"{source.name}: {err}") from err
     if path is None:
         raise typer.BadParameter(
             "--readings CSV is required (timestamp_s,force_n,width_m), except for a "
@@ -1454,7 +1497,7 @@ def record(
     out: Annotated[Path, typer.Option(help="Dataset directory (raw layout).")],
     object_name: Annotated[str, typer.Option("--object", help="Object name (its directory).")],
     modulus: Annotated[float, typer.Option(help="Young's modulus E in Pa.")],
-    readings: ReadingsOption,
+    readings: ReadingsOption = None,
     material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
     shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
     calibration: CalibrationOption = None,
