@@ -179,7 +179,7 @@ def test_live_takes_its_source_as_an_argument(tmp_path: Path) -> None:
     """`live CHECKPOINT... SOURCE` like `record SOURCE`. The checkpoint is checked first, so
     its error shows how the line parsed."""
     text = runner.invoke(app, ["live", "--help"], env=WIDE).output
-    assert "CHECKPOINTS... SOURCE" in text and "--source" not in text, text
+    assert "[CHECKPOINTS]... SOURCE" in text and "--source" not in text, text
     missing = tmp_path / "missing.pt"
     readings = ["--readings", str(tmp_path / "r.csv")]
     for args in (
@@ -190,7 +190,7 @@ def test_live_takes_its_source_as_an_argument(tmp_path: Path) -> None:
         assert result.exit_code == 2, (args, result.output)
         assert _one_error_line(result) == f"error: {missing}: checkpoint not found", args
     for args, cause in (
-        ([str(missing), *readings], "give CHECKPOINTS... and then SOURCE"),
+        ([str(missing), *readings], "is a model, not a frame source: give CHECKPOINTS..."),
         ([str(missing), "--source", "a"], "No such option: --source"),
     ):
         result = runner.invoke(app, ["live", *args])

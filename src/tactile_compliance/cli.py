@@ -1082,14 +1082,53 @@ def predict(
     ] = "both",
     device: DeviceOption = DEFAULT_DEVICE,
     weights: BackboneWeightsOption = None,
+    calibration: Annotated[
+        Optional[Path],
+        typer.Option(help="Sensor calibration JSON for a rosbag: source (from `calibrate`)."),
+    ] = None,
 ) -> None:
-    """Estimate Young's modulus for every grasp of a store, raw directory or video."""
+    """Estimate Young's modulus for every grasp of a store, raw directory or video.
+
+    A rosbag:BAG source is one grasp: the final estimate `live` gives on it."""
+    if str(source).startswith("rosbag:"):
+        _predict_bag(checkpoint, str(source), calibration, device, weights, as_json)
+        return
+    if calibration is not None:
+        raise typer.BadParameter("--calibration is for a rosbag: source")
     from tactile_compliance.inference.predict import format_predictions, predict_path
 
     result = predict_path(
         checkpoint, source, device=device, fingers=fingers, backbone_weights=weights
     )
     typer.echo(_json(result) if as_json else format_predictions(result))
+
+
+def _predict_bag(
+    checkpoint: Path,
+    spec: str,
+    calibration: Path | None,
+    device: str,
+    weights: Path | None,
+    as_json: bool,
+) -> None:
+    """`predict CHECKPOINT rosbag:BAG`: the bag's grasp through `live`'s loop, its final
+    estimate printed (warnings and skipped frames on stderr)."""
+    from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
+
+    members = load_members([checkpoint], device=device, backbone_weights=weights)
+    frames, sensor = _open_source(spec, calibration, None, None)
+    with frames:
+        for event in live_estimates(members, frames, _readings(None, frames), calibration=sensor):
+            if event["event"] == "no_estimate":
+                _fail(f"no estimate: {event['reason']}", EXIT_BAD_INPUT)
+            if event["event"] in ("warning", "skipped"):
+                typer.echo(format_live_event(event), err=True)
+            elif event.get("final"):
+                event = {"source": frames.name, **event}
+                text = f"{frames.name}: {format_live_event(event)}"
+                typer.echo(_json(event) if as_json else text)
+                return
+    _fail("no estimate", EXIT_BAD_INPUT)  # pragma: no cover - live ends with final or none
 
 
 @app.command()
@@ -1153,8 +1192,9 @@ def export(
 
 SOURCE_HELP = (
     "Frame source: mini:0, mini:/dev/v4l/by-id/..., wedge:http://host:port/stream.mjpg, "
-    "digit:SERIAL, camera:0, video:FILE, folder:DIR, or a plain path; `live` also takes "
-    "none (no camera: a frame-free model on --readings alone)."
+    "digit:SERIAL, camera:0, video:FILE, folder:DIR, rosbag:BAG[,image=TOPIC,force=TOPIC,"
+    "width=TOPIC] (docs/ros2.md), or a plain path; `live` also takes none (no camera: a "
+    "frame-free model on --readings alone)."
 )
 SourceArg = Annotated[str, typer.Argument(help=SOURCE_HELP)]
 CalibrationOption = Annotated[
@@ -1166,11 +1206,11 @@ FolderFpsOption = Annotated[
     typer.Option("--fps", min=0, help="Frame rate of a folder of frames (or give --timestamps)."),
 ]
 ReadingsOption = Annotated[
-    Path,
+    Optional[Path],
     typer.Option(
         "--readings",
         help="CSV of timestamp_s,force_n,width_m (s, N, m); followed while the robot writes "
-        "it when the source is a live device.",
+        "it when the source is a live device. Not with a rosbag: source (the bag has them).",
     ),
 ]
 FolderTimesOption = Annotated[
@@ -1183,11 +1223,28 @@ FolderTimesOption = Annotated[
 NO_CAMERA = "none"
 
 
-def _readings(path: Path, source: Any) -> Any:
+def _readings(path: Path | None, source: Any) -> Any:
     """The readings CSV: read once for a replay; followed while the robot writes it for a
-    live device (each frame waits up to 1 s for its reading)."""
-    from tactile_compliance.acquisition.recording import FollowedReadings
+    live device (each frame waits up to 1 s for its reading). A bag's own readings when
+    the source is a ``rosbag:`` (which carries them)."""
+    from tactile_compliance.acquisition.recording import FollowedReadings, Readings
 
+    bag_readings = getattr(source, "readings_arrays", None)  # a rosbag: source
+    if bag_readings is not None:
+        if path is not None:
+            raise typer.BadParameter(
+                f"--readings {path}: the source {source.name} carries its own force and "
+                "width topics; give one or the other"
+            )
+        try:
+            return Readings(*bag_readings)
+        except ValueError as err:
+            raise ValueError(f"{source.name}: {err}") from err
+    if path is None:
+        raise typer.BadParameter(
+            "--readings CSV is required (timestamp_s,force_n,width_m), except for a "
+            "rosbag: source, which carries them"
+        )
     if source.live:  # the robot may create the file after the start; its folder must exist
         if not path.parent.is_dir():
             raise ValueError(f"--readings {path}: no such folder: {path.parent}")
@@ -1195,10 +1252,12 @@ def _readings(path: Path, source: Any) -> Any:
     return _recorded_readings(path)
 
 
-def _recorded_readings(path: Path) -> Any:
+def _recorded_readings(path: Path | None) -> Any:
     """A recorded readings CSV, read once."""
     from tactile_compliance.acquisition.recording import Readings
 
+    if path is None:
+        raise typer.BadParameter("--readings CSV is required (timestamp_s,force_n,width_m)")
     if not path.is_file():
         raise ValueError(f"--readings {path}: no such file")
     try:
@@ -1219,6 +1278,42 @@ def _open_source(
         return open_source(spec, **options), None
     loaded = SensorCalibration.load(calibration)
     return loaded.open(spec, **options), loaded
+
+
+@app.command()
+def estimate(
+    source: SourceArg,
+    readings: ReadingsOption = None,
+    calibration: CalibrationOption = None,
+    reference: Annotated[
+        Optional[Path],
+        typer.Option(
+            help="A no-contact frame (image file: a camera frame, or one already cut to the "
+            "sensor frame); replaces the calibration's reference and the first frame."
+        ),
+    ] = None,
+    max_frames: Annotated[
+        Optional[int], typer.Option(min=1, help="Stop after this many frames (default: release).")
+    ] = None,
+    fps: FolderFpsOption = None,
+    timestamps: FolderTimesOption = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """The analytical estimates of one grasp (elastic E, Hertz E*), without a model.
+
+    The values `record` would store, in the sensor's units, with how far such estimates
+    were from the truth on real grasps. Nothing is written."""
+    from tactile_compliance.acquisition.calibration import read_image
+    from tactile_compliance.acquisition.estimates import estimate_recording
+
+    no_contact = None if reference is None else read_image(reference)
+    frames, sensor = _open_source(source, calibration, fps, timestamps)
+    with frames:
+        table = _readings(readings, frames)
+        result = estimate_recording(
+            frames, table, calibration=sensor, reference=no_contact, max_frames=max_frames
+        )
+    typer.echo(_json(result.to_dict()) if as_json else result.format())
 
 
 @app.command()
@@ -1419,7 +1514,7 @@ def record(
     out: Annotated[Path, typer.Option(help="Dataset directory (raw layout).")],
     object_name: Annotated[str, typer.Option("--object", help="Object name (its directory).")],
     modulus: Annotated[float, typer.Option(help="Young's modulus E in Pa.")],
-    readings: ReadingsOption,
+    readings: ReadingsOption = None,
     material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
     shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
     calibration: CalibrationOption = None,
@@ -1478,17 +1573,28 @@ def record(
     typer.echo(_json(result.to_dict()) if as_json else f"{result.format()}\n{next_step}")
 
 
+def _refuse_a_model_as_source(source: str) -> None:
+    """`live MODEL --readings CSV` (the source forgotten) names its mistake, not a video."""
+    path = Path(source)
+    model_files = ("best.pt", "model.safetensors")
+    if path.suffix in (".pt", ".onnx") or any((path / name).is_file() for name in model_files):
+        raise typer.BadParameter(
+            f"{source} is a model, not a frame source: give CHECKPOINTS... and then SOURCE "
+            "(or only a SOURCE for the analytical estimates without a model)"
+        )
+
+
 @app.command()
 def live(
     checkpoints: Annotated[
-        list[Path],
+        Optional[list[Path]],
         typer.Argument(
             help="best.pt, a run directory or an `export --safetensors` directory; several "
-            "give an ensemble interval."
+            "give an ensemble interval; none: the analytical estimates alone."
         ),
-    ],
-    source: SourceArg,
-    readings: ReadingsOption,
+    ] = None,
+    source: SourceArg = ...,  # `...`: required (after the optional CHECKPOINTS)
+    readings: ReadingsOption = None,
     calibration: CalibrationOption = None,
     window: Annotated[
         Optional[int], typer.Option(min=3, help="Estimate from the last N frames (default: all).")
@@ -1517,7 +1623,8 @@ def live(
 ) -> None:
     """Stream a sensor (or a replayed video) through the estimator.
 
-    Provisional estimates while the gripper closes, the final one on release."""
+    Provisional estimates while the gripper closes, the final one on release. Without a
+    checkpoint, the analytical estimates (those of `estimate`)."""
     from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
 
     if window is not None and window_s is not None:
@@ -1526,8 +1633,17 @@ def live(
         raise typer.BadParameter(f"--window-s must be > 0 s, got {window_s}")
     if not 0 < level < 1:
         raise typer.BadParameter(f"--level must lie between 0 and 1 (exclusive), got {level}")
-    members = load_members(checkpoints, device=device, backbone_weights=weights)
     no_camera = source.strip().lower() == NO_CAMERA
+    if not checkpoints:  # `live SOURCE`: the analytical estimates, no model
+        if no_camera:
+            raise typer.BadParameter(
+                "the analytical estimates need the frames' depth maps: name a camera or "
+                "video, or give a frame-free checkpoint before `none`"
+            )
+        _refuse_a_model_as_source(source)
+    members = (
+        load_members(checkpoints, device=device, backbone_weights=weights) if checkpoints else []
+    )
     frames, sensor = (
         (contextlib.nullcontext(), None)
         if no_camera

@@ -71,7 +71,13 @@ from tactile_compliance.outputs import (
     exclusive_lock,
     output_kind,
 )
-from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR, WEDGE_UNITS, GraspUnits
+from tactile_compliance.physics.estimators import (
+    DEFAULT_ESTIMATOR,
+    WEDGE_UNITS,
+    AnalyticalEstimator,
+    GraspUnits,
+    SensorUnits,
+)
 
 __all__ = [
     "OBJECT_TABLE_FILE",
@@ -420,6 +426,109 @@ def augmented_indices(
     return selection.augmentations()
 
 
+# ---------------------------------------------------------------------- estimates
+def recording_estimator(sensor: SensorCalibration | None) -> AnalyticalEstimator:
+    """The analytical estimator of a recording: the public dataset's (what ``import
+    burgess`` records for this layout) at the calibration's pixel density (None: the
+    Wedge's). ``record``, ``estimate`` and ``live`` without a model all use it."""
+    return DEFAULT_ESTIMATOR.at(None if sensor is None else sensor.px_per_mm)
+
+
+@dataclass
+class GraspEstimates:
+    """What :func:`grasp_estimates` computed from one captured grasp.
+
+    Attributes:
+        estimates_pa: (elastic E, Hertz E*) in Pa, NaN where not estimable (the dataset
+            has such grasps too); in the units of ``units``.
+        units: the depth model and pixel density the estimates were made with.
+        fingers: ``{"markerless": (difference images (T, H, W, 3) float, depth maps (T, H,
+            W) mm)}``, and ``"markers"`` with a second sensor: every captured frame's.
+    """
+
+    estimates_pa: tuple[float, float]
+    units: SensorUnits
+    fingers: dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+def grasp_estimates(
+    captured: CapturedGrasp,
+    *,
+    reference: np.ndarray | None = None,
+    markers_reference: np.ndarray | None = None,
+    sensor: SensorCalibration | None = None,
+    markers_sensor: SensorCalibration | None = None,
+) -> GraspEstimates:
+    """The analytical estimates of a captured grasp: every frame differenced against the
+    no-contact reference, its depth map (the calibration's depth model, else the dataset's
+    heuristic), and :func:`recording_estimator` over the whole series (the dataset's
+    estimator clips the press itself). The one computation behind the estimates ``record``
+    stores, ``estimate`` prints and ``live`` without a model streams; deterministic, no
+    side effects.
+
+    Args:
+        reference, markers_reference: the no-contact frame of each sensor; default the
+            calibration's, else the first frame.
+        sensor, markers_sensor: the sensors' calibrations (depth models, pixel density).
+
+    Raises:
+        FrameSizeError: a reference of another size than the frames.
+    """
+    frames = captured.frames
+    if reference is None and sensor is not None:
+        reference = sensor.reference
+    if markers_reference is None and markers_sensor is not None:
+        markers_reference = markers_sensor.reference
+    ref = frames[0] if reference is None else np.asarray(reference)
+    if ref.shape != frames.shape[1:]:
+        raise FrameSizeError(
+            f"the reference frame is {ref.shape[:2]}, the recorded frames {frames.shape[1:3]}"
+        )
+    # Every frame's depth: the dataset's estimator clips the press out of the whole series.
+    diff = difference_images(frames, ref)
+    depth = reconstruct_depth(diff, model="dataset" if sensor is None else sensor.depth)
+    fingers = {"markerless": (diff, depth)}
+    marker_depth = None
+    if captured.markers_frames is not None:
+        markers = captured.markers_frames
+        mref = markers[0] if markers_reference is None else np.asarray(markers_reference)
+        mdiff = difference_images(markers, mref)
+        marker_model = "dataset" if markers_sensor is None else markers_sensor.depth
+        marker_depth = reconstruct_depth(mdiff, markers=True, model=marker_model)
+        fingers["markers"] = (mdiff, marker_depth)
+    # The original took the earlier depth onset of the two fingers.
+    try:
+        values = recording_estimator(sensor).estimate(
+            captured.force_n, captured.width_m, depth, marker_depths_mm=marker_depth
+        )
+        estimates = (float(values[0]), float(values[1]))
+    except ValueError:
+        estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps
+    units = WEDGE_UNITS if sensor is None else sensor.units
+    return GraspEstimates(estimates_pa=estimates, units=units, fingers=fingers)
+
+
+def checked_selection(
+    captured: CapturedGrasp, max_aug: int = MAX_AUGMENTATIONS
+) -> list[tuple[int, int, int]]:
+    """The grasp's frame selection (:func:`augmented_indices`, without the depth caps),
+    its readings checked against ``data.plausibility`` at the selected frames.
+
+    Raises:
+        ValueError: no selection, or implausible readings (widths in mm, say).
+    """
+    selection = augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
+    written = sorted({i for idx in selection for i in idx})
+    for rule, values in ((FORCE, captured.force_n), (WIDTH, captured.width_m)):
+        problem = rule.violation(np.asarray(values)[written])  # data.plausibility
+        if problem:
+            raise ValueError(
+                f"the readings of the selected frames are implausible: {problem}; nothing "
+                f"written (are the widths in millimetres? --readings needs metres)"
+            )
+    return selection
+
+
 # ---------------------------------------------------------------------- writing
 @dataclass(frozen=True)
 class ObjectInfo:
@@ -620,37 +729,15 @@ def write_grasp(
     """
     # No selection or implausible readings: fail before any work (the depth caps below
     # only drop augmentations, so these frames include every frame written).
-    selection = augmented_indices(captured.force_n, max_aug, timestamps_s=captured.timestamp_s)
-    written = sorted({i for idx in selection for i in idx})
-    for rule, values in ((FORCE, captured.force_n), (WIDTH, captured.width_m)):
-        problem = rule.violation(np.asarray(values)[written])  # data.plausibility
-        if problem:
-            raise ValueError(
-                f"the readings of the selected frames are implausible: {problem}; nothing "
-                f"written (are the widths in millimetres? --readings needs metres)"
-            )
-    frames = captured.frames
-    if reference is None and sensor is not None:
-        reference = sensor.reference
-    if markers_reference is None and markers_sensor is not None:
-        markers_reference = markers_sensor.reference
-    ref = frames[0] if reference is None else np.asarray(reference)
-    if ref.shape != frames.shape[1:]:
-        raise FrameSizeError(
-            f"the reference frame is {ref.shape[:2]}, the recorded frames {frames.shape[1:3]}"
-        )
-    # Every frame's depth: the dataset's estimator clips the press out of the whole series.
-    diff = difference_images(frames, ref)
-    depth = reconstruct_depth(diff, model="dataset" if sensor is None else sensor.depth)
-    fingers = {"markerless": (diff, depth)}
-    marker_depth = None
-    if captured.markers_frames is not None:
-        markers = captured.markers_frames
-        mref = markers[0] if markers_reference is None else np.asarray(markers_reference)
-        mdiff = difference_images(markers, mref)
-        marker_model = "dataset" if markers_sensor is None else markers_sensor.depth
-        marker_depth = reconstruct_depth(mdiff, markers=True, model=marker_model)
-        fingers["markers"] = (mdiff, marker_depth)
+    checked_selection(captured, max_aug)
+    computed = grasp_estimates(
+        captured,
+        reference=reference,
+        markers_reference=markers_reference,
+        sensor=sensor,
+        markers_sensor=markers_sensor,
+    )
+    fingers = computed.fingers
     indices = augmented_indices(
         captured.force_n,
         max_aug,
@@ -658,23 +745,14 @@ def write_grasp(
         max_depth_mm=[d.reshape(len(d), -1).max(axis=1) for _, d in fingers.values()],
         timestamps_s=captured.timestamp_s,
     )
-    # The public dataset's estimator (what ``import burgess`` records for this layout); the
-    # original took the earlier depth onset of the two fingers.
-    estimator = DEFAULT_ESTIMATOR.at(None if sensor is None else sensor.px_per_mm)
-    try:
-        values = estimator.estimate(
-            captured.force_n, captured.width_m, depth, marker_depths_mm=marker_depth
-        )
-        estimates = (float(values[0]), float(values[1]))
-    except ValueError:
-        estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps
+    estimates = computed.estimates_pa
     # Checked before anything is created; claimed (the marker written) under the lock, so
     # concurrent recordings into a new dataset never see each other's half-made marker.
     out = claim_dataset_dir(out_dir, create=False)
     out.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(out / LOCK_FILE, what=f"the dataset {out}"):
         claim_dataset_dir(out)
-        units = GraspUnits(WEDGE_UNITS if sensor is None else sensor.units, estimator.name)
+        units = GraspUnits(computed.units, recording_estimator(sensor).name)
         _check_dataset_units(out, units)
         object_dir = out / info.name
         new_object = not object_dir.exists()
@@ -894,6 +972,60 @@ def check_recording(
     return warnings, checks
 
 
+def capture_checked(
+    source: FrameSourceBase,
+    readings: ReadingsCallback,
+    *,
+    calibration: SensorCalibration | None = None,
+    reference: np.ndarray | None = None,
+    markers_source: FrameSourceBase | None = None,
+    max_frames: int | None = None,
+    stop_on_release: bool = True,
+    remedy: str = "--reference IMAGE, or a --calibration recorded before the grasp",
+) -> tuple[CapturedGrasp, np.ndarray, list[str], dict[str, Any]]:
+    """Capture one grasp (:func:`capture_grasp`), pick its no-contact reference
+    (``reference``, else the calibration's, else the first frame) and check the readings
+    and the reference (:func:`check_recording`): what ``record`` and ``estimate`` share.
+
+    Returns:
+        (the capture, the reference used (H, W, 3) uint8, warnings, the numbers behind them).
+
+    Raises:
+        FrameSizeError: ``reference`` fits neither the camera nor the sensor frames.
+        ValueError: no usable frame.
+    """
+    if reference is not None and calibration is not None:  # a bad size: fail before capturing
+        reference = reference_frame(reference, source.geometry, (*calibration.frame_size, 3))
+    captured = capture_grasp(
+        source,
+        readings,
+        markers_source=markers_source,
+        max_frames=max_frames,
+        stop_on_release=stop_on_release,
+    )
+    if reference is not None:
+        kind = "--reference"
+        used = reference_frame(reference, source.geometry, captured.frames.shape[1:])
+    elif calibration is not None:
+        used, kind = calibration.reference, "calibration"
+    else:
+        used, kind = captured.frames[0], "first frame"
+    if used.shape != captured.frames.shape[1:]:  # write_grasp refuses it with the sizes
+        warnings, checks = [], {"reference": kind}
+    else:
+        warnings, checks = check_recording(
+            readings,
+            captured.timestamp_s,
+            captured.force_n,
+            captured.frames[0],
+            used,
+            kind,
+            reference_from_start=kind == "calibration" and same_replay(calibration, source),
+            remedy=remedy,
+        )
+    return captured, used, warnings, checks
+
+
 def record_grasp(
     source: FrameSourceBase,
     readings: ReadingsCallback,
@@ -923,34 +1055,15 @@ def record_grasp(
             (checked before the capture starts).
     """
     claim_dataset_dir(out_dir, create=False)  # refuse a store or a run directory first
-    if reference is not None and calibration is not None:  # a bad size: fail before capturing
-        reference = reference_frame(reference, source.geometry, (*calibration.frame_size, 3))
-    captured = capture_grasp(
+    captured, used, warnings, checks = capture_checked(
         source,
         readings,
+        calibration=calibration,
+        reference=reference,
         markers_source=markers_source,
         max_frames=max_frames,
         stop_on_release=stop_on_release,
     )
-    if reference is not None:
-        kind = "--reference"
-        used = reference_frame(reference, source.geometry, captured.frames.shape[1:])
-    elif calibration is not None:
-        used, kind = calibration.reference, "calibration"
-    else:
-        used, kind = captured.frames[0], "first frame"
-    if used.shape != captured.frames.shape[1:]:  # write_grasp refuses it with the sizes
-        warnings, checks = [], {"reference": kind}
-    else:
-        warnings, checks = check_recording(
-            readings,
-            captured.timestamp_s,
-            captured.force_n,
-            captured.frames[0],
-            used,
-            kind,
-            reference_from_start=kind == "calibration" and same_replay(calibration, source),
-        )
     result = write_grasp(
         captured,
         out_dir,

@@ -33,6 +33,7 @@ __all__ = [
     "FrameSizeError",
     "FrameSource",
     "FrameSourceBase",
+    "RosbagSource",
     "SensorError",
     "StampedOnArrival",
     "TimestampError",
@@ -653,8 +654,56 @@ class FolderSource(FrameSourceBase):
         return self.times[i], frame
 
 
+class RosbagSource(FrameSourceBase):
+    """The images of a ROS 2 (or ROS 1) bag, with the bag's own timestamps, and the
+    grasp's force and width readings from the same bag (``acquisition/rosbag.py``,
+    docs/ros2.md). A replay: ``live`` is False.
+
+    Args:
+        target: ``PATH[,image=TOPIC][,force=TOPIC][,width=TOPIC][,axis=z][,joints=A+B]
+            [,stamps=header]`` (``rosbag.parse_bag_options``).
+
+    Attributes:
+        readings_arrays: ``(timestamp_s, force_n, width_m)`` of the bag, on the frames'
+            clock (``recording.Readings(*source.readings_arrays)``).
+
+    Raises:
+        SensorError: no such bag, or ``rosbags`` is not installed.
+        ValueError: a topic missing or ambiguous, a malformed option.
+    """
+
+    def __init__(self, target: str, geometry: FrameGeometry = PLAIN_GEOMETRY) -> None:
+        super().__init__(geometry)
+        from tactile_compliance.acquisition.rosbag import BagError, open_bag
+
+        try:
+            self._bag: Any = open_bag(target)
+        except BagError as err:
+            text = str(err)
+            if "no such bag" in text or "rosbags" in text:
+                raise SensorError(text) from None
+            raise
+        self.name = f"rosbag {self._bag.path}"
+        try:
+            self.readings_arrays = self._bag.readings()
+        except BaseException:
+            self._bag.close()
+            raise
+        self._images = self._bag.images()
+
+    def _grab(self) -> tuple[float, np.ndarray] | None:
+        if self._bag is None:
+            return None
+        return next(self._images, None)
+
+    def close(self) -> None:
+        if getattr(self, "_bag", None) is not None:
+            self._bag.close()
+            self._bag = None
+
+
 # ---------------------------------------------------------------------- specs
-SPEC_KINDS = ("mini", "wedge", "digit", "video", "camera", "folder")
+SPEC_KINDS = ("mini", "wedge", "digit", "video", "camera", "folder", "rosbag")
 
 
 def open_source(
@@ -694,6 +743,8 @@ def open_source(
         return gelsight_wedge(target, geometry=pick(WEDGE_GEOMETRY))
     if kind == "digit":
         return DigitSource(target, pick(PLAIN_GEOMETRY))
+    if kind == "rosbag":
+        return RosbagSource(target, pick(PLAIN_GEOMETRY))
     if kind == "folder" or (kind == "" and Path(target).is_dir()):
         return FolderSource(target, pick(PLAIN_GEOMETRY), fps=fps, timestamps_csv=timestamps_csv)
     # video, camera, or a plain path, index or URL

@@ -17,6 +17,7 @@ from tactile_compliance.acquisition.recording import (
     ReadingsCallback,
     check_recording,
     checked_reading,
+    recording_estimator,
     same_replay,
 )
 from tactile_compliance.acquisition.sensors import (
@@ -30,6 +31,7 @@ from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.store import frames_to_uint8
 from tactile_compliance.devices import DEFAULT_DEVICE
+from tactile_compliance.inference.analytical import AnalyticalStream
 from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.inference.ensemble import EnsembleEstimator
 from tactile_compliance.inference.estimator import ComplianceEstimator
@@ -79,7 +81,9 @@ def live_estimates(
     with its cause.
 
     Args:
-        members: one estimator, or several for an ensemble interval.
+        members: one estimator, or several for an ensemble interval; none: the
+            analytical estimates alone (``inference.analytical.AnalyticalStream``, events
+            with ``estimates_pa``, ``elastic_pa`` and ``hertz_pa``), no model.
         source: an open frame source (open it with the calibration's geometry); None: no
             camera, for frame-free members (``FW``, ``FWE``), which then run on the
             readings' own timestamps (``readings`` must be a recorded ``Readings``).
@@ -94,16 +98,16 @@ def live_estimates(
         raise ValueError(
             f"--readings-offset-s must be a finite number of s, got {readings_offset_s}"
         )
-    if not members:
-        raise ValueError("give at least one estimator")
     if source is None:
+        if not members:
+            raise ValueError("the analytical estimates need frames: give a frame source")
         yield from _readings_only(members, readings, window, window_s, level, scale)
         return
     reader = None
     if source.live and not isinstance(source, StampedOnArrival):
         source = reader = StampedOnArrival(source)
     try:
-        ensemble = EnsembleEstimator(list(members), level=level, scale=scale)
+        ensemble = EnsembleEstimator(list(members), level=level, scale=scale) if members else None
         reference = None if calibration is None else calibration.reference
         depth_model = "dataset" if calibration is None else calibration.depth
         # Each frame is differenced once, here: the depth map and every member's stream
@@ -117,10 +121,20 @@ def live_estimates(
                 channel_order="BGR",
             )
             for member in members
+        ] or [
+            AnalyticalStream(
+                recording_estimator(calibration),
+                window=window,
+                window_s=window_s,
+                frame_kind="difference",
+                channel_order="BGR",
+            )
         ]
         # Depth maps feed the analytical estimates and the depth-map models; both are in the
         # units of the depth model and pixel density they were made with.
-        needs_depth = bool({"estimates", "depth"} & set(ensemble.required_inputs))
+        needs_depth = ensemble is None or bool(
+            {"estimates", "depth"} & set(ensemble.required_inputs)
+        )
         units = WEDGE_UNITS if calibration is None else calibration.units
         for member in members:
             member.run_inputs.check_sensor(
@@ -202,7 +216,7 @@ def live_estimates(
             if event is not None:
                 yield event
                 return
-        reason = _no_estimate_reason(streams[0], skips, needs_depth)
+        reason = _no_estimate_reason(streams[0], skips, needs_depth, analytical=ensemble is None)
         yield {"event": "no_estimate", "reason": reason}
     finally:
         if reader is not None:
@@ -254,7 +268,9 @@ def _readings_only(
     yield {"event": "no_estimate", "reason": _no_estimate_reason(streams[0], [], False)}
 
 
-def _no_estimate_reason(stream: StreamingEstimator, skips: list[str], needs_depth: bool) -> str:
+def _no_estimate_reason(
+    stream: StreamingEstimator, skips: list[str], needs_depth: bool, analytical: bool = False
+) -> str:
     """Why a stream ended without an estimate, the real cause first."""
     if stream.frames_seen == 0:
         reason = f"every frame was skipped ({len(skips)})"
@@ -269,6 +285,12 @@ def _no_estimate_reason(stream: StreamingEstimator, skips: list[str], needs_dept
             f"three frames from contact to peak): peak force {stream.peak_force_n:.1f} N "
             f"over {stream.frames_seen} frames"
         )
+    if analytical:
+        return (
+            "the frames were selected, but the analytical estimates could not be computed "
+            "from the depth maps: too little contact area or depth at this frame size and "
+            "pixel density (calibrate the sensor's px/mm, docs/sensors.md)"
+        )
     if needs_depth:
         return (
             "the frames were selected, but the analytical estimates (ALL inputs) could not "
@@ -280,7 +302,7 @@ def _no_estimate_reason(stream: StreamingEstimator, skips: list[str], needs_dept
 
 
 def _combine(
-    ensemble: EnsembleEstimator, streams: list[StreamingEstimator], timestamp_s: float | None
+    ensemble: EnsembleEstimator | None, streams: list[StreamingEstimator], timestamp_s: float | None
 ) -> dict[str, Any] | None:
     """One event from the members' latest estimates (None until every member has one)."""
     latest = [s.latest for s in streams]
@@ -289,7 +311,7 @@ def _combine(
     estimates: list[StreamEstimate] = latest  # type: ignore[assignment]
     event = {"event": "estimate", "timestamp_s": timestamp_s, **estimates[0].to_dict()}
     event["final"] = all(e.final for e in estimates)
-    if len(estimates) > 1:
+    if ensemble is not None and len(estimates) > 1:
         combined = ensemble.combine(np.array([e.log10_modulus_pa for e in estimates]))
         event.update(
             modulus_pa=float(combined.modulus_pa),
@@ -308,6 +330,12 @@ def format_live_event(event: dict[str, Any]) -> str:
         return f"{event['event']:<11} {event['reason']}"
     kind = "final      " if event["final"] else "provisional"
     when = "" if event["timestamp_s"] is None else f" t={event['timestamp_s']:.3f} s"
+    if "estimates_pa" in event:  # no model: the analytical estimates
+        return (
+            f"{kind} elastic E = {event['elastic_pa']:.4g} Pa, Hertz E* = "
+            f"{event['hertz_pa']:.4g} Pa  frames {tuple(event['frame_indices'])} of "
+            f"{event['frames_seen']}{when}"
+        )
     line = (
         f"{kind} E = {event['modulus_pa']:.4g} Pa (log10 {event['log10_modulus_pa']:.3f})"
         f"  frames {tuple(event['frame_indices'])} of {event['frames_seen']}{when}"
