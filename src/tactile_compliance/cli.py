@@ -8,6 +8,7 @@ from __future__ import annotations
 import functools
 import importlib
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -47,7 +48,6 @@ Backbone = Literal[  # training.pretrain.PRETRAIN_BACKBONES
 DemoMode = Literal["full", "ci"]  # demo.PLANS and sim2real.PLANS
 SimulateKind = Literal["gelsight", "shore-videos"]  # the two generators of `simulate`
 PickleDtype = Literal["float16", "float32", "float64"]  # data.raw_layout.ALLOWED_DTYPES
-RigName = Literal["dataset", "wedge-2023"]  # synthetic.timeseries.RIGS
 
 
 def _exit_code(err: Exception) -> int | None:
@@ -340,10 +340,11 @@ def simulate(
         Optional[int], typer.Option(min=1, help="Processes (default: all CPUs).")
     ] = None,
     rig: Annotated[
-        RigName,
+        str,
         typer.Option(
-            help="The gripper rig: dataset (the public dataset's, ~60 N presses) or wedge-2023 "
-            "(the lab's 2023 Wedge rig, ~23 N presses and a compliant mount; docs/synthetic.md)."
+            help="The gripper rig: dataset (the public dataset's, ~60 N presses), wedge-2023 "
+            "(the lab's 2023 Wedge rig, ~25 N presses and a compliant mount; docs/synthetic.md) "
+            "or a rig file that calibrate-rig wrote."
         ),
     ] = "dataset",
     as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
@@ -1362,6 +1363,71 @@ def calibrate_depth_command(
     typer.echo(_json(report) if as_json else f"{result.format()}\n{saved}")
 
 
+def _radius_options(values: list[str]) -> dict[str, float]:
+    """``--radius OBJECT=MM`` values as ``object -> radius [mm]``."""
+    radii: dict[str, float] = {}
+    for value in values:
+        name, sep, mm = value.partition("=")
+        try:
+            radius = float(mm)
+        except ValueError:
+            radius = math.nan
+        if not sep or not name or not (math.isfinite(radius) and radius > 0):
+            raise typer.BadParameter(f"--radius takes OBJECT=MM (a positive radius), got {value!r}")
+        radii[name] = radius
+    return radii
+
+
+@app.command("calibrate-rig")
+def calibrate_rig_command(
+    datasets: Annotated[
+        list[Path],
+        typer.Argument(
+            help="Datasets that `record` (or `simulate`) wrote, of grasps of rigid spheres; "
+            "the moduli in their tables are not read."
+        ),
+    ],
+    out: Annotated[Path, typer.Option(help="The rig file (JSON) to write.")],
+    radius: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            help="OBJECT=MM: a sphere's radius in mm, for objects whose table has no "
+            "'Radius [m]' (repeatable)."
+        ),
+    ] = None,
+    name: Annotated[
+        Optional[str], typer.Option(help="The rig's name in the file (default: OUT's stem).")
+    ] = None,
+    fit_lights: Annotated[
+        bool,
+        typer.Option(
+            "--fit-lights",
+            help="Also fit the light balance on the imprint's colour (docs/synthetic.md, "
+            "'The lights').",
+        ),
+    ] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the fit as JSON.")] = False,
+) -> None:
+    """Fit your gripper rig from grasps of rigid spheres, with no modulus label: the press
+    force, the finger and mount stiffness (closure), the gel (contact area), the edge glow
+    and, with --fit-lights, the light balance. `simulate --rig OUT` and `sim2real --rig OUT`
+    then imitate it; its stiffness makes the rig-corrected analytical estimate."""
+    from tactile_compliance.outputs import atomic_file, check_output_file
+    from tactile_compliance.synthetic.rig import is_rig_file, rig_file_text
+    from tactile_compliance.synthetic.rig_fit import fit_rig, read_rigid_grasps
+
+    target = check_output_file(out, "rig file", is_rig_file, option="--out")
+    observations = read_rigid_grasps(datasets, _radius_options(radius or []))
+    echo = (lambda text: typer.echo(text, err=True)) if as_json else typer.echo
+    fit = fit_rig(observations, fit_lights=fit_lights, progress=echo)
+    with atomic_file(target, "w") as handle:
+        handle.write(rig_file_text(fit.rig, name or target.stem, fit.to_dict()))
+    if as_json:
+        typer.echo(_json({"out": str(target), "rig": fit.rig.to_dict(), **fit.to_dict()}))
+        return
+    typer.echo(f"{fit.format()}\nRig {target}: tactile-compliance simulate --rig {target} ...")
+
+
 @app.command()
 def depth(
     frames: Annotated[list[Path], typer.Argument(help="Images (or folders of images).")],
@@ -1611,10 +1677,11 @@ def sim2real(
         "sim2real-output"
     ),
     rig: Annotated[
-        RigName,
+        str,
         typer.Option(
-            help="The real rig the synthetic grasps imitate (`simulate --rig`): its press "
-            "force, stiffness and edge glow."
+            help="The real rig the synthetic grasps imitate (`simulate --rig`): a name "
+            "(wedge-2023, dataset) or a rig file that calibrate-rig wrote (its press force, "
+            "stiffness, gel, edge glow and lights)."
         ),
     ] = "wedge-2023",
     mode: Annotated[
