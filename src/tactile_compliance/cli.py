@@ -1492,6 +1492,13 @@ def record(
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
+    rig: Annotated[
+        Optional[str],
+        typer.Option(
+            help="A rig file from calibrate-rig (or a rig name): also report the "
+            "rig-corrected analytical estimates, the rig's own closure taken out."
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """Record one grasp into a dataset in the public dataset's raw layout.
@@ -1505,6 +1512,11 @@ def record(
 
     info = ObjectInfo(object_name, modulus, material, shape)
     no_contact = None if reference is None else read_image(reference)
+    rig_stiffness = None
+    if rig is not None:
+        from tactile_compliance.synthetic.rig import resolve_rig
+
+        rig_stiffness = resolve_rig(rig)[1].stiffness_n_per_m
     with ExitStack() as stack:
         frames, sensor = _open_source(source, calibration, fps, timestamps)
         stack.enter_context(frames)
@@ -1523,6 +1535,7 @@ def record(
             markers_source=markers,
             markers_calibration=marker_sensor,
             max_frames=max_frames,
+            rig_stiffness_n_per_m=rig_stiffness,
         )
     fingers = "" if markers_source is not None else " --fingers markerless"
     next_step = f"Next: tactile-compliance import burgess {out} --out STORE{fingers}"

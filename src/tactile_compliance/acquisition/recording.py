@@ -474,6 +474,11 @@ class RecordedGrasp:
         warnings: what looked wrong in the readings or the reference
             (:func:`check_recording`); the grasp is written all the same.
         checks: the numbers behind them.
+        rig_corrected_pa: (elastic E, Hertz E*) in Pa with the rig's own closure taken
+            out of the widths (``physics.contact.rig_corrected_widths_m``), when a rig
+            stiffness was given; reported next to ``estimates_pa``, not written to the
+            dataset.
+        rig_stiffness_n_per_m: that stiffness [N/m], or None.
     """
 
     path: Path
@@ -485,6 +490,8 @@ class RecordedGrasp:
     object_table: Path
     warnings: list[str] = field(default_factory=list)
     checks: dict[str, Any] = field(default_factory=dict)
+    rig_corrected_pa: tuple[float, float] | None = None
+    rig_stiffness_n_per_m: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict."""
@@ -499,6 +506,10 @@ class RecordedGrasp:
             "object_table": str(self.object_table),
             "warnings": self.warnings,
             "checks": self.checks,
+            "rig_corrected_pa": None
+            if self.rig_corrected_pa is None
+            else [None if math.isnan(v) else v for v in self.rig_corrected_pa],
+            "rig_stiffness_n_per_m": self.rig_stiffness_n_per_m,
         }
 
     def format(self) -> str:
@@ -509,6 +520,14 @@ class RecordedGrasp:
             f"{len(self.frame_indices)} augmentations)",
             f"Frames      {', '.join(map(str, self.frame_indices[0]))} (augmentation 0)",
             f"Estimates   elastic {elastic:.4g} Pa, Hertz {hertz:.4g} Pa",
+        ]
+        if self.rig_corrected_pa is not None:
+            rc_elastic, rc_hertz = self.rig_corrected_pa
+            lines.append(
+                f"Rig-corrected elastic {rc_elastic:.4g} Pa, Hertz {rc_hertz:.4g} Pa (rig "
+                f"{self.rig_stiffness_n_per_m:.4g} N/m)"
+            )
+        lines += [
             f"Objects     {self.object_table}",
         ]
         if self.skipped:
@@ -606,6 +625,7 @@ def write_grasp(
     max_aug: int = MAX_AUGMENTATIONS,
     sensor: SensorCalibration | None = None,
     markers_sensor: SensorCalibration | None = None,
+    rig_stiffness_n_per_m: float | None = None,
 ) -> RecordedGrasp:
     """Write a captured grasp as ``OUT/{object}/grasp={next}/augmentation={k}/``.
 
@@ -613,6 +633,8 @@ def write_grasp(
         reference, markers_reference: the no-contact frame of each sensor; default the
             calibration's, else the first frame.
         sensor, markers_sensor: the sensors' calibrations (depth models, pixel density).
+        rig_stiffness_n_per_m: the rig's stiffness [N/m] (``calibrate-rig``): the result
+            also holds the rig-corrected estimates (``RecordedGrasp.rig_corrected_pa``).
 
     Raises:
         ValueError: the grasp has no frame selection (nothing is written), or the object
@@ -668,6 +690,19 @@ def write_grasp(
         estimates = (float(values[0]), float(values[1]))
     except ValueError:
         estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps
+    rig_corrected = None
+    if rig_stiffness_n_per_m is not None:
+        try:
+            values = estimator.estimate(
+                captured.force_n,
+                captured.width_m,
+                depth,
+                marker_depths_mm=marker_depth,
+                rig_stiffness_n_per_m=rig_stiffness_n_per_m,
+            )
+            rig_corrected = (float(values[0]), float(values[1]))
+        except ValueError:
+            rig_corrected = (math.nan, math.nan)
     # Checked before anything is created; claimed (the marker written) under the lock, so
     # concurrent recordings into a new dataset never see each other's half-made marker.
     out = claim_dataset_dir(out_dir, create=False)
@@ -720,6 +755,8 @@ def write_grasp(
         n_frames=len(captured),
         skipped=list(captured.skipped),
         object_table=table,
+        rig_corrected_pa=rig_corrected,
+        rig_stiffness_n_per_m=rig_stiffness_n_per_m,
     )
 
 
@@ -885,6 +922,7 @@ def record_grasp(
     max_frames: int | None = None,
     stop_on_release: bool = True,
     max_aug: int = MAX_AUGMENTATIONS,
+    rig_stiffness_n_per_m: float | None = None,
 ) -> RecordedGrasp:
     """Capture one grasp from ``source`` with ``readings`` and write it; what looks wrong
     is in the result's ``warnings`` (docs/inference.md, "Record and train").
@@ -895,6 +933,8 @@ def record_grasp(
         readings: ``timestamp_s -> (force_n, width_m)``, e.g. ``Readings.from_csv(path)``.
         reference: a no-contact uint8 BGR camera or sensor frame; replaces the
             calibration's reference.
+        rig_stiffness_n_per_m: the rig's stiffness [N/m]: also report the rig-corrected
+            estimates (:func:`write_grasp`).
 
     Raises:
         OutputExistsError: ``out_dir`` exists and is not a dataset ``record`` wrote
@@ -937,6 +977,7 @@ def record_grasp(
         max_aug=max_aug,
         sensor=calibration,
         markers_sensor=markers_calibration,
+        rig_stiffness_n_per_m=rig_stiffness_n_per_m,
     )
     missing = [
         name
