@@ -1069,6 +1069,39 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
 
 
 @app.command()
+def adapt(
+    model: Annotated[
+        Path, typer.Argument(help="A simulation-trained checkpoint (best.pt or a run directory).")
+    ],
+    reference_store: Annotated[
+        Path,
+        typer.Argument(
+            help="A store of grasps of reference objects of known modulus on your rig "
+            "(`record`, then `import burgess`)."
+        ),
+    ],
+    out: Annotated[Path, typer.Option(help="Directory for best.pt and adapt.json.")],
+    ridge: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help="How strongly the calibration's slope is pulled towards 1 (a pure shift); "
+            "docs/inference.md.",
+        ),
+    ] = 1.0,
+    device: DeviceOption = DEFAULT_DEVICE,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+) -> None:
+    """Adapt a model to your rig from grasps of reference objects of known modulus: an
+    output calibration in log10 space, fitted on them, with leave-one-object-out scores.
+    Writes OUT/best.pt, which `predict` and `live` take (they apply the calibration)."""
+    from tactile_compliance.inference.adapt import adapt_model
+
+    summary = adapt_model(model, reference_store, out, ridge=ridge, device=device)
+    typer.echo(_json(summary.to_dict()) if as_json else summary.format())
+
+
+@app.command()
 def predict(
     checkpoint: Annotated[Path, typer.Argument(help="best.pt of a run, or the run directory.")],
     source: Annotated[
