@@ -1424,8 +1424,8 @@ def calibrate_rig_command(
     radius: Annotated[
         Optional[list[str]],
         typer.Option(
-            help="OBJECT=MM: a sphere's radius in mm, for objects whose table has no "
-            "'Radius [m]' (repeatable)."
+            help="OBJECT=MM: a sphere's radius in mm, for objects whose object table "
+            "gives none (repeatable)."
         ),
     ] = None,
     name: Annotated[
