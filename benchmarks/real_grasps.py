@@ -64,6 +64,8 @@ DEFAULT_RECORDINGS = REFERENCE_DATA / "real" / "wedge-grasps"
 DEFAULT_OBJECTS = REFERENCE_DATA / "dataset_objects_and_compliance.csv"
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mov", ".mkv")
 ANALYTICAL = ("elastic", "hertz")
+#: The same two with the rig's own closure taken out (``record --rig``; docs/physics.md).
+RIG_CORRECTED = ("elastic_rig", "hertz_rig")
 _README_ROW = re.compile(r"^\|\s*`([A-Za-z0-9_.+-]+?)(?:_\{[\d,\s]+\}|_\d+)?`\s*\|\s*([^|]+?)\s*\|")
 
 
@@ -338,6 +340,7 @@ def run(
     warp_size: str = "300x400",
     frames: int = 3,
     labels: dict[str, str] | None = None,
+    rig: str | None = None,
     log: Any = print,
 ) -> dict[str, Any]:
     """Run the benchmark (see the module docstring); returns what ``real_grasps.json`` holds."""
@@ -386,6 +389,7 @@ def run(
             frames,
         )
         extra = ["--reference", reference] if reference is not None else []
+        extra += ["--rig", rig] if rig is not None else []
         recorded = json.loads(
             cli(
                 "record",
@@ -409,8 +413,10 @@ def run(
             )
         )
         elastic, hertz = recorded["estimates_pa"]
+        corrected = recorded.get("rig_corrected_pa") or [None, None]
         grasps.append(
             {
+                **dict(zip(RIG_CORRECTED, corrected, strict=True)),
                 "recording": stem,
                 "object": label,
                 "grasp": recorded["grasp"],
@@ -460,13 +466,15 @@ def run(
             f"predicted with {name}: {len(report['predictions'])} samples, "
             f"{len(report.get('skipped', []))} skipped"
         )
-    keys = [*ANALYTICAL, *names]
+    keys = [*ANALYTICAL, *(RIG_CORRECTED if rig is not None else ()), *names]
     display = {"elastic": "elastic (analytical)", "hertz": "Hertz (analytical)"}
+    display |= {"elastic_rig": "elastic, rig-corrected", "hertz_rig": "Hertz, rig-corrected"}
     display.update({n: n for n in names})
     result = {
         "recordings": str(recordings),
         "objects_table": str(objects),
         "reference": None if reference is None else str(reference),
+        "rig": rig,
         "corners": corners,
         "models": {n: str(m) for n, m in zip(names, models, strict=True)},
         "estimators": keys,
@@ -540,6 +548,11 @@ def main(argv: list[str] | None = None) -> int:
         default=[],
         help="PREFIX=LABEL: the object of recordings <PREFIX>_<n>; repeatable",
     )
+    parser.add_argument(
+        "--rig",
+        default=None,
+        help="a rig file or name for `record --rig`: adds the rig-corrected estimates",
+    )
     args = parser.parse_args(argv)
     try:
         result = run(
@@ -552,6 +565,7 @@ def main(argv: list[str] | None = None) -> int:
             warp_size=args.warp_size,
             frames=args.frames,
             labels=dict(args.label),
+            rig=args.rig,
         )
     except (BenchmarkError, OSError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)

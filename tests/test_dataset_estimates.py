@@ -627,3 +627,52 @@ def test_ratio_to_our_estimator_on_a_hertz_sphere_press() -> None:
     assert rows[0][3] == pytest.approx(1.0, abs=0.01)
     assert rows[0][4] == pytest.approx(1.0, abs=0.01)
     assert rows[-1][3] < 0.8
+
+
+# ---------------------------------------------------------------------------------------
+# The rig-corrected estimate (next to the dataset's two, which the tests above pin)
+# ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["dataset", "contact"])
+def test_the_rig_corrected_estimate_takes_the_rigs_closure_out(name: str) -> None:
+    """Series springs: a gripper of stiffness k closes F / k more than the object and
+    gels do. Given k, the rig-corrected estimate is the estimate of the same press on a
+    rigid rig; without it, the rig's closure reads as a softer object."""
+    from tactile_compliance.physics import rig_corrected_widths_m
+    from tactile_compliance.physics.estimators import AnalyticalEstimator
+
+    estimator = AnalyticalEstimator(name)
+    depths = block_frames(PUNCH_DEPTHS_MM, (120, 120), slice(30, 90), slice(30, 90))
+    rigid_rig = punch_widths([0.0, 0.2, 0.5, 0.9])
+    k_rig = 2.2e3  # N/m, the Wedge rig's order
+    measured = rigid_rig - np.asarray(PUNCH_FORCES_N) / k_rig
+    np.testing.assert_allclose(rig_corrected_widths_m(measured, PUNCH_FORCES_N, k_rig), rigid_rig)
+    truth = estimator.estimate(PUNCH_FORCES_N, rigid_rig, depths)
+    plain = estimator.estimate(PUNCH_FORCES_N, measured, depths)
+    corrected = estimator.estimate(PUNCH_FORCES_N, measured, depths, rig_stiffness_n_per_m=k_rig)
+    np.testing.assert_allclose(corrected, truth, rtol=1e-9)
+    assert plain[0] < 0.5 * truth[0]  # the rig's closure reads as a much softer object
+    # No stiffness: the estimator's own values, bit for bit.
+    assert estimator.estimate(PUNCH_FORCES_N, measured, depths, rig_stiffness_n_per_m=None) == plain
+    with pytest.raises(ValueError, match="positive stiffness"):
+        rig_corrected_widths_m(measured, PUNCH_FORCES_N, 0.0)
+
+
+def test_the_dataset_estimator_corrects_after_its_width_interpolation() -> None:
+    """The stair-stepped widths are interpolated first (the correction would hide the
+    repeated readings the interpolation looks for)."""
+    from tactile_compliance.physics import rig_corrected_widths_m
+
+    depths = block_frames(PUNCH_DEPTHS_MM, (120, 120), slice(30, 90), slice(30, 90))
+    widths = punch_widths([0.0, 0.2, 0.5, 0.9])
+    widths[2] = widths[1]  # a repeated reading
+    k_rig = 3e3
+    corrected = dataset_estimates_pa(PUNCH_FORCES_N, widths, depths, rig_stiffness_n_per_m=k_rig)
+    by_hand = dataset_estimates_pa(
+        PUNCH_FORCES_N,
+        rig_corrected_widths_m(interpolate_repeated_widths(widths), PUNCH_FORCES_N, k_rig),
+        depths,
+        preprocess=False,
+    )
+    assert corrected == by_hand

@@ -375,3 +375,21 @@ def test_the_benchmark_on_all_real_grasps(wedge_grasps, object_table_csv, tmp_pa
     assert starts == STARTS_IN_CONTACT
     for key in ("elastic", "hertz"):
         assert 0 <= result["summary"][key]["within_one_decade"] <= 1
+
+
+def test_record_with_a_rig_reports_the_rig_corrected_estimates_next_to_the_two(
+    wedge_grasps, object_table_csv, tmp_path
+):
+    """`record --rig wedge-2023` (through the benchmark's --rig): the dataset's two estimates
+    as without a rig, and the rig-corrected pair next to them; the golf ball's closure is
+    mostly the rig's, so taking it out reads it stiffer."""
+    recordings = _subset(wedge_grasps, tmp_path, ["golf_ball_1"])
+    plain = real_grasps.run(tmp_path / "plain", recordings, object_table_csv, log=lambda *_: None)
+    rig = real_grasps.run(
+        tmp_path / "rig", recordings, object_table_csv, rig="wedge-2023", log=lambda *_: None
+    )
+    assert rig["estimators"] == ["elastic", "hertz", "elastic_rig", "hertz_rig"]
+    before, after = plain["grasps"][0], rig["grasps"][0]
+    assert (after["elastic"], after["hertz"]) == (before["elastic"], before["hertz"])
+    assert after["elastic_rig"] > 2 * after["elastic"] and after["hertz_rig"] > after["hertz"]
+    assert any("--rig wedge-2023" in c for c in rig["commands"])

@@ -13,6 +13,7 @@ from tactile_compliance.cli import app
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.outputs import OutputExistsError
 from tactile_compliance.sim2real import run_sim2real
+from tactile_compliance.synthetic.rig import RIGS
 
 runner = CliRunner()
 
@@ -31,7 +32,7 @@ def sim2real_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_the_data_comes_from_the_rig_and_the_model_from_the_preset(sim2real_dir: Path) -> None:
     generation = json.loads((sim2real_dir / "raw" / "generation.json").read_text())
-    assert generation["options"]["rig"]["peak_force_n"] == [23.0, 2.5]
+    assert generation["options"]["rig"] == RIGS["wedge-2023"].to_dict()
     assert GraspStore.open(sim2real_dir / "store").forces_n().max() < 35.0  # not ~60 N
     meta = torch.load(sim2real_dir / "best.pt", map_location="cpu", weights_only=False)
     assert meta["model_name"] == "vgg_lstm" and meta["config"]["model"]["freeze_backbone"]

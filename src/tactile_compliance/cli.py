@@ -9,6 +9,7 @@ import contextlib
 import functools
 import importlib
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -50,7 +51,6 @@ Backbone = Literal[  # training.pretrain.PRETRAIN_BACKBONES
 DemoMode = Literal["full", "ci"]  # demo.PLANS and sim2real.PLANS
 SimulateKind = Literal["gelsight", "shore-videos"]  # the two generators of `simulate`
 PickleDtype = Literal["float16", "float32", "float64"]  # data.raw_layout.ALLOWED_DTYPES
-RigName = Literal["dataset", "wedge-2023"]  # synthetic.timeseries.RIGS
 
 
 def _exit_code(err: Exception) -> int | None:
@@ -343,10 +343,11 @@ def simulate(
         Optional[int], typer.Option(min=1, help="Processes (default: all CPUs).")
     ] = None,
     rig: Annotated[
-        RigName,
+        str,
         typer.Option(
-            help="The gripper rig: dataset (the public dataset's, ~60 N presses) or wedge-2023 "
-            "(the lab's 2023 Wedge rig, ~23 N presses and a compliant mount; docs/synthetic.md)."
+            help="The gripper rig: dataset (the public dataset's, ~60 N presses), wedge-2023 "
+            "(the lab's 2023 Wedge rig, ~25 N presses and a compliant mount; docs/synthetic.md) "
+            "or a rig file that calibrate-rig wrote."
         ),
     ] = "dataset",
     as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
@@ -1071,6 +1072,39 @@ def _run_search(name: str, options: dict[str, Any]) -> None:
 
 
 @app.command()
+def adapt(
+    model: Annotated[
+        Path, typer.Argument(help="A simulation-trained checkpoint (best.pt or a run directory).")
+    ],
+    reference_store: Annotated[
+        Path,
+        typer.Argument(
+            help="A store of grasps of reference objects of known modulus on your rig "
+            "(`record`, then `import burgess`)."
+        ),
+    ],
+    out: Annotated[Path, typer.Option(help="Directory for best.pt and adapt.json.")],
+    ridge: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help="How strongly the calibration's slope is pulled towards 1 (a pure shift); "
+            "docs/inference.md.",
+        ),
+    ] = 1.0,
+    device: DeviceOption = DEFAULT_DEVICE,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+) -> None:
+    """Adapt a model to your rig from grasps of reference objects of known modulus: an
+    output calibration in log10 space, fitted on them, with leave-one-object-out scores.
+    Writes OUT/best.pt, which `predict` and `live` take (they apply the calibration)."""
+    from tactile_compliance.inference.adapt import adapt_model
+
+    summary = adapt_model(model, reference_store, out, ridge=ridge, device=device)
+    typer.echo(_json(summary.to_dict()) if as_json else summary.format())
+
+
+@app.command()
 def predict(
     checkpoint: Annotated[Path, typer.Argument(help="best.pt of a run, or the run directory.")],
     source: Annotated[
@@ -1472,6 +1506,71 @@ def calibrate_depth_command(
     typer.echo(_json(report) if as_json else f"{result.format()}\n{saved}")
 
 
+def _radius_options(values: list[str]) -> dict[str, float]:
+    """``--radius OBJECT=MM`` values as ``object -> radius [mm]``."""
+    radii: dict[str, float] = {}
+    for value in values:
+        name, sep, mm = value.partition("=")
+        try:
+            radius = float(mm)
+        except ValueError:
+            radius = math.nan
+        if not sep or not name or not (math.isfinite(radius) and radius > 0):
+            raise typer.BadParameter(f"--radius takes OBJECT=MM (a positive radius), got {value!r}")
+        radii[name] = radius
+    return radii
+
+
+@app.command("calibrate-rig")
+def calibrate_rig_command(
+    datasets: Annotated[
+        list[Path],
+        typer.Argument(
+            help="Datasets that `record` (or `simulate`) wrote, of grasps of rigid spheres; "
+            "the moduli in their tables are not read."
+        ),
+    ],
+    out: Annotated[Path, typer.Option(help="The rig file (JSON) to write.")],
+    radius: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            help="OBJECT=MM: a sphere's radius in mm, for objects whose object table "
+            "gives none (repeatable)."
+        ),
+    ] = None,
+    name: Annotated[
+        Optional[str], typer.Option(help="The rig's name in the file (default: OUT's stem).")
+    ] = None,
+    fit_lights: Annotated[
+        bool,
+        typer.Option(
+            "--fit-lights",
+            help="Also fit the light balance on the imprint's colour (docs/synthetic.md, "
+            "'The lights').",
+        ),
+    ] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the fit as JSON.")] = False,
+) -> None:
+    """Fit your gripper rig from grasps of rigid spheres, with no modulus label: the press
+    force, the finger and mount stiffness (closure), the gel (contact area), the edge glow
+    and, with --fit-lights, the light balance. `simulate --rig OUT` and `sim2real --rig OUT`
+    then imitate it; its stiffness makes the rig-corrected analytical estimate."""
+    from tactile_compliance.outputs import atomic_file, check_output_file
+    from tactile_compliance.synthetic.rig import is_rig_file, rig_file_text
+    from tactile_compliance.synthetic.rig_fit import fit_rig, read_rigid_grasps
+
+    target = check_output_file(out, "rig file", is_rig_file, option="--out")
+    observations = read_rigid_grasps(datasets, _radius_options(radius or []))
+    echo = (lambda text: typer.echo(text, err=True)) if as_json else typer.echo
+    fit = fit_rig(observations, fit_lights=fit_lights, progress=echo)
+    with atomic_file(target, "w") as handle:
+        handle.write(rig_file_text(fit.rig, name or target.stem, fit.to_dict()))
+    if as_json:
+        typer.echo(_json({"out": str(target), "rig": fit.rig.to_dict(), **fit.to_dict()}))
+        return
+    typer.echo(f"{fit.format()}\nRig {target}: tactile-compliance simulate --rig {target} ...")
+
+
 @app.command()
 def depth(
     frames: Annotated[list[Path], typer.Argument(help="Images (or folders of images).")],
@@ -1536,6 +1635,13 @@ def record(
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
+    rig: Annotated[
+        Optional[str],
+        typer.Option(
+            help="A rig file from calibrate-rig (or a rig name): also report the "
+            "rig-corrected analytical estimates, the rig's own closure taken out."
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """Record one grasp into a dataset in the public dataset's raw layout.
@@ -1549,6 +1655,11 @@ def record(
 
     info = ObjectInfo(object_name, modulus, material, shape)
     no_contact = None if reference is None else read_image(reference)
+    rig_stiffness = None
+    if rig is not None:
+        from tactile_compliance.synthetic.rig import resolve_rig
+
+        rig_stiffness = resolve_rig(rig)[1].stiffness_n_per_m
     with ExitStack() as stack:
         frames, sensor = _open_source(source, calibration, fps, timestamps)
         stack.enter_context(frames)
@@ -1567,6 +1678,7 @@ def record(
             markers_source=markers,
             markers_calibration=marker_sensor,
             max_frames=max_frames,
+            rig_stiffness_n_per_m=rig_stiffness,
         )
     fingers = "" if markers_source is not None else " --fingers markerless"
     next_step = f"Next: tactile-compliance import burgess {out} --out STORE{fingers}"
@@ -1747,10 +1859,11 @@ def sim2real(
         "sim2real-output"
     ),
     rig: Annotated[
-        RigName,
+        str,
         typer.Option(
-            help="The real rig the synthetic grasps imitate (`simulate --rig`): its press "
-            "force, stiffness and edge glow."
+            help="The real rig the synthetic grasps imitate (`simulate --rig`): a name "
+            "(wedge-2023, dataset) or a rig file that calibrate-rig wrote (its press force, "
+            "stiffness, gel, edge glow and lights)."
         ),
     ] = "wedge-2023",
     mode: Annotated[

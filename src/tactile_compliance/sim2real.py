@@ -94,7 +94,7 @@ class Sim2RealSummary:
 def run_sim2real(
     out_dir: str | Path,
     *,
-    rig: str = "wedge-2023",
+    rig: str | Path = "wedge-2023",
     mode: Sim2RealMode = "full",
     seed: int = 0,
     workers: int | None = None,
@@ -107,25 +107,31 @@ def run_sim2real(
     Args:
         out_dir: created, or one that ``sim2real`` wrote before (it then continues:
             generated objects, the store and a finished or interrupted run are kept).
-        rig: a rig of ``synthetic.timeseries.RIGS`` (``simulate --rig``).
+        rig: a name of ``synthetic.rig.RIGS`` or a rig file that ``calibrate-rig`` wrote
+            (``simulate --rig``).
         mode: ``full`` or ``ci`` (a tiny run for tests).
         workers: generator processes (default: all CPUs).
         echo: where the import report goes (``--json`` sends it to stderr).
 
     Raises:
         OutputExistsError: ``out_dir`` holds something ``sim2real`` did not write.
-        GenerationError: an unknown rig.
+        GenerationError: an unknown rig or an invalid rig file.
     """
     from tactile_compliance.config import load_config
     from tactile_compliance.data.burgess import import_burgess
     from tactile_compliance.outputs import atomic_file, claim_output_dir
     from tactile_compliance.runs.layout import prune_checkpoints
-    from tactile_compliance.synthetic import generate_burgess_tree
+    from tactile_compliance.synthetic import GenerationError, generate_burgess_tree
+    from tactile_compliance.synthetic.rig import resolve_rig
     from tactile_compliance.training.train import train
 
     plan = PLANS[mode]
+    try:
+        resolve_rig(rig)  # a bad rig file fails before anything is written
+    except ValueError as err:
+        raise GenerationError(str(err)) from err
     out = claim_output_dir(out_dir, "sim2real")
-    summary = Sim2RealSummary(out_dir=out, checkpoint=out / "best.pt", rig=rig, mode=mode)
+    summary = Sim2RealSummary(out_dir=out, checkpoint=out / "best.pt", rig=str(rig), mode=mode)
 
     start = time.perf_counter()
     raw = out / "raw"

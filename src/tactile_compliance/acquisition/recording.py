@@ -444,11 +444,14 @@ class GraspEstimates:
         units: the depth model and pixel density the estimates were made with.
         fingers: ``{"markerless": (difference images (T, H, W, 3) float, depth maps (T, H,
             W) mm)}``, and ``"markers"`` with a second sensor: every captured frame's.
+        rig_corrected_pa: the same estimates with the rig's compliance taken out (a rig
+            stiffness given), else None; NaN where not estimable.
     """
 
     estimates_pa: tuple[float, float]
     units: SensorUnits
     fingers: dict[str, tuple[np.ndarray, np.ndarray]]
+    rig_corrected_pa: tuple[float, float] | None = None
 
 
 def grasp_estimates(
@@ -458,6 +461,7 @@ def grasp_estimates(
     markers_reference: np.ndarray | None = None,
     sensor: SensorCalibration | None = None,
     markers_sensor: SensorCalibration | None = None,
+    rig_stiffness_n_per_m: float | None = None,
 ) -> GraspEstimates:
     """The analytical estimates of a captured grasp: every frame differenced against the
     no-contact reference, its depth map (the calibration's depth model, else the dataset's
@@ -470,6 +474,8 @@ def grasp_estimates(
         reference, markers_reference: the no-contact frame of each sensor; default the
             calibration's, else the first frame.
         sensor, markers_sensor: the sensors' calibrations (depth models, pixel density).
+        rig_stiffness_n_per_m: the rig's stiffness [N/m] (``calibrate-rig``): also the
+            rig-corrected estimates (``GraspEstimates.rig_corrected_pa``).
 
     Raises:
         FrameSizeError: a reference of another size than the frames.
@@ -497,15 +503,28 @@ def grasp_estimates(
         marker_depth = reconstruct_depth(mdiff, markers=True, model=marker_model)
         fingers["markers"] = (mdiff, marker_depth)
     # The original took the earlier depth onset of the two fingers.
-    try:
-        values = recording_estimator(sensor).estimate(
-            captured.force_n, captured.width_m, depth, marker_depths_mm=marker_depth
-        )
-        estimates = (float(values[0]), float(values[1]))
-    except ValueError:
-        estimates = (math.nan, math.nan)  # the dataset has no estimate for such grasps
+    estimator = recording_estimator(sensor)
+
+    def estimate(rig: float | None) -> tuple[float, float]:
+        try:
+            values = estimator.estimate(
+                captured.force_n,
+                captured.width_m,
+                depth,
+                marker_depths_mm=marker_depth,
+                rig_stiffness_n_per_m=rig,
+            )
+            return (float(values[0]), float(values[1]))
+        except ValueError:
+            return (math.nan, math.nan)  # the dataset has no estimate for such grasps
+
     units = WEDGE_UNITS if sensor is None else sensor.units
-    return GraspEstimates(estimates_pa=estimates, units=units, fingers=fingers)
+    return GraspEstimates(
+        estimates_pa=estimate(None),
+        units=units,
+        fingers=fingers,
+        rig_corrected_pa=None if rig_stiffness_n_per_m is None else estimate(rig_stiffness_n_per_m),
+    )
 
 
 def checked_selection(
@@ -583,6 +602,11 @@ class RecordedGrasp:
         warnings: what looked wrong in the readings or the reference
             (:func:`check_recording`); the grasp is written all the same.
         checks: the numbers behind them.
+        rig_corrected_pa: (elastic E, Hertz E*) in Pa with the rig's own closure taken
+            out of the widths (``physics.contact.rig_corrected_widths_m``), when a rig
+            stiffness was given; reported next to ``estimates_pa``, not written to the
+            dataset.
+        rig_stiffness_n_per_m: that stiffness [N/m], or None.
     """
 
     path: Path
@@ -594,6 +618,8 @@ class RecordedGrasp:
     object_table: Path
     warnings: list[str] = field(default_factory=list)
     checks: dict[str, Any] = field(default_factory=dict)
+    rig_corrected_pa: tuple[float, float] | None = None
+    rig_stiffness_n_per_m: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly dict."""
@@ -608,6 +634,10 @@ class RecordedGrasp:
             "object_table": str(self.object_table),
             "warnings": self.warnings,
             "checks": self.checks,
+            "rig_corrected_pa": None
+            if self.rig_corrected_pa is None
+            else [None if math.isnan(v) else v for v in self.rig_corrected_pa],
+            "rig_stiffness_n_per_m": self.rig_stiffness_n_per_m,
         }
 
     def format(self) -> str:
@@ -618,6 +648,14 @@ class RecordedGrasp:
             f"{len(self.frame_indices)} augmentations)",
             f"Frames      {', '.join(map(str, self.frame_indices[0]))} (augmentation 0)",
             f"Estimates   elastic {elastic:.4g} Pa, Hertz {hertz:.4g} Pa",
+        ]
+        if self.rig_corrected_pa is not None:
+            rc_elastic, rc_hertz = self.rig_corrected_pa
+            lines.append(
+                f"Rig-corrected elastic {rc_elastic:.4g} Pa, Hertz {rc_hertz:.4g} Pa (rig "
+                f"{self.rig_stiffness_n_per_m:.4g} N/m)"
+            )
+        lines += [
             f"Objects     {self.object_table}",
         ]
         if self.skipped:
@@ -715,6 +753,7 @@ def write_grasp(
     max_aug: int = MAX_AUGMENTATIONS,
     sensor: SensorCalibration | None = None,
     markers_sensor: SensorCalibration | None = None,
+    rig_stiffness_n_per_m: float | None = None,
 ) -> RecordedGrasp:
     """Write a captured grasp as ``OUT/{object}/grasp={next}/augmentation={k}/``.
 
@@ -722,6 +761,8 @@ def write_grasp(
         reference, markers_reference: the no-contact frame of each sensor; default the
             calibration's, else the first frame.
         sensor, markers_sensor: the sensors' calibrations (depth models, pixel density).
+        rig_stiffness_n_per_m: the rig's stiffness [N/m] (``calibrate-rig``): the result
+            also holds the rig-corrected estimates (``RecordedGrasp.rig_corrected_pa``).
 
     Raises:
         ValueError: the grasp has no frame selection (nothing is written), or the object
@@ -736,6 +777,7 @@ def write_grasp(
         markers_reference=markers_reference,
         sensor=sensor,
         markers_sensor=markers_sensor,
+        rig_stiffness_n_per_m=rig_stiffness_n_per_m,
     )
     fingers = computed.fingers
     indices = augmented_indices(
@@ -746,6 +788,7 @@ def write_grasp(
         timestamps_s=captured.timestamp_s,
     )
     estimates = computed.estimates_pa
+    rig_corrected = computed.rig_corrected_pa
     # Checked before anything is created; claimed (the marker written) under the lock, so
     # concurrent recordings into a new dataset never see each other's half-made marker.
     out = claim_dataset_dir(out_dir, create=False)
@@ -794,6 +837,8 @@ def write_grasp(
         n_frames=len(captured),
         skipped=list(captured.skipped),
         object_table=table,
+        rig_corrected_pa=rig_corrected,
+        rig_stiffness_n_per_m=rig_stiffness_n_per_m,
     )
 
 
@@ -1039,6 +1084,7 @@ def record_grasp(
     max_frames: int | None = None,
     stop_on_release: bool = True,
     max_aug: int = MAX_AUGMENTATIONS,
+    rig_stiffness_n_per_m: float | None = None,
 ) -> RecordedGrasp:
     """Capture one grasp from ``source`` with ``readings`` and write it; what looks wrong
     is in the result's ``warnings`` (docs/inference.md, "Record and train").
@@ -1049,6 +1095,8 @@ def record_grasp(
         readings: ``timestamp_s -> (force_n, width_m)``, e.g. ``Readings.from_csv(path)``.
         reference: a no-contact uint8 BGR camera or sensor frame; replaces the
             calibration's reference.
+        rig_stiffness_n_per_m: the rig's stiffness [N/m]: also report the rig-corrected
+            estimates (:func:`write_grasp`).
 
     Raises:
         OutputExistsError: ``out_dir`` exists and is not a dataset ``record`` wrote
@@ -1072,6 +1120,7 @@ def record_grasp(
         max_aug=max_aug,
         sensor=calibration,
         markers_sensor=markers_calibration,
+        rig_stiffness_n_per_m=rig_stiffness_n_per_m,
     )
     missing = [
         name

@@ -17,6 +17,7 @@ from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.runs.forward import forward_batch
 from tactile_compliance.runs.layout import BEST_FILE
+from tactile_compliance.runs.output_calibration import CALIBRATION_KEY, OutputCalibration
 from tactile_compliance.runs.run_inputs import RunInputs
 
 if TYPE_CHECKING:
@@ -65,6 +66,12 @@ class ComplianceEstimator(BaseEstimator):
         self.run_inputs = run_inputs
         self.meta = dict(meta or {})
         self.source = source or "<in memory>"
+        # `adapt`'s map of the model's log10 prediction onto a rig's reference objects,
+        # applied to every prediction (runs.output_calibration); None: the model's own.
+        recorded = self.meta.get(CALIBRATION_KEY)
+        self.calibration: OutputCalibration | None = (
+            None if recorded is None else OutputCalibration.from_dict(recorded, self.source)
+        )
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -177,6 +184,7 @@ class ComplianceEstimator(BaseEstimator):
             "package_version": self.meta.get("package_version"),
             "run_inputs": self.run_inputs.to_dict(),
             "device": str(self.device),
+            "output_calibration": None if self.calibration is None else self.calibration.to_dict(),
         }
 
     def __repr__(self) -> str:
@@ -192,7 +200,10 @@ class ComplianceEstimator(BaseEstimator):
         """Normalised outputs of one prepared chunk, through ``forward_batch``."""
         chunk = {key: value.to(self.device) for key, value in chunk.items()}
         y = forward_batch(self.model, chunk, self.run_inputs)
-        return y.float().cpu().numpy()
+        out = y.float().cpu().numpy()
+        if self.calibration is not None:
+            out = self.calibration.apply_normalised(out, self.constants)
+        return out
 
     # ------------------------------------------------------------------ streaming
     def stream(self, **options: Any) -> StreamingEstimator:

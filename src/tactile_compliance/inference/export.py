@@ -28,6 +28,7 @@ from tactile_compliance.inference.pretrained import (
     DEFAULT_LICENSE,
     OUTPUT_KIND,
     OptionalDependencyError,
+    refuse_output_calibration,
     require_safetensors,
     run_evaluation,
     write_pretrained,
@@ -192,6 +193,7 @@ def export_onnx(
     require_onnx()
     out = check_output_file(out, "ONNX model", _is_our_onnx, option="--onnx")
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
+    refuse_output_calibration(estimator)
     image_size = estimator.run_inputs.image_size
     names = onnx_input_names(estimator.inputs)
     model = estimator.model.cpu().eval()

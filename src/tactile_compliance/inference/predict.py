@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -16,11 +16,14 @@ from tactile_compliance.inference.sources import ROW_COLUMNS, read_source
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.metrics import compute_metrics
 
+if TYPE_CHECKING:
+    from tactile_compliance.inference.estimator import ComplianceEstimator
+
 __all__ = ["format_predictions", "predict_path", "skip_reasons"]
 
 
 def predict_path(
-    checkpoint: str | Path,
+    checkpoint: str | Path | ComplianceEstimator,
     path: str | Path,
     *,
     device: str = DEFAULT_DEVICE,
@@ -29,17 +32,20 @@ def predict_path(
     backbone_weights: str | Path | None = None,
 ) -> dict[str, Any]:
     """Predict every grasp under ``path`` with ``checkpoint`` (as
-    :meth:`ComplianceEstimator.load` takes it); samples missing an input the checkpoint
-    needs are skipped with the reason.
+    :meth:`ComplianceEstimator.load` takes it, or an estimator already loaded); samples
+    missing an input the checkpoint needs are skipped with the reason.
 
     Returns:
         The JSON report shown in docs/inference.md, "Command line".
     """
     from tactile_compliance.inference.estimator import ComplianceEstimator
 
-    estimator = ComplianceEstimator.load(
-        checkpoint, device=device, backbone_weights=backbone_weights
-    )
+    if isinstance(checkpoint, ComplianceEstimator):
+        estimator = checkpoint
+    else:
+        estimator = ComplianceEstimator.load(
+            checkpoint, device=device, backbone_weights=backbone_weights
+        )
     source = read_source(path, fingers=fingers, image_size=estimator.run_inputs.store_image_size)
     needed = estimator.required_inputs
     scalar_names = estimator.inputs.scalar_names

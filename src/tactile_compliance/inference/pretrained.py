@@ -188,6 +188,17 @@ def _payload(config: dict[str, Any], state_dict: dict[str, torch.Tensor]) -> dic
 
 
 # ---------------------------------------------------------------------- write / read
+def refuse_output_calibration(estimator: BaseEstimator) -> None:
+    """Refuse (ValueError) to export a model that ``adapt`` calibrated: the exported formats
+    do not carry the calibration, so the export would predict the model's own scale."""
+    if getattr(estimator, "calibration", None) is not None:
+        raise ValueError(
+            f"{estimator.source}: an adapted checkpoint (adapt's output calibration) cannot be "
+            "exported yet: the export would drop the calibration; predict and live take the "
+            "adapted best.pt"
+        )
+
+
 def write_pretrained(
     estimator: BaseEstimator,
     out: str | Path,
@@ -210,6 +221,7 @@ def write_pretrained(
     model = getattr(estimator, "model", None)
     if model is None:
         raise ValueError(f"{estimator.source}: only PyTorch estimators can be exported")
+    refuse_output_calibration(estimator)
     config = pretrained_config(
         estimator, checkpoint=checkpoint, evaluation=evaluation, license=license
     )

@@ -27,6 +27,7 @@ __all__ = [
     "hertz_indentation_m",
     "hertz_max_pressure_pa",
     "object_modulus_from_effective_pa",
+    "rig_corrected_widths_m",
 ]
 
 ArrayOrFloat: TypeAlias = float | npt.NDArray[np.float64]
@@ -554,3 +555,36 @@ def analytical_estimates_pa(
     """
     contact = _grasp_contact(forces_n, widths_m, depths_mm, constants)
     return _elastic_from_contact(contact), _hertz_from_contact(contact, constants)
+
+
+def rig_corrected_widths_m(
+    widths_m: npt.ArrayLike, forces_n: npt.ArrayLike, rig_stiffness_n_per_m: float
+) -> FloatArray:
+    """Gripper widths [m] with the rig's own closure taken out: ``W + F / k_rig``.
+
+    The gripper's fingers and mount are a spring in series with the gel and the object,
+    so the measured closure is the object's (and gel's) plus ``F / k_rig``: subtracting it
+    is ``1 / k_object = 1 / k_measured - 1 / k_rig``. ``k_rig`` [N/m] is what a grasp of a
+    rigid object measures (``calibrate-rig``'s ``GripperRig.stiffness_n_per_m``).
+
+    Args:
+        widths_m: measured widths per frame [m], (T,).
+        forces_n: normal force per frame [N], (T,).
+        rig_stiffness_n_per_m: the rig's stiffness [N/m], finite and > 0.
+
+    Returns:
+        A new float64 array (T,) [m].
+
+    Raises:
+        ValueError: a non-positive or non-finite stiffness, or shapes that differ.
+    """
+    stiffness = float(rig_stiffness_n_per_m)
+    if not (np.isfinite(stiffness) and stiffness > 0):
+        raise ValueError(
+            f"rig_stiffness_n_per_m must be a positive stiffness in N/m, got {stiffness}"
+        )
+    widths = np.asarray(widths_m, dtype=np.float64)
+    forces = np.asarray(forces_n, dtype=np.float64)
+    if widths.shape != forces.shape:
+        raise ValueError(f"widths {widths.shape} and forces {forces.shape} differ in shape")
+    return widths + forces / stiffness

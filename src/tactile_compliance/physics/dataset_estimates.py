@@ -12,7 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from tactile_compliance.physics.contact import _check_fields, _validate_sequence
+from tactile_compliance.physics.contact import (
+    _check_fields,
+    _validate_sequence,
+    rig_corrected_widths_m,
+)
 
 __all__ = [
     "DATASET_CONSTANTS",
@@ -374,6 +378,7 @@ def dataset_estimates_pa(
     *,
     marker_depths_mm: npt.ArrayLike | None = None,
     preprocess: bool = True,
+    rig_stiffness_n_per_m: float | None = None,
 ) -> tuple[float, float]:
     """Both analytical estimates ``(E_elastic [Pa], E*_hertz [Pa])`` as the dataset made them.
 
@@ -391,6 +396,10 @@ def dataset_estimates_pa(
             the depth-onset clip; None uses the force-sensing finger alone.
         preprocess: False skips steps 1-3 for a series that is already clipped and
             interpolated exactly as the original's driver did.
+        rig_stiffness_n_per_m: the rig's stiffness [N/m]: the rig-corrected estimate,
+            the rig's closure ``F / k`` taken out of the widths after step 3
+            (``contact.rig_corrected_widths_m``). None (default): the dataset's own
+            estimate, bit-exact.
 
     Returns:
         ``(E_elastic, E*_hertz)`` in Pa; ``nan`` for an estimate the original could not
@@ -425,6 +434,9 @@ def dataset_estimates_pa(
         widths = interpolate_repeated_widths(widths[start:end])
         depths = depths[start:end]
 
+    if rig_stiffness_n_per_m is not None:
+        # After the interpolation: it needs the repeated readings of the raw widths.
+        widths = rig_corrected_widths_m(widths, forces, rig_stiffness_n_per_m)
     frames = _frames(depths, constants)
     length_0_m = _initial_length_m(widths, frames, constants)
     return (

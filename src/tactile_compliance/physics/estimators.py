@@ -12,7 +12,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tactile_compliance.physics.contact import SensorConstants, analytical_estimates_pa
+from tactile_compliance.physics.contact import (
+    SensorConstants,
+    analytical_estimates_pa,
+    rig_corrected_widths_m,
+)
 from tactile_compliance.physics.dataset_estimates import (
     DATASET_CONSTANTS,
     DATASET_PRESS_FORCE_N,
@@ -67,20 +71,33 @@ class AnalyticalEstimator:
         depth_mm: npt.ArrayLike,
         *,
         marker_depths_mm: npt.ArrayLike | None = None,
+        rig_stiffness_n_per_m: float | None = None,
     ) -> tuple[float, float]:
         """``(E_elastic, E*_hertz)`` in Pa of a force (T,), width (T,) and depth (T, H, W)
         series (ValueError: malformed). ``marker_depths_mm``: the marker finger's depth
-        maps, for the dataset estimator's depth-onset clip (the others ignore them)."""
+        maps, for the dataset estimator's depth-onset clip (the others ignore them).
+
+        ``rig_stiffness_n_per_m`` [N/m]: the rig-corrected estimates, the rig's own
+        closure ``F / k_rig`` taken out of the widths before the fits
+        (``contact.rig_corrected_widths_m``; for the dataset estimator after its width
+        interpolation). None (default): the estimates as they were, bit-exact."""
         if self.name == "dataset":
             constants = DATASET_CONSTANTS
             if self.px_per_mm is not None:
                 constants = replace(constants, px_per_mm=float(self.px_per_mm))
             return dataset_estimates_pa(
-                forces_n, widths_m, depth_mm, constants, marker_depths_mm=marker_depths_mm
+                forces_n,
+                widths_m,
+                depth_mm,
+                constants,
+                marker_depths_mm=marker_depths_mm,
+                rig_stiffness_n_per_m=rig_stiffness_n_per_m,
             )
         sensor = SensorConstants()
         if self.px_per_mm is not None:
             sensor = SensorConstants(pixel_size_m=1e-3 / float(self.px_per_mm))
+        if rig_stiffness_n_per_m is not None:
+            widths_m = rig_corrected_widths_m(widths_m, forces_n, rig_stiffness_n_per_m)
         return analytical_estimates_pa(forces_n, widths_m, depth_mm, sensor)
 
     def window_start(self, forces_n: npt.ArrayLike) -> int | None:

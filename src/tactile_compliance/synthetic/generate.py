@@ -36,7 +36,7 @@ from tactile_compliance.synthetic.objects import (
     default_objects,
     objects_from_table,
 )
-from tactile_compliance.synthetic.timeseries import RIGS
+from tactile_compliance.synthetic.rig import resolve_rig
 
 __all__ = ["DEFAULT_N_OBJECTS", "GenerationError", "GenerationReport", "generate_burgess_tree"]
 
@@ -176,10 +176,11 @@ def _split_options(options: dict[str, Any]) -> tuple[SimulationOptions, str, int
         raise GenerationError(
             f"unknown option(s) {unknown}; known: {sorted(known | {'dtype', 'workers'})}"
         )
-    if isinstance(opts.get("rig"), str):
-        if opts["rig"] not in RIGS:
-            raise GenerationError(f"unknown rig {opts['rig']!r}; known: {', '.join(RIGS)}")
-        opts["rig"] = RIGS[opts["rig"]]
+    if isinstance(opts.get("rig"), (str, Path)):
+        try:
+            opts["rig"] = resolve_rig(opts["rig"])[1]
+        except ValueError as err:
+            raise GenerationError(str(err)) from err
     return SimulationOptions(**opts), dtype, workers
 
 
@@ -230,7 +231,7 @@ def generate_burgess_tree(
             ``float32``, ``float64``), ``workers`` (processes; default: all CPUs), and
             the fields of :class:`SimulationOptions` (``estimator_scale``,
             ``n_sessions``, ``curve_cell_mm``, ``render_cell_mm``, ``max_aug``, ``rig``: a
-            ``GripperRig`` or a name of ``timeseries.RIGS``).
+            ``GripperRig``, a name of ``rig.RIGS`` or a rig file's path).
 
     Returns:
         A :class:`GenerationReport` (counts, time, grasps/s).

@@ -292,3 +292,19 @@ def objects_from_table(
             )
         )
     return objects, skipped
+
+
+RIGID_MODULUS_PA = 1e9
+"""The label of :func:`rigid_sphere` [Pa]: stiff enough that the gel takes all the
+indentation (a golf ball is 8.5e8 Pa)."""
+
+
+def rigid_sphere(
+    name: str, radius_mm: float, seed: int, n_grasps: int, index: int = 0
+) -> ObjectSpec:
+    """A rigid plastic sphere of ``radius_mm`` [mm] (``calibrate-rig``'s stand-in for a
+    user's rigid calibration object), drawn as the table objects are (``_build``)."""
+    if not (math.isfinite(radius_mm) and radius_mm > 0):
+        raise ValueError(f"radius must be a positive length in mm, got {radius_mm!r}")
+    grade = stock_grade(seed, "Plastic", RIGID_MODULUS_PA)
+    return _build(name, index, seed, "Plastic", "Sphere", grade, n_grasps, radius_mm=radius_mm)

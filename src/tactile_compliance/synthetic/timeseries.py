@@ -15,9 +15,10 @@ from tactile_compliance.data.frame_selection import (
     augment_selection,
     selection_window,
 )
-from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 from tactile_compliance.synthetic.mechanics import ContactCurve
-from tactile_compliance.synthetic.rng import log_uniform
+
+# The rig moved to synthetic/rig.py (a file since calibrate-rig); kept importable here.
+from tactile_compliance.synthetic.rig import DATASET_RIG, RIGS, WEDGE_2023_RIG, GripperRig
 
 __all__ = [
     "DATASET_RIG",
@@ -39,77 +40,6 @@ CLOSING_SPEED_M_S = 0.0375
 
 OPEN_WIDTH_M = 0.08
 """Gripper width when the grasp starts [m]."""
-
-
-@dataclass(frozen=True)
-class GripperRig:
-    """The gripper, its mount and its force controller: what a user knows of their rig
-    (the force the controller presses to) or measures on it (the stiffness, from a grasp
-    of any rigid object: its closure is the rig's own).
-
-    Attributes:
-        peak_force_n: mean and standard deviation of the target force ``F_t`` [N].
-        finger_stiffness_n_per_m: range of the finger/mount stiffness ``K_f`` [N/m]; each
-            recording session draws one, log-uniformly (equal bounds: one value).
-        edge_glow_grey_per_mm: range of the gain of the sensor's green-edge glow [grey
-            levels per mm of imprint depth at the left edge] (``render.SensorLook``);
-            each session draws one, log-uniformly. ``(0, 0)``: no glow.
-        gel_modulus_pa: the sensor gel's median Young's modulus [Pa]; each session's two
-            gels scatter about it by a factor 10^N(0, 0.05). A rigid ball's contact area
-            at a known force measures it on a real sensor.
-        light_balance: factors on the drawn strengths of the sensor's three lights (G, R,
-            B) [-] (``render.SensorLook.light_gain``): the colour balance of an imprint.
-            A rigid ball's difference image measures it on a real sensor.
-    """
-
-    peak_force_n: tuple[float, float] = (60.0, 2.0)
-    finger_stiffness_n_per_m: tuple[float, float] = (1e5, 6e5)
-    edge_glow_grey_per_mm: tuple[float, float] = (0.0, 0.0)
-    gel_modulus_pa: float = DEFAULT_GEL_MODULUS_PA
-    light_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
-
-    def __post_init__(self) -> None:
-        mean, sd = self.peak_force_n
-        lo, hi = self.finger_stiffness_n_per_m
-        if not (mean > 10.0 and sd >= 0.0):
-            # The published frame selection rejects grasps that never reach 10 N.
-            raise ValueError(f"peak force must be above 10 N with sd >= 0, got {mean} +- {sd} N")
-        if not 0.0 < lo <= hi:
-            raise ValueError(f"finger stiffness range must be 0 < lo <= hi N/m, got {lo}, {hi}")
-        if not self.gel_modulus_pa > 0.0:
-            raise ValueError(f"gel modulus must be positive, got {self.gel_modulus_pa} Pa")
-        if not all(factor > 0.0 for factor in self.light_balance):
-            raise ValueError(f"light balance factors must be positive, got {self.light_balance}")
-        glow_lo, glow_hi = self.edge_glow_grey_per_mm
-        if (glow_lo, glow_hi) != (0.0, 0.0) and not 0.0 < glow_lo <= glow_hi:
-            raise ValueError(
-                f"edge glow range must be (0, 0) or 0 < lo <= hi, got {glow_lo}, {glow_hi}"
-            )
-
-    def draw_finger_stiffness_n_per_m(self, rng: np.random.Generator) -> float:
-        return log_uniform(rng, *self.finger_stiffness_n_per_m)
-
-
-DATASET_RIG = GripperRig()
-"""The rig of the public dataset as the design notes describe it (~60 N presses)."""
-
-WEDGE_2023_RIG = GripperRig(
-    peak_force_n=(23.0, 2.5),
-    finger_stiffness_n_per_m=(3.5e3, 4.6e3),
-    edge_glow_grey_per_mm=(500.0, 2000.0),
-    gel_modulus_pa=8.5e4,
-)
-"""The GelSight Wedge rig of ``real/wedge-grasps`` (the lab's 2023 example grasps).
-
-Fitted on that development set, with nothing a user could not fit on their own rig:
-``peak_force_n`` from the recorded force peaks (16-25 N, the controller's target); the
-rest on the golf ball alone, the set's one near-rigid object: ``gel_modulus_pa`` from its
-contact area at the three selected frames, then ``finger_stiffness_n_per_m`` from its
-closure (k = 2.2 N/mm in series with the gel) and ``edge_glow_grey_per_mm`` from its edge
-glow (1000, drawn within a factor 2 of it). docs/synthetic.md, "Against real grasps"."""
-
-RIGS: dict[str, GripperRig] = {"dataset": DATASET_RIG, "wedge-2023": WEDGE_2023_RIG}
-"""Named rigs, as ``simulate --rig`` and ``sim2real --rig`` accept them."""
 
 
 @dataclass
