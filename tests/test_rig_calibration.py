@@ -144,6 +144,19 @@ def test_the_fit_recovers_the_rig_a_synthetic_rigid_dataset_was_made_with(
     assert "finger_stiffness_n_per_m" in fit.format()
 
 
+def test_fit_lights_fits_the_light_balance_first(rigid_dataset: Path) -> None:
+    """--fit-lights: the balance from each channel's p99 before the gel (a tiny plan: the
+    balance and the gel it leads to are noisy with 4 simulated grasps, the stiffness not)."""
+    observations = read_rigid_grasps([rigid_dataset])
+    plan = SimulationPlan(copies=1, grasps=1, image_size=(48, 64), seed=0)
+    fit = fit_rig(observations, plan=plan, fit_lights=True)
+    fields = [step["field"] for step in fit.steps]
+    assert fields.index("light_balance") < fields.index("gel_modulus_pa")
+    assert fit.rig.light_balance != (1.0, 1.0, 1.0)
+    assert all(0.5 < factor < 2.0 for factor in fit.rig.light_balance)
+    assert fit.rig.stiffness_n_per_m == pytest.approx(KNOWN_RIG.stiffness_n_per_m, rel=0.3)
+
+
 def test_the_command_refuses_what_it_cannot_fit_and_files_it_did_not_write(
     rigid_dataset: Path, tmp_path: Path
 ) -> None:
