@@ -5,7 +5,7 @@ the presets use (Top10NN and Res-Tf: the store's 250 x 350; VGG-LSTM: its recomm
 224 x 224), the script writes a self-describing checkpoint, exports it with
 ``export_onnx`` (parity checked) and times one grasp at a time:
 
-* ``torch``: ``model(frames, force, width, estimates)`` on normalised tensors;
+* ``torch``: ``model(frames, force=F, width=W, estimates=E)`` on normalised tensors;
 * ``onnxruntime``: the exported graph on the same tensors;
 * ``predict_torch`` / ``predict_onnx``: ``ComplianceEstimator.predict`` /
   ``OnnxEstimator.predict`` end to end from uint8 frames (validation, normalisation,

@@ -48,10 +48,19 @@ def _config(store_path, out, model, extra=()):
 
 
 def _inputs(size, batch=2):
+    """``(args, kwargs)`` of a model call: frames, then the scalars by name."""
     generator = torch.Generator().manual_seed(1)
     frames = torch.rand(batch, 3, 3, *size, generator=generator)
-    scalars = [torch.rand(batch, n, generator=generator) for n in (3, 3, 2)]
-    return frames, *scalars
+    scalars = {name: torch.rand(batch, n, generator=generator) for name, n in _SIZES.items()}
+    return (frames,), scalars
+
+
+_SIZES = {"force": 3, "width": 3, "estimates": 2}
+
+
+def _call(model, size):
+    args, kwargs = _inputs(size)
+    return model(*args, **kwargs)
 
 
 def _save(path, model, frozen_backbone=None):
@@ -96,7 +105,7 @@ def test_head_only_checkpoint_reproduces_the_in_memory_model(tmp_path, name):
     assert all(torch.equal(v, reference[k]) for k, v in loaded.state_dict().items())
     size = tuple(cfg.data.image_size)
     with torch.no_grad():
-        assert torch.equal(loaded(*_inputs(size)), model(*_inputs(size)))
+        assert torch.equal(_call(loaded, size), _call(model, size))
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +225,7 @@ def test_imagenet_backbone_is_never_downloaded_on_load(tmp_path, monkeypatch):
     loaded = load_checkpoint(path, backbone_weights=local, device="cpu").model
     assert loaded.backbone_weights == "imagenet"  # provenance stays the recorded source
     with torch.no_grad():
-        assert torch.equal(loaded(*_inputs((32, 32))), model(*_inputs((32, 32))))
+        assert torch.equal(_call(loaded, (32, 32)), _call(model, (32, 32)))
     wrong = tmp_path / "other-resnet18.pth"
     torch.save(create_model("res_tf").backbone.state_dict(), wrong)
     with pytest.raises(ValueError, match="not the one the head was trained with"):
@@ -232,7 +241,7 @@ def test_local_weights_file_is_recorded_and_must_exist(tmp_path):
     assert torch.load(path, weights_only=True)["backbone"]["weights"] == str(weights.resolve())
     loaded = load_checkpoint(path, device="cpu").model
     with torch.no_grad():
-        assert torch.equal(loaded(*_inputs((32, 32))), model(*_inputs((32, 32))))
+        assert torch.equal(_call(loaded, (32, 32)), _call(model, (32, 32)))
     weights.unlink()
     with pytest.raises(FileNotFoundError, match="--weights PATH"):
         load_checkpoint(path)
