@@ -759,3 +759,31 @@ def test_report_command(fake: FakeResults, tmp_path: Path) -> None:
     assert all(Path(png).is_file() for png in written["figures"].values())
     missing = CliRunner().invoke(app, ["report", str(tmp_path / "nothing")])
     assert missing.exit_code == 2 and "error" in missing.output
+
+
+def test_rows_beyond_the_paper_are_marked(tmp_path: Path) -> None:
+    from tactile_compliance.data.inputs import InputStrategy
+    from tactile_compliance.evaluation.tables import inputs_label
+
+    for strategy in InputStrategy:
+        expected = strategy.value if strategy.in_paper else f"{strategy.value} (beyond the paper)"
+        assert inputs_label(strategy.value) == expected
+    fake = FakeResults(tmp_path)
+    for model, inputs in (("top10nn", "ALL"), ("scalar_mlp", "FW"), ("top10nn", "DepthFW")):
+        for seed in SEEDS:
+            fake.record(
+                preset="table1",
+                model=model,
+                inputs=inputs,
+                condition="unseen",
+                sampling="random",
+                seed=seed,
+                run_dir=None,
+                **fake.metrics(),
+            )
+    build_report(fake.results.path, tmp_path / "out", formats=("md",))
+    markdown = (tmp_path / "out" / "report.md").read_text()
+    rows = {(r[0], r[1]) for r in _md_section(markdown, "Table I")}
+    assert ("Top10NN", "ALL") in rows
+    assert ("Scalar MLP", "FW (beyond the paper)") in rows
+    assert ("Top10NN", "DepthFW (beyond the paper)") in rows

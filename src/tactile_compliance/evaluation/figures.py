@@ -34,6 +34,7 @@ from tactile_compliance.evaluation.tables import (
     SETTING_PREFERENCE,
     SHAPE_ORDER,
     describe_runs,
+    inputs_label,
     model_label,
     model_order,
     ordered,
@@ -196,7 +197,7 @@ def _best_panels(
             body.append(
                 [
                     Cell(text=model_label(model)),
-                    Cell(text=str(inp)),
+                    Cell(text=inputs_label(inp)),
                     Cell(text=f"{row.preset}: {row.sampling}, {protocol_label(row.protocol)}"),
                     Cell(text=str(row.seed)),
                     Cell(text=f"{rank} of {len(same)}"),

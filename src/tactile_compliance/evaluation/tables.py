@@ -124,6 +124,16 @@ def model_label(name: Any) -> str:
     return _display_names().get(str(name), str(name))
 
 
+def inputs_label(inputs: Any) -> str:
+    """An input strategy as a table shows it: the paper's four by name, the others marked
+    ``FW (beyond the paper)``, so a reader comparing with Table I sees which rows it has."""
+    try:
+        strategy = InputStrategy.parse(str(inputs))
+    except ValueError:
+        return str(inputs)
+    return strategy.value if strategy.in_paper else f"{strategy.value} (beyond the paper)"
+
+
 def protocol_label(protocol: Any) -> str:
     """``Seen, grasp-grouped`` for ``seen_grasp``: which split a column or run used."""
     return PROTOCOL_LABELS.get(str(protocol), str(protocol))
@@ -277,7 +287,7 @@ def _setting_cells(setting: Mapping[str, Any]) -> list[Cell]:
     """The Model, Input and Split cells of a row that stands for one run setting."""
     return [
         Cell(text=model_label(setting["model"])),
-        Cell(text=str(setting["inputs"])),
+        Cell(text=inputs_label(setting["inputs"])),
         Cell(text=f"{protocol_label(setting['protocol'])}, {setting['sampling']}"),
     ]
 
@@ -451,7 +461,7 @@ def paper_tables(
         columns = ["Model", "Input", *[METRIC_LABELS[m] for m in metric_columns], "runs"]
         latex_columns = ["Model", "Input", *[_LATEX_METRIC[m] for m in metric_columns], "runs"]
         group_header = [("", 2), *[(protocol_label(p), 2) for p in protocols], ("", 1)]
-        labels = [(model_label(m), str(i)) for m, i in body_keys] + [
+        labels = [(model_label(m), inputs_label(i)) for m, i in body_keys] + [
             (f"{REFERENCE_LABELS[name]} (reference)", inp or "–") for name, inp, _ in references
         ]
         body = [
@@ -623,7 +633,7 @@ def subset_summary_table(
     # Bold in the cells only: these tidy rows never carried a ``bold`` column.
     tidy = [{k: v for k, v in row.items() if k != "bold"} for row in pivot.tidy]
     body = [
-        [Cell(text=model_label(model)), Cell(text=str(inp)), *cells]
+        [Cell(text=model_label(model)), Cell(text=inputs_label(inp)), *cells]
         for (model, inp), cells in zip(keys, pivot.cells, strict=True)
     ]
     columns = ["Model", "Input"]
