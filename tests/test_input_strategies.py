@@ -170,3 +170,33 @@ def test_live_none_with_a_frame_model_says_why_in_one_line(runs, tmp_path) -> No
     assert result.exit_code != 0
     assert "gives no camera" in result.output and "FW, FWE" in result.output
     assert "Traceback" not in result.output
+
+
+def test_a_grid_over_inputs_gives_each_strategy_its_model(tmp_path: Path) -> None:
+    from tactile_compliance.training.experiment_file import expand_experiment, load_experiment
+
+    grid = tmp_path / "grid.yaml"
+    grid.write_text("config: default\ngrid:\n  inputs: [ALL, FW, FWE, DepthFW]\nseeds: [0]\n")
+    cells = expand_experiment(load_experiment(grid), store=tmp_path / "store")
+    chosen = {c.cfg.inputs: (c.cfg.model.name, c.cfg.training.lr) for c in cells}
+    assert chosen == {
+        "ALL": ("top10nn", 3e-6),
+        "FW": ("scalar_mlp", 1e-3),
+        "FWE": ("scalar_mlp", 1e-3),
+        "DepthFW": ("top10nn", 3e-6),
+    }
+    # A model named in the grid stays named.
+    grid.write_text(
+        "config: default\nset:\n  model.name: res_tf\ngrid:\n  inputs: [ALL, DepthALL]\n"
+    )
+    cells = expand_experiment(load_experiment(grid), store=tmp_path / "store")
+    assert {c.cfg.model.name for c in cells} == {"res_tf"}
+
+
+def test_tune_searches_the_frame_free_model() -> None:
+    from tactile_compliance.training import hpo
+
+    space = hpo.search_space("scalar_mlp", "FW", seed=0)
+    assert {"model.hparams.hidden_sizes", "model.hparams.dropout", "training.lr"} <= set(
+        space.keys()
+    )

@@ -39,6 +39,7 @@ __all__ = [
     "check_config_against_samples",
     "compose_yaml",
     "config_from_dict",
+    "config_template",
     "config_to_dict",
     "list_presets",
     "load_config",
@@ -634,6 +635,25 @@ def load_config(
         path_or_preset_name, _read_source, _deep_merge, "base", "a preset name or a path"
     )
     return config_from_dict(raw, overrides, origin)
+
+
+def config_template(path_or_preset_name: str | Path = "default") -> dict[str, Any]:
+    """The validated configuration as a dict to derive others from (a grid's cells), with
+    ``model.name`` and ``training.lr`` left ``auto`` where the file leaves them so: each
+    derived configuration resolves them for its own input strategy.
+
+    Raises:
+        ConfigError: as :func:`load_config`.
+    """
+    raw, _ = compose_yaml(
+        path_or_preset_name, _read_source, _deep_merge, "base", "a preset name or a path"
+    )
+    data = config_to_dict(load_config(path_or_preset_name))
+    for section, key in (("model", "name"), ("training", "lr")):
+        value = (raw.get(section) or {}).get(key, AUTO)
+        if isinstance(value, str) and value.strip().lower() == AUTO:
+            data[section][key] = AUTO
+    return data
 
 
 def apply_overrides(cfg: ExperimentConfig, overrides: Iterable[str]) -> ExperimentConfig:

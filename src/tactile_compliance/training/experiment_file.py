@@ -23,6 +23,7 @@ from tactile_compliance.config import (
     ExperimentConfig,
     compose_yaml,
     config_from_dict,
+    config_template,
     config_to_dict,
     list_presets,
     load_config,
@@ -426,7 +427,7 @@ def expand_experiment(
     else:
         seed_list = _parse_seeds(seeds if isinstance(seeds, int) else list(seeds), "--seeds")
     out = Path(output_dir) if output_dir is not None else spec.default_output_dir
-    base = config_to_dict(load_config(spec.config))
+    base = config_template(spec.config)
     tail = list(overrides)
     if store is not None:
         tail.append(_override("data.store", str(store)))
