@@ -217,9 +217,9 @@ MUTATIONS: tuple[Mutation, ...] = (
         "normalisation",
         "force and width swapped on the way into the model (the published code's bug)",
         "runs/forward.py",
-        'scalars = {key: batch.get(key) for key in ("force", "width", "estimates")}',
-        'scalars = {"force": batch.get("width"), "width": batch.get("force"),'
-        ' "estimates": batch.get("estimates")}',
+        "scalars = {name: batch[name] for name in strategy.scalar_names}",
+        'scalars = {name: batch[{"force": "width", "width": "force"}.get(name, name)]'
+        " for name in strategy.scalar_names}",
     ),
     # ------------------------------------------------------------------ metrics
     _m(

@@ -98,7 +98,7 @@ def get_features(get_model) -> Iterator[Callable[[str, InputStrategy], torch.Ten
 def make_batch(model: TactileModel, seed: int = 0) -> dict[str, torch.Tensor]:
     """A small random batch at the smallest frame size the model accepts (>= 32 px)."""
     generator = torch.Generator().manual_seed(seed)
-    size = max(32, model.min_image_size)
+    size = max(32, model.min_image_size) if model.inputs.image is not None else 32
     return {
         "frames": torch.randn(BATCH, 3, 3, size, size, generator=generator),
         "force": torch.rand(BATCH, 3, generator=generator),
@@ -536,11 +536,12 @@ def test_sinusoidal_positional_encoding() -> None:
 
 
 def test_list_models() -> None:
-    assert list_models() == ["res_tf", "top10nn", "vgg_lstm"]
+    assert list_models() == ["res_tf", "scalar_mlp", "top10nn", "vgg_lstm"]
 
 
 def test_create_model_unknown_name_lists_models() -> None:
-    with pytest.raises(ValueError, match=r"unknown model 'resnet'.*res_tf, top10nn, vgg_lstm"):
+    names = r"res_tf, scalar_mlp, top10nn, vgg_lstm"
+    with pytest.raises(ValueError, match=rf"unknown model 'resnet'.*{names}"):
         create_model("resnet")
 
 

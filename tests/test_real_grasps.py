@@ -393,3 +393,49 @@ def test_record_with_a_rig_reports_the_rig_corrected_estimates_next_to_the_two(
     assert (after["elastic"], after["hertz"]) == (before["elastic"], before["hertz"])
     assert after["elastic_rig"] > 2 * after["elastic"] and after["hertz_rig"] > after["hertz"]
     assert any("--rig wedge-2023" in c for c in rig["commands"])
+
+
+def test_live_runs_a_depth_map_model_on_a_real_video_as_predict_does(wedge_grasps, tmp_path):
+    """A DepthFW checkpoint on a replayed real Wedge video: live computes each frame's
+    depth map and resizes it as the importer stores it, so its final estimate is
+    predict's on the recorded grasp (measured equal; asserted to 1e-6 decades)."""
+    import torch
+
+    from tactile_compliance.data.normalisation import NormalisationConstants
+    from tactile_compliance.models import create_model
+    from tactile_compliance.runs.checkpoint import save_checkpoint
+    from tactile_compliance.runs.run_inputs import RunInputs
+    from test_recording import _json_lines
+
+    video = _session(wedge_grasps) / "golf_ball_1.avi"
+    readings = video.with_name("golf_ball_1_readings.csv")
+    sensor = _calibration(tmp_path, video)
+    torch.manual_seed(0)
+    run_inputs = RunInputs((72, 72), (250, 350), NormalisationConstants(), "DepthFW")
+    ckpt = save_checkpoint(
+        tmp_path / "depth.pt",
+        create_model("top10nn", inputs="DepthFW"),
+        run_inputs=run_inputs,
+        config={},
+        seed=0,
+    )
+    data, store = tmp_path / "data", tmp_path / "store"
+    common = ["--readings", readings, "--calibration", sensor]
+    _cli(
+        "record",
+        f"wedge:{video}",
+        "--out",
+        data,
+        "--object",
+        "golf_ball",
+        "--modulus",
+        8.5e8,
+        *common,
+    )
+    _cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
+    predicted = json.loads(_cli("predict", ckpt, store, "--json"))
+    rows = {p["augmentation"]: p for p in predicted["predictions"]}
+    events = _json_lines(_cli("live", ckpt, f"wedge:{video}", *common, "--json"))
+    final = [e for e in events if e.get("final")]
+    assert len(final) == 1
+    assert final[0]["log10_modulus_pa"] == pytest.approx(rows[0]["pred_log10_pa"], abs=1e-6)
