@@ -92,17 +92,6 @@ def test_selection_follows_the_dataset_rule():
         select_frame_indices(force, window=2)
 
 
-def test_selection_agrees_with_the_synthetic_generator():
-    timeseries = pytest.importorskip("tactile_compliance.synthetic.timeseries")
-    if not hasattr(timeseries, "selection_window"):
-        pytest.skip("the synthetic generator no longer exposes selection_window")
-    for seed in range(5):
-        _, force, _ = make_grasp(seed=seed, onset=5 + seed)
-        i_start, i_peak_plus_one, _ = timeseries.selection_window(force)
-        base = np.linspace(0, i_peak_plus_one - i_start - 1, 3).astype(int) + i_start
-        assert select_frame_indices(force).indices == tuple(int(i) for i in base)
-
-
 def test_stream_reproduces_the_batch_estimate_frame_by_frame(estimator_fw):
     frames, force, width = make_grasp()
     idx = list(expected_indices(force))

@@ -300,9 +300,15 @@ def make_split(
 ) -> Split:
     """Split ``samples`` into train / validation / test sample ids.
 
+    Deterministic: the same seed and the same table give the same split, whatever the
+    order of its rows. No sample is in two parts, and a group (a grasp, or an object for
+    ``unseen``) is never divided.
+
     Args:
         condition, grouping: docs/protocol.md, "3. Splits"; ``unseen`` always groups by
             object (the saved split records ``grouping="object"``).
+        stratify: interleave the shape x material strata, so that every part mirrors
+            their mix (otherwise the groups are shuffled as one).
         test_fraction: share of samples in test; val_fraction: share of the *remaining*
             samples in validation (paper 0.2 each).
         subset: recorded in the split's metadata (the caller applies :func:`select_subset`).

@@ -240,6 +240,13 @@ def _readings_only(
                 f"{member.inputs.image.name}, but the source `none` gives no camera: name a "
                 f"sensor or video, or use a frame-free checkpoint (FW, FWE)"
             )
+        if member.inputs.uses("estimates"):
+            raise ValueError(
+                f"checkpoint {member.source} (inputs={member.inputs.value}) takes the "
+                f"analytical estimates, which come from the frames' depth maps; the source "
+                f"`none` gives no camera: name a sensor or video (the model reads no frames "
+                f"itself), or use an FW checkpoint"
+            )
     times = getattr(readings, "timestamp_s", None)
     if times is None:
         raise ValueError("the source `none` needs recorded readings (a CSV), not a live log")
