@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -62,8 +64,11 @@ def test_exactly_one_decade_counts_as_inside():
 
 
 def test_r2_edge_cases():
-    assert r2([1e5, 1e5], [1e5, 1e5]) == 1.0
-    assert r2([1e5, 1e5], [1e6, 1e5]) == 0.0
+    # Equal true labels leave nothing to explain: undefined, even for a perfect fit (and
+    # never the -1e28 that float rounding of equal labels gave; issue 43).
+    assert math.isnan(r2([1e5, 1e5], [1e5, 1e5]))
+    assert math.isnan(r2([1e5, 1e5], [1e6, 1e5]))
+    assert math.isnan(r2([1.3e5] * 5, [1.43e5] + [1.17e5] * 4))
     # R^2 does not depend on the label range (affine normalisation).
     shore = NormalisationConstants.for_shore_data()
     assert r2(TRUE, PRED, shore) == pytest.approx(r2(TRUE, PRED))

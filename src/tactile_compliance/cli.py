@@ -79,15 +79,19 @@ def _exit_code(err: Exception) -> int | None:
 
 
 def _disk_full(err: BaseException) -> bool:
-    """Whether ``err`` (or what caused it) is a full disk or quota (ENOSPC, EDQUOT): the
-    input was fine, writing failed, so exit code 1 whichever command it was."""
+    """Whether ``err`` (or what caused it) is a full disk, quota or file-size limit (ENOSPC,
+    EDQUOT, EFBIG): the input was fine, writing failed, so exit code 1 whichever command
+    it was."""
     import errno
 
     seen: BaseException | None = err
     for _ in range(8):  # a short chain: the library wraps an OSError at most twice
         if seen is None:
             return False
-        if isinstance(seen, OSError) and seen.errno in (errno.ENOSPC, errno.EDQUOT):
+        if isinstance(seen, OSError) and seen.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            return True
+        # numpy's tofile and np.save to a real file report a short write without an errno.
+        if isinstance(seen, OSError) and re.fullmatch(r"\d+ requested and \d+ written", str(seen)):
             return True
         seen = seen.__cause__ or seen.__context__
     return False
@@ -450,7 +454,10 @@ def _run_import(run: object, report_json: Path | None, as_json: bool = False) ->
     report = run()  # type: ignore[operator]
     typer.echo(_json(report.to_dict()) if as_json else report.format())
     if report_json is not None:
-        report_json.write_text(_json(report.to_dict()) + "\n")
+        from tactile_compliance.outputs import atomic_file
+
+        with atomic_file(report_json) as handle:
+            handle.write(_json(report.to_dict()) + "\n")
 
 
 SizeOption = Annotated[
@@ -766,6 +773,7 @@ def pretrain(
     The result loads with --set model.backbone_weights=OUT. Re-running resumes after the
     last finished epoch.
     """
+    _refuse_unread_overrides(overrides)
     options = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
     cfg = _load_config(config, options, overrides)  # before torch loads
     from tactile_compliance.training.pretrain import PretrainSettings
@@ -817,6 +825,24 @@ def pretrain(
     )
 
 
+#: The config sections `pretrain` never reads: its model is --backbone, its training
+#: --epochs, --batch-size, --lr, --patience and --device.
+_PRETRAIN_UNREAD = ("model", "training", "sampling", "inputs", "output_dir")
+
+
+def _refuse_unread_overrides(overrides: list[str] | None) -> None:
+    """Refuse a `pretrain --set` of a key pretraining never reads (it would be accepted
+    and have no effect)."""
+    for override in overrides or []:
+        key = override.split("=", 1)[0].strip()
+        if key.split(".", 1)[0] in _PRETRAIN_UNREAD:
+            raise typer.BadParameter(
+                f"--set {key}: pretrain does not read {key} (it reads data, filters, split, "
+                f"augmentation and seed; the backbone is --backbone, the training --epochs, "
+                f"--batch-size, --lr, --patience and --device)"
+            )
+
+
 BackboneWeightsOption = Annotated[
     Optional[Path],
     typer.Option(
@@ -839,11 +865,22 @@ def evaluate(
     from tactile_compliance.evaluation.evaluate import evaluate_run
 
     evaluation = evaluate_run(run_dir, store, backbone_weights=weights, device=device)
+    groups = evaluation.groups
+    # R^2 is undefined (NaN) for a group whose true moduli are all equal: said, not shown
+    # as a number (JSON: null).
+    undefined = "r2" in groups.columns and bool(groups["r2"].isna().any())
     if as_json:
-        records = evaluation.groups.to_dict(orient="records")
-        typer.echo(_json({"metrics": evaluation.metrics, "groups": records}))
+        records = groups.astype(object).where(groups.notna(), None).to_dict(orient="records")
+        metrics = {
+            k: None if isinstance(v, float) and v != v else v for k, v in evaluation.metrics.items()
+        }
+        typer.echo(_json({"metrics": metrics, "groups": records}))
         return
-    typer.echo(evaluation.groups.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+    typer.echo(groups.to_string(index=False, float_format=lambda v: f"{v:.4f}", na_rep="n/a"))
+    if undefined:
+        typer.echo(
+            "r2 n/a: the group's true moduli are all equal, so there is no variance to explain"
+        )
 
 
 WorkersOption = Annotated[
@@ -1193,6 +1230,7 @@ def export(
     printed). The safetensors directory loads with ComplianceEstimator.from_pretrained.
     """
     from tactile_compliance.inference.export import (
+        check_onnx_output,
         export_onnx,
         export_safetensors,
         format_export_report,
@@ -1202,8 +1240,9 @@ def export(
 
     if onnx is None and safetensors is None:
         raise typer.BadParameter("give --onnx FILE, --safetensors DIR or both")
-    if onnx is not None:
-        require_onnx()  # before the safetensors directory is written
+    if onnx is not None:  # before the safetensors directory is written
+        require_onnx()
+        check_onnx_output(onnx)
     reports: dict[str, Any] = {}
     if safetensors is not None:
         written = export_safetensors(
@@ -1478,9 +1517,11 @@ def calibrate_depth_command(
         read_image,
         read_images,
     )
-    from tactile_compliance.outputs import check_output_file
+    from tactile_compliance.outputs import check_output_file, check_output_folder
 
+    # Checked before the fit: a bad --out must not cost the fit (nor name a temp file).
     check_output_file(out, "sensor calibration", is_calibration_file, option="--out")
+    check_output_folder(out, option="--out")
     sensor = SensorCalibration.load(calibration) if calibration is not None else None
     ref = read_image(reference) if reference is not None else None
     if frames is not None:

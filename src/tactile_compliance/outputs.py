@@ -35,6 +35,7 @@ __all__ = [
     "atomic_file",
     "check_format_version",
     "check_output_file",
+    "check_output_folder",
     "claim_output_dir",
     "commit_path",
     "exchange_directories",
@@ -97,7 +98,8 @@ def _write_marker(path: Path, kind: str) -> None:
         "created_by": f"tactile-compliance {__version__}",
         "note": "Written by tactile-compliance: this directory may be updated by re-runs.",
     }
-    (path / MARKER_NAME).write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+    with atomic_file(path / MARKER_NAME, unique=True) as handle:
+        handle.write(json.dumps(data, indent=2) + "\n")
 
 
 def claim_output_dir(
@@ -166,9 +168,14 @@ def check_format_version(found: Any, supported: int, what: str) -> None:
 def check_output_file(
     path: str | Path, what: str, recognise: Callable[[Path], bool], option: str = "--out"
 ) -> Path:
-    """Refuse (OutputExistsError) a directory, or an existing file unless ``recognise``
-    says it is a ``what``."""
+    """Refuse (OutputExistsError) a symbolic link (:func:`atomic_file` never writes through
+    one), a directory, or an existing file unless ``recognise`` says it is a ``what``."""
     out = Path(path)
+    if out.is_symlink():
+        raise OutputExistsError(
+            f"{out} is a symbolic link; nothing was changed: {option} names the {what} file "
+            f"itself (remove the link or choose another {option})"
+        )
     if out.is_dir():
         raise OutputExistsError(f"{out} is a directory; {option} names the {what} file to write")
     if out.exists():
@@ -184,6 +191,19 @@ def check_output_file(
     return out
 
 
+def check_output_folder(path: str | Path, option: str = "--out") -> Path:
+    """Refuse (OSError, one line naming ``option``) an output file whose folder does not
+    exist or cannot be written: checked before the work that makes the file, so a long fit
+    does not end in a failed write."""
+    out = Path(path)
+    folder = out.parent
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{option} {out}: no such folder {folder}")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise PermissionError(f"{option} {out}: cannot write into {folder}")
+    return out
+
+
 def fsync_directory(directory: str | Path) -> None:
     """Make a rename inside ``directory`` durable (a no-op where directories can't be opened)."""
     with contextlib.suppress(OSError):
@@ -196,36 +216,102 @@ def fsync_directory(directory: str | Path) -> None:
 
 @contextlib.contextmanager
 def atomic_file(
-    path: str | Path, mode: str = "w", *, unique: bool = False, encoding: str | None = None
+    path: str | Path,
+    mode: str = "w",
+    *,
+    unique: bool = False,
+    encoding: str | None = None,
+    before_replace: Callable[[], None] | None = None,
 ) -> Iterator[IO[Any]]:
     """Write ``path`` all at once: yields a temp file next to it, then fsyncs it and
     renames it over ``path``, so a reader sees the old file or the new one, never a part.
     When the block raises, the temp file is removed and ``path`` is untouched. The file's
     mode follows the umask, as with ``open()``.
 
+    The one writer of every file a command writes. It never writes through a link: a
+    symbolic link at ``path`` is refused (nothing is written), and the temp file is
+    created new (``O_EXCL | O_NOFOLLOW``), so a link planted at its name is removed, never
+    followed.
+
     Args:
         mode: ``"w"`` (text, UTF-8 unless ``encoding``) or ``"wb"`` (binary).
         unique: name the temp file ``NAME.PID.RANDOM.tmp`` instead of ``NAME.tmp``, for
             files that several processes may write at once (results-store rows).
+        before_replace: called once the temp file is complete and durable, just before
+            the rename: a second commit that must happen only if this file is whole
+            (``record`` commits its grasp there, then the object table replaces the old).
+
+    Raises:
+        OutputExistsError: ``path`` is a symbolic link.
+        OSError: the file cannot be written (its message names ``path``, not the temp
+            file); a full disk keeps its ``errno`` (ENOSPC).
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
     path = Path(path)
+    if path.is_symlink():
+        raise OutputExistsError(
+            f"{path} is a symbolic link; nothing was written through it: remove the link "
+            f"or choose another path"
+        )
     suffix = f".{os.getpid()}.{secrets.token_hex(4)}.tmp" if unique else ".tmp"
     tmp = path.with_name(path.name + suffix)
     if mode == "w" and encoding is None:
         encoding = "utf-8"
+    if not unique and os.path.lexists(tmp) and not tmp.is_dir():
+        # A killed writer's leftover, or a link planted at the temp name: removed (an
+        # unlink removes a link itself, never its target).
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
     try:
-        with open(tmp, mode, encoding=encoding) as handle:
+        handle = open(tmp, mode, encoding=encoding, opener=_exclusive_opener)  # noqa: SIM115
+    except OSError as err:
+        raise _write_error(err, path) from None
+    try:
+        with handle:
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
+        if before_replace is not None:
+            before_replace()
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as err:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        if (
+            isinstance(err, OSError)
+            and err.errno in _WRITE_ERRNOS
+            and str(path) not in str(err)
+            and tmp.name not in str(err)
+        ):
+            # A full disk while this file was written: say which file (the errno stays).
+            raise OSError(err.errno, f"cannot write {path}: {err.strerror or err}") from err
         raise
     fsync_directory(path.parent)
+
+
+#: The errors of a write that found no room (a full disk, a quota, a file-size limit) or
+#: failed on the device: :func:`atomic_file` names its file in their message.
+_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO})
+
+
+_NO_FOLLOW = getattr(os, "O_NOFOLLOW", 0)
+
+
+def _exclusive_opener(name: str, flags: int) -> int:
+    """``open()``'s opener for :func:`atomic_file`'s temp file: created new, not a link."""
+    return os.open(name, flags | os.O_CREAT | os.O_EXCL | _NO_FOLLOW, 0o666)
+
+
+def _write_error(err: OSError, path: Path) -> OSError:
+    """``err`` (opening the temp file of ``path``) as one line naming ``path``."""
+    if err.errno == errno.ENOENT:
+        reason = f"no such folder {path.parent}"
+    elif err.errno in (errno.EEXIST, errno.ELOOP):
+        reason = "another process is writing it (its temp file exists)"
+    else:
+        reason = err.strerror or str(err)
+    return type(err)(err.errno, f"cannot write {path}: {reason}")
 
 
 def commit_path(partial: str | Path, final: str | Path, *, replace: bool = False) -> None:

@@ -34,10 +34,15 @@ from tactile_compliance.data.depth_model import (
     find_contact_circle,
     fit_depth_model,
 )
-from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.image_ops import difference_images, read_image_file
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.plausibility import check_size
-from tactile_compliance.outputs import atomic_file, check_format_version, check_output_file
+from tactile_compliance.outputs import (
+    atomic_file,
+    check_format_version,
+    check_output_file,
+    check_output_folder,
+)
 from tactile_compliance.physics.estimators import SensorUnits
 
 __all__ = [
@@ -278,6 +283,7 @@ def calibrate(
         raise ValueError(f"n_frames must be >= 1, got {n_frames}")
     if out is not None:  # refuse a bad --out before touching the sensor
         check_output_file(Path(out), "sensor calibration", is_calibration_file, option="--out")
+        check_output_folder(out, option="--out")
     skipped: list[FrameError] = []
     frames: list[np.ndarray] = []
     with open_source(spec, geometry=geometry, **options) as source:
@@ -315,18 +321,15 @@ def _natural_key(path: Path) -> list[Any]:
 
 
 def read_image(path: str | Path) -> np.ndarray:
-    """One image file as a uint8 BGR array (OpenCV's order, like the frames).
+    """One image file as a uint8 BGR array (OpenCV's order, like the frames), its size
+    checked before it is decoded and a truncated file refused
+    (``data.image_ops.read_image_file``).
 
     Raises:
-        ValueError: not an image OpenCV can read. OSError: no such file.
+        ValueError: not an image OpenCV can read, too large, cut short. OSError: no such
+            file.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such image file")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise ValueError(f"{path}: not an image file OpenCV can read")
-    return image
+    return read_image_file(path)
 
 
 def read_images(paths: Sequence[str | Path]) -> list[tuple[str, np.ndarray]]:
@@ -356,23 +359,68 @@ def read_circles(path: str | Path) -> dict[str, ContactCircle]:
     RA-L 2022 sphere presses' labels) or ``NAME,x,y,r``; pixels; ``#`` starts a comment.
 
     Raises:
-        ValueError: a line in neither format, or a radius that is not positive.
+        ValueError: not a text file, a line in neither format, a centre or radius that is
+            not a finite number, a radius that is not positive, a name listed twice.
     """
+    path = Path(path)
+    try:
+        content = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise ValueError(
+            f"{path}: not a text file of circles (byte {err.start} is not UTF-8): expected "
+            f"lines 'NAME (x, y) r' or 'NAME,x,y,r'"
+        ) from None
     circles: dict[str, ContactCircle] = {}
-    for number, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
+    lines: dict[str, int] = {}
+    for number, line in enumerate(content.splitlines(), 1):
         text = line.split("#", 1)[0].strip()
         if not text or text.lower().startswith("file"):
             continue
         match = _CIRCLE_LINE.match(text)
         if match is None:
             raise ValueError(f"{path}:{number}: expected 'NAME (x, y) r' or 'NAME,x,y,r'")
-        radius = float(match["r"])
+        try:
+            x_px, y_px, radius = float(match["x"]), float(match["y"]), float(match["r"])
+        except ValueError:
+            raise ValueError(f"{path}:{number}: x, y and r must be numbers (px)") from None
+        if not (math.isfinite(x_px) and math.isfinite(y_px)):
+            raise ValueError(f"{path}:{number}: the centre must be finite numbers (px)")
         if not (math.isfinite(radius) and radius > 0):
             raise ValueError(f"{path}:{number}: the radius must be > 0 px")
-        circles[Path(match["name"]).name] = ContactCircle(
-            float(match["x"]), float(match["y"]), radius
-        )
+        name = Path(match["name"]).name
+        if name in lines:
+            raise ValueError(
+                f"{path}:{number}: {name} already has a circle (line {lines[name]}); give "
+                f"each press one"
+            )
+        lines[name] = number
+        circles[name] = ContactCircle(x_px, y_px, radius)
     return circles
+
+
+#: A given contact circle smaller than this radius [px] is no visible contact (what
+#: ``find_contact_circle`` finds at least).
+MIN_CIRCLE_RADIUS_PX = 3.0
+
+
+def _circle_problem(circle: ContactCircle, size: tuple[int, int]) -> str | None:
+    """Why a given circle cannot be a press's contact on an (H, W) frame, or None."""
+    height, width = size
+    if not (0 <= circle.x_px <= width - 1 and 0 <= circle.y_px <= height - 1):
+        return (
+            f"its centre ({circle.x_px:g}, {circle.y_px:g}) px lies outside the "
+            f"{width}x{height} px frame"
+        )
+    if circle.radius_px < MIN_CIRCLE_RADIUS_PX:
+        return (
+            f"its radius {circle.radius_px:g} px is below {MIN_CIRCLE_RADIUS_PX:g} px (no "
+            f"visible contact)"
+        )
+    if circle.radius_px > max(height, width) / 2:
+        return (
+            f"its radius {circle.radius_px:g} px is larger than half the {width}x{height} px frame"
+        )
+    return None
 
 
 @dataclass
@@ -458,8 +506,18 @@ def calibrate_depth(
             f"the reference frame is {reference.shape[1]}x{reference.shape[0]} px, the presses "
             f"{frames.shape[2]}x{frames.shape[1]} px"
         )
-    diffs = difference_images(frames, reference)
+    for name, frame in presses:
+        if np.array_equal(frame, reference):
+            raise ValueError(
+                f"{name} is the no-contact reference itself (the same pixels): give a "
+                f"frame with nothing touching the gel as --reference, not a press"
+            )
     given = circles or {}
+    for name, circle in given.items():
+        problem = _circle_problem(circle, frames.shape[1:3])
+        if problem:
+            raise ValueError(f"--circles: the circle of {name}: {problem}")
+    diffs = difference_images(frames, reference)
     fitted: list[BallPress] = []
     for (name, _), diff in zip(presses, diffs, strict=True):
         try:

@@ -29,6 +29,7 @@ from tactile_compliance.acquisition.sensors import (
     FrameSourceBase,
     iter_frames,
 )
+from tactile_compliance.data.depth_model import grey_frame_problem
 from tactile_compliance.data.force_readings import (
     BASELINE_WARN_N,
     ForceBaseline,
@@ -53,6 +54,8 @@ from tactile_compliance.data.plausibility import FORCE, MODULUS, WIDTH
 from tactile_compliance.data.raw_layout import (
     GRASP_DIR,
     METADATA_FILE,
+    RECORDING_UNITS_FILE,
+    SYNTHETIC_MANIFEST,
     augmentation_dir,
     grasp_dir,
     numbered_dirs,
@@ -101,6 +104,12 @@ __all__ = [
 
 OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
 """The object table written next to the object directories (the dataset's file name)."""
+
+#: Names of the files beside the object directories (lower case: also refused on a file
+#: system that ignores case): an object of that name would take the file's place.
+RESERVED_NAMES = frozenset(
+    name.lower() for name in (OBJECT_TABLE_FILE, RECORDING_UNITS_FILE, SYNTHETIC_MANIFEST)
+)
 
 TRIALS_COLUMN = "Trials Recorded?"
 # Matched with fullmatch: "$" would also accept a trailing newline.
@@ -288,6 +297,42 @@ class FollowedReadings:
             self._load()
 
 
+#: Readings at least this far apart (median, s) over at least ``_MS_MIN_READINGS`` readings,
+#: whose times divided by 1000 cover the frames' times, are stamped in milliseconds: a
+#: force log runs at 10 Hz or more, so 1 s between readings is 1 kHz in milliseconds.
+_MS_MIN_STEP_S = 1.0
+_MS_MIN_READINGS = 5
+
+
+def milliseconds_check(readings: Any, frame_time_s: float) -> tuple[str | None, bool]:
+    """``(problem, decided)``: whether the readings' timestamps look like milliseconds next
+    to a frame stamped ``frame_time_s`` seconds (None: they do not), and whether that is
+    decided (False while a followed log holds too few readings to tell)."""
+    if isinstance(readings, FollowedReadings):
+        inner = readings.readings
+        times = None if inner is None else inner.timestamp_s
+        if times is None or times.size < _MS_MIN_READINGS:
+            return None, False
+    else:
+        times = getattr(readings, "timestamp_s", None)
+        if times is None:
+            return None, True  # a callback: nothing to look at
+    times = np.asarray(times, dtype=np.float64)
+    if times.size < _MS_MIN_READINGS:
+        return None, True
+    step = float(np.median(np.diff(times)))
+    lo, hi = float(times[0]), float(times[-1])
+    slack = (hi - lo) / 1000.0
+    t = float(frame_time_s)
+    if step >= _MS_MIN_STEP_S and lo / 1000.0 - slack <= t <= hi / 1000.0 + slack:
+        return (
+            f"--readings: timestamps look like milliseconds; give seconds (the readings lie "
+            f"{step:g} apart and cover {lo:.6g}..{hi:.6g}, about 1000 times the frames' "
+            f"time {t:.4g} s)"
+        ), True
+    return None, True
+
+
 def checked_reading(readings: ReadingsCallback, timestamp_s: float) -> tuple[float, float]:
     """A callback's reading, checked: two finite numbers (N, m)."""
     force, width = readings(timestamp_s)
@@ -346,8 +391,13 @@ def capture_grasp(
     interrupted = False
     f_max = -math.inf
 
+    units_decided = False
     try:
         for timestamp_s, frame in iter_frames(source, lambda err: skipped.append(str(err))):
+            if not units_decided:  # milliseconds for seconds: every force would be wrong
+                problem, units_decided = milliseconds_check(readings, timestamp_s)
+                if problem:
+                    raise ValueError(problem)
             marker = None
             if markers_source is not None:
                 try:
@@ -490,6 +540,10 @@ def grasp_estimates(
         raise FrameSizeError(
             f"the reference frame is {ref.shape[:2]}, the recorded frames {frames.shape[1:3]}"
         )
+    if sensor is not None and sensor.depth_model is not None:
+        problem = grey_frame_problem(frames[0], ref)
+        if problem:
+            raise ValueError(f"{problem}; nothing written")
     # Every frame's depth: the dataset's estimator clips the press out of the whole series.
     diff = difference_images(frames, ref)
     depth = reconstruct_depth(diff, model="dataset" if sensor is None else sensor.depth)
@@ -574,6 +628,12 @@ class ObjectInfo:
             raise ValueError(
                 f"object name {self.name!r}: use letters, digits and _ . + - "
                 f"(it names a directory), starting with a letter or digit"
+            )
+        if self.name.lower() in RESERVED_NAMES:
+            raise ValueError(
+                f"object name {self.name!r} is the name of a file of the dataset layout "
+                f"({', '.join(sorted(RESERVED_NAMES))}); the object's directory would take "
+                f"its place: choose another name"
             )
         if not (math.isfinite(float(self.modulus_pa)) and float(self.modulus_pa) > 0):
             raise ValueError(f"modulus_pa must be a finite number > 0 Pa, got {self.modulus_pa}")
@@ -696,11 +756,17 @@ def _write_metadata(object_dir: Path, info: ObjectInfo) -> bool:
     return True
 
 
-def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
+def _update_object_table(
+    out_dir: Path,
+    info: ObjectInfo,
+    grasps: int,
+    before_replace: Callable[[], None] | None = None,
+) -> Path:
     """Add the object to the table, or update its row, keeping other columns and rows. The
     row follows ``metadata.json`` (written or checked against ``info`` just before), also
     for an object deleted and recorded again with another modulus. The caller holds the
-    dataset's lock; the file is replaced atomically."""
+    dataset's lock; the file is replaced atomically, ``before_replace`` (the grasp's
+    commit) called once the new table is written whole."""
 
     def text(value: float | None) -> str:
         return "" if value is None else f"{value:g}"
@@ -738,7 +804,7 @@ def _update_object_table(out_dir: Path, info: ObjectInfo, grasps: int) -> Path:
     else:
         new = {c: row.get(c, "") for c in table.columns}
         table = pd.concat([table, pd.DataFrame([new], dtype=str)], ignore_index=True)
-    with atomic_file(path, "w") as handle:
+    with atomic_file(path, "w", before_replace=before_replace) as handle:
         table.to_csv(handle, index=False)
     return path
 
@@ -802,7 +868,14 @@ def write_grasp(
         object_dir.mkdir(parents=True, exist_ok=True)
         grasp = _next_grasp(object_dir)
         partial = object_dir / f"{PARTIAL_PREFIX}grasp={grasp}-{os.getpid()}"
-        created_metadata = False
+        final = grasp_dir(object_dir, grasp)
+        created_metadata = committed = False
+
+        def commit() -> None:
+            nonlocal committed
+            commit_path(partial, final)
+            committed = True
+
         try:
             created_metadata = _write_metadata(object_dir, info)
             write_units_file(partial, units)  # committed with the grasp, never apart
@@ -818,8 +891,15 @@ def write_grasp(
                     captured.width_m[sel],
                     estimates,
                 )
-            commit_path(partial, grasp_dir(object_dir, grasp))
+            # The grasp is committed only once the new object table is written whole
+            # (just before it replaces the old one): a full disk leaves neither, so a
+            # re-run records the grasp once.
+            grasps = len(numbered_dirs(object_dir, GRASP_DIR)) + 1
+            table = _update_object_table(out, info, grasps, before_replace=commit)
         except BaseException:
+            if committed:  # the table could not replace the old one: take the grasp back
+                with contextlib.suppress(OSError):
+                    os.rename(final, partial)
             shutil.rmtree(partial, ignore_errors=True)
             # A full disk or Ctrl-C: leave no labelled object without grasps behind.
             if created_metadata:
@@ -828,9 +908,8 @@ def write_grasp(
                 with contextlib.suppress(OSError):  # only when empty
                     object_dir.rmdir()
             raise
-        table = _update_object_table(out, info, len(numbered_dirs(object_dir, GRASP_DIR)))
     return RecordedGrasp(
-        path=grasp_dir(object_dir, grasp),
+        path=final,
         grasp=grasp,
         frame_indices=indices,
         estimates_pa=estimates,
@@ -876,8 +955,10 @@ def claim_dataset_dir(out_dir: str | Path, *, create: bool = True) -> Path:
 
 def _is_unmarked_recording(path: Path) -> bool:
     """Whether another ``record`` is creating the dataset ``path`` (its marker not yet read)."""
-    if {child.name for child in path.iterdir()} <= {LOCK_FILE, MARKER_NAME}:
-        return True  # its lock, its marker being written
+    names = {child.name for child in path.iterdir()}
+    # Its lock, its marker, or the marker's temp file (outputs.atomic_file) being written.
+    if all(name == LOCK_FILE or name.startswith(MARKER_NAME) for name in names):
+        return True
     # Read again after the listing: a concurrent record that created an object directory
     # had finished its marker before, though the first read may have caught it half written.
     return output_kind(path) == OUTPUT_KIND

@@ -19,7 +19,7 @@ from typing import Any, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from tactile_compliance.data.image_ops import resize_frames
+from tactile_compliance.data.image_ops import read_image_file, resize_frames
 from tactile_compliance.data.plausibility import check_size
 
 __all__ = [
@@ -451,6 +451,7 @@ class VideoCaptureSource(FrameSourceBase):
         if not self.is_file and not is_index and not is_url and not Path(text).exists():
             raise SensorError(f"{text}: no such device (is the sensor plugged in?)")
         self.live = not self.is_file
+        self._decoded = 0  # frames read so far (a file's are checked at its end)
         self.use_video_time = timestamps == "video" or (timestamps == "auto" and self.is_file)
         with _opencv_quiet():  # its warnings on a failed open say less than the error below
             self._capture = cv2.VideoCapture(int(text) if is_index else text)
@@ -477,16 +478,36 @@ class VideoCaptureSource(FrameSourceBase):
         ok, frame = self._capture.read()
         if not ok or frame is None:
             if self.is_file:
+                self._check_complete()
                 return None  # end of the video
             raise SensorError(f"{self.name}: the device stopped delivering frames")
+        self._decoded += 1
         if self.use_video_time:
             return self._capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0, frame
         return time.monotonic(), frame
+
+    def _check_complete(self) -> None:
+        """At the end of a video file: refuse one that decodes short of the frames its
+        container promises (a file cut short or damaged: ffmpeg only logs "overread"), so
+        it is not taken for a shorter recording."""
+        promised = int(self._capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+        # Containers without a frame count give an estimate from the duration, which may
+        # be one frame off; a truncated file misses far more.
+        if promised > 0 and self._decoded < promised - MAX_MISSING_FRAMES:
+            raise SensorError(
+                f"{self.name}: the video ends after {self._decoded} of the {promised} frames "
+                f"its container promises: the file is truncated or damaged (copy it again)"
+            )
 
     def close(self) -> None:
         if self._capture is not None:
             self._capture.release()
             self._capture = None
+
+
+#: Frames a video file may decode short of its container's frame count before it counts
+#: as truncated (an estimated count can be one off).
+MAX_MISSING_FRAMES = 1
 
 
 def gelsight_mini(
@@ -647,10 +668,11 @@ class FolderSource(FrameSourceBase):
         if self._next >= len(self.files):
             return None
         i, self._next = self._next, self._next + 1
-        frame = cv2.imread(str(self.files[i]), cv2.IMREAD_COLOR)
-        if frame is None:
+        try:  # its size checked before decoding, a truncated file refused
+            frame = read_image_file(self.files[i])
+        except (ValueError, OSError) as err:
             self.frames_read += 1
-            raise FrameError(f"{self.files[i]}: not a readable image")
+            raise FrameError(f"{err} (not a readable image)") from None
         return self.times[i], frame
 
 

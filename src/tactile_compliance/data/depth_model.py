@@ -22,6 +22,7 @@ __all__ = [
     "ContactCircle",
     "find_contact_circle",
     "fit_depth_model",
+    "grey_frame_problem",
     "largest_region",
 ]
 
@@ -63,6 +64,36 @@ presses' untouched pixels; the contact mask starts above it."""
 _MASK_GROW_MM = 0.3
 """The contact mask is grown by this margin [mm]: the gel's slope fades to 0 outside the
 contact while the colour change is already below the noise there."""
+
+MAX_WEIGHT = 100.0
+"""The largest |weight| or |bias| a loaded depth model may hold: fitted ones stay below 1
+(0.9 on the RA-L 2022 sensor's 22 presses); finite but huge values (a tampered or damaged
+calibration) would give NaN or 1e30 mm depths."""
+
+MAX_SCALE = 1000.0
+"""The largest input scale: 1 / the features' standard deviation, floored at 1e-3."""
+
+
+def grey_frame_problem(frame: np.ndarray, reference: np.ndarray) -> str | None:
+    """Why a sensor's depth model, fitted on colour frames, cannot read ``frame``: it is
+    greyscale (its three channels equal) while the sensor's ``reference`` is in colour;
+    None when it can. (A GelSight's colour lights are what the model reads slopes from.)"""
+    frame = np.asarray(frame)
+    if frame.ndim != 3 or frame.shape[2] != 3:
+        return f"a frame must be colour (H, W, 3), got {tuple(frame.shape)}"
+
+    def grey(image: np.ndarray) -> bool:
+        return bool(
+            np.array_equal(image[..., 0], image[..., 1])
+            and np.array_equal(image[..., 1], image[..., 2])
+        )
+
+    if grey(frame) and not grey(np.asarray(reference)):
+        return (
+            "the frame is greyscale (its three channels are equal) but the sensor's depth "
+            "model was calibrated on colour frames: give the sensor's colour frames"
+        )
+    return None
 
 
 @dataclass(frozen=True)
@@ -194,9 +225,25 @@ class CalibratedDepthModel:
         if not (8 <= h <= 4096 and 8 <= w <= 4096):
             raise ValueError(f"frame_size must be 8..4096 px a side, got {self.frame_size}")
         self.frame_size = (h, w)
-        for weight, bias in self.layers:
+        if not (math.isfinite(self.ball_radius_mm) and 0 < self.ball_radius_mm < 100):
+            raise ValueError(f"ball_radius_mm must be in (0, 100) mm, got {self.ball_radius_mm}")
+        for k, (weight, bias) in enumerate(self.layers):
             if not (np.all(np.isfinite(weight)) and np.all(np.isfinite(bias))):
                 raise ValueError("the depth model's weights are not finite")
+            largest = max(float(np.abs(weight).max(initial=0)), float(np.abs(bias).max(initial=0)))
+            if largest > MAX_WEIGHT:
+                raise ValueError(
+                    f"layer {k} of the depth model holds a weight or bias of {largest:.3g}, "
+                    f"beyond the plausible +-{MAX_WEIGHT:g} (a fitted model's are below 1): "
+                    f"the calibration was altered or damaged; calibrate the sensor again"
+                )
+        scale = np.asarray(self.input_scale, dtype=np.float64)
+        if not (np.all(np.isfinite(scale)) and np.all(scale > 0) and scale.max() <= MAX_SCALE):
+            raise ValueError(
+                f"input_scale must be 5 numbers in (0, {MAX_SCALE:g}] (1 / the features' "
+                f"std, at most 1 / 1e-3), got {scale.tolist()}: the calibration was altered "
+                f"or damaged; calibrate the sensor again"
+            )
 
     # -- use -------------------------------------------------------------------------
 
@@ -247,6 +294,11 @@ class CalibratedDepthModel:
         # Where no pixel shows contact nothing touches: the Poisson solution's leak there
         # (the fitted slopes are not exactly integrable) is not depth.
         depth *= mask
+        if not np.all(np.isfinite(depth)):
+            raise ValueError(
+                "the depth model gives non-finite depths (NaN or infinite) for these frames: "
+                "its weights are damaged; calibrate the sensor again"
+            )
         return depth
 
     # -- files -----------------------------------------------------------------------

@@ -121,7 +121,8 @@ def _compute(
                 out = backbone(x.reshape(batch * 3, *x.shape[2:])).reshape(batch, 3, -1)
                 array[start:stop] = out.float().cpu().numpy().astype(np.float16)
                 array.flush()
-                progress_path.write_text(json.dumps({"done": stop}))
+                with atomic_file(progress_path) as handle:
+                    handle.write(json.dumps({"done": stop}))
                 advance(stop - start)
     finally:
         backbone.train(was_training)

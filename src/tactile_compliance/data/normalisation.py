@@ -51,7 +51,21 @@ PUBLISHED_IMAGE_STD_BGR: tuple[float, float, float] = (0.04634926, 0.06181679, 0
 #: gripper can hold) to ``plausibility.MODULUS.high`` (1e13 Pa, beyond diamond).
 LABEL_LOG10_BOUNDS: tuple[float, float] = (0.0, math.log10(MODULUS.high))
 
+#: The plausible range (low, high, unit) of each scale: a force scale is a grasp's force
+#: (the dataset's 60 N; ``plausibility.FORCE`` ends at 1000 N), a width scale the
+#: gripper's opening (0.08 m; ``plausibility.WIDTH`` ends at 0.2 m), the estimates' span
+#: a number of decades (12; 1 Pa to beyond diamond is 13) from an offset near 1e2 Pa, a
+#: depth scale a grasp's indentation (1 mm; ``plausibility.DEPTH`` ends at 100 mm).
+SCALE_BOUNDS: dict[str, tuple[float, float, str]] = {
+    "depth_scale_mm": (1e-3, 100.0, "mm"),
+    "force_scale_n": (1e-2, 1000.0, "N"),
+    "width_scale_m": (1e-3, 0.2, "m"),
+    "estimate_log10_span": (0.1, 30.0, "decades"),
+    "estimate_log10_min": (-10.0, 20.0, "log10 Pa"),
+}
+
 __all__ = [
+    "SCALE_BOUNDS",
     "NormalisationConstants",
     "denormalise_images",
     "denormalise_modulus",
@@ -118,6 +132,15 @@ class NormalisationConstants:
                 f"lies outside the plausible moduli 1e{low:g}..1e{high:g} Pa "
                 f"(label_log10_min/max)"
             )
+        # Finite is not enough: force_scale_n 1e300 turns every force into 0 and shifts
+        # the estimates without an error. The bounds are the readings' plausible ranges.
+        for name, (low, high, unit) in SCALE_BOUNDS.items():
+            value = getattr(self, name)
+            if not low <= value <= high:
+                raise ValueError(
+                    f"normalisation constant {name} {value:g} {unit} is outside the plausible "
+                    f"[{low:g}, {high:g}] {unit}"
+                )
         lo, hi = self.estimate_clamp_pa
         if not 0 < lo < hi:
             raise ValueError(f"estimate_clamp_pa must be (lo, hi) with 0 < lo < hi, got {lo, hi}")

@@ -348,9 +348,11 @@ def dump_numpy_pickle(path: str | Path, array: np.ndarray) -> None:
     """Write ``array`` as a pickled numpy array, the dataset's ``.pkl`` format.
 
     C order is required without ``np.ascontiguousarray``, which would turn a 0-d
-    estimate into shape (1,).
+    estimate into shape (1,). The file is created new (``"xb"``: never over a file, never
+    through a link): the writers fill a temporary directory they have just created and
+    commit it whole (``outputs.commit_path``).
     """
-    with open(path, "wb") as handle:
+    with open(path, "xb") as handle:
         pickle.dump(np.require(array, requirements="C"), handle, protocol=PICKLE_PROTOCOL)
 
 
@@ -381,11 +383,12 @@ def load_torch_file(path: str | Path, what: str, *, map_location: Any = "cpu") -
     try:
         return torch.load(path, map_location=map_location, weights_only=True)
     except Exception as err:  # torch raises several types for foreign or damaged files
-        raise UnreadableTorchFileError(path, what, _torch_file_problem(path, err)) from err
+        raise UnreadableTorchFileError(path, what, torch_file_problem(path, err)) from err
 
 
-def _torch_file_problem(path: Path, err: BaseException) -> str:
-    """Why a file did not load, from its first bytes and torch's error."""
+def torch_file_problem(path: Path, err: BaseException) -> str:
+    """Why a file did not load (one line, never torch's advice to load it unsafely), from
+    its first bytes and torch's error."""
     with open(path, "rb") as handle:
         start = handle.read(64)
     # "ignore": the 64 bytes may end inside a character; binary bytes leave control

@@ -42,6 +42,7 @@ def read_video_frames(path: str | Path) -> np.ndarray:
     try:
         if not capture.isOpened():
             raise ValueError(f"{path}: cannot open video")
+        promised = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
         frames = []
         while True:
             ok, frame = capture.read()
@@ -52,6 +53,13 @@ def read_video_frames(path: str | Path) -> np.ndarray:
         capture.release()
     if not frames:
         raise ValueError(f"{path}: no decodable frames")
+    # A file cut short decodes fewer frames than its container promises (an estimated
+    # count may be one off): not a shorter press (acquisition.sensors does the same).
+    if promised > 0 and len(frames) < promised - 1:
+        raise ValueError(
+            f"{path}: the video ends after {len(frames)} of the {promised} frames its "
+            f"container promises: the file is truncated or damaged"
+        )
     return np.ascontiguousarray(np.stack(frames))
 
 

@@ -19,6 +19,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from tactile_compliance.data.normalisation import NormalisationConstants, normalise_modulus
+from tactile_compliance.outputs import atomic_file
 from tactile_compliance.physics.contact import DEFAULT_GEL_MODULUS_PA
 
 __all__ = [
@@ -58,7 +59,9 @@ def _save(fig: Figure, out: Path, title: str = "") -> Path:
     if title:
         fig.suptitle(title, fontsize=11)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=DPI, bbox_inches="tight")
+    # Through outputs.atomic_file: the figure whole, never through a link.
+    with atomic_file(out, "wb") as handle:
+        fig.savefig(handle, format=out.suffix.lstrip(".") or "png", dpi=DPI, bbox_inches="tight")
     return out
 
 

@@ -37,7 +37,7 @@ from tactile_compliance.evaluation.tables import (
     shore_table,
     softhard_subset_table,
 )
-from tactile_compliance.outputs import claim_output_dir
+from tactile_compliance.outputs import atomic_file, claim_output_dir
 from tactile_compliance.runs.results import STATUS_COMPLETE, STATUS_FAILED
 
 __all__ = ["FORMATS", "ReportSummary", "build_report"]
@@ -322,8 +322,9 @@ def build_report(
     }
     for fmt in (f for f in FORMATS if f in wanted):
         summary.documents[fmt] = out / f"report.{fmt}"
-        summary.documents[fmt].write_text(renderers[fmt](), encoding="utf-8")
-    (out / "report.json").write_text(
+        _write_text(summary.documents[fmt], renderers[fmt]())
+    _write_text(
+        out / "report.json",
         json.dumps(
             {
                 "results_dir": str(results),
@@ -339,7 +340,7 @@ def build_report(
             },
             indent=2,
         )
-        + "\n"
+        + "\n",
     )
     return summary
 
@@ -350,8 +351,13 @@ def _write_tables(parts: ReportParts, table_dir: Path) -> None:
         return
     table_dir.mkdir(parents=True, exist_ok=True)
     for label, table in parts.latex_tables.items():
-        (table_dir / f"{safe_name(label)}.tex").write_text(
-            latex_table(table) + "\n", encoding="utf-8"
-        )
+        _write_text(table_dir / f"{safe_name(label)}.tex", latex_table(table) + "\n")
     for key, cells in parts.tables.items():
-        cells.to_csv(table_dir / f"{safe_name(key)}.csv", index=False)
+        with atomic_file(table_dir / f"{safe_name(key)}.csv") as handle:
+            cells.to_csv(handle, index=False)
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write a file of the report (``outputs.atomic_file``: whole, never through a link)."""
+    with atomic_file(path) as handle:
+        handle.write(text)

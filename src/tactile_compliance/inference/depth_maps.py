@@ -4,6 +4,7 @@ pictures. See docs/sensors.md, "The commands".
 
 from __future__ import annotations
 
+import io
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -11,9 +12,10 @@ import cv2
 import numpy as np
 
 from tactile_compliance.acquisition.calibration import SensorCalibration
+from tactile_compliance.data.depth_model import grey_frame_problem
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
-from tactile_compliance.outputs import claim_output_dir
+from tactile_compliance.outputs import atomic_file, claim_output_dir
 
 __all__ = ["depth_picture", "write_depth_maps"]
 
@@ -45,7 +47,8 @@ def write_depth_maps(
         reference: the no-contact frame, replacing the sensor's.
 
     Raises:
-        ValueError: no reference, a frame of another size, two frames with one stem.
+        ValueError: no reference, a frame of another size, two frames with one stem, a
+            greyscale frame for a sensor's (colour) depth model.
     """
     if reference is None:
         if sensor is None:
@@ -60,14 +63,29 @@ def write_depth_maps(
                 f"{name} is {frame.shape[1]}x{frame.shape[0]} px, the reference "
                 f"{reference.shape[1]}x{reference.shape[0]} px"
             )
+    if sensor is not None and sensor.depth_model is not None:
+        for name, frame in frames:
+            problem = grey_frame_problem(frame, reference)
+            if problem:
+                raise ValueError(f"{name}: {problem}")
     model = "dataset" if sensor is None else sensor.depth
     out = claim_output_dir(out_dir, "depth")
     written = []
     for stem, (_, frame) in zip(stems, frames, strict=True):
         depth = reconstruct_depth(difference_images(frame[None], reference), model=model)[0]
         path = out / f"{stem}.npy"
-        np.save(path, depth.astype(np.float32))
+        # Through outputs.atomic_file, never straight to the name (a link planted there is
+        # refused, a full disk leaves no truncated file). np.save into memory first: to a
+        # real file numpy reports a short write without its errno.
+        buffer = io.BytesIO()
+        np.save(buffer, depth.astype(np.float32))
+        with atomic_file(path, "wb") as handle:
+            handle.write(buffer.getbuffer())
         if png:
-            cv2.imwrite(str(out / f"{stem}.png"), depth_picture(depth))
+            ok, encoded = cv2.imencode(".png", depth_picture(depth))
+            if not ok:  # pragma: no cover - OpenCV encodes any uint8 BGR image
+                raise ValueError(f"cannot encode the picture of {path}")
+            with atomic_file(out / f"{stem}.png", "wb") as handle:
+                handle.write(encoded.tobytes())
         written.append((path, float(depth.max())))
     return written

@@ -28,6 +28,8 @@ from tactile_compliance.inference.pretrained import (
     DEFAULT_LICENSE,
     OUTPUT_KIND,
     OptionalDependencyError,
+    check_export_dir,
+    check_license,
     refuse_output_calibration,
     require_safetensors,
     run_evaluation,
@@ -36,6 +38,7 @@ from tactile_compliance.inference.pretrained import (
 from tactile_compliance.outputs import atomic_file, check_output_file, claim_output_dir
 
 __all__ = [
+    "check_onnx_output",
     "export_onnx",
     "export_safetensors",
     "format_export_report",
@@ -144,6 +147,12 @@ def _is_our_onnx(path: Path) -> bool:
     return any(prop.key == ONNX_METADATA_KEY for prop in model.metadata_props)
 
 
+def check_onnx_output(out: str | Path) -> Path:
+    """Refuse an ``--onnx`` path that is a link, a directory or a file this package did
+    not write (``outputs.check_output_file``), before anything is computed."""
+    return check_output_file(out, "ONNX model", _is_our_onnx, option="--onnx")
+
+
 class OnnxMissingError(OptionalDependencyError):
     """``onnx`` or ``onnxruntime`` (the ``export`` extra) is not installed."""
 
@@ -191,7 +200,7 @@ def export_onnx(
         RuntimeError: parity worse than ``atol``.
     """
     require_onnx()
-    out = check_output_file(out, "ONNX model", _is_our_onnx, option="--onnx")
+    out = check_onnx_output(out)
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)
     refuse_output_calibration(estimator)
     image_size = estimator.run_inputs.image_size
@@ -342,8 +351,11 @@ def export_safetensors(
     Returns:
         ``out``, ``files`` (name -> bytes), ``config`` (what ``config.json`` holds).
     """
-    # Refused (a user's directory, safetensors missing) before the checkpoint is read.
+    # Refused (a user's directory or a link to one, a licence that is no identifier,
+    # safetensors missing) before the checkpoint is read.
     require_safetensors()
+    check_license(license)
+    check_export_dir(out)
     # Checked, not created: a missing checkpoint must not leave an empty OUT behind.
     claim_output_dir(out, OUTPUT_KIND, option="--safetensors", create=False)
     estimator = ComplianceEstimator.from_checkpoint(checkpoint, backbone_weights=backbone_weights)

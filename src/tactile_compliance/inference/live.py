@@ -17,6 +17,7 @@ from tactile_compliance.acquisition.recording import (
     ReadingsCallback,
     check_recording,
     checked_reading,
+    milliseconds_check,
     recording_estimator,
     same_replay,
 )
@@ -27,6 +28,7 @@ from tactile_compliance.acquisition.sensors import (
     StampedOnArrival,
     iter_frames,
 )
+from tactile_compliance.data.depth_model import grey_frame_problem
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.store import frames_to_uint8
@@ -146,10 +148,17 @@ def live_estimates(
         first = True
         kind = "first frame" if reference is None else "calibration"
         skips: list[str] = []  # every skip's reason, for the cause of a missing estimate
+        units_decided = False
         for timestamp_s, frame in iter_frames(source, skipped.append):
             while skipped:
                 skips.append(str(skipped.pop(0)))
                 yield {"event": "skipped", "reason": skips[-1]}
+            if not units_decided:  # milliseconds for seconds: no frame would find its reading
+                problem, units_decided = milliseconds_check(
+                    readings, timestamp_s + readings_offset_s
+                )
+                if problem:
+                    raise ValueError(problem)
             try:
                 force_n, width_m = checked_reading(readings, timestamp_s + readings_offset_s)
             except ReadingError as err:
@@ -164,6 +173,10 @@ def live_estimates(
                 )
             if first:
                 first = False
+                if calibration is not None and calibration.depth_model is not None:
+                    problem = grey_frame_problem(frame, reference)
+                    if problem:
+                        raise ValueError(f"{source.name}: {problem}")
                 warnings, checks = check_recording(
                     readings,
                     np.array([timestamp_s]),

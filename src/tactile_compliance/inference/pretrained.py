@@ -9,6 +9,7 @@ import errno
 import json
 import math
 import os
+import re
 import secrets
 import shutil
 from pathlib import Path
@@ -23,6 +24,7 @@ from tactile_compliance.models import InputStrategy
 from tactile_compliance.models.backbones import file_sha256
 from tactile_compliance.outputs import (
     MARKER_NAME,
+    OutputExistsError,
     atomic_file,
     check_format_version,
     claim_output_dir,
@@ -41,6 +43,8 @@ __all__ = [
     "PRETRAINED_FORMAT",
     "WEIGHTS_FILE",
     "SafetensorsMissingError",
+    "check_export_dir",
+    "check_license",
     "load_pretrained",
     "model_card",
     "pretrained_config",
@@ -89,6 +93,35 @@ def require_safetensors() -> Any:
 #: The model card's licence when none is given: the weights follow the licence of the data
 #: they were trained on, which the exporter cannot know (Hugging Face's "other").
 DEFAULT_LICENSE = "other"
+
+
+#: A licence as the model card's front matter takes it: an SPDX identifier (``mit``,
+#: ``cc-by-4.0``, ``apache-2.0``), ``LicenseRef-...`` or ``other``; one YAML scalar, so no
+#: line break, markup or quote can reach the card.
+_LICENSE = re.compile(r"[A-Za-z0-9][A-Za-z0-9.+-]{0,63}")
+
+
+def check_license(license: Any) -> str:
+    """``license`` if it is an SPDX-style identifier (:data:`_LICENSE`), else ValueError."""
+    if not isinstance(license, str) or not _LICENSE.fullmatch(license):
+        raise ValueError(
+            f"--license {license!r} is not a licence identifier: give an SPDX id such as mit, "
+            f"apache-2.0 or cc-by-4.0 (letters, digits and . + -), or other"
+        )
+    return license
+
+
+def check_export_dir(out: str | Path) -> Path:
+    """Refuse an export directory that is a symbolic link (before anything is written):
+    the export replaces the directory by renaming, which would swap out the link and move
+    the files of its target."""
+    out = Path(out)
+    if out.is_symlink():
+        raise OutputExistsError(
+            f"--safetensors {out} is a symbolic link (to {os.readlink(out)}); nothing was "
+            f"written: give the directory itself"
+        )
+    return out
 
 
 def run_evaluation(checkpoint: Path) -> dict[str, Any] | None:
@@ -218,6 +251,8 @@ def write_pretrained(
         SafetensorsMissingError: safetensors is not installed.
     """
     st = require_safetensors()
+    check_license(license)
+    check_export_dir(out)
     model = getattr(estimator, "model", None)
     if model is None:
         raise ValueError(f"{estimator.source}: only PyTorch estimators can be exported")
@@ -510,7 +545,7 @@ def model_card(config: dict[str, Any], *, parameters: int | None = None) -> str:
     lines = [
         "---",
         "library_name: tactile-compliance",
-        f"license: {config.get('license') or DEFAULT_LICENSE}",
+        f"license: {check_license(config.get('license') or DEFAULT_LICENSE)}",
         "tags:",
         "- tactile-sensing",
         "- gelsight",

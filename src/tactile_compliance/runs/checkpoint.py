@@ -330,6 +330,54 @@ def check_state_dict(source: str | Path, state_dict: Any) -> None:
             )
 
 
+#: The most parameters a loaded model may have: VGG-LSTM's VGG16 backbone has 138 M
+#: (0.55 GB as float32); a recorded layer size that makes more is refused before a byte
+#: of it is allocated (``img_feature_size: 100000000`` would allocate 410 GB).
+MAX_MODEL_PARAMETERS = 500_000_000
+
+
+def check_model_size(source: str | Path, payload: dict[str, Any], inputs: str) -> None:
+    """Refuse (ValueError, one line) a description whose model would not fit its stored
+    weights or would be absurdly large, before the model is allocated: the model is built
+    on torch's ``meta`` device (shapes only, no memory) and its tensors' shapes are
+    compared with the stored ones (a head-only checkpoint: the head's), its size with
+    :data:`MAX_MODEL_PARAMETERS`. A model that cannot be built that way is left to the
+    real build, which raises what it raises."""
+    name, hparams = payload.get("model_name"), payload.get("hparams")
+    if not isinstance(name, str) or not isinstance(hparams, dict):
+        return
+    kwargs = {k: v for k, v in hparams.items() if k != "backbone_weights"}
+    try:
+        with torch.device("meta"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            shapes = {
+                key: tuple(tensor.shape)
+                for key, tensor in create_model(name, inputs=inputs, **kwargs).state_dict().items()
+            }
+    except Exception:  # wrong hyperparameters, or a model that needs real tensors to build
+        return
+    stored = payload.get("state_dict") or {}
+    head_only = payload.get("backbone") is not None
+    for key, shape in shapes.items():
+        if head_only and key.startswith(BACKBONE_PREFIX):
+            continue
+        tensor = stored.get(key)
+        if isinstance(tensor, torch.Tensor) and tuple(tensor.shape) != shape:
+            raise ValueError(
+                f"{source}: the stored weights do not fit {name!r} with the recorded "
+                f"hyperparameters: they make {key!r} {list(shape)}, the stored weight is "
+                f"{list(tensor.shape)} (refused before building the model)"
+            )
+    total = sum(math.prod(shape) for shape in shapes.values())
+    if total > MAX_MODEL_PARAMETERS:
+        raise ValueError(
+            f"{source}: the recorded hyperparameters of {name!r} ({str(hparams)[:200]}) make "
+            f"a model of {total:.3g} "
+            f"parameters, beyond the {MAX_MODEL_PARAMETERS:.0e} any model of this package "
+            f"has (refused before allocating it)"
+        )
+
+
 def rebuild_model(
     source: str | Path,
     payload: dict[str, Any],
@@ -357,6 +405,7 @@ def rebuild_model(
     run_inputs = RunInputs.from_dict(payload.get("run_inputs"), str(path))
     inputs = run_inputs.inputs.value
     check_state_dict(path, payload["state_dict"])
+    check_model_size(path, payload, inputs)
     if payload.get("backbone") is not None:
         model = _rebuild_with_frozen_backbone(path, payload, inputs, backbone_weights)
     else:

@@ -5,6 +5,7 @@ See docs/protocol.md, section 6 "Metrics", for the definitions and the reference
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -104,14 +105,21 @@ def nmse(true_pa: Any, pred_pa: Any, c: NormalisationConstants | None = None) ->
     return float(np.mean((normalise_modulus(p, c) - normalise_modulus(t, c)) ** 2))
 
 
+#: True labels whose normalised values spread less than this (standard deviation, on
+#: the [0, 1] label scale: 1e-9 of the label range) are all equal: their R^2 is undefined.
+_R2_MIN_STD = 1e-9
+
+
 def r2(true_pa: Any, pred_pa: Any, c: NormalisationConstants | None = None) -> float:
-    """Coefficient of determination on the normalised labels (sklearn convention)."""
+    """Coefficient of determination on the normalised labels; NaN when the true moduli are
+    all equal (nothing to explain: float rounding of equal labels would otherwise give
+    values like -1.5e30)."""
     t, p = _pair(true_pa, pred_pa)
     y, y_hat = normalise_modulus(t, c), normalise_modulus(p, c)
+    if float(np.std(y)) <= _R2_MIN_STD:
+        return math.nan
     ss_res = float(np.sum((y_hat - y) ** 2))
     ss_tot = float(np.sum((y - y.mean()) ** 2))
-    if ss_tot == 0.0:
-        return 1.0 if ss_res == 0.0 else 0.0
     return 1.0 - ss_res / ss_tot
 
 

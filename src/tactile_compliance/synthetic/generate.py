@@ -24,7 +24,7 @@ from tactile_compliance.data.raw_layout import (
     write_sample,
     write_units_file,
 )
-from tactile_compliance.outputs import PARTIAL_PREFIX, claim_output_dir, commit_path
+from tactile_compliance.outputs import PARTIAL_PREFIX, atomic_file, claim_output_dir, commit_path
 from tactile_compliance.physics.estimators import DATASET_UNITS, DEFAULT_ESTIMATOR
 from tactile_compliance.synthetic.grasp import (
     SimulationOptions,
@@ -282,7 +282,8 @@ def generate_burgess_tree(
     }
     _check_manifest(out, manifest)
     manifest["objects"] = len(specs)
-    (out / SYNTHETIC_MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    with atomic_file(out / SYNTHETIC_MANIFEST) as handle:
+        handle.write(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
     # Leftovers of an interrupted run are incomplete by construction.
     for partial in out.glob(f"{PARTIAL_PREFIX}*"):
         shutil.rmtree(partial, ignore_errors=True)

@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tactile_compliance.outputs import atomic_file
 from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
 from tactile_compliance.synthetic.objects import default_objects
 
@@ -82,7 +83,11 @@ def render_montage(out_png: str | Path, *, seed: int = 0, n_objects: int = 6) ->
     image = np.concatenate([header, *rows], axis=0)
     # 5 bits per channel: barely visible here, and it keeps the PNG under 300 KB.
     image = (image & 0xF8) | 0x04
-    cv2.imwrite(str(out), image, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    ok, encoded = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 BGR image
+        raise ValueError(f"cannot encode {out}")
+    with atomic_file(out, "wb") as handle:  # whole, never through a link
+        handle.write(encoded.tobytes())
     return out
 
 

@@ -24,6 +24,7 @@ import torch
 from lightning.pytorch.callbacks import Callback, Checkpoint
 from lightning.pytorch.loggers import Logger
 
+from tactile_compliance.data.safe_pickle import torch_file_problem
 from tactile_compliance.outputs import atomic_file, fsync_directory
 from tactile_compliance.runs.checkpoint import torch_write_errors
 from tactile_compliance.runs.layout import (
@@ -344,6 +345,9 @@ def _inspect_checkpoint(path: Path) -> tuple[ResumePoint | None, str]:
             return None, f"{damaged} fails its checksum"
         checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception as err:  # truncated, not a zip, unpickling failed: all unusable
+        if "weights_only" in str(err) or "WeightsUnpickler" in str(err):
+            # Our own line: torch's message advises loading with weights_only=False.
+            return None, torch_file_problem(path, err)[:300]
         first_line = (str(err).strip().splitlines() or [""])[0]
         return None, f"{type(err).__name__}: {first_line}"[:300]
     if not isinstance(checkpoint, dict) or not {"state_dict", "loops", "epoch"} <= set(checkpoint):

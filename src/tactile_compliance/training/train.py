@@ -505,11 +505,11 @@ def _fit_and_evaluate(
         device=device,
         seed=cfg.seed,
     )
-    predictions.to_csv(run_dir / "predictions.csv", index=False)
+    with atomic_file(run_dir / "predictions.csv") as handle:
+        predictions.to_csv(handle, index=False)
     test_rows = predictions[predictions["split"] == "test"]
-    grouped_metrics(test_rows, c=data.run_inputs.constants).to_csv(
-        run_dir / "groups.csv", index=False
-    )
+    with atomic_file(run_dir / "groups.csv") as handle:
+        grouped_metrics(test_rows, c=data.run_inputs.constants).to_csv(handle, index=False)
 
     result: dict[str, Any] = {
         "status": "complete",

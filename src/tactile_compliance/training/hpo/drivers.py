@@ -21,7 +21,7 @@ from tactile_compliance.config import (
     write_yaml,
 )
 from tactile_compliance.models import list_models
-from tactile_compliance.outputs import claim_output_dir
+from tactile_compliance.outputs import atomic_file, claim_output_dir
 from tactile_compliance.training.experiment_file import load_experiment
 from tactile_compliance.training.hpo.objectives import (
     DEFAULT_OBJECTIVE,
@@ -236,7 +236,8 @@ class _Search:
         values, then any other written files; ``decode``: trials' values as config values."""
         table = trials_table(facade, decode=decode)
         trials_path = self.out / "trials.csv"
-        table.to_csv(trials_path, index=False)
+        with atomic_file(trials_path) as handle:
+            table.to_csv(handle, index=False)
         config_path, tuned_path, *others = paths
         return TuneResult(
             name=self.name,

@@ -81,12 +81,14 @@ def _reconcile_previous_run(scenario: Any) -> None:
             changed = True
     if not changed:
         return
-    saved_path.write_text(json.dumps(saved, indent=4))
+    with atomic_file(saved_path) as handle:
+        handle.write(json.dumps(saved, indent=4))
     optimization = directory / "optimization.json"
     if optimization.exists():
         state = json.loads(optimization.read_text())
         state["finished"] = False
-        optimization.write_text(json.dumps(state, indent=2))
+        with atomic_file(optimization) as handle:
+            handle.write(json.dumps(state, indent=2))
 
 
 def _forget_unfinished_trials(directory: Path) -> None:
