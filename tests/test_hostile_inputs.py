@@ -456,7 +456,7 @@ def test_circles_read_as_before(tmp_path):
 # ====================================================================== record
 @pytest.mark.parametrize(
     "name",
-    [OBJECT_TABLE_FILE, "DATASET_OBJECTS_AND_COMPLIANCE.CSV", "recording.json", "generation.json"],
+    [OBJECT_TABLE_FILE, "DATASET_OBJECTS_AND_COMPLIANCE.CSV", "generation.json"],
 )
 def test_an_object_named_like_a_layout_file_is_refused(name):
     with pytest.raises(ValueError, match="name of a file of the dataset layout"):

@@ -54,7 +54,6 @@ from tactile_compliance.data.plausibility import FORCE, MODULUS, WIDTH
 from tactile_compliance.data.raw_layout import (
     GRASP_DIR,
     METADATA_FILE,
-    RECORDING_UNITS_FILE,
     SYNTHETIC_MANIFEST,
     augmentation_dir,
     grasp_dir,
@@ -108,7 +107,7 @@ OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
 #: Names of the files beside the object directories (lower case: also refused on a file
 #: system that ignores case): an object of that name would take the file's place.
 RESERVED_NAMES = frozenset(
-    name.lower() for name in (OBJECT_TABLE_FILE, RECORDING_UNITS_FILE, SYNTHETIC_MANIFEST)
+    name.lower() for name in (OBJECT_TABLE_FILE, SYNTHETIC_MANIFEST)
 )
 
 TRIALS_COLUMN = "Trials Recorded?"
