@@ -106,9 +106,7 @@ OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
 
 #: Names of the files beside the object directories (lower case: also refused on a file
 #: system that ignores case): an object of that name would take the file's place.
-RESERVED_NAMES = frozenset(
-    name.lower() for name in (OBJECT_TABLE_FILE, SYNTHETIC_MANIFEST)
-)
+RESERVED_NAMES = frozenset(name.lower() for name in (OBJECT_TABLE_FILE, SYNTHETIC_MANIFEST))
 
 TRIALS_COLUMN = "Trials Recorded?"
 # Matched with fullmatch: "$" would also accept a trailing newline.
