@@ -1,5 +1,5 @@
 """What `pip install -e .` asks for: a torch range that keeps a torch the user already has
-(README.md, "Which torch"), and every module cli.py imports declared."""
+(docs/install.md, "Which torch"), and every module cli.py imports declared."""
 
 from __future__ import annotations
 
