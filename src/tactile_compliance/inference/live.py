@@ -223,12 +223,10 @@ def live_estimates(
         while skipped:
             skips.append(str(skipped.pop(0)))
             yield {"event": "skipped", "reason": skips[-1]}
-        finals = [stream.finish() for stream in streams]
-        if any(f is not None for f in finals):
-            event = _combine(ensemble, streams, None)
-            if event is not None:
-                yield event
-                return
+        last = _finish(ensemble, streams)
+        if last is not None:
+            yield last
+            return
         reason = _no_estimate_reason(streams[0], skips, needs_depth, analytical=ensemble is None)
         yield {"event": "no_estimate", "reason": reason}
     finally:
@@ -279,13 +277,22 @@ def _readings_only(
                     return
         if all(stream.state == "done" for stream in streams):
             break
+    last = _finish(ensemble, streams)
+    if last is not None:
+        yield last
+        return
+    yield {"event": "no_estimate", "reason": _no_estimate_reason(streams[0], [], False)}
+
+
+def _finish(
+    ensemble: EnsembleEstimator | None, streams: list[StreamingEstimator]
+) -> dict[str, Any] | None:
+    """The final event when the source ends before a release: every stream finished, and
+    their final estimates combined (None when no stream has one)."""
     finals = [stream.finish() for stream in streams]
     if any(f is not None for f in finals):
-        event = _combine(ensemble, streams, None)
-        if event is not None:
-            yield event
-            return
-    yield {"event": "no_estimate", "reason": _no_estimate_reason(streams[0], [], False)}
+        return _combine(ensemble, streams, None)
+    return None
 
 
 def _no_estimate_reason(
