@@ -35,6 +35,7 @@ import typer.main
 from typer.testing import CliRunner
 
 from tactile_compliance.cli import app
+from tactile_compliance.data.store import HEADER_FILE
 
 REPO = Path(__file__).resolve().parents[1]
 runner = CliRunner()
@@ -62,7 +63,14 @@ def files(tmp_path: Path) -> dict[str, Path]:
     for _ in range(5):
         writer.write(np.full((24, 32, 3), 128, np.uint8))
     writer.release()
+    store = tmp_path / "store"  # only its header is looked at
+    store.mkdir()
+    (store / HEADER_FILE).write_text("{}")
+    onnx = tmp_path / "model.onnx"
+    onnx.write_bytes(b"not read: the suffix is checked first")
     return {
+        "store": store,
+        "onnx": onnx,
         "text": text,
         "foreign": foreign,
         "truncated": truncated,
@@ -149,6 +157,16 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             ["best.pt: not a split JSON (not a text file)"],
             ["codec", "utf-8"],
         ),
+        "predict given the store first and the checkpoint second": (
+            ["predict", str(f["store"]), str(f["truncated"])],
+            ["is a GraspStore, not a checkpoint", "predict CHECKPOINT SOURCE"],
+            ["without best.pt"],
+        ),
+        "predict given an ONNX export": (
+            ["predict", str(f["onnx"]), str(f["store"])],
+            ["is an ONNX export", "OnnxEstimator"],
+            ["Python objects", "never writes such files"],
+        ),
         "a config key typo": (
             ["train", "--set", "training.lrr=1e-3", "--set", f"output_dir={tmp / 'runs'}"],
             ["training.lrr", "valid keys in 'training'"],
@@ -157,7 +175,9 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
     }
 
 
-CASE_NAMES = list(_cases({k: Path(k) for k in ("text", "foreign", "truncated", "video", "tmp")}))
+CASE_NAMES = list(
+    _cases({k: Path(k) for k in ("store", "onnx", "text", "foreign", "truncated", "video", "tmp")})
+)
 
 
 @pytest.mark.parametrize("label", CASE_NAMES)
@@ -212,6 +232,7 @@ def test_a_missing_camera_prints_one_line_and_no_opencv_warnings(tmp_path: Path)
 CHECK_WITHOUT_TORCH = """
 import sys
 from tactile_compliance.cli import app
+from tactile_compliance.data.store import HEADER_FILE
 try:
     app(sys.argv[1:], prog_name="tactile-compliance")
 except SystemExit as exit:

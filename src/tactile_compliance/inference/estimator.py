@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from tactile_compliance.data.store import HEADER_FILE
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.inference.base import BaseEstimator
 from tactile_compliance.runs.checkpoint import load_checkpoint
@@ -27,15 +28,32 @@ __all__ = ["ComplianceEstimator", "resolve_checkpoint"]
 
 
 def resolve_checkpoint(path: str | Path) -> Path:
-    """A checkpoint file, or a run directory holding ``best.pt`` -> the checkpoint file."""
+    """A checkpoint file, or a run directory holding ``best.pt`` -> the checkpoint file.
+
+    Raises:
+        FileNotFoundError: no such file, a directory without ``best.pt`` (a store given in
+            the checkpoint's place is named as such).
+        ValueError: an ONNX export, which only ``OnnxEstimator`` runs.
+    """
     path = Path(path)
     if path.is_dir():
         candidate = path / BEST_FILE
         if not candidate.is_file():
+            if (path / HEADER_FILE).is_file():
+                raise FileNotFoundError(
+                    f"{path} is a GraspStore, not a checkpoint: give the checkpoint first, "
+                    f"then the store (predict CHECKPOINT SOURCE)"
+                )
             raise FileNotFoundError(f"{path}: run directory without {BEST_FILE}")
         return candidate
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
+    if path.suffix.lower() == ".onnx":
+        raise ValueError(
+            f"{path} is an ONNX export: run it with OnnxEstimator in Python (docs/inference.md, "
+            f'"ONNX export"); this command takes best.pt, a run directory or an '
+            f"`export --safetensors` directory"
+        )
     return path
 
 
