@@ -167,6 +167,22 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             ["is an ONNX export", "OnnxEstimator"],
             ["Python objects", "never writes such files"],
         ),
+        "record with a modulus in an unknown unit": (
+            [
+                "record",
+                f"video:{f['video']}",
+                "--out",
+                str(tmp / "data"),
+                "--object",
+                "ball",
+                "--modulus",
+                "204kPx",
+                "--readings",
+                str(f["text"]),
+            ],
+            ["--modulus", "'204kPx' is no modulus", "kPa, MPa or GPa"],
+            ["Traceback"],
+        ),
         "a config key typo": (
             ["train", "--set", "training.lrr=1e-3", "--set", f"output_dir={tmp / 'runs'}"],
             ["training.lrr", "valid keys in 'training'"],

@@ -431,3 +431,25 @@ def test_estimator_saturates_frames_like_the_store():
     levels = np.array([0, 7, 128, 255], np.uint8).repeat(144).reshape(3, 8, 8, 3)
     decoded = frames_from_uint8(levels)
     np.testing.assert_array_equal(input_checks.check_frames(decoded)[0][0].numpy(), decoded)
+
+
+@pytest.mark.parametrize(
+    ("text", "pascals"),
+    [
+        ("2e5", 2e5),
+        ("204kPa", 2.04e5),
+        ("204 kPa", 2.04e5),
+        ("1.2GPa", 1.2e9),
+        ("3.5e4 Pa", 3.5e4),
+        ("0.85 MPa", 8.5e5),
+        (" 25000 ", 2.5e4),
+    ],
+)
+def test_a_modulus_is_read_in_pa_with_si_prefixes(text: str, pascals: float) -> None:
+    assert plausibility.parse_pascals(text) == pytest.approx(pascals, rel=1e-12)
+
+
+@pytest.mark.parametrize("text", ["204kPx", "25 k", "3mPa", "soft", "", "1e5 Pa Pa", "2,5e4"])
+def test_a_modulus_that_is_no_number_of_pa_is_refused_with_the_forms(text: str) -> None:
+    with pytest.raises(ValueError, match=r"give Pa as a number .* kPa, MPa or GPa"):
+        plausibility.parse_pascals(text)

@@ -1653,7 +1653,9 @@ def record(
     source: SourceArg,
     out: Annotated[Path, typer.Option(help="Dataset directory (raw layout).")],
     object_name: Annotated[str, typer.Option("--object", help="Object name (its directory).")],
-    modulus: Annotated[float, typer.Option(help="Young's modulus E in Pa.")],
+    modulus: Annotated[
+        str, typer.Option(help="Young's modulus E: Pa (2.5e4), or with kPa, MPa, GPa (25kPa).")
+    ],
     readings: ReadingsOption = None,
     material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
     shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
@@ -1693,8 +1695,13 @@ def record(
 
     from tactile_compliance.acquisition.calibration import read_image
     from tactile_compliance.acquisition.recording import ObjectInfo, record_grasp
+    from tactile_compliance.data.plausibility import parse_pascals
 
-    info = ObjectInfo(object_name, modulus, material, shape)
+    try:
+        modulus_pa = parse_pascals(modulus)
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--modulus") from None
+    info = ObjectInfo(object_name, modulus_pa, material, shape)
     no_contact = None if reference is None else read_image(reference)
     rig_stiffness = None
     if rig is not None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,11 +28,33 @@ __all__ = [
     "check_size",
     "dtype_problem",
     "format_number",
+    "parse_pascals",
 ]
 
 #: numpy dtype kinds that hold numbers (signed, unsigned integers, floats); everything else
 #: is refused, never cast (docs/data.md, "Plausible values").
 NUMERIC_KINDS = "iuf"
+
+
+_PREFIXES = {"": 1.0, "k": 1e3, "M": 1e6, "G": 1e9}
+_PASCALS = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([kMG]?)(Pa)?\s*")
+
+
+def parse_pascals(text: str) -> float:
+    """A pressure or modulus as people write it -> Pa: ``2e5``, ``204kPa``, ``204 kPa``,
+    ``1.2GPa``, ``3.5e4 Pa``; a number without a unit is Pa. Only k, M and G prefixes
+    (``mPa`` would be a typo for ``MPa``); the value is not range-checked here.
+
+    Raises:
+        ValueError: anything else, with the forms it takes.
+    """
+    match = _PASCALS.fullmatch(str(text))
+    if match is None or (match.group(2) and not match.group(3)):
+        raise ValueError(
+            f"{text!r} is no modulus: give Pa as a number (2.5e4) or with kPa, MPa or GPa "
+            f"(25kPa, 1.2 GPa)"
+        )
+    return float(match.group(1)) * _PREFIXES[match.group(2)]
 
 
 def format_number(value: float) -> str:
