@@ -16,6 +16,7 @@ from tactile_compliance.acquisition.calibration import SensorCalibration
 from tactile_compliance.acquisition.recording import (
     ReadingsCallback,
     capture_checked,
+    capture_notes,
     checked_selection,
     grasp_estimates,
 )
@@ -124,12 +125,7 @@ class RecordingEstimate:
             f"(peak force {self.peak_force_n:.1f} N)",
             f"Accuracy    {accuracy_statement(self.units)}",
         ]
-        if self.skipped:
-            lines.append(f"Skipped     {len(self.skipped)} frames; first: {self.skipped[0]}")
-        baseline = self.checks.get("baseline_text")
-        if baseline:
-            lines.append(f"Force       {baseline}")
-        lines.extend(f"Warning     {w}" for w in self.warnings)
+        lines += capture_notes(self.skipped, self.checks, self.warnings)
         return "\n".join(lines)
 
 

@@ -13,7 +13,7 @@ import os
 import re
 import shutil
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -715,13 +715,23 @@ class RecordedGrasp:
         lines += [
             f"Objects     {self.object_table}",
         ]
-        if self.skipped:
-            lines.append(f"Skipped     {len(self.skipped)} frames; first: {self.skipped[0]}")
-        baseline = self.checks.get("baseline_text")
-        if baseline:
-            lines.append(f"Force       {baseline}")
-        lines.extend(f"Warning     {w}" for w in self.warnings)
+        lines += capture_notes(self.skipped, self.checks, self.warnings)
         return "\n".join(lines)
+
+
+def capture_notes(
+    skipped: Sequence[Any], checks: Mapping[str, Any], warnings: Sequence[str]
+) -> list[str]:
+    """The report lines a capture's checks add (skipped frames, the force baseline, the
+    warnings), as ``record`` and ``estimate`` print them."""
+    lines = []
+    if skipped:
+        lines.append(f"Skipped     {len(skipped)} frames; first: {skipped[0]}")
+    baseline = checks.get("baseline_text")
+    if baseline:
+        lines.append(f"Force       {baseline}")
+    lines.extend(f"Warning     {w}" for w in warnings)
+    return lines
 
 
 def _next_grasp(object_dir: Path) -> int:
