@@ -40,7 +40,8 @@ import torch
 from tactile_compliance.data.dataset import GraspDataset, batch_loader
 from tactile_compliance.data.features import cached_features
 from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.data.store import GraspStore, GraspStoreWriter
+from tactile_compliance.data.store import GraspStore
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.forward import forward_batch
 from tactile_compliance.runs.run_inputs import RunInputs

@@ -25,7 +25,8 @@ from tactile_compliance.cli import app
 from tactile_compliance.data.burgess import import_burgess
 from tactile_compliance.data.import_report import ImportUnitsError
 from tactile_compliance.data.normalisation import NormalisationConstants
-from tactile_compliance.data.store import GraspStore, GraspStoreWriter, StoreError
+from tactile_compliance.data.store import GraspStore, StoreError
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.models import create_model
 from tactile_compliance.physics.estimators import SensorUnits
 from tactile_compliance.runs.checkpoint import save_checkpoint

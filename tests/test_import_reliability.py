@@ -21,9 +21,11 @@ import pytest
 
 from burgess_tree import dump, write_tree
 from tactile_compliance.data import store as store_module
+from tactile_compliance.data import store_writer
 from tactile_compliance.data.burgess import import_burgess
 from tactile_compliance.data.import_report import DataImportError, import_paths
-from tactile_compliance.data.store import GraspStore, GraspStoreWriter
+from tactile_compliance.data.store import GraspStore
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.data.yuan import import_yuan
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -174,11 +176,11 @@ def test_full_disk_is_one_clear_error_and_leaves_nothing(tmp_path, monkeypatch, 
     _import(tmp_path / "src", tmp_path / "store", fingers="markerless")
     before = _snapshot(tmp_path)
     if where == "frames":
-        monkeypatch.setattr(store_module, "_write_all", _disk_full)
+        monkeypatch.setattr(store_writer, "_write_all", _disk_full)
     elif where == "table":
         monkeypatch.setattr(pd.DataFrame, "to_parquet", _disk_full)
     else:
-        monkeypatch.setattr(store_module, "_write_json", _disk_full)
+        monkeypatch.setattr(store_writer, "_write_json", _disk_full)
     for out, overwrite in ((tmp_path / "new" / "store", False), (tmp_path / "store", True)):
         with pytest.raises(ImportWriteError, match="No space left on device") as caught:
             _import(tmp_path / "src", out, overwrite=overwrite)
@@ -338,10 +340,10 @@ def test_nothing_imported_fails(tmp_path):
 _KILLED_IMPORT = textwrap.dedent(
     """
     import sys, time
-    from tactile_compliance.data import store
+    from tactile_compliance.data import store_writer
     from tactile_compliance.data.burgess import import_burgess
 
-    append = store.GraspStoreWriter.append
+    append = store_writer.GraspStoreWriter.append
 
     def slow_append(self, *args, **kwargs):
         sample_id = append(self, *args, **kwargs)
@@ -349,7 +351,7 @@ _KILLED_IMPORT = textwrap.dedent(
         time.sleep(120)
         return sample_id
 
-    store.GraspStoreWriter.append = slow_append
+    store_writer.GraspStoreWriter.append = slow_append
     import_burgess(sys.argv[1], sys.argv[2], progress=False)
     """
 )

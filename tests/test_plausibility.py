@@ -25,7 +25,8 @@ from tactile_compliance.data.burgess import import_burgess
 from tactile_compliance.data.inputs import INPUTS
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import RULES, PlausibleRange
-from tactile_compliance.data.store import GraspStore, GraspStoreWriter, StoreError
+from tactile_compliance.data.store import GraspStore, StoreError
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.inference import ComplianceEstimator, input_checks
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.run_inputs import RunInputs

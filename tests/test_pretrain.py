@@ -21,11 +21,11 @@ from tactile_compliance.data.splits import make_split_from_config
 from tactile_compliance.data.store import (
     DEPTH_FILE,
     GraspStore,
-    GraspStoreWriter,
     StoreError,
     depth_size_for,
     frames_from_uint8,
 )
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.models import create_model
 from tactile_compliance.models.backbones import PRETRAIN_KEY, create_backbone
 from tactile_compliance.outputs import OutputExistsError

@@ -37,7 +37,8 @@ import torch.nn.functional as F
 from tactile_compliance.config import load_config
 from tactile_compliance.data import splits as splits_module
 from tactile_compliance.data.splits import make_split_from_config
-from tactile_compliance.data.store import GraspStore, GraspStoreWriter
+from tactile_compliance.data.store import GraspStore
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.training.train import prepare_data, train
 from toy_store import make_sample

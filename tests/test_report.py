@@ -21,7 +21,7 @@ import pytest
 
 from tactile_compliance import __version__
 from tactile_compliance.data.normalisation import NormalisationConstants, normalise_modulus
-from tactile_compliance.data.store import GraspStoreWriter
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.evaluation.report import build_report
 from tactile_compliance.runs.results import ResultsStore
 from toy_store import make_toy_store

@@ -15,7 +15,6 @@ from tactile_compliance.data.store import (
     MIN_DIFFERENCE_LEVEL,
     SAMPLES_FILE,
     GraspStore,
-    GraspStoreWriter,
     StoreError,
     encode_frames,
     frames_from_uint8,
@@ -23,6 +22,7 @@ from tactile_compliance.data.store import (
     store_problems,
     validate_samples,
 )
+from tactile_compliance.data.store_writer import GraspStoreWriter
 
 
 def _row(i: int) -> dict:

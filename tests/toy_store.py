@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tactile_compliance.data.store import GraspStore, GraspStoreWriter, depth_size_for
+from tactile_compliance.data.store import GraspStore, depth_size_for
+from tactile_compliance.data.store_writer import GraspStoreWriter
 
 MATERIALS = ("Foam", "Rubber", "Plastic", "Metal")
 SHAPES = ("Sphere", "Cylinder")

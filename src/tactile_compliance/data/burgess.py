@@ -46,7 +46,8 @@ from tactile_compliance.data.raw_layout import (
     tree_units,
 )
 from tactile_compliance.data.safe_pickle import peek_array_shape
-from tactile_compliance.data.store import UNIT_COLUMNS, GraspStoreWriter, depth_size_for
+from tactile_compliance.data.store import UNIT_COLUMNS, depth_size_for
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR
 from tactile_compliance.progress import progress_bar
 

@@ -17,13 +17,13 @@ from typing import Any
 import numpy as np
 
 from tactile_compliance.data.store import (
-    GraspStoreWriter,
     NotAStoreError,
     StoreWriteError,
     is_store_dir,
     recover_interrupted_writes,
     store_kind_hint,
 )
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.outputs import OutputExistsError
 
 

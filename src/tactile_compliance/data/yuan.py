@@ -23,7 +23,7 @@ from tactile_compliance.data.import_report import (
 )
 from tactile_compliance.data.plausibility import MODULUS
 from tactile_compliance.data.raw_layout import VIDEO_SUFFIXES
-from tactile_compliance.data.store import GraspStoreWriter
+from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.physics.shore import shore00_to_modulus_pa
 from tactile_compliance.progress import progress_bar
 
