@@ -269,8 +269,14 @@ def main(
     _debug = debug
 
 
-def _load_config(config: str, options: list[str], overrides: list[str] | None) -> object:
-    """The config with the command's options applied, then the --set overrides (which win)."""
+def _load_config(
+    config: str,
+    options: list[str],
+    overrides: list[str] | None,
+    values: dict[str, Any] | None = None,
+) -> object:
+    """The config with the command's options applied (``options`` as ``key=value``,
+    ``values`` already parsed), then the --set overrides (which win)."""
     from tactile_compliance.config import load_config
 
-    return load_config(config, [*options, *(overrides or [])])
+    return load_config(config, [*options, *(overrides or [])], values)

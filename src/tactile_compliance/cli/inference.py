@@ -28,8 +28,6 @@ from tactile_compliance.cli.options import (
     ReadingsOption,
     SourceArg,
     _open_source,
-    _readings,
-    _recorded_readings,
 )
 from tactile_compliance.devices import DEFAULT_DEVICE
 
@@ -76,12 +74,15 @@ def _predict_bag(
 ) -> None:
     """`predict CHECKPOINT rosbag:BAG`: the bag's grasp through `live`'s loop, its final
     estimate printed (warnings and skipped frames on stderr)."""
+    from tactile_compliance.acquisition.readings import source_readings
     from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
 
     members = load_members([checkpoint], device=device, backbone_weights=weights)
     frames, sensor = _open_source(spec, calibration, None, None)
     with frames:
-        for event in live_estimates(members, frames, _readings(None, frames), calibration=sensor):
+        for event in live_estimates(
+            members, frames, source_readings(None, frames), calibration=sensor
+        ):
             if event["event"] == "no_estimate":
                 _fail(f"no estimate: {event['reason']}", EXIT_BAD_INPUT)
             if event["event"] in ("warning", "skipped"):
@@ -178,11 +179,12 @@ def estimate(
     were from the truth on real grasps. Nothing is written."""
     from tactile_compliance.acquisition.calibration import read_image
     from tactile_compliance.acquisition.estimates import estimate_recording
+    from tactile_compliance.acquisition.readings import source_readings
 
     no_contact = None if reference is None else read_image(reference)
     frames, sensor = _open_source(source, calibration, fps, timestamps)
     with frames:
-        table = _readings(readings, frames)
+        table = source_readings(readings, frames)
         result = estimate_recording(
             frames, table, calibration=sensor, reference=no_contact, max_frames=max_frames
         )
@@ -275,6 +277,7 @@ def live(
 
     Provisional estimates while the gripper closes, the final one on release. Without a
     checkpoint, the analytical estimates (those of `estimate`)."""
+    from tactile_compliance.acquisition.readings import recorded_readings, source_readings
     from tactile_compliance.inference.live import format_live_event, live_estimates, load_members
 
     if window is not None and window_s is not None:
@@ -301,7 +304,7 @@ def live(
     )
     final = False
     with frames:
-        table = _recorded_readings(readings) if no_camera else _readings(readings, frames)
+        table = recorded_readings(readings) if no_camera else source_readings(readings, frames)
         for event in live_estimates(
             members,
             None if no_camera else frames,

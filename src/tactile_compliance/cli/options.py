@@ -125,49 +125,6 @@ FolderTimesOption = Annotated[
 NO_CAMERA = "none"
 
 
-def _readings(path: Path | None, source: Any) -> Any:
-    """The readings CSV: read once for a replay; followed while the robot writes it for a
-    live device (each frame waits up to 1 s for its reading). A bag's own readings when
-    the source is a ``rosbag:`` (which carries them)."""
-    from tactile_compliance.acquisition.recording import FollowedReadings, Readings
-
-    bag_readings = getattr(source, "readings_arrays", None)  # a rosbag: source
-    if bag_readings is not None:
-        if path is not None:
-            raise typer.BadParameter(
-                f"--readings {path}: the source {source.name} carries its own force and "
-                "width topics; give one or the other"
-            )
-        try:
-            return Readings(*bag_readings)
-        except ValueError as err:
-            raise ValueError(f"{source.name}: {err}") from err
-    if path is None:
-        raise typer.BadParameter(
-            "--readings CSV is required (timestamp_s,force_n,width_m), except for a "
-            "rosbag: source, which carries them"
-        )
-    if source.live:  # the robot may create the file after the start; its folder must exist
-        if not path.parent.is_dir():
-            raise ValueError(f"--readings {path}: no such folder: {path.parent}")
-        return FollowedReadings(path)
-    return _recorded_readings(path)
-
-
-def _recorded_readings(path: Path | None) -> Any:
-    """A recorded readings CSV, read once."""
-    from tactile_compliance.acquisition.recording import Readings
-
-    if path is None:
-        raise typer.BadParameter("--readings CSV is required (timestamp_s,force_n,width_m)")
-    if not path.is_file():
-        raise ValueError(f"--readings {path}: no such file")
-    try:
-        return Readings.from_csv(path)
-    except (OSError, ValueError) as err:
-        raise ValueError(f"--readings: {err}") from err
-
-
 def _open_source(
     spec: str, calibration: Path | None, fps: float | None, timestamps: Path | None
 ) -> tuple[Any, Any]:

@@ -22,7 +22,6 @@ from tactile_compliance.cli.options import (
     ReadingsOption,
     SourceArg,
     _open_source,
-    _readings,
 )
 
 
@@ -68,13 +67,12 @@ def calibrate(
         geometry = probe.geometry  # the preset's steps, replaced below where given
     changes: dict[str, Any] = {}
     if corners is not None:
+        from tactile_compliance.data.image_ops import parse_corners
+
         try:
-            points = tuple(tuple(float(v) for v in p.split(",")) for p in corners.split())
+            changes["warp_corners"] = parse_corners(corners)
         except ValueError as err:
-            raise typer.BadParameter(f"--corners: {err}") from err
-        if len(points) != 4 or any(len(p) != 2 for p in points):
-            raise typer.BadParameter("--corners needs four points 'x,y x,y x,y x,y'")
-        changes["warp_corners"] = points
+            raise typer.BadParameter(str(err), param_hint="--corners") from err
         changes["warp_size"] = _size_option(warp_size) or geometry.warp_size
         if changes["warp_size"] is None:
             raise typer.BadParameter("--corners needs --warp-size HxW")
@@ -291,6 +289,7 @@ def record(
     from contextlib import ExitStack
 
     from tactile_compliance.acquisition.calibration import read_image
+    from tactile_compliance.acquisition.readings import source_readings
     from tactile_compliance.acquisition.recording import ObjectInfo, record_grasp
     from tactile_compliance.data.plausibility import parse_pascals
 
@@ -308,7 +307,7 @@ def record(
     with ExitStack() as stack:
         frames, sensor = _open_source(source, calibration, fps, timestamps)
         stack.enter_context(frames)
-        table = _readings(readings, frames)
+        table = source_readings(readings, frames)
         markers, marker_sensor = None, None
         if markers_source is not None:
             markers, marker_sensor = _open_source(markers_source, markers_calibration, fps, None)

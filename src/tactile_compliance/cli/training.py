@@ -76,9 +76,9 @@ def train(
     metrics.json). Re-running resumes an interrupted run or returns a finished one.
     """
     image_size = _size_option(size)
-    sized = [f"data.image_size=[{image_size[0]},{image_size[1]}]"] if image_size else []
+    sized = {"data.image_size": image_size} if image_size else None
     # The config first, before torch loads: a typo is reported at once.
-    cfg = _load_config(config, sized, overrides)
+    cfg = _load_config(config, [], overrides, sized)
     from tactile_compliance.training.train import train as train_run
 
     result = train_run(  # --json: stdout holds the JSON only, so no progress bar
