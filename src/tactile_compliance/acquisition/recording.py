@@ -498,6 +498,11 @@ def write_grasp(
 ) -> RecordedGrasp:
     """Write a captured grasp as ``OUT/{object}/grasp={next}/augmentation={k}/``.
 
+    The grasp number is the next free one. The grasp is written under a hidden
+    ``.partial-`` name and renamed into place (``outputs.commit_path``) with its
+    ``units.json``, so nothing existing is overwritten and an interrupted write leaves no
+    half grasp that looks finished.
+
     Args:
         reference, markers_reference: the no-contact frame of each sensor; default the
             calibration's, else the first frame.

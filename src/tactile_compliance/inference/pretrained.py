@@ -297,7 +297,9 @@ def _save_tensors(st: Any, tensors: dict[str, torch.Tensor], path: str) -> None:
 
 
 def load_pretrained(path: str | Path, device: str | torch.device = DEFAULT_DEVICE) -> LoadedModel:
-    """Rebuild the model of an exported directory with ``runs.checkpoint.rebuild_model``.
+    """Rebuild the model of an exported directory with ``runs.checkpoint.rebuild_model``,
+    the rebuild ``best.pt`` goes through, so both give the same predictions. Reads local
+    files only: nothing is downloaded and no pickled code runs.
 
     Raises:
         FileNotFoundError: no such directory, or one without ``config.json`` or
