@@ -242,3 +242,56 @@ def test_yuan_videos_counted_and_empty_or_damaged_ones_named(tmp_path):
     assert "1 unreadable video (EDGE_8_2.avi)" in check.error_line()
     (tmp_path / "EDGE_8_2.avi").unlink()
     assert check_yuan_download(tmp_path).complete
+
+
+# ------------------------------------------------------------------ command line
+def _cli(*args: str):  # type: ignore[no-untyped-def]
+    from typer.testing import CliRunner
+
+    from tactile_compliance.cli import app
+
+    return CliRunner().invoke(app, list(args))
+
+
+def test_cli_check_prints_the_counts_and_writes_nothing(generated):
+    tree = generated[0]
+    before = sorted(p.name for p in tree.parent.iterdir())
+    result = _cli("import", "burgess", str(tree), "--check")
+    assert result.exit_code == 0, result.output
+    assert "Objects     3" in result.stdout and "Complete    yes" in result.stdout
+    assert sorted(p.name for p in tree.parent.iterdir()) == before
+
+
+@pytest.mark.parametrize("case", ["a file removed", "a grasp folder missing"])
+def test_cli_check_of_a_truncated_copy_is_one_error_line(generated, tmp_path, case):
+    tree = _copy(generated, tmp_path)
+    damage, with_table = CASES[case]
+    args = ["--objects", str(_write_table(tree, tmp_path / "t.csv"))] if with_table else []
+    expected = damage(tree)
+    result = _cli("import", "burgess", str(tree), "--check", *args)
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {tree} is incomplete: "), lines
+    assert __import__("re").search(expected, lines[0]), lines[0]
+    assert "Complete    no" in result.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "cause"),
+    [
+        (["import", "burgess", "{tree}"], "Missing option '--out'"),
+        (["import", "yuan", "{tree}"], "Missing option '--out'"),
+        (["import", "burgess", "{tree}", "--check", "--out", "s"], "--check writes nothing"),
+        (["import", "burgess", "{tmp}/absent", "--check"], "no such directory or zip"),
+        (["import", "yuan", "{tmp}/absent", "--check"], "no such directory of videos"),
+        (["import", "burgess", "{tmp}/x.zip", "--check"], "not a readable zip"),
+    ],
+)
+def test_cli_check_mistakes_are_one_line(generated, tmp_path, args, cause):
+    (tmp_path / "x.zip").write_bytes(b"PK\x03\x04 cut short")
+    args = [a.format(tree=generated[0], tmp=tmp_path) for a in args]
+    result = _cli(*args)
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and cause in lines[0], lines
+    assert not (tmp_path / "s").exists()
