@@ -85,16 +85,21 @@ def loader(ids, shuffle):
     dataset = GraspDataset(data.store, ids, data.run_inputs.constants, data.run_inputs.inputs)
     return batch_loader(dataset, cfg.training.batch_size, shuffle=shuffle)
 class Clock(L.Callback):
+    # wall and CPU seconds (this process, all its threads) of each batch
     def __init__(self):
-        self.train, self.val, self.t = [], [], None
+        self.train, self.val, self.train_cpu, self.val_cpu = [], [], [], []
+    def _start(self):
+        self.t, self.c = time.perf_counter(), time.process_time()
     def on_train_batch_start(self, *a):
-        self.t = time.perf_counter()
+        self._start()
     def on_train_batch_end(self, *a):
-        self.train.append(time.perf_counter() - self.t); self.t = time.perf_counter()
+        self.train.append(time.perf_counter() - self.t)
+        self.train_cpu.append(time.process_time() - self.c)
     def on_validation_batch_start(self, *a):
-        self.t = time.perf_counter()
+        self._start()
     def on_validation_batch_end(self, *a):
         self.val.append(time.perf_counter() - self.t)
+        self.val_cpu.append(time.process_time() - self.c)
 clock = Clock()
 trainer = L.Trainer(max_epochs=1, accelerator="cpu", logger=False, enable_checkpointing=False,
                     enable_progress_bar=False, enable_model_summary=False,
@@ -108,6 +113,7 @@ print(json.dumps({"model": model_name, "batch_size": cfg.training.batch_size,
                   "freeze_backbone": cfg.model.freeze_backbone,
                   "n_train": len(data.train_ids), "n_val": len(data.val_ids),
                   "n_test": len(data.split.test_ids), "train_s": clock.train, "val_s": clock.val,
+                  "train_cpu_s": clock.train_cpu, "val_cpu_s": clock.val_cpu,
                   "peak_kib": int(status["VmHWM"].split()[0])}))
 """
 
@@ -210,17 +216,20 @@ def bench_train(
         row = json.loads(result.stdout.strip().splitlines()[-1])
         row["wall_s"] = time.perf_counter() - started
         row["load"] = f"{before} -> {_load()}"
-        steps = row["train_s"][1:] or row["train_s"]  # the first batch is warm-up
-        row["train_batch_s"] = sum(steps) / len(steps)
-        row["val_batch_s"] = sum(row["val_s"]) / max(1, len(row["val_s"]))
+        for kind in ("train_s", "train_cpu_s"):  # the first batch is warm-up
+            steps = row[kind][1:] or row[kind]
+            row[kind.replace("_s", "_batch_s")] = sum(steps) / len(steps)
+        for kind in ("val_s", "val_cpu_s"):
+            row[kind.replace("_s", "_batch_s")] = sum(row[kind]) / max(1, len(row[kind]))
         rows.append(row)
         print(
             f"train   {model:9s} {row['image_size'][0]}x{row['image_size'][1]} batch "
             f"{row['batch_size']} (augmentation {row['augmentation']}, frozen backbone "
             f"{row['freeze_backbone']}, {threads} torch thread(s)): train batch "
-            f"{row['train_batch_s']:.2f} s "
-            f"(batches {' / '.join(f'{t:.1f}' for t in row['train_s'])}), val batch "
-            f"{row['val_batch_s']:.2f} s, n_train {row['n_train']} n_val {row['n_val']} "
+            f"{row['train_batch_s']:.2f} s wall, {row['train_cpu_batch_s']:.2f} s CPU "
+            f"(wall per batch {' / '.join(f'{t:.1f}' for t in row['train_s'])}), val batch "
+            f"{row['val_batch_s']:.2f} s wall, {row['val_cpu_batch_s']:.2f} s CPU, "
+            f"n_train {row['n_train']} n_val {row['n_val']} "
             f"n_test {row['n_test']}, peak RSS {row['peak_kib'] / 1e6:.2f} GB, child wall "
             f"{row['wall_s']:.0f} s   [{row['load']}]"
         )
@@ -228,24 +237,27 @@ def bench_train(
 
 
 def extrapolate(rows: list[dict[str, object]], n: int, seeds: int = 10, cells: int = 12) -> None:
-    """epoch = ceil(n_train / B) t_train + ceil(n_val / B) t_val; final pass over the store
-    (predictions.csv) = ceil(N / B) t_val; run(E) = E epoch + final; per model in Table I:
-    ``cells`` (4 inputs x 3 conditions) x ``seeds`` runs."""
-    print("extrapolation (one CPU process per run; E = epochs trained):")
+    """From each run's CPU seconds per batch (with one torch thread, the time on a core
+    of its own; the wall time on a shared machine is longer):
+    epoch = ceil(n_train / B) t_train + ceil(n_val / B) t_val; the final pass over the
+    whole store (predictions.csv) = ceil(N / B) t_val; run(E) = E epoch + final pass;
+    Table I per model = ``cells`` (4 inputs x 3 object conditions) x ``seeds`` runs."""
+    print("extrapolation from CPU seconds per batch (one core per run; E = epochs trained):")
     for row in rows:
-        b = int(row["batch_size"])  # type: ignore[arg-type]
+        b = int(row["batch_size"])  # type: ignore[call-overload]
+        t_train, t_val = float(row["train_cpu_batch_s"]), float(row["val_cpu_batch_s"])  # type: ignore[arg-type]
         epoch = (
-            math.ceil(int(row["n_train"]) / b) * float(row["train_batch_s"])  # type: ignore[arg-type]
-            + math.ceil(int(row["n_val"]) / b) * float(row["val_batch_s"])  # type: ignore[arg-type]
+            math.ceil(int(row["n_train"]) / b) * t_train  # type: ignore[call-overload]
+            + math.ceil(int(row["n_val"]) / b) * t_val  # type: ignore[call-overload]
         )
-        final = math.ceil(n / b) * float(row["val_batch_s"])  # type: ignore[arg-type]
+        final = math.ceil(n / b) * t_val
         runs = {e: e * epoch + final for e in (31, 200)}
         print(
             f"  {row['model']:9s} epoch {epoch / 3600:.2f} h; run {runs[31] / 3600:.1f} h "
             f"(E = 31, the fewest early stopping allows) to {runs[200] / 3600:.1f} h "
             f"(E = 200, the cap); Table I's {cells * seeds} runs of this model: "
             f"{cells * seeds * runs[31] / 86400:.0f}-{cells * seeds * runs[200] / 86400:.0f} "
-            "days on one such CPU"
+            "core-days"
         )
 
 

@@ -94,7 +94,9 @@ class DownloadCheck:
         """The counts, sizes and notes, one line each (the verdict last)."""
         lines = [f"Checked     {self.path}"]
         lines += [f"{name.capitalize():<11} {n:,}" for name, n in self.counts.items()]
-        lines.append(f"{'Size':<11} {self.total_bytes / 1e9:.2f} GB")
+        size = self.total_bytes
+        shown = f"{size / 1e9:.2f} GB" if size >= 1e9 else f"{size / 1e6:.1f} MB"
+        lines.append(f"{'Size':<11} {shown} ({size:,} bytes)")
         lines += [f"Note        {note}" for note in self.notes]
         lines.append("Complete    yes" if self.complete else "Complete    no")
         return "\n".join(lines)
