@@ -168,6 +168,14 @@ def _many_files(tree: Path) -> str:
     return r"\d+ missing files \(.*widths.pkl, .*widths.pkl, .*widths.pkl and \d+ more\)"
 
 
+def _empty_directory(tree: Path) -> str:
+    for child in tree.iterdir():
+        shutil.rmtree(child) if child.is_dir() else child.unlink()
+    return (
+        r"1 missing object \(no object directories \(\{object\}/grasp=g/augmentation=k/\) at all\)"
+    )
+
+
 # (damage, with the object table)
 CASES: dict[str, tuple[Callable[[Path], str], bool]] = {
     "a file removed": (_remove_file, False),
@@ -181,6 +189,7 @@ CASES: dict[str, tuple[Callable[[Path], str], bool]] = {
     "an object missing from the table": (_remove_object, True),
     "an object missing from the generator's count": (_remove_object_no_table, False),
     "many files missing": (_many_files, False),
+    "nothing unpacked": (_empty_directory, False),
 }
 
 

@@ -178,6 +178,42 @@ def _object_counts(table_path: Path) -> dict[str, int]:
     return {str(name): int(n) for name, n in trials.items()}
 
 
+Tree = dict[str, dict[int, dict[int, set[str]]]]
+
+
+def _index(
+    entries: dict[str, int], directories: set[str]
+) -> tuple[Tree, dict[str, set[str]], set[str]]:
+    """object -> grasp -> augmentation -> file names (from the directories too, so an
+    empty grasp or sample directory is seen); the objects' own files, of the objects
+    that hold ``metadata.json``; the files at the root. An object is a directory with
+    ``metadata.json`` or ``grasp=g`` directories, as the importer finds them."""
+    tree: Tree = defaultdict(dict)
+    object_files: dict[str, set[str]] = defaultdict(set)
+    root_files: set[str] = set()
+    for relative in sorted(directories):
+        parts = PurePosixPath(relative).parts
+        if len(parts) >= 2 and (grasp := GRASP_DIR.match(parts[1])):
+            augmentations = tree[parts[0]].setdefault(int(grasp.group(1)), {})
+            if len(parts) == 3 and (aug := AUGMENTATION_DIR.match(parts[2])):
+                augmentations.setdefault(int(aug.group(1)), set())
+    for relative in entries:
+        parts = PurePosixPath(relative).parts
+        if len(parts) == 1:
+            root_files.add(parts[0])
+        elif len(parts) == 2:
+            object_files[parts[0]].add(parts[1])
+        elif (
+            len(parts) == 4
+            and (grasp := GRASP_DIR.match(parts[1]))
+            and (aug := AUGMENTATION_DIR.match(parts[2]))
+        ):
+            grasps = tree[parts[0]].setdefault(int(grasp.group(1)), {})
+            grasps.setdefault(int(aug.group(1)), set()).add(parts[3])
+    labelled = {name: files for name, files in object_files.items() if METADATA_FILE in files}
+    return tree, labelled, root_files
+
+
 def check_burgess_download(
     path: str | Path, *, object_table: str | Path | None = None
 ) -> DownloadCheck:
@@ -212,35 +248,12 @@ def check_burgess_download(
     entries, directories = _zip_entries(root) if is_zip else _walk(root)
     expected = _object_counts(Path(object_table)) if object_table is not None else None
 
-    # object -> grasp -> augmentation -> file names; objects: directories with
-    # metadata.json or grasp=g directories (as the importer finds them)
-    tree: dict[str, dict[int, dict[int, set[str]]]] = defaultdict(dict)
-    object_files: dict[str, set[str]] = defaultdict(set)
-    root_files: set[str] = set()
-    for relative in sorted(directories):
-        parts = PurePosixPath(relative).parts
-        if len(parts) >= 2 and (grasp := GRASP_DIR.match(parts[1])):
-            augmentations = tree[parts[0]].setdefault(int(grasp.group(1)), {})
-            if len(parts) == 3 and (aug := AUGMENTATION_DIR.match(parts[2])):
-                augmentations.setdefault(int(aug.group(1)), set())
-    for relative in entries:
-        parts = PurePosixPath(relative).parts
-        if len(parts) == 1:
-            root_files.add(parts[0])
-        elif len(parts) == 2:
-            object_files[parts[0]].add(parts[1])
-        elif (
-            len(parts) == 4
-            and (grasp := GRASP_DIR.match(parts[1]))
-            and (aug := AUGMENTATION_DIR.match(parts[2]))
-        ):
-            grasps = tree[parts[0]].setdefault(int(grasp.group(1)), {})
-            grasps.setdefault(int(aug.group(1)), set()).add(parts[3])
-    object_files = defaultdict(
-        set, {name: files for name, files in object_files.items() if METADATA_FILE in files}
-    )
-
+    tree, object_files, root_files = _index(entries, directories)
     objects = sorted(set(object_files) | set(tree))
+    if not objects:
+        check.problems["missing object"].append(
+            "no object directories ({object}/grasp=g/augmentation=k/) at all"
+        )
     samples = 0
     gaps: list[str] = []
     for name in objects:
