@@ -4,6 +4,7 @@ copies of it (table-driven), on its zip and on Shore-hardness videos."""
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -269,6 +270,11 @@ def test_cli_check_prints_the_counts_and_writes_nothing(generated):
     assert result.exit_code == 0, result.output
     assert "Objects     3" in result.stdout and "Complete    yes" in result.stdout
     assert sorted(p.name for p in tree.parent.iterdir()) == before
+    as_json = _cli("import", "burgess", str(tree), "--check", "--json")
+    assert as_json.exit_code == 0, as_json.output
+    document = json.loads(as_json.stdout)
+    assert document["complete"] is True and document["problems"] == {}
+    assert document["counts"] == check_burgess_download(tree).counts
 
 
 @pytest.mark.parametrize("case", ["a file removed", "a grasp folder missing"])

@@ -213,12 +213,13 @@ CheckOption = Annotated[
 ]
 
 
-def _check_download(run: object, out: Path | None) -> None:
-    """Print a download check's counts; one error line (exit 2) when it is incomplete."""
+def _check_download(run: object, out: Path | None, as_json: bool) -> None:
+    """Print a download check's counts (or JSON); one error line (exit 2) when it is
+    incomplete."""
     if out is not None:
         _fail("--check writes nothing: drop --out, then import without --check", EXIT_BAD_INPUT)
     check = run()  # type: ignore[operator]
-    typer.echo(check.format())
+    typer.echo(_json(check.to_dict()) if as_json else check.format())
     check.raise_if_incomplete()  # type: ignore[attr-defined]
 
 
@@ -233,7 +234,8 @@ def _require_out(out: Path | None) -> Path:
 
 
 ImportJsonOption = Annotated[
-    bool, typer.Option("--json", help="Print the import report as JSON (as --report writes it).")
+    bool,
+    typer.Option("--json", help="Print the import report (with --check: the check) as JSON."),
 ]
 
 
@@ -275,7 +277,7 @@ def import_burgess_command(
     if check:
         from tactile_compliance.data.download_check import check_burgess_download
 
-        _check_download(lambda: check_burgess_download(src, object_table=objects), out)
+        _check_download(lambda: check_burgess_download(src, object_table=objects), out, as_json)
         return
     from tactile_compliance.data.burgess import import_burgess
 
@@ -311,7 +313,7 @@ def import_yuan_command(
     if check:
         from tactile_compliance.data.download_check import check_yuan_download
 
-        _check_download(lambda: check_yuan_download(src), out)
+        _check_download(lambda: check_yuan_download(src), out, as_json)
         return
     from tactile_compliance.data.yuan import import_yuan
 

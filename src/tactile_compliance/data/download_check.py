@@ -101,6 +101,17 @@ class DownloadCheck:
         lines.append("Complete    yes" if self.complete else "Complete    no")
         return "\n".join(lines)
 
+    def to_dict(self) -> dict[str, object]:
+        """The check as JSON-ready data (``--check --json``)."""
+        return {
+            "path": str(self.path),
+            "complete": self.complete,
+            "counts": dict(self.counts),
+            "total_bytes": self.total_bytes,
+            "problems": {kind: paths for kind, paths in self.problems.items() if paths},
+            "notes": list(self.notes),
+        }
+
     def raise_if_incomplete(self) -> None:
         """Raises IncompleteDownloadError (:meth:`error_line`) when a problem was found."""
         if not self.complete:
