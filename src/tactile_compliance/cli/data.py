@@ -197,24 +197,63 @@ ReportOption = Annotated[
 ]
 
 
-OutOption = Annotated[Path, typer.Option("--out", help="Store directory to create.")]
+OutOption = Annotated[
+    Optional[Path],
+    typer.Option("--out", help="Store directory to create (required unless --check)."),
+]
+
+
+CheckOption = Annotated[
+    bool,
+    typer.Option(
+        "--check",
+        help="Only check the download: counts, sizes and what is missing or cut short, "
+        "in one line; writes nothing (docs/reproduce.md).",
+    ),
+]
+
+
+def _check_download(run: object, out: Path | None, as_json: bool) -> None:
+    """Print a download check's counts (or JSON); one error line (exit 2) when it is
+    incomplete."""
+    if out is not None:
+        _fail("--check writes nothing: drop --out, then import without --check", EXIT_BAD_INPUT)
+    check = run()  # type: ignore[operator]
+    typer.echo(_json(check.to_dict()) if as_json else check.format())
+    check.raise_if_incomplete()  # type: ignore[attr-defined]
+
+
+def _require_out(out: Path | None) -> Path:
+    if out is None:
+        _fail(
+            "Missing option '--out': the store directory to create "
+            "(or pass --check to only check the download)",
+            EXIT_BAD_INPUT,
+        )
+    return out  # type: ignore[return-value]
 
 
 ImportJsonOption = Annotated[
-    bool, typer.Option("--json", help="Print the import report as JSON (as --report writes it).")
+    bool,
+    typer.Option("--json", help="Print the import report (with --check: the check) as JSON."),
 ]
 
 
 def import_burgess_command(
     src: Annotated[
-        Path, typer.Argument(help="The unpacked gelsight_youngs_modulus_dataset/ directory.")
+        Path,
+        typer.Argument(
+            help="The unpacked gelsight_youngs_modulus_dataset/ directory (with --check, "
+            "also its zip)."
+        ),
     ],
-    out: OutOption,
+    out: OutOption = None,
     objects: Annotated[
         Optional[Path],
         typer.Option(
             help="Object table CSV (dataset_objects_and_compliance.csv); "
-            "labels come from it instead of metadata.json."
+            "labels come from it instead of metadata.json (with --check: the objects and "
+            "grasps the download must hold)."
         ),
     ] = None,
     fingers: Annotated[
@@ -232,11 +271,18 @@ def import_burgess_command(
         ),
     ] = True,
     as_json: ImportJsonOption = False,
+    check: CheckOption = False,
 ) -> None:
     """Import the GelSight Young's-modulus dataset layout (real or simulated)."""
+    if check:
+        from tactile_compliance.data.download_check import check_burgess_download
+
+        _check_download(lambda: check_burgess_download(src, object_table=objects), out, as_json)
+        return
     from tactile_compliance.data.burgess import import_burgess
 
     image_size = _size_option(size)
+    out = _require_out(out)
     _run_import(
         lambda: import_burgess(
             src,
@@ -255,17 +301,24 @@ def import_burgess_command(
 
 def import_yuan_command(
     src: Annotated[Path, typer.Argument(help="Directory of {SHAPE}_{hardness}_{n}.avi videos.")],
-    out: OutOption,
+    out: OutOption = None,
     size: SizeOption = None,
     strict: StrictOption = False,
     overwrite: OverwriteOption = False,
     report_json: ReportOption = None,
     as_json: ImportJsonOption = False,
+    check: CheckOption = False,
 ) -> None:
     """Import the Shore-hardness press videos (Yuan et al. 2017)."""
+    if check:
+        from tactile_compliance.data.download_check import check_yuan_download
+
+        _check_download(lambda: check_yuan_download(src), out, as_json)
+        return
     from tactile_compliance.data.yuan import import_yuan
 
     image_size = _size_option(size)
+    out = _require_out(out)
     _run_import(
         lambda: import_yuan(src, out, image_size=image_size, strict=strict, overwrite=overwrite),
         report_json,
