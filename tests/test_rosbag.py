@@ -17,95 +17,17 @@ import re
 import shutil
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pandas as pd
 import pytest
 
-from helpers import WEDGE_CORNERS, cli, make_replay_grasp, runner, top10nn_checkpoint
+from helpers import WEDGE_CORNERS, cli, make_replay_grasp, runner, top10nn_checkpoint, write_bag
 from tactile_compliance.acquisition.sensors import SensorError, VideoCaptureSource, open_source
 from tactile_compliance.cli import app
 
 pytest.importorskip("rosbags")
 
-ORIGIN_NS = 1_701_869_000_123_456_789  # a real epoch time: stamps are absolute
 SIZE = (250, 350)
-
-
-def _stamp(typestore, t_s):
-    ns = ORIGIN_NS + round(t_s * 1e9)
-    Time = typestore.types["builtin_interfaces/msg/Time"]
-    Header = typestore.types["std_msgs/msg/Header"]
-    return Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id="gel"), ns
-
-
-def write_bag(
-    path,
-    frames,
-    frame_times_s,
-    reading_times_s,
-    force_n,
-    width_m,
-    *,
-    image="raw",
-    force_sign=1.0,
-    image_topic="/gelsight/image_raw",
-    extra_topics=(),
-    width_times_s=None,
-):
-    """A rosbag2 directory: Image (bgr8) or CompressedImage (PNG) frames, WrenchStamped
-    force (``force_sign`` x F along z), JointState of a Franka hand's two finger joints
-    (half the width each), stamped ``ORIGIN_NS + t``."""
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_HUMBLE)
-    T = ts.types
-    msgtype = "sensor_msgs/msg/Image" if image == "raw" else "sensor_msgs/msg/CompressedImage"
-    messages = []
-    for t, frame in zip(frame_times_s, frames, strict=True):
-        header, ns = _stamp(ts, t)
-        if image == "raw":
-            h, w = frame.shape[:2]
-            msg = T[msgtype](header=header, height=h, width=w, encoding="bgr8",
-                             is_bigendian=0, step=w * 3, data=frame.reshape(-1).copy())  # fmt: skip
-        else:
-            ok, png = cv2.imencode(".png", frame)
-            assert ok
-            msg = T[msgtype](header=header, format="png", data=png.reshape(-1))
-        messages.append((image_topic, msgtype, ns, msg))
-    Vector3, Wrench = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Wrench"]
-    for t, f in zip(reading_times_s, force_n, strict=True):
-        header, ns = _stamp(ts, t)
-        wrench = Wrench(
-            force=Vector3(x=0.1, y=-0.2, z=force_sign * f), torque=Vector3(x=0, y=0, z=0)
-        )
-        stamped = T["geometry_msgs/msg/WrenchStamped"](header=header, wrench=wrench)
-        messages.append(("/ft/wrench", "geometry_msgs/msg/WrenchStamped", ns, stamped))
-    width_times = reading_times_s if width_times_s is None else width_times_s
-    widths = (
-        width_m if width_times_s is None else np.interp(width_times_s, reading_times_s, width_m)
-    )
-    for t, w in zip(width_times, widths, strict=True):
-        header, ns = _stamp(ts, t)
-        state = T["sensor_msgs/msg/JointState"](
-            header=header,
-            name=["panda_finger_joint1", "panda_finger_joint2"],
-            position=np.array([w / 2, w / 2]),
-            velocity=np.zeros(0),
-            effort=np.zeros(0),
-        )
-        messages.append(("/franka_gripper/joint_states", "sensor_msgs/msg/JointState", ns, state))
-    for topic in extra_topics:
-        header, ns = _stamp(ts, 0.0)
-        messages.append((topic, msgtype, ns, messages[0][3]))
-    with Writer(path, version=8) as writer:
-        connections = {}
-        for topic, kind, ns, msg in sorted(messages, key=lambda m: m[2]):
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, kind, typestore=ts)
-            writer.write(connections[topic], ns, ts.serialize_cdr(msg, kind))
-    return path
 
 
 def video_frames(video):
