@@ -108,7 +108,7 @@ def decoded(path: Path) -> np.ndarray:
 def make_replay_grasp(root: Path, size: tuple[int, int]) -> dict[str, Any]:
     """A replayable synthetic grasp in ``root``: ``grasp.avi`` (at :data:`REPLAY_FPS`), a
     no-contact ``still.avi``, ``readings.csv``, and the ground truth."""
-    from tactile_compliance.acquisition.recording import write_readings_csv
+    from tactile_compliance.acquisition.readings import write_readings_csv
     from tactile_compliance.synthetic.grasp import SimulationOptions, make_context
     from tactile_compliance.synthetic.objects import default_objects
     from tactile_compliance.synthetic.trajectories import camera_recording
@@ -166,7 +166,7 @@ def pressed_frames(
 
 def captured_press(width_m: float = 0.05, n: int = 40, seed: int = 0) -> Any:
     """A ``CapturedGrasp``: a press to 60 N over ``n`` frames of 24 x 32 px at 30 fps."""
-    from tactile_compliance.acquisition.recording import CapturedGrasp
+    from tactile_compliance.acquisition.capture import CapturedGrasp
 
     t = np.arange(n, dtype=np.float64)
     force = 60.0 * np.clip((t - 6) / 20, 0, 1) ** 1.5

@@ -69,8 +69,12 @@ def test_estimate_without_readings_or_with_millimetres_says_why(grasp, tmp_path)
 def test_live_without_a_checkpoint_streams_the_same_estimates(grasp):
     source = f"video:{grasp['video']}"
     estimated = json.loads(cli("estimate", source, "--readings", grasp["readings"], "--json"))
-    lines = cli("live", source, "--readings", grasp["readings"], "--json").splitlines()
-    events = [json.loads(line) for line in lines]
+    result = runner.invoke(app, ["live", source, "--readings", str(grasp["readings"]), "--json"])
+    assert result.exit_code == 0, result.output
+    events = [json.loads(line) for line in result.stdout.splitlines()]
+    # Without --calibration the units are the Wedge's, and live says so in one line.
+    said = [line for line in result.stderr.splitlines() if "no --calibration" in line]
+    assert len(said) == 1 and "the Wedge's pixel density" in said[0], result.stderr
     estimates = [e for e in events if e["event"] == "estimate"]
     assert len(estimates) >= 2 and not estimates[0]["final"] and estimates[-1]["final"]
     final = estimates[-1]

@@ -16,14 +16,10 @@ import pytest
 from typer.testing import CliRunner
 
 from helpers import ArraySource, top10nn_checkpoint
-from tactile_compliance.acquisition.recording import (
-    ObjectInfo,
-    Readings,
-    capture_grasp,
-    record_grasp,
-    reference_frame,
-    write_readings_csv,
-)
+from tactile_compliance.acquisition.capture import capture_grasp
+from tactile_compliance.acquisition.first_frame import reference_frame
+from tactile_compliance.acquisition.readings import Readings, write_readings_csv
+from tactile_compliance.acquisition.recording import ObjectInfo, record_grasp
 from tactile_compliance.acquisition.sensors import (
     FrameGeometry,
     FrameSizeError,

@@ -18,7 +18,8 @@ import pytest
 
 import real_grasps
 from helpers import ArraySource, cli, json_lines, top10nn_checkpoint, wedge_calibration
-from tactile_compliance.acquisition.recording import ObjectInfo, Readings, record_grasp
+from tactile_compliance.acquisition.readings import Readings
+from tactile_compliance.acquisition.recording import ObjectInfo, record_grasp
 from tactile_compliance.runs.metrics import nmse
 
 #: The grasps whose force is already above the no-contact level at the first frame.

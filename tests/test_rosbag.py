@@ -21,7 +21,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from helpers import WEDGE_CORNERS, cli, make_replay_grasp, runner, top10nn_checkpoint, write_bag
+from helpers import (
+    WEDGE_CORNERS,
+    cli,
+    json_lines,
+    make_replay_grasp,
+    runner,
+    top10nn_checkpoint,
+    write_bag,
+)
 from tactile_compliance.acquisition.sensors import SensorError, VideoCaptureSource, open_source
 from tactile_compliance.cli import app
 
@@ -101,8 +109,8 @@ def test_live_and_predict_read_a_bag(grasp, bag, tmp_path):
 
     ckpt = top10nn_checkpoint(tmp_path / "m.pt", inputs="ALL", size=(72, 72))
     video = ["video:" + str(grasp["video"]), "--readings", grasp["readings"]]
-    by_video = [json.loads(x) for x in cli("live", ckpt, *video, "--json").splitlines()]
-    by_bag = [json.loads(x) for x in cli("live", ckpt, f"rosbag:{bag}", "--json").splitlines()]
+    by_video = json_lines(cli("live", ckpt, *video, "--json"))
+    by_bag = json_lines(cli("live", ckpt, f"rosbag:{bag}", "--json"))
     final_video, final_bag = by_video[-1], by_bag[-1]
     assert final_video["final"] and final_bag["final"]
     assert final_bag["log10_modulus_pa"] == pytest.approx(final_video["log10_modulus_pa"], abs=1e-6)

@@ -478,3 +478,12 @@ def test_a_mini_by_its_by_id_path_is_named_through_its_device(monkeypatch, tmp_p
     (tmp_path / "video2").touch()
     assert sensors.device_name(str(link)) == "GelSight Mini R0B 2BG8-XYZ"
     assert sensors.device_name("7") is None  # no such device in sysfs: nothing to check
+
+
+@pytest.mark.parametrize("text", ["1,2 3,4", "0,0 1,0 1,1 0,x", "0,0 1,0 1,1 0,1,2"])
+def test_parse_corners_refuses_anything_but_four_points(text: str) -> None:
+    from tactile_compliance.data.image_ops import parse_corners
+
+    with pytest.raises(ValueError, match="four points"):
+        parse_corners(text)
+    assert parse_corners("0,0 127,0 127,95 0,95")[2] == (127.0, 95.0)

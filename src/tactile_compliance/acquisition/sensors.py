@@ -571,7 +571,7 @@ class RosbagSource(FrameSourceBase):
 
     Attributes:
         readings_arrays: ``(timestamp_s, force_n, width_m)`` of the bag, on the frames'
-            clock (``recording.Readings(*source.readings_arrays)``).
+            clock (``readings.Readings(*source.readings_arrays)``).
 
     Raises:
         SensorError: no such bag, or ``rosbags`` is not installed.
@@ -719,7 +719,6 @@ SENSORS = (
     ),
 )
 _BY_NAME = {kind.name: kind for kind in SENSORS}
-SPEC_KINDS = tuple(_BY_NAME)  # TEMPORARY: recording.same_replay's, until it uses parse_spec
 
 
 def parse_spec(spec: str) -> tuple[SensorKind, str]:
