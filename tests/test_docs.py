@@ -284,6 +284,7 @@ def test_the_python_blocks_of_each_page_run(doc: str, workdir: Path, sandbox: Pa
     from tactile_compliance.models import registry
 
     namespace = {"__name__": "__docs__", **_grasp(GraspStore.open(sandbox / "stores" / "ym"))}
+    registry.discover_models()  # the built-in models are in the snapshot
     models = dict(registry._REGISTRY)  # a page may register an example model
     try:
         for block in PYTHON_PAGES[doc]:
