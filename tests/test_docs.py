@@ -284,6 +284,7 @@ def test_the_python_blocks_of_each_page_run(doc: str, workdir: Path, sandbox: Pa
     from tactile_compliance.models import registry
 
     namespace = {"__name__": "__docs__", **_grasp(GraspStore.open(sandbox / "stores" / "ym"))}
+    registry.discover_models()  # the built-in models are in the snapshot
     models = dict(registry._REGISTRY)  # a page may register an example model
     try:
         for block in PYTHON_PAGES[doc]:
@@ -359,3 +360,21 @@ def test_the_runnable_shell_blocks_run(block: Block, workdir: Path) -> None:
         )
         result = CliRunner().invoke(app, words[1:])
         assert result.exit_code == 0, f"{block.id}: `{command}` failed:\n{result.output[-3000:]}"
+
+
+# ============================================================================ the sensor table
+def test_the_sensor_table_in_the_docs_is_the_code_table() -> None:
+    """docs/inference.md's table of source specs has one row per entry of
+    ``acquisition.sensors.SENSORS``, in its order, with its class, liveness and channels."""
+    from tactile_compliance.acquisition.sensors import SENSORS
+
+    text = (REPO / "docs" / "inference.md").read_text(encoding="utf-8")
+    header = "| spec | source | live | channels |"
+    rows = text[text.index(header) :].split("\n\n")[0].splitlines()[2:]
+    cells = [[cell.strip() for cell in row.strip("|").split(" | ")] for row in rows]
+    assert [re.match(r"`(\w+):", spec).group(1) for spec, *_ in cells] == [
+        kind.name for kind in SENSORS
+    ]
+    for (_, source, live, channels, _), kind in zip(cells, SENSORS, strict=True):
+        assert f"`{kind.source_class.__name__}`" in source, (kind.name, source)
+        assert (live, channels) == (kind.live, kind.channel_order), kind.name

@@ -15,34 +15,26 @@ import json
 import math
 
 import pytest
-from typer.testing import CliRunner
 
+from helpers import cli, make_replay_grasp, runner
 from tactile_compliance.acquisition.estimates import REAL_WEDGE_ACCURACY, accuracy_statement
 from tactile_compliance.cli import app
 from tactile_compliance.physics.estimators import WEDGE_UNITS, SensorUnits
 
-runner = CliRunner()
 SIZE = (250, 350)  # the dataset's frame size: big enough for both estimates
-
-
-def _cli(*args):
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == 0, (args, result.output, result.exception)
-    return result.output
 
 
 @pytest.fixture(scope="module")
 def grasp(tmp_path_factory):
-    from test_recording import make_grasp
 
-    return make_grasp(tmp_path_factory.mktemp("estimate"), SIZE)
+    return make_replay_grasp(tmp_path_factory.mktemp("estimate"), SIZE)
 
 
 def test_estimate_prints_the_estimates_record_stores(grasp, tmp_path):
     source = f"video:{grasp['video']}"
-    estimated = json.loads(_cli("estimate", source, "--readings", grasp["readings"], "--json"))
+    estimated = json.loads(cli("estimate", source, "--readings", grasp["readings"], "--json"))
     recorded = json.loads(
-        _cli(
+        cli(
             "record", source, "--readings", grasp["readings"], "--out", tmp_path / "data",
             "--object", "thing", "--modulus", grasp["modulus_pa"], "--json",
         )
@@ -53,7 +45,7 @@ def test_estimate_prints_the_estimates_record_stores(grasp, tmp_path):
     assert estimated["frame_indices"] == recorded["frame_indices"][0]
     assert estimated["units"] == WEDGE_UNITS.to_dict()
     assert estimated["accuracy"]["grasps"] == REAL_WEDGE_ACCURACY["grasps"]
-    text = _cli("estimate", source, "--readings", grasp["readings"])
+    text = cli("estimate", source, "--readings", grasp["readings"])
     elastic, hertz = estimated["estimates_pa"]
     assert f"elastic E {elastic:.4g} Pa, Hertz E* {hertz:.4g} Pa" in text
     assert "15 real Wedge grasps of only 5 objects" in text and "9/15" in text
@@ -76,16 +68,20 @@ def test_estimate_without_readings_or_with_millimetres_says_why(grasp, tmp_path)
 
 def test_live_without_a_checkpoint_streams_the_same_estimates(grasp):
     source = f"video:{grasp['video']}"
-    estimated = json.loads(_cli("estimate", source, "--readings", grasp["readings"], "--json"))
-    lines = _cli("live", source, "--readings", grasp["readings"], "--json").splitlines()
-    events = [json.loads(line) for line in lines]
+    estimated = json.loads(cli("estimate", source, "--readings", grasp["readings"], "--json"))
+    result = runner.invoke(app, ["live", source, "--readings", str(grasp["readings"]), "--json"])
+    assert result.exit_code == 0, result.output
+    events = [json.loads(line) for line in result.stdout.splitlines()]
+    # Without --calibration the units are the Wedge's, and live says so in one line.
+    said = [line for line in result.stderr.splitlines() if "no --calibration" in line]
+    assert len(said) == 1 and "the Wedge's pixel density" in said[0], result.stderr
     estimates = [e for e in events if e["event"] == "estimate"]
     assert len(estimates) >= 2 and not estimates[0]["final"] and estimates[-1]["final"]
     final = estimates[-1]
     assert final["estimates_pa"] == pytest.approx(estimated["estimates_pa"], rel=1e-9)
     assert final["frame_indices"] == estimated["frame_indices"]
     assert "modulus_pa" not in final  # no model, no single modulus
-    text = _cli("live", source, "--readings", grasp["readings"]).splitlines()
+    text = cli("live", source, "--readings", grasp["readings"]).splitlines()
     assert text[-1].startswith("final       elastic E = ") and "Hertz E* = " in text[-1]
 
 

@@ -15,15 +15,14 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from helpers import ArraySource, top10nn_checkpoint
 from tactile_compliance.acquisition.capture import capture_grasp
 from tactile_compliance.acquisition.first_frame import reference_frame
 from tactile_compliance.acquisition.readings import Readings, write_readings_csv
 from tactile_compliance.acquisition.recording import ObjectInfo, record_grasp
 from tactile_compliance.acquisition.sensors import (
-    PLAIN_GEOMETRY,
     FrameGeometry,
     FrameSizeError,
-    FrameSourceBase,
 )
 from tactile_compliance.cli import app
 from tactile_compliance.data.force_readings import (
@@ -119,20 +118,6 @@ def test_the_baseline_comes_from_the_flat_ends_and_is_not_subtracted():
 
 
 # ---------------------------------------------------------------------- record
-class ArraySource(FrameSourceBase):
-    """Frames from memory at a constant rate (a replay, like a video file)."""
-
-    def __init__(self, frames, geometry: FrameGeometry = PLAIN_GEOMETRY, name="array"):
-        super().__init__(geometry)
-        self.frames, self.i, self.name = frames, 0, name
-
-    def _grab(self):
-        if self.i >= len(self.frames):
-            return None
-        self.i += 1
-        return (self.i - 1) / FPS, self.frames[self.i - 1]
-
-
 @pytest.fixture(scope="module")
 def grasp():
     """A synthetic camera recording at 30 fps: frames, readings, the no-contact frame."""
@@ -239,9 +224,8 @@ def test_a_long_recording_of_223_frames_records_and_streams(grasp, tmp_path):
     readings = Readings(long_t, force[order], width[order])
     result = record_grasp(ArraySource(frames), readings, tmp_path / "data", grasp["info"])
     assert result.n_frames > lead + 40 and result.frame_indices[0][0] >= lead
-    from test_recording import _checkpoint
 
-    estimator = ComplianceEstimator.from_checkpoint(_checkpoint(tmp_path / "m.pt"))
+    estimator = ComplianceEstimator.from_checkpoint(top10nn_checkpoint(tmp_path / "m.pt"))
     events = list(live_estimates([estimator], ArraySource(frames), readings))
     final = events[-1]
     assert final["final"] and final["frame_indices"] == list(result.frame_indices[0])
@@ -259,7 +243,6 @@ def test_a_long_recording_of_223_frames_records_and_streams(grasp, tmp_path):
 
 def test_live_reports_spikes_and_a_start_in_contact(grasp, tmp_path):
     from tactile_compliance.inference.estimator import ComplianceEstimator
-    from test_recording import _checkpoint
 
     onset = int(np.argmax(grasp["force"] >= 1.0))
     frames, readings = _started_in_contact(grasp, onset + 1)
@@ -267,7 +250,7 @@ def test_live_reports_spikes_and_a_start_in_contact(grasp, tmp_path):
     spike = int(np.argmax(force)) + 2
     force[spike] = -70.0
     spiked = Readings(readings.timestamp_s, force, readings.width_m)
-    estimator = ComplianceEstimator.from_checkpoint(_checkpoint(tmp_path / "m.pt"))
+    estimator = ComplianceEstimator.from_checkpoint(top10nn_checkpoint(tmp_path / "m.pt"))
     events = list(live_estimates([estimator], ArraySource(frames), spiked))
     warnings = [e["reason"] for e in events if e["event"] == "warning"]
     assert any("starts in contact" in w for w in warnings)

@@ -31,6 +31,7 @@ import torch
 from typer.testing import CliRunner
 
 import tactile_compliance
+from helpers import captured_press, make_replay_grasp
 from tactile_compliance.acquisition import calibration as calibration_module
 from tactile_compliance.acquisition.calibration import (
     SensorCalibration,
@@ -54,8 +55,6 @@ from tactile_compliance.outputs import MARKER_NAME, OutputExistsError, atomic_fi
 from tactile_compliance.runs.checkpoint import save_checkpoint
 from tactile_compliance.runs.metrics import grouped_metrics, r2
 from tactile_compliance.runs.run_inputs import RunInputs
-from test_recording import make_grasp
-from test_recording_reliability import captured
 from toy_store import make_toy_store
 
 runner = CliRunner()
@@ -134,7 +133,7 @@ def sensor(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def grasp(tmp_path_factory):
-    return make_grasp(tmp_path_factory.mktemp("grasp"), (60, 84))
+    return make_replay_grasp(tmp_path_factory.mktemp("grasp"), (60, 84))
 
 
 @pytest.fixture(scope="module")
@@ -245,7 +244,7 @@ def test_depth_on_a_full_disk_exits_1_and_leaves_no_truncated_file(sensor, tmp_p
 
 def test_record_on_a_full_disk_commits_no_grasp_without_its_table_row(tmp_path, monkeypatch):
     out = tmp_path / "data"
-    write_grasp(captured(), out, ObjectInfo("ball", 1e5))
+    write_grasp(captured_press(), out, ObjectInfo("ball", 1e5))
     before = (out / OBJECT_TABLE_FILE).read_bytes()
 
     def full(self, *args, **kwargs):
@@ -253,19 +252,19 @@ def test_record_on_a_full_disk_commits_no_grasp_without_its_table_row(tmp_path, 
 
     monkeypatch.setattr(pd.DataFrame, "to_csv", full)
     with pytest.raises(OSError, match="No space left"):
-        write_grasp(captured(), out, ObjectInfo("ball", 1e5))
+        write_grasp(captured_press(), out, ObjectInfo("ball", 1e5))
     monkeypatch.undo()
     assert sorted(p.name for p in (out / "ball").iterdir()) == ["grasp=0", "metadata.json"]
     assert (out / OBJECT_TABLE_FILE).read_bytes() == before
     # The re-run records the grasp once: grasp=1, and the table says 2 trials.
-    assert write_grasp(captured(), out, ObjectInfo("ball", 1e5)).grasp == 1
+    assert write_grasp(captured_press(), out, ObjectInfo("ball", 1e5)).grasp == 1
     rows = pd.read_csv(out / OBJECT_TABLE_FILE, dtype=str, keep_default_na=False)
     assert rows.set_index("Label").loc["ball", "Trials Recorded?"] == "2"
 
 
 def test_record_takes_the_grasp_back_when_the_table_cannot_replace_the_old(tmp_path, monkeypatch):
     out = tmp_path / "data"
-    write_grasp(captured(), out, ObjectInfo("ball", 1e5))
+    write_grasp(captured_press(), out, ObjectInfo("ball", 1e5))
     replace = os.replace
 
     def failing(src, dst, *args, **kwargs):
@@ -275,7 +274,7 @@ def test_record_takes_the_grasp_back_when_the_table_cannot_replace_the_old(tmp_p
 
     monkeypatch.setattr(os, "replace", failing)
     with pytest.raises(OSError, match="Input/output"):
-        write_grasp(captured(), out, ObjectInfo("ball", 1e5))
+        write_grasp(captured_press(), out, ObjectInfo("ball", 1e5))
     monkeypatch.undo()
     assert sorted(p.name for p in (out / "ball").iterdir()) == ["grasp=0", "metadata.json"]
     assert not list(out.glob("*.tmp"))
@@ -522,8 +521,10 @@ def test_greyscale_frames_are_refused_by_a_colour_depth_model(sensor, tmp_path):
         tmp_path / "d",
     )
     assert "greyscale" in _one_line(result) and not (tmp_path / "d").exists()
-    frames = np.repeat(captured().frames.mean(axis=3, keepdims=True).astype(np.uint8), 3, axis=3)
-    grey_grasp = captured()
+    frames = np.repeat(
+        captured_press().frames.mean(axis=3, keepdims=True).astype(np.uint8), 3, axis=3
+    )
+    grey_grasp = captured_press()
     grey_grasp.frames = frames
     colour = SensorCalibration(
         reference=_frame(3, None)[:24, :32],

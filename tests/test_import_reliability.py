@@ -20,6 +20,7 @@ import pandas as pd
 import pytest
 
 from burgess_tree import dump, write_tree
+from helpers import write_level_video
 from tactile_compliance.data import store as store_module
 from tactile_compliance.data import store_writer
 from tactile_compliance.data.burgess import import_burgess
@@ -214,13 +215,12 @@ def test_frame_size_is_the_majority_not_the_first_file(tmp_path):
 
 
 def test_yuan_frame_size_is_the_majority(tmp_path):
-    from test_import_yuan import _write_video
 
     src = tmp_path / "videos"
     src.mkdir()
-    _write_video(src / "AAA_10_1.avi", [20, 60, 100], size=(16, 16))
+    write_level_video(src / "AAA_10_1.avi", [20, 60, 100], size=(16, 16))
     for n in range(3):
-        _write_video(src / f"BASIC_60_{n}.avi", [20, 60, 100])
+        write_level_video(src / f"BASIC_60_{n}.avi", [20, 60, 100])
     import_yuan(src, tmp_path / "store", progress=False)
     assert GraspStore.open(tmp_path / "store").image_size == (24, 32)
 
@@ -413,11 +413,10 @@ def test_created_files_follow_the_umask(tmp_path, umask):
 
 # ------------------------------------------------------------------------- 10 yuan videos
 def test_every_skipped_video_is_reported(tmp_path):
-    from test_import_yuan import _write_video
 
     src = tmp_path / "videos"
     src.mkdir()
-    _write_video(src / "BASIC_60_1.avi", [20, 60, 100])
+    write_level_video(src / "BASIC_60_1.avi", [20, 60, 100])
     writer = cv2.VideoWriter(
         str(src / "BASIC_40_1.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30, (32, 24)
     )

@@ -2,24 +2,13 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
+from helpers import write_level_video
 from tactile_compliance.data.import_report import DataImportError
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.data.yuan import import_yuan, select_press_frames
-
-
-def _write_video(path, brightness: list[int], size=(24, 32)) -> None:
-    height, width = size
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (width, height))
-    assert writer.isOpened()
-    for level in brightness:
-        frame = np.full((height, width, 3), level, np.uint8)
-        frame[..., 0] = 10  # blue channel constant: checks the BGR -> RGB flip
-        writer.write(frame)
-    writer.release()
 
 
 def test_frame_selection_first_midway_brightest():
@@ -58,8 +47,8 @@ def test_brightest_frame_reads_the_frames_as_rgb():
 def test_import_labels_and_frames(tmp_path):
     src = tmp_path / "videos"
     src.mkdir()
-    _write_video(src / "BASIC_60_1.avi", [20, 60, 100, 140, 120, 80])
-    _write_video(src / "HEMI_SPHERE_08_2.avi", [30, 30, 200, 40])
+    write_level_video(src / "BASIC_60_1.avi", [20, 60, 100, 140, 120, 80])
+    write_level_video(src / "HEMI_SPHERE_08_2.avi", [30, 30, 200, 40])
     report = import_yuan(src, tmp_path / "store", progress=False)
     assert report.problems == [] and report.samples_imported == 2
     store = GraspStore.open(tmp_path / "store")
@@ -83,9 +72,9 @@ def test_import_labels_and_frames(tmp_path):
 def test_bad_videos_are_reported(tmp_path):
     src = tmp_path / "videos"
     src.mkdir()
-    _write_video(src / "BASIC_60_1.avi", [20, 60, 100])
+    write_level_video(src / "BASIC_60_1.avi", [20, 60, 100])
     (src / "BASIC_70_1.avi").write_bytes(b"not a video at all")
-    _write_video(src / "notes.avi", [1, 2, 3])
+    write_level_video(src / "notes.avi", [1, 2, 3])
     report = import_yuan(src, tmp_path / "store", progress=False, image_size=(12, 16))
     reasons = dict(report.reasons())
     assert reasons == {"unreadable video": 1, "unexpected file name": 1}

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import pressed_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.store import frames_from_uint8
 from tactile_compliance.inference import (
@@ -43,27 +44,6 @@ def estimator_fw():
     return _estimator("ImageFW")
 
 
-def make_grasp(n_frames: int = 46, onset: int = 9, release: int = 38, seed: int = 0):
-    """A grasp recording: force ramps up, holds with ripple, releases; frames follow it."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(n_frames, dtype=np.float64)
-    u = np.clip((t - onset) / 14.0, 0.0, 1.0)
-    force = 60.0 * (1 - (1 - u) ** 2) * (t >= onset)
-    hold = (t > onset + 14) & (t < release)
-    force[hold] *= 1 + 0.01 * np.sin(t[hold] * 1.7)
-    force[t >= release] *= np.clip(1 - (t[t >= release] - release + 1) / 3, 0, 1)
-    force = force + rng.normal(0, 0.05, n_frames)
-    width = 0.05 - 0.004 * force / 60 + rng.normal(0, 1e-5, n_frames)
-    yy, xx = np.mgrid[0 : SIZE[0], 0 : SIZE[1]]
-    r2 = (yy - SIZE[0] / 2) ** 2 + (xx - SIZE[1] / 2) ** 2
-    frames = np.empty((n_frames, *SIZE, 3), np.uint8)
-    for i, f in enumerate(force):
-        blob = np.exp(-r2 / (2 * (2 + 8 * max(f, 0) / 60) ** 2)) * max(f, 0) / 60
-        image = 0.5 + 0.2 * blob[..., None] * np.array([1.0, 0.6, 0.3])
-        frames[i] = np.clip(np.rint((image + rng.normal(0, 0.004, image.shape)) * 255), 0, 255)
-    return frames, force, width
-
-
 def expected_indices(force, window=None):
     """DATA_FORMATS.md: i_start = first F >= 5 N, i_peak = first F >= 0.975 F_max."""
     i_start = int(np.argmax(force >= 5.0))
@@ -82,7 +62,7 @@ def feed(stream, frames, force, width, **kwargs):
 
 
 def test_selection_follows_the_dataset_rule():
-    _, force, _ = make_grasp()
+    _, force, _ = pressed_frames()
     selection = select_frame_indices(force)
     assert selection.indices == expected_indices(force)
     assert select_frame_indices(force, window=6).indices == expected_indices(force, window=6)
@@ -93,7 +73,7 @@ def test_selection_follows_the_dataset_rule():
 
 
 def test_stream_reproduces_the_batch_estimate_frame_by_frame(estimator_fw):
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     idx = list(expected_indices(force))
     batch = estimator_fw.predict(frames[idx], force=force[idx], width=width[idx])
 
@@ -122,7 +102,7 @@ def test_stream_reproduces_the_batch_estimate_frame_by_frame(estimator_fw):
 
 
 def test_stream_finish_without_release_equals_batch_on_what_was_seen(estimator_fw):
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     cut = 30  # in the hold, before the release
     stream = estimator_fw.stream()
     emitted = feed(stream, frames[:cut], force[:cut], width[:cut])
@@ -136,7 +116,7 @@ def test_stream_finish_without_release_equals_batch_on_what_was_seen(estimator_f
 
 @pytest.mark.parametrize("window", [3, 5, 9])
 def test_window_uses_the_last_n_frames_up_to_the_peak(estimator_fw, window):
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     stream = estimator_fw.stream(window=window)
     final = feed(stream, frames, force, width)[-1]
     idx = list(expected_indices(force, window=window))
@@ -149,7 +129,7 @@ def test_window_uses_the_last_n_frames_up_to_the_peak(estimator_fw, window):
 
 
 def test_stream_of_raw_frames_differences_against_the_reference(estimator_fw):
-    diff_frames, force, width = make_grasp()
+    diff_frames, force, width = pressed_frames()
     rng = np.random.default_rng(3)
     background = rng.integers(60, 190, size=(*SIZE, 3), dtype=np.uint8)
     raw = np.clip(
@@ -174,7 +154,7 @@ def test_stream_of_raw_frames_differences_against_the_reference(estimator_fw):
 
 def test_stream_with_estimates_for_an_all_checkpoint():
     estimator = _estimator("ALL")
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     idx = list(expected_indices(force))
     estimates = [3e5, 6e5]
     batch = estimator.predict(frames[idx], force=force[idx], width=width[idx], estimates=estimates)
@@ -209,7 +189,7 @@ def test_stream_computes_estimates_from_depth_maps_with_the_contact_estimator():
     from tactile_compliance.physics.contact import analytical_estimates_pa
 
     estimator = _estimator("ALL")
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     depth = _depth_maps(force)
     idx = list(expected_indices(force))
     span = slice(idx[0], idx[2] + 1)  # [i_start, i_peak]
@@ -232,7 +212,7 @@ def test_stream_computes_the_dataset_estimates_by_default():
 
     estimator = _estimator("ALL")
     assert estimator.run_inputs.estimator == DEFAULT_ESTIMATOR
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     # Large imprints: the dataset's estimator needs >= 2690 px of contact on its grid.
     depth = _depth_maps(force, size=(250, 350), radius_px=(20.0, 40.0), peak_mm=1.5)
     expected = dataset_estimates_pa(force, width, depth)  # the whole recording
@@ -251,7 +231,7 @@ def test_stream_computes_the_dataset_estimates_by_default():
 
 
 def test_stream_input_errors(estimator_fw):
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     stream = estimator_fw.stream()
     with pytest.raises(ValueError, match="width_m"):
         stream.update(frames[0], force[0], None)
@@ -271,7 +251,7 @@ def test_stream_input_errors(estimator_fw):
 
 
 def test_no_contact_gives_no_estimate(estimator_fw):
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     stream = estimator_fw.stream()
     assert feed(stream, frames, np.minimum(force, 4.0), width) == []
     assert stream.state == "waiting" and stream.finish() is None
@@ -282,7 +262,7 @@ def test_no_contact_gives_no_estimate(estimator_fw):
 def test_ensemble_mean_and_interval_from_members():
     members = [_estimator("ImageFW", seed=s) for s in range(3)]
     ensemble = EnsembleEstimator(members, level=0.8)
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     idx = list(expected_indices(force))
     batch_frames = np.stack([frames[idx], frames[[i + 1 for i in idx]]])
     batch_force = np.stack([force[idx], force[[i + 1 for i in idx]]])
@@ -328,7 +308,7 @@ def test_window_study_tables(estimator_fw):
     from inference_studies import summarise_window_study, window_study
     from tactile_compliance.synthetic.trajectories import GraspTrajectory
 
-    frames, force, width = make_grasp(seed=0, n_frames=32, release=26)
+    frames, force, width = pressed_frames(seed=0, n_frames=32, release=26)
     trajectory = GraspTrajectory("obj", 0, 1e6, frames, force, width, np.array([np.nan] * 2))
     table = window_study(estimator_fw, [trajectory], windows=(None, 4))
     assert len(table) == 2 and set(table["window"]) == {0, 4}

@@ -15,7 +15,6 @@ from tactile_compliance.cli import app
 from tactile_compliance.config import load_config
 from tactile_compliance.data.burgess import import_burgess
 from tactile_compliance.data.features import cache_key
-from tactile_compliance.data.image_ops import resize_frames
 from tactile_compliance.data.preprocess import filter_samples
 from tactile_compliance.data.splits import make_split_from_config
 from tactile_compliance.data.store import (
@@ -23,7 +22,6 @@ from tactile_compliance.data.store import (
     GraspStore,
     StoreError,
     depth_size_for,
-    frames_from_uint8,
 )
 from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.models import create_model
@@ -37,27 +35,10 @@ from tactile_compliance.training.pretrain import (
     pretrain_backbone,
 )
 from tactile_compliance.training.train import train
-from toy_store import make_toy_store, tiny_run_config
+from toy_store import depth_toy_store, make_toy_store, tiny_run_config
 
 runner = CliRunner()
 ROW = {"object": "o", "modulus_pa": 1e6, "material": "Foam", "shape": "Sphere"}
-
-
-def depth_toy_store(path, **kwargs):  # type: ignore[no-untyped-def]
-    """``make_toy_store`` with depth maps: each frame's pressed blob (its deviation from
-    0.5, scaled to the sample's ``depth_max_mm``), area-averaged to the store's depth size."""
-    toy = make_toy_store(path.with_name(path.name + "-plain"), **kwargs)
-    size = depth_size_for(toy.image_size)
-    maxima = toy.samples[[f"depth_max_mm_{i}" for i in range(3)]].to_numpy(dtype=np.float64)
-    with GraspStoreWriter(path, toy.image_size, "toy", depth_size=size) as writer:
-        for index in range(len(toy)):
-            frames = toy.read_sample(index)
-            deviation = np.abs(frames_from_uint8(frames) - 0.5).mean(axis=-1)  # (3, H, W)
-            shape = deviation / deviation.max(axis=(1, 2), keepdims=True)
-            depth = resize_frames(shape.astype(np.float32), size) * maxima[index, :, None, None]
-            row = toy.samples.iloc[index].drop("sample_id").to_dict()
-            writer.append(frames, row, depth)
-    return GraspStore.open(path)
 
 
 def _sha256(path):

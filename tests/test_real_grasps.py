@@ -15,16 +15,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from typer.testing import CliRunner
 
 import real_grasps
+from helpers import ArraySource, cli, json_lines, top10nn_checkpoint, wedge_calibration
 from tactile_compliance.acquisition.readings import Readings
 from tactile_compliance.acquisition.recording import ObjectInfo, record_grasp
-from tactile_compliance.cli import app
 from tactile_compliance.runs.metrics import nmse
 
-CORNERS = "46,87 439,121 446,368 52,425"
-runner = CliRunner()
 #: The grasps whose force is already above the no-contact level at the first frame.
 STARTS_IN_CONTACT = {
     "foam_brick_1",
@@ -97,14 +94,13 @@ def test_models_are_named_by_their_run_or_their_own_file():
 def test_predict_takes_an_exported_directory_like_live(tmp_path):
     """The benchmark's --model is what predict takes: a checkpoint or an export."""
     pytest.importorskip("safetensors")
-    from test_recording import _checkpoint
     from toy_store import make_toy_store
 
     store = make_toy_store(tmp_path / "store", n_objects=3, grasps=1, size=(72, 72))
-    ckpt = _checkpoint(tmp_path / "m.pt", inputs="ImageFW", size=(72, 72))
-    _cli("export", ckpt, "--safetensors", tmp_path / "model-dir")
-    by_checkpoint = json.loads(_cli("predict", ckpt, store.path, "--json"))["predictions"]
-    by_export = json.loads(_cli("predict", tmp_path / "model-dir", store.path, "--json"))
+    ckpt = top10nn_checkpoint(tmp_path / "m.pt", inputs="ImageFW", size=(72, 72))
+    cli("export", ckpt, "--safetensors", tmp_path / "model-dir")
+    by_checkpoint = json.loads(cli("predict", ckpt, store.path, "--json"))["predictions"]
+    by_export = json.loads(cli("predict", tmp_path / "model-dir", store.path, "--json"))
     assert [p["pred_log10_pa"] for p in by_export["predictions"]] == pytest.approx(
         [p["pred_log10_pa"] for p in by_checkpoint], abs=1e-5
     )
@@ -137,29 +133,6 @@ def test_the_real_readings_quirks_are_found(wedge_grasps):
     assert starts == STARTS_IN_CONTACT
 
 
-def _calibration(tmp_path, video):
-    out = tmp_path / "sensor.json"
-    _cli(
-        "calibrate",
-        f"wedge:{video}",
-        "--out",
-        out,
-        "--corners",
-        CORNERS,
-        "--warp-size",
-        "300x400",
-        "--frames",
-        3,
-    )
-    return out
-
-
-def _cli(*args):
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == 0, (args, result.output, result.exception)
-    return result.output
-
-
 def test_a_force_spike_in_a_real_grasp_changes_nothing_but_is_reported(wedge_grasps, tmp_path):
     """-70 N in one frame of the hold: without the handling the capture would end there."""
     from tactile_compliance.acquisition.calibration import SensorCalibration
@@ -170,7 +143,7 @@ def test_a_force_spike_in_a_real_grasp_changes_nothing_but_is_reported(wedge_gra
     frame = int(np.argmax(table.force_n.to_numpy())) + 3
     spiked.loc[frame, "force_n"] = -70.0
     spiked.to_csv(tmp_path / "spiked.csv", index=False)
-    calibration = SensorCalibration.load(_calibration(tmp_path, video))
+    calibration = SensorCalibration.load(wedge_calibration(tmp_path, video))
     results = []
     for name, csv in (
         ("clean", video.with_name("golf_ball_1_readings.csv")),
@@ -201,11 +174,11 @@ def test_a_long_real_recording_of_223_frames(wedge_grasps, tmp_path):
     """A real grasp after a long empty lead-in (223 frames in all, as long as the rig's
     longest): the same frames after the lead-in and the same analytical estimates."""
     from tactile_compliance.acquisition.calibration import SensorCalibration
-    from tactile_compliance.acquisition.sensors import FrameSourceBase, iter_frames
+    from tactile_compliance.acquisition.sensors import iter_frames
 
     video = _session(wedge_grasps) / "purple_ball_hardest_1.avi"
     readings_csv = video.with_name("purple_ball_hardest_1_readings.csv")
-    calibration = SensorCalibration.load(_calibration(tmp_path, video))
+    calibration = SensorCalibration.load(wedge_calibration(tmp_path, video))
     import cv2
 
     capture = cv2.VideoCapture(str(video))
@@ -214,24 +187,13 @@ def test_a_long_real_recording_of_223_frames(wedge_grasps, tmp_path):
         raw.append(item[1])
     lead = 223 - len(raw)
 
-    class Replay(FrameSourceBase):
-        def __init__(self, frames):
-            super().__init__(calibration.geometry)
-            self.frames, self.i, self.name = frames, 0, "replay"
-
-        def _grab(self):
-            if self.i >= len(self.frames):
-                return None
-            self.i += 1
-            return (self.i - 1) / 30.0, self.frames[self.i - 1]
-
     table = pd.read_csv(readings_csv)
     force = np.r_[np.full(lead, table.force_n.iloc[0]), table.force_n]
     width = np.r_[np.full(lead, table.width_m.iloc[0]), table.width_m]
     long_readings = Readings(np.arange(223) / 30.0, force, width)
     info = ObjectInfo("purple_elastic_ball", 2.04e5)
     long = record_grasp(
-        Replay([raw[0]] * lead + raw),
+        ArraySource([raw[0]] * lead + raw, calibration.geometry, name="replay"),
         long_readings,
         tmp_path / "long",
         info,
@@ -248,7 +210,9 @@ def test_a_long_real_recording_of_223_frames(wedge_grasps, tmp_path):
     assert long.n_frames == short.n_frames + lead > 200
     assert long.frame_indices == [tuple(i + lead for i in f) for f in short.frame_indices]
     np.testing.assert_allclose(long.estimates_pa, short.estimates_pa, rtol=1e-6)
-    with Replay(raw) as source:  # the replay gives the video's frames
+    with ArraySource(
+        raw, calibration.geometry, name="replay"
+    ) as source:  # the replay gives the video's frames
         frames = [f for _, f in iter_frames(source)]
     with calibration.open(f"wedge:{video}") as source:
         assert all(
@@ -259,16 +223,15 @@ def test_a_long_real_recording_of_223_frames(wedge_grasps, tmp_path):
 def test_live_on_a_real_video_equals_record_and_predict(wedge_grasps, tmp_path):
     """The documented path on a real grasp that starts in contact, with an ALL checkpoint
     (so live also computes the analytical estimates from depth maps, as record did)."""
-    from test_recording import _checkpoint, _json_lines
 
     video = _session(wedge_grasps) / "foam_brick_1.avi"
     readings = video.with_name("foam_brick_1_readings.csv")
-    sensor = _calibration(tmp_path, video)
-    ckpt = _checkpoint(tmp_path / "m.pt", inputs="ALL", size=(72, 72))
+    sensor = wedge_calibration(tmp_path, video)
+    ckpt = top10nn_checkpoint(tmp_path / "m.pt", inputs="ALL", size=(72, 72))
     data, store = tmp_path / "data", tmp_path / "store"
     common = ["--readings", readings, "--calibration", sensor]
     recorded = json.loads(
-        _cli(
+        cli(
             "record",
             f"wedge:{video}",
             "--out",
@@ -283,11 +246,11 @@ def test_live_on_a_real_video_equals_record_and_predict(wedge_grasps, tmp_path):
     )
     assert any("starts in contact" in w for w in recorded["warnings"])
     assert all(np.isfinite(recorded["estimates_pa"]))
-    _cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
-    predicted = json.loads(_cli("predict", ckpt, store, "--json"))
+    cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
+    predicted = json.loads(cli("predict", ckpt, store, "--json"))
     rows = {p["augmentation"]: p for p in predicted["predictions"]}
     assert len(rows) == recorded["augmentations"]
-    events = _json_lines(_cli("live", ckpt, f"wedge:{video}", *common, "--json"))
+    events = json_lines(cli("live", ckpt, f"wedge:{video}", *common, "--json"))
     warnings = [e["reason"] for e in events if e["event"] == "warning"]
     assert any("starts in contact" in w for w in warnings)
     final = [e for e in events if e.get("final")]
@@ -313,11 +276,10 @@ def test_the_benchmark_runs_the_user_path(wedge_grasps, object_table_csv, tmp_pa
     """Two real grasps of two objects with a tiny untrained checkpoint (its numbers mean
     nothing; the test checks the plumbing): the analytical estimates are those ``record``
     stored, the model's those of ``predict`` (augmentation 0)."""
-    from test_recording import _checkpoint
 
     recordings = _subset(wedge_grasps, tmp_path, ["golf_ball_1", "green_ball_softer_2"])
     (tmp_path / "tiny").mkdir()
-    ckpt = _checkpoint(tmp_path / "tiny" / "best.pt", inputs="ImageFW", size=(72, 72))
+    ckpt = top10nn_checkpoint(tmp_path / "tiny" / "best.pt", inputs="ImageFW", size=(72, 72))
     out = tmp_path / "out"
     code = real_grasps.main(
         [
@@ -340,7 +302,7 @@ def test_the_benchmark_runs_the_user_path(wedge_grasps, object_table_csv, tmp_pa
     assert by_stem["golf_ball_1"]["true_pa"] == pytest.approx(8.5e8)
     assert any("starts in contact" in w for w in by_stem["green_ball_softer_2"]["warnings"])
     store = out / "work" / "store"
-    predicted = json.loads(_cli("predict", ckpt, store, "--json"))["predictions"]
+    predicted = json.loads(cli("predict", ckpt, store, "--json"))["predictions"]
     for p in predicted:
         g = next(
             g for g in result["grasps"] if (g["object"], g["grasp"]) == (p["object"], p["grasp"])
@@ -406,11 +368,10 @@ def test_live_runs_a_depth_map_model_on_a_real_video_as_predict_does(wedge_grasp
     from tactile_compliance.models import create_model
     from tactile_compliance.runs.checkpoint import save_checkpoint
     from tactile_compliance.runs.run_inputs import RunInputs
-    from test_recording import _json_lines
 
     video = _session(wedge_grasps) / "golf_ball_1.avi"
     readings = video.with_name("golf_ball_1_readings.csv")
-    sensor = _calibration(tmp_path, video)
+    sensor = wedge_calibration(tmp_path, video)
     torch.manual_seed(0)
     run_inputs = RunInputs((72, 72), (250, 350), NormalisationConstants(), "DepthFW")
     ckpt = save_checkpoint(
@@ -422,7 +383,7 @@ def test_live_runs_a_depth_map_model_on_a_real_video_as_predict_does(wedge_grasp
     )
     data, store = tmp_path / "data", tmp_path / "store"
     common = ["--readings", readings, "--calibration", sensor]
-    _cli(
+    cli(
         "record",
         f"wedge:{video}",
         "--out",
@@ -433,10 +394,10 @@ def test_live_runs_a_depth_map_model_on_a_real_video_as_predict_does(wedge_grasp
         8.5e8,
         *common,
     )
-    _cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
-    predicted = json.loads(_cli("predict", ckpt, store, "--json"))
+    cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
+    predicted = json.loads(cli("predict", ckpt, store, "--json"))
     rows = {p["augmentation"]: p for p in predicted["predictions"]}
-    events = _json_lines(_cli("live", ckpt, f"wedge:{video}", *common, "--json"))
+    events = json_lines(cli("live", ckpt, f"wedge:{video}", *common, "--json"))
     final = [e for e in events if e.get("final")]
     assert len(final) == 1
     assert final[0]["log10_modulus_pa"] == pytest.approx(rows[0]["pred_log10_pa"], abs=1e-6)

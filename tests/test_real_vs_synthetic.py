@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import real_vs_synthetic
+from helpers import wedge_calibration
 from tactile_compliance.data.burgess import import_burgess
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.synthetic import generate_burgess_tree
@@ -124,7 +125,6 @@ def test_real_contact_curves_replay_the_videos_through_their_calibration(
 ) -> None:
     """The golf ball's grasps (the one set that starts without contact): the contact grows
     with the force, as the frames `record` keeps show it (docs/synthetic.md)."""
-    from test_real_grasps import _calibration
 
     session = reference_data_dir / "real" / "wedge-grasps" / "2023-12-06"
     if not session.is_dir():
@@ -134,7 +134,9 @@ def test_real_contact_curves_replay_the_videos_through_their_calibration(
     calibrations.mkdir()
     for suffix in (".avi", "_readings.csv"):  # one grasp, linked (nothing copied)
         (folder / f"golf_ball_1{suffix}").symlink_to(session / f"golf_ball_1{suffix}")
-    _calibration(tmp_path, folder / "golf_ball_1.avi").rename(calibrations / "golf_ball_1.json")
+    wedge_calibration(tmp_path, folder / "golf_ball_1.avi").rename(
+        calibrations / "golf_ball_1.json"
+    )
     curves = real_vs_synthetic.real_contact_curves(folder, calibrations)
     (grasp,) = curves["golf_ball"]
     assert len(grasp["force_above_n"]) == len(grasp["contact_share"]) > 50

@@ -19,93 +19,33 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
-import torch
-from typer.testing import CliRunner
 
+from helpers import (
+    REPLAY_FPS,
+    REPLAY_SIZE,
+    ArraySource,
+    cli,
+    decoded,
+    json_lines,
+    make_replay_grasp,
+    runner,
+    top10nn_checkpoint,
+)
 from tactile_compliance.acquisition.readings import ReadingError, Readings, write_readings_csv
 from tactile_compliance.acquisition.recording import ObjectInfo, augmented_indices, record_grasp
-from tactile_compliance.acquisition.sensors import FrameSourceBase, open_source
+from tactile_compliance.acquisition.sensors import open_source
 from tactile_compliance.cli import app
 from tactile_compliance.data.image_ops import difference_images
-from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.safe_pickle import load_numpy_pickle
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.inference.live import format_live_event
-from tactile_compliance.models import create_model
 from tactile_compliance.physics.dataset_estimates import dataset_estimates_pa
-from tactile_compliance.physics.estimators import SensorUnits
-from tactile_compliance.runs.checkpoint import save_checkpoint
-from tactile_compliance.runs.run_inputs import RunInputs
-
-SIZE = (60, 84)
-FPS = 15.0  # every second frame of the 30 fps simulation
-runner = CliRunner()
-
-
-def write_video(path, frames, fps):
-    h, w = frames.shape[1:3]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
-    for frame in frames:
-        writer.write(frame)
-    writer.release()
-
-
-def decoded(path):
-    capture = cv2.VideoCapture(str(path))
-    frames = []
-    while True:
-        ok, frame = capture.read()
-        if not ok:
-            return np.stack(frames)
-        frames.append(frame)
-
-
-def make_grasp(root, size):
-    """A replayable grasp: video, no-contact video, readings CSV, ground truth."""
-    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context
-    from tactile_compliance.synthetic.objects import default_objects
-    from tactile_compliance.synthetic.trajectories import camera_recording
-
-    spec = default_objects(3, seed=4)[1]
-    recording = camera_recording(make_context(spec, 4, SimulationOptions(image_size=size)), 0)
-    root.mkdir(exist_ok=True)
-    frames = recording.frames[::2]
-    write_video(root / "grasp.avi", frames, FPS)
-    rng = np.random.default_rng(0)
-    still = recording.reference[None] + rng.integers(-2, 3, (5, *recording.reference.shape))
-    write_video(root / "still.avi", np.clip(still, 0, 255).astype(np.uint8), FPS)
-    times = np.arange(len(frames)) / FPS
-    force, width = recording.force_n[::2], recording.width_m[::2]
-    write_readings_csv(root / "readings.csv", times, force, width)
-    return {
-        "root": root,
-        "video": root / "grasp.avi",
-        "still": root / "still.avi",
-        "readings": root / "readings.csv",
-        "name": spec.name,
-        "modulus_pa": recording.modulus_pa,
-        "force": force,
-        "width": width,
-    }
 
 
 @pytest.fixture(scope="module")
 def grasp(tmp_path_factory):
-    return make_grasp(tmp_path_factory.mktemp("grasp"), SIZE)
-
-
-def _checkpoint(path, inputs="ImageFW", seed=0, size=(72, 72), sensor_units=None):
-    torch.manual_seed(seed)
-    model = create_model("top10nn", inputs=inputs)
-    sensor = SensorUnits.from_dict(sensor_units)
-    return save_checkpoint(
-        path,
-        model,
-        run_inputs=RunInputs(size, size, NormalisationConstants(), inputs, sensor=sensor),
-        config={},
-        seed=0,
-    )
+    return make_replay_grasp(tmp_path_factory.mktemp("grasp"), REPLAY_SIZE)
 
 
 # ---------------------------------------------------------------------- readings
@@ -200,7 +140,7 @@ def test_record_writes_the_datasets_raw_layout(grasp, tmp_path):
             ["RGB.pkl", "depth.pkl", "forces.pkl", "widths.pkl", *estimate_files]
         )
         rgb = load_numpy_pickle(sample / "RGB.pkl")
-        assert rgb.shape == (3, *SIZE, 3) and rgb.dtype == np.float32
+        assert rgb.shape == (3, *REPLAY_SIZE, 3) and rgb.dtype == np.float32
         np.testing.assert_array_equal(rgb, diff[list(idx)])  # BGR, centred near 0.5
         assert abs(float(np.median(rgb)) - 0.5) < 0.02
         np.testing.assert_array_equal(load_numpy_pickle(sample / "depth.pkl"), depth[list(idx)])
@@ -244,7 +184,7 @@ def test_bad_frames_and_missing_readings_do_not_lose_the_recording(grasp, tmp_pa
     frames = decoded(grasp["video"])
     folder = tmp_path / "frames"
     folder.mkdir()
-    times = np.arange(len(frames)) / FPS
+    times = np.arange(len(frames)) / REPLAY_FPS
     times[3] = times[1]  # frame 3 goes back in time
     for i, frame in enumerate(frames):
         if i == 5:
@@ -277,29 +217,21 @@ def test_a_grasp_without_a_press_writes_nothing(grasp, tmp_path):
 
 
 # ---------------------------------------------------------------------- end to end
-def _cli(*args):
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == 0, (args, result.output, result.exception)
-    return result.output
-
-
-def _json_lines(output):
-    return [json.loads(line) for line in output.splitlines() if line.startswith("{")]
-
-
 def run_end_to_end(grasp, tmp_path, inputs, size, extend_sensor=None, sensor_units=None):
     """calibrate -> record -> import burgess -> predict, and live on the same video.
 
     ``extend_sensor(path)`` may change the calibration file before it is used; the
     checkpoint was trained on estimates in ``sensor_units`` (default the Wedge's)."""
-    ckpt = _checkpoint(tmp_path / "m.pt", inputs=inputs, size=size, sensor_units=sensor_units)
+    ckpt = top10nn_checkpoint(
+        tmp_path / "m.pt", inputs=inputs, size=size, sensor_units=sensor_units
+    )
     sensor, data, store = tmp_path / "sensor.json", tmp_path / "data", tmp_path / "store"
     common = ["--readings", grasp["readings"], "--calibration", sensor]
-    _cli("calibrate", f"video:{grasp['still']}", "--out", sensor, "--frames", 5)
+    cli("calibrate", f"video:{grasp['still']}", "--out", sensor, "--frames", 5)
     if extend_sensor is not None:
         extend_sensor(sensor)
     recorded = json.loads(
-        _cli(
+        cli(
             "record",
             f"video:{grasp['video']}",
             "--out",
@@ -312,11 +244,11 @@ def run_end_to_end(grasp, tmp_path, inputs, size, extend_sensor=None, sensor_uni
             "--json",
         )
     )
-    _cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
-    predicted = json.loads(_cli("predict", ckpt, store, "--json"))
+    cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
+    predicted = json.loads(cli("predict", ckpt, store, "--json"))
     rows = {p["augmentation"]: p for p in predicted["predictions"]}
     assert len(rows) == recorded["augmentations"]
-    events = _json_lines(_cli("live", ckpt, f"video:{grasp['video']}", *common, "--json"))
+    events = json_lines(cli("live", ckpt, f"video:{grasp['video']}", *common, "--json"))
     final = [e for e in events if e["final"]]
     assert len(final) == 1 and events[-1] is final[0]
     assert final[0]["frame_indices"] == recorded["frame_indices"][0]
@@ -341,7 +273,7 @@ def test_live_with_several_checkpoints_gives_an_interval(grasp, tmp_path):
     from tactile_compliance.inference.live import live_estimates, load_members
     from tactile_compliance.inference.streaming import predict_trajectory
 
-    paths = [_checkpoint(tmp_path / f"m{seed}.pt", seed=seed) for seed in (0, 1)]
+    paths = [top10nn_checkpoint(tmp_path / f"m{seed}.pt", seed=seed) for seed in (0, 1)]
     members = load_members(paths)
     readings = Readings.from_csv(grasp["readings"])
     with open_source(f"video:{grasp['video']}") as source:
@@ -366,13 +298,13 @@ def test_live_with_several_checkpoints_gives_an_interval(grasp, tmp_path):
 def test_live_runs_an_exported_directory_with_a_window_in_seconds(grasp, tmp_path):
     """``live`` takes what ``export --safetensors`` writes, and ``--window-s`` is
     ``--window`` in time: n frames at a constant rate are (n - 1) / fps seconds."""
-    ckpt = _checkpoint(tmp_path / "m.pt")
+    ckpt = top10nn_checkpoint(tmp_path / "m.pt")
     exported = tmp_path / "model-dir"
-    _cli("export", ckpt, "--safetensors", exported)
+    cli("export", ckpt, "--safetensors", exported)
     source = [f"video:{grasp['video']}", "--readings", grasp["readings"], "--json"]
-    by_frames = _json_lines(_cli("live", ckpt, *source, "--window", 6))[-1]
-    by_time = _json_lines(_cli("live", exported, *source, "--window-s", 5 / FPS))[-1]
-    whole = _json_lines(_cli("live", exported, *source))[-1]
+    by_frames = json_lines(cli("live", ckpt, *source, "--window", 6))[-1]
+    by_time = json_lines(cli("live", exported, *source, "--window-s", 5 / REPLAY_FPS))[-1]
+    whole = json_lines(cli("live", exported, *source))[-1]
     assert by_frames["final"] and by_time["final"]
     assert by_time["frame_indices"] == by_frames["frame_indices"] != whole["frame_indices"]
     assert by_time["log10_modulus_pa"] == pytest.approx(by_frames["log10_modulus_pa"], abs=1e-5)
@@ -409,7 +341,7 @@ def test_live_differences_each_frame_once(grasp, tmp_path, monkeypatch):
             yield item
 
     monkeypatch.setattr(live, "iter_frames", counting_iter)
-    paths = [_checkpoint(tmp_path / f"m{seed}.pt", seed=seed) for seed in (0, 1)]
+    paths = [top10nn_checkpoint(tmp_path / f"m{seed}.pt", seed=seed) for seed in (0, 1)]
     readings = Readings.from_csv(grasp["readings"])
     with open_source(f"video:{grasp['video']}") as source:
         events = list(live.live_estimates(live.load_members(paths), source, readings))
@@ -440,7 +372,7 @@ def test_two_sensors_write_both_fingers(grasp, tmp_path):
 def test_end_to_end_with_estimates_at_the_datasets_frame_size(tmp_path):
     """ALL inputs: the analytical estimates from depth maps agree too (250 x 350 frames,
     where the dataset's estimator constants apply)."""
-    data = make_grasp(tmp_path / "grasp", (250, 350))
+    data = make_replay_grasp(tmp_path / "grasp", (250, 350))
     events, rows = run_end_to_end(data, tmp_path, "ALL", (72, 72))
     assert np.isfinite(rows[0]["pred_pa"]) and events[-1]["final"]
 
@@ -474,7 +406,7 @@ def test_a_calibrated_sensor_gives_depth_and_estimates_in_its_units(grasp, tmp_p
     from tactile_compliance.physics.dataset_estimates import DATASET_CONSTANTS
     from tactile_compliance.synthetic.render import pixel_size_mm
 
-    px_per_mm = 1.0 / pixel_size_mm(SIZE)  # the renderer's density: 2.7 px/mm, not 16.40
+    px_per_mm = 1.0 / pixel_size_mm(REPLAY_SIZE)  # the renderer's density: 2.7 px/mm, not 16.40
     models = []
 
     def extend(path):
@@ -518,7 +450,7 @@ def test_a_calibrated_sensor_gives_depth_and_estimates_in_its_units(grasp, tmp_p
 
     # Estimates in other units are refused, never mixed: a Wedge-trained ALL checkpoint on
     # this store or this sensor, and an uncalibrated grasp into this dataset.
-    wedge_ckpt = _checkpoint(tmp_path / "wedge.pt", inputs="ALL")
+    wedge_ckpt = top10nn_checkpoint(tmp_path / "wedge.pt", inputs="ALL")
     for args in (
         ["predict", wedge_ckpt, tmp_path / "store"],
         ["live", wedge_ckpt, f"video:{grasp['video']}",
@@ -541,7 +473,7 @@ def test_a_calibrated_sensor_gives_depth_and_estimates_in_its_units(grasp, tmp_p
 
 
 def test_bad_sources_are_one_line_errors_in_the_cli(grasp, tmp_path):
-    ckpt = _checkpoint(tmp_path / "m.pt")
+    ckpt = top10nn_checkpoint(tmp_path / "m.pt")
     cases = {
         "no camera": ["live", ckpt, "camera:97", "--readings", grasp["readings"]],
         "no device": [
@@ -586,7 +518,7 @@ def test_the_documented_robot_loop_runs(grasp, tmp_path, monkeypatch):
     block = block.replace("mini:/dev/v4l/by-id/usb-GelSight_GelSight_Mini-video-index0", "MINI")
     block = block.replace('"MINI"', repr(f"video:{grasp['video']}"))
     monkeypatch.chdir(tmp_path)
-    _checkpoint(tmp_path / "m.pt")
+    top10nn_checkpoint(tmp_path / "m.pt")
     block = block.replace("runs/RUN/best.pt", "m.pt")
     calibrate(f"video:{grasp['still']}", n_frames=5, out="sensor.json")
     readings = pd.read_csv(grasp["readings"])
@@ -637,33 +569,12 @@ def test_readings_are_followed_while_the_robot_writes_them(tmp_path):
         FollowedReadings(path)
 
 
-class _PacedVideo(FrameSourceBase):
-    """A replayed video served like a live camera: frame k arrives at k / fps seconds
-    after the first, stamped with the time it is read (as a live device stamps it)."""
-
-    live = True
-
-    def __init__(self, frames, fps):
-        super().__init__()
-        self.frames, self.fps, self.k, self.t0 = frames, fps, 0, None
-        self.name = "paced video"
-
-    def _grab(self):
-        if self.k >= len(self.frames):
-            return None
-        if self.t0 is None:
-            self.t0 = time.monotonic()
-        time.sleep(max(0.0, self.t0 + self.k / self.fps - time.monotonic()))
-        self.k += 1
-        return time.monotonic() - self.t0, self.frames[self.k - 1]
-
-
 def test_a_slow_estimator_on_a_live_sensor_pairs_every_frame_with_its_force(grasp, tmp_path):
     """A model slower than the frame period (0.2 s per estimate against 67 ms per frame)
     still gets each frame stamped on arrival: the final estimate is the replay's."""
     from tactile_compliance.inference.live import live_estimates, load_members
 
-    ckpt = _checkpoint(tmp_path / "m.pt", inputs="ImageFW")
+    ckpt = top10nn_checkpoint(tmp_path / "m.pt", inputs="ImageFW")
     readings = Readings.from_csv(grasp["readings"])
     with open_source(f"video:{grasp['video']}") as replay:
         replayed = list(live_estimates(load_members([ckpt]), replay, readings))
@@ -675,7 +586,9 @@ def test_a_slow_estimator_on_a_live_sensor_pairs_every_frame_with_its_force(gras
         return original(*args, **kwargs)
 
     slow[0].predict = sluggish
-    with _PacedVideo(decoded(grasp["video"]), FPS) as camera:
+    with ArraySource(
+        decoded(grasp["video"]), fps=REPLAY_FPS, live=True, name="paced video"
+    ) as camera:
         lived = list(live_estimates(slow, camera, readings))
     final, expected = lived[-1], replayed[-1]
     assert final["final"] and expected["final"]
@@ -702,12 +615,12 @@ def test_live_without_an_estimate_names_the_real_cause(grasp, tmp_path):
     """One line, exit 2, and the cause: estimates that cannot be computed (an ALL model at
     60 x 84 px, where an ImageFW model selects frames), readings on another clock, a
     grasp too weak for the selection."""
-    all_ckpt = _checkpoint(tmp_path / "all.pt", inputs="ALL")
-    fw_ckpt = _checkpoint(tmp_path / "fw.pt", inputs="ImageFW")
+    all_ckpt = top10nn_checkpoint(tmp_path / "all.pt", inputs="ALL")
+    fw_ckpt = top10nn_checkpoint(tmp_path / "fw.pt", inputs="ImageFW")
     video = f"video:{grasp['video']}"
     weak = write_readings_csv(
         tmp_path / "weak.csv",
-        np.arange(len(grasp["force"])) / FPS,
+        np.arange(len(grasp["force"])) / REPLAY_FPS,
         np.asarray(grasp["force"]) * 0.1,
         grasp["width"],
     )

@@ -13,11 +13,10 @@ import json
 import multiprocessing
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 
-from tactile_compliance.acquisition.capture import CapturedGrasp
+from helpers import captured_press
 from tactile_compliance.acquisition.recording import (
     OBJECT_TABLE_FILE,
     ObjectInfo,
@@ -26,15 +25,6 @@ from tactile_compliance.acquisition.recording import (
 from tactile_compliance.data import raw_layout
 from tactile_compliance.outputs import OutputExistsError, claim_output_dir
 from toy_store import make_toy_store
-
-
-def captured(width_m: float = 0.05, n: int = 40, seed: int = 0) -> CapturedGrasp:
-    """A press to 60 N over ``n`` frames of 24 x 32 px at 30 fps."""
-    t = np.arange(n, dtype=np.float64)
-    force = 60.0 * np.clip((t - 6) / 20, 0, 1) ** 1.5
-    rng = np.random.default_rng(seed)
-    frames = rng.integers(100, 140, (n, 24, 32, 3), dtype=np.uint8)
-    return CapturedGrasp(t / 30.0, frames, force, np.full(n, width_m))
 
 
 def table(out: Path) -> pd.DataFrame:
@@ -51,22 +41,22 @@ def test_record_refuses_a_store_a_run_directory_and_foreign_files(tmp_path):
     for out in (store, run, foreign):
         before = sorted(p.relative_to(out) for p in out.rglob("*"))
         with pytest.raises(OutputExistsError):
-            write_grasp(captured(), out, ObjectInfo("ball", 1e5))
+            write_grasp(captured_press(), out, ObjectInfo("ball", 1e5))
         assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
     # A dataset that record wrote is reused; without its marker it is no one's.
     out = tmp_path / "data"
-    write_grasp(captured(), out, ObjectInfo("ball", 1e5))
-    assert write_grasp(captured(), out, ObjectInfo("ball", 1e5)).grasp == 1
+    write_grasp(captured_press(), out, ObjectInfo("ball", 1e5))
+    assert write_grasp(captured_press(), out, ObjectInfo("ball", 1e5)).grasp == 1
     (out / ".tactile-compliance.json").unlink()
     with pytest.raises(OutputExistsError):
-        write_grasp(captured(), out, ObjectInfo("ball", 1e5))
+        write_grasp(captured_press(), out, ObjectInfo("ball", 1e5))
 
 
 # ---------------------------------------------------------------------- concurrency
 def _writer(out: str, name: str, barrier) -> None:  # barrier: a multiprocessing.Barrier
     barrier.wait()
     try:
-        write_grasp(captured(seed=len(name)), out, ObjectInfo(name, 1e5))
+        write_grasp(captured_press(seed=len(name)), out, ObjectInfo(name, 1e5))
     except BaseException:
         import traceback
 
@@ -102,10 +92,10 @@ def test_the_table_follows_metadata_after_an_object_is_recorded_again(tmp_path):
     import shutil
 
     out = tmp_path / "data"
-    write_grasp(captured(), out, ObjectInfo("ball", 1e5, "Rubber"))
-    write_grasp(captured(), out, ObjectInfo("cube", 2e6))
+    write_grasp(captured_press(), out, ObjectInfo("ball", 1e5, "Rubber"))
+    write_grasp(captured_press(), out, ObjectInfo("cube", 2e6))
     shutil.rmtree(out / "ball")  # the user deletes the recordings and records again
-    write_grasp(captured(), out, ObjectInfo("ball", 3e7, "Foam"))
+    write_grasp(captured_press(), out, ObjectInfo("ball", 3e7, "Foam"))
     meta = json.loads((out / "ball" / "metadata.json").read_text())
     rows = table(out).set_index("Label")
     assert float(rows.loc["ball", "Modulus [Pa]"]) == meta["youngs_modulus"] == 3e7
@@ -127,14 +117,14 @@ def test_control_characters_in_material_are_refused():
 def test_widths_in_millimetres_are_refused_before_anything_is_written(tmp_path):
     out = tmp_path / "data"
     with pytest.raises(ValueError, match=r"width 17\.4 m is outside the plausible range"):
-        write_grasp(captured(width_m=17.4), out, ObjectInfo("ball", 1e5))
+        write_grasp(captured_press(width_m=17.4), out, ObjectInfo("ball", 1e5))
     assert not out.exists()
 
 
 # ---------------------------------------------------------------------- a full disk
 def test_a_full_disk_leaves_no_metadata_and_no_partial_grasp(tmp_path, monkeypatch):
     out = tmp_path / "data"
-    write_grasp(captured(), out, ObjectInfo("cube", 2e6))
+    write_grasp(captured_press(), out, ObjectInfo("cube", 2e6))
     before = sorted(p.relative_to(out) for p in out.rglob("*") if p.name != ".record.lock")
 
     def full(*args, **kwargs):
@@ -142,6 +132,6 @@ def test_a_full_disk_leaves_no_metadata_and_no_partial_grasp(tmp_path, monkeypat
 
     monkeypatch.setattr(raw_layout, "dump_numpy_pickle", full)
     with pytest.raises(OSError, match="No space left"):
-        write_grasp(captured(), out, ObjectInfo("ball", 1e5))
+        write_grasp(captured_press(), out, ObjectInfo("ball", 1e5))
     after = sorted(p.relative_to(out) for p in out.rglob("*") if p.name != ".record.lock")
     assert after == before  # no ball/, no ball/metadata.json, no .partial-grasp

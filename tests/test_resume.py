@@ -121,7 +121,15 @@ def uninterrupted(small_store, tmp_path_factory):
     return run_dir
 
 
-@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
+@pytest.mark.parametrize(
+    "signum",
+    [
+        pytest.param(signal.SIGKILL, id="SIGKILL"),
+        # 193 s at load 11-14 (SIGKILL: 100 s); Ctrl-C's layer runs by default in cheaper
+        # tests (docs/testing.md, "Interruptions").
+        pytest.param(signal.SIGINT, id="SIGINT", marks=pytest.mark.slow),
+    ],
+)
 def test_interrupted_run_resumes_and_ends_as_if_uninterrupted(
     small_store, uninterrupted, tmp_path, signum
 ):

@@ -17,103 +17,25 @@ import re
 import shutil
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pandas as pd
 import pytest
-from typer.testing import CliRunner
 
+from helpers import (
+    WEDGE_CORNERS,
+    cli,
+    json_lines,
+    make_replay_grasp,
+    runner,
+    top10nn_checkpoint,
+    write_bag,
+)
 from tactile_compliance.acquisition.sensors import SensorError, VideoCaptureSource, open_source
 from tactile_compliance.cli import app
 
 pytest.importorskip("rosbags")
 
-runner = CliRunner()
-ORIGIN_NS = 1_701_869_000_123_456_789  # a real epoch time: stamps are absolute
-CORNERS = "46,87 439,121 446,368 52,425"
 SIZE = (250, 350)
-
-
-def _cli(*args):
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == 0, (args, result.output, result.exception)
-    return result.output
-
-
-def _stamp(typestore, t_s):
-    ns = ORIGIN_NS + round(t_s * 1e9)
-    Time = typestore.types["builtin_interfaces/msg/Time"]
-    Header = typestore.types["std_msgs/msg/Header"]
-    return Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id="gel"), ns
-
-
-def write_bag(
-    path,
-    frames,
-    frame_times_s,
-    reading_times_s,
-    force_n,
-    width_m,
-    *,
-    image="raw",
-    force_sign=1.0,
-    image_topic="/gelsight/image_raw",
-    extra_topics=(),
-    width_times_s=None,
-):
-    """A rosbag2 directory: Image (bgr8) or CompressedImage (PNG) frames, WrenchStamped
-    force (``force_sign`` x F along z), JointState of a Franka hand's two finger joints
-    (half the width each), stamped ``ORIGIN_NS + t``."""
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_HUMBLE)
-    T = ts.types
-    msgtype = "sensor_msgs/msg/Image" if image == "raw" else "sensor_msgs/msg/CompressedImage"
-    messages = []
-    for t, frame in zip(frame_times_s, frames, strict=True):
-        header, ns = _stamp(ts, t)
-        if image == "raw":
-            h, w = frame.shape[:2]
-            msg = T[msgtype](header=header, height=h, width=w, encoding="bgr8",
-                             is_bigendian=0, step=w * 3, data=frame.reshape(-1).copy())  # fmt: skip
-        else:
-            ok, png = cv2.imencode(".png", frame)
-            assert ok
-            msg = T[msgtype](header=header, format="png", data=png.reshape(-1))
-        messages.append((image_topic, msgtype, ns, msg))
-    Vector3, Wrench = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Wrench"]
-    for t, f in zip(reading_times_s, force_n, strict=True):
-        header, ns = _stamp(ts, t)
-        wrench = Wrench(
-            force=Vector3(x=0.1, y=-0.2, z=force_sign * f), torque=Vector3(x=0, y=0, z=0)
-        )
-        stamped = T["geometry_msgs/msg/WrenchStamped"](header=header, wrench=wrench)
-        messages.append(("/ft/wrench", "geometry_msgs/msg/WrenchStamped", ns, stamped))
-    width_times = reading_times_s if width_times_s is None else width_times_s
-    widths = (
-        width_m if width_times_s is None else np.interp(width_times_s, reading_times_s, width_m)
-    )
-    for t, w in zip(width_times, widths, strict=True):
-        header, ns = _stamp(ts, t)
-        state = T["sensor_msgs/msg/JointState"](
-            header=header,
-            name=["panda_finger_joint1", "panda_finger_joint2"],
-            position=np.array([w / 2, w / 2]),
-            velocity=np.zeros(0),
-            effort=np.zeros(0),
-        )
-        messages.append(("/franka_gripper/joint_states", "sensor_msgs/msg/JointState", ns, state))
-    for topic in extra_topics:
-        header, ns = _stamp(ts, 0.0)
-        messages.append((topic, msgtype, ns, messages[0][3]))
-    with Writer(path, version=8) as writer:
-        connections = {}
-        for topic, kind, ns, msg in sorted(messages, key=lambda m: m[2]):
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, kind, typestore=ts)
-            writer.write(connections[topic], ns, ts.serialize_cdr(msg, kind))
-    return path
 
 
 def video_frames(video):
@@ -132,9 +54,8 @@ def bag_of(video, readings_csv, path, **options):
 
 @pytest.fixture(scope="module")
 def grasp(tmp_path_factory):
-    from test_recording import make_grasp
 
-    return make_grasp(tmp_path_factory.mktemp("bag-grasp"), SIZE)
+    return make_replay_grasp(tmp_path_factory.mktemp("bag-grasp"), SIZE)
 
 
 @pytest.fixture(scope="module")
@@ -162,14 +83,14 @@ def test_a_bag_gives_the_frames_and_readings_of_the_video_and_csv(grasp, bag):
 def test_estimate_and_record_read_a_bag_as_the_video_and_csv(grasp, tmp_path, image):
     bag = bag_of(grasp["video"], grasp["readings"], tmp_path / "bag", image=image)
     by_video = json.loads(
-        _cli("estimate", f"video:{grasp['video']}", "--readings", grasp["readings"], "--json")
+        cli("estimate", f"video:{grasp['video']}", "--readings", grasp["readings"], "--json")
     )
-    by_bag = json.loads(_cli("estimate", f"rosbag:{bag}", "--json"))
+    by_bag = json.loads(cli("estimate", f"rosbag:{bag}", "--json"))
     assert all(v is not None for v in by_video["estimates_pa"])
     assert by_bag["estimates_pa"] == pytest.approx(by_video["estimates_pa"], rel=1e-9)
     assert by_bag["frame_indices"] == by_video["frame_indices"]
     recorded = json.loads(
-        _cli(
+        cli(
             "record",
             f"rosbag:{bag}",
             "--out",
@@ -185,22 +106,21 @@ def test_estimate_and_record_read_a_bag_as_the_video_and_csv(grasp, tmp_path, im
 
 
 def test_live_and_predict_read_a_bag(grasp, bag, tmp_path):
-    from test_recording import _checkpoint
 
-    ckpt = _checkpoint(tmp_path / "m.pt", inputs="ALL", size=(72, 72))
+    ckpt = top10nn_checkpoint(tmp_path / "m.pt", inputs="ALL", size=(72, 72))
     video = ["video:" + str(grasp["video"]), "--readings", grasp["readings"]]
-    by_video = [json.loads(x) for x in _cli("live", ckpt, *video, "--json").splitlines()]
-    by_bag = [json.loads(x) for x in _cli("live", ckpt, f"rosbag:{bag}", "--json").splitlines()]
+    by_video = json_lines(cli("live", ckpt, *video, "--json"))
+    by_bag = json_lines(cli("live", ckpt, f"rosbag:{bag}", "--json"))
     final_video, final_bag = by_video[-1], by_bag[-1]
     assert final_video["final"] and final_bag["final"]
     assert final_bag["log10_modulus_pa"] == pytest.approx(final_video["log10_modulus_pa"], abs=1e-6)
     assert final_bag["frame_indices"] == final_video["frame_indices"]
-    predicted = json.loads(_cli("predict", ckpt, f"rosbag:{bag}", "--json"))
+    predicted = json.loads(cli("predict", ckpt, f"rosbag:{bag}", "--json"))
     assert predicted["final"] and predicted["source"] == f"rosbag {bag}"
     assert predicted["log10_modulus_pa"] == pytest.approx(final_bag["log10_modulus_pa"], abs=1e-6)
-    assert "Pa" in _cli("predict", ckpt, f"rosbag:{bag}")
-    analytical = json.loads(_cli("live", f"rosbag:{bag}", "--json").splitlines()[-1])
-    estimated = json.loads(_cli("estimate", f"rosbag:{bag}", "--json"))
+    assert "Pa" in cli("predict", ckpt, f"rosbag:{bag}")
+    analytical = json.loads(cli("live", f"rosbag:{bag}", "--json").splitlines()[-1])
+    estimated = json.loads(cli("estimate", f"rosbag:{bag}", "--json"))
     assert analytical["estimates_pa"] == pytest.approx(estimated["estimates_pa"], rel=1e-9)
 
 
@@ -262,19 +182,19 @@ def test_the_real_wedge_grasps_from_bags_give_the_video_estimates(reference_data
     session = reference_data_dir / "real" / "wedge-grasps" / "2023-12-06"
     if not session.is_dir():
         pytest.skip(f"{session} is not present")
-    geometry = ["--corners", CORNERS, "--warp-size", "300x400", "--frames", 3]
+    geometry = ["--corners", WEDGE_CORNERS, "--warp-size", "300x400", "--frames", 3]
     videos = sorted(session.glob("*.avi"))
     assert len(videos) == 15
     for video in videos:
         readings = video.with_name(f"{video.stem}_readings.csv")
         bag = bag_of(video, readings, tmp_path / f"{video.stem}_bag")
-        _cli("calibrate", f"wedge:{video}", "--out", tmp_path / "v.json", *geometry)
+        cli("calibrate", f"wedge:{video}", "--out", tmp_path / "v.json", *geometry)
         # A bag's frames take no preset: the Wedge's crop is given as calibrate's option.
-        _cli("calibrate", f"rosbag:{bag}", "--out", tmp_path / "b.json", *geometry, "--crop-px", 25)
-        by_video = json.loads(_cli("estimate", f"wedge:{video}", "--readings", readings,
+        cli("calibrate", f"rosbag:{bag}", "--out", tmp_path / "b.json", *geometry, "--crop-px", 25)
+        by_video = json.loads(cli("estimate", f"wedge:{video}", "--readings", readings,
                                    "--calibration", tmp_path / "v.json", "--json"))  # fmt: skip
         by_bag = json.loads(
-            _cli("estimate", f"rosbag:{bag}", "--calibration", tmp_path / "b.json", "--json")
+            cli("estimate", f"rosbag:{bag}", "--calibration", tmp_path / "b.json", "--json")
         )
         assert by_bag["estimates_pa"] == pytest.approx(by_video["estimates_pa"], rel=1e-7), video
         assert by_bag["frame_indices"] == by_video["frame_indices"], video

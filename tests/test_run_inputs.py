@@ -19,6 +19,7 @@ import pytest
 
 pytest.importorskip("onnxruntime")
 
+from helpers import REPLAY_SIZE, cli, make_replay_grasp
 from tactile_compliance.acquisition.readings import Readings
 from tactile_compliance.acquisition.sensors import open_source
 from tactile_compliance.data.dataset import GraspDataset
@@ -34,7 +35,6 @@ from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR
 from tactile_compliance.runs.checkpoint import load_checkpoint
 from tactile_compliance.runs.forward import predict_dataset
 from tactile_compliance.training.train import train
-from test_recording import SIZE, _cli, make_grasp
 from toy_store import make_toy_store, tiny_run_config
 
 TRAIN_STORE_SIZE = (48, 64)
@@ -43,7 +43,7 @@ MODEL_SIZE = (32, 32)
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    """A run trained at MODEL_SIZE on a TRAIN_STORE_SIZE store; a grasp recorded at SIZE,
+    """A run trained at MODEL_SIZE on a TRAIN_STORE_SIZE store; a grasp recorded at REPLAY_SIZE,
     imported as a store; the run's ONNX export."""
     root = tmp_path_factory.mktemp("run_inputs")
     toy = make_toy_store(root / "toy", n_objects=8, grasps=2, size=TRAIN_STORE_SIZE)
@@ -60,9 +60,9 @@ def setup(tmp_path_factory):
         ],
     )
     run_dir = train(cfg, run_dir=root / "run", progress=False)["run_dir"]
-    grasp = make_grasp(root / "grasp", SIZE)
+    grasp = make_replay_grasp(root / "grasp", REPLAY_SIZE)
     data, store = root / "data", root / "store"
-    _cli(
+    cli(
         "record",
         f"video:{grasp['video']}",
         "--out",
@@ -74,7 +74,7 @@ def setup(tmp_path_factory):
         "--readings",
         grasp["readings"],
     )
-    _cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
+    cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
     onnx_path = root / "model.onnx"
     export_onnx(run_dir, onnx_path)
     return {"run": run_dir, "grasp": grasp, "store": store, "onnx": onnx_path}
@@ -89,7 +89,7 @@ def test_the_record_is_resolved_once_and_carried_by_every_format(setup):
     onnx_estimator = OnnxEstimator(setup["onnx"])
     assert onnx_estimator.run_inputs == record
     assert StreamingEstimator(onnx_estimator).analytical_estimator == DEFAULT_ESTIMATOR
-    assert GraspStore.open(setup["store"]).image_size == SIZE  # a third size
+    assert GraspStore.open(setup["store"]).image_size == REPLAY_SIZE  # a third size
 
 
 def _live_final(members, grasp):

@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import json
 import sys
+from typing import ClassVar
 
 import cv2
 import numpy as np
 import pytest
 
+from helpers import write_bag, write_video
+from tactile_compliance.acquisition import sensors
 from tactile_compliance.acquisition.calibration import SensorCalibration, calibrate
 from tactile_compliance.acquisition.sensors import (
     MINI_GEOMETRY,
@@ -45,15 +48,6 @@ def _frames(n: int, size=SIZE, seed: int = 0) -> np.ndarray:
     for i in range(n):
         out[i, 5 + i : 15 + i, 10 + i : 20 + i] = 220
     return np.clip(out.astype(int) + rng.integers(-2, 3, out.shape), 0, 255).astype(np.uint8)
-
-
-def write_video(path, frames: np.ndarray, fps: float) -> None:
-    h, w = frames.shape[1:3]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
-    assert writer.isOpened()
-    for frame in frames:
-        writer.write(frame)
-    writer.release()
 
 
 # ---------------------------------------------------------------------- geometry
@@ -279,6 +273,211 @@ def test_calibrate_command_replaces_the_presets_steps(tmp_path):
     assert geometry.input_size == (96, 128) and geometry.output_size == (20, 28)
     bad = runner.invoke(app, [*args, "--corners", "1,2 3,4"])
     assert bad.exit_code == 2 and "four points" in bad.output
+
+
+# ---------------------------------------------------------------------- the contract
+# Every kind of source the table lists runs through the same checks, opened by its spec
+# as `live`, `record` and `calibrate` open it. Hardware is faked at the driver
+# (cv2.VideoCapture, digit_interface); replays read files written here.
+SCENE_BGR = (200, 110, 30)  # blue high, red low: a red-blue swap shows
+CONTRACT_FRAMES = 4
+
+
+def _scene(size):
+    frame = np.empty((*size, 3), np.uint8)
+    frame[:] = SCENE_BGR
+    frame[: size[0] // 4, : size[1] // 4] = 240  # some structure for the codec
+    return frame
+
+
+class FakeCapture:
+    """A cv2.VideoCapture of a camera or stream: ``frames`` BGR frames of ``size``, then
+    nothing; ``mode`` is the (W, H) px it reports."""
+
+    def __init__(self, size, mode=None, frames=CONTRACT_FRAMES + 50):
+        self.size, self.mode, self.left, self.released = size, mode, frames, 0
+
+    def isOpened(self):  # noqa: N802 - OpenCV's name
+        return True
+
+    def set(self, prop, value):
+        return True
+
+    def get(self, prop):
+        mode = self.mode or (self.size[1], self.size[0])
+        return {cv2.CAP_PROP_FRAME_WIDTH: mode[0], cv2.CAP_PROP_FRAME_HEIGHT: mode[1]}.get(
+            prop, 0.0
+        )
+
+    def read(self):
+        if self.left <= 0:
+            return False, None
+        self.left -= 1
+        return True, _scene(self.size)
+
+    def release(self):
+        self.released += 1
+
+
+def _fake_capture(monkeypatch, size, mode=None):
+    monkeypatch.setattr(sensors.cv2, "VideoCapture", lambda target: FakeCapture(size, mode))
+
+
+def _v4l_names(monkeypatch, tmp_path, **names):
+    for node, name in names.items():
+        (tmp_path / "v4l" / node).mkdir(parents=True)
+        (tmp_path / "v4l" / node / "name").write_text(name + "\n")
+    monkeypatch.setattr(sensors, "V4L_SYSFS", tmp_path / "v4l")
+
+
+class FakeDigit:
+    STREAMS: ClassVar[dict] = {}
+
+    def __init__(self, serial):
+        self.serial = serial
+
+    def connect(self):
+        pass
+
+    def get_frame(self):  # digit-interface reads its camera with OpenCV: BGR
+        return _scene((240, 320))
+
+    def disconnect(self):
+        pass
+
+
+def _video(tmp_path, size):
+    path = tmp_path / "replay.avi"
+    write_video(path, np.stack([_scene(size)] * CONTRACT_FRAMES), 30.0)
+    return path
+
+
+def _open_mini_device(monkeypatch, tmp_path):
+    _v4l_names(monkeypatch, tmp_path, video0="GelSight Mini R0B 2BG8-XYZ")
+    _fake_capture(monkeypatch, (308, 410), mode=(3280, 2464))
+    return "mini:0"
+
+
+def _open_folder(monkeypatch, tmp_path):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(CONTRACT_FRAMES):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), _scene(SIZE))
+    return f"folder:{folder}"
+
+
+def _open_rosbag(monkeypatch, tmp_path):
+    pytest.importorskip("rosbags")
+    times = np.arange(CONTRACT_FRAMES) / 30.0
+    frames = np.stack([_scene(SIZE)] * CONTRACT_FRAMES)
+    force = np.linspace(0, 20, CONTRACT_FRAMES)
+    write_bag(tmp_path / "bag", frames, times, times, force, np.full(CONTRACT_FRAMES, 0.05))
+    return f"rosbag:{tmp_path / 'bag'}"
+
+
+def _open_digit(monkeypatch, tmp_path):
+    module = type(sys)("digit_interface")
+    module.Digit = FakeDigit
+    monkeypatch.setitem(sys.modules, "digit_interface", module)
+    return "digit:D12345"
+
+
+def _open_camera(monkeypatch, tmp_path):
+    _fake_capture(monkeypatch, SIZE)
+    return "camera:0"
+
+
+def _open_wedge_stream(monkeypatch, tmp_path):
+    _fake_capture(monkeypatch, (480, 640))
+    return "wedge:http://rig:8080/stream.mjpg"
+
+
+#: spec (made by the function) per case, and whether that source is live.
+CONTRACT_CASES = {
+    "mini-device": (_open_mini_device, True),
+    "mini-replay": (lambda mp, tmp: f"mini:{_video(tmp, (96, 128))}", False),
+    "wedge-stream": (_open_wedge_stream, True),
+    "wedge-replay": (lambda mp, tmp: f"wedge:{_video(tmp, (480, 640))}", False),
+    "digit": (_open_digit, True),
+    "camera": (_open_camera, True),
+    "video": (lambda mp, tmp: f"video:{_video(tmp, SIZE)}", False),
+    "plain-path": (lambda mp, tmp: str(_video(tmp, SIZE)), False),
+    "folder": (_open_folder, False),
+    "rosbag": (_open_rosbag, False),
+}
+
+
+def test_the_contract_cases_cover_every_source_class_and_every_kind():
+    classes = {
+        value
+        for value in vars(sensors).values()
+        if isinstance(value, type) and issubclass(value, sensors.FrameSourceBase)
+    }
+    # StampedOnArrival wraps the others; it is checked through them below.
+    assert classes - {sensors.FrameSourceBase, sensors.StampedOnArrival} == {
+        kind.source_class for kind in sensors.SENSORS
+    }
+    assert {case.split("-")[0] for case in CONTRACT_CASES} - {"plain"} == {
+        kind.name for kind in sensors.SENSORS
+    }
+    for kind in sensors.SENSORS:
+        assert kind.help.startswith(f"{kind.name}:") and kind.live in sensors.LIVENESS
+
+
+@pytest.mark.parametrize("case", sorted(CONTRACT_CASES))
+def test_every_source_keeps_the_contract(case, monkeypatch, tmp_path):
+    make_spec, live = CONTRACT_CASES[case]
+    spec = make_spec(monkeypatch, tmp_path)
+    kind, target = sensors.parse_spec(spec)
+    source = open_source(spec, fps=30.0)  # the fps: a folder's timing, ignored by the rest
+    assert isinstance(source, kind.source_class) and source.geometry == kind.geometry
+    # Liveness is the table's; a live source is read on arrival (a thread stamps it).
+    assert source.live is live is kind.is_live(target)
+    reader = sensors.read_on_arrival(source)
+    assert isinstance(reader, sensors.StampedOnArrival) is live
+    times, frames = [], []
+    with reader:
+        for _ in range(CONTRACT_FRAMES):
+            t, frame = reader.read()
+            times.append(t)
+            frames.append(frame)
+    # Frames of the declared size, uint8, three channels in the table's (BGR) order.
+    declared = kind.geometry.frame_size(reader.last_raw_size)
+    assert kind.channel_order == "BGR"
+    for frame in frames:
+        assert frame.shape == (*declared, 3) and frame.dtype == np.uint8
+        blue, red = frame[..., 0].mean(), frame[..., 2].mean()
+        assert blue > red + 100, (case, blue, red)
+    assert all(np.isfinite(times)) and times == sorted(times)
+    source.close()  # idempotent: the reader closed it already
+    source.close()
+
+
+@pytest.mark.parametrize(
+    ("names", "mode", "message"),
+    [
+        ({"video0": "Integrated Camera: Integrated C"}, (1280, 720), "is 'Integrated Camera"),
+        ({}, (1920, 1080), "delivers 1920x1080 px, not a GelSight Mini's 4:3 stream"),
+    ],
+)
+def test_mini_refuses_a_camera_that_is_not_a_mini(names, mode, message, monkeypatch, tmp_path):
+    _v4l_names(monkeypatch, tmp_path, **names)
+    _fake_capture(monkeypatch, (mode[1], mode[0]), mode=mode)
+    with pytest.raises(SensorError, match=message) as err:
+        open_source("mini:0")
+    assert "\n" not in str(err.value) and "camera:0" in str(err.value)
+    # The same camera is fine as what it is.
+    with open_source("camera:0") as camera:
+        assert camera.read()[1].shape == (mode[1], mode[0], 3)
+
+
+def test_a_mini_by_its_by_id_path_is_named_through_its_device(monkeypatch, tmp_path):
+    _v4l_names(monkeypatch, tmp_path, video2="GelSight Mini R0B 2BG8-XYZ")
+    link = tmp_path / "usb-GelSight_Mini-video-index0"
+    link.symlink_to(tmp_path / "video2")
+    (tmp_path / "video2").touch()
+    assert sensors.device_name(str(link)) == "GelSight Mini R0B 2BG8-XYZ"
+    assert sensors.device_name("7") is None  # no such device in sysfs: nothing to check
 
 
 @pytest.mark.parametrize("text", ["1,2 3,4", "0,0 1,0 1,1 0,x", "0,0 1,0 1,1 0,1,2"])

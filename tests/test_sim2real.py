@@ -9,6 +9,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from helpers import cli, json_lines, make_replay_grasp
 from tactile_compliance.cli import app
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.outputs import OutputExistsError
@@ -71,19 +72,18 @@ def test_live_gives_the_estimate_that_record_and_predict_give(
 ) -> None:
     """The preset's model (frozen VGG16 features, ALL inputs) through the user path on a
     recorded video: `live` recomputes the features and the estimates that `record` stored."""
-    from test_recording import _cli, _json_lines, make_grasp
 
-    grasp = make_grasp(tmp_path / "grasp", (250, 350))  # the estimators need this size
+    grasp = make_replay_grasp(tmp_path / "grasp", (250, 350))  # the estimators need this size
     model = sim2real_dir / "best.pt"
     sensor, data, store = tmp_path / "sensor.json", tmp_path / "data", tmp_path / "store"
     common = ["--readings", grasp["readings"], "--calibration", sensor]
-    _cli("calibrate", f"video:{grasp['still']}", "--out", sensor, "--frames", 5)
+    cli("calibrate", f"video:{grasp['still']}", "--out", sensor, "--frames", 5)
     label = ["--object", grasp["name"], "--modulus", grasp["modulus_pa"]]
-    _cli("record", f"video:{grasp['video']}", "--out", data, *label, *common)
-    _cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
-    predicted = json.loads(_cli("predict", model, store, "--json"))
+    cli("record", f"video:{grasp['video']}", "--out", data, *label, *common)
+    cli("import", "burgess", data, "--out", store, "--fingers", "markerless")
+    predicted = json.loads(cli("predict", model, store, "--json"))
     first = next(p for p in predicted["predictions"] if p["augmentation"] == 0)
-    events = _json_lines(_cli("live", model, f"video:{grasp['video']}", *common, "--json"))
+    events = json_lines(cli("live", model, f"video:{grasp['video']}", *common, "--json"))
     assert events[-1]["final"]
     assert events[-1]["log10_modulus_pa"] == pytest.approx(first["pred_log10_pa"], abs=1e-5)
 

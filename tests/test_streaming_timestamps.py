@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import pressed_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.inference import (
     ComplianceEstimator,
@@ -41,7 +42,6 @@ from tactile_compliance.runs.run_inputs import RunInputs
 from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
 from tactile_compliance.synthetic.objects import default_objects
 from tactile_compliance.synthetic.trajectories import synthetic_trajectories
-from test_inference_streaming import make_grasp
 
 RATES_FPS = (18.0, 25.0, 30.0, 60.0)
 SIZE = (48, 64)
@@ -159,7 +159,7 @@ def _uneven_times(n: int, seed: int = 0) -> np.ndarray:
 
 
 def test_stream_with_timestamps_equals_the_batch_estimate(estimator, one_thread):
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     times = _uneven_times(len(force))
     stream = StreamingEstimator(estimator)
     final = None
@@ -174,7 +174,7 @@ def test_stream_with_timestamps_equals_the_batch_estimate(estimator, one_thread)
 
 
 def test_a_timestamp_going_backwards_is_refused_and_loses_nothing(estimator, one_thread):
-    frames, force, width = make_grasp()
+    frames, force, width = pressed_frames()
     times = np.arange(len(force)) / 30.0
     stream = StreamingEstimator(estimator)
     for i in range(20):

@@ -24,6 +24,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from helpers import make_replay_grasp
 from tactile_compliance.acquisition.calibration import SensorCalibration, calibrate
 from tactile_compliance.cli import EXIT_BAD_INPUT, app
 from tactile_compliance.data.normalisation import NormalisationConstants
@@ -33,7 +34,6 @@ from tactile_compliance.inference.pretrained import CONFIG_FILE, WEIGHTS_FILE
 from tactile_compliance.models import create_model
 from tactile_compliance.runs.checkpoint import save_checkpoint
 from tactile_compliance.runs.run_inputs import RunInputs
-from test_recording import make_grasp
 from toy_store import make_toy_store
 
 pytest.importorskip("safetensors")
@@ -98,7 +98,7 @@ def files(tmp_path_factory):
         seed=0,
     )
     export_safetensors(checkpoint, root / "export")
-    grasp = make_grasp(root / "grasp", (60, 84))
+    grasp = make_replay_grasp(root / "grasp", (60, 84))
     calibrate(f"video:{grasp['still']}", n_frames=5, out=root / "sensor.json")
     store = make_toy_store(root / "store", n_objects=2, grasps=1).path
     return {

@@ -148,7 +148,14 @@ def test_tiny_run_learns_to_its_measured_accuracy(toy_store, fast_run, model):
     assert train(cfg, progress=False) == result
 
 
-@pytest.mark.parametrize("model", ["vgg_lstm", "res_tf"])
+@pytest.mark.parametrize(
+    "model",
+    [
+        "vgg_lstm",
+        # 83 s at load 18; the vgg_lstm case runs the same bf16-mixed path by default.
+        pytest.param("res_tf", marks=pytest.mark.slow),
+    ],
+)
 def test_bf16_mixed_head_learns_as_well_as_float32(fast_run, model):
     # bf16-mixed is the fast CPU path for heads on cached features (docs/training.md).
     half = fast_run(model, "bf16-mixed")[1]
@@ -180,7 +187,15 @@ def test_test_split_uses_the_best_epoch_not_the_last(toy_store, tmp_path):
     assert meta["metrics"]["best_epoch"] == result["best_epoch"]
 
 
-@pytest.mark.parametrize("model", ["top10nn", "vgg_lstm"])  # end to end; frozen + cached
+@pytest.mark.parametrize(
+    "model",
+    [
+        # 40 s at load 18; a Top10NN run's resume runs by default in test_resume.py (the
+        # SIGKILL kill test, and the resume line's test).
+        pytest.param("top10nn", marks=pytest.mark.slow),
+        "vgg_lstm",  # frozen + cached: last.ckpt holds the head only
+    ],
+)
 def test_interrupted_run_resumes_from_its_checkpoint(toy_store, tmp_path, model):
     run_dir = tmp_path / "run"
     first = train(

@@ -25,8 +25,7 @@ from tactile_compliance.models import create_model
 from tactile_compliance.outputs import MARKER_NAME
 from tactile_compliance.runs.checkpoint import save_checkpoint
 from tactile_compliance.runs.run_inputs import RunInputs
-from test_pretrain import depth_toy_store
-from toy_store import make_toy_store
+from toy_store import depth_toy_store, make_toy_store
 
 runner = CliRunner()
 

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from tactile_compliance.acquisition.calibration import SensorCalibration
-from tactile_compliance.acquisition.sensors import SPEC_KINDS, FrameSizeError, FrameSourceBase
+from tactile_compliance.acquisition.sensors import FrameSizeError, FrameSourceBase, parse_spec
 from tactile_compliance.data.force_readings import BASELINE_WARN_N, ForceBaseline
 
 __all__ = ["REFERENCE_MISMATCH_GREY", "check_recording", "reference_frame", "same_replay"]
@@ -68,10 +68,11 @@ def same_replay(calibration: SensorCalibration | None, source: FrameSourceBase) 
     reference is this recording's first frames)."""
     if calibration is None or source.live or not calibration.source:
         return False
-    kind, sep, target = calibration.source.partition(":")
-    if not (sep and kind in SPEC_KINDS):
-        target = calibration.source
-    return bool(target) and source.name.endswith(target)
+    try:
+        _, target = parse_spec(calibration.source)
+    except ValueError:  # not a spec this version opens: not this replay
+        return False
+    return source.name.endswith(target)
 
 
 def check_recording(

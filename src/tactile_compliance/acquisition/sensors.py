@@ -7,24 +7,34 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import math
+import os
 import queue
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
 
-from tactile_compliance.data.image_ops import read_image_file, resize_frames
-from tactile_compliance.data.plausibility import check_size
+from tactile_compliance.acquisition.geometry import (
+    MINI_CAPTURE_SIZE,
+    MINI_GEOMETRY,
+    PLAIN_GEOMETRY,
+    WEDGE_GEOMETRY,
+    Corners,
+    FrameError,
+    FrameGeometry,
+    FrameSizeError,
+)
+from tactile_compliance.data.image_ops import read_image_file
 
 __all__ = [
     "MINI_GEOMETRY",
     "PLAIN_GEOMETRY",
+    "SENSORS",
     "WEDGE_GEOMETRY",
     "DigitSource",
     "FolderSource",
@@ -35,13 +45,17 @@ __all__ = [
     "FrameSourceBase",
     "RosbagSource",
     "SensorError",
+    "SensorKind",
     "StampedOnArrival",
     "TimestampError",
     "VideoCaptureSource",
     "gelsight_mini",
     "gelsight_wedge",
     "iter_frames",
+    "names_a_file",
     "open_source",
+    "parse_spec",
+    "read_on_arrival",
 ]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -51,183 +65,8 @@ class SensorError(OSError):
     """A source cannot be opened or stopped delivering frames (device, stream, file)."""
 
 
-class FrameError(ValueError):
-    """One frame is unusable; the source itself can go on (see subclasses)."""
-
-
-class FrameSizeError(FrameError):
-    """A frame's size differs from the source's first frame or the calibration's size."""
-
-
 class TimestampError(FrameError):
     """A frame's timestamp is older than the previous frame's (time going backwards)."""
-
-
-# ---------------------------------------------------------------------- geometry
-Corners = tuple[tuple[float, float], tuple[float, float], tuple[float, float], tuple[float, float]]
-
-
-@dataclass(frozen=True)
-class FrameGeometry:
-    """How a camera frame becomes a sensor frame: warp, then crop, then resize.
-
-    Attributes:
-        input_size: the camera frame size (H, W) px expected; None accepts any size.
-        warp_corners: the pad's four (x, y) px corners in the camera frame (top-left,
-            top-right, bottom-right, bottom-left), warped onto ``warp_size``; None: no warp.
-        warp_size: (H, W) px of the warped image.
-        crop_px: pixels removed from each side after the warp.
-        crop_fraction: share of the height and of the width removed from each side,
-            after ``crop_px``.
-        output_size: (H, W) px of the final frame; None keeps the cropped size.
-    """
-
-    input_size: tuple[int, int] | None = None
-    warp_corners: Corners | None = None
-    warp_size: tuple[int, int] | None = None
-    crop_px: int = 0
-    crop_fraction: float = 0.0
-    output_size: tuple[int, int] | None = None
-
-    def __post_init__(self) -> None:
-        # Types and sizes are checked here, before a frame is warped or resized: a size is
-        # whole pixels within data.plausibility.MAX_FRAME_SIDE_PX (a 40000 x 40000 output
-        # would allocate 4.8 GB per frame), crop_px an integer, never text.
-        for name in ("input_size", "warp_size", "output_size"):
-            size = getattr(self, name)
-            if size is not None:
-                object.__setattr__(self, name, check_size(size, name))
-        if (self.warp_corners is None) != (self.warp_size is None):
-            raise ValueError("warp_corners and warp_size go together (both or neither)")
-        if self.warp_corners is not None:
-            object.__setattr__(self, "warp_corners", _checked_corners(self.warp_corners))
-            if self.input_size is not None:
-                height, width = self.input_size
-                outside = [
-                    (x, y)
-                    for x, y in self.warp_corners
-                    if not (-0.5 <= x <= width - 0.5 and -0.5 <= y <= height - 0.5)
-                ]
-                if outside:
-                    raise ValueError(
-                        f"warp corner(s) {outside} lie outside the {height}x{width} px camera "
-                        f"frame (x in [0, {width - 1}], y in [0, {height - 1}]); the warped "
-                        f"image would be black there"
-                    )
-        if isinstance(self.crop_px, bool) or not isinstance(self.crop_px, (int, np.integer)):
-            raise ValueError(f"crop_px must be a whole number of pixels, got {self.crop_px!r}")
-        if int(self.crop_px) < 0:
-            raise ValueError(f"crop_px must be >= 0, got {self.crop_px}")
-        object.__setattr__(self, "crop_px", int(self.crop_px))
-        fraction = self.crop_fraction
-        if isinstance(fraction, bool) or not isinstance(fraction, (int, float, np.number)):
-            raise ValueError(f"crop_fraction must be a number, got {fraction!r}")
-        if not 0.0 <= float(fraction) < 0.5:
-            raise ValueError(f"crop_fraction must be in [0, 0.5), got {fraction}")
-        object.__setattr__(self, "crop_fraction", float(fraction))
-
-    def cropped_size(self, size: tuple[int, int]) -> tuple[int, int]:
-        """(H, W) px left after warp and crop of a camera frame of ``size``."""
-        h, w = self.warp_size if self.warp_size is not None else size
-        h, w = h - 2 * self.crop_px, w - 2 * self.crop_px
-        dy, dx = int(h * self.crop_fraction), int(w * self.crop_fraction)
-        h, w = h - 2 * dy, w - 2 * dx
-        if h < 1 or w < 1:
-            raise ValueError(f"the crop leaves nothing of a {size[0]}x{size[1]} frame")
-        return h, w
-
-    def frame_size(self, size: tuple[int, int]) -> tuple[int, int]:
-        """(H, W) px of the sensor frames made from camera frames of ``size``."""
-        return self.output_size if self.output_size is not None else self.cropped_size(size)
-
-    def apply(self, frame: np.ndarray) -> np.ndarray:
-        """Warp, crop and resize one uint8 camera frame (H, W, 3).
-
-        Raises:
-            FrameSizeError: the frame is not (H, W, 3) or not ``input_size``.
-        """
-        if frame.ndim != 3 or frame.shape[2] != 3:
-            raise FrameSizeError(f"a frame must be (H, W, 3), got {tuple(frame.shape)}")
-        size = (int(frame.shape[0]), int(frame.shape[1]))
-        if self.input_size is not None and size != self.input_size:
-            raise FrameSizeError(
-                f"frame is {size[0]}x{size[1]} px, the sensor geometry expects "
-                f"{self.input_size[0]}x{self.input_size[1]}"
-            )
-        out = frame
-        if self.warp_corners is not None and self.warp_size is not None:
-            h, w = self.warp_size
-            target = np.float32([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]])
-            matrix = cv2.getPerspectiveTransform(np.float32(self.warp_corners), target)
-            out = cv2.warpPerspective(out, matrix, (w, h), flags=cv2.INTER_LINEAR)
-        h, w = self.cropped_size(size)
-        top = self.crop_px + int((out.shape[0] - 2 * self.crop_px) * self.crop_fraction)
-        left = self.crop_px + int((out.shape[1] - 2 * self.crop_px) * self.crop_fraction)
-        out = out[top : top + h, left : left + w]
-        if self.output_size is not None:
-            out = resize_frames(out[None], self.output_size)[0]
-        return np.ascontiguousarray(out, dtype=np.uint8)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly dict (lists for tuples)."""
-        data = asdict(self)
-        if data["warp_corners"] is not None:
-            data["warp_corners"] = [list(point) for point in data["warp_corners"]]
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in data.items()}
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> FrameGeometry:
-        """Inverse of :meth:`to_dict`; unknown keys are an error."""
-        unknown = set(data) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"unknown frame geometry field(s) {sorted(unknown)}")
-        return cls(**data)
-
-
-def _checked_corners(points: Any) -> Corners:
-    """Four finite (x, y) px points spanning a convex quadrilateral of area >= 1 px²
-    (others make a degenerate warp: a smeared or black reference)."""
-    try:
-        corners = tuple((float(x), float(y)) for x, y in points)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"warp_corners must be four (x, y) points, got {points!r}") from err
-    if len(corners) != 4 or not all(math.isfinite(v) for p in corners for v in p):
-        raise ValueError(f"warp_corners must be four finite (x, y) points, got {corners!r}")
-    # Cross products of consecutive edges: one sign all round = convex, in order. The
-    # area is the shoelace formula's.
-    turns, twice_area = [], 0.0
-    for i in range(4):
-        (x0, y0), (x1, y1), (x2, y2) = corners[i], corners[(i + 1) % 4], corners[(i + 2) % 4]
-        turns.append((x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1))
-        twice_area += x0 * y1 - x1 * y0
-    area = 0.5 * abs(twice_area)
-    if area < 1.0 or not (all(t > 0 for t in turns) or all(t < 0 for t in turns)):
-        raise ValueError(
-            f"warp_corners {[list(p) for p in corners]} do not span a convex quadrilateral "
-            f"(collinear, repeated or crossed points; area {area:.3g} px²): give the pad's "
-            f"corners in the order top-left, top-right, bottom-right, bottom-left"
-        )
-    return corners  # type: ignore[return-value]
-
-
-PLAIN_GEOMETRY = FrameGeometry()
-"""Frames as the camera delivers them."""
-
-MINI_CAPTURE_SIZE = (2464, 3280)  # (H, W) px asked for; the Mini may deliver another mode
-
-# The manufacturer's examples crop the gel's unlit border (1/7 per side) and resize.
-MINI_GEOMETRY = FrameGeometry(crop_fraction=1.0 / 7.0, output_size=(240, 320))
-
-WEDGE_CAMERA_SIZE = (480, 640)  # (H, W) px of the public dataset's Wedge rig
-
-WEDGE_GEOMETRY = FrameGeometry(
-    input_size=WEDGE_CAMERA_SIZE,
-    warp_corners=((0.0, 0.0), (639.0, 0.0), (639.0, 479.0), (0.0, 479.0)),
-    warp_size=(300, 400),
-    crop_px=25,
-)
-"""GelSight Wedge: the dataset's 250 x 350 frames; the default corners are the whole
-camera frame, the pad's come from ``calibrate --corners``."""
 
 
 # ---------------------------------------------------------------------- sources
@@ -444,7 +283,7 @@ class VideoCaptureSource(FrameSourceBase):
         is_index = isinstance(target, int) or (isinstance(target, str) and target.isdigit())
         text = str(target)
         is_url = "://" in text
-        self.is_file = not is_index and not is_url and not text.startswith("/dev/")
+        self.is_file = names_a_file(text)
         self.name = name or (f"camera {text}" if is_index else text)
         if self.is_file and not Path(text).is_file():
             raise SensorError(f"{text}: no such video file")
@@ -510,6 +349,22 @@ class VideoCaptureSource(FrameSourceBase):
 MAX_MISSING_FRAMES = 1
 
 
+#: Where Linux names its video devices (``videoN/name``: a Mini's starts "GelSight Mini").
+V4L_SYSFS = Path("/sys/class/video4linux")
+#: How far a Mini's frames may be from its 3280:2464 aspect ratio (relative).
+MINI_ASPECT_TOLERANCE = 0.02
+
+
+def device_name(device: str) -> str | None:
+    """The name the OS gives the camera at an index or ``/dev/`` path (Linux: sysfs, which
+    gsrobotics' own tools read to find a Mini); None where it gives none."""
+    node = f"video{device}" if device.isdigit() else Path(os.path.realpath(device)).name
+    try:
+        return (V4L_SYSFS / node / "name").read_text(encoding="utf-8").strip() or None
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
 def gelsight_mini(
     device: int | str | Path = 0,
     geometry: FrameGeometry = MINI_GEOMETRY,
@@ -519,8 +374,25 @@ def gelsight_mini(
     timestamps: str = "auto",
 ) -> VideoCaptureSource:
     """A GelSight Mini (a UVC camera) by index, ``/dev/v4l/by-id/...`` path or a replayed
-    video of one."""
-    return VideoCaptureSource(
+    video of one.
+
+    A device is checked to be a Mini, as far as OpenCV and the OS tell: its name (where
+    the OS gives one: Linux) must contain "GelSight", and the mode it delivers must have
+    the Mini's 4:3 aspect ratio (3280 x 2464 px asked for).
+
+    Raises:
+        SensorError: nothing there, or a camera that is not a Mini (the message names it).
+    """
+    target = str(device)
+    if not names_a_file(target) and "://" not in target:
+        name = device_name(target)
+        if name is not None and "gelsight" not in name.lower():
+            raise SensorError(
+                f"mini:{target}: the camera there is {name!r}, not a GelSight Mini; give "
+                f"the Mini's index or /dev/v4l/by-id/ path (v4l2-ctl --list-devices), or "
+                f"camera:{target} for another camera"
+            )
+    source = VideoCaptureSource(
         device,
         geometry,
         capture_size=capture_size,
@@ -528,6 +400,18 @@ def gelsight_mini(
         timestamps=timestamps,
         name=f"GelSight Mini {device}",
     )
+    if not source.is_file:
+        width = source._capture.get(cv2.CAP_PROP_FRAME_WIDTH)
+        height = source._capture.get(cv2.CAP_PROP_FRAME_HEIGHT)
+        expected = MINI_CAPTURE_SIZE[1] / MINI_CAPTURE_SIZE[0]
+        if width > 0 and height > 0 and abs(width / height / expected - 1) > MINI_ASPECT_TOLERANCE:
+            source.close()
+            raise SensorError(
+                f"mini:{target}: the camera delivers {width:.0f}x{height:.0f} px, not a "
+                f"GelSight Mini's 4:3 stream ({MINI_CAPTURE_SIZE[1]}x{MINI_CAPTURE_SIZE[0]} "
+                f"asked for); give the Mini's index, or camera:{target} for another camera"
+            )
+    return source
 
 
 def gelsight_wedge(
@@ -724,8 +608,138 @@ class RosbagSource(FrameSourceBase):
             self._bag = None
 
 
-# ---------------------------------------------------------------------- specs
-SPEC_KINDS = ("mini", "wedge", "digit", "video", "camera", "folder", "rosbag")
+# ---------------------------------------------------------------------- the table
+def names_a_file(target: str) -> bool:
+    """Whether a ``VideoCaptureSource`` target is a video file (a replay), not a camera
+    index, a ``/dev/`` device or a stream URL (both live)."""
+    return not (target.isdigit() or "://" in target or target.startswith("/dev/"))
+
+
+#: A kind's liveness: ``"yes"`` (a device: frames as they happen), ``"no"`` (a replay on
+#: its recorded times) or ``"unless a file"`` (a device or stream, or a video file of one).
+LIVENESS = ("yes", "no", "unless a file")
+
+
+@dataclass(frozen=True)
+class SensorKind:
+    """One kind of frame source, named ``NAME:TARGET`` in a source spec (docs/sensors.md,
+    "Adding a sensor").
+
+    Attributes:
+        name: the spec prefix (``mini`` in ``mini:0``).
+        source_class: the :class:`FrameSourceBase` subclass that reads it.
+        geometry: the default geometry (a calibration's replaces it).
+        live: one of :data:`LIVENESS`. :func:`open_source` sets the source's ``live`` from
+            it, so a live source's frames are stamped on arrival (:func:`read_on_arrival`).
+        channel_order: the order of the channels its frames are in (every source's
+            ``_grab`` returns BGR, the order OpenCV and the dataset use; the contract test
+            in ``tests/test_sensors.py`` checks it).
+        help: the spec's forms, for the CLI help and the docs.
+        opens: ``(target, geometry, fps, timestamps_csv) -> source``.
+    """
+
+    name: str
+    source_class: type[FrameSourceBase]
+    geometry: FrameGeometry
+    live: str
+    channel_order: str
+    help: str
+    opens: Callable[[str, FrameGeometry, float | None, Any], FrameSourceBase]
+
+    def is_live(self, target: str) -> bool:
+        """Whether the source this kind opens at ``target`` is live."""
+        return self.live == "yes" or (self.live == "unless a file" and not names_a_file(target))
+
+
+def _camera(target: str, geometry: FrameGeometry, *_: Any) -> VideoCaptureSource:
+    if not (target.isdigit() or target.startswith("/dev/")):
+        raise ValueError(f"camera:{target}: expected a camera index or a /dev/ path")
+    return VideoCaptureSource(target, geometry)
+
+
+#: Every kind of frame source, in the order the CLI help and the docs list them. A new
+#: sensor is one entry here and one class.
+SENSORS = (
+    SensorKind(
+        "mini",
+        VideoCaptureSource,
+        MINI_GEOMETRY,
+        "unless a file",
+        "BGR",
+        "mini:0, mini:/dev/v4l/by-id/...",
+        lambda target, geometry, *_: gelsight_mini(target, geometry),
+    ),
+    SensorKind(
+        "wedge",
+        VideoCaptureSource,
+        WEDGE_GEOMETRY,
+        "unless a file",
+        "BGR",
+        "wedge:http://host:port/stream.mjpg",
+        lambda target, geometry, *_: gelsight_wedge(target, geometry=geometry),
+    ),
+    SensorKind(
+        "digit",
+        DigitSource,
+        PLAIN_GEOMETRY,
+        "yes",
+        "BGR",
+        "digit:SERIAL",
+        lambda target, geometry, *_: DigitSource(target, geometry),
+    ),
+    SensorKind("camera", VideoCaptureSource, PLAIN_GEOMETRY, "yes", "BGR", "camera:0", _camera),
+    SensorKind(
+        "video",
+        VideoCaptureSource,
+        PLAIN_GEOMETRY,
+        "unless a file",
+        "BGR",
+        "video:FILE",
+        lambda target, geometry, *_: VideoCaptureSource(target, geometry),
+    ),
+    SensorKind(
+        "folder",
+        FolderSource,
+        PLAIN_GEOMETRY,
+        "no",
+        "BGR",
+        "folder:DIR",
+        lambda target, geometry, fps, times: FolderSource(
+            target, geometry, fps=fps, timestamps_csv=times
+        ),
+    ),
+    SensorKind(
+        "rosbag",
+        RosbagSource,
+        PLAIN_GEOMETRY,
+        "no",
+        "BGR",
+        "rosbag:BAG[,image=TOPIC,force=TOPIC,width=TOPIC] (docs/ros2.md)",
+        lambda target, geometry, *_: RosbagSource(target, geometry),
+    ),
+)
+_BY_NAME = {kind.name: kind for kind in SENSORS}
+
+
+def parse_spec(spec: str) -> tuple[SensorKind, str]:
+    """The kind and target a source spec names; a plain path, index or URL (no known
+    prefix) is a ``folder`` when it is a directory, else a ``video``.
+
+    Raises:
+        ValueError: an unknown kind, or no target.
+    """
+    name, sep, target = spec.partition(":")
+    if not sep or target.startswith("//") or len(name) < 2:
+        # A plain path, index or URL (or a Windows drive letter).
+        name, target = ("folder" if Path(spec).is_dir() else "video"), spec
+    elif name not in _BY_NAME:
+        raise ValueError(
+            f"unknown source kind {name!r} in {spec!r}; use one of {', '.join(_BY_NAME)} "
+            f"(e.g. mini:0, video:grasp.avi)"
+        )
+    if not target:
+        raise ValueError(f"source spec {spec!r} names no device, file or URL")
+    return _BY_NAME[name], target
 
 
 def open_source(
@@ -735,41 +749,27 @@ def open_source(
     fps: float | None = None,
     timestamps_csv: str | Path | None = None,
 ) -> FrameSourceBase:
-    """Open the source a spec string names (the table in docs/inference.md, "Live
-    sensors, calibration and your own grasps").
+    """Open the source a spec string names (:data:`SENSORS`; docs/inference.md, "Live
+    sensors, calibration and your own grasps"); its ``live`` is the table's.
 
     Args:
-        geometry: replaces the preset's warp/crop/resize (a calibration's geometry).
+        geometry: replaces the kind's default warp/crop/resize (a calibration's geometry).
         fps, timestamps_csv: the frames' timing for a folder.
 
     Raises:
         ValueError: an unknown kind; SensorError: nothing to open there.
     """
-    kind, sep, target = spec.partition(":")
-    if not sep or target.startswith("//") or len(kind) < 2:
-        kind, target = "", spec  # a plain path, index or URL (or a Windows drive letter)
-    elif kind not in SPEC_KINDS:
-        raise ValueError(
-            f"unknown source kind {kind!r} in {spec!r}; use one of {', '.join(SPEC_KINDS)} "
-            f"(e.g. mini:0, video:grasp.avi)"
-        )
-    if not target:
-        raise ValueError(f"source spec {spec!r} names no device, file or URL")
+    kind, target = parse_spec(spec)
+    source = kind.opens(
+        target, kind.geometry if geometry is None else geometry, fps, timestamps_csv
+    )
+    source.live = kind.is_live(target)
+    return source
 
-    def pick(default: FrameGeometry) -> FrameGeometry:
-        return geometry if geometry is not None else default
 
-    if kind == "mini":
-        return gelsight_mini(target, pick(MINI_GEOMETRY))
-    if kind == "wedge":
-        return gelsight_wedge(target, geometry=pick(WEDGE_GEOMETRY))
-    if kind == "digit":
-        return DigitSource(target, pick(PLAIN_GEOMETRY))
-    if kind == "rosbag":
-        return RosbagSource(target, pick(PLAIN_GEOMETRY))
-    if kind == "folder" or (kind == "" and Path(target).is_dir()):
-        return FolderSource(target, pick(PLAIN_GEOMETRY), fps=fps, timestamps_csv=timestamps_csv)
-    # video, camera, or a plain path, index or URL
-    if kind == "camera" and not (target.isdigit() or target.startswith("/dev/")):
-        raise ValueError(f"camera:{target}: expected a camera index or a /dev/ path")
-    return VideoCaptureSource(target, pick(PLAIN_GEOMETRY))
+def read_on_arrival(source: FrameSourceBase) -> FrameSourceBase:
+    """``source`` read by a background thread (:class:`StampedOnArrival`) when it is live,
+    so each frame is stamped when it arrives; a replay as it is."""
+    if source.live and not isinstance(source, StampedOnArrival):
+        return StampedOnArrival(source)
+    return source

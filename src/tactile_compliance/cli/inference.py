@@ -302,6 +302,15 @@ def live(
         if no_camera
         else _open_source(source, calibration, fps, timestamps)
     )
+    if sensor is None and not no_camera:
+        from tactile_compliance.physics.estimators import WEDGE_UNITS
+
+        typer.echo(
+            f"live: no --calibration: depth and analytical estimates use {WEDGE_UNITS.describe()} "
+            "(the public dataset's GelSight Wedge); give --calibration sensor.json (from "
+            "`calibrate`) for another sensor",
+            err=True,
+        )
     final = False
     with frames:
         table = recorded_readings(readings) if no_camera else source_readings(readings, frames)

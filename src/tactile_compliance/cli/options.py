@@ -10,6 +10,8 @@ from typing import Annotated, Any, Literal, Optional
 
 import typer
 
+from tactile_compliance.acquisition.sensors import SENSORS
+
 # The choices the parser checks and the help lists. Each is a vocabulary of the library,
 # written out here so that the command starts without importing the library (torch);
 # tests/test_cli_help.py checks each against its home, named in the comment.
@@ -82,11 +84,10 @@ BackboneWeightsOption = Annotated[
 ]
 
 
+#: Built from the table of sensors (``acquisition.sensors.SENSORS``), in its order.
 SOURCE_HELP = (
-    "Frame source: mini:0, mini:/dev/v4l/by-id/..., wedge:http://host:port/stream.mjpg, "
-    "digit:SERIAL, camera:0, video:FILE, folder:DIR, rosbag:BAG[,image=TOPIC,force=TOPIC,"
-    "width=TOPIC] (docs/ros2.md), or a plain path; `live` also takes none (no camera: a "
-    "frame-free model on --readings alone)."
+    f"Frame source: {', '.join(kind.help for kind in SENSORS)}, or a plain path; `live` also "
+    "takes none (no camera: a frame-free model on --readings alone)."
 )
 
 

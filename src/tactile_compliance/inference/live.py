@@ -26,6 +26,7 @@ from tactile_compliance.acquisition.sensors import (
     FrameSourceBase,
     StampedOnArrival,
     iter_frames,
+    read_on_arrival,
 )
 from tactile_compliance.data.depth_model import grey_frame_problem
 from tactile_compliance.data.image_ops import difference_images
@@ -104,9 +105,9 @@ def live_estimates(
             raise ValueError("the analytical estimates need frames: give a frame source")
         yield from _readings_only(members, readings, window, window_s, level, scale)
         return
-    reader = None
-    if source.live and not isinstance(source, StampedOnArrival):
-        source = reader = StampedOnArrival(source)
+    stamped = read_on_arrival(source)  # a live source: read by a thread, stamped on arrival
+    reader = stamped if stamped is not source else None
+    source = stamped
     try:
         ensemble = EnsembleEstimator(list(members), level=level, scale=scale) if members else None
         reference = None if calibration is None else calibration.reference

@@ -9,11 +9,13 @@ import importlib
 from typing import Any
 
 # InputStrategy (data.inputs) is torch-free and re-exported here for the models' users;
-# the rest (torch, the networks) loads on first use of a name below (PEP 562), and that
-# first use imports the model modules, which registers them.
+# the rest (torch, the networks) loads on first use of a name below (PEP 562). Models
+# register where they are defined: the registry's first lookup imports every module of
+# this package (registry.discover_models), so a new model is one module, named nowhere.
 from tactile_compliance.data.inputs import InputStrategy
 
-#: Public name -> the module of this package that defines it.
+#: Public name -> the module of this package that defines it (the package's API; a new
+#: model need not be added).
 _LAZY = {
     "BACKBONE_WEIGHTS_URLS": "backbones",
     "create_backbone": "backbones",
@@ -36,16 +38,12 @@ _LAZY = {
     "Top10NN": "top10nn",
     "VggLstm": "vgg_lstm",
 }
-#: Importing these modules registers the built-in models.
-_MODEL_MODULES = ("res_tf", "scalar_mlp", "top10nn", "vgg_lstm")
 
 
 def __getattr__(name: str) -> Any:
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    for model_module in _MODEL_MODULES:
-        importlib.import_module(f"{__name__}.{model_module}")
     value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
     globals()[name] = value
     return value

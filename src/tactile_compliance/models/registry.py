@@ -1,10 +1,18 @@
 """Model registry: ``register_model`` / ``create_model`` / ``list_models`` (timm style).
 Adding a model: docs/models.md, "Adding a model".
+
+A model registers where it is defined: the first lookup imports every module of this
+package and every entry point of :data:`ENTRY_POINT_GROUP` (:func:`discover_models`), so
+a new module in ``models/`` or an installed plugin needs no list to be named in.
 """
 
 from __future__ import annotations
 
+import importlib
+import importlib.metadata
 import inspect
+import pkgutil
+import warnings
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -13,8 +21,10 @@ from torch import nn
 from tactile_compliance.data.inputs import InputStrategy
 
 __all__ = [
+    "ENTRY_POINT_GROUP",
     "backbone_models",
     "create_model",
+    "discover_models",
     "get_model_class",
     "list_models",
     "model_display_names",
@@ -24,6 +34,46 @@ __all__ = [
 ]
 
 _REGISTRY: dict[str, type[nn.Module]] = {}
+
+#: Entry-point group through which another distribution adds models: each entry names a
+#: module (or an object in one) whose import registers its models with ``register_model``.
+ENTRY_POINT_GROUP = "tactile_compliance.models"
+
+_PACKAGE = __name__.rpartition(".")[0]
+_discovered = False
+
+
+def discover_models() -> None:
+    """Import, once per process, every module of ``tactile_compliance.models`` (but those
+    whose name starts with ``_``) and load every entry point of :data:`ENTRY_POINT_GROUP`;
+    importing a module runs its ``@register_model`` decorators. Every lookup below calls
+    it first, so a fresh process finds the model a checkpoint names.
+
+    An entry point that fails to load is skipped with a one-line ``RuntimeWarning``
+    naming it (a broken plugin must not stop the built-in models); a built-in module that
+    fails to import raises.
+    """
+    global _discovered
+    if _discovered:
+        return
+    # Set first: a model module that looks a model up while it is imported must not
+    # start the discovery again.
+    _discovered = True
+    package = importlib.import_module(_PACKAGE)
+    for module in pkgutil.iter_modules(package.__path__):
+        if not module.name.startswith("_"):
+            importlib.import_module(f"{_PACKAGE}.{module.name}")
+    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            entry.load()
+        except Exception as err:  # any failure of a third-party import
+            warnings.warn(
+                f"model plugin {entry.name!r} ({entry.value}) failed to load and is "
+                f"skipped: {type(err).__name__}: {err}",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+
 
 ModelT = TypeVar("ModelT", bound=type[nn.Module])
 
@@ -53,13 +103,14 @@ def register_model(name: str) -> Callable[[ModelT], ModelT]:
 
 def list_models() -> list[str]:
     """Registered model names, sorted."""
+    discover_models()
     return sorted(_REGISTRY)
 
 
 def model_display_names() -> dict[str, str]:
     """Registered name -> display name, in display order, from each class's
-    ``display_name`` and ``display_order``; call it through ``tactile_compliance.models``,
-    which registers the built-in models first."""
+    ``display_name`` and ``display_order``."""
+    discover_models()
     # Classes that declare no order come after the declared ones (then by name).
     order = {name: int(getattr(cls, "display_order", 1_000_000)) for name, cls in _REGISTRY.items()}
     ranked = sorted(_REGISTRY, key=lambda name: (order[name], name))
@@ -78,6 +129,7 @@ def backbone_models() -> dict[str, str]:
 
 def get_model_class(name: str) -> type[nn.Module]:
     """The class registered as ``name`` (case-insensitive); ValueError lists the models."""
+    discover_models()
     key = name.strip().lower() if isinstance(name, str) else name
     if key not in _REGISTRY:
         raise ValueError(
