@@ -211,7 +211,7 @@ def test_tune_searches_the_frame_free_model() -> None:
 def test_live_runs_a_frame_free_estimates_model_on_a_camera(runs, tmp_path) -> None:
     """FWE with a camera: live takes force and width from the readings and the analytical
     estimates from the video's depth maps, the ones `estimate` prints for the same grasp."""
-    from test_recording import make_grasp  # a replayable synthetic grasp (video + readings)
+    from helpers import make_replay_grasp as make_grasp  # a replayable synthetic grasp
 
     grasp = make_grasp(tmp_path / "grasp", (250, 350))  # the dataset's estimator's frame size
     source = ["video:" + str(grasp["video"]), "--readings", str(grasp["readings"]), "--json"]
