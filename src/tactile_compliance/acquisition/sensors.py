@@ -1,6 +1,11 @@
 """Frame sources (sensor cameras, replayed videos, folders of frames) yielding
 ``(timestamp_s, uint8 BGR frame)`` cut to the pad. See docs/inference.md, "Live sensors,
 calibration and your own grasps".
+
+Every source yields frames of one (H, W, 3) uint8 BGR shape after its ``FrameGeometry``;
+a video or bag gives its own frame times, a live device is stamped on arrival
+(:class:`StampedOnArrival`). :class:`SensorError` (an ``OSError``): the source fails;
+:class:`FrameError` (a ``ValueError``): one frame is unusable and the source goes on.
 """
 
 from __future__ import annotations
@@ -179,7 +184,8 @@ def iter_frames(
 
 class StampedOnArrival(FrameSourceBase):
     """A live source read by a background thread, so each frame is stamped when it arrives
-    (docs/inference.md, "Clocks: frames stamped on arrival").
+    (docs/inference.md, "Clocks: frames stamped on arrival"). Every frame is kept, in
+    order, with its arrival time; :attr:`pending` says how far behind the consumer is.
 
     Args:
         inner: the source to read (its geometry applies, its own stamps are the times).
