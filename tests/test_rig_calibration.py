@@ -126,15 +126,20 @@ def test_the_soft_contact_and_randomisation_fields_are_checked(
         GripperRig.from_dict({field: value}, "rig.json")
 
 
-def test_a_rig_without_soft_contact_or_randomisation_makes_the_same_grasps() -> None:
-    """The new fields' defaults are the generator's own constants: a rig that spells them
-    out draws and renders exactly what the rig without them does; changing them changes
-    what they name (the force baseline, the reference frame in light contact)."""
+def test_a_rig_read_back_makes_the_same_grasps_and_its_ranges_change_what_they_name() -> None:
+    """A rig read back from its file draws and renders exactly the same grasp; changing a
+    randomisation range changes what it names (the force baseline, the reference frame
+    taken in light contact)."""
     from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
     from tactile_compliance.synthetic.objects import reference_sphere
     from tactile_compliance.synthetic.rig import WEDGE_2023_RIG
 
-    base = replace(WEDGE_2023_RIG, soft_contact_spread=1.0, soft_edge_glow=0.0)
+    base = replace(
+        WEDGE_2023_RIG,
+        soft_contact_spread=1.0,
+        soft_edge_glow=0.0,
+        reference_contact_probability=0.0,
+    )
     spelled = GripperRig.from_dict(base.to_dict())
     spec = reference_sphere("ball", 25.0, 9e4, "Rubber", 0, 1)
 
