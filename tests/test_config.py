@@ -204,3 +204,12 @@ def test_check_config_against_samples():
     check_config_against_samples(load_config("default", ["inputs=Image"]), samples)
     with pytest.raises(ConfigError, match="source"):
         check_config_against_samples(load_config("yuan"), samples, source="burgess")
+
+
+def test_parsed_values_are_set_before_the_overrides_which_win() -> None:
+    """`train --size` carries its parsed tuple (no `--set` string); a --set of it wins."""
+    from tactile_compliance.config import load_config
+
+    assert load_config("default", values={"data.image_size": (64, 48)}).data.image_size == (64, 48)
+    both = load_config("default", ["data.image_size=[32,32]"], {"data.image_size": (64, 48)})
+    assert both.data.image_size == (32, 32)

@@ -43,7 +43,8 @@ def _min_input_size() -> int:
 
 
 class Top10Encoder(nn.Module):
-    """The per-frame CNN of Top10NN: ``(N, 3, H, W) -> (N, img_feature_size)``."""
+    """The per-frame CNN of Top10NN: ``(N, 3, H, W) -> (N, img_feature_size)``, for frames
+    of at least ``min_input_size`` (65) px a side (five unpadded stride-2 convolutions)."""
 
     min_input_size: int = _min_input_size()
 
