@@ -9,7 +9,10 @@ in-process through the CLI itself (``tactile_compliance.cli.app``; nothing priva
 2. ``record wedge:VIDEO --calibration CAL --readings CSV --object LABEL --modulus E
    [--reference IMAGE] --json`` into one raw dataset;
 3. ``import burgess DATASET --fingers markerless``;
-4. ``predict MODEL STORE --json`` for every ``--model``.
+4. ``predict MODEL STORE --json`` for every ``--model``;
+5. ``adapt MODEL STORE --out work/NAME-adapted-loo`` for every ``--adapt``: these grasps
+   are the reference objects, and each grasp is scored by the map fitted on the *other*
+   objects' grasps (leave-one-object-out, ``adapt.json``'s ``per_grasp``).
 
 Objects are matched to labels of the object table by the name rule of the folder's
 README (``real/README.md``: a row ``| `golf_ball_{1,2,3}` | golf_ball | ...`` maps the
@@ -18,7 +21,9 @@ being a label, else by ``--label PREFIX=LABEL``; a recording that matches nothin
 the run before anything is recorded.
 
 Reported, per object: the true E, the two analytical estimates that ``record`` stored
-(elastic, Hertz; geometric mean over the object's grasps) and each model's prediction
+(elastic, Hertz; geometric mean over the object's grasps), with ``--rig`` the two
+rig-corrected ones, each model's zero-shot prediction and each adapted model's
+leave-one-object-out prediction
 (augmentation 0 of each grasp, the frames ``live`` uses; geometric mean over grasps).
 Per estimator / model: the share of grasps within one decade of the truth (a missing
 estimate counts as outside), the N-MSE on the dataset's label range [1e3, 1e12] Pa
@@ -36,6 +41,8 @@ shared 2-core project machine, models included)::
     python benchmarks/real_grasps.py --out real-ref --reference \\
         ../shared/reference-data/real/wedge-grasps/wedge_config/init_frame_unwarped.png
     python benchmarks/real_grasps.py --out real-models --model runs/RUN/best.pt --model model-dir
+    python benchmarks/real_grasps.py --out real-s2r --rig wedge-2023 \
+        --model sim2real-output/best.pt --adapt sim2real-output/best.pt
 
 A research script, not part of the installed package; the test is
 ``tests/test_real_grasps.py`` (skips when the real data is absent). Results:
@@ -341,6 +348,7 @@ def run(
     frames: int = 3,
     labels: dict[str, str] | None = None,
     rig: str | None = None,
+    adapt: Sequence[Path] = (),
     log: Any = print,
 ) -> dict[str, Any]:
     """Run the benchmark (see the module docstring); returns what ``real_grasps.json`` holds."""
@@ -466,10 +474,26 @@ def run(
             f"predicted with {name}: {len(report['predictions'])} samples, "
             f"{len(report.get('skipped', []))} skipped"
         )
-    keys = [*ANALYTICAL, *(RIG_CORRECTED if rig is not None else ()), *names]
+    adapted = [f"{n}-adapted-loo" for n in _model_names([Path(m) for m in adapt])]
+    adapt_s = {}
+    for model, key in zip(adapt, adapted, strict=True):
+        t0 = time.perf_counter()
+        target = work / key
+        cli("adapt", model, store, "--out", target)
+        adapt_s[key] = time.perf_counter() - t0
+        report = json.loads((target / "adapt.json").read_text(encoding="utf-8"))
+        for g in grasps:
+            g[key] = None
+        for p in report["per_grasp"]:
+            by_key[(p["object"], int(p["grasp"]))][key] = p["adapted_loo_pa"]
+        log(f"adapted {model}: {target / 'best.pt'} (leave-one-object-out per grasp)")
+    keys = [*ANALYTICAL, *(RIG_CORRECTED if rig is not None else ()), *names, *adapted]
     display = {"elastic": "elastic (analytical)", "hertz": "Hertz (analytical)"}
     display |= {"elastic_rig": "elastic, rig-corrected", "hertz_rig": "Hertz, rig-corrected"}
     display.update({n: n for n in names})
+    display.update(
+        {k: f"{k[: -len('-adapted-loo')]}, adapted (leave-one-object-out)" for k in adapted}
+    )
     result = {
         "recordings": str(recordings),
         "objects_table": str(objects),
@@ -477,6 +501,7 @@ def run(
         "rig": rig,
         "corners": corners,
         "models": {n: str(m) for n, m in zip(names, models, strict=True)},
+        "adapted": {k: str(m) for k, m in zip(adapted, adapt, strict=True)},
         "estimators": keys,
         "names": display,
         "label_range_pa": [1e3, 1e12],
@@ -487,6 +512,7 @@ def run(
             "calibrate_and_record": record_s,
             "import": import_s,
             "predict": predict_s,
+            "adapt": adapt_s,
             "total": time.perf_counter() - started,
         },
         "commands": commands,
@@ -553,6 +579,14 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="a rig file or name for `record --rig`: adds the rig-corrected estimates",
     )
+    parser.add_argument(
+        "--adapt",
+        type=Path,
+        action="append",
+        default=[],
+        help="a checkpoint to `adapt` on these grasps; scored leave-one-object-out "
+        "(each object by a map fitted on the others); repeatable",
+    )
     args = parser.parse_args(argv)
     try:
         result = run(
@@ -566,6 +600,7 @@ def main(argv: list[str] | None = None) -> int:
             frames=args.frames,
             labels=dict(args.label),
             rig=args.rig,
+            adapt=args.adapt,
         )
     except (BenchmarkError, OSError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)

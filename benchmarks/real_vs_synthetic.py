@@ -614,7 +614,9 @@ def main() -> None:
         "--table", type=Path, default=REFERENCE / "dataset_objects_and_compliance.csv"
     )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--rig", default="dataset", help="the generator's rig (RIGS)")
+    parser.add_argument(
+        "--rig", default="dataset", help="the generator's rig (a name of RIGS or a rig file)"
+    )
     # Overrides of the rig's fields, to fit them (docs/synthetic.md, "The gel").
     parser.add_argument("--gel-pa", type=float, help="the rig's gel modulus [Pa]")
     parser.add_argument("--finger-stiffness", help="the rig's K_f range LO,HI [N/m]")
@@ -716,14 +718,14 @@ def main() -> None:
 
 
 def chosen_rig(args: argparse.Namespace) -> GripperRig:
-    """The named rig with the fields the options override."""
-    from tactile_compliance.synthetic.timeseries import RIGS
+    """The named rig (or rig file) with the fields the options override."""
+    from tactile_compliance.synthetic.rig import resolve_rig
 
     def pair(text: str) -> tuple[float, float]:
         low, high = (float(v) for v in text.split(","))
         return (low, high)
 
-    rig = RIGS[args.rig]
+    rig = resolve_rig(args.rig)[1]
     if args.gel_pa is not None:
         rig = dataclasses.replace(rig, gel_modulus_pa=args.gel_pa)
     if args.finger_stiffness:

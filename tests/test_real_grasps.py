@@ -321,6 +321,39 @@ def test_the_benchmark_runs_the_user_path(wedge_grasps, object_table_csv, tmp_pa
     assert real_grasps.main(["--recordings", str(recordings), "--out", str(out)]) == 2
 
 
+def test_the_benchmark_scores_adapt_leave_one_object_out(wedge_grasps, object_table_csv, tmp_path):
+    """``--adapt MODEL`` runs `adapt` on the benchmark's own store and scores each grasp by
+    the map fitted on the other objects' grasps: the same numbers as the library's
+    leave-one-object-out on the model's zero-shot predictions of the same grasps."""
+    import math
+
+    from tactile_compliance.inference.adapt import GraspPrediction, leave_one_object_out
+    from tactile_compliance.runs.output_calibration import DEFAULT_RIDGE
+    from test_recording import _checkpoint
+
+    stems = ["golf_ball_1", "green_ball_softer_2", "purple_ball_hardest_1"]
+    recordings = _subset(wedge_grasps, tmp_path, stems)
+    (tmp_path / "tiny").mkdir()
+    ckpt = _checkpoint(tmp_path / "tiny" / "best.pt", inputs="ImageFW", size=(72, 72))
+    out = tmp_path / "out"
+    result = real_grasps.run(
+        out, recordings, object_table_csv, models=[ckpt], adapt=[ckpt], log=lambda *_: None
+    )
+    assert result["estimators"] == ["elastic", "hertz", "tiny", "tiny-adapted-loo"]
+    assert "leave-one-object-out" in result["names"]["tiny-adapted-loo"]
+    assert (out / "work" / "tiny-adapted-loo" / "best.pt").is_file()
+    grasps = result["grasps"]
+    own = [
+        GraspPrediction(g["object"], g["grasp"], g["true_pa"], math.log10(g["tiny"]))
+        for g in grasps
+    ]
+    expected = leave_one_object_out(own, DEFAULT_RIDGE)
+    for g, log10_pa in zip(grasps, expected, strict=True):
+        assert math.log10(g["tiny-adapted-loo"]) == pytest.approx(log10_pa, abs=1e-6)
+    assert result["summary"]["tiny-adapted-loo"]["n_missing"] == 0
+    assert any(c.startswith("tactile-compliance adapt ") for c in result["commands"])
+
+
 @pytest.mark.slow
 def test_the_benchmark_on_all_real_grasps(wedge_grasps, object_table_csv, tmp_path):
     """All 15 grasps (20-80 s on the shared 2-core machine): every recording goes through,

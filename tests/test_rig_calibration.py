@@ -104,6 +104,62 @@ def test_a_rig_file_round_trips_and_is_checked(tmp_path: Path) -> None:
         resolve_rig("nothing")
 
 
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("soft_contact_spread", 0.0, "soft contact spread must be in"),
+        ("soft_contact_spread", 2.5, "soft contact spread must be in"),
+        ("soft_edge_glow", -1.0, "soft edge glow must be >= 0"),
+        ("reference_contact_probability", 1.5, "reference contact probability"),
+        ("reference_contact_n", [1.0, 0.5], "reference_contact_n must be a range"),
+        ("read_noise_grey", [3.0, 2.0], "read_noise_grey must be a range"),
+        ("gel_thickness_mm", [0.0, 5.0], "gel_thickness_mm must be a range"),
+        ("force_baseline_sd_n", -0.1, "force_baseline_sd_n must be >= 0"),
+        ("background_jitter", -1.0, "background_jitter must be >= 0"),
+        ("light_jitter", [0.1, 0.2], "'light_jitter' must be 0 finite values"),
+    ],
+)
+def test_the_soft_contact_and_randomisation_fields_are_checked(
+    field: str, value: object, message: str
+) -> None:
+    with pytest.raises(ValueError, match=message):
+        GripperRig.from_dict({field: value}, "rig.json")
+
+
+def test_a_rig_read_back_makes_the_same_grasps_and_its_ranges_change_what_they_name() -> None:
+    """A rig read back from its file draws and renders exactly the same grasp; changing a
+    randomisation range changes what it names (the force baseline, the reference frame
+    taken in light contact)."""
+    from tactile_compliance.synthetic.grasp import SimulationOptions, make_context, simulate_grasp
+    from tactile_compliance.synthetic.objects import reference_sphere
+    from tactile_compliance.synthetic.rig import WEDGE_2023_RIG
+
+    base = replace(
+        WEDGE_2023_RIG,
+        soft_contact_spread=1.0,
+        soft_edge_glow=0.0,
+        reference_contact_probability=0.0,
+    )
+    spelled = GripperRig.from_dict(base.to_dict())
+    spec = reference_sphere("ball", 25.0, 9e4, "Rubber", 0, 1)
+
+    def grasp(rig: GripperRig):
+        ctx = make_context(spec, 0, SimulationOptions(image_size=(48, 64), rig=rig))
+        return simulate_grasp(ctx, 0)
+
+    a, b = grasp(base), grasp(spelled)
+    np.testing.assert_array_equal(a.samples[0].rgb, b.samples[0].rgb)
+    np.testing.assert_array_equal(a.timeline.force_n, b.timeline.force_n)
+    assert a.reference_approach_mm == (0.0, 0.0)
+    shifted = grasp(replace(base, force_baseline_sd_n=2.0))
+    assert not np.allclose(shifted.timeline.force_n, a.timeline.force_n)
+    touching = grasp(replace(base, reference_contact_probability=1.0))
+    assert all(x > 0 for x in touching.reference_approach_mm)
+    # The reference frame already holds a light contact: the imprint looks weaker.
+    weak = np.abs(touching.samples[0].rgb[0] - 0.5).mean()
+    assert weak < np.abs(a.samples[0].rgb[0] - 0.5).mean()
+
+
 def test_simulate_takes_a_rig_file(tmp_path: Path) -> None:
     rig_path = tmp_path / "rig.json"
     rig_path.write_text(rig_file_text(KNOWN_RIG, "mine"), encoding="utf-8")
@@ -182,6 +238,31 @@ def test_the_command_refuses_what_it_cannot_fit_and_files_it_did_not_write(
     assert result.exit_code == 2 and "OBJECT=MM" in result.output
 
 
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--randomise", "colour=3"], "--randomise takes FIELD=VALUE with FIELD one of"),
+        (["--randomise", "light_jitter"], "--randomise takes FIELD=VALUE"),
+        (["--randomise", "read_noise_grey=4,2"], "read_noise_grey must be a range"),
+        # Steel balls are rigid: nothing for the soft fit.
+        (["--soft", "RIGID"], "--soft: no compliant sphere"),
+        (["--soft", "EMPTY"], "no dataset_objects_and_compliance.csv; --soft needs"),
+    ],
+)
+def test_soft_and_randomise_refuse_in_one_line_before_fitting(
+    rigid_dataset: Path, tmp_path: Path, extra: list[str], message: str
+) -> None:
+    (tmp_path / "empty").mkdir()
+    extra = [
+        {"RIGID": str(rigid_dataset), "EMPTY": str(tmp_path / "empty")}.get(a, a) for a in extra
+    ]
+    out = tmp_path / "rig.json"
+    result = runner.invoke(app, ["calibrate-rig", str(rigid_dataset), "--out", str(out), *extra])
+    assert result.exit_code == 2, result.output
+    assert message in " ".join(result.output.split()), result.output
+    assert not out.exists()
+
+
 def test_a_rig_keeps_the_dataset_rig_for_the_other_fields() -> None:
     # The fit starts from the dataset rig: a replace() keeps it a valid GripperRig.
     assert replace(KNOWN_RIG, gel_modulus_pa=5e4).gel_modulus_pa == 5e4
@@ -196,30 +277,62 @@ GOLF_BALL_RADIUS_MM = 21.3  # real/README.md
 PRESET_TOLERANCE = 0.02
 
 
+#: The soft reference spheres of the development grasps (real/README.md: radius 25 mm).
+SOFT_BALLS = {
+    "green_ball_softer": ("green_elastic_ball", "9.36e4"),
+    "orange_ball_softest": ("orange_elastic_ball", "3.19e4"),
+    "purple_ball_hardest": ("purple_elastic_ball", "2.04e5"),
+}
+
+#: ``calibrate-rig --randomise`` of the shipped wedge-2023 (docs/synthetic.md, "Domain
+#: randomisation", says where each comes from).
+WEDGE_RANDOMISATION = (
+    "force_baseline_sd_n=0.25",
+    "reference_contact_probability=0.5",
+    "reference_contact_n=0.1,1.1",
+    "light_jitter=0.15",
+    "read_noise_grey=1.5,4",
+    "gel_modulus_sd_decades=0.1",
+    "background_jitter=2",
+)
+
+
+def _record(folder: Path, tmp_path: Path, stem: str, label: str, modulus: str, out: Path) -> None:
+    video = f"wedge:{folder / f'{stem}.avi'}"
+    calibration = tmp_path / f"{stem}.json"
+    args = ["calibrate", video, "--out", str(calibration), "--corners", WEDGE_CORNERS]
+    args += ["--warp-size", "300x400", "--frames", "3"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    args = ["record", video, "--calibration", str(calibration), "--out", str(out)]
+    args += ["--readings", str(folder / f"{stem}_readings.csv")]
+    args += ["--object", label, "--modulus", modulus, "--shape", "Sphere"]
+    args += ["--material", "Plastic" if label == "golf_ball" else "Rubber"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+
+
 @pytest.mark.slow
 def test_the_command_reproduces_the_shipped_wedge_2023_rig_from_the_golf_ball(
     reference_data_dir: Path, tmp_path: Path
 ) -> None:
-    """`record` the three real golf-ball grasps, then `calibrate-rig` them (about 2 min)."""
+    """`record` the three real golf-ball grasps and the nine soft-ball grasps, then
+    `calibrate-rig` them with --soft and --randomise (about 8 min)."""
     folder = reference_data_dir / "real" / "wedge-grasps" / "2023-12-06"
     if not (folder / "golf_ball_1.avi").is_file():
         pytest.skip(f"{folder} has no golf-ball recordings")
-    dataset = tmp_path / "golf"
+    golf, soft = tmp_path / "golf", tmp_path / "soft"
     for trial in (1, 2, 3):
-        video = f"wedge:{folder / f'golf_ball_{trial}.avi'}"
-        calibration = tmp_path / f"golf_{trial}.json"
-        args = ["calibrate", video, "--out", str(calibration), "--corners", WEDGE_CORNERS]
-        args += ["--warp-size", "300x400", "--frames", "3"]
-        result = runner.invoke(app, args)
-        assert result.exit_code == 0, result.output
-        args = ["record", video, "--calibration", str(calibration), "--out", str(dataset)]
-        args += ["--readings", str(folder / f"golf_ball_{trial}_readings.csv")]
-        args += ["--object", "golf_ball", "--modulus", "8.5e8", "--shape", "Sphere"]
-        result = runner.invoke(app, args)
-        assert result.exit_code == 0, result.output
+        _record(folder, tmp_path, f"golf_ball_{trial}", "golf_ball", "8.5e8", golf)
+        for prefix, (label, modulus) in SOFT_BALLS.items():
+            _record(folder, tmp_path, f"{prefix}_{trial}", label, modulus, soft)
     out = tmp_path / "wedge-2023.json"
-    args = ["calibrate-rig", str(dataset), "--out", str(out), "--name", "wedge-2023"]
-    args += ["--radius", f"golf_ball={GOLF_BALL_RADIUS_MM}"]
+    args = ["calibrate-rig", str(golf), "--out", str(out), "--name", "wedge-2023"]
+    args += ["--radius", f"golf_ball={GOLF_BALL_RADIUS_MM}", "--soft", str(soft)]
+    for label, _ in SOFT_BALLS.values():
+        args += ["--radius", f"{label}=25"]
+    for text in WEDGE_RANDOMISATION:
+        args += ["--randomise", text]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     name, fitted = read_rig_file(out)

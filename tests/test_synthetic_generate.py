@@ -275,13 +275,9 @@ def test_the_rig_sets_the_press_force_and_is_part_of_the_parameters(tmp_path: Pa
         _generate(out, rig=rig)
         forces = [load_numpy_pickle(p) for p in out.glob("*/grasp=*/augmentation=0/forces.pkl")]
         peak_n[rig] = max(float(np.max(f)) for f in forces)
-        assert json.loads((out / "generation.json").read_text())["options"]["rig"] == {
-            "peak_force_n": list(RIGS[rig].peak_force_n),
-            "finger_stiffness_n_per_m": list(RIGS[rig].finger_stiffness_n_per_m),
-            "edge_glow_grey_per_mm": list(RIGS[rig].edge_glow_grey_per_mm),
-            "gel_modulus_pa": RIGS[rig].gel_modulus_pa,
-            "light_balance": list(RIGS[rig].light_balance),
-        }
+        options = json.loads((out / "generation.json").read_text())["options"]
+        assert options["rig"] == RIGS[rig].to_dict()
+        assert options["rig"]["peak_force_n"] == list(RIGS[rig].peak_force_n)
     assert peak_n["dataset"] > 50.0 and peak_n["wedge-2023"] < 35.0
     # Resuming a tree with another rig would mix two rigs in one dataset.
     with pytest.raises(GenerationError, match="different parameters"):

@@ -21,6 +21,7 @@ from tactile_compliance.synthetic.mechanics import (
     ObjectMechanics,
     contact_curve,
     force_curve,
+    gel_compression,
     gel_compression_fields,
     shell_stiffness_n_per_m,
 )
@@ -242,3 +243,29 @@ def test_soft_objects_conform_into_large_contacts() -> None:
         areas.append(float((field > 0).sum()) * 0.25**2)
     assert areas[0] > areas[1] > areas[2], areas
     assert areas[0] > 1.5 * areas[2]
+
+
+def test_the_soft_contact_spread_narrows_compliant_imprints_and_keeps_their_volume() -> None:
+    # The rig's soft_contact_spread: a soft sphere's imprint shrinks (and deepens) by
+    # 1 - c_o (1 - spread) in radius at the same load; a rigid one keeps its footprint.
+    sphere = ShapeSpec("Sphere", {"radius_mm": 10.0}, 20.0)
+    grid, gel = PadGrid(0.25), GelModel(thickness_mm=5.0)
+    sag = sag_map(sphere, grid, CENTRED)
+    for modulus, narrows in ((1e5, True), (1e9, False)):
+        obj = ObjectMechanics(modulus, 0.45, sphere.thickness_mm, max_strain=0.5)
+        delta = np.array([float(force_curve(sag, gel, obj, grid).approach_at(60.0))])
+        plain, shares = gel_compression(sag, gel, obj, grid, delta)
+        narrow, _ = gel_compression(sag, gel, obj, grid, delta, spread=0.6)
+        np.testing.assert_array_equal(
+            plain[0], gel_compression_fields(sag, gel, obj, grid, delta)[0]
+        )
+        assert narrow.sum() == pytest.approx(plain.sum(), rel=1e-3)
+        area_plain, area_narrow = (plain[0] > 0).sum(), (narrow[0] > 0).sum()
+        if narrows:
+            assert shares[0] > 0.5
+            expected = (1 - shares[0] * 0.4) ** 2
+            assert area_narrow / area_plain == pytest.approx(expected, rel=0.15)
+            assert narrow.max() > 1.5 * plain.max()
+        else:
+            assert shares[0] < 0.01
+            assert abs(area_narrow / area_plain - 1) < 0.03

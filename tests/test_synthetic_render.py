@@ -180,3 +180,20 @@ def test_edge_glow_saturates_so_frames_stay_difference_images() -> None:
     reference = reference_frame(glowing, SIZE, rng)
     diff = difference_images(render_frames(depth, glowing, rng), reference)
     assert np.abs(diff - 0.5).max() < 0.5  # within the plausible [0, 1]
+
+
+def test_the_glow_scale_multiplies_each_frames_glow() -> None:
+    # The rig's soft_edge_glow reaches the renderer as a per-frame factor on the gain.
+    look = sample_sensor_look(stream(7, "look"), markers=False)
+    look.jpeg_quality = 0
+    look.read_noise = 0.0
+    look.drift = (0.0, 0.0)
+    glowing = replace(look, edge_glow=(200.0, 0.6, 0.18, 0.07))
+    depth = np.full((2, *SIZE), 0.02, dtype=np.float32)  # weak: far from saturation
+    plain = render_frames(depth, look, stream(0, "n")).astype(float)
+    one = render_frames(depth, glowing, stream(0, "n")).astype(float) - plain
+    scaled = render_frames(depth, glowing, stream(0, "n"), glow_scale=np.array([1.0, 3.0]))
+    scaled = scaled.astype(float) - plain
+    w = SIZE[1] // 20
+    np.testing.assert_array_equal(scaled[0], one[0])
+    assert scaled[1][:, :w, 1].mean() == pytest.approx(3 * one[1][:, :w, 1].mean(), rel=0.1)

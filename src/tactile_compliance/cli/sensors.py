@@ -222,20 +222,78 @@ def calibrate_rig_command(
             "'The lights').",
         ),
     ] = False,
+    soft: Annotated[
+        Optional[list[Path]],
+        typer.Option(
+            help="A dataset that `record` wrote of compliant reference spheres of known "
+            "modulus (read from its table): fits the soft contact's footprint and glow "
+            "(repeatable; docs/synthetic.md, 'Soft contacts')."
+        ),
+    ] = None,
+    randomise: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            help="FIELD=VALUE[,VALUE]: a domain-randomisation range of your rig (e.g. "
+            "force_baseline_sd_n=0.25), written into the rig file (repeatable; "
+            "docs/synthetic.md, 'Domain randomisation')."
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the fit as JSON.")] = False,
 ) -> None:
     """Fit your gripper rig from grasps of rigid spheres, with no modulus label: the press
     force, the finger and mount stiffness (closure), the gel (contact area), the edge glow
-    and, with --fit-lights, the light balance. `simulate --rig OUT` and `sim2real --rig OUT`
-    then imitate it; its stiffness makes the rig-corrected analytical estimate."""
+    and, with --fit-lights, the light balance; with --soft, the soft contact on reference
+    spheres of known modulus. `simulate --rig OUT` and `sim2real --rig OUT` then imitate
+    it; its stiffness makes the rig-corrected analytical estimate."""
+    from dataclasses import replace
+
     from tactile_compliance.outputs import atomic_file, check_output_file
-    from tactile_compliance.synthetic.rig import is_rig_file, rig_file_text
+    from tactile_compliance.synthetic.rig import (
+        RANDOMISATION_FIELDS,
+        GripperRig,
+        is_rig_file,
+        rig_file_text,
+    )
     from tactile_compliance.synthetic.rig_fit import fit_rig, read_rigid_grasps
+    from tactile_compliance.synthetic.soft_fit import fit_soft_contact, read_soft_grasps
 
     target = check_output_file(out, "rig file", is_rig_file, option="--out")
-    observations = read_rigid_grasps(datasets, _radius_options(radius or []))
+    ranges: dict[str, object] = {}
+    for text in randomise or []:
+        field_name, sep, value = text.partition("=")
+        if not sep or field_name not in RANDOMISATION_FIELDS:
+            raise typer.BadParameter(
+                f"--randomise takes FIELD=VALUE with FIELD one of {', '.join(RANDOMISATION_FIELDS)}"
+                f", got {text!r}"
+            )
+        parts = value.split(",")
+        ranges[field_name] = parts if len(parts) > 1 else value
+    try:
+        given = GripperRig.from_dict(ranges, "--randomise")  # checked before the fit
+    except ValueError as err:
+        raise typer.BadParameter(str(err)) from err
+    radii = _radius_options(radius or [])
+    observations = read_rigid_grasps(datasets, radii)
+    references = read_soft_grasps(soft, radii) if soft else None
     echo = (lambda text: typer.echo(text, err=True)) if as_json else typer.echo
     fit = fit_rig(observations, fit_lights=fit_lights, progress=echo)
+    if references is not None:
+        for line in references[1]:
+            echo(f"--soft leaves out {line}")
+        fit.rig, steps, fit.soft, evaluations = fit_soft_contact(
+            fit.rig, references[0], progress=echo
+        )
+        fit.steps += steps
+        fit.evaluations += evaluations
+    if ranges:
+        fit.rig = replace(fit.rig, **{k: getattr(given, k) for k in ranges})
+        fit.steps.append(
+            {
+                "field": "randomisation",
+                "value": {k: fit.rig.to_dict()[k] for k in ranges},
+                "fitted_on": "given (--randomise): what the user's rig varies",
+            }
+        )
     with atomic_file(target, "w") as handle:
         handle.write(rig_file_text(fit.rig, name or target.stem, fit.to_dict()))
     if as_json:

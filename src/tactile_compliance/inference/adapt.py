@@ -100,6 +100,7 @@ class AdaptSummary:
     calibration: OutputCalibration
     scores: dict[str, dict[str, Any]]
     per_object: list[dict[str, Any]] = field(default_factory=list)
+    per_grasp: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -108,6 +109,7 @@ class AdaptSummary:
             "calibration": self.calibration.to_dict(),
             "scores": self.scores,
             "per_object": self.per_object,
+            "per_grasp": self.per_grasp,
         }
 
     def format(self) -> str:
@@ -186,7 +188,9 @@ def adapt_model(
 ) -> AdaptSummary:
     """Fit the output calibration of ``model`` on ``reference_store`` and write
     ``out_dir/best.pt`` (the checkpoint with the calibration recorded under
-    ``output_calibration``) and ``out_dir/adapt.json`` (the scores).
+    ``output_calibration``) and ``out_dir/adapt.json`` (the scores, and per object and
+    per grasp [Pa] the model's own and the leave-one-object-out prediction, ``per_object``
+    and ``per_grasp``).
 
     Deterministic: the same model and store give the same calibration.
 
@@ -239,7 +243,17 @@ def adapt_model(
     target = out / "best.pt"
     with atomic_file(target, "wb") as handle, torch_write_errors(target):
         torch.save(payload, handle)
-    summary = AdaptSummary(out, target, calibration, scores, per_object)
+    per_grasp = [
+        {
+            "object": g.object,
+            "grasp": g.grasp,
+            "true_pa": g.true_pa,
+            "model_pa": float(10**p),
+            "adapted_loo_pa": None if not math.isfinite(q) else float(10**q),
+        }
+        for g, p, q in zip(grasps, pred, loo, strict=True)
+    ]
+    summary = AdaptSummary(out, target, calibration, scores, per_object, per_grasp)
     with atomic_file(out / "adapt.json", "w") as handle:
         handle.write(json.dumps(summary.to_dict(), indent=2) + "\n")
     return summary

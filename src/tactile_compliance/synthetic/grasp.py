@@ -23,10 +23,11 @@ from tactile_compliance.physics.dataset_estimates import (
 )
 from tactile_compliance.synthetic.geometry import PadGrid, sag_map, sample_pose
 from tactile_compliance.synthetic.mechanics import (
+    ContactCurve,
     GelModel,
     ObjectMechanics,
     force_curve,
-    gel_compression_fields,
+    gel_compression,
 )
 from tactile_compliance.synthetic.objects import ObjectSpec
 from tactile_compliance.synthetic.render import (
@@ -107,12 +108,20 @@ def _session(seed: int, session_id: int, rig: GripperRig) -> Session:
     rng = stream(seed, "session", session_id)
     gels = tuple(
         GelModel(
-            modulus_pa=rig.gel_modulus_pa * 10 ** rng.normal(0.0, 0.05),
-            thickness_mm=float(rng.uniform(3.5, 5.5)),
+            modulus_pa=rig.gel_modulus_pa * 10 ** rng.normal(0.0, rig.gel_modulus_sd_decades),
+            thickness_mm=float(rng.uniform(*rig.gel_thickness_mm)),
         )
         for _ in range(2)
     )
-    looks = (sample_sensor_look(rng, markers=False), sample_sensor_look(rng, markers=True))
+    randomised = {
+        "light_jitter": rig.light_jitter,
+        "read_noise_grey": rig.read_noise_grey,
+        "background_jitter": rig.background_jitter,
+    }
+    looks = (
+        sample_sensor_look(rng, markers=False, **randomised),
+        sample_sensor_look(rng, markers=True, **randomised),
+    )
     # Scales the drawn strengths, drawing nothing: a rig's balance changes no other draw.
     looks = tuple(  # type: ignore[assignment]
         replace(look, light_gain=tuple(np.multiply(look.light_gain, rig.light_balance).tolist()))
@@ -183,6 +192,7 @@ class GraspResult:
     samples: list[GraspSample]
     timeline: GraspTimeline
     selection: AugmentedSelection | None
+    reference_approach_mm: tuple[float, float] = (0.0, 0.0)
 
 
 def _object_mechanics(spec: ObjectSpec) -> ObjectMechanics:
@@ -212,17 +222,35 @@ def _render_sequence(
     texture_share: float = 1.0,
     solve_scale: float = 1.0,
     jpeg: bool = True,
+    rig: GripperRig = DATASET_RIG,
+    reference_approach_mm: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Difference images (n, H, W, 3) and reconstructed depth (n, H, W) for approaches."""
-    fields = gel_compression_fields(sag, gel, obj, grid, approaches_mm)
+    """Difference images (n, H, W, 3) and reconstructed depth (n, H, W) for approaches;
+    ``rig``'s soft contact (``soft_contact_spread``, ``soft_edge_glow``) shapes compliant
+    imprints and their glow. A positive ``reference_approach_mm`` [mm] takes the
+    reference frame in that light contact (a recording that starts touching)."""
+    approaches = np.asarray(approaches_mm, dtype=np.float64)
+    touching_reference = reference_approach_mm > 0
+    if touching_reference:
+        approaches = np.append(approaches, reference_approach_mm)
+    fields, shares = gel_compression(
+        sag, gel, obj, grid, approaches, spread=rig.soft_contact_spread
+    )
     height, contact = gel_height_maps(fields, grid, size, gel.thickness_mm)
     if texture is not None:
         height += np.float32(texture_share) * texture[None] * contact
         np.maximum(height, 0.0, out=height)
     if not jpeg and look.jpeg_quality:
         look = replace(look, jpeg_quality=0)
-    reference = reference_frame(look, size, rng)
-    frames = render_frames(height, look, rng)
+    glow = 1.0 + rig.soft_edge_glow * shares if rig.soft_edge_glow else None
+    if touching_reference:
+        reference = render_frames(
+            height[-1:], look, rng, glow_scale=None if glow is None else glow[-1:]
+        )[0]
+        height, glow = height[:-1], None if glow is None else glow[:-1]
+    else:
+        reference = reference_frame(look, size, rng)
+    frames = render_frames(height, look, rng, glow_scale=glow)
     diff = difference_images(frames, reference)
     depth = reconstruct_depth(diff, markers=look.markers, solve_scale=solve_scale)
     return diff, depth
@@ -297,8 +325,10 @@ def _render_full_size(
     render_sag: np.ndarray,
     obj: ObjectMechanics,
     texture_rng: np.random.Generator,
+    reference_approach_mm: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Full-size difference images and depth of one finger for the given approaches."""
+    """Full-size difference images and depth of one finger for the given approaches (the
+    reference frame at ``reference_approach_mm`` [mm], 0: no contact)."""
     opt, gels = ctx.options, ctx.session.gels
     # How much of the object's texture shows through depends on its stiffness vs the gel.
     gel_share = obj.plane_strain_modulus_pa / (
@@ -317,8 +347,26 @@ def _render_full_size(
         texture=texture_window(ctx.textures[finger], size, texture_rng),
         texture_share=gel_share,
         solve_scale=opt.depth_solve_scale,
+        rig=opt.rig,
+        reference_approach_mm=reference_approach_mm,
     )
     return to_stored_size(diff, opt.image_size), to_stored_size(depth, opt.image_size)
+
+
+def _reference_approaches(
+    ctx: ObjectContext, grasp: int, curves: tuple[ContactCurve, ...]
+) -> tuple[float, float]:
+    """Each finger's approach [mm] when its reference frame is taken: 0 (no contact), or,
+    with the rig's ``reference_contact_probability``, at a light force drawn from
+    ``reference_contact_n`` (its own stream: a rig without it draws nothing)."""
+    rig = ctx.options.rig
+    if rig.reference_contact_probability <= 0:
+        return (0.0, 0.0)
+    rng = stream(*_grasp_key(ctx, grasp), "reference-contact")
+    if rng.random() >= rig.reference_contact_probability:
+        return (0.0, 0.0)
+    force_n = float(rng.uniform(*rig.reference_contact_n))
+    return tuple(float(c.approach_at(force_n)) for c in curves)  # type: ignore[return-value]
 
 
 def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
@@ -344,10 +392,12 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
         # A sphere cannot rotate into a more stable pose.
         settle_probability=0.1 if spec.geometry.kind == "Sphere" else 0.35,
         peak_force_n=opt.rig.peak_force_n,
+        force_baseline_sd_n=opt.rig.force_baseline_sd_n,
     )
+    reference_mm = _reference_approaches(ctx, grasp, curves)
     window = selection_window(timeline.force_n, opt.max_aug)
     if window is None:
-        return GraspResult([], timeline, None)  # peak force < 10 N or too few frames
+        return GraspResult([], timeline, None, reference_mm)  # peak force < 10 N or too few frames
     press = dataset_force_press(timeline.force_n)
     lo, hi = window[0], window[2]
     if press is not None:
@@ -369,6 +419,8 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
             stream(*key, "render-sequence", f),
             # JPEG blocks are below this resolution; skipping the codec saves time.
             jpeg=False,
+            rig=opt.rig,
+            reference_approach_mm=reference_mm[f],
         )
         seq.append(depth)
         max_depth[f, seq_frames] = depth.reshape(seq_frames.size, -1).max(axis=1)
@@ -376,7 +428,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
         timeline.force_n, max_depth[0], max_depth[1], spec.modulus_pa, max_aug=opt.max_aug
     )
     if selection is None:
-        return GraspResult([], timeline, None)
+        return GraspResult([], timeline, None, reference_mm)
     elastic, hertz = _estimates(timeline, seq[0], max_depth, seq_frames, est_size[1])
 
     # Full resolution, stored frames only.
@@ -385,7 +437,14 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     for f, video in enumerate(selection.fingers):
         idx = np.unique((video[:, None] + np.arange(selection.num_aug)).ravel())
         diff, depth = _render_full_size(
-            ctx, grasp, f, timeline.approach_mm[f, idx], render_sags[f], obj, tex_rng
+            ctx,
+            grasp,
+            f,
+            timeline.approach_mm[f, idx],
+            render_sags[f],
+            obj,
+            tex_rng,
+            reference_mm[f],
         )
         rendered.append((idx, diff, depth))
     samples = []
@@ -408,7 +467,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
                 hertz_estimate=hertz,
             )
         )
-    return GraspResult(samples, timeline, selection)
+    return GraspResult(samples, timeline, selection, reference_mm)
 
 
 def camera_times_s(timeline_times_s: np.ndarray, fps: float) -> np.ndarray:
@@ -457,5 +516,6 @@ def render_recording(
         render_sag,
         _object_mechanics(ctx.spec),
         texture_rng,
+        result.reference_approach_mm[finger],
     )
     return result, diff

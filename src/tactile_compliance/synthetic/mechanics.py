@@ -21,6 +21,7 @@ __all__ = [
     "ObjectMechanics",
     "contact_curve",
     "force_curve",
+    "gel_compression",
     "shell_stiffness_n_per_m",
 ]
 
@@ -320,6 +321,67 @@ def _conform(stack: np.ndarray, object_share: np.ndarray, gel: GelModel, grid: P
     stack[(active, *box)] = smooth
 
 
+def _narrow(stack: np.ndarray, object_share: np.ndarray, spread: float) -> None:
+    """Scale each compliant field (n, rows, cols) [mm] about its centroid, in place, by
+    ``1 - c_o (1 - spread)`` in radius, keeping its volume (the same load): a rigid
+    contact (``c_o`` 0) keeps its footprint, a soft one's shrinks (``spread`` < 1) and
+    deepens. The rig's ``soft_contact_spread`` (``synthetic.rig.GripperRig``)."""
+    shares = np.clip(object_share, 0.0, 1.0)
+    rows, cols = stack.shape[1:]
+    yy, xx = np.mgrid[0:rows, 0:cols].astype(np.float32)
+    for k in np.flatnonzero(np.abs(shares * (1.0 - spread)) > 1e-3):
+        field = stack[k]
+        volume = float(field.sum(dtype=np.float64))
+        if volume <= 0:
+            continue
+        factor = float(1.0 - shares[k] * (1.0 - spread))
+        cy = float((field * yy).sum(dtype=np.float64)) / volume
+        cx = float((field * xx).sum(dtype=np.float64)) / volume
+        matrix = np.array(
+            [[factor, 0.0, cx * (1.0 - factor)], [0.0, factor, cy * (1.0 - factor)]],
+            dtype=np.float64,
+        )
+        warped = cv2.warpAffine(
+            field, matrix, (cols, rows), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT
+        )
+        np.maximum(warped, 0.0, out=warped)
+        after = float(warped.sum(dtype=np.float64))
+        stack[k] = warped * np.float32(volume / after) if after > 0 else field
+
+
+def gel_compression(
+    sag_mm: np.ndarray,
+    gel: GelModel,
+    obj: ObjectMechanics,
+    grid: PadGrid,
+    approaches_mm: np.ndarray,
+    conformity: bool = True,
+    spread: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gel compression fields (n, rows, cols) [mm] at each approach and the object's share
+    of the deformation (n,) [-]; both zero where the approach is 0 (no contact), which
+    :func:`contact_curve` cannot evaluate.
+
+    With ``conformity`` (default) each field is shaped by :func:`_conform`: compliant
+    objects press soft-edged imprints, rigid ones print their geometry; ``spread`` (the
+    rig's ``soft_contact_spread``, 1: none) then narrows compliant imprints
+    (:func:`_narrow`)."""
+    approaches = np.asarray(approaches_mm, dtype=np.float64)
+    fields = np.zeros((approaches.size, *grid.shape), dtype=np.float32)
+    shares = np.zeros(approaches.size, dtype=np.float64)
+    touching = np.flatnonzero(approaches > 0)
+    if touching.size:
+        curve = contact_curve(sag_mm, gel, obj, grid, approaches[touching], fields=True)
+        assert curve.gel_depth_mm is not None and curve.object_share is not None
+        if conformity:
+            _conform(curve.gel_depth_mm, curve.object_share, gel, grid)
+            if spread != 1.0:
+                _narrow(curve.gel_depth_mm, curve.object_share, spread)
+        fields[touching] = curve.gel_depth_mm
+        shares[touching] = curve.object_share
+    return fields, shares
+
+
 def gel_compression_fields(
     sag_mm: np.ndarray,
     gel: GelModel,
@@ -328,18 +390,5 @@ def gel_compression_fields(
     approaches_mm: np.ndarray,
     conformity: bool = True,
 ) -> np.ndarray:
-    """Gel compression fields (n, rows, cols) [mm] at each approach; zero where the
-    approach is 0 (no contact), which :func:`contact_curve` cannot evaluate.
-
-    With ``conformity`` (default) each field is shaped by :func:`_conform`: compliant
-    objects press soft-edged imprints, rigid ones print their geometry."""
-    approaches = np.asarray(approaches_mm, dtype=np.float64)
-    fields = np.zeros((approaches.size, *grid.shape), dtype=np.float32)
-    touching = np.flatnonzero(approaches > 0)
-    if touching.size:
-        curve = contact_curve(sag_mm, gel, obj, grid, approaches[touching], fields=True)
-        assert curve.gel_depth_mm is not None and curve.object_share is not None
-        if conformity:
-            _conform(curve.gel_depth_mm, curve.object_share, gel, grid)
-        fields[touching] = curve.gel_depth_mm
-    return fields
+    """The fields of :func:`gel_compression` alone (no ``spread``)."""
+    return gel_compression(sag_mm, gel, obj, grid, approaches_mm, conformity)[0]

@@ -304,7 +304,22 @@ def rigid_sphere(
 ) -> ObjectSpec:
     """A rigid plastic sphere of ``radius_mm`` [mm] (``calibrate-rig``'s stand-in for a
     user's rigid calibration object), drawn as the table objects are (``_build``)."""
+    return reference_sphere(name, radius_mm, RIGID_MODULUS_PA, "Plastic", seed, n_grasps, index)
+
+
+def reference_sphere(
+    name: str,
+    radius_mm: float,
+    modulus_pa: float,
+    material: str,
+    seed: int,
+    n_grasps: int,
+    index: int = 0,
+) -> ObjectSpec:
+    """A sphere of ``radius_mm`` [mm] and ``modulus_pa`` [Pa] of ``material``, drawn as a
+    table row of that label is (``objects_from_table``): ``calibrate-rig``'s stand-in for
+    a user's reference object."""
     if not (math.isfinite(radius_mm) and radius_mm > 0):
         raise ValueError(f"radius must be a positive length in mm, got {radius_mm!r}")
-    grade = stock_grade(seed, "Plastic", RIGID_MODULUS_PA)
-    return _build(name, index, seed, "Plastic", "Sphere", grade, n_grasps, radius_mm=radius_mm)
+    grade = stock_grade(seed, material, modulus_pa)
+    return _build(name, index, seed, material, "Sphere", grade, n_grasps, radius_mm=radius_mm)

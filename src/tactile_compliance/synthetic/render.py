@@ -106,16 +106,27 @@ class SensorLook:
     )
 
 
-def sample_sensor_look(rng: np.random.Generator, markers: bool) -> SensorLook:
-    """Draw a sensor appearance (independent of the object's label)."""
-    jitter = lambda: float(rng.normal(1.0, 0.08))  # noqa: E731 - tiny local helper
+def sample_sensor_look(
+    rng: np.random.Generator,
+    markers: bool,
+    light_jitter: float = 0.08,
+    read_noise_grey: tuple[float, float] = (2.0, 3.0),
+    background_jitter: float = 1.0,
+) -> SensorLook:
+    """Draw a sensor appearance (independent of the object's label). ``light_jitter``
+    (sd of each light's strength factor [-]), ``read_noise_grey`` (range of the noise
+    sigma [grey levels]) and ``background_jitter`` (factor on the spread of the
+    background's colours [-]) are a rig's domain randomisation
+    (``synthetic.rig.GripperRig``); the defaults are the generator's own."""
+    jitter = lambda: float(rng.normal(1.0, light_jitter))  # noqa: E731 - tiny local helper
+    bj = float(background_jitter)
     # Where the membrane is pressed it thins and darkens, about equally in every channel
     # (so the photometric inversion, which works on channel differences, is unaffected).
     dark_all = float(rng.uniform(5.0, 12.0))
     background = {
-        "centre_b": rng.normal(140.0, 6.0),
-        "centre_g": rng.normal(122.0, 5.0),
-        "centre_r": rng.normal(106.0, 5.0),
+        "centre_b": rng.normal(140.0, 6.0 * bj),
+        "centre_g": rng.normal(122.0, 5.0 * bj),
+        "centre_r": rng.normal(106.0, 5.0 * bj),
         "blue_band": rng.uniform(55.0, 85.0),
         "blue_width": rng.uniform(0.10, 0.18),
         "red_band": rng.uniform(18.0, 35.0),
@@ -132,7 +143,7 @@ def sample_sensor_look(rng: np.random.Generator, markers: bool) -> SensorLook:
         elevation_rad=tuple(np.deg2rad(rng.uniform(25.0, 40.0, size=3)).tolist()),
         falloff=tuple(rng.uniform(0.35, 0.7, size=3).tolist()),
         background=background,
-        read_noise=float(rng.uniform(2.0, 3.0)),
+        read_noise=float(rng.uniform(*read_noise_grey)),
         drift=(float(rng.uniform(0.001, 0.004)), float(rng.uniform(0.3, 1.0))),
         jpeg_quality=int(rng.integers(85, 96)) if rng.random() < 0.7 else 0,
         darkening=(
@@ -236,8 +247,11 @@ def sample_edge_glow(
     )
 
 
-def _add_edge_glow(planes: np.ndarray, depth: np.ndarray, look: SensorLook) -> None:
-    """Add the green edge's glow to ``planes`` (B, G, R; n, H, W), in place.
+def _add_edge_glow(
+    planes: np.ndarray, depth: np.ndarray, look: SensorLook, scale: np.ndarray | None = None
+) -> None:
+    """Add the green edge's glow to ``planes`` (B, G, R; n, H, W), in place; ``scale``
+    (n,) [-] multiplies each frame's gain (None: 1).
 
     Only the columns where the band is above 1e-3 of its peak (about 7 fade lengths) are
     touched: the glow is a left-edge effect, and the rest of the frame is the hot path's.
@@ -246,6 +260,8 @@ def _add_edge_glow(planes: np.ndarray, depth: np.ndarray, look: SensorLook) -> N
     h, w = depth.shape[1:]
     strip = max(round(EDGE_GLOW_STRIP * w), 1)
     linear = gain * depth[:, :, :strip].mean(axis=(1, 2), dtype=np.float64)  # (n,)
+    if scale is not None:
+        linear = linear * np.asarray(scale, dtype=np.float64)
     drive = (EDGE_GLOW_MAX_GREY * np.tanh(linear / EDGE_GLOW_MAX_GREY)).astype(np.float32)
     cols = min(w, int(np.ceil(-np.log(1e-3) * fade * w)))
     y = (np.arange(h, dtype=np.float32) + 0.5) / h
@@ -417,8 +433,10 @@ def render_frames(
     depth_mm: np.ndarray,
     look: SensorLook,
     rng: np.random.Generator,
+    glow_scale: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Camera frames (n, H, W, 3) uint8 BGR for imprint depth maps (n, H, W) [mm].
+    """Camera frames (n, H, W, 3) uint8 BGR for imprint depth maps (n, H, W) [mm];
+    ``glow_scale`` (n,) [-] multiplies the edge glow's gain frame by frame (None: 1).
 
     Computed on planar (channel, frame, H, W) arrays - interleaved channels would
     make every operation strided - and interleaved once, as uint8, at the end. The
@@ -439,7 +457,7 @@ def render_frames(
         region = (slice(None), slice(None), *box)
         planes[region] += _shading(depth[region[1:]], look, gain_maps, pixel_size_mm(size))
     if look.edge_glow[0] > 0:
-        _add_edge_glow(planes, depth, look)
+        _add_edge_glow(planes, depth, look, glow_scale)
     if look.markers:
         planes *= 1.0 - markers
     drift_gain, drift_offset = look.drift

@@ -23,6 +23,7 @@ from tactile_compliance.synthetic.rng import log_uniform
 
 __all__ = [
     "DATASET_RIG",
+    "RANDOMISATION_FIELDS",
     "RIGS",
     "RIG_FILE_KIND",
     "RIG_FORMAT_VERSION",
@@ -60,6 +61,30 @@ class GripperRig:
         light_balance: factors on the drawn strengths of the sensor's three lights (G, R,
             B) [-] (``render.SensorLook.light_gain``): the colour balance of an imprint.
             A rigid ball's difference image measures it on a real sensor.
+        soft_contact_spread: factor on the radius of a compliant object's imprint [-],
+            weighted by the object's share ``c_o`` of the deformation (radius x ``1 - c_o
+            (1 - spread)``, volume kept: ``mechanics.gel_compression``); 1: the contact
+            mechanics as they are. Grasps of soft reference objects of known modulus
+            measure it (``calibrate-rig --soft``), a rigid ball cannot.
+        soft_edge_glow: extra edge glow of compliant contacts [-]: each frame's glow gain
+            x ``1 + soft_edge_glow c_o``; 0: none. Fitted with ``soft_contact_spread``.
+
+    Domain randomisation (what real set-ups of one rig vary; each drawn per session or
+    per grasp from the generator's keyed streams, ``synthetic.rng``; the defaults are the
+    generator's own ranges, so a rig without them makes the same data):
+
+    Attributes:
+        force_baseline_sd_n: sd of the force reading's offset per grasp [N] (a real
+            rig's baseline is not zeroed).
+        reference_contact_probability: share of grasps whose reference (no-contact)
+            frame is taken in light contact [-], as a recording that starts touching.
+        reference_contact_n: range of the force of that light contact [N] (uniform).
+        light_jitter: sd of each light's strength factor about the rig's balance [-].
+        read_noise_grey: range of the camera's read-noise sigma [grey levels] (uniform).
+        gel_thickness_mm: range of the gel's thickness [mm] (uniform, per gel).
+        gel_modulus_sd_decades: sd of each gel's modulus about ``gel_modulus_pa``
+            [decades].
+        background_jitter: factor on the spread of the no-contact frame's colours [-].
     """
 
     peak_force_n: tuple[float, float] = (60.0, 2.0)
@@ -67,6 +92,16 @@ class GripperRig:
     edge_glow_grey_per_mm: tuple[float, float] = (0.0, 0.0)
     gel_modulus_pa: float = DEFAULT_GEL_MODULUS_PA
     light_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    soft_contact_spread: float = 1.0
+    soft_edge_glow: float = 0.0
+    force_baseline_sd_n: float = 0.15
+    reference_contact_probability: float = 0.0
+    reference_contact_n: tuple[float, float] = (0.1, 1.1)
+    light_jitter: float = 0.08
+    read_noise_grey: tuple[float, float] = (2.0, 3.0)
+    gel_thickness_mm: tuple[float, float] = (3.5, 5.5)
+    gel_modulus_sd_decades: float = 0.05
+    background_jitter: float = 1.0
 
     def __post_init__(self) -> None:
         mean, sd = self.peak_force_n
@@ -80,6 +115,25 @@ class GripperRig:
             raise ValueError(f"gel modulus must be positive, got {self.gel_modulus_pa} Pa")
         if not all(factor > 0.0 for factor in self.light_balance):
             raise ValueError(f"light balance factors must be positive, got {self.light_balance}")
+        if not 0.0 < self.soft_contact_spread <= 2.0:
+            raise ValueError(
+                f"soft contact spread must be in (0, 2], got {self.soft_contact_spread}"
+            )
+        if not self.soft_edge_glow >= 0.0:
+            raise ValueError(f"soft edge glow must be >= 0, got {self.soft_edge_glow}")
+        for name in ("reference_contact_n", "read_noise_grey", "gel_thickness_mm"):
+            lo_v, hi_v = getattr(self, name)
+            if not 0.0 <= lo_v <= hi_v or (name == "gel_thickness_mm" and lo_v <= 0.0):
+                raise ValueError(f"{name} must be a range 0 <= lo <= hi, got {lo_v}, {hi_v}")
+        if not 0.0 <= self.reference_contact_probability <= 1.0:
+            raise ValueError(
+                "reference contact probability must be in [0, 1], got "
+                f"{self.reference_contact_probability}"
+            )
+        spreads = ("force_baseline_sd_n", "light_jitter", "gel_modulus_sd_decades")
+        for name in (*spreads, "background_jitter"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         glow_lo, glow_hi = self.edge_glow_grey_per_mm
         if (glow_lo, glow_hi) != (0.0, 0.0) and not 0.0 < glow_lo <= glow_hi:
             raise ValueError(
@@ -120,6 +174,18 @@ class GripperRig:
                 raise ValueError(f"{what}: rig field {name!r} is not numeric: {value!r}") from err
         lengths = {"peak_force_n": 2, "finger_stiffness_n_per_m": 2}
         lengths |= {"edge_glow_grey_per_mm": 2, "light_balance": 3, "gel_modulus_pa": 0}
+        lengths |= {"soft_contact_spread": 0, "soft_edge_glow": 0}
+        lengths |= {"reference_contact_n": 2, "read_noise_grey": 2, "gel_thickness_mm": 2}
+        lengths |= dict.fromkeys(
+            (
+                "force_baseline_sd_n",
+                "reference_contact_probability",
+                "light_jitter",
+                "gel_modulus_sd_decades",
+                "background_jitter",
+            ),
+            0,
+        )
         for name, value in values.items():
             size = len(value) if isinstance(value, tuple) else 0
             if size != lengths[name] or not np.all(np.isfinite(value)):
@@ -131,6 +197,18 @@ class GripperRig:
         except ValueError as err:
             raise ValueError(f"{what}: {err}") from err
 
+
+RANDOMISATION_FIELDS = (
+    "force_baseline_sd_n",
+    "reference_contact_probability",
+    "reference_contact_n",
+    "light_jitter",
+    "read_noise_grey",
+    "gel_thickness_mm",
+    "gel_modulus_sd_decades",
+    "background_jitter",
+)
+"""The domain-randomisation fields of :class:`GripperRig` (``calibrate-rig --randomise``)."""
 
 DATASET_RIG = GripperRig()
 """The rig of the public dataset as the design notes describe it (~60 N presses): the

@@ -153,6 +153,23 @@ def _radii(datasets: Sequence[Path], given: dict[str, float]) -> dict[str, float
     return radii | dict(given)
 
 
+def object_grasps(object_dir: Path, radius_mm: float) -> list[GraspObservation]:
+    """Every grasp of one object directory (markerless finger), as a sphere of
+    ``radius_mm`` [mm]; RigFitError naming a sample that cannot be read."""
+    by_grasp: dict[int, list[tuple[Any, Any, Any]]] = {}
+    for grasp, _, directory in sample_dirs(object_dir):
+        try:
+            sample = (
+                load_vector(directory, FORCES_FILE),
+                load_vector(directory, WIDTHS_FILE),
+                load_frames(directory, FINGER_FILES["markerless"][0], None),
+            )
+        except SampleError as err:
+            raise RigFitError(f"{directory}: {err}") from err
+        by_grasp.setdefault(grasp, []).append(sample)
+    return [_observation(object_dir.name, g, radius_mm, samples) for g, samples in by_grasp.items()]
+
+
 def read_rigid_grasps(
     datasets: Sequence[str | Path], radii_mm: dict[str, float] | None = None
 ) -> list[GraspObservation]:
@@ -184,20 +201,7 @@ def read_rigid_grasps(
                     f"{object_dir}: no sphere radius for {name!r}; give --radius {name}=MM "
                     "(calibrate-rig needs rigid spheres of known radius)"
                 )
-            by_grasp: dict[int, list[tuple[Any, Any, Any]]] = {}
-            for grasp, _, directory in found:
-                try:
-                    sample = (
-                        load_vector(directory, FORCES_FILE),
-                        load_vector(directory, WIDTHS_FILE),
-                        load_frames(directory, FINGER_FILES["markerless"][0], None),
-                    )
-                except SampleError as err:
-                    raise RigFitError(f"{directory}: {err}") from err
-                by_grasp.setdefault(grasp, []).append(sample)
-            observations += [
-                _observation(name, g, radii[name], samples) for g, samples in by_grasp.items()
-            ]
+            observations += object_grasps(object_dir, radii[name])
     if not observations:
         raise RigFitError(f"no grasps under {', '.join(map(str, paths))}")
     return observations
@@ -331,6 +335,7 @@ class RigFit:
     objects: dict[str, int]
     evaluations: int
     plan: SimulationPlan
+    soft: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
 
     def residuals(self) -> dict[str, dict[str, float]]:
         """Per statistic: real, simulated and simulated - real."""
@@ -350,6 +355,14 @@ class RigFit:
             "method": "calibrate-rig (synthetic.rig_fit), staged",
             "steps": self.steps,
             "residuals": self.residuals(),
+            **(
+                {
+                    "soft_fitted_on": sorted(self.soft),
+                    "soft_residuals": self.soft,
+                }
+                if self.soft
+                else {}
+            ),
             "simulation": {
                 "copies": self.plan.copies,
                 "grasps": self.plan.grasps,
@@ -373,6 +386,16 @@ class RigFit:
             lines.append(
                 f"  {key:<20} {row['real']:10.4g} {row['simulated']:10.4g} {row['residual']:+10.3g}"
             )
+        if self.soft:
+            lines.append(
+                f"  {'soft reference':<20} {'statistic':<16} {'real':>8} {'before':>8} {'after':>8}"
+            )
+            for name, rows in self.soft.items():
+                for key, value in rows["real"].items():
+                    lines.append(
+                        f"  {name:<20} {key:<16} {value:8.4g} {rows['before'][key]:8.4g} "
+                        f"{rows['after'][key]:8.4g}"
+                    )
         return "\n".join(lines)
 
 

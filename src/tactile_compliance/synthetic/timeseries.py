@@ -73,6 +73,7 @@ def simulate_timeline(
     rng: np.random.Generator,
     settle_probability: float = 0.35,
     peak_force_n: tuple[float, float] = DATASET_RIG.peak_force_n,
+    force_baseline_sd_n: float = DATASET_RIG.force_baseline_sd_n,
 ) -> GraspTimeline:
     """Simulate the force/width/approach time series of one grasp.
 
@@ -85,6 +86,7 @@ def simulate_timeline(
         settle_probability: probability that the object seats by 0.2-1.5 mm while
             loading (0 for a perfectly stable grasp, e.g. a sphere).
         peak_force_n: mean and standard deviation of the controller's target force [N].
+        force_baseline_sd_n: sd of the force reading's offset [N] (the rig's).
     """
     target_n = float(rng.normal(*peak_force_n))
     q = float(rng.uniform(1.5, 3.0))
@@ -160,7 +162,7 @@ def simulate_timeline(
     width_true = np.maximum(width_true, 0.2e-3)
     # Measured force: gain/offset error, latency, noise.
     gain = float(rng.normal(1.0, 0.02))
-    offset = float(rng.normal(0.0, 0.15))
+    offset = float(rng.normal(0.0, force_baseline_sd_n))
     latency = float(rng.uniform(0.0, 0.04))
     force_meas = force_at(times - latency) * gain + offset + rng.normal(0.0, 0.05, n_frames)
     # Measured width: reported asynchronously (latency), calibration offset, noise,
