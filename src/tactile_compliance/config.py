@@ -21,7 +21,7 @@ from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import FilterRules
-from tactile_compliance.data.splits import N_ROLLING_WINDOWS
+from tactile_compliance.data.splits import N_ROLLING_WINDOWS, Split
 from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.outputs import atomic_file
 
@@ -155,6 +155,12 @@ class SplitConfig(_Section):
         None, description="none | rolling window 0-6 | shape name | soft | hard"
     )
     seed: int | None = Field(None, description="split seed; None = the run's seed")
+    file: str | None = Field(
+        None,
+        description="a saved split (`split --out FILE`) used instead of drawing one; set "
+        "with `train --split FILE` (config.use_split_file), which also takes the file's "
+        "condition, grouping, seed, fractions and subset",
+    )
 
     @field_validator("subset", mode="before")
     @classmethod
@@ -659,6 +665,30 @@ def config_template(path_or_preset_name: str | Path = "default") -> dict[str, An
 def apply_overrides(cfg: ExperimentConfig, overrides: Iterable[str]) -> ExperimentConfig:
     """A new config equal to ``cfg`` with ``dotted.key=value`` overrides applied."""
     return config_from_dict(config_to_dict(cfg), overrides, "overrides")
+
+
+def use_split_file(cfg: ExperimentConfig, path: str | Path) -> ExperimentConfig:
+    """``cfg`` training on the saved split at ``path`` (``split.file``), its ``split``
+    section describing that split (condition, grouping, seed, fractions, subset, as the
+    file records them), so the run's name and ``config.yaml`` say what it was trained on.
+
+    Raises:
+        FileNotFoundError, ValueError: ``path`` is no split file (one line, naming it).
+    """
+    saved = Split.load(path)
+    data = config_to_dict(cfg)
+    data["split"] = {
+        **data["split"],
+        "condition": saved.condition,
+        "grouping": saved.grouping,
+        "seed": saved.seed,
+        "test_fraction": saved.test_fraction,
+        "val_fraction": saved.val_fraction,
+        "stratify": saved.stratify,
+        "subset": saved.subset,
+        "file": str(Path(path).resolve()),
+    }
+    return config_from_dict(data, origin=str(path))
 
 
 def config_to_dict(cfg: ExperimentConfig) -> dict[str, Any]:
