@@ -185,7 +185,27 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
         ),
         "a config key typo": (
             ["train", "--set", "training.lrr=1e-3", "--set", f"output_dir={tmp / 'runs'}"],
-            ["training.lrr", "valid keys in 'training'"],
+            ["training.lrr", "did you mean 'lr'?", "valid keys in 'training'"],
+            [],
+        ),
+        "a model name typo": (
+            ["train", "--set", "model.name=restf", "--set", f"output_dir={tmp / 'runs'}"],
+            ["unknown model 'restf'", "did you mean 'res_tf'?"],
+            ["Traceback"],
+        ),
+        "an input strategy typo": (
+            ["train", "--set", "inputs=ImageFx", "--set", f"output_dir={tmp / 'runs'}"],
+            ["unknown input strategy 'ImageFx'", "did you mean 'ImageF' or 'ImageFW'?"],
+            [],
+        ),
+        "a preset name typo": (
+            ["train", "-c", "defualt", "--set", f"output_dir={tmp / 'runs'}"],
+            ["no config file or preset named 'defualt'", "did you mean 'default'?"],
+            [],
+        ),
+        "an experiment name typo": (
+            ["experiment", "tabel1", "--out", str(tmp / "runs"), "--results", str(tmp / "results")],
+            ["no experiment file or preset named 'tabel1'", "did you mean 'table1'"],
             [],
         ),
     }
@@ -260,6 +280,9 @@ def test_a_config_typo_is_reported_before_torch_is_imported(tmp_path: Path) -> N
     """What makes it fast (under 2 s instead of 13-22 s): nothing heavy is imported."""
     for args in (
         ["train", "--set", "training.lrr=1e-3"],
+        ["train", "--set", "model.name=restf"],
+        ["train", "--set", "inputs=imagefx"],
+        ["train", "-c", "defualt"],
         ["train", "-c", str(tmp_path / "missing.yaml")],
         ["pretrain", str(tmp_path), "--backbone", "resnet18", "--out", "w.pt", "--set", "x=1"],
     ):

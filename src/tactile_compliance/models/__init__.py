@@ -6,6 +6,7 @@ Build a model by name: ``create_model("res_tf", inputs="ImageFW")``; see docs/mo
 from __future__ import annotations
 
 import importlib
+import sys
 from typing import Any
 
 # InputStrategy (data.inputs) is torch-free and re-exported here for the models' users;
@@ -40,6 +41,16 @@ _LAZY = {
 _MODEL_MODULES = ("res_tf", "scalar_mlp", "top10nn", "vgg_lstm")
 
 
+def known_model_names() -> list[str]:
+    """The model names ``create_model`` takes, sorted, without loading torch: the built-in
+    models (each module of ``_MODEL_MODULES`` registers the model of its own name;
+    tests/test_models.py checks it) and, once the registry is loaded, any model a program
+    registered."""
+    registry = sys.modules.get(f"{__name__}.registry")
+    added = registry.list_models() if registry is not None else []
+    return sorted({*_MODEL_MODULES, *added})
+
+
 def __getattr__(name: str) -> Any:
     module = _LAZY.get(name)
     if module is None:
@@ -66,6 +77,7 @@ __all__ = [
     "create_backbone",
     "create_model",
     "get_model_class",
+    "known_model_names",
     "list_backbones",
     "list_models",
     "model_display_names",

@@ -11,6 +11,7 @@ from typing import Any, TypeVar
 from torch import nn
 
 from tactile_compliance.data.inputs import InputStrategy
+from tactile_compliance.suggest import did_you_mean
 
 __all__ = [
     "backbone_models",
@@ -81,7 +82,8 @@ def get_model_class(name: str) -> type[nn.Module]:
     key = name.strip().lower() if isinstance(name, str) else name
     if key not in _REGISTRY:
         raise ValueError(
-            f"unknown model {name!r}; available models: {', '.join(list_models()) or '(none)'}"
+            f"unknown model {name!r}{did_you_mean(str(name), list_models())}; available "
+            f"models: {', '.join(list_models()) or '(none)'}"
         )
     return _REGISTRY[key]
 
