@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 import torch
 
-from tactile_compliance.acquisition.recording import Readings
+from tactile_compliance.acquisition.readings import Readings
 from tactile_compliance.acquisition.sensors import MINI_GEOMETRY, WEDGE_GEOMETRY, open_source
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.normalisation import NormalisationConstants

@@ -317,7 +317,7 @@ def test_every_device_default_is_the_one_default() -> None:
     import inspect
 
     from tactile_compliance import devices
-    from tactile_compliance.cli import DEFAULT_DEVICE
+    from tactile_compliance.cli.training import DEFAULT_DEVICE
     from tactile_compliance.config import TrainingConfig
     from tactile_compliance.inference import ComplianceEstimator, EnsembleEstimator
 

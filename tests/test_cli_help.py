@@ -18,8 +18,7 @@ import pytest
 import typer.main
 from typer.testing import CliRunner
 
-from tactile_compliance import cli
-from tactile_compliance.cli import app
+from tactile_compliance.cli import app, options
 
 REPO = Path(__file__).resolve().parents[1]
 #: Wide enough that rich wraps no choice list.
@@ -97,15 +96,15 @@ def test_the_choices_are_the_library_vocabularies() -> None:
     def values(literal: typing.Any) -> set[str]:
         return set(typing.get_args(literal))
 
-    assert values(cli.Fingers) == values(raw_layout.FingerChoice)
-    assert values(cli.Condition) == values(SplitConfig.model_fields["condition"].annotation)
-    assert values(cli.Grouping) == values(SplitConfig.model_fields["grouping"].annotation)
-    assert typing.get_args(cli.Inputs) == InputStrategy.names()
-    assert values(cli.Objective) == set(OBJECTIVES)
-    assert values(cli.KeepCheckpoints) == set(KEEP_CHECKPOINTS)
-    assert values(cli.Backbone) == set(PRETRAIN_BACKBONES)
-    assert values(cli.DemoMode) == set(PLANS)
-    assert values(cli.PickleDtype) == set(raw_layout.ALLOWED_DTYPES)
+    assert values(options.Fingers) == values(raw_layout.FingerChoice)
+    assert values(options.Condition) == values(SplitConfig.model_fields["condition"].annotation)
+    assert values(options.Grouping) == values(SplitConfig.model_fields["grouping"].annotation)
+    assert typing.get_args(options.Inputs) == InputStrategy.names()
+    assert values(options.Objective) == set(OBJECTIVES)
+    assert values(options.KeepCheckpoints) == set(KEEP_CHECKPOINTS)
+    assert values(options.Backbone) == set(PRETRAIN_BACKBONES)
+    assert values(options.DemoMode) == set(PLANS)
+    assert values(options.PickleDtype) == set(raw_layout.ALLOWED_DTYPES)
 
 
 def test_tune_balance_help_keeps_its_budget_defaults() -> None:

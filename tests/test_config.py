@@ -224,3 +224,12 @@ def test_frames_too_small_for_a_built_in_model_are_refused_from_the_config(tmp_p
     check_frame_size_early(
         load_config("default", ["model.name=res_tf", f"data.store={store.path}"])
     )
+
+
+def test_parsed_values_are_set_before_the_overrides_which_win() -> None:
+    """`train --size` carries its parsed tuple (no `--set` string); a --set of it wins."""
+    from tactile_compliance.config import load_config
+
+    assert load_config("default", values={"data.image_size": (64, 48)}).data.image_size == (64, 48)
+    both = load_config("default", ["data.image_size=[32,32]"], {"data.image_size": (64, 48)})
+    assert both.data.image_size == (32, 32)

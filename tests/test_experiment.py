@@ -588,3 +588,24 @@ def test_a_cell_whose_worker_keeps_dying_is_recorded_as_failed_and_the_grid_goes
     other = rows[plan.cells[0].key]
     assert other["status"] == "complete" and other["attempts"] == 1
     assert summary.failures == [(doomed.label, lost["error"])]
+
+
+def test_cells_that_share_a_feature_cache_compute_it_once(tmp_path, toy_store):
+    """precompute_features keys caches by data.features.cache_key, the key cached_features
+    itself uses: two seeds share one cache, another frame size is another cache."""
+    from tactile_compliance.config import config_to_dict
+    from tactile_compliance.data.features import FEATURES_DIR
+    from tactile_compliance.training.experiment import precompute_features
+    from toy_store import tiny_run_config
+
+    frozen = ["model.freeze_backbone=true", "inputs=Image"]
+
+    def cfg(seed: int, size: int) -> dict:
+        extra = [*frozen, f"seed={seed}", f"data.image_size=[{size},{size}]"]
+        return config_to_dict(tiny_run_config(toy_store.path, tmp_path, "res_tf", extra))
+
+    assert precompute_features([cfg(0, 32), cfg(1, 32)], threads=1) == 1
+    assert precompute_features([cfg(0, 32), cfg(1, 32), cfg(0, 40)], threads=1) == 2
+    caches = sorted(p.name for p in (toy_store.path / FEATURES_DIR).iterdir())
+    assert len(caches) == 2
+    assert any("-32x32-" in name for name in caches) and any("-40x40-" in name for name in caches)

@@ -15,14 +15,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from tactile_compliance.acquisition.recording import (
-    ObjectInfo,
-    Readings,
-    capture_grasp,
-    record_grasp,
-    reference_frame,
-    write_readings_csv,
-)
+from tactile_compliance.acquisition.first_frame import reference_frame
+from tactile_compliance.acquisition.readings import Readings, write_readings_csv
+from tactile_compliance.acquisition.recording import ObjectInfo, capture_grasp, record_grasp
 from tactile_compliance.acquisition.sensors import (
     PLAIN_GEOMETRY,
     FrameGeometry,

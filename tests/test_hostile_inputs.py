@@ -38,10 +38,10 @@ from tactile_compliance.acquisition.calibration import (
     read_circles,
     read_image,
 )
+from tactile_compliance.acquisition.readings import Readings
 from tactile_compliance.acquisition.recording import (
     OBJECT_TABLE_FILE,
     ObjectInfo,
-    Readings,
     capture_grasp,
     write_grasp,
 )

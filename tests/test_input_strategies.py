@@ -206,3 +206,29 @@ def test_tune_searches_the_frame_free_model() -> None:
     assert {"model.hparams.hidden_sizes", "model.hparams.dropout", "training.lr"} <= set(
         space.keys()
     )
+
+
+def test_live_runs_a_frame_free_estimates_model_on_a_camera(runs, tmp_path) -> None:
+    """FWE with a camera: live takes force and width from the readings and the analytical
+    estimates from the video's depth maps, the ones `estimate` prints for the same grasp."""
+    from test_recording import make_grasp  # a replayable synthetic grasp (video + readings)
+
+    grasp = make_grasp(tmp_path / "grasp", (250, 350))  # the dataset's estimator's frame size
+    source = ["video:" + str(grasp["video"]), "--readings", str(grasp["readings"]), "--json"]
+    result = CliRunner().invoke(app, ["live", str(runs["FWE"]), *source])
+    assert result.exit_code == 0, result.output
+    events = [json.loads(line) for line in result.output.splitlines() if line.startswith("{")]
+    final = events[-1]
+    assert final["final"] and np.isfinite(final["modulus_pa"])
+    result = CliRunner().invoke(app, ["estimate", *source])
+    assert result.exit_code == 0, result.output
+    analytical = json.loads(result.output)
+    assert analytical["frame_indices"] == final["frame_indices"]
+    estimator = ComplianceEstimator.from_checkpoint(runs["FWE"])
+    direct = estimator.predict(
+        force=final["force_n"], width=final["width_m"], estimates=analytical["estimates_pa"]
+    )
+    assert final["log10_modulus_pa"] == pytest.approx(float(direct.log10_modulus_pa), abs=1e-6)
+    # Without the estimates the same model says which input is missing.
+    with pytest.raises(ValueError, match="needs `estimates`"):
+        estimator.predict(force=final["force_n"], width=final["width_m"])

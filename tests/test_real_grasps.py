@@ -18,7 +18,8 @@ import pytest
 from typer.testing import CliRunner
 
 import real_grasps
-from tactile_compliance.acquisition.recording import ObjectInfo, Readings, record_grasp
+from tactile_compliance.acquisition.readings import Readings
+from tactile_compliance.acquisition.recording import ObjectInfo, record_grasp
 from tactile_compliance.cli import app
 from tactile_compliance.runs.metrics import nmse
 

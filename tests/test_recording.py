@@ -22,14 +22,8 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-from tactile_compliance.acquisition.recording import (
-    ObjectInfo,
-    ReadingError,
-    Readings,
-    augmented_indices,
-    record_grasp,
-    write_readings_csv,
-)
+from tactile_compliance.acquisition.readings import ReadingError, Readings, write_readings_csv
+from tactile_compliance.acquisition.recording import ObjectInfo, augmented_indices, record_grasp
 from tactile_compliance.acquisition.sensors import FrameSourceBase, open_source
 from tactile_compliance.cli import app
 from tactile_compliance.data.image_ops import difference_images
@@ -625,7 +619,7 @@ def test_the_documented_robot_loop_runs(grasp, tmp_path, monkeypatch):
 
 
 def test_readings_are_followed_while_the_robot_writes_them(tmp_path):
-    from tactile_compliance.acquisition.recording import FollowedReadings
+    from tactile_compliance.acquisition.readings import FollowedReadings
 
     path = tmp_path / "log.csv"
     follow = FollowedReadings(path, wait_s=0.05)  # the file does not exist yet

@@ -19,7 +19,7 @@ import pytest
 
 pytest.importorskip("onnxruntime")
 
-from tactile_compliance.acquisition.recording import Readings
+from tactile_compliance.acquisition.readings import Readings
 from tactile_compliance.acquisition.sensors import open_source
 from tactile_compliance.data.dataset import GraspDataset
 from tactile_compliance.data.normalisation import denormalise_modulus

@@ -279,3 +279,12 @@ def test_calibrate_command_replaces_the_presets_steps(tmp_path):
     assert geometry.input_size == (96, 128) and geometry.output_size == (20, 28)
     bad = runner.invoke(app, [*args, "--corners", "1,2 3,4"])
     assert bad.exit_code == 2 and "four points" in bad.output
+
+
+@pytest.mark.parametrize("text", ["1,2 3,4", "0,0 1,0 1,1 0,x", "0,0 1,0 1,1 0,1,2"])
+def test_parse_corners_refuses_anything_but_four_points(text: str) -> None:
+    from tactile_compliance.data.image_ops import parse_corners
+
+    with pytest.raises(ValueError, match="four points"):
+        parse_corners(text)
+    assert parse_corners("0,0 127,0 127,95 0,95")[2] == (127.0, 95.0)

@@ -242,7 +242,7 @@ def test_cli_train_and_evaluate(toy_store, tmp_path):
     assert result.exit_code == 0, result.output
     assert json.loads(result.output)["metrics"]["n"] > 0
     bad = runner.invoke(app, ["train", "--set", "training.lrr=1"])
-    assert bad.exit_code == 2 and "lrr" in bad.output  # a bad config: exit 2 (cli.py)
+    assert bad.exit_code == 2 and "lrr" in bad.output  # a bad config: exit 2 (cli/framework.py)
 
 
 @pytest.mark.parametrize(

@@ -619,13 +619,21 @@ def _set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
 
 # =========================================================================== public API
 def config_from_dict(
-    data: Mapping[str, Any], overrides: Iterable[str] = (), origin: str = ""
+    data: Mapping[str, Any],
+    overrides: Iterable[str] = (),
+    origin: str = "",
+    values: Mapping[str, Any] | None = None,
 ) -> ExperimentConfig:
-    """Validate a raw mapping (+ overrides) into an :class:`ExperimentConfig`."""
+    """Validate a raw mapping (+ ``values``, then overrides) into an :class:`ExperimentConfig`.
+
+    ``values``: already parsed ``dotted.key -> value`` pairs (a command's options), set
+    before the ``dotted.key=value`` overrides, which win."""
     if not isinstance(data, Mapping):
         raise ConfigError(f"configuration must be a mapping, got {type(data).__name__}")
     overrides = list(overrides)
     raw = copy.deepcopy(dict(data))
+    for key, value in (values or {}).items():
+        _set_dotted(raw, key, value)
     for item in overrides:
         key, value = _parse_override(item)
         try:
@@ -644,10 +652,13 @@ def config_from_dict(
 
 
 def load_config(
-    path_or_preset_name: str | Path = "default", overrides: Iterable[str] = ()
+    path_or_preset_name: str | Path = "default",
+    overrides: Iterable[str] = (),
+    values: Mapping[str, Any] | None = None,
 ) -> ExperimentConfig:
-    """Load a YAML file or packaged preset (``list_presets()``), apply ``dotted.key=value``
-    overrides (values parsed as YAML), validate.
+    """Load a YAML file or packaged preset (``list_presets()``), set ``values`` (already
+    parsed ``dotted.key -> value`` pairs, e.g. ``{"data.image_size": (224, 224)}``), apply
+    ``dotted.key=value`` overrides (values parsed as YAML; they win), validate.
 
     Raises:
         ConfigError: (a ``ValueError``) for missing files, invalid YAML, unknown keys, wrong
@@ -656,7 +667,7 @@ def load_config(
     raw, origin = compose_yaml(
         path_or_preset_name, _read_source, _deep_merge, "base", "a preset name or a path"
     )
-    return config_from_dict(raw, overrides, origin)
+    return config_from_dict(raw, overrides, origin, values)
 
 
 def config_template(path_or_preset_name: str | Path = "default") -> dict[str, Any]:

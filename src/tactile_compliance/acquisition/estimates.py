@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 
 from tactile_compliance.acquisition.calibration import SensorCalibration
+from tactile_compliance.acquisition.readings import ReadingsCallback
 from tactile_compliance.acquisition.recording import (
-    ReadingsCallback,
     capture_checked,
     capture_notes,
     checked_selection,
@@ -79,7 +79,7 @@ class RecordingEstimate:
         n_frames: frames captured; skipped: frames left out, with the reason.
         source: what was read (a path, device, bag).
         warnings: what looked wrong in the readings or the reference.
-        checks: the numbers behind them (``recording.check_recording``).
+        checks: the numbers behind them (``first_frame.check_recording``).
     """
 
     estimates_pa: tuple[float, float]

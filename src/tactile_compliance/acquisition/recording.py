@@ -7,12 +7,10 @@ See docs/inference.md, "Record and train on your own objects", and docs/data.md,
 from __future__ import annotations
 
 import contextlib
-import csv
 import math
 import os
 import re
 import shutil
-import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,21 +20,20 @@ import numpy as np
 import pandas as pd
 
 from tactile_compliance.acquisition.calibration import SensorCalibration
+from tactile_compliance.acquisition.first_frame import check_recording, reference_frame, same_replay
+from tactile_compliance.acquisition.readings import (
+    ReadingError,
+    ReadingsCallback,
+    checked_reading,
+    milliseconds_check,
+)
 from tactile_compliance.acquisition.sensors import (
-    SPEC_KINDS,
     FrameError,
     FrameSizeError,
     FrameSourceBase,
     iter_frames,
 )
 from tactile_compliance.data.depth_model import grey_frame_problem
-from tactile_compliance.data.force_readings import (
-    BASELINE_WARN_N,
-    ForceBaseline,
-    ForceSpike,
-    find_force_spikes,
-    force_baseline,
-)
 from tactile_compliance.data.frame_selection import (
     MAX_AUGMENTATIONS,
     MIN_PEAK_FORCE_N,
@@ -85,20 +82,13 @@ __all__ = [
     "OBJECT_TABLE_FILE",
     "OUTPUT_KIND",
     "CapturedGrasp",
-    "FollowedReadings",
     "ObjectInfo",
-    "ReadingError",
-    "Readings",
     "RecordedGrasp",
     "augmented_indices",
     "capture_grasp",
-    "check_recording",
     "claim_dataset_dir",
     "record_grasp",
-    "reference_frame",
-    "same_replay",
     "write_grasp",
-    "write_readings_csv",
 ]
 
 OBJECT_TABLE_FILE = "dataset_objects_and_compliance.csv"
@@ -116,227 +106,6 @@ OUTPUT_KIND = "record"
 """The ``outputs.claim_output_dir`` kind of a dataset directory that ``record`` writes."""
 
 LOCK_FILE = ".record.lock"  # flock-ed while one record writes into the dataset
-
-READINGS_COLUMNS = ["timestamp_s", "force_n", "width_m"]  # s, N, m
-
-ReadingsCallback = Callable[[float], tuple[float, float]]
-"""``timestamp_s -> (force_n, width_m)``; raise :class:`ReadingError` for no reading."""
-
-
-class ReadingError(ValueError):
-    """No force/width reading for a frame (outside the readings' time range)."""
-
-
-# ---------------------------------------------------------------------- readings
-@dataclass
-class Readings:
-    """Timestamped force and width readings from the robot, interpolated to frame times;
-    spikes replaced, the baseline estimated (docs/inference.md, "Real readings").
-
-    Attributes:
-        timestamp_s: (N,) reading times in s, strictly increasing, on the frames' clock.
-        force_n: (N,) normal force in N (spikes replaced).
-        width_m: (N,) gripper width in m.
-        tolerance_s: how far outside ``[timestamp_s[0], timestamp_s[-1]]`` a frame may lie
-            and still take the nearest reading (default 0: none).
-        raw_force_n: (N,) the force as given, spikes included.
-        spikes: the readings replaced as single-frame spikes.
-        baseline: the no-contact force level and its noise.
-    """
-
-    timestamp_s: np.ndarray
-    force_n: np.ndarray
-    width_m: np.ndarray
-    tolerance_s: float = 0.0
-    raw_force_n: np.ndarray = field(init=False, repr=False)
-    spikes: list[ForceSpike] = field(init=False)
-    baseline: ForceBaseline = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.timestamp_s = np.asarray(self.timestamp_s, dtype=np.float64).reshape(-1)
-        self.force_n = np.asarray(self.force_n, dtype=np.float64).reshape(-1)
-        self.width_m = np.asarray(self.width_m, dtype=np.float64).reshape(-1)
-        n = self.timestamp_s.size
-        if n == 0 or self.force_n.size != n or self.width_m.size != n:
-            raise ValueError(
-                f"readings need as many times, forces and widths (>= 1), got {n}, "
-                f"{self.force_n.size}, {self.width_m.size}"
-            )
-        for name in ("timestamp_s", "force_n", "width_m"):
-            if not np.all(np.isfinite(getattr(self, name))):
-                raise ValueError(f"readings: {name} holds NaN or infinite values")
-        if n > 1 and np.any(np.diff(self.timestamp_s) <= 0):
-            i = int(np.flatnonzero(np.diff(self.timestamp_s) <= 0)[0]) + 1
-            raise ValueError(
-                f"readings: timestamps must increase; reading {i} at "
-                f"{self.timestamp_s[i]:.4f} s follows {self.timestamp_s[i - 1]:.4f} s"
-            )
-        self.raw_force_n = self.force_n
-        self.force_n, self.spikes = find_force_spikes(self.raw_force_n, self.timestamp_s)
-        # Reported, not subtracted: why in docs/inference.md, "Real readings".
-        self.baseline = force_baseline(self.force_n)
-
-    @classmethod
-    def from_csv(cls, path: str | Path, tolerance_s: float = 0.0) -> Readings:
-        """Read a CSV with columns ``timestamp_s,force_n,width_m`` (s, N, m).
-
-        Raises:
-            ValueError: not such a CSV, or bad values. OSError: the file cannot be read.
-        """
-        path = Path(path)
-        table = _readings_table(path)
-        if table is None:
-            raise ValueError(f"{path}: not a readings CSV (the file is empty)")
-        try:
-            values = table.astype(np.float64)
-            return cls(*(values[c].to_numpy() for c in READINGS_COLUMNS), tolerance_s=tolerance_s)
-        except ValueError as err:
-            raise ValueError(f"{path}: {err}") from err
-
-    def __call__(self, timestamp_s: float) -> tuple[float, float]:
-        """(force_n, width_m) at ``timestamp_s``, linearly interpolated.
-
-        Raises:
-            ReadingError: the time lies outside the readings (beyond ``tolerance_s``).
-        """
-        t = float(timestamp_s)
-        lo, hi = self.timestamp_s[0], self.timestamp_s[-1]
-        if not (lo - self.tolerance_s <= t <= hi + self.tolerance_s):
-            raise ReadingError(
-                f"no force/width reading at {t:.4f} s (readings cover {lo:.4f}..{hi:.4f} s)"
-            )
-        return (
-            float(np.interp(t, self.timestamp_s, self.force_n)),
-            float(np.interp(t, self.timestamp_s, self.width_m)),
-        )
-
-
-def _readings_table(path: Path) -> pd.DataFrame | None:
-    """The :data:`READINGS_COLUMNS` of a readings CSV as read (None: the file is empty)."""
-    try:
-        table = pd.read_csv(path)
-    except pd.errors.EmptyDataError:
-        return None
-    except (pd.errors.ParserError, UnicodeDecodeError) as err:
-        raise ValueError(f"{path}: not a readings CSV ({err})") from err
-    table.columns = [str(c).strip() for c in table.columns]
-    missing = [c for c in READINGS_COLUMNS if c not in table.columns]
-    if missing:
-        expected = ",".join(READINGS_COLUMNS)
-        raise ValueError(f"{path}: missing column(s) {missing}; expected {expected}")
-    return table[READINGS_COLUMNS]
-
-
-class FollowedReadings:
-    """Readings from a CSV that the robot is still writing: a frame waits up to ``wait_s``
-    s for a reading at or after its time (docs/inference.md, "``live``"). The file may not
-    exist yet when the capture starts.
-    """
-
-    def __init__(self, path: str | Path, wait_s: float = 1.0, tolerance_s: float = 0.0) -> None:
-        self.path = Path(path)
-        self.wait_s = float(wait_s)
-        self.tolerance_s = float(tolerance_s)
-        self.readings: Readings | None = None
-        self._stamp: tuple[int, int] | None = None
-        self._load()
-
-    def _load(self) -> None:
-        try:
-            stat = self.path.stat()
-        except FileNotFoundError:
-            return
-        stamp = (stat.st_mtime_ns, stat.st_size)
-        if stamp == self._stamp:
-            return
-        table = _readings_table(self.path)
-        if table is None:
-            return
-        values = table.apply(pd.to_numeric, errors="coerce")
-        complete = values.notna().all(axis=1).to_numpy()
-        n = len(complete)
-        if not complete.all():
-            first = int(np.argmin(complete))
-            # Only the last line may be incomplete (the robot mid-write); others are errors.
-            if first < n - 1:
-                raise ValueError(f"{self.path}: row {first + 1} holds a value that is not a number")
-            n -= 1
-        self._stamp = stamp
-        if n:
-            arrays = (values[c].to_numpy()[:n] for c in READINGS_COLUMNS)
-            self.readings = Readings(*arrays, tolerance_s=self.tolerance_s)
-
-    @property
-    def spikes(self) -> list[ForceSpike]:
-        """Spikes replaced in the log so far (the newest reading is judged once the next
-        one is there)."""
-        return [] if self.readings is None else self.readings.spikes
-
-    @property
-    def baseline(self) -> ForceBaseline | None:
-        """The no-contact baseline of the log so far (None before the first reading)."""
-        return None if self.readings is None else self.readings.baseline
-
-    def __call__(self, timestamp_s: float) -> tuple[float, float]:
-        """(force_n, width_m) at ``timestamp_s``, waiting for the robot's log to reach it."""
-        deadline = time.monotonic() + self.wait_s
-        while True:
-            readings = self.readings
-            if readings is not None and timestamp_s <= readings.timestamp_s[-1] + self.tolerance_s:
-                return readings(timestamp_s)
-            if time.monotonic() >= deadline:
-                last = "none yet" if readings is None else f"{readings.timestamp_s[-1]:.4f} s"
-                raise ReadingError(
-                    f"no force/width reading at {timestamp_s:.4f} s in {self.path} after "
-                    f"waiting {self.wait_s:g} s (last reading: {last})"
-                )
-            time.sleep(0.005)
-            self._load()
-
-
-#: Readings at least this far apart (median, s) over at least ``_MS_MIN_READINGS`` readings,
-#: whose times divided by 1000 cover the frames' times, are stamped in milliseconds: a
-#: force log runs at 10 Hz or more, so 1 s between readings is 1 kHz in milliseconds.
-_MS_MIN_STEP_S = 1.0
-_MS_MIN_READINGS = 5
-
-
-def milliseconds_check(readings: Any, frame_time_s: float) -> tuple[str | None, bool]:
-    """``(problem, decided)``: whether the readings' timestamps look like milliseconds next
-    to a frame stamped ``frame_time_s`` seconds (None: they do not), and whether that is
-    decided (False while a followed log holds too few readings to tell)."""
-    if isinstance(readings, FollowedReadings):
-        inner = readings.readings
-        times = None if inner is None else inner.timestamp_s
-        if times is None or times.size < _MS_MIN_READINGS:
-            return None, False
-    else:
-        times = getattr(readings, "timestamp_s", None)
-        if times is None:
-            return None, True  # a callback: nothing to look at
-    times = np.asarray(times, dtype=np.float64)
-    if times.size < _MS_MIN_READINGS:
-        return None, True
-    step = float(np.median(np.diff(times)))
-    lo, hi = float(times[0]), float(times[-1])
-    slack = (hi - lo) / 1000.0
-    t = float(frame_time_s)
-    if step >= _MS_MIN_STEP_S and lo / 1000.0 - slack <= t <= hi / 1000.0 + slack:
-        return (
-            f"--readings: timestamps look like milliseconds; give seconds (the readings lie "
-            f"{step:g} apart and cover {lo:.6g}..{hi:.6g}, about 1000 times the frames' "
-            f"time {t:.4g} s)"
-        ), True
-    return None, True
-
-
-def checked_reading(readings: ReadingsCallback, timestamp_s: float) -> tuple[float, float]:
-    """A callback's reading, checked: two finite numbers (N, m)."""
-    force, width = readings(timestamp_s)
-    force, width = float(force), float(width)
-    if not (math.isfinite(force) and math.isfinite(width)):
-        raise ReadingError(f"reading at {timestamp_s:.4f} s is not finite ({force}, {width})")
-    return force, width
 
 
 # ---------------------------------------------------------------------- capture
@@ -971,140 +740,6 @@ def _is_unmarked_recording(path: Path) -> bool:
     return output_kind(path) == OUTPUT_KIND
 
 
-# ---------------------------------------------------------------------- checks
-# Mean |reference - first frame| in grey levels (0..255) beyond which the reference is of
-# another session (docs/inference.md, "Real readings").
-REFERENCE_MISMATCH_GREY = 8.0
-
-
-def reference_frame(image: np.ndarray, geometry: Any, frame_shape: tuple[int, ...]) -> np.ndarray:
-    """A no-contact image, a camera frame (``geometry``, a ``sensors.FrameGeometry``,
-    applies) or a sensor frame, as a reference for frames of ``frame_shape`` (H, W, 3).
-
-    Raises:
-        FrameSizeError: it is neither.
-    """
-    image = np.asarray(image)
-    if image.shape == tuple(frame_shape):
-        return image
-    try:
-        frame = geometry.apply(image)
-    except FrameSizeError:
-        frame = None
-    if frame is None or frame.shape != tuple(frame_shape):
-        camera = getattr(geometry, "input_size", None)
-        camera_text = "" if camera is None else f" of {camera[0]}x{camera[1]} px"
-        raise FrameSizeError(
-            f"the reference image is {image.shape[0]}x{image.shape[1]} px: give a camera "
-            f"frame{camera_text} (the sensor geometry cuts it to "
-            f"{frame_shape[0]}x{frame_shape[1]}) or a sensor frame of "
-            f"{frame_shape[0]}x{frame_shape[1]} px"
-        )
-    return frame
-
-
-def _frame_of_reading(readings: Any, index: int, frame_times: np.ndarray) -> int | None:
-    """The captured frame nearest in time to reading ``index`` among those interpolated
-    from it (None when no captured frame lies between its neighbouring readings)."""
-    # A FollowedReadings holds the log read so far as a Readings.
-    times = getattr(getattr(readings, "readings", readings), "timestamp_s", None)
-    if times is None or frame_times.size == 0:
-        return None
-    lo = times[index - 1] if index > 0 else -np.inf
-    hi = times[index + 1] if index + 1 < len(times) else np.inf
-    inside = np.flatnonzero((frame_times > lo) & (frame_times < hi))
-    if inside.size == 0:
-        return None
-    return int(inside[np.argmin(np.abs(frame_times[inside] - times[index]))])
-
-
-def same_replay(calibration: SensorCalibration | None, source: FrameSourceBase) -> bool:
-    """Whether ``calibration`` was recorded from the file ``source`` replays (so its
-    reference is this recording's first frames)."""
-    if calibration is None or source.live or not calibration.source:
-        return False
-    kind, sep, target = calibration.source.partition(":")
-    if not (sep and kind in SPEC_KINDS):
-        target = calibration.source
-    return bool(target) and source.name.endswith(target)
-
-
-def check_recording(
-    readings: Any,
-    frame_times_s: np.ndarray,
-    force_n: np.ndarray,
-    first_frame: np.ndarray,
-    reference: np.ndarray,
-    reference_kind: str,
-    reference_from_start: bool = False,
-    remedy: str = "--reference IMAGE, or a --calibration recorded before the grasp",
-) -> tuple[list[str], dict[str, Any]]:
-    """Warnings about a recording's readings and reference, and the numbers behind them
-    (the table in docs/inference.md, "Real readings").
-
-    Args:
-        readings: a :class:`Readings` (or any callback; one without ``spikes`` and
-            ``baseline`` is not checked).
-        frame_times_s, force_n: (T,) the captured frames' times [s] and forces [N].
-        first_frame, reference: (H, W, 3) uint8 BGR.
-        reference_kind: where the reference came from: ``first frame``,
-            ``calibration`` or ``--reference``.
-        reference_from_start: the reference was taken from this recording's first
-            frames (always so for ``first frame``).
-        remedy: what to give instead, in the warning (``record``'s options by default).
-    """
-    warnings: list[str] = []
-    checks: dict[str, Any] = {"reference": reference_kind, "spikes": []}
-    frame_times = np.asarray(frame_times_s, dtype=np.float64)
-    for spike in getattr(readings, "spikes", None) or []:
-        frame = _frame_of_reading(readings, spike.index, frame_times)
-        checks["spikes"].append({**spike.to_dict(), "frame": frame})
-        warnings.append(spike.describe(frame))
-    baseline: ForceBaseline | None = getattr(readings, "baseline", None)
-    contact = None
-    if baseline is not None:
-        checks["baseline"] = baseline.to_dict()
-        checks["baseline_text"] = baseline.describe()
-        if baseline.baseline_n is not None and abs(baseline.baseline_n) > BASELINE_WARN_N:
-            warnings.append(
-                f"{baseline.describe()}: beyond +-{BASELINE_WARN_N:g} N it moves the 5 N "
-                f"contact onset; zero the force sensor with the gripper empty"
-            )
-        contact = baseline.contact_n(float(force_n[0])) if len(force_n) else None
-    checks["first_frame_contact_n"] = contact
-    first = np.asarray(first_frame, dtype=np.float64)
-    ref = np.asarray(reference, dtype=np.float64)
-    difference = float(np.mean(np.abs(first - ref)))
-    checks["reference_vs_first_frame_grey"] = difference
-    if contact is not None and (reference_kind == "first frame" or reference_from_start):
-        which = (
-            "that frame is the reference"
-            if reference_kind == "first frame"
-            else "the calibration was taken from this recording's first frames"
-        )
-        warnings.append(
-            f"the recording starts in contact: {float(force_n[0]):.2f} N at its first frame, "
-            f"{contact:.2f} N above the no-contact level {baseline.level_n:+.2f} N; "  # type: ignore[union-attr]
-            f"{which}, so the difference images and depth maps miss this "
-            f"contact: give a frame with nothing touching the gel ({remedy})"
-        )
-    if difference > REFERENCE_MISMATCH_GREY:
-        text = (
-            f"the reference ({reference_kind}) differs from the first frame by "
-            f"{difference:.1f} grey levels on average (frames of one session differ by a "
-            f"few): is it from another session, lighting or sensor?"
-        )
-        swapped = float(np.mean(np.abs(first - ref[..., ::-1])))
-        checks["reference_swapped_vs_first_frame_grey"] = swapped
-        if swapped < 0.7 * difference:
-            text += (
-                f" With red and blue swapped it differs by {swapped:.1f}: it may be stored "
-                f"as RGB (frames are BGR)"
-            )
-        warnings.append(text)
-    return warnings, checks
-
-
 def capture_checked(
     source: FrameSourceBase,
     readings: ReadingsCallback,
@@ -1225,14 +860,3 @@ def record_grasp(
         )
     result.warnings, result.checks = warnings, checks
     return result
-
-
-def write_readings_csv(path: str | Path, timestamp_s: Any, force_n: Any, width_m: Any) -> Path:
-    """Write readings as ``timestamp_s,force_n,width_m`` (the CSV ``record`` reads)."""
-    path = Path(path)
-    with atomic_file(path, "w") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(READINGS_COLUMNS)
-        for row in zip(timestamp_s, force_n, width_m, strict=True):
-            writer.writerow([repr(float(v)) for v in row])
-    return path

@@ -5,7 +5,7 @@ A bag holds three topics: the tactile images (``sensor_msgs/Image`` or
 ``sensor_msgs/CompressedImage``), the force (``geometry_msgs/WrenchStamped``) and the
 gripper width (``sensor_msgs/JointState``). This module reads them into arrays, with the
 bag's own timestamps; ``sensors.RosbagSource`` (the ``rosbag:PATH`` spec) turns the
-images into a frame source and its readings into ``recording.Readings``.
+images into a frame source and its readings into ``readings.Readings``.
 
 Time: every message's ``header.stamp`` (its capture time), or the time the bag logged it
 where that stamp is zero or ``stamps="bag"`` is asked for; in seconds since the bag's

@@ -687,7 +687,7 @@ class RosbagSource(FrameSourceBase):
 
     Attributes:
         readings_arrays: ``(timestamp_s, force_n, width_m)`` of the bag, on the frames'
-            clock (``recording.Readings(*source.readings_arrays)``).
+            clock (``readings.Readings(*source.readings_arrays)``).
 
     Raises:
         SensorError: no such bag, or ``rosbags`` is not installed.

@@ -1,6 +1,6 @@
 """Real force readings as a robot logs them: single-frame spikes, the no-contact baseline,
 and whether a recording starts in contact (pure functions, applied by
-``acquisition.recording.Readings`` for ``record`` and ``live``).
+``acquisition.readings.Readings`` for ``record`` and ``live``).
 
 See docs/inference.md, "Real readings: spikes, baselines, a start in contact".
 """

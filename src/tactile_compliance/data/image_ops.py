@@ -24,6 +24,22 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
     return check_size((int(parts[0]), int(parts[1])))
 
 
+def parse_corners(text: str) -> tuple[tuple[float, float], ...]:
+    """Parse ``"x,y x,y x,y x,y"`` (a warp's four corners in px, e.g. top-left, top-right,
+    bottom-right, bottom-left) into four ``(x, y)`` pairs.
+
+    Raises:
+        ValueError: not four comma-separated pairs of numbers.
+    """
+    try:
+        points = tuple(tuple(float(v) for v in point.split(",")) for point in text.split())
+    except ValueError as err:
+        raise ValueError(f"corners must be four points 'x,y x,y x,y x,y' ({err})") from err
+    if len(points) != 4 or any(len(point) != 2 for point in points):
+        raise ValueError(f"corners must be four points 'x,y x,y x,y x,y', got {text!r}")
+    return points  # type: ignore[return-value]
+
+
 def resize_frames(frames: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
     """Resize (T, H, W, C) frames to ``size`` = (height, width) px; area averaging to shrink."""
     if size is None or tuple(frames.shape[1:3]) == tuple(size):

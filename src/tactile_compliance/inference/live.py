@@ -12,15 +12,14 @@ from typing import Any
 import numpy as np
 
 from tactile_compliance.acquisition.calibration import SensorCalibration
-from tactile_compliance.acquisition.recording import (
+from tactile_compliance.acquisition.first_frame import check_recording, same_replay
+from tactile_compliance.acquisition.readings import (
     ReadingError,
     ReadingsCallback,
-    check_recording,
     checked_reading,
     milliseconds_check,
-    recording_estimator,
-    same_replay,
 )
+from tactile_compliance.acquisition.recording import recording_estimator
 from tactile_compliance.acquisition.sensors import (
     FrameError,
     FrameSizeError,

@@ -53,21 +53,32 @@ def _as_difference_images(
     return np.stack([difference_image(f, reference) for f in frames])
 
 
+def _image(value: Any, what: str) -> np.ndarray:
+    """The one shape rule of a streamed frame: one (H, W, 3) image."""
+    array = np.asarray(value)
+    if array.ndim != 3 or array.shape[-1] != 3:
+        raise ValueError(f"{what} (H, W, 3), got {array.dtype} {tuple(array.shape)}")
+    return array
+
+
+def _camera_frame(value: Any) -> np.ndarray:
+    """A raw camera frame: one (H, W, 3) uint8 image."""
+    array = _image(value, "raw frames must be uint8 camera images")
+    if array.dtype != np.uint8:
+        raise ValueError(
+            f"raw frames must be uint8 camera images (H, W, 3), got {array.dtype} "
+            f"{tuple(array.shape)}"
+        )
+    return array
+
+
 def difference_image(frame: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Raw uint8 camera frame (H, W, 3) -> difference image against the no-contact
     ``reference`` (``data.image_ops.difference_images``), quantised like the importer
     stores frames (``frames_to_uint8``), so the model sees the training frames' encoding."""
-    frame = np.asarray(frame)
-    reference = np.asarray(reference)
-    if frame.shape != reference.shape or frame.ndim != 3 or frame.shape[-1] != 3:
-        raise ValueError(
-            f"raw frame {frame.shape} and reference {reference.shape} must both be (H, W, 3)"
-        )
-    if frame.dtype != np.uint8 or reference.dtype != np.uint8:
-        raise ValueError(
-            f"raw frames and the reference must be uint8 camera images, got "
-            f"{frame.dtype} and {reference.dtype}"
-        )
+    frame, reference = _camera_frame(frame), _camera_frame(reference)
+    if frame.shape != reference.shape:
+        raise ValueError(f"raw frame {frame.shape} and reference {reference.shape} differ")
     return frames_to_uint8(difference_images(frame[None], reference)[0])
 
 
@@ -193,7 +204,7 @@ class StreamingEstimator:
         self.min_peak_force_n = float(min_peak_force_n)
         self.release_fraction = float(release_fraction)
         self.max_frames = int(max_frames)
-        self._initial_reference = None if reference is None else self._check_raw(reference)
+        self._initial_reference = None if reference is None else _camera_frame(reference)
         self._initial_estimates = (
             None if estimates_pa is None else self._check_estimates(estimates_pa)
         )
@@ -231,26 +242,11 @@ class StreamingEstimator:
         return len(self._buffer.forces)
 
     # ------------------------------------------------------------------ input checks
-    @staticmethod
-    def _check_raw(frame: Any) -> np.ndarray:
-        array = np.asarray(frame)
-        if array.ndim != 3 or array.shape[-1] != 3 or array.dtype != np.uint8:
-            raise ValueError(
-                f"raw frames must be uint8 camera images (H, W, 3), got {array.dtype} "
-                f"{tuple(array.shape)}"
-            )
-        return array
-
     def _check_frame(self, frame: Any) -> np.ndarray:
         if self.frame_kind == "raw":
-            array = self._check_raw(frame)
+            array = _camera_frame(frame)
         else:
-            array = np.asarray(frame)
-            if array.ndim != 3 or array.shape[-1] != 3:
-                raise ValueError(
-                    f"a streamed frame must be one difference image (H, W, 3), got "
-                    f"{tuple(array.shape)}"
-                )
+            array = _image(frame, "a streamed frame must be one difference image")
             if array.dtype != np.uint8:
                 if not np.issubdtype(array.dtype, np.floating):
                     raise ValueError(

@@ -25,7 +25,6 @@ from typing_extensions import Unpack  # typing.Unpack needs Python 3.11
 
 from tactile_compliance.config import (
     ConfigError,
-    ExperimentConfig,
     config_from_dict,
     config_to_dict,
 )
@@ -99,42 +98,34 @@ def _quiet_training_warnings() -> None:
     warnings.filterwarnings("ignore", message=".*cached image features.*")
 
 
-def _backbone_signature(cfg: ExperimentConfig) -> str:
-    """Everything the feature cache of a frozen backbone depends on (but the weights' bytes)."""
-    image_size = list(cfg.data.image_size) if cfg.data.image_size else None
-    return json.dumps(
-        [
-            cfg.data.store,
-            cfg.model.name,
-            cfg.model.hparams,
-            cfg.model.backbone_weights,
-            image_size,
-            list(cfg.data.image_mean),
-            list(cfg.data.image_std),
-        ],
-        sort_keys=True,
-        default=str,
-    )
-
-
 def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None = None) -> int:
     """Compute (or find) the frozen-backbone feature cache of each config; return their count.
 
-    One Dask task per model, run before the cells that need the caches.
+    One Dask task per model, run before the cells that need the caches. Configs whose
+    caches are the same (same store and ``data.features.cache_key``: backbone, weights,
+    frame size, image normalisation) are computed once; the count is of distinct caches.
     """
+    from tactile_compliance.data.features import cache_key
     from tactile_compliance.data.store import GraspStore
     from tactile_compliance.runs.run_inputs import RunInputs
     from tactile_compliance.training.train import build_model, frozen_features
 
     limit_threads(threads)
     _quiet_training_warnings()
+    done: set[tuple[str, str]] = set()
     for data in cfg_dicts:
         cfg = config_from_dict(data)
         model = build_model(cfg)
         store = GraspStore.open(cfg.data.store)
         run_inputs = RunInputs.resolve(cfg, store, model)  # what train() resolves
-        frozen_features(cfg, store, model, run_inputs, progress=False)
-    return len(cfg_dicts)
+        identity = (
+            str(store.path.resolve()),
+            cache_key(model.backbone, run_inputs.image_size, run_inputs.constants),
+        )
+        if identity not in done:
+            frozen_features(cfg, store, model, run_inputs, progress=False)
+            done.add(identity)
+    return len(done)
 
 
 def _count_attempt(run_dir: Path) -> int:
@@ -537,13 +528,14 @@ def _dispatch(
         fields_format="[green]{task.fields[done]} done[/] [red]{task.fields[failed]} failed",
     ) as bar:
         # One feature-cache task per model, before that model's frozen-backbone cells.
-        by_model: dict[str, dict[str, dict[str, Any]]] = {}
+        # The worker tells which cells share a cache (data.features.cache_key), so the
+        # driver only groups them by model.
+        by_model: dict[str, list[dict[str, Any]]] = {}
         for cell in todo:
             if cell.cfg.model.freeze_backbone:
-                signature = _backbone_signature(cell.cfg)
-                by_model.setdefault(cell.cfg.model.name, {})[signature] = config_to_dict(cell.cfg)
+                by_model.setdefault(cell.cfg.model.name, []).append(config_to_dict(cell.cfg))
         caches = {
-            model: dask.submit(precompute_features, list(cfgs.values()), threads, pure=False)
+            model: dask.submit(precompute_features, cfgs, threads, pure=False)
             for model, cfgs in by_model.items()
         }
         futures: dict[Any, Cell] = {}
