@@ -12,6 +12,11 @@ Where each mistake of issue 29 is tested:
 - here, one test each: ``export --onnx`` without onnx; ``calibrate camera:7`` without
   OpenCV's warnings; a config typo reported before torch and Lightning load; ``--device
   cuda`` without a GPU; every ``device`` default;
+- here, table-driven, the mistakes of issue 42: a readings CSV separated by ``;``, an
+  import path cut short (did you mean), ``--fingers markers`` on a markerless-only tree,
+  frames too small for Top10NN and a missing ``--split`` file, and typos of a model,
+  input strategy, preset and experiment (did you mean); the name and path mistakes are
+  also checked to be answered before torch loads;
 - tests/test_cli_help.py: values outside the choices (``--fingers markeless``, ...),
   unknown options, missing arguments; a forgotten ``live`` source;
 - tests/test_recording.py: ``live`` without an estimate (estimates missing, frame size,
@@ -34,6 +39,7 @@ import torch
 import typer.main
 from typer.testing import CliRunner
 
+from burgess_tree import write_tree
 from tactile_compliance.cli import app
 from tactile_compliance.data.store import HEADER_FILE
 
@@ -68,7 +74,16 @@ def files(tmp_path: Path) -> dict[str, Path]:
     (store / HEADER_FILE).write_text("{}")
     onnx = tmp_path / "model.onnx"
     onnx.write_bytes(b"not read: the suffix is checked first")
+    semicolons = tmp_path / "readings-semicolons.csv"
+    semicolons.write_text("timestamp_s;force_n;width_m\n0,0;1,5;0,05\n0,1;2,0;0,049\n")
+    (tmp_path / "synthetic").mkdir()  # what `import burgess syn...` meant
+    recorded = tmp_path / "recorded"  # what `record` writes: the markerless finger only
+    write_tree(recorded, grasps=1, augmentations=1)
+    for path in [*recorded.rglob("RGB_markers.pkl"), *recorded.rglob("depth_markers.pkl")]:
+        path.unlink()
     return {
+        "recorded": recorded,
+        "semicolons": semicolons,
         "store": store,
         "onnx": onnx,
         "text": text,
@@ -188,6 +203,42 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
             ["training.lrr", "did you mean 'lr'?", "valid keys in 'training'"],
             [],
         ),
+        "a readings CSV separated by semicolons": (
+            [
+                "record",
+                f"video:{f['video']}",
+                *("--out", str(tmp / "data"), "--object", "foam", "--modulus", "2e4"),
+                *("--readings", str(f["semicolons"])),
+            ],
+            ["readings-semicolons.csv", "separated by ';', not commas"],
+            ["missing column"],
+        ),
+        "import burgess of a path cut short": (
+            ["import", "burgess", str(tmp / "syn"), "--out", str(tmp / "data")],
+            ["syn: no such directory", f"did you mean {tmp / 'synthetic'}?"],
+            [],
+        ),
+        "import burgess --fingers markers of a markerless-only tree": (
+            [
+                *("import", "burgess", str(f["recorded"])),
+                *("--out", str(tmp / "data"), "--fingers", "markers"),
+            ],
+            ["no sample has RGB_markers.pkl", "--fingers markerless"],
+            ["missing file"],
+        ),
+        "frames too small for Top10NN": (
+            [
+                *("train", "--set", "model.name=top10nn", "--size", "48x48"),
+                *("--set", f"output_dir={tmp / 'runs'}"),
+            ],
+            ["top10nn needs frames of at least 65x65 px", "48x48"],
+            [],
+        ),
+        "train --split that does not exist": (
+            ["train", "--split", str(tmp / "split.json"), "--set", f"output_dir={tmp / 'runs'}"],
+            ["split.json: no such split file"],
+            ["Errno"],
+        ),
         "a model name typo": (
             ["train", "--set", "model.name=restf", "--set", f"output_dir={tmp / 'runs'}"],
             ["unknown model 'restf'", "did you mean 'res_tf'?"],
@@ -212,7 +263,15 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
 
 
 CASE_NAMES = list(
-    _cases({k: Path(k) for k in ("store", "onnx", "text", "foreign", "truncated", "video", "tmp")})
+    _cases(
+        {
+            k: Path(k)
+            for k in (
+                *("store", "onnx", "text", "foreign", "truncated", "video", "tmp"),
+                *("recorded", "semicolons"),
+            )
+        }
+    )
 )
 
 
@@ -283,6 +342,8 @@ def test_a_config_typo_is_reported_before_torch_is_imported(tmp_path: Path) -> N
         ["train", "--set", "model.name=restf"],
         ["train", "--set", "inputs=imagefx"],
         ["train", "-c", "defualt"],
+        ["train", "--set", "model.name=top10nn", "--size", "48x48"],
+        ["import", "burgess", str(tmp_path / "sin"), "--out", str(tmp_path / "store")],
         ["train", "-c", str(tmp_path / "missing.yaml")],
         ["pretrain", str(tmp_path), "--backbone", "resnet18", "--out", "w.pt", "--set", "x=1"],
     ):
