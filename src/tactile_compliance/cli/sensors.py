@@ -173,6 +173,7 @@ def calibrate_depth_command(
         sensor=sensor,
         circles=read_circles(circles) if circles is not None else None,
         source=" ".join(presses),
+        progress=not as_json,
     )
     result.calibration.save(out)
     saved = f"Calibration {out}: depth model and {px_per_mm:g} px/mm"
