@@ -8,6 +8,7 @@ import base64
 import json
 import math
 import re
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -285,12 +286,18 @@ def calibrate(
     if out is not None:  # refuse a bad --out before touching the sensor
         check_output_file(Path(out), "sensor calibration", is_calibration_file, option="--out")
         check_output_folder(out, option="--out")
+    picture = None if out is None else picture_path(out)
+    if picture is not None:
+        check_output_file(picture, "calibration picture", is_calibration_picture, option="--out")
     skipped: list[FrameError] = []
     frames: list[np.ndarray] = []
+    warped: list[np.ndarray] = []  # the same frames before the crop, for the picture
     with open_source(spec, geometry=geometry, **options) as source:
         camera_size: tuple[int, int] | None = None
         for _, frame in iter_frames(source, skipped.append):
             frames.append(frame)
+            if picture is not None and source.last_raw is not None:
+                warped.append(source.geometry.warp(source.last_raw))
             if camera_size is None:
                 camera_size = source.last_raw_size
             if len(frames) >= n_frames:
@@ -307,7 +314,50 @@ def calibrate(
     )
     if out is not None:
         calibration.save(out)
+        if warped and camera_size is not None:
+            write_picture(picture, np.median(np.stack(warped), axis=0), used, camera_size)
     return calibration
+
+
+#: The PNG text key that marks a picture as ``calibrate``'s (so a re-run may replace it).
+_PICTURE_KEY = b"tactile-compliance"
+
+
+def picture_path(out: str | Path) -> Path:
+    """Where ``calibrate --out OUT.json`` puts its picture: ``OUT.png`` next to it."""
+    return Path(out).with_suffix(".png")
+
+
+def is_calibration_picture(path: Path) -> bool:
+    """Whether ``path`` is a PNG that :func:`write_picture` wrote (its text chunk)."""
+    with open(path, "rb") as handle:
+        head = handle.read(256)
+    return head.startswith(b"\x89PNG") and b"tEXt" + _PICTURE_KEY + b"\x00" in head
+
+
+def write_picture(
+    path: Path, warped_reference: np.ndarray, geometry: FrameGeometry, size: tuple[int, int]
+) -> Path:
+    """The warped no-contact reference (BGR, before the crop) with the crop drawn on it in
+    green and its size written in, as a PNG at ``path`` (atomically; marked as ours with a
+    PNG text chunk, :func:`is_calibration_picture`). ``size``: the camera frame (H, W) px.
+    So the corners and the crop can be checked by eye (docs/sensors.md)."""
+    image = np.ascontiguousarray(warped_reference.round().clip(0, 255).astype(np.uint8))
+    top, left, h, w = geometry.crop_box(size)
+    cv2.rectangle(image, (left, top), (left + w - 1, top + h - 1), (0, 255, 0), 1)
+    label = f"crop {w}x{h} px at ({left}, {top})"
+    cv2.putText(image, label, (left + 3, top + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 255, 0))
+    ok, encoded = cv2.imencode(".png", image)
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 BGR image
+        raise OSError(f"{path}: the picture could not be encoded")
+    png = encoded.tobytes()
+    text = _PICTURE_KEY + b"\x00calibrate: the warped reference and the crop"
+    chunk = len(text).to_bytes(4, "big") + b"tEXt" + text
+    chunk += zlib.crc32(b"tEXt" + text).to_bytes(4, "big")
+    end_of_header = 8 + 25  # the signature, then IHDR (length, type, 13 bytes, crc)
+    with atomic_file(path, "wb") as handle:
+        handle.write(png[:end_of_header] + chunk + png[end_of_header:])
+    return path
 
 
 # ---------------------------------------------------------------------- depth calibration
