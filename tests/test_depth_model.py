@@ -176,7 +176,8 @@ def test_calibrate_depth_and_depth_commands(presses, tmp_path):
     depth = np.load(out / "held_out.npy")
     assert depth.dtype == np.float32 and depth.shape == SIZE
     assert depth.max() == pytest.approx(items[-1][3], rel=0.2)
-    assert cv2.imread(str(out / "held_out.png")).shape == (*SIZE, 3)
+    # The map at its own pixels, with a colour bar (right) and a scale bar (below).
+    assert cv2.imread(str(out / "held_out.png")).shape == (SIZE[0] + 24, SIZE[1] + 64, 3)
     assert re.search(r"peak \d\.\d{3} mm", output)
     rows = json.loads(
         _cli("depth", tmp_path / "held_out.png", "--calibration", cal, "--out", out, "--json")
@@ -314,3 +315,21 @@ def test_real_presses_wider_than_the_ball_are_called_suspect_with_their_reason()
     assert all("contact radius" in row["verdict"] for row in wide)
     assert result.verdict.startswith("suspect: ") and "nan" not in result.format()
     json.dumps(result.calibration.depth_model.report, allow_nan=False)  # valid JSON
+
+
+def test_the_depth_picture_has_a_colour_bar_in_mm_and_a_scale_bar_from_px_per_mm():
+    from tactile_compliance.inference.depth_maps import depth_picture
+
+    rows, cols = np.mgrid[0:150, 0:210]
+    depth = np.maximum(0, 0.8 - ((cols - 100) ** 2 + (rows - 70) ** 2) / 900).astype(np.float32)
+    picture = depth_picture(depth, px_per_mm=7.0)
+    assert picture.shape == (174, 274, 3)
+    expected = cv2.applyColorMap((depth / depth.max() * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
+    np.testing.assert_array_equal(picture[20:150, :150], expected[20:150, :150])
+    bar = picture[14:144, 218:228]  # top (the peak) is yellow, bottom (0 mm) dark violet
+    assert bar[0, :, 2].mean() > 200 and bar[-1, :, 2].mean() < 100
+    # 210 / 3 px at 7 px/mm: a 10 mm bar of 70 px (its label starts right of it).
+    strip = (picture[161:164, :80].min(axis=2) == 255).any(axis=0)
+    assert int(strip.sum()) == pytest.approx(70, abs=3)  # a 2 px line has round caps
+    unscaled = depth_picture(depth)  # no px/mm: the strip says so, no bar
+    assert int((unscaled[161:164].min(axis=2) == 255).any(axis=0).sum()) < 40
