@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from tactile_compliance.acquisition.capture import capture_grasp
 from tactile_compliance.acquisition.first_frame import reference_frame
 from tactile_compliance.acquisition.readings import Readings, write_readings_csv
-from tactile_compliance.acquisition.recording import ObjectInfo, capture_grasp, record_grasp
+from tactile_compliance.acquisition.recording import ObjectInfo, record_grasp
 from tactile_compliance.acquisition.sensors import (
     PLAIN_GEOMETRY,
     FrameGeometry,

@@ -19,7 +19,8 @@ import pytest
 from typer.testing import CliRunner
 
 from tactile_compliance.acquisition.calibration import SensorCalibration
-from tactile_compliance.acquisition.recording import CapturedGrasp, ObjectInfo, write_grasp
+from tactile_compliance.acquisition.capture import CapturedGrasp
+from tactile_compliance.acquisition.recording import ObjectInfo, write_grasp
 from tactile_compliance.acquisition.sensors import FrameGeometry
 from tactile_compliance.cli import app
 from tactile_compliance.data.burgess import import_burgess

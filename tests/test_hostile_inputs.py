@@ -38,11 +38,11 @@ from tactile_compliance.acquisition.calibration import (
     read_circles,
     read_image,
 )
+from tactile_compliance.acquisition.capture import capture_grasp
 from tactile_compliance.acquisition.readings import Readings
 from tactile_compliance.acquisition.recording import (
     OBJECT_TABLE_FILE,
     ObjectInfo,
-    capture_grasp,
     write_grasp,
 )
 from tactile_compliance.acquisition.sensors import FolderSource, open_source

@@ -17,9 +17,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tactile_compliance.acquisition.capture import CapturedGrasp
 from tactile_compliance.acquisition.recording import (
     OBJECT_TABLE_FILE,
-    CapturedGrasp,
     ObjectInfo,
     write_grasp,
 )

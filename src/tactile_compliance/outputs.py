@@ -400,9 +400,11 @@ def exclusive_lock(
 ) -> Iterator[Path]:
     """Hold an exclusive ``flock`` on the file ``path`` (created if needed): the one lock.
 
-    The file records its holder (``pid PID on HOST since TIME``) while it is held. It is
-    never deleted: unlinking it while another process waits on the old inode would let a
-    third process lock a new file and enter at the same time.
+    The file records its holder (``pid PID on HOST since TIME``) while it is held. The
+    kernel releases the lock when its holder dies, however it dies, so a lock file left by
+    a killed process is simply taken over. It is never deleted: unlinking it while another
+    process waits on the old inode would let a third process lock a new file and enter at
+    the same time.
 
     Args:
         what: what the lock protects, for the messages ("the feature cache").

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from tactile_compliance.acquisition.calibration import SensorCalibration
+from tactile_compliance.acquisition.capture import capture_checked
 from tactile_compliance.acquisition.readings import ReadingsCallback
 from tactile_compliance.acquisition.recording import (
-    capture_checked,
     capture_notes,
     checked_selection,
     grasp_estimates,
@@ -138,7 +138,7 @@ def estimate_recording(
     max_frames: int | None = None,
 ) -> RecordingEstimate:
     """Capture one grasp and compute its analytical estimates, exactly as ``record``
-    computes the ones it stores (``recording.capture_checked`` then
+    computes the ones it stores (``capture.capture_checked`` then
     ``recording.grasp_estimates``); nothing is written.
 
     Args:

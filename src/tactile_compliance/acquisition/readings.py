@@ -159,6 +159,10 @@ class FollowedReadings:
     """Readings from a CSV that the robot is still writing: a frame waits up to ``wait_s``
     s for a reading at or after its time (docs/inference.md, "``live``"). The file may not
     exist yet when the capture starts.
+
+    An incomplete last line (the robot mid-write) is ignored until it is complete; a
+    non-number in any other row is a ``ValueError``. A frame with no reading at or after
+    its time within ``wait_s`` is a :class:`ReadingError` for that frame only.
     """
 
     def __init__(self, path: str | Path, wait_s: float = 1.0, tolerance_s: float = 0.0) -> None:

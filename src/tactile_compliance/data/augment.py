@@ -38,7 +38,9 @@ class GraspAugmentation(nn.Module):
             the flip probabilities apply given that.
         brightness, contrast, saturation, hue: ``ColorJitter`` ranges (torchvision semantics).
         noise_std: sigma of the additive Gaussian noise, image units (15/255 = 15 grey levels).
-        seed: seed of the module's own generator; None uses the global torch RNG.
+        seed: seed of the module's own generator (same seed -> same augmented batches;
+            the global torch RNG is neither used nor disturbed); None uses the global
+            torch RNG.
     """
 
     def __init__(

@@ -60,7 +60,10 @@ def balance_indices(
         label_constants: label normalisation (its range does not change the bins).
 
     Returns:
-        int64 array: every original id once (input order), then the duplicates.
+        int64 array: every original id once (input order), then the duplicates. Only
+        existing samples are copied, spread over each bin's objects (the object with the
+        fewest samples in the bin first); no bin shrinks, empty bins stay empty and every
+        other bin ends with at least the threshold.
     """
     if not 0.0 <= t_balance <= 1.0:
         raise ValueError(f"t_balance must be in [0, 1], got {t_balance}")

@@ -66,6 +66,12 @@ def cached_features(
     Returns a read-only float16 memmap; callers convert batches to float32.
     ``image_size`` (height, width) px is what frames are resized to (the run's
     ``RunInputs.image_size``).
+
+    The cache is keyed by :func:`cache_key` (the backbone's weights hash included), so
+    other weights never reuse stale features. Safe for several processes at once: one
+    computes under the cache's lock while the others wait and then read its result; a
+    killed computation is resumed by the next caller. Reading a finished cache takes no
+    lock.
     """
     size = tuple(image_size)
     directory = store.path / FEATURES_DIR / cache_key(backbone, size, constants)

@@ -143,6 +143,11 @@ def select_frame_indices(
     ``window=n`` spreads the frames over the last ``n`` frames up to the peak (the
     streaming variant; see ``inference.streaming``), ``window_s`` (s, needs timestamps)
     over the last ``window_s`` seconds.
+
+    None when no frame reaches ``onset_force_n``, the peak stays below
+    ``min_peak_force_n``, or fewer than three frames lie between the start and the peak.
+    In time, a tie goes to the earlier frame, so at a constant frame rate the timed
+    selection is the index rule's.
     """
     f = np.asarray(forces_n, dtype=np.float64).reshape(-1)
     window = check_window(window)

@@ -240,7 +240,10 @@ def _unwrap_scalar(x: Any, original: Any) -> Any:
 def normalise_modulus(modulus_pa: Any, c: NormalisationConstants | None = None) -> Any:
     """Young's modulus (Pa) -> normalised label ``y`` (log10 min-max; [0, 1] inside the range).
 
-    Raises ``ValueError`` for non-positive numpy values (log10 undefined); NaN passes through.
+    Labels outside the range are not clipped: they map outside [0, 1], so the function
+    stays invertible. Raises ``ValueError`` for non-positive numpy values (log10
+    undefined); torch tensors are not checked element-wise (no host sync in training
+    loops). NaN passes through.
     """
     c = c or NormalisationConstants()
     x = _as_array(modulus_pa)

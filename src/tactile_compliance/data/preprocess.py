@@ -220,6 +220,12 @@ def filter_samples(
 ) -> tuple[pd.DataFrame, FilterReport]:
     """Apply the sample filter and report what each rule removed.
 
+    The rules run in the order of docs/protocol.md, "1. Sample filter". A missing value
+    (NaN) fails the force, width and depth rules (an unverifiable increase counts as
+    none); a rule whose columns are absent or all NaN is not applicable, skipped and
+    reported so. Exclusion lists match case-insensitively; the report says how many
+    listed names were present.
+
     Args:
         samples: the GraspStore's ``samples`` table (or any subset of it).
         cfg: :class:`FilterRules`, a ``FilterConfig``, an ``ExperimentConfig`` (its ``filters`` and

@@ -1,6 +1,7 @@
 """GraspStore: the one on-disk format every data source is imported into (frames as uint8
-difference images, memory-mapped; optional float16 depth maps; a checked table), read
-here and written by ``data.store_writer.GraspStoreWriter``.
+RGB difference images (N, 3, H, W, 3), memory-mapped; optional float16 depth maps [mm],
+NaN for a sample without one; a checked table), read here and written by
+``data.store_writer.GraspStoreWriter``.
 
 See docs/data.md, "The GraspStore format (version 1)".
 """
@@ -204,8 +205,11 @@ def _column_numbers(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
 def validate_samples(samples: pd.DataFrame) -> list[str]:
     """What is wrong with a store's table, one message per problem (empty: nothing).
 
-    The checks are listed in docs/data.md ("Opening a store checks its table"); messages
-    name the column and the first bad (0-based) rows.
+    Every column of :data:`SAMPLE_COLUMNS`; ``sample_id`` equal to the row number (the
+    index into ``frames.u8``); every numeric column within its rule of
+    :data:`COLUMN_RULES` or NaN (missing), but ``modulus_pa``, the label, never NaN; a
+    column of another dtype is a problem, never cast (docs/data.md, "Opening a store
+    checks its table"). Messages name the column and the first bad (0-based) rows.
     """
     problems = []
     missing = [c for c in SAMPLE_COLUMNS if c not in samples.columns]
@@ -326,7 +330,13 @@ def _partial_owner_gone(partial: Path) -> bool:
 
 def recover_interrupted_writes(path: str | Path) -> list[Path]:
     """Tidy what killed writers of the store ``path`` left next to it (docs/data.md, "A
-    killed import"); returns what was removed or restored."""
+    killed import"); returns what was removed or restored.
+
+    A ``.NAME.partial-*`` directory is deleted only when its owner file names a process of
+    this host that no longer runs. A ``.NAME.old-PID-*`` store whose process is gone is put
+    back as ``NAME`` when ``NAME`` is missing, else deleted. Anything else (live writers,
+    other hosts, no owner file, not a store) is left alone.
+    """
     path = Path(path)
     parent = path.parent
     touched: list[Path] = []

@@ -137,8 +137,19 @@ class GraspStoreWriter:
         with GraspStoreWriter(out, image_size=(250, 350), source="burgess") as writer:
             writer.append(frames, {"object": "foam_cube", "modulus_pa": 2e4, ...})
 
-    Its guarantees (atomic, ``overwrite`` replaces only a store, nothing left on an error,
-    a killed writer tidied by the next): docs/data.md, "Writing, replacing, interruptions".
+    Guarantees (docs/data.md, "Writing, replacing, interruptions"):
+
+    - Samples go to a hidden sibling ``.NAME.partial-XXXXXXXX``; :meth:`commit` writes the
+      table, the marker and ``header.json`` (last) there and only then renames it to
+      ``NAME``, so no reader sees a half-written store.
+    - An existing ``NAME`` is a ``FileExistsError`` without ``overwrite``; with it, only a
+      store (:func:`is_store_dir`) is replaced, anything else is :class:`NotAStoreError`
+      and left untouched.
+    - An ``OSError`` while writing (full disk, ...) is a :class:`StoreWriteError` after the
+      temporary directory and the parent directories this writer created are removed.
+    - A killed writer's leftovers are tidied by the next writer to the same path
+      (:func:`recover_interrupted_writes`).
+    - Directories and files get the default modes: the umask decides.
     """
 
     def __init__(

@@ -107,6 +107,11 @@ def import_yuan(
     """Import a directory of Shore-hardness press videos into a GraspStore (frame size:
     ``image_size`` (height, width) px, else the videos' most common one).
 
+    One sample per video: its first, midway and brightest frames, raw RGB (``frame_kind:
+    raw``), resized to the store's size when another; no force, width or estimates. A
+    video whose name does not match, that does not decode, or whose label is implausible
+    is skipped and reported (``strict``: the first one stops the import).
+
     Raises a :class:`~tactile_compliance.data.import_report.DataImportError` subclass when
     the import cannot go on (nothing is written then).
     """

@@ -1,8 +1,7 @@
-"""Tables of the report, built from the loaded results frame (one row per run).
-
-Only aggregates and lays out; each table also comes back as tidy numbers (``cells``).
-See docs/reporting.md, "How the numbers are made".
-"""
+"""Tables of the report from the results frame, also as tidy numbers (``cells``): only
+complete runs; a cell is ``mean ± std`` over its runs (one per seed, ``ddof=1``, the mean
+alone for one run), never pooling presets or stores. See docs/reporting.md, "How the
+numbers are made"."""
 
 from __future__ import annotations
 

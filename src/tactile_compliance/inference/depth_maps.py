@@ -83,8 +83,13 @@ def write_depth_maps(
 ) -> list[tuple[Path, float]]:
     """Write each frame's depth map; returns ``(npy path, peak depth [mm])`` per frame.
 
+    Each frame becomes ``OUT/<stem>.npy``, float32 (H, W) in mm, positive into the gel,
+    and with ``png`` also ``OUT/<stem>.png``; every file is written atomically.
+
     Args:
         frames: ``(file name, uint8 BGR frame)``, sensor frames of the reference's size.
+        out_dir: a new or empty directory, or one this command wrote before
+            (``outputs.claim_output_dir``, kind ``depth``).
         sensor: its depth model (None: the dataset heuristic) and its reference.
         reference: the no-contact frame, replacing the sensor's.
         png: also write ``STEM.png``, :func:`depth_picture` with the sensor's px/mm.

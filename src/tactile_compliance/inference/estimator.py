@@ -102,8 +102,9 @@ class ComplianceEstimator(BaseEstimator):
     ) -> ComplianceEstimator:
         """Load a ``best.pt`` checkpoint (or a run directory holding one).
 
-        ``backbone_weights``: a local copy of a frozen backbone's weights file (nothing is
-        downloaded; see docs/inference.md, "Command line").
+        Loading never executes pickled code (``weights_only=True``) and never downloads.
+        ``backbone_weights``: a local copy of a frozen backbone's weights file (see
+        docs/inference.md, "Command line").
         """
         file = resolve_checkpoint(path)
         device = resolve_device(device)

@@ -18,6 +18,7 @@ from torch import nn
 
 from tactile_compliance.data.inputs import INPUTS
 from tactile_compliance.inference.estimator import ComplianceEstimator
+from tactile_compliance.inference.model_card import DEFAULT_LICENSE, check_license
 from tactile_compliance.inference.onnx import (
     ONNX_METADATA_KEY,
     OUTPUT_NAME,
@@ -25,11 +26,9 @@ from tactile_compliance.inference.onnx import (
     onnx_input_names,
 )
 from tactile_compliance.inference.pretrained import (
-    DEFAULT_LICENSE,
     OUTPUT_KIND,
     OptionalDependencyError,
     check_export_dir,
-    check_license,
     refuse_output_calibration,
     require_safetensors,
     run_evaluation,

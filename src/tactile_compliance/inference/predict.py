@@ -36,7 +36,12 @@ def predict_path(
     missing an input the checkpoint needs are skipped with the reason.
 
     Returns:
-        The JSON report shown in docs/inference.md, "Command line".
+        The JSON report shown in docs/inference.md, "Command line": ``checkpoint`` (what
+        the model is), ``source`` (``path``, ``kind``, ``frame_kind``, ``samples``),
+        ``predictions`` (per sample: its identification, ``pred_pa``, ``pred_log10_pa``,
+        and ``true_pa`` / ``error_decades`` when the truth is known), ``skipped`` and
+        ``summary`` (counts, geometric mean, and ``metrics`` when every predicted sample
+        has a known modulus).
     """
     from tactile_compliance.inference.estimator import ComplianceEstimator
 

@@ -144,6 +144,10 @@ class _Buffer:
 class StreamingEstimator:
     """Feed frames + force/width one at a time; get an estimate as soon as possible.
 
+    Every update needs the normal force (N): frames are selected by force, whatever the
+    strategy. The final estimate (on release or :meth:`finish`) equals
+    :func:`predict_trajectory` on the same frames.
+
     Args:
         estimator: any :class:`~tactile_compliance.inference.base.BaseEstimator`.
         window: None (whole trajectory, the dataset's rule) or n >= 3 (last n frames).

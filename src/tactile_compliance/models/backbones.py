@@ -298,7 +298,9 @@ def _probe(url: str, timeout: float = _PROBE_TIMEOUT_S) -> None:
 @contextlib.contextmanager
 def no_downloads() -> Iterator[None]:
     """Within this block, ``"imagenet"`` weights come from the torch.hub cache only: loading
-    a checkpoint must work offline and never fetch half a gigabyte behind the user's back."""
+    a checkpoint must work offline and never fetch half a gigabyte behind the user's back.
+    A file missing from the cache is a FileNotFoundError naming the ``--weights PATH``
+    alternative."""
     token = _DOWNLOADS_ALLOWED.set(False)
     try:
         yield
@@ -335,7 +337,13 @@ def _load_imagenet_state_dict(name: str) -> dict[str, torch.Tensor]:
 
 def load_weights_file(backbone: nn.Module, name: str, path: str | os.PathLike[str]) -> None:
     """Load a local weights file (a state dict, or ``{"state_dict": ...}``) into
-    ``backbone`` (``name``: which keys to ignore), checking that it fits."""
+    ``backbone`` (``name``: which keys to ignore), checking that it fits.
+
+    Raises:
+        FileNotFoundError: no such file.
+        BackboneWeightsError: unreadable, not a state dict, another network's, or a
+            torchvision-style ``NAME-HASH.pth`` whose sha256 does not start with ``HASH``.
+    """
     path = Path(path).expanduser()
     if not path.is_file():
         raise FileNotFoundError(
@@ -425,8 +433,13 @@ def create_backbone(name: str, weights: str | os.PathLike[str] = "none") -> nn.M
 
     Args:
         name: one of :func:`list_backbones`, case-insensitive.
-        weights: ``"none"``, ``"imagenet"`` or the path of a local state dict
-            (docs/models.md, "Backbone weights").
+        weights: ``"none"`` (random initialisation; never touches the network),
+            ``"imagenet"`` (the torch.hub cache, else a download that fails within
+            seconds offline) or the path of a local state dict (docs/models.md, "Backbone
+            weights").
+
+    Returns:
+        The backbone, with ``feature_dim`` and ``min_input_size`` attributes.
 
     Raises:
         ValueError: unknown backbone name.

@@ -204,7 +204,13 @@ class TactileModel(nn.Module):
         ``frames`` (prepared RGB frames or depth maps, see :meth:`encode_frames`; None for
         a frame-free model) and its scalar inputs, normalised, by name (``force=``,
         ``width=``, ``estimates=``); inputs the strategy does not use are ignored, unknown
-        names refused."""
+        names refused.
+
+        The output is a sigmoid, in (0, 1). It is exactly
+        ``forward_features(encode_frames(frames), ...)``, so cached features give the same
+        result. A scalar input the strategy uses that is missing or of the wrong shape is a
+        ValueError naming it, its meaning and the shape expected.
+        """
         features = None if self.inputs.image is None else self.encode_frames(frames)
         return self.forward_features(features, **scalars)
 
@@ -270,7 +276,8 @@ class TactileModel(nn.Module):
 class FusionModel(TactileModel):
     """A model with the Burgess-style fusion head (Top10NN, Res-Tf; docs/models.md): it
     takes any scalar input of the table (a tower each, the estimates through the
-    estimation decoder).
+    estimation decoder). Towers exist only for the strategy's inputs, so an input it does
+    not use has no weights.
 
     Subclasses extend ``hparam_checks`` (:meth:`extend_checks`), call
     :meth:`_build_fusion_head` and implement :meth:`_image_vector`.

@@ -36,7 +36,12 @@ def keep_probability(p: float) -> float:
 
 class Dropout(nn.Dropout):
     """``nn.Dropout`` with :func:`keep_mask` on the CPU; elsewhere, in eval mode and
-    ``inplace``, ``nn.Dropout`` itself."""
+    ``inplace``, ``nn.Dropout`` itself.
+
+    The output is rescaled by the rounded keep probability, so its mean is exact. The
+    mask comes from torch's global generator (``torch.manual_seed`` fixes it), and the
+    layer has no parameters: swapping it in leaves a model's ``state_dict`` unchanged.
+    """
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not self.training or self.p == 0.0 or self.inplace or x.device.type != "cpu":
@@ -50,7 +55,8 @@ class Dropout(nn.Dropout):
 
 def use_fast_dropout(module: nn.Module) -> nn.Module:
     """Replace every plain ``nn.Dropout`` inside ``module`` by :class:`Dropout`, in place
-    (also those that PyTorch's own layers create, e.g. ``nn.TransformerEncoderLayer``)."""
+    (also those that PyTorch's own layers create, e.g. ``nn.TransformerEncoderLayer``);
+    the ``state_dict`` is unchanged."""
     for parent in module.modules():
         for name, child in list(parent.named_children()):
             if type(child) is nn.Dropout:

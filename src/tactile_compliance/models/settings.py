@@ -169,7 +169,8 @@ def _tuned(cls: type, strategy: InputStrategy) -> Mapping[str, Mapping[str, Any]
 def paper_settings(model: str, inputs: InputStrategy | str) -> dict[str, Any]:
     """The paper's settings of registered ``model`` for ``inputs``, as dotted overrides:
     ``default_training`` as ``training.*``, overlaid with the strategy's ``tuned_configs``
-    (``training.*`` and ``model.hparams.*``)."""
+    (``training.*`` and ``model.hparams.*``). A ValueError for an unknown model or input
+    strategy."""
     cls = get_model_class(model)
     tuned = _tuned(cls, InputStrategy.parse(inputs))
     training = {**getattr(cls, "default_training", {}), **tuned.get("training", {})}
@@ -181,7 +182,8 @@ def paper_settings(model: str, inputs: InputStrategy | str) -> dict[str, Any]:
 
 def search_dimensions(model: str, inputs: InputStrategy | str) -> list[SearchDimension]:
     """The search space that registered ``model`` declares (``hpo_space``) for ``inputs``,
-    with the defaults filled in (docs/models.md, "Paper settings and search spaces").
+    with the defaults filled in (docs/models.md, "Paper settings and search spaces");
+    a dimension that ``needs`` scalar inputs is left out when the strategy uses none of them.
 
     Raises:
         ValueError: unknown model or strategy, or a declaration that names a keyword

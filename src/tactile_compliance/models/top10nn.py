@@ -35,7 +35,8 @@ _STRIDE = TOP10_STRIDE
 
 
 class Top10Encoder(nn.Module):
-    """The per-frame CNN of Top10NN: ``(N, 3, H, W) -> (N, img_feature_size)``."""
+    """The per-frame CNN of Top10NN: ``(N, 3, H, W) -> (N, img_feature_size)``, for frames
+    of at least ``min_input_size`` (65) px a side (five unpadded stride-2 convolutions)."""
 
     min_input_size: int = TOP10_MIN_INPUT_PX
 

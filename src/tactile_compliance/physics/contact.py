@@ -550,6 +550,10 @@ def analytical_estimates_pa(
             (T, H, W), on a grid of ``constants.pixel_size_m``.
         constants: sensor constants.
 
+    Returns:
+        Two floats; ``nan`` for an estimate a degenerate grasp cannot give (no contact, no
+        usable frame, a non-positive fitted slope).
+
     Raises:
         ValueError: malformed input (shapes, frame counts, NaN/inf values).
     """

@@ -174,6 +174,9 @@ def dataset_press_window(
         marker_max_depth_mm: the same for the marker finger [mm], (T,), or None to use the
             force-sensing finger alone.
 
+    Returns:
+        ``(start, end)`` with ``0 <= start < end <= T``.
+
     Raises:
         ValueError: arrays that are not 1-D, of different lengths, empty or not finite.
     """
@@ -384,8 +387,10 @@ def dataset_estimates_pa(
 
     Same conventions as :func:`tactile_compliance.physics.contact.analytical_estimates_pa`,
     but the series is the *whole recording* of one grasp, which this function clips and
-    interpolates itself. What the caller must do to reproduce a stored value: see
-    docs/physics.md, "The dataset's estimator and ours".
+    interpolates itself: pass every recorded frame, not a pre-clipped series (the force
+    clip is not idempotent: a second pass would also cut the hold after the peak). What
+    else the caller must do to reproduce a stored value: docs/physics.md, "The dataset's
+    estimator and ours".
 
     Args:
         forces_n: normal force per frame [N], shape (T,).

@@ -1,5 +1,9 @@
 """Shore durometer hardness -> Young's modulus (and back for Shore 00): empirical fits.
 
+Every function takes a number or an array and returns the same kind: a float for a
+scalar, a float64 array otherwise. A hardness outside [0, 100] or NaN is a ValueError
+naming the value.
+
 See docs/physics.md, "Shore hardness -> Young's modulus".
 """
 

@@ -42,7 +42,8 @@ def row_grouping(condition: Any, grouping: Any) -> str:
 
 
 def split_protocol(condition: Any, grouping: Any = None) -> str:
-    """One of :data:`PROTOCOLS` for a run's ``split.condition`` and ``split.grouping``."""
+    """One of :data:`PROTOCOLS` for a run's ``split.condition`` and ``split.grouping``; a
+    ValueError for a condition other than seen/unseen."""
     if str(condition) == "unseen":
         return "unseen"
     if str(condition) != "seen":

@@ -216,6 +216,12 @@ def generate_burgess_tree(
 ) -> GenerationReport:
     """Write a synthetic dataset in the raw GelSight Young's-modulus layout.
 
+    An object's files depend only on (seed, object name, options): the same seed gives
+    byte-identical files whatever the worker count, and a subset of the objects gives
+    exactly the same objects. Each object is written under a hidden ``.partial-NAME``
+    and renamed into place when complete; a re-run keeps complete objects and redoes the
+    rest, and one with other parameters is refused (``generation.json``).
+
     Args:
         out_dir: output directory (created; complete objects already there are kept).
         n_objects: number of objects of the default mix (default 286, like the real

@@ -13,7 +13,12 @@ __all__ = ["log_uniform", "stream"]
 
 
 def stream(seed: int, *keys: object) -> np.random.Generator:
-    """A PCG64 generator for ``seed`` and the given keys (docs/synthetic.md, "Determinism")."""
+    """A PCG64 generator for ``seed`` and the given keys (ints, strings, floats).
+
+    The same (seed, keys) give the same numbers on every machine and in every process,
+    whatever else was drawn before (no dependence on order, worker count or Python's
+    salted ``hash``). See docs/synthetic.md, "Determinism".
+    """
     if seed < 0:
         raise ValueError(f"seed must be >= 0, got {seed}")
     # The keys' stable digest (ints, strings, floats), as four 32-bit words.

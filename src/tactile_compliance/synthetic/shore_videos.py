@@ -182,6 +182,10 @@ def generate_shore_videos(
 ) -> GenerationReport:
     """Write press videos named like the Shore-hardness dataset.
 
+    One ``{SHAPE}_{hardness:02d}_{n}.avi`` per press (MJPG, 30 fps, raw BGR camera
+    frames, as OpenCV writes them), each written under a hidden name and renamed into
+    place when complete.
+
     Args:
         out_dir: output directory (created). Existing videos are kept (resume).
         n_objects: silicone samples; each gets a unique (shape family, hardness) pair.

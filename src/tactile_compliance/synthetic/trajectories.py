@@ -49,6 +49,10 @@ def synthetic_trajectories(
 ) -> Iterator[GraspTrajectory]:
     """Re-simulate grasps of a ``generate_burgess_tree`` dataset and render every frame.
 
+    The time series are exactly those of the stored grasps (same seed and keys); the
+    frames are new draws of the same sensor noise. Grasps the generator rejected are
+    left out.
+
     Args:
         grasps: (object name, grasp number) pairs, e.g. a run's test split.
         n_objects, seed, image_size, options: the generation's parameters (the default

@@ -40,6 +40,9 @@ def dask_client(
 ) -> Iterator[Any]:
     """Yield a ``distributed.Client``: ``client`` as is, a scheduler's, or a local cluster's.
 
+    A cluster or client this function starts is closed on exit, also after an exception
+    or Ctrl-C, so no worker processes are left behind.
+
     Args:
         workers: local worker processes (ignored with ``scheduler`` or ``client``).
         scheduler: address ``tcp://host:port`` or path of a scheduler JSON file.

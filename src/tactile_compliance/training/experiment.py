@@ -431,6 +431,11 @@ def run_experiment(
 ) -> ExperimentSummary:
     """Run every cell of an experiment grid on Dask and record it in the results store.
 
+    Idempotent: a cell is its config hash, so re-running the same command skips complete
+    cells, retries failed ones and resumes interrupted ones (``train`` does), and no cell
+    runs twice to completion. An exception in a cell is recorded as a ``failed`` row and
+    the grid goes on. One driver at a time per output directory (a lock).
+
     Args:
         preset_or_path: experiment preset (``list_experiment_presets()``), experiment YAML,
             or a plain config (preset or file, e.g. ``tune``'s ``best.yaml``: one cell).

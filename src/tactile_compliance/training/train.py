@@ -330,6 +330,10 @@ def train(
 ) -> dict[str, Any]:
     """Train and evaluate one configuration; returns the metrics dict (also metrics.json).
 
+    A run whose ``metrics.json`` exists is complete and is returned as is (unless
+    ``overwrite``). A configuration or store that fails its checks writes nothing, not
+    even the run directory.
+
     Resumes an interrupted run from its last finished epoch (docs/training.md), and says
     so in one line on stderr whatever ``verbose`` (:func:`resume_line`); ``metrics.json``
     lists the epoch each resume started from (``resumed_from_epoch``, empty: never
