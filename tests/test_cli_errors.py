@@ -414,3 +414,17 @@ def test_every_device_default_is_the_one_default() -> None:
         )[name]
         option = next(p for p in command.params if "--device" in p.opts)
         assert option.default == "auto", name
+
+
+def test_a_warning_is_one_clean_line_not_the_library_file_that_raised_it(tmp_path: Path) -> None:
+    """Issue 42: a config warning showed ``.../pydantic/main.py:792: UserWarning``."""
+    result = _run(
+        "-c",
+        CHECK_WITHOUT_TORCH,
+        *("train", "--set", "model.freeze_backbone=true"),
+        *("--set", f"data.store={tmp_path / 'missing'}"),
+    )
+    lines = result.stderr.strip().splitlines()
+    assert lines[0].startswith("warning: augmentation.enabled with model.freeze_backbone"), lines
+    assert "pydantic" not in result.stderr and "UserWarning" not in result.stderr
+    assert lines[-1].startswith("error: ") and len(lines) == 2, lines
