@@ -25,7 +25,11 @@ from tactile_compliance.data.splits import N_ROLLING_WINDOWS, Split
 from tactile_compliance.data.store import StoreError, read_store_header
 from tactile_compliance.devices import DEFAULT_DEVICE
 from tactile_compliance.models import known_model_names
-from tactile_compliance.models.frame_rules import RECOMMENDED_FRAME_SIZE, min_frame_side
+from tactile_compliance.models.frame_rules import (
+    RECOMMENDED_FRAME_SIZE,
+    min_frame_side,
+    too_small_message,
+)
 from tactile_compliance.outputs import atomic_file
 from tactile_compliance.suggest import did_you_mean
 
@@ -764,11 +768,7 @@ def check_frame_size_early(cfg: ExperimentConfig) -> None:
         origin = "the store's frames are"
     height, width = (int(n) for n in size)
     if min(height, width) < minimum:
-        raise ConfigError(
-            f"{cfg.model.name} needs frames of at least {minimum}x{minimum} px, but {origin} "
-            f"{height}x{width}: set data.image_size to [{max(height, minimum)}, "
-            f"{max(width, minimum)}] or larger (train --size HxW)"
-        )
+        raise ConfigError(too_small_message(cfg.model.name, minimum, origin, (height, width)))
 
 
 def check_config_against_samples(

@@ -19,6 +19,7 @@ __all__ = [
     "TOP10_STRIDE",
     "VGG16_MIN_INPUT_PX",
     "min_frame_side",
+    "too_small_message",
 ]
 
 #: Top10NN's per-frame CNN: unpadded convolutions of these kernel sizes, each stride 2.
@@ -52,3 +53,15 @@ def min_frame_side(model: str) -> int | None:
     decides)."""
     backbone = _BACKBONE_MIN_PX.get(model)
     return None if backbone is None else max(MIN_FRAME_SIDE_PX, backbone)
+
+
+def too_small_message(model: str, minimum: int, origin: str, size: tuple[int, int]) -> str:
+    """The one line for frames ``size`` (H, W) px below ``minimum`` px, ``origin`` saying
+    where the size came from ("data.image_size is", "the store's frames are"): the text of
+    ``config.check_frame_size_early`` and ``training.train.check_frame_size``."""
+    height, width = size
+    return (
+        f"{model} needs frames of at least {minimum}x{minimum} px, but {origin} "
+        f"{height}x{width}: set data.image_size to [{max(height, minimum)}, "
+        f"{max(width, minimum)}] or larger"
+    )

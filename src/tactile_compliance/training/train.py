@@ -48,6 +48,7 @@ from tactile_compliance.data.splits import (
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import create_model, get_model_class
+from tactile_compliance.models.frame_rules import too_small_message
 from tactile_compliance.outputs import atomic_file, claim_output_dir, exclusive_lock
 from tactile_compliance.runs.checkpoint import (
     FROZEN_BACKBONE_SEED,
@@ -152,11 +153,7 @@ def check_frame_size(
     if min(height, width) >= minimum:
         return
     origin = "data.image_size is" if cfg.data.image_size else "the store's frames are"
-    raise ValueError(
-        f"{cfg.model.name} needs frames of at least {minimum}x{minimum} px, but {origin} "
-        f"{height}x{width}: set data.image_size to [{max(height, minimum)}, "
-        f"{max(width, minimum)}] or larger"
-    )
+    raise ValueError(too_small_message(cfg.model.name, minimum, origin, (height, width)))
 
 
 def build_model(cfg: ExperimentConfig) -> torch.nn.Module:
