@@ -275,15 +275,50 @@ def format_tables(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def figure_panels(result: dict[str, Any]) -> list[tuple[str, list[tuple[str, str]]]]:
+    """The figure's panels: (title, [(key, label in the panel)]) per family, in order.
+
+    The analytical estimates (and the rig-corrected ones) are one panel; each model
+    family (a run name's model part, ``top10nn-ALL-unseen-random-seed0`` -> ``top10nn``,
+    titled by its display name) is another, its members labelled by what tells them
+    apart (the run name without the family and the suffix they share: ``ALL``).
+    """
+    try:
+        from tactile_compliance.models import model_display_names
+
+        display = model_display_names()
+    except Exception:  # the figure must not fail on a model this install does not know
+        display = {}
+    analytical = [k for k in result["estimators"] if k in (*ANALYTICAL, *RIG_CORRECTED)]
+    panels: list[tuple[str, list[tuple[str, str]]]] = []
+    if analytical:
+        panels.append(("Analytical", [(k, result["names"][k]) for k in analytical]))
+    families: dict[str, list[str]] = {}
+    for key in result["estimators"]:
+        if key not in analytical:
+            families.setdefault(key.split("-")[0], []).append(key)
+    for family, keys in families.items():
+        parts = [k.split("-")[1:] for k in keys]
+        shared = 0  # trailing name parts every member shares (condition, sampling, seed)
+        while all(len(q) > shared + 1 for q in parts) and len({q[-1 - shared] for q in parts}) == 1:
+            shared += 1
+        labels = ["-".join(q[: len(q) - shared]) or family for q in parts]
+        if len(set(labels)) < len(labels):
+            labels = [result["names"][k] for k in keys]
+        panels.append((display.get(family, family), list(zip(keys, labels, strict=True))))
+    return panels
+
+
 def draw_figure(result: dict[str, Any], path: Path) -> Path:
-    """Predicted against true E per object (geometric means), identity and +-1 decade."""
+    """Predicted against true E per object (geometric means over its grasps), one panel
+    per family (:func:`figure_panels`): identity, the one-decade band and each member's
+    markers, its legend inside the panel; the objects named along the top row."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     markers = "osD^v<>Pp*hX"
-    fig, ax = plt.subplots(figsize=(6.4 + 2.4 * bool(result["estimators"][2:]), 5.2))
     rows = result["objects"]
     lo = min(math.log10(r["true_pa"]) for r in rows)
     hi = max(math.log10(r["true_pa"]) for r in rows)
@@ -293,24 +328,41 @@ def draw_figure(result: dict[str, Any], path: Path) -> Path:
             hi = max(hi, math.log10(max(row_values)))
     lo, hi = math.floor(lo) - 0.5, math.ceil(hi) + 0.5
     line = np.array([10**lo, 10**hi])
-    ax.plot(line, line, color="black", lw=1, label="identity")
-    ax.fill_between(line, line / 10, line * 10, color="0.9", label="within one decade")
-    offsets = np.linspace(-0.04, 0.04, max(len(result["estimators"]), 1))
-    for i, key in enumerate(result["estimators"]):
-        xs = [r["true_pa"] * 10 ** offsets[i] for r in rows if r[key]]
-        ys = [r[key] for r in rows if r[key]]
-        ax.scatter(
-            xs, ys, marker=markers[i % len(markers)], s=42, label=result["names"][key], zorder=3
+    panels = figure_panels(result)
+    ncols = min(len(panels), 2 if len(panels) <= 4 else 3)
+    nrows = math.ceil(len(panels) / ncols)
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(3.6 * ncols, 3.5 * nrows + 0.9), sharex=True, sharey=True,
+        squeeze=False,
+    )  # fmt: skip
+    for index, (title, members) in enumerate(panels):
+        ax = axes[index // ncols][index % ncols]
+        first = index == 0  # the identity and the band are named once, in the first panel
+        ax.plot(line, line, color="black", lw=1, label="identity" if first else None)
+        ax.fill_between(
+            line, line / 10, line * 10, color="0.9", label="within one decade" if first else None
         )
-    ax.set(xscale="log", yscale="log", xlim=(10**lo, 10**hi), ylim=(10**lo, 10**hi))
-    ax.set_xlabel("true E [Pa]")
-    ax.set_ylabel("predicted E [Pa] (geometric mean over the object's grasps)")
-    top = ax.secondary_xaxis("top")
-    top.set_xticks([r["true_pa"] for r in rows], [r["object"] for r in rows], fontsize=7)
-    top.tick_params(axis="x", labelrotation=60)
-    top.minorticks_off()
-    ax.set_title(f"Real grasps: {len(rows)} objects, {len(result['grasps'])} grasps", fontsize=10)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+        offsets = np.linspace(-0.05, 0.05, max(len(members), 1))
+        for i, (key, label) in enumerate(members):
+            xs = [r["true_pa"] * 10 ** offsets[i] for r in rows if r[key]]
+            ys = [r[key] for r in rows if r[key]]
+            ax.scatter(xs, ys, marker=markers[i % len(markers)], s=30, label=label, zorder=3)
+        ax.set(xscale="log", yscale="log", xlim=(10**lo, 10**hi), ylim=(10**lo, 10**hi))
+        ax.set_box_aspect(1)
+        ax.set_title(title, fontsize=9)
+        ax.legend(fontsize=6, loc="upper left", framealpha=0.85)
+        if index // ncols == 0:
+            top = ax.secondary_xaxis("top")
+            top.set_xticks([r["true_pa"] for r in rows], [r["object"] for r in rows], fontsize=6)
+            top.tick_params(axis="x", labelrotation=60)
+            top.minorticks_off()
+        if index % ncols == 0:
+            ax.set_ylabel("predicted E [Pa]\n(geometric mean over grasps)", fontsize=8)
+        if index // ncols == nrows - 1 or index + ncols >= len(panels):
+            ax.set_xlabel("true E [Pa]", fontsize=8)
+    for index in range(len(panels), nrows * ncols):
+        axes[index // ncols][index % ncols].set_visible(False)
+    fig.suptitle(f"Real grasps: {len(rows)} objects, {len(result['grasps'])} grasps", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100, pil_kwargs={"optimize": True})
     plt.close(fig)

@@ -19,7 +19,7 @@ PACKAGE_DIR = Path(__file__).resolve().parents[1] / "src" / PACKAGE
 #: own layer or of a higher one. The package root holds only ``__version__``.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("__init__",),
-    ("progress", "outputs", "devices"),
+    ("progress", "outputs", "devices", "suggest"),
     ("physics",),
     ("data",),
     ("synthetic", "models", "acquisition"),

@@ -12,6 +12,11 @@ Where each mistake of issue 29 is tested:
 - here, one test each: ``export --onnx`` without onnx; ``calibrate camera:7`` without
   OpenCV's warnings; a config typo reported before torch and Lightning load; ``--device
   cuda`` without a GPU; every ``device`` default;
+- here, table-driven, the mistakes of issue 42: a readings CSV separated by ``;``, an
+  import path cut short (did you mean), ``--fingers markers`` on a markerless-only tree,
+  frames too small for Top10NN and a missing ``--split`` file, and typos of a model,
+  input strategy, preset and experiment (did you mean); the name and path mistakes are
+  also checked to be answered before torch loads;
 - tests/test_cli_help.py: values outside the choices (``--fingers markeless``, ...),
   unknown options, missing arguments; a forgotten ``live`` source;
 - tests/test_recording.py: ``live`` without an estimate (estimates missing, frame size,
@@ -34,6 +39,7 @@ import torch
 import typer.main
 from typer.testing import CliRunner
 
+from burgess_tree import write_tree
 from tactile_compliance.cli import app
 from tactile_compliance.data.store import HEADER_FILE
 
@@ -68,7 +74,16 @@ def files(tmp_path: Path) -> dict[str, Path]:
     (store / HEADER_FILE).write_text("{}")
     onnx = tmp_path / "model.onnx"
     onnx.write_bytes(b"not read: the suffix is checked first")
+    semicolons = tmp_path / "readings-semicolons.csv"
+    semicolons.write_text("timestamp_s;force_n;width_m\n0,0;1,5;0,05\n0,1;2,0;0,049\n")
+    (tmp_path / "synthetic").mkdir()  # what `import burgess syn...` meant
+    recorded = tmp_path / "recorded"  # what `record` writes: the markerless finger only
+    write_tree(recorded, grasps=1, augmentations=1)
+    for path in [*recorded.rglob("RGB_markers.pkl"), *recorded.rglob("depth_markers.pkl")]:
+        path.unlink()
     return {
+        "recorded": recorded,
+        "semicolons": semicolons,
         "store": store,
         "onnx": onnx,
         "text": text,
@@ -185,14 +200,78 @@ def _cases(f: dict[str, Path]) -> dict[str, tuple[list[str], list[str], list[str
         ),
         "a config key typo": (
             ["train", "--set", "training.lrr=1e-3", "--set", f"output_dir={tmp / 'runs'}"],
-            ["training.lrr", "valid keys in 'training'"],
+            ["training.lrr", "did you mean 'lr'?", "valid keys in 'training'"],
+            [],
+        ),
+        "a readings CSV separated by semicolons": (
+            [
+                "record",
+                f"video:{f['video']}",
+                *("--out", str(tmp / "data"), "--object", "foam", "--modulus", "2e4"),
+                *("--readings", str(f["semicolons"])),
+            ],
+            ["readings-semicolons.csv", "separated by ';', not commas"],
+            ["missing column"],
+        ),
+        "import burgess of a path cut short": (
+            ["import", "burgess", str(tmp / "syn"), "--out", str(tmp / "data")],
+            ["syn: no such directory", f"did you mean {tmp / 'synthetic'}?"],
+            [],
+        ),
+        "import burgess --fingers markers of a markerless-only tree": (
+            [
+                *("import", "burgess", str(f["recorded"])),
+                *("--out", str(tmp / "data"), "--fingers", "markers"),
+            ],
+            ["no sample has RGB_markers.pkl", "--fingers markerless"],
+            ["missing file"],
+        ),
+        "frames too small for Top10NN": (
+            [
+                *("train", "--set", "model.name=top10nn", "--size", "48x48"),
+                *("--set", f"output_dir={tmp / 'runs'}"),
+            ],
+            ["top10nn needs frames of at least 65x65 px", "48x48"],
+            [],
+        ),
+        "train --split that does not exist": (
+            ["train", "--split", str(tmp / "split.json"), "--set", f"output_dir={tmp / 'runs'}"],
+            ["split.json: no such split file"],
+            ["Errno"],
+        ),
+        "a model name typo": (
+            ["train", "--set", "model.name=restf", "--set", f"output_dir={tmp / 'runs'}"],
+            ["unknown model 'restf'", "did you mean 'res_tf'?"],
+            ["Traceback"],
+        ),
+        "an input strategy typo": (
+            ["train", "--set", "inputs=ImageFx", "--set", f"output_dir={tmp / 'runs'}"],
+            ["unknown input strategy 'ImageFx'", "did you mean 'ImageF' or 'ImageFW'?"],
+            [],
+        ),
+        "a preset name typo": (
+            ["train", "-c", "defualt", "--set", f"output_dir={tmp / 'runs'}"],
+            ["no config file or preset named 'defualt'", "did you mean 'default'?"],
+            [],
+        ),
+        "an experiment name typo": (
+            ["experiment", "tabel1", "--out", str(tmp / "runs"), "--results", str(tmp / "results")],
+            ["no experiment file or preset named 'tabel1'", "did you mean 'table1'"],
             [],
         ),
     }
 
 
 CASE_NAMES = list(
-    _cases({k: Path(k) for k in ("store", "onnx", "text", "foreign", "truncated", "video", "tmp")})
+    _cases(
+        {
+            k: Path(k)
+            for k in (
+                *("store", "onnx", "text", "foreign", "truncated", "video", "tmp"),
+                *("recorded", "semicolons"),
+            )
+        }
+    )
 )
 
 
@@ -260,6 +339,11 @@ def test_a_config_typo_is_reported_before_torch_is_imported(tmp_path: Path) -> N
     """What makes it fast (under 2 s instead of 13-22 s): nothing heavy is imported."""
     for args in (
         ["train", "--set", "training.lrr=1e-3"],
+        ["train", "--set", "model.name=restf"],
+        ["train", "--set", "inputs=imagefx"],
+        ["train", "-c", "defualt"],
+        ["train", "--set", "model.name=top10nn", "--size", "48x48"],
+        ["import", "burgess", str(tmp_path / "sin"), "--out", str(tmp_path / "store")],
         ["train", "-c", str(tmp_path / "missing.yaml")],
         ["pretrain", str(tmp_path), "--backbone", "resnet18", "--out", "w.pt", "--set", "x=1"],
     ):
@@ -330,3 +414,17 @@ def test_every_device_default_is_the_one_default() -> None:
         )[name]
         option = next(p for p in command.params if "--device" in p.opts)
         assert option.default == "auto", name
+
+
+def test_a_warning_is_one_clean_line_not_the_library_file_that_raised_it(tmp_path: Path) -> None:
+    """Issue 42: a config warning showed ``.../pydantic/main.py:792: UserWarning``."""
+    result = _run(
+        "-c",
+        CHECK_WITHOUT_TORCH,
+        *("train", "--set", "model.freeze_backbone=true"),
+        *("--set", f"data.store={tmp_path / 'missing'}"),
+    )
+    lines = result.stderr.strip().splitlines()
+    assert lines[0].startswith("warning: augmentation.enabled with model.freeze_backbone"), lines
+    assert "pydantic" not in result.stderr and "UserWarning" not in result.stderr
+    assert lines[-1].startswith("error: ") and len(lines) == 2, lines

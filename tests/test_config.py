@@ -206,6 +206,26 @@ def test_check_config_against_samples():
         check_config_against_samples(load_config("yuan"), samples, source="burgess")
 
 
+def test_frames_too_small_for_a_built_in_model_are_refused_from_the_config(tmp_path):
+    """``check_frame_size_early``: before torch, from data.image_size or the store header
+    (the run's own check stays: tests/test_training.py)."""
+    from tactile_compliance.config import check_frame_size_early
+    from toy_store import make_toy_store
+
+    small = load_config("default", ["model.name=top10nn", "data.image_size=[48,48]"])
+    with pytest.raises(ConfigError, match=r"top10nn needs frames of at least 65x65 px.*48x48"):
+        check_frame_size_early(small)
+    check_frame_size_early(load_config("default", ["model.name=vgg_lstm"]))  # 224 px
+    check_frame_size_early(load_config("default", ["inputs=FW"]))  # frame-free
+    store = make_toy_store(tmp_path / "store", n_objects=2, grasps=1, size=(32, 32))
+    from_store = load_config("default", ["model.name=top10nn", f"data.store={store.path}"])
+    with pytest.raises(ConfigError, match="the store's frames are 32x32"):
+        check_frame_size_early(from_store)
+    check_frame_size_early(
+        load_config("default", ["model.name=res_tf", f"data.store={store.path}"])
+    )
+
+
 def test_parsed_values_are_set_before_the_overrides_which_win() -> None:
     """`train --size` carries its parsed tuple (no `--set` string); a --set of it wins."""
     from tactile_compliance.config import load_config

@@ -161,6 +161,12 @@ def test_calibrate_depth_and_depth_commands(presses, tmp_path):
     common = ["--ball-radius-mm", BALL_RADIUS_MM, "--px-per-mm", PX_PER_MM, "--out", cal]
     output = _cli("calibrate-depth", folder, "--reference", tmp_path / "reference.png", *common)
     assert "slope RMSE" in output and output.count("found") == 8
+    assert "Verdict: " in output and "nan" not in output  # each press judged, no bare NaN
+    report = SensorCalibration.load(cal).depth_model.report
+    assert report["verdict"].startswith(("ok", "suspect: "))
+    for row in report["press_checks"]:
+        assert row["verdict"].startswith(("ok", "suspect: "))
+        assert row["cap_depth_mm"] is None or np.isfinite(row["cap_depth_mm"])
     loaded = SensorCalibration.load(cal)
     assert loaded.depth_model is not None and loaded.px_per_mm == pytest.approx(PX_PER_MM)
     np.testing.assert_array_equal(loaded.reference, reference)
@@ -170,7 +176,8 @@ def test_calibrate_depth_and_depth_commands(presses, tmp_path):
     depth = np.load(out / "held_out.npy")
     assert depth.dtype == np.float32 and depth.shape == SIZE
     assert depth.max() == pytest.approx(items[-1][3], rel=0.2)
-    assert cv2.imread(str(out / "held_out.png")).shape == (*SIZE, 3)
+    # The map at its own pixels, with a colour bar (right) and a scale bar (below).
+    assert cv2.imread(str(out / "held_out.png")).shape == (SIZE[0] + 24, SIZE[1] + 64, 3)
     assert re.search(r"peak \d\.\d{3} mm", output)
     rows = json.loads(
         _cli("depth", tmp_path / "held_out.png", "--calibration", cal, "--out", out, "--json")
@@ -265,3 +272,64 @@ def test_calibrate_depth_takes_presses_from_a_live_source(presses, tmp_path):
         "--px-per-mm", PX_PER_MM, "--out", tmp_path / "more.json", code=2,
     )  # fmt: skip
     assert "only 3 of 4 presses" in output and not (tmp_path / "more.json").exists()
+
+
+@pytest.mark.parametrize(
+    "radius_mm, cap_mm, peak_mm, says",
+    [
+        (1.0, 0.27, 0.30, "ok"),  # the cap a 1 mm circle implies on a 2 mm ball, and its peak
+        (1.0, 0.27, 3.05, "deeper than the ball's radius"),  # issue 42: 3.05 mm, 2 mm ball
+        (2.4, None, 1.50, "contact radius 2.40 mm >= the ball's 2 mm"),
+        (1.0, 0.27, 0.10, "vs the 0.27 mm cap its circle implies"),
+        (1.0, 0.27, 0.60, "vs the 0.27 mm cap its circle implies"),
+    ],
+)
+def test_each_press_gets_a_verdict_against_the_ball_radius(radius_mm, cap_mm, peak_mm, says):
+    from tactile_compliance.acquisition.calibration import press_verdict
+
+    verdict = press_verdict(radius_mm, cap_mm, peak_mm, ball_radius_mm=2.0)
+    assert (
+        (verdict == "ok") if says == "ok" else (verdict.startswith("suspect: ") and says in verdict)
+    )
+
+
+@pytest.mark.skipif(not (REAL / "gelsight2018").is_dir(), reason="no real ball presses")
+def test_real_presses_wider_than_the_ball_are_called_suspect_with_their_reason():
+    """The 2018 GelSight's 6 presses of a 1.98 mm ball (issue 42's `cap nan`): a found
+    circle as wide as the ball has no cap, which the table says, and is suspect."""
+    from tactile_compliance.acquisition.calibration import calibrate_depth, read_image
+
+    folder = REAL / "gelsight2018"
+    presses = [(p.name, read_image(p)) for p in sorted(folder.glob("Im_*.jpg"))]
+    result = calibrate_depth(
+        presses,
+        ball_radius_mm=1.98,
+        px_per_mm=1 / 0.03026,
+        reference=read_image(folder / "frame0.jpg"),
+        epochs=3,
+        progress=False,
+        threads=1,
+    )
+    wide = [row for row in result.presses if row["radius_mm"] >= 1.98]
+    assert wide and all(row["cap_depth_mm"] is None for row in wide)
+    assert all("contact radius" in row["verdict"] for row in wide)
+    assert result.verdict.startswith("suspect: ") and "nan" not in result.format()
+    json.dumps(result.calibration.depth_model.report, allow_nan=False)  # valid JSON
+
+
+def test_the_depth_picture_has_a_colour_bar_in_mm_and_a_scale_bar_from_px_per_mm():
+    from tactile_compliance.inference.depth_maps import depth_picture
+
+    rows, cols = np.mgrid[0:150, 0:210]
+    depth = np.maximum(0, 0.8 - ((cols - 100) ** 2 + (rows - 70) ** 2) / 900).astype(np.float32)
+    picture = depth_picture(depth, px_per_mm=7.0)
+    assert picture.shape == (174, 274, 3)
+    expected = cv2.applyColorMap((depth / depth.max() * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
+    np.testing.assert_array_equal(picture[20:150, :150], expected[20:150, :150])
+    bar = picture[14:144, 218:228]  # top (the peak) is yellow, bottom (0 mm) dark violet
+    assert bar[0, :, 2].mean() > 200 and bar[-1, :, 2].mean() < 100
+    # 210 / 3 px at 7 px/mm: a 10 mm bar of 70 px (its label starts right of it).
+    strip = (picture[161:164, :80].min(axis=2) == 255).any(axis=0)
+    assert int(strip.sum()) == pytest.approx(70, abs=3)  # a 2 px line has round caps
+    unscaled = depth_picture(depth)  # no px/mm: the strip says so, no bar
+    assert int((unscaled[161:164].min(axis=2) == 255).any(axis=0).sum()) < 40

@@ -253,3 +253,34 @@ def test_frames_within_range_clip_nothing(tmp_path):
     assert report.frame_values == 6 * 3 * 12 * 16 * 3
     assert report.clipped_frame_values == 0 and report.samples_with_clipped_frames == 0
     assert "Clipped frame values: 0 of" in report.format()
+
+
+def _markerless_only(root):
+    write_tree(root)
+    for name in ("RGB_markers.pkl", "depth_markers.pkl"):
+        for path in root.rglob(name):
+            path.unlink()
+
+
+def test_a_markerless_only_tree_imports_its_one_finger_with_one_line(tmp_path):
+    """What ``record`` writes (no marker finger) imports with the default --fingers both:
+    one line says so, not a missing RGB_markers.pkl per sample (issue 42)."""
+    _markerless_only(tmp_path / "src")
+    report = _import(tmp_path / "src", tmp_path / "store")
+    assert report.problems == [] and report.samples_imported == 12
+    assert "markerless only: no sample has RGB_markers.pkl" in report.fingers_note
+    assert report.fingers_note in report.format()
+    store = GraspStore.open(tmp_path / "store")
+    assert set(store.samples["finger"]) == {"markerless"}
+    with pytest.raises(
+        DataImportError, match=r"no sample has RGB_markers\.pkl.*--fingers markerless"
+    ):
+        _import(tmp_path / "src", tmp_path / "store2", fingers="markers")
+    assert not (tmp_path / "store2").exists()
+
+
+def test_a_tree_with_some_marker_files_missing_still_reports_each(tmp_path):
+    write_tree(tmp_path / "src")
+    next((tmp_path / "src").rglob("RGB_markers.pkl")).unlink()
+    report = _import(tmp_path / "src", tmp_path / "store")
+    assert report.fingers_note == "" and len(report.problems) == 1

@@ -493,6 +493,22 @@ def test_model_metadata(get_model) -> None:
         assert ("backbone_weights" in model_hyperparameters(name)) == model.pretrained_backbone
 
 
+def test_the_torch_free_names_and_frame_rules_are_the_built_models(get_model) -> None:
+    """``known_model_names`` and ``models.frame_rules`` answer before torch loads (a typo
+    or too small frames in one line); they must be what the built models say."""
+    from tactile_compliance.models import known_model_names, list_models
+    from tactile_compliance.models.frame_rules import RECOMMENDED_FRAME_SIZE, min_frame_side
+
+    # The torch-free scan of the sources finds exactly what the registry's discovery does.
+    assert known_model_names() == sorted(list_models())
+    assert set(known_model_names()) >= set(MODELS) and "scalar_mlp" in known_model_names()
+    for name in MODELS:
+        model = get_model(name, InputStrategy.IMAGE)
+        assert min_frame_side(name) == model.min_image_size, name
+        assert RECOMMENDED_FRAME_SIZE.get(name) == model.recommended_image_size, name
+    assert min_frame_side("scalar_mlp") is None and min_frame_side("top10nn") == 65
+
+
 # ------------------------------------------------------------------ model specifics
 
 

@@ -434,3 +434,29 @@ def test_live_runs_a_depth_map_model_on_a_real_video_as_predict_does(wedge_grasp
     final = [e for e in events if e.get("final")]
     assert len(final) == 1
     assert final[0]["log10_modulus_pa"] == pytest.approx(rows[0]["pred_log10_pa"], abs=1e-6)
+
+
+def test_the_figure_has_one_panel_per_family_with_short_labels(tmp_path):
+    """Issue 42: 14 legend entries over overlapping markers became one panel per family
+    (analytical, then each model), each member labelled by its input strategy."""
+    models = [
+        f"{m}-{i}-unseen-random-seed0" for m in ("top10nn", "res_tf") for i in ("Image", "ALL")
+    ]
+    keys = ["elastic", "hertz", *models]
+    rows = [
+        {"object": name, "true_pa": true, "grasps": 3, **{k: true * 3.0 for k in keys}}
+        for name, true in (("foam", 3e5), ("golf", 8.5e8))
+    ]
+    names = {"elastic": "elastic (analytical)", "hertz": "Hertz (analytical)"}
+    result = {
+        "estimators": keys,
+        "names": names | {m: m for m in models},
+        "objects": rows,
+        "grasps": [{}] * 6,
+    }
+    panels = real_grasps.figure_panels(result)
+    assert [title for title, _ in panels] == ["Analytical", "Top10NN", "Res-Tf"]
+    assert [label for _, label in panels[1][1]] == ["Image", "ALL"]
+    assert panels[0][1] == [("elastic", "elastic (analytical)"), ("hertz", "Hertz (analytical)")]
+    path = real_grasps.draw_figure(result, tmp_path / "real_grasps.png")
+    assert path.read_bytes().startswith(b"\x89PNG")

@@ -787,3 +787,42 @@ def test_rows_beyond_the_paper_are_marked(tmp_path: Path) -> None:
     assert ("Top10NN", "ALL") in rows
     assert ("Scalar MLP", "FW (beyond the paper)") in rows
     assert ("Top10NN", "DepthFW (beyond the paper)") in rows
+
+
+def test_a_single_run_directory_is_reported_with_its_figure(
+    fake: FakeResults, tmp_path: Path
+) -> None:
+    """``report RUN`` (issue 42): a run directory, not a results store, gets its metrics
+    table and its predicted-against-true figure (it was an empty report)."""
+    from typer.testing import CliRunner
+
+    from tactile_compliance.cli import app
+
+    run_dir = tmp_path / "runs" / "top10nn-ALL-seen-random-seed0-abc"
+    metrics = _write_run_dir(run_dir, fake.samples, np.random.default_rng(5), 0.4)
+    test = {"log10_accuracy": metrics["log10_accuracy"], "nmse": metrics["nmse"], "n": 40}
+    result = {
+        "status": "complete",
+        "run_name": run_dir.name,
+        "model": "top10nn",
+        "inputs": "ALL",
+        "seed": 0,
+        "test": test,
+        "val": {"log10_accuracy": 1.0, "nmse": 0.0, "n": 5},
+        "reference": {"median": {"log10_accuracy": 0.25, "nmse": 0.5, "n": 40}},
+    }
+    (run_dir / "metrics.json").write_text(json.dumps(result))
+    out = tmp_path / "run-report"
+    cli = CliRunner().invoke(app, ["report", str(run_dir), "--out", str(out), "--json"])
+    assert cli.exit_code == 0, cli.output
+    written = json.loads(cli.stdout)
+    assert written["complete"] == 1 and written["figures"]["run-scatter"].endswith(".png")
+    assert Path(written["figures"]["run-scatter"]).read_bytes().startswith(PNG_MAGIC)
+    cells = pd.read_csv(out / "tables" / "run-metrics.csv")
+    assert list(cells["row"]) == ["test", "val", "reference: median (test)"]
+    assert cells.loc[0, "nmse"] == pytest.approx(metrics["nmse"])
+    text = (out / "report.md").read_text()
+    assert run_dir.name in text and f"{metrics['nmse']:.4f}" in text
+    (run_dir / "predictions.csv").unlink()
+    again = build_report(run_dir, tmp_path / "no-predictions", formats="md")
+    assert not again.figures and any("no test predictions" in n for n in again.notes)

@@ -115,7 +115,9 @@ def test_live_and_predict_read_a_bag(grasp, bag, tmp_path):
     assert final_video["final"] and final_bag["final"]
     assert final_bag["log10_modulus_pa"] == pytest.approx(final_video["log10_modulus_pa"], abs=1e-6)
     assert final_bag["frame_indices"] == final_video["frame_indices"]
-    predicted = json.loads(cli("predict", ckpt, f"rosbag:{bag}", "--json"))
+    shown = cli("predict", ckpt, f"rosbag:{bag}", "--json")  # stderr's warnings first
+    assert "trained on 72x72 px frames" in shown  # once, before the JSON
+    predicted = json.loads(shown[shown.index("{") :])
     assert predicted["final"] and predicted["source"] == f"rosbag {bag}"
     assert predicted["log10_modulus_pa"] == pytest.approx(final_bag["log10_modulus_pa"], abs=1e-6)
     assert "Pa" in cli("predict", ckpt, f"rosbag:{bag}")

@@ -156,3 +156,20 @@ def test_a_consumer_that_re_derived_the_contract_would_disagree(setup):
     estimator.run_inputs = replace(estimator.run_inputs, image_size=TRAIN_STORE_SIZE)
     wrong_size = _live_final([estimator], setup["grasp"])["log10_modulus_pa"]
     assert abs(wrong_size - expected) > 1e-4
+
+
+def test_predict_and_live_warn_once_when_the_source_differs_from_the_training_data(setup):
+    """Issue 42: a model trained on 48x64 frames, run on a 60x84 source, says so once
+    (``RunInputs.source_mismatch``), in ``predict``'s report and as one ``live`` warning."""
+    report = predict_path(setup["run"], setup["store"], device="cpu")
+    frames = [w for w in report["warnings"] if "trained on 48x64 px frames" in w]
+    assert len(frames) == 1 and "gives 60x84 px" in frames[0], report["warnings"]
+    readings = Readings.from_csv(setup["grasp"]["readings"])
+    estimator = ComplianceEstimator.from_checkpoint(setup["run"], device="cpu")
+    with open_source(f"video:{setup['grasp']['video']}") as source:
+        events = list(live_estimates([estimator, estimator], source, readings))
+    warned = [e["reason"] for e in events if e["event"] == "warning"]
+    assert sum("trained on 48x64 px frames" in w for w in warned) == 1, warned
+    assert len(warned) == len(set(warned))
+    record = load_checkpoint(f"{setup['run']}/best.pt").run_inputs
+    assert record.source_mismatch(TRAIN_STORE_SIZE, record.sensor, used="x") == []

@@ -487,3 +487,36 @@ def test_parse_corners_refuses_anything_but_four_points(text: str) -> None:
     with pytest.raises(ValueError, match="four points"):
         parse_corners(text)
     assert parse_corners("0,0 127,0 127,95 0,95")[2] == (127.0, 95.0)
+
+
+def test_calibrate_writes_the_warped_reference_with_its_crop_and_never_a_foreign_png(tmp_path):
+    """Issue 42: ``calibrate --out OUT.json`` writes ``OUT.png``, the warped reference with
+    the crop drawn on it; a PNG it did not write is never replaced."""
+    from typer.testing import CliRunner
+
+    from tactile_compliance.acquisition.calibration import is_calibration_picture
+    from tactile_compliance.cli import app
+
+    write_video(tmp_path / "v.avi", _frames(3, (96, 128)), 25)
+    out = tmp_path / "sensor.json"
+    corners = "0,0 127,0 127,95 0,95"
+    args = ["calibrate", f"video:{tmp_path / 'v.avi'}", "--out", str(out), "--frames", "3"]
+    args += ["--corners", corners, "--warp-size", "48x64", "--crop-px", "4"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    picture = tmp_path / "sensor.png"
+    assert f"Picture {picture}" in result.output and is_calibration_picture(picture)
+    image = cv2.imread(str(picture))
+    assert image.shape == (48, 64, 3)  # the warp's size: before the crop
+    green = (image[..., 1] == 255) & (image[..., 0] == 0) & (image[..., 2] == 0)
+    assert green[4, 4:60].all() and green[4:44, 4].all()  # the crop's edges, 4 px in
+    assert not green[2, 2] and not green[24, 32]
+    again = CliRunner().invoke(app, args)  # its own picture is replaced
+    assert again.exit_code == 0, again.output
+    out.unlink()
+    cv2.imwrite(str(picture), image)  # now a PNG that is not calibrate's
+    refused = CliRunner().invoke(app, args)
+    assert refused.exit_code == 2 and "sensor.png exists and is not a calibration picture" in (
+        refused.output
+    )
+    assert not out.exists() and not is_calibration_picture(picture)

@@ -331,3 +331,32 @@ def test_frames_too_small_for_the_model_fail_before_the_run_directory(
         f"data.image_size to [{minimum}, {minimum}] or larger"
     ], result.output
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_saved_split_is_used_recorded_and_refused_for_another_store(toy_store, tmp_path):
+    """``train --split FILE`` (issue 42): the run trains on the saved split (not one drawn
+    with its seed), records the file, and a split of another store is one line."""
+    from tactile_compliance.config import use_split_file
+    from tactile_compliance.data.preprocess import filter_samples
+    from tactile_compliance.data.splits import make_split_from_config, store_metadata
+
+    cfg = _config(toy_store, tmp_path, "top10nn", ["training.max_epochs=1"])
+    drawn_cfg = cfg.model_copy(update={"seed": 7})
+    samples, _ = filter_samples(toy_store.samples, drawn_cfg)
+    saved = make_split_from_config(samples, drawn_cfg, store_metadata(toy_store))
+    saved.save(tmp_path / "split.json")
+    assert saved != make_split_from_config(samples, cfg, store_metadata(toy_store))  # seed 0
+    with_file = use_split_file(cfg, tmp_path / "split.json")
+    assert with_file.split.seed == 7 and with_file.split.file == str(tmp_path / "split.json")
+    result = train(with_file, progress=False)
+    assert Split.load(Path(result["run_dir"]) / "split.json") == saved
+    assert result["split_file"] == str(tmp_path / "split.json")
+    assert "split.json" in (Path(result["run_dir"]) / "config.yaml").read_text()
+
+    other = make_toy_store(tmp_path / "other", n_objects=6, grasps=2, seed=1)
+    on_other = with_file.model_copy(
+        update={"data": with_file.data.model_copy(update={"store": str(other.path)})}
+    )
+    with pytest.raises(ValueError, match="a split of another store") as refused:
+        train(on_other, progress=False)
+    assert len(str(refused.value).splitlines()) == 1 and "split " in str(refused.value)

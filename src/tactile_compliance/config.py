@@ -21,9 +21,17 @@ from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import FilterRules
-from tactile_compliance.data.splits import N_ROLLING_WINDOWS
+from tactile_compliance.data.splits import N_ROLLING_WINDOWS, Split
+from tactile_compliance.data.store import StoreError, read_store_header
 from tactile_compliance.devices import DEFAULT_DEVICE
+from tactile_compliance.models import known_model_names
+from tactile_compliance.models.frame_rules import (
+    RECOMMENDED_FRAME_SIZE,
+    min_frame_side,
+    too_small_message,
+)
 from tactile_compliance.outputs import atomic_file
+from tactile_compliance.suggest import did_you_mean
 
 __all__ = [
     "AugmentationConfig",
@@ -155,6 +163,12 @@ class SplitConfig(_Section):
         None, description="none | rolling window 0-6 | shape name | soft | hard"
     )
     seed: int | None = Field(None, description="split seed; None = the run's seed")
+    file: str | None = Field(
+        None,
+        description="a saved split (`split --out FILE`) used instead of drawing one; set "
+        "with `train --split FILE` (config.use_split_file), which also takes the file's "
+        "condition, grouping, seed, fractions and subset",
+    )
 
     @field_validator("subset", mode="before")
     @classmethod
@@ -231,7 +245,13 @@ class ModelConfig(_Section):
     def _name(cls, v: str) -> str:
         if not v.strip():
             raise ValueError("model name must not be empty")
-        return v.strip().lower()
+        name = v.strip().lower()
+        known = known_model_names()
+        if name != AUTO and name not in known:  # before torch loads: a typo is one line
+            raise ValueError(
+                f"unknown model {v!r}{did_you_mean(name, known)}; models: {', '.join(known)}"
+            )
+        return name
 
 
 class TrainingConfig(_Section):
@@ -293,7 +313,9 @@ class ExperimentConfig(_Section):
         try:
             has_image = InputStrategy.parse(data.get("inputs", "ALL")).image is not None
         except ValueError:
-            return data  # the inputs field reports it
+            # The inputs field reports it; the autos take the frames' values meanwhile, so
+            # the one mistake is the one line (not "lr: got 'auto'" after it).
+            has_image = True
         data = dict(data)
         for section, key, table in (("model", "name", AUTO_MODEL), ("training", "lr", AUTO_LR)):
             values = data.get(section)
@@ -377,7 +399,8 @@ def _unknown_key_message(dotted: str, parent: Sequence[Any]) -> str:
     where = f" in '{'.'.join(map(str, parent))}'" if parent else ""
     model = _submodel(parent)
     valid = list(model.model_fields) if model is not None else []
-    return f"unknown key '{dotted}'; valid keys{where}: {', '.join(valid)}"
+    hint = did_you_mean(dotted.rpartition(".")[2], valid)
+    return f"unknown key '{dotted}'{hint}; valid keys{where}: {', '.join(valid)}"
 
 
 def _format_errors(exc: ValidationError, origin: str) -> ConfigError:
@@ -395,6 +418,8 @@ def _format_errors(exc: ValidationError, origin: str) -> ConfigError:
             shown = "" if isinstance(given, dict) or repr(given) in msg else f" (got {given!r})"
             lines.append(f"{dotted}: {msg}{shown}")
     head = f"invalid configuration ({origin})" if origin else "invalid configuration"
+    if len(lines) == 1:  # one mistake, one line
+        return ConfigError(f"{head}: {lines[0]}")
     return ConfigError(head + ":\n  " + "\n  ".join(lines))
 
 
@@ -470,7 +495,8 @@ def preset_path(name: str) -> Any:
     candidate = _preset_dir() / f"{stem}.yaml"
     if not candidate.is_file():
         raise ConfigError(
-            f"no config file or preset named {name!r}; presets: {', '.join(list_presets())}"
+            f"no config file or preset named {name!r}{did_you_mean(stem, list_presets())}; "
+            f"presets: {', '.join(list_presets())}"
         )
     return candidate
 
@@ -672,6 +698,30 @@ def apply_overrides(cfg: ExperimentConfig, overrides: Iterable[str]) -> Experime
     return config_from_dict(config_to_dict(cfg), overrides, "overrides")
 
 
+def use_split_file(cfg: ExperimentConfig, path: str | Path) -> ExperimentConfig:
+    """``cfg`` training on the saved split at ``path`` (``split.file``), its ``split``
+    section describing that split (condition, grouping, seed, fractions, subset, as the
+    file records them), so the run's name and ``config.yaml`` say what it was trained on.
+
+    Raises:
+        FileNotFoundError, ValueError: ``path`` is no split file (one line, naming it).
+    """
+    saved = Split.load(path)
+    data = config_to_dict(cfg)
+    data["split"] = {
+        **data["split"],
+        "condition": saved.condition,
+        "grouping": saved.grouping,
+        "seed": saved.seed,
+        "test_fraction": saved.test_fraction,
+        "val_fraction": saved.val_fraction,
+        "stratify": saved.stratify,
+        "subset": saved.subset,
+        "file": str(Path(path).resolve()),
+    }
+    return config_from_dict(data, origin=str(path))
+
+
 def config_to_dict(cfg: ExperimentConfig) -> dict[str, Any]:
     """Plain JSON/YAML-serialisable dict (tuples become lists); round-trips through YAML."""
     return cfg.model_dump(mode="json")
@@ -691,6 +741,34 @@ def save_config(cfg: ExperimentConfig, path: str | Path) -> Path:
     """Write the fully resolved configuration as YAML (atomically). Returns the path."""
     header = "# tactile-compliance experiment configuration (fully resolved)\n"
     return write_yaml(path, header, config_to_dict(cfg))
+
+
+def check_frame_size_early(cfg: ExperimentConfig) -> None:
+    """Refuse, before torch and the store's frames load, frames smaller than a built-in
+    model takes (``models.frame_rules.min_frame_side``): the size ``RunInputs.resolve``
+    will take, ``data.image_size``, else the model's recommended size, else the store
+    header's. A frame-free strategy, a model of a program's own, or a store whose header
+    cannot be read is left to the run's own check (``training.train.check_frame_size``).
+
+    Raises:
+        ConfigError: one line naming the model, its minimum, the size and the fix.
+    """
+    minimum = min_frame_side(cfg.model.name)
+    if minimum is None or cfg.strategy.image is None:
+        return
+    size = cfg.data.image_size or RECOMMENDED_FRAME_SIZE.get(cfg.model.name)
+    origin = "data.image_size is"
+    if size is None:
+        if cfg.data.store is None:
+            return
+        try:
+            size = read_store_header(cfg.data.store).image_size
+        except (OSError, ValueError, StoreError):
+            return  # the run opens the store and says what is wrong with it
+        origin = "the store's frames are"
+    height, width = (int(n) for n in size)
+    if min(height, width) < minimum:
+        raise ConfigError(too_small_message(cfg.model.name, minimum, origin, (height, width)))
 
 
 def check_config_against_samples(

@@ -8,6 +8,7 @@ import base64
 import json
 import math
 import re
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -44,6 +45,7 @@ from tactile_compliance.outputs import (
     check_output_folder,
 )
 from tactile_compliance.physics.estimators import SensorUnits
+from tactile_compliance.progress import progress_bar
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -284,12 +286,18 @@ def calibrate(
     if out is not None:  # refuse a bad --out before touching the sensor
         check_output_file(Path(out), "sensor calibration", is_calibration_file, option="--out")
         check_output_folder(out, option="--out")
+    picture = None if out is None else picture_path(out)
+    if picture is not None:
+        check_output_file(picture, "calibration picture", is_calibration_picture, option="--out")
     skipped: list[FrameError] = []
     frames: list[np.ndarray] = []
+    warped: list[np.ndarray] = []  # the same frames before the crop, for the picture
     with open_source(spec, geometry=geometry, **options) as source:
         camera_size: tuple[int, int] | None = None
         for _, frame in iter_frames(source, skipped.append):
             frames.append(frame)
+            if picture is not None and source.last_raw is not None:
+                warped.append(source.geometry.warp(source.last_raw))
             if camera_size is None:
                 camera_size = source.last_raw_size
             if len(frames) >= n_frames:
@@ -306,7 +314,50 @@ def calibrate(
     )
     if out is not None:
         calibration.save(out)
+        if warped and camera_size is not None:
+            write_picture(picture, np.median(np.stack(warped), axis=0), used, camera_size)
     return calibration
+
+
+#: The PNG text key that marks a picture as ``calibrate``'s (so a re-run may replace it).
+_PICTURE_KEY = b"tactile-compliance"
+
+
+def picture_path(out: str | Path) -> Path:
+    """Where ``calibrate --out OUT.json`` puts its picture: ``OUT.png`` next to it."""
+    return Path(out).with_suffix(".png")
+
+
+def is_calibration_picture(path: Path) -> bool:
+    """Whether ``path`` is a PNG that :func:`write_picture` wrote (its text chunk)."""
+    with open(path, "rb") as handle:
+        head = handle.read(256)
+    return head.startswith(b"\x89PNG") and b"tEXt" + _PICTURE_KEY + b"\x00" in head
+
+
+def write_picture(
+    path: Path, warped_reference: np.ndarray, geometry: FrameGeometry, size: tuple[int, int]
+) -> Path:
+    """The warped no-contact reference (BGR, before the crop) with the crop drawn on it in
+    green and its size written in, as a PNG at ``path`` (atomically; marked as ours with a
+    PNG text chunk, :func:`is_calibration_picture`). ``size``: the camera frame (H, W) px.
+    So the corners and the crop can be checked by eye (docs/sensors.md)."""
+    image = np.ascontiguousarray(warped_reference.round().clip(0, 255).astype(np.uint8))
+    top, left, h, w = geometry.crop_box(size)
+    cv2.rectangle(image, (left, top), (left + w - 1, top + h - 1), (0, 255, 0), 1)
+    label = f"crop {w}x{h} px at ({left}, {top})"
+    cv2.putText(image, label, (left + 3, top + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 255, 0))
+    ok, encoded = cv2.imencode(".png", image)
+    if not ok:  # pragma: no cover - OpenCV encodes any uint8 BGR image
+        raise OSError(f"{path}: the picture could not be encoded")
+    png = encoded.tobytes()
+    text = _PICTURE_KEY + b"\x00calibrate: the warped reference and the crop"
+    chunk = len(text).to_bytes(4, "big") + b"tEXt" + text
+    chunk += zlib.crc32(b"tEXt" + text).to_bytes(4, "big")
+    end_of_header = 8 + 25  # the signature, then IHDR (length, type, 13 bytes, crc)
+    with atomic_file(path, "wb") as handle:
+        handle.write(png[:end_of_header] + chunk + png[end_of_header:])
+    return path
 
 
 # ---------------------------------------------------------------------- depth calibration
@@ -431,15 +482,19 @@ class DepthCalibration:
         calibration: the sensor calibration carrying the depth model and ``px_per_mm``.
         presses: one row per press: ``name``, ``x_px``, ``y_px``, ``radius_px``,
             ``radius_mm``, ``circle`` ("given" or "found"), ``cap_depth_mm`` (the
-            spherical cap's depth implied by the circle, NaN when the circle is as wide as
-            the ball) and ``peak_depth_mm`` (the fitted model's depth at the press).
+            spherical cap's depth implied by the circle, None when the circle is as wide
+            as the ball), ``peak_depth_mm`` (the fitted model's depth at the press) and
+            ``verdict`` (:func:`press_verdict`).
+        verdict: ``ok`` when every press is, else ``suspect: K of N presses (...)``.
     """
 
     calibration: SensorCalibration
     presses: list[dict[str, Any]]
+    verdict: str = "ok"
 
     def format(self) -> str:
-        """A few lines for the terminal: the fit's residuals and each press."""
+        """A few lines for the terminal: the fit's residuals, each press with its verdict,
+        and the overall verdict."""
         model = self.calibration.depth_model
         assert model is not None
         rep = model.report
@@ -448,15 +503,60 @@ class DepthCalibration:
             f"({rep['contact_pixels']} contact + {rep['background_pixels']} background px); "
             f"slope RMSE {rep['slope_rmse_contact']:.3f} in contact, "
             f"{rep['slope_rmse_background']:.3f} outside; noise level {model.noise_level:.3f}",
-            "press                        circle (x, y, r px)      r [mm]  cap [mm]  peak [mm]",
+            "press                        circle (x, y, r px)      r [mm]  cap [mm]  peak [mm]"
+            "  verdict",
         ]
         for row in self.presses:
+            cap = row["cap_depth_mm"]
             lines.append(
                 f"{row['name'][-28:]:28s} {row['circle']:5s} ({row['x_px']:6.1f}, "
                 f"{row['y_px']:6.1f}, {row['radius_px']:5.1f})  {row['radius_mm']:6.2f}"
-                f"  {row['cap_depth_mm']:8.3f}  {row['peak_depth_mm']:9.3f}"
+                f"  {'r >= R' if cap is None else f'{cap:.3f}':>8s}  "
+                f"{row['peak_depth_mm']:9.3f}  {row['verdict']}"
             )
+        if any(row["cap_depth_mm"] is None for row in self.presses):
+            lines.append(
+                "cap: the spherical cap's depth that the contact circle implies for the ball "
+                "(R - sqrt(R^2 - r^2)); 'r >= R': the circle is as wide as the ball or wider, "
+                "so it implies none"
+            )
+        lines.append(f"Verdict: {self.verdict}")
         return "\n".join(lines)
+
+
+#: A press's peak depth may be this many times its contact circle's cap depth, or this
+#: fraction of it, before the press is suspect: a factor of 2 either way, wide because the
+#: visibly deformed area of a real gel is wider than the ideal contact circle (thusight's
+#: notes), so the cap of the found circle overstates the depth of a deep press.
+PEAK_TO_CAP_FACTOR = 2.0
+
+
+def press_verdict(
+    radius_mm: float, cap_depth_mm: float | None, peak_depth_mm: float, ball_radius_mm: float
+) -> str:
+    """``ok``, or ``suspect: REASON``, for one ball press against the ball's radius R [mm].
+
+    Suspect when the fitted model's peak depth exceeds R (a ball cannot press deeper than
+    its radius and stay a sphere cap), when the contact radius is R or more (the circle
+    implies no cap: a found circle wider than the contact, or a wrong ``--px-per-mm``), or
+    when the peak is more than :data:`PEAK_TO_CAP_FACTOR` times above or below the cap
+    depth the circle implies.
+    """
+    reasons = []
+    if peak_depth_mm > ball_radius_mm:
+        reasons.append(f"peak {peak_depth_mm:.2f} mm is deeper than the ball's radius")
+    if cap_depth_mm is None:
+        reasons.append(
+            f"contact radius {radius_mm:.2f} mm >= the ball's {ball_radius_mm:g} mm "
+            "(check the circle or --px-per-mm)"
+        )
+    elif not (
+        cap_depth_mm / PEAK_TO_CAP_FACTOR <= peak_depth_mm <= cap_depth_mm * PEAK_TO_CAP_FACTOR
+    ):
+        reasons.append(
+            f"peak {peak_depth_mm:.2f} mm vs the {cap_depth_mm:.2f} mm cap its circle implies"
+        )
+    return "ok" if not reasons else "suspect: " + "; ".join(reasons)
 
 
 def calibrate_depth(
@@ -470,8 +570,14 @@ def calibrate_depth(
     source: str = "",
     epochs: int = 40,
     seed: int = 0,
+    progress: bool = True,
+    threads: int | None = None,
 ) -> DepthCalibration:
     """Fit a sensor's depth model on presses of a ball of known radius.
+
+    Shows a progress bar on stderr (``progress``): one step per epoch of the fit and per
+    press checked. ``threads``: torch threads for the fit (``fit_depth_model``; None: the
+    free cores, at most 4).
 
     Args:
         presses: ``(name, uint8 BGR frame)`` sensor frames (after the geometry).
@@ -525,17 +631,31 @@ def calibrate_depth(
         except ValueError as err:
             raise ValueError(f"{name}: {err}") from err
         fitted.append(BallPress(diff, circle, name))
-    model = fit_depth_model(fitted, ball_radius_mm, px_per_mm, epochs=epochs, seed=seed)
     rows = []
-    depths = reconstruct_depth(diffs, model=model)
+    total = epochs + len(fitted)
+    with progress_bar("Fitting the depth model", total=total, enabled=progress) as advance:
+        model = fit_depth_model(
+            fitted,
+            ball_radius_mm,
+            px_per_mm,
+            epochs=epochs,
+            seed=seed,
+            threads=threads,
+            progress=advance,
+        )
+        depths = []
+        for diff in diffs:
+            depths.append(reconstruct_depth(diff[None], model=model)[0])
+            advance()
     for press, depth in zip(fitted, depths, strict=True):
         c = press.circle
         a_mm = c.radius_px / px_per_mm
         cap = (
             ball_radius_mm - math.sqrt(ball_radius_mm**2 - a_mm**2)
             if a_mm < ball_radius_mm
-            else math.nan
+            else None
         )
+        peak = float(depth.max())
         rows.append(
             {
                 "name": press.name,
@@ -545,9 +665,19 @@ def calibrate_depth(
                 "radius_px": c.radius_px,
                 "radius_mm": a_mm,
                 "cap_depth_mm": cap,
-                "peak_depth_mm": float(depth.max()),
+                "peak_depth_mm": peak,
+                "verdict": press_verdict(a_mm, cap, peak, ball_radius_mm),
             }
         )
+    suspect = [row for row in rows if row["verdict"] != "ok"]
+    verdict = (
+        "ok: every press's depth agrees with the ball's radius"
+        if not suspect
+        else f"suspect: {len(suspect)} of {len(rows)} presses ("
+        + ", ".join(row["name"] for row in suspect[:5])
+        + (", ..." if len(suspect) > 5 else "")
+        + "); check their circles (--circles) and --px-per-mm, or leave them out"
+    )
     geometry = sensor.geometry if sensor is not None else FrameGeometry()
     calibration = SensorCalibration(
         geometry=geometry,
@@ -558,7 +688,8 @@ def calibrate_depth(
         depth_model=model,
     )
     model.report["press_checks"] = rows
-    return DepthCalibration(calibration, rows)
+    model.report["verdict"] = verdict
+    return DepthCalibration(calibration, rows, verdict)
 
 
 def capture_presses(

@@ -113,6 +113,25 @@ class FrameGeometry:
         """(H, W) px of the sensor frames made from camera frames of ``size``."""
         return self.output_size if self.output_size is not None else self.cropped_size(size)
 
+    def warp(self, frame: np.ndarray) -> np.ndarray:
+        """The warp step alone (the frame as is without ``warp_corners``): the image the
+        crop is taken from."""
+        if self.warp_corners is None or self.warp_size is None:
+            return frame
+        h, w = self.warp_size
+        target = np.float32([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]])
+        matrix = cv2.getPerspectiveTransform(np.float32(self.warp_corners), target)
+        return cv2.warpPerspective(frame, matrix, (w, h), flags=cv2.INTER_LINEAR)
+
+    def crop_box(self, size: tuple[int, int]) -> tuple[int, int, int, int]:
+        """(top, left, height, width) px of the crop in the warped image of a camera frame
+        of ``size`` (H, W)."""
+        warped = self.warp_size if self.warp_size is not None else size
+        h, w = self.cropped_size(size)
+        top = self.crop_px + int((warped[0] - 2 * self.crop_px) * self.crop_fraction)
+        left = self.crop_px + int((warped[1] - 2 * self.crop_px) * self.crop_fraction)
+        return top, left, h, w
+
     def apply(self, frame: np.ndarray) -> np.ndarray:
         """Warp, crop and resize one uint8 camera frame (H, W, 3).
 
@@ -127,15 +146,8 @@ class FrameGeometry:
                 f"frame is {size[0]}x{size[1]} px, the sensor geometry expects "
                 f"{self.input_size[0]}x{self.input_size[1]}"
             )
-        out = frame
-        if self.warp_corners is not None and self.warp_size is not None:
-            h, w = self.warp_size
-            target = np.float32([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]])
-            matrix = cv2.getPerspectiveTransform(np.float32(self.warp_corners), target)
-            out = cv2.warpPerspective(out, matrix, (w, h), flags=cv2.INTER_LINEAR)
-        h, w = self.cropped_size(size)
-        top = self.crop_px + int((out.shape[0] - 2 * self.crop_px) * self.crop_fraction)
-        left = self.crop_px + int((out.shape[1] - 2 * self.crop_px) * self.crop_fraction)
+        out = self.warp(frame)
+        top, left, h, w = self.crop_box(size)
         out = out[top : top + h, left : left + w]
         if self.output_size is not None:
             out = resize_frames(out[None], self.output_size)[0]

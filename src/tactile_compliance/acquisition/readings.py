@@ -143,6 +143,14 @@ def _readings_table(path: Path) -> pd.DataFrame | None:
     missing = [c for c in READINGS_COLUMNS if c not in table.columns]
     if missing:
         expected = ",".join(READINGS_COLUMNS)
+        header = str(table.columns[0]) if len(table.columns) == 1 else ""
+        separator = next((sep for sep in (";", "\t", "|") if sep in header), None)
+        if separator is not None:  # one column holding the whole header: another separator
+            shown = {";": "';'", "\t": "tabs", "|": "'|'"}[separator]
+            raise ValueError(
+                f"{path}: its columns are separated by {shown}, not commas; write it as "
+                f"{expected} (comma-separated, '.' decimals)"
+            )
         raise ValueError(f"{path}: missing column(s) {missing}; expected {expected}")
     return table[READINGS_COLUMNS]
 

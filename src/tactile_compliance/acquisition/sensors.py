@@ -103,6 +103,7 @@ class FrameSourceBase:
         self._last_time: float | None = None
         self._frame_size: tuple[int, int] | None = None
         self.last_raw_size: tuple[int, int] | None = None
+        self.last_raw: np.ndarray | None = None
         self.frames_read = 0
 
     # subclasses
@@ -140,6 +141,8 @@ class FrameSourceBase:
         raw = np.asarray(raw)
         #: (H, W) px of the last camera frame, before the geometry (for calibrations).
         self.last_raw_size = (int(raw.shape[0]), int(raw.shape[1])) if raw.ndim >= 2 else None
+        #: The last camera frame itself (``calibrate``'s picture of the warp and crop).
+        self.last_raw = raw
         try:
             frame = self.geometry.apply(raw)
         except FrameSizeError as err:

@@ -14,6 +14,7 @@ import typer
 
 from tactile_compliance.cli.framework import (
     EXIT_BAD_INPUT,
+    _existing_dir,
     _fail,
     _json,
     _load_config,
@@ -279,6 +280,7 @@ def import_burgess_command(
 
         _check_download(lambda: check_burgess_download(src, object_table=objects), out, as_json)
         return
+    _existing_dir(src, "unpacked dataset directory (OBJECT/grasp=g/augmentation=k/)")
     from tactile_compliance.data.burgess import import_burgess
 
     image_size = _size_option(size)
@@ -315,6 +317,7 @@ def import_yuan_command(
 
         _check_download(lambda: check_yuan_download(src), out, as_json)
         return
+    _existing_dir(src, "directory of the press videos")
     from tactile_compliance.data.yuan import import_yuan
 
     image_size = _size_option(size)
@@ -362,13 +365,18 @@ def split(
 ) -> None:
     """Filter a store and draw a train/val/test split; print what it contains."""
     from tactile_compliance.data.preprocess import filter_samples
-    from tactile_compliance.data.splits import make_split_from_config, summarise_split
+    from tactile_compliance.data.splits import (
+        make_split_from_config,
+        store_metadata,
+        summarise_split,
+    )
     from tactile_compliance.data.store import GraspStore
 
     options = [f"data.store={store}", f"split.condition={condition}", f"seed={seed}"]
     cfg = _load_config(config, [*options, f"split.grouping={grouping}"], overrides)
-    samples, report = filter_samples(GraspStore.open(store).samples, cfg)
-    drawn = make_split_from_config(samples, cfg)
+    opened = GraspStore.open(store)
+    samples, report = filter_samples(opened.samples, cfg)
+    drawn = make_split_from_config(samples, cfg, store_metadata(opened))
     drawn.save(out)
     summary = summarise_split(samples, drawn)
     payload = {"filter": report.to_dict(), "split": summary.to_dict(), "out": str(out)}

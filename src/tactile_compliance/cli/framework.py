@@ -9,6 +9,8 @@ import importlib
 import json
 import re
 import sys
+import warnings
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -267,6 +269,43 @@ def main(
     """Estimate an object's Young's modulus from one GelSight grasp."""
     global _debug
     _debug = debug
+    if not debug:  # --debug keeps Python's form (file:line: Category: message)
+        warnings.showwarning = _show_warning
+
+
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: Any = None,
+    line: str | None = None,
+) -> None:
+    """A warning as the command's one line, ``warning: MESSAGE``, not the file and line
+    inside a library that raised it (pydantic's ``main.py:792: UserWarning``)."""
+    text = " ".join(str(message).split())
+    kind = "" if category is UserWarning else f" ({category.__name__})"
+    print(f"warning: {text}{kind}", file=file or sys.stderr)
+
+
+def _existing_dir(path: Path, what: str) -> Path:
+    """``path`` when it is a directory; else a ValueError (one line, before the heavy
+    imports) naming it and, when a sibling's name is close, that sibling (did you mean)."""
+    if path.is_dir():
+        return path
+    from tactile_compliance.suggest import did_you_mean
+
+    parent = path.parent if str(path.parent) else Path(".")
+    try:
+        siblings = [p.name for p in parent.iterdir() if p.is_dir()] if parent.is_dir() else []
+    except OSError:
+        siblings = []
+    hint = did_you_mean(path.name, siblings, cutoff=0.3)  # a folder holds few names
+    if hint:
+        close = hint.removeprefix(" (did you mean '").split("'")[0]
+        hint = f" (did you mean {parent / close}?)"
+    kind = "not a directory" if path.exists() else "no such directory"
+    raise ValueError(f"{path}: {kind}{hint}; give the {what}")
 
 
 def _load_config(

@@ -61,6 +61,7 @@ def calibrate(
     from dataclasses import replace
 
     from tactile_compliance.acquisition.calibration import calibrate as run_calibration
+    from tactile_compliance.acquisition.calibration import picture_path
     from tactile_compliance.acquisition.sensors import open_source
 
     with open_source(source, fps=fps, timestamps_csv=timestamps) as probe:
@@ -94,7 +95,8 @@ def calibrate(
     height, width = result.frame_size
     typer.echo(
         f"Calibration {out}: reference = median of {result.n_frames} frames, "
-        f"{height}x{width} px frames"
+        f"{height}x{width} px frames\nPicture {picture_path(out)}: the warped reference with "
+        "the crop drawn on it (check the corners and the crop by eye)"
     )
 
 
@@ -173,6 +175,7 @@ def calibrate_depth_command(
         sensor=sensor,
         circles=read_circles(circles) if circles is not None else None,
         source=" ".join(presses),
+        progress=not as_json,
     )
     result.calibration.save(out)
     saved = f"Calibration {out}: depth model and {px_per_mm:g} px/mm"

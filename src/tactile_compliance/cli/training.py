@@ -50,6 +50,14 @@ def train(
         Optional[str],
         typer.Option(help="Frame size HxW the model sees (data.image_size; a --set of it wins)."),
     ] = None,
+    split_file: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--split",
+            help="Train on this saved split (`split STORE --out FILE`) instead of drawing one; "
+            "the run takes its condition, grouping and seed.",
+        ),
+    ] = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print the run's result (metrics.json) as JSON.")
     ] = False,
@@ -79,6 +87,11 @@ def train(
     sized = {"data.image_size": image_size} if image_size else None
     # The config first, before torch loads: a typo is reported at once.
     cfg = _load_config(config, [], overrides, sized)
+    from tactile_compliance.config import check_frame_size_early, use_split_file
+
+    if split_file is not None:
+        cfg = use_split_file(cfg, split_file)  # type: ignore[arg-type]
+    check_frame_size_early(cfg)  # type: ignore[arg-type]
     from tactile_compliance.training.train import train as train_run
 
     result = train_run(  # --json: stdout holds the JSON only, so no progress bar
@@ -521,7 +534,13 @@ def adapt(
 
 
 def report(
-    results: Annotated[Path, typer.Argument(help="Results store directory (holds rows/*.json).")],
+    results: Annotated[
+        Path,
+        typer.Argument(
+            help="Results store directory (holds rows/*.json), or one run directory (holds "
+            "metrics.json): its metrics and predicted-against-true figure."
+        ),
+    ],
     out: Annotated[
         Optional[Path],
         typer.Option("--out", "-o", help="Output directory (default: RESULTS/report)."),
@@ -539,8 +558,9 @@ def report(
 ) -> None:
     """Build the paper's tables and figures from a results store (Markdown, HTML, LaTeX).
 
-    Parts whose runs are missing are skipped with a note naming the preset that produces
-    them; only complete runs count; failed runs are listed.
+    Given one run directory, report that run: its metrics table and its predicted against
+    true figure. Parts whose runs are missing are skipped with a note naming the preset
+    that produces them; only complete runs count; failed runs are listed.
     """
     from tactile_compliance.evaluation.report import build_report
 

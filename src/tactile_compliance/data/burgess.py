@@ -20,6 +20,7 @@ from tactile_compliance.data.import_report import (
     ImportPathError,
     ImportReport,
     ImportUnitsError,
+    NothingImportedError,
     import_paths,
     store_writing,
     utf8_problem,
@@ -153,6 +154,47 @@ def _object_dirs(src: Path) -> list[Path]:
     ]
 
 
+def _present_fingers(
+    samples: list[tuple[ObjectLabel, int, int, Path]],
+    finger_names: list[str],
+    fingers: str,
+    src: Path,
+    report: ImportReport,
+) -> list[str]:
+    """The fingers to import: ``finger_names`` less a finger no sample has a file of.
+
+    A tree in which no sample holds the marker finger's image file (a markerless-only
+    recording, as ``record`` writes) is imported with the markerless finger alone when
+    ``fingers`` is ``both``, and the report says so (``report.fingers_note``) instead of a
+    missing file per sample. Asking for one finger that no sample has is an error.
+
+    Raises:
+        NothingImportedError: ``fingers`` names a finger of which no sample has a file.
+    """
+    present = [
+        finger
+        for finger in finger_names
+        if any((d / FINGER_FILES[finger][0]).is_file() for _, _, _, d in samples)
+    ]
+    if not samples or present == finger_names:
+        return finger_names
+    missing = [f for f in finger_names if f not in present]
+    files = ", ".join(FINGER_FILES[f][0] for f in missing)
+    if not present:
+        other = "markerless" if fingers == "markers" else "markers"
+        raise NothingImportedError(
+            f"{src}: no sample has {files} (the {fingers} finger); "
+            f"import the other finger with --fingers {other}",
+            report=report,
+        )
+    report.fingers_note = (
+        f"Fingers: {', '.join(present)} only: no sample has {files} "
+        f"(a {present[0]}-only recording, as `record` writes); imported {len(samples)} "
+        f"sample directories with {', '.join(present)} frames."
+    )
+    return present
+
+
 def majority_frame_size(
     samples: list[tuple[ObjectLabel, int, int, Path]], image_files: list[str], progress: bool
 ) -> tuple[tuple[int, int] | None, Counter[tuple[int, int]]]:
@@ -238,6 +280,7 @@ def import_burgess(
         label = _object_label(object_dir, table, report)
         if label is not None:
             samples.extend((label, g, k, d) for g, k, d in _sample_dirs(object_dir, report))
+    finger_names = _present_fingers(samples, finger_names, fingers, src, report)
     image_files = [FINGER_FILES[finger][0] for finger in finger_names]
     source_hw, sizes = majority_frame_size(samples, image_files, progress)
     # Before anything is written: a damaged manifest or units file, or grasps in two units,
@@ -267,7 +310,7 @@ def import_burgess(
                 "importer": "burgess",
                 "source_dir": str(src.resolve()),
                 "object_table": str(object_table) if object_table else None,
-                "fingers": fingers,
+                "fingers": fingers if len(finger_names) > 1 else finger_names[0],
                 "source_image_size": list(source_hw),
                 "source_image_sizes": {f"{h}x{w}": n for (h, w), n in sizes.most_common()},
                 "frame_kind": "difference",

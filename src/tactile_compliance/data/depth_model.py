@@ -14,7 +14,9 @@ import cv2
 import numpy as np
 
 from tactile_compliance.data.photometric import poisson_depth
+from tactile_compliance.devices import free_cores, torch_threads
 from tactile_compliance.outputs import check_format_version
+from tactile_compliance.progress import ProgressBar
 
 __all__ = [
     "BallPress",
@@ -377,6 +379,8 @@ def fit_depth_model(
     epochs: int = 40,
     seed: int = 0,
     background_per_press: int = 4000,
+    threads: int | None = None,
+    progress: ProgressBar | None = None,
 ) -> CalibratedDepthModel:
     """Fit the colour-and-position -> slope regressor on ball presses.
 
@@ -384,6 +388,10 @@ def fit_depth_model(
         presses: difference images of one sensor, all the same size, with their circles.
         seed: for the initial weights, the background sample and the batch order.
         background_per_press: untouched pixels (slope 0) sampled from each press.
+        threads: torch threads for the fit (restored after it); None: the free cores,
+            at most 4 (``devices.free_cores``). The result does not depend on it beyond
+            float rounding.
+        progress: advanced once per epoch (``progress.progress_bar``).
 
     Raises:
         ValueError: no presses, frames of different sizes, or a circle as large as the ball.
@@ -420,6 +428,33 @@ def fit_depth_model(
     y = np.concatenate(targets).astype(np.float32)
     input_scale = (1.0 / np.maximum(x.std(axis=0), 1e-3)).astype(np.float32)
 
+    with torch_threads(free_cores() if threads is None else threads):
+        net = _fit_regressor(x * input_scale, y, epochs, seed, progress or ProgressBar())
+        with torch.no_grad():
+            residual = (net(torch.from_numpy(x * input_scale)) - torch.from_numpy(y)).numpy()
+    layers = [
+        (m.weight.detach().numpy().T.copy(), m.bias.detach().numpy().copy())
+        for m in net
+        if isinstance(m, torch.nn.Linear)
+    ]
+    return _fitted_model(
+        presses,
+        in_contact,
+        residual,
+        layers,
+        input_scale,
+        shape,
+        ball_radius_mm=ball_radius_mm,
+        px_per_mm=px_per_mm,
+    )
+
+
+def _fit_regressor(
+    x: np.ndarray, y: np.ndarray, epochs: int, seed: int, progress: ProgressBar
+) -> Any:
+    """The MLP from scaled features ``x`` to slopes ``y``: Adam, cosine rate, ``epochs``."""
+    import torch
+
     torch.manual_seed(seed)
     sizes = (5, *_HIDDEN, 2)
     net = torch.nn.Sequential()
@@ -427,7 +462,7 @@ def fit_depth_model(
         net.append(torch.nn.Linear(sizes[k], sizes[k + 1]))
         if k < len(sizes) - 2:
             net.append(torch.nn.ReLU())
-    xt = torch.from_numpy(x * input_scale)
+    xt = torch.from_numpy(x)
     yt = torch.from_numpy(y)
     optimiser = torch.optim.Adam(net.parameters(), lr=3e-3)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=epochs)
@@ -442,13 +477,22 @@ def fit_depth_model(
             loss.backward()
             optimiser.step()
         schedule.step()
-    with torch.no_grad():
-        residual = (net(xt) - yt).numpy()
-    layers = [
-        (m.weight.detach().numpy().T.copy(), m.bias.detach().numpy().copy())
-        for m in net
-        if isinstance(m, torch.nn.Linear)
-    ]
+        progress()
+    return net
+
+
+def _fitted_model(
+    presses: list[BallPress],
+    in_contact: list[np.ndarray],
+    residual: np.ndarray,
+    layers: list[tuple[np.ndarray, np.ndarray]],
+    input_scale: np.ndarray,
+    shape: tuple[int, int],
+    *,
+    ball_radius_mm: float,
+    px_per_mm: float,
+) -> CalibratedDepthModel:
+    """The fitted regressor as a :class:`CalibratedDepthModel`, with its fit report."""
     contact = np.concatenate(in_contact)
     report = {
         "presses": len(presses),

@@ -208,6 +208,8 @@ class ImportReport:
     #: Grasps without a units file (``raw_layout.UNITS_FILE``: the public dataset's), taken
     #: to be in the dataset's units by its heuristic.
     grasps_without_units: int = 0
+    #: Set when a finger was left out because no sample has its files (``burgess``).
+    fingers_note: str = ""
 
     def require_sources(self, sources: Sequence[Path], src: Path, expected: str) -> None:
         """Fail the import when the source directory holds nothing to import.
@@ -254,6 +256,7 @@ class ImportReport:
             "samples_with_clipped_frames": self.samples_with_clipped_frames,
             "units": self.units,
             "grasps_without_units": self.grasps_without_units,
+            "fingers_note": self.fingers_note,
             "seconds": round(self.seconds, 3),
             "problems": [{"path": p, "reason": r} for p, r in self.problems],
             "problem_counts": dict(self.reasons()),
@@ -284,6 +287,8 @@ class ImportReport:
             )
         if self.units:
             lines.append(self.units_line())
+        if self.fingers_note:
+            lines.append(self.fingers_note)
         if self.problems:
             lines.append(f"Skipped {len(self.problems)} item(s):")
             lines += [f"  {count:6d}  {reason}" for reason, count in self.reasons().most_common()]

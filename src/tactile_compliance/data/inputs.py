@@ -30,6 +30,7 @@ from tactile_compliance.data.plausibility import (
     PlausibleRange,
 )
 from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
+from tactile_compliance.suggest import did_you_mean
 
 __all__ = [
     "INPUTS",
@@ -233,8 +234,8 @@ class InputStrategy(str, Enum):
             if key in (member.value.lower(), member.name.replace("_", "").lower()):
                 return member
         raise ValueError(
-            f"unknown input strategy {value!r}; valid names (case-insensitive): "
-            f"{', '.join(cls.names())}"
+            f"unknown input strategy {value!r}{did_you_mean(value, cls.names())}; valid names "
+            f"(case-insensitive): {', '.join(cls.names())}"
         )
 
     def __str__(self) -> str:

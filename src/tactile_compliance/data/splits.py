@@ -23,11 +23,13 @@ __all__ = [
     "N_ROLLING_WINDOWS",
     "Split",
     "SplitSummary",
+    "check_split_store",
     "grasp_keys",
     "make_split",
     "make_split_from_config",
     "rolling_windows",
     "select_subset",
+    "store_metadata",
     "summarise_split",
 ]
 
@@ -384,10 +386,55 @@ def make_split(
     )
 
 
-def make_split_from_config(samples: pd.DataFrame, cfg: Any) -> Split:
+def store_metadata(store: Any) -> dict[str, Any]:
+    """What a split records of the store it was drawn from (a ``GraspStore``): its path,
+    creation time and sample count; :func:`check_split_store` compares them."""
+    return {
+        "store": str(store.path),
+        "store_created": store.header.created,
+        "store_samples": int(store.header.num_samples),
+    }
+
+
+def check_split_store(split: Split, path: str | Path, store: Any, samples: pd.DataFrame) -> None:
+    """Refuse a saved split (``path``) that was not drawn from ``store``, or whose ids are
+    not among its filtered ``samples``.
+
+    A split that records its store (:func:`store_metadata`) must name a store created at the
+    same time with the same sample count; the ids must all be in ``samples["sample_id"]``.
+
+    Raises:
+        ValueError: one line naming the split, both stores and the fix (``split STORE --out``).
+    """
+    fix = f"draw one with `tactile-compliance split {store.path} --out FILE`"
+    recorded = {k: split.metadata.get(k) for k in ("store", "store_created", "store_samples")}
+    here = store_metadata(store)
+    if recorded["store_created"] is not None and (
+        recorded["store_created"] != here["store_created"]
+        or recorded["store_samples"] != here["store_samples"]
+    ):
+        raise ValueError(
+            f"{path}: a split of another store ({recorded['store']}, created "
+            f"{recorded['store_created']}, {recorded['store_samples']} samples), not of "
+            f"{store.path} (created {here['store_created']}, {here['store_samples']} samples); "
+            f"{fix}"
+        )
+    missing = np.setdiff1d(split.all_ids, samples["sample_id"].to_numpy())
+    if len(missing):
+        raise ValueError(
+            f"{path}: {len(missing)} of its sample ids are not among {store.path}'s samples "
+            f"left by the filter (e.g. {missing[:3].tolist()}): drawn from another store or "
+            f"with other filter rules; {fix}"
+        )
+
+
+def make_split_from_config(
+    samples: pd.DataFrame, cfg: Any, metadata: dict[str, Any] | None = None
+) -> Split:
     """Subset selection + :func:`make_split` as configured by an ``ExperimentConfig``.
 
-    The split seed is ``cfg.split.seed`` when set, else the run's ``cfg.seed``.
+    The split seed is ``cfg.split.seed`` when set, else the run's ``cfg.seed``;
+    ``metadata`` (e.g. :func:`store_metadata`) is recorded with the split.
     """
     sc = cfg.split
     seed = sc.seed if sc.seed is not None else cfg.seed
@@ -401,6 +448,7 @@ def make_split_from_config(samples: pd.DataFrame, cfg: Any) -> Split:
         val_fraction=sc.val_fraction,
         stratify=sc.stratify,
         subset=sc.subset,
+        metadata=metadata,
     )
 
 

@@ -27,6 +27,7 @@ from tactile_compliance.evaluation.render import (
     render_latex,
     render_markdown,
 )
+from tactile_compliance.evaluation.run_report import is_run_dir, run_report_parts
 from tactile_compliance.evaluation.tables import (
     PRESET_HINTS,
     STD_DDOF,
@@ -265,7 +266,9 @@ def build_report(
     """Build the report of a results store: tables, figures, and the documents.
 
     Args:
-        results_dir: the results store (``RESULTS/rows/*.json``).
+        results_dir: the results store (``RESULTS/rows/*.json``), or one run directory
+            (it holds ``metrics.json``): then the report is that run's metrics table and
+            its predicted-against-true figure (``run_report.run_report_parts``).
         out_dir: where to write; default ``RESULTS/report``.
         formats: any of ``md``, ``html``, ``tex`` (a list or ``"md,html"``).
         stores: extra GraspStore directories to draw in Fig. 1 (besides the runs' stores).
@@ -278,6 +281,8 @@ def build_report(
     """
     wanted = _normalise_formats(formats)
     results = Path(results_dir)
+    if is_run_dir(results):
+        return _build_run_report(results, out_dir, wanted)
     frame = load_results(results)
     out = claim_output_dir(Path(out_dir) if out_dir is not None else results / "report", "report")
     builder = _Builder(frame, results, out, ddof, [Path(s) for s in stores], strict)
@@ -314,6 +319,37 @@ def build_report(
         n_complete=len(builder.done),
         n_failed=int((frame["status"] == STATUS_FAILED).sum()),
     )
+    _write_documents(parts, out, wanted, title, summary)
+    return summary
+
+
+def _build_run_report(
+    run_dir: Path, out_dir: str | Path | None, wanted: list[str]
+) -> ReportSummary:
+    """:func:`build_report` of one run directory (``run_report.run_report_parts``)."""
+    out = claim_output_dir(Path(out_dir) if out_dir is not None else run_dir / "report", "report")
+    parts, result = run_report_parts(run_dir, out / "figures")
+    complete = result.get("status") == STATUS_COMPLETE
+    summary = ReportSummary(
+        results_dir=run_dir,
+        out_dir=out,
+        figures=dict(parts.figures),
+        tables=dict(parts.tables),
+        notes=list(parts.notes),
+        n_rows=1,
+        n_complete=int(complete),
+        n_failed=int(result.get("status") == STATUS_FAILED),
+    )
+    title = f"Young's modulus from GelSight grasps — run {run_dir.name}"
+    _write_documents(parts, out, wanted, title, summary)
+    return summary
+
+
+def _write_documents(
+    parts: ReportParts, out: Path, wanted: list[str], title: str, summary: ReportSummary
+) -> None:
+    """The tables, the documents in ``wanted`` formats and ``report.json`` under ``out``."""
+    results = summary.results_dir
     _write_tables(parts, out / "tables")
     renderers = {
         "md": lambda: render_markdown(parts.blocks, out),
@@ -342,7 +378,6 @@ def build_report(
         )
         + "\n",
     )
-    return summary
 
 
 def _write_tables(parts: ReportParts, table_dir: Path) -> None:

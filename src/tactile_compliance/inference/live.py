@@ -190,6 +190,16 @@ def live_estimates(
                 reported.update(s["index"] for s in checks["spikes"])
                 for warning in warnings:
                     yield {"event": "warning", "reason": warning}
+                # Once per run, not per member: members of an ensemble share their data.
+                mismatches = dict.fromkeys(
+                    line
+                    for member in members
+                    for line in member.run_inputs.source_mismatch(
+                        frame.shape[:2], units, used=source.name
+                    )
+                )
+                for line in mismatches:
+                    yield {"event": "warning", "reason": line}
             for spike in getattr(readings, "spikes", None) or ():
                 if spike.index not in reported:
                     reported.add(spike.index)

@@ -70,6 +70,9 @@ def predict_path(
     estimator.run_inputs.check_sensor(
         source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
     )
+    mismatch = estimator.run_inputs.source_mismatch(
+        source.source_image_size, source.sensor_units, used=str(path)
+    )
     scalars = source.inputs(scalar_names)
     usable = np.ones(len(source), dtype=bool)
     reasons: list[str] = [""] * len(source)
@@ -125,6 +128,8 @@ def predict_path(
         "predictions": records,
         "skipped": skipped,
         "summary": summary,
+        # Where the source differs from the training data (RunInputs.source_mismatch).
+        "warnings": mismatch,
     }
 
 
@@ -156,6 +161,7 @@ def format_predictions(report: dict[str, Any], max_rows: int = 20) -> str:
         f"Checkpoint  {ckpt['checkpoint']}  ({ckpt['model']}, inputs {ckpt['inputs']}, "
         f"images {size})",
         f"Source      {source['path']}  ({source['kind']}, {source['samples']} samples)",
+        *(f"Warning     {warning}" for warning in report.get("warnings", [])),
     ]
     predictions = report["predictions"]
     if predictions:

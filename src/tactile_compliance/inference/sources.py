@@ -73,6 +73,8 @@ class GraspBatch:
         sensor_units: depth model and pixel density of ``estimates_pa`` and ``depth_mm``.
         depth_mm: (B, 3, h, w) depth maps in mm as the store keeps them (a
             :class:`StoreDepth` for a whole store), None when the source holds none.
+        source_image_size: (H, W) px of the frames as the source holds them, before any
+            resize to the model's store size (None: not known).
     """
 
     frames: np.ndarray | StoreFrames
@@ -85,6 +87,7 @@ class GraspBatch:
     unreadable: list[dict[str, Any]] = field(default_factory=list)
     sensor_units: SensorUnits = WEDGE_UNITS
     depth_mm: np.ndarray | StoreDepth | None = None
+    source_image_size: tuple[int, int] | None = None
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -152,6 +155,7 @@ def read_store(path: str | Path, ids: np.ndarray | list[int] | None = None) -> G
         rows=rows,
         kind="store",
         frame_kind=str(store.header.creation_parameters.get("frame_kind", "difference")),
+        source_image_size=tuple(store.header.image_size),
         sensor_units=store.sensor_units,
     )
 
@@ -213,9 +217,11 @@ def read_grasp_dir(
         )
     frames, forces, widths, estimates, rows = [], [], [], [], []
     unreadable: list[dict[str, Any]] = []
+    native: tuple[int, int] | None = None
     for grasp, augmentation, directory in dirs:
         try:
             sample = _read_sample_dir(directory, names, image_size)
+            native = native or sample.native_size
         except ValueError as err:
             if len(dirs) == 1:
                 raise
@@ -259,6 +265,7 @@ def read_grasp_dir(
         kind="grasp_dir",
         frame_kind="difference",
         unreadable=unreadable,
+        source_image_size=native,
         # Each grasp's own units.json; ValueError: grasps in two units.
         sensor_units=tree_units(sample_grasp_dir(d) for _, _, d in dirs).units.sensor,
     )
@@ -274,6 +281,7 @@ class _SampleDir:
     width: np.ndarray
     estimates: list[float]
     images: list[tuple[str, str, np.ndarray]]  # (finger, file name, uint8 frames)
+    native_size: tuple[int, int] | None = None  # (H, W) px of the files, before any resize
 
 
 def _read_sample_dir(
@@ -300,6 +308,7 @@ def _read_sample_dir(
             if (directory / image_file).is_file():
                 # The importer's reader: allow-list unpickler, shape checks, BGR -> RGB.
                 rgb = load_frames(directory, image_file, None)
+                sample.native_size = (int(rgb.shape[1]), int(rgb.shape[2]))
                 sample.images.append(
                     (finger, image_file, frames_to_uint8(resize_frames(rgb, image_size)))
                 )
@@ -319,6 +328,7 @@ def read_video(path: str | Path, *, image_size: tuple[int, int] | None = None) -
     frames = read_video_frames(video)  # ValueError when unreadable
     chosen = frames[list(select_press_frames(frames))]
     return GraspBatch(
+        source_image_size=(int(chosen.shape[1]), int(chosen.shape[2])),
         frames=resize_frames(chosen, image_size)[None],
         force_n=np.full((1, 3), np.nan),
         width_m=np.full((1, 3), np.nan),

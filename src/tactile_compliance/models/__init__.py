@@ -6,6 +6,11 @@ Build a model by name: ``create_model("res_tf", inputs="ImageFW")``; see docs/mo
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
+import pkgutil
+import re
+import sys
+from pathlib import Path
 from typing import Any
 
 # InputStrategy (data.inputs) is torch-free and re-exported here for the models' users;
@@ -40,6 +45,34 @@ _LAZY = {
 }
 
 
+#: A model's registration as its module writes it (read by ``known_model_names``).
+_REGISTERED = re.compile(r"""@register_model\(\s*["']([A-Za-z0-9_.-]+)["']""")
+#: Entry-point group through which another distribution adds models: each entry, named
+#: after its model, names a module (or an object in one) whose import registers the model
+#: with ``register_model``.
+ENTRY_POINT_GROUP = "tactile_compliance.models"
+
+
+def known_model_names() -> list[str]:
+    """The model names ``create_model`` takes, sorted, without loading torch.
+
+    The names this package's modules register (``register_model`` decorators), read from
+    their sources (not imported), the names of the ``tactile_compliance.models``
+    entry points (an entry point is named after its model), and, once the registry is
+    loaded, any model a program registered. The registry's own list after
+    ``discover_models`` is the same set (tests/test_models.py checks it)."""
+    names: set[str] = set()
+    for module in pkgutil.iter_modules(__path__):
+        path = Path(getattr(module.module_finder, "path", "")) / f"{module.name}.py"
+        if not module.name.startswith("_") and path.is_file():
+            names.update(_REGISTERED.findall(path.read_text(encoding="utf-8")))
+    names.update(e.name for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP))
+    registry = sys.modules.get(f"{__name__}.registry")
+    if registry is not None:
+        names.update(registry.list_models())
+    return sorted(names)
+
+
 def __getattr__(name: str) -> Any:
     module = _LAZY.get(name)
     if module is None:
@@ -51,6 +84,7 @@ def __getattr__(name: str) -> Any:
 
 __all__ = [
     "BACKBONE_WEIGHTS_URLS",
+    "ENTRY_POINT_GROUP",
     "NUM_FRAMES",
     "FusionModel",
     "InputStrategy",
@@ -64,6 +98,7 @@ __all__ = [
     "create_backbone",
     "create_model",
     "get_model_class",
+    "known_model_names",
     "list_backbones",
     "list_models",
     "model_display_names",

@@ -23,6 +23,7 @@ import torch
 from torch import nn
 
 from tactile_compliance.data.safe_pickle import UnreadableTorchFileError, load_torch_file
+from tactile_compliance.models.frame_rules import VGG16_MIN_INPUT_PX
 
 __all__ = [
     "BACKBONE_WEIGHTS_URLS",
@@ -85,7 +86,7 @@ class VGG16(nn.Module):
 
     feature_dim: int = 4096
     # Five 2x2 max-pools without padding: anything smaller than 32 pixels pools to nothing.
-    min_input_size: int = 32
+    min_input_size: int = VGG16_MIN_INPUT_PX
 
     def __init__(self, dropout: float = 0.5) -> None:
         super().__init__()

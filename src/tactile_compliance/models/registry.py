@@ -19,6 +19,8 @@ from typing import Any, TypeVar
 from torch import nn
 
 from tactile_compliance.data.inputs import InputStrategy
+from tactile_compliance.models import ENTRY_POINT_GROUP
+from tactile_compliance.suggest import did_you_mean
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -35,9 +37,6 @@ __all__ = [
 
 _REGISTRY: dict[str, type[nn.Module]] = {}
 
-#: Entry-point group through which another distribution adds models: each entry names a
-#: module (or an object in one) whose import registers its models with ``register_model``.
-ENTRY_POINT_GROUP = "tactile_compliance.models"
 
 _PACKAGE = __name__.rpartition(".")[0]
 _discovered = False
@@ -133,7 +132,8 @@ def get_model_class(name: str) -> type[nn.Module]:
     key = name.strip().lower() if isinstance(name, str) else name
     if key not in _REGISTRY:
         raise ValueError(
-            f"unknown model {name!r}; available models: {', '.join(list_models()) or '(none)'}"
+            f"unknown model {name!r}{did_you_mean(str(name), list_models())}; available "
+            f"models: {', '.join(list_models()) or '(none)'}"
         )
     return _REGISTRY[key]
 

@@ -20,6 +20,7 @@ from tactile_compliance.models.base import (
     check_positive_int,
 )
 from tactile_compliance.models.dropout import use_fast_dropout
+from tactile_compliance.models.frame_rules import TOP10_KERNELS, TOP10_MIN_INPUT_PX, TOP10_STRIDE
 from tactile_compliance.models.registry import register_model
 from tactile_compliance.models.settings import DROPOUT_CHOICES, POW2_32_512, SearchDimension
 
@@ -29,24 +30,15 @@ __all__ = ["TOP10_BACKBONE", "Top10Encoder", "Top10NN"]
 TOP10_BACKBONE = "top10nn-cnn"
 
 _CHANNELS = (32, 64, 128, 256, 512)
-_KERNELS = (5, 3, 3, 3, 3)
-_STRIDE = 2
-
-
-def _min_input_size() -> int:
-    # Smallest size for which every unpadded stride-2 convolution still has >= 1 output:
-    # walk backwards from one output pixel, n_in = (n_out - 1) * stride + kernel.
-    size = 1
-    for kernel in reversed(_KERNELS):
-        size = (size - 1) * _STRIDE + kernel
-    return size
+_KERNELS = TOP10_KERNELS
+_STRIDE = TOP10_STRIDE
 
 
 class Top10Encoder(nn.Module):
     """The per-frame CNN of Top10NN: ``(N, 3, H, W) -> (N, img_feature_size)``, for frames
     of at least ``min_input_size`` (65) px a side (five unpadded stride-2 convolutions)."""
 
-    min_input_size: int = _min_input_size()
+    min_input_size: int = TOP10_MIN_INPUT_PX
 
     def __init__(self, img_feature_size: int = 128, dropout: float = 0.3) -> None:
         super().__init__()

@@ -19,6 +19,7 @@ from tactile_compliance.models.base import (
     check_positive_int,
 )
 from tactile_compliance.models.dropout import use_fast_dropout
+from tactile_compliance.models.frame_rules import RECOMMENDED_FRAME_SIZE
 from tactile_compliance.models.registry import register_model
 from tactile_compliance.models.settings import (
     DROPOUT_CHOICES,
@@ -140,7 +141,7 @@ class VggLstm(TactileModel):
         SearchDimension.hparam("elastic_dim", SCALAR_DIM_CHOICES, needs=("estimates",)),
         SearchDimension.hparam("hertz_dim", SCALAR_DIM_CHOICES, needs=("estimates",)),
     )
-    recommended_image_size: ClassVar[tuple[int, int] | None] = (224, 224)
+    recommended_image_size: ClassVar[tuple[int, int] | None] = RECOMMENDED_FRAME_SIZE["vgg_lstm"]
     pretrained_backbone: ClassVar[bool] = True
     display_name: ClassVar[str] = "VGG-LSTM"
     display_order: ClassVar[int] = 1

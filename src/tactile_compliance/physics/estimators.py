@@ -173,18 +173,22 @@ class SensorUnits:
         )
         return f"{model} at {pixels}"
 
+    def same(self, other: SensorUnits) -> bool:
+        """Whether ``other`` is the same depth model at the same pixel density (1e-6)."""
+        same_px = (self.px_per_mm is None and other.px_per_mm is None) or (
+            self.px_per_mm is not None
+            and other.px_per_mm is not None
+            and math.isclose(self.px_per_mm, other.px_per_mm, rel_tol=1e-6)
+        )
+        return self.depth_model == other.depth_model and same_px
+
     def check_same(self, other: SensorUnits, *, trained: str, used: str) -> None:
         """Raise when estimates made with ``other`` would not be in this one's units.
 
         Raises:
             ValueError: another depth model or pixel density, naming both.
         """
-        same_px = (self.px_per_mm is None and other.px_per_mm is None) or (
-            self.px_per_mm is not None
-            and other.px_per_mm is not None
-            and math.isclose(self.px_per_mm, other.px_per_mm, rel_tol=1e-6)
-        )
-        if self.depth_model != other.depth_model or not same_px:
+        if not self.same(other):
             raise ValueError(
                 f"{trained} has analytical estimates from {self.describe()}, {used} from "
                 f"{other.describe()}: the estimates would be in other units; use a model "

@@ -105,6 +105,36 @@ class RunInputs:
         if self.inputs.uses("estimates") or self.inputs.uses("depth"):
             self.sensor.check_same(units, trained=trained, used=used)
 
+    def source_mismatch(
+        self, frame_size: tuple[int, int] | None, units: SensorUnits, *, used: str
+    ) -> list[str]:
+        """Warnings (one line each, none when all agree) for a source ``used`` whose frames
+        are ``frame_size`` (H, W) px as it gives them (None: unknown) and whose sensor is
+        ``units``, where they differ from the training store's frames
+        (``store_image_size``, for a model with an image input) or sensor (for a model
+        that :meth:`check_sensor` does not refuse on it): the shared check of ``predict``
+        and ``live``, which show each warning once.
+        """
+        out = []
+        if (
+            self.inputs.image is not None
+            and frame_size is not None
+            and tuple(int(n) for n in frame_size) != tuple(self.store_image_size)
+        ):
+            h, w = self.store_image_size
+            out.append(
+                f"the model was trained on {h}x{w} px frames, {used} gives "
+                f"{frame_size[0]}x{frame_size[1]} px: they are resized to what it takes, but "
+                "a sensor seen at another scale or crop may not give the estimates it learnt; "
+                "train on this sensor's frames, or check the estimates against known objects"
+            )
+        if not self.sensor.same(units):
+            out.append(
+                f"the model was trained on a sensor with {self.sensor.describe()}, {used} "
+                f"has {units.describe()}: check its estimates against known objects"
+            )
+        return out
+
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON values; inverse of :meth:`from_dict`."""
         return {

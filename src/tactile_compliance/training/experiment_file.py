@@ -33,6 +33,7 @@ from tactile_compliance.config import (
 )
 from tactile_compliance.models import paper_settings
 from tactile_compliance.runs.layout import config_hash, run_name
+from tactile_compliance.suggest import did_you_mean
 
 __all__ = [
     "Cell",
@@ -173,8 +174,9 @@ def _locate(ref: str | Path, relative_to: Path | None) -> tuple[Any, str, Path |
     if bare and stem in list_presets():
         return None, f"config preset {stem}", None, stem
     presets = ", ".join(list_experiment_presets())
+    hint = did_you_mean(stem, [*list_experiment_presets(), *list_presets()])
     raise ConfigError(
-        f"no experiment file or preset named {str(ref)!r} (experiment presets: {presets})"
+        f"no experiment file or preset named {str(ref)!r}{hint} (experiment presets: {presets})"
     )
 
 

@@ -28,7 +28,12 @@ from tactile_compliance.data.augment import GraspAugmentation
 from tactile_compliance.data.dataset import prepare_frames
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.preprocess import filter_samples
-from tactile_compliance.data.splits import Split, make_split, make_split_from_config
+from tactile_compliance.data.splits import (
+    Split,
+    check_split_store,
+    make_split,
+    make_split_from_config,
+)
 from tactile_compliance.data.store import SAMPLES_FILE, GraspStore
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import backbone_models, get_model_class
@@ -257,12 +262,7 @@ def _split_of(
     """The split whose training objects pretraining may use, and how it was had."""
     if split_file is not None:
         split = Split.load(split_file)
-        beyond = split.all_ids[split.all_ids >= len(store)] if len(split.all_ids) else []
-        if len(beyond):
-            raise ValueError(
-                f"{split_file}: sample ids up to {int(max(beyond))} but {store.path} has "
-                f"{len(store)} samples; a split of another store?"
-            )
+        check_split_store(split, split_file, store, store.samples)
         record = {
             "file": str(Path(split_file).resolve()),
             "sha256": file_sha256(Path(split_file)),

@@ -39,10 +39,16 @@ from tactile_compliance.data.dataset import GraspDataset, batch_loader
 from tactile_compliance.data.features import cached_features
 from tactile_compliance.data.normalisation import denormalise_modulus
 from tactile_compliance.data.preprocess import filter_samples
-from tactile_compliance.data.splits import Split, make_split_from_config
+from tactile_compliance.data.splits import (
+    Split,
+    check_split_store,
+    make_split_from_config,
+    store_metadata,
+)
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
 from tactile_compliance.models import create_model, get_model_class
+from tactile_compliance.models.frame_rules import too_small_message
 from tactile_compliance.outputs import atomic_file, claim_output_dir, exclusive_lock
 from tactile_compliance.runs.checkpoint import (
     FROZEN_BACKBONE_SEED,
@@ -108,7 +114,11 @@ def prepare_data(cfg: ExperimentConfig, model: torch.nn.Module) -> RunData:
     samples, report = filter_samples(store.samples, cfg)
     if samples.empty:
         raise ValueError(f"no samples left after filtering {store.path}:\n{report}")
-    split = make_split_from_config(samples, cfg)
+    if cfg.split.file is not None:  # train --split FILE: the saved split, not a new one
+        split = Split.load(cfg.split.file)
+        check_split_store(split, cfg.split.file, store, samples)
+    else:
+        split = make_split_from_config(samples, cfg, store_metadata(store))
     train_ids, val_ids = split.train_ids, split.val_ids
     if cfg.sampling.strategy == "balanced":
         train_ids, val_ids = balance_split(
@@ -143,11 +153,7 @@ def check_frame_size(
     if min(height, width) >= minimum:
         return
     origin = "data.image_size is" if cfg.data.image_size else "the store's frames are"
-    raise ValueError(
-        f"{cfg.model.name} needs frames of at least {minimum}x{minimum} px, but {origin} "
-        f"{height}x{width}: set data.image_size to [{max(height, minimum)}, "
-        f"{max(width, minimum)}] or larger"
-    )
+    raise ValueError(too_small_message(cfg.model.name, minimum, origin, (height, width)))
 
 
 def build_model(cfg: ExperimentConfig) -> torch.nn.Module:
@@ -534,6 +540,8 @@ def _fit_and_evaluate(
         "n_train": len(data.train_ids),
         "n_val": len(data.val_ids),
         "n_test": len(data.split.test_ids),
+        # train --split FILE: the saved split it used (None: drawn with the run's seed).
+        "split_file": cfg.split.file,
         "best_epoch": best.best_epoch,
         "best_val_nmse": best.best,
         # A run resumed after early stopping trains nothing, and Lightning then leaves
