@@ -38,11 +38,13 @@ constant chosen on these data is the circle threshold (half the peak colour chan
     python benchmarks/real_depth.py                       # all three sensors, ~10 min
     python benchmarks/real_depth.py --sensors thusight --json out.json
     python benchmarks/real_depth.py --left-out 6 --flat   # 6 presses per sensor left out
+    python benchmarks/real_depth.py --sensors mini --left-out 6 --px-per-mm 17.2
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import time
@@ -294,9 +296,20 @@ def main() -> None:
         "--left-out", type=int, help="Score only this many presses per sensor, evenly spread."
     )
     parser.add_argument("--flat", action="store_true", help="Add synthetic flat presses.")
+    parser.add_argument(
+        "--px-per-mm",
+        type=float,
+        help="Another pixel density for the one sensor given with --sensors (the README's "
+        "pitch of the Mini is not checked independently).",
+    )
     args = parser.parse_args()
     if not args.data.is_dir():
         raise SystemExit(f"no real presses at {args.data} (see shared/reference-data/real)")
+    if args.px_per_mm is not None:
+        if len(args.sensors) != 1:
+            parser.error("--px-per-mm needs exactly one sensor in --sensors")
+        name = args.sensors[0]
+        SENSORS[name] = dataclasses.replace(SENSORS[name], px_per_mm=args.px_per_mm)
     started = time.perf_counter()
     results: dict = {}
     if "thusight" in args.sensors:
