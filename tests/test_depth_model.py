@@ -333,3 +333,93 @@ def test_the_depth_picture_has_a_colour_bar_in_mm_and_a_scale_bar_from_px_per_mm
     assert int(strip.sum()) == pytest.approx(70, abs=3)  # a 2 px line has round caps
     unscaled = depth_picture(depth)  # no px/mm: the strip says so, no bar
     assert int((unscaled[161:164].min(axis=2) == 255).any(axis=0).sum()) < 40
+
+
+def _flat_punch_mm(x_px: float, y_px: float, depth_mm: float, radius_mm: float = 2.5):
+    """A flat punch of ``radius_mm`` with a 0.4 mm rounded rim pressed ``depth_mm`` deep."""
+    rows, cols = np.mgrid[0 : SIZE[0], 0 : SIZE[1]]
+    rho = np.hypot(cols - x_px, rows - y_px) / PX_PER_MM
+    t = np.clip((rho - radius_mm) / 0.4, 0, 1)
+    return (depth_mm * np.sqrt(1 - t**2) * (rho < radius_mm + 0.4)).astype(np.float32), rho
+
+
+@pytest.mark.parametrize("depth_mm", [0.75, 1.0])
+def test_no_depth_far_from_a_flat_press_under_an_illumination_change(presses, depth_mm):
+    """A flat punch pressed 0.75 / 1.0 mm, in a frame whose light changed since the
+    reference (a uniform offset and a tilt of a few grey levels, as the real thusight
+    presses show against their reference): nothing farther than 1.5 punch radii reads
+    as depth. The model saw only ball presses, in the reference's light."""
+    reference, items = presses
+    model = fit_depth_model(_ball_presses(reference, items), BALL_RADIUS_MM, PX_PER_MM, epochs=20)
+    punch, rho = _flat_punch_mm(105, 75, depth_mm)
+    rng = np.random.default_rng(1)
+    look = sample_sensor_look(np.random.default_rng(0), markers=False)  # the fixture's sensor
+    frame = render_frames(punch[None], look, rng)[0].astype(np.float32)
+    tilt = np.linspace(-0.5, 0.5, SIZE[1], dtype=np.float32)[None, :]
+    frame[..., 1] += 8 + 6 * tilt
+    frame[..., 2] += 4 + 6 * tilt
+    frame = np.clip(frame, 0, 255).round().astype(np.uint8)
+    depth = reconstruct_depth(difference_images(frame[None], reference), model=model)[0]
+    assert np.percentile(np.abs(depth[rho > 1.5 * 2.5]), 95) <= 0.02
+    assert depth[rho < 2.0].mean() > 0.2  # the punch itself is seen
+
+
+def _markers(x_px: float, y_px: float, depth_mm: float) -> np.ndarray:
+    """Darkening (H, W) in [0, 0.75] of a grid of printed markers (0.3 mm radius, 1.8 mm
+    apart) on a gel pressed ``depth_mm`` at (x, y): the gel around the contact stretches,
+    moving each marker outwards by up to 0.75 x the depth (none when ``depth_mm`` is 0)."""
+    rows, cols = np.mgrid[0 : SIZE[0], 0 : SIZE[1]].astype(np.float32)
+    dx, dy = cols - x_px, rows - y_px
+    rho = np.hypot(dx, dy) + 1e-6
+    a_px = np.sqrt(2 * BALL_RADIUS_MM * depth_mm - depth_mm**2) * PX_PER_MM + 1e-6
+    shift = 0.75 * depth_mm * PX_PER_MM * (rho / a_px) * np.exp(0.5 - 0.5 * (rho / a_px) ** 2)
+    # Where a marker now is, the undeformed grid had it ``shift`` nearer the contact.
+    u, v = cols - shift * dx / rho, rows - shift * dy / rho
+    spacing, radius = 1.8 * PX_PER_MM, 0.3 * PX_PER_MM
+    du = np.mod(u - 3 + spacing / 2, spacing) - spacing / 2
+    dv = np.mod(v - 5 + spacing / 2, spacing) - spacing / 2
+    return np.clip(radius + 0.5 - np.hypot(du, dv), 0, 1) * 0.75
+
+
+def _with_markers(frame: np.ndarray, darkening: np.ndarray) -> np.ndarray:
+    return (frame * (1 - darkening[..., None])).round().astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def marker_presses():
+    """(reference, [(frame, x, y, depth)]): 8 rendered presses of a sensor whose printed
+    markers move with the gel (the renderer's own markers stay put)."""
+    rng = np.random.default_rng(3)
+    look = sample_sensor_look(rng, markers=False)
+    blank = render_frames(np.zeros((1, *SIZE), np.float32), look, rng)[0]
+    reference = _with_markers(blank, _markers(0, 0, 0.0))
+    out = []
+    for _ in range(8):
+        x, y, d = rng.uniform(40, 170), rng.uniform(35, 115), rng.uniform(0.3, 0.8)
+        frame = render_frames(cap_mm(x, y, d)[None], look, rng)[0]
+        out.append((_with_markers(frame, _markers(x, y, d)), x, y, d))
+    return reference, out
+
+
+def test_markers_are_found_and_masked(marker_presses, presses):
+    """On a marker sensor the fit finds the markers (and none on a sensor without), and a
+    held-out press reads no depth away from its contact."""
+    from tactile_compliance.data.depth_model import marker_mask
+
+    reference, items = marker_presses
+    balls = _ball_presses(reference, items)
+    model = fit_depth_model(balls[:-1], BALL_RADIUS_MM, PX_PER_MM, epochs=20)
+    assert model.marker_level > 0 and model.report["markers"]
+    again = CalibratedDepthModel.from_dict(json.loads(json.dumps(model.to_dict())))
+    assert again.marker_level == model.marker_level
+    found = marker_mask(balls[-1].diff[None], model.marker_level, PX_PER_MM)[0]
+    assert 0.03 < found.mean() < 0.5  # the grid, grown; not the whole frame
+    _, x, y, d = items[-1]
+    depth = reconstruct_depth(balls[-1].diff, model=model)[0]
+    rows, cols = np.mgrid[0 : SIZE[0], 0 : SIZE[1]]
+    dist = np.hypot(cols - x, rows - y)
+    radius_px = np.sqrt(2 * BALL_RADIUS_MM * d - d * d) * PX_PER_MM
+    assert np.percentile(np.abs(depth[dist > 1.5 * radius_px]), 95) <= 0.01
+    assert depth.max() == pytest.approx(d, rel=0.3)
+    plain = fit_depth_model(_ball_presses(*presses), BALL_RADIUS_MM, PX_PER_MM, epochs=2)
+    assert plain.marker_level == 0 and not plain.report["markers"]

@@ -502,7 +502,12 @@ class DepthCalibration:
             f"Depth model fitted on {rep['presses']} presses "
             f"({rep['contact_pixels']} contact + {rep['background_pixels']} background px); "
             f"slope RMSE {rep['slope_rmse_contact']:.3f} in contact, "
-            f"{rep['slope_rmse_background']:.3f} outside; noise level {model.noise_level:.3f}",
+            f"{rep['slope_rmse_background']:.3f} outside; noise level {model.noise_level:.3f}; "
+            + (
+                f"printed markers found and masked (level {model.marker_level:.3f})"
+                if model.marker_level > 0
+                else "no printed markers"
+            ),
             "press                        circle (x, y, r px)      r [mm]  cap [mm]  peak [mm]"
             "  verdict",
         ]

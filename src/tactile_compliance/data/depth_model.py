@@ -13,7 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from tactile_compliance.data.photometric import poisson_depth
+from tactile_compliance.data.photometric import fill_masked, poisson_depth
 from tactile_compliance.devices import free_cores, torch_threads
 from tactile_compliance.outputs import check_format_version
 from tactile_compliance.progress import ProgressBar
@@ -26,10 +26,16 @@ __all__ = [
     "fit_depth_model",
     "grey_frame_problem",
     "largest_region",
+    "marker_mask",
+    "marker_threshold",
+    "prepare_diff",
+    "remove_illumination_change",
 ]
 
 DEPTH_MODEL_FORMAT = "tactile-compliance-depth-model"
-DEPTH_MODEL_VERSION = 1
+DEPTH_MODEL_VERSION = 2
+"""2: the illumination change is removed, the zero-change slope subtracted and markers
+filled before the regressor (a version-1 model was fitted without them)."""
 
 _HIDDEN = (32, 32)
 """Hidden widths of the slope regressor: enough for the colour wheel's nonlinearity (a
@@ -66,6 +72,29 @@ presses' untouched pixels; the contact mask starts above it."""
 _MASK_GROW_MM = 0.3
 """The contact mask is grown by this margin [mm]: the gel's slope fades to 0 outside the
 contact while the colour change is already below the noise there."""
+
+_ILLUMINATION_QUIET = 50.0
+"""The illumination change is fitted on the quietest this percentage [%] of a frame's
+pixels (by colour-change magnitude): a contact covers less than half the frame."""
+
+_ILLUMINATION_STEP_PX = 4
+"""The illumination plane is fitted on every this-many-th pixel along each axis."""
+
+_MARKER_SCALE_MM = 0.5
+"""Printed markers are smaller than this [mm]: the achromatic change left after a
+Gaussian blur of this sigma is a marker's (a contact's colour change is wider)."""
+
+_MARKER_SIGMAS = 6.0
+"""A pixel is a marker's when its achromatic high-pass exceeds this many robust standard
+deviations (1.4826 x the median absolute deviation) of the presses' untouched pixels."""
+
+_MARKER_SHARE = 0.01
+"""The sensor has markers when more than this share of the untouched pixels is above that
+level (Gaussian noise puts 2e-9 there, a marker grid 3-10 %)."""
+
+_MARKER_GROW_MM = 0.15
+"""Marker pixels are grown by this margin [mm]: the reference's 11 x 11 px blur spreads
+each marker's edge into its surroundings in the difference image."""
 
 MAX_WEIGHT = 100.0
 """The largest |weight| or |bias| a loaded depth model may hold: fitted ones stay below 1
@@ -129,6 +158,87 @@ def largest_region(mask: np.ndarray) -> np.ndarray | None:
     area its outer edge encloses, so holes count as inside; None for an empty mask."""
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     return max(contours, key=cv2.contourArea) if contours else None
+
+
+def remove_illumination_change(diff: np.ndarray) -> np.ndarray:
+    """Difference images (n, H, W, 3) without their low-frequency illumination change: per
+    frame and channel, a plane (offset and tilt across the frame, in intensity fractions)
+    fitted by least squares on the quietest half of the pixels is subtracted, so a
+    reference taken under other light, or a large press that dims the whole gel, reads as
+    no colour change where nothing touches. Returns a new float32 array centred on 0.5.
+    """
+    diff = np.asarray(diff, dtype=np.float32)
+    if diff.ndim == 3:
+        diff = diff[None]
+    n, h, w, _ = diff.shape
+    step = _ILLUMINATION_STEP_PX
+    rows, cols = np.mgrid[0:h:step, 0:w:step]
+    design = np.stack(
+        [np.ones(rows.size), cols.ravel() / w - 0.5, rows.ravel() / h - 0.5], axis=1
+    ).astype(np.float32)
+    full = (
+        np.linspace(-0.5, 0.5, w, dtype=np.float32)[None, :],
+        np.linspace(-0.5, 0.5, h, dtype=np.float32)[:, None],
+    )
+    out = np.empty_like(diff)
+    for k in range(n):
+        dev = diff[k, ::step, ::step].reshape(-1, 3) - 0.5
+        centred = dev - np.median(dev, axis=0)
+        magnitude = np.sqrt((centred * centred).sum(axis=1))
+        quiet = magnitude <= np.percentile(magnitude, _ILLUMINATION_QUIET)
+        coef = np.linalg.lstsq(design[quiet], dev[quiet], rcond=None)[0]  # (3, 3)
+        plane = coef[0] + full[0][..., None] * coef[1] + full[1][..., None] * coef[2]
+        out[k] = diff[k] - plane.astype(np.float32)
+    return out
+
+
+def _achromatic_highpass(diff: np.ndarray, px_per_mm: float) -> np.ndarray:
+    """(n, H, W): the channel mean of the colour change minus its blur at the markers'
+    scale (a marker, dark in all three channels and small, stands out; a contact's colour
+    change is wider)."""
+    grey = np.ascontiguousarray((np.asarray(diff, dtype=np.float32) - 0.5).mean(axis=3))
+    sigma = _MARKER_SCALE_MM * px_per_mm
+    out = np.empty_like(grey)
+    for k in range(grey.shape[0]):
+        out[k] = grey[k] - cv2.GaussianBlur(grey[k], (0, 0), sigma)
+    return out
+
+
+def marker_threshold(diffs: np.ndarray, untouched: np.ndarray, px_per_mm: float) -> float:
+    """The achromatic high-pass level above which a pixel is a printed marker's, from ball
+    presses' difference images (n, H, W, 3) and their untouched pixels (n, H, W); 0 when
+    the sensor has no markers (no more than 1 % of the untouched pixels above it)."""
+    values = np.abs(_achromatic_highpass(diffs, px_per_mm)[untouched])
+    spread = 1.4826 * float(np.median(np.abs(values - np.median(values))))
+    level = _MARKER_SIGMAS * max(spread, 1.0 / 255.0)
+    return level if float(np.mean(values > level)) > _MARKER_SHARE else 0.0
+
+
+def marker_mask(diff: np.ndarray, threshold: float, px_per_mm: float) -> np.ndarray:
+    """Marker pixels (n, H, W) of difference images (n, H, W, 3): achromatic high-pass
+    above ``threshold`` (:func:`marker_threshold`), grown by 0.15 mm; all False for 0."""
+    diff = np.asarray(diff, dtype=np.float32)
+    if threshold <= 0:
+        return np.zeros(diff.shape[:3], dtype=bool)
+    grow = max(1, round(_MARKER_GROW_MM * px_per_mm))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
+    high = (np.abs(_achromatic_highpass(diff, px_per_mm)) > threshold).astype(np.uint8)
+    return np.stack([cv2.dilate(m, kernel) > 0 for m in high])
+
+
+def prepare_diff(diff: np.ndarray, marker_level: float, px_per_mm: float) -> np.ndarray:
+    """What a calibrated depth model reads, in its fit and in its use: difference images
+    (n, H, W, 3) without the illumination change (:func:`remove_illumination_change`) and
+    with marker pixels (:func:`marker_mask`) filled from their surroundings."""
+    out = remove_illumination_change(diff)
+    markers = marker_mask(out, marker_level, px_per_mm)
+    if markers.any():
+        sigma = _MARKER_SCALE_MM * px_per_mm
+        planes = np.ascontiguousarray(out.transpose(3, 0, 1, 2))
+        for c in range(3):
+            planes[c] = fill_masked(planes[c], markers, sigma)
+        out = np.ascontiguousarray(planes.transpose(1, 2, 3, 0))
+    return out
 
 
 def find_contact_circle(diff: np.ndarray, min_radius_px: float = 3.0) -> ContactCircle:
@@ -208,6 +318,8 @@ class CalibratedDepthModel:
         layers: the regressor's (weight (in, out), bias (out,)) pairs, float32.
         input_scale: per-feature scale applied before the first layer.
         report: how the fit went (residuals, presses used), for the JSON and the docs.
+        marker_level: achromatic high-pass level (unitless) above which a pixel is a printed
+            marker's (:func:`marker_threshold`); 0 for a sensor without markers.
     """
 
     px_per_mm: float
@@ -217,12 +329,18 @@ class CalibratedDepthModel:
     layers: list[tuple[np.ndarray, np.ndarray]]
     input_scale: np.ndarray
     report: dict[str, Any] = field(default_factory=dict)
+    marker_level: float = 0.0
+    _zero_slopes: tuple[np.ndarray, np.ndarray] | None = field(
+        default=None, repr=False, compare=False
+    )
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.px_per_mm) and 0 < self.px_per_mm < 1000):
             raise ValueError(f"px_per_mm must be in (0, 1000) px/mm, got {self.px_per_mm}")
         if not (math.isfinite(self.noise_level) and 0 <= self.noise_level < 1):
             raise ValueError(f"noise_level must be in [0, 1), got {self.noise_level}")
+        if not (math.isfinite(self.marker_level) and 0 <= self.marker_level < 1):
+            raise ValueError(f"marker_level must be in [0, 1), got {self.marker_level}")
         h, w = (int(v) for v in self.frame_size)
         if not (8 <= h <= 4096 and 8 <= w <= 4096):
             raise ValueError(f"frame_size must be 8..4096 px a side, got {self.frame_size}")
@@ -261,14 +379,31 @@ class CalibratedDepthModel:
         out = hidden.reshape(n, h, w, 2)
         return out[..., 0], out[..., 1]
 
+    def zero_change_slopes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The regressor's slopes [mm/mm] (each (H, W)) for no colour change at all: its
+        bias at small differences, subtracted from every frame's slopes."""
+        if self._zero_slopes is None:
+            flat = np.full((1, *self.frame_size, 3), 0.5, dtype=np.float32)
+            zero_x, zero_y = self.slopes(flat)
+            self._zero_slopes = (zero_x[0], zero_y[0])
+        return self._zero_slopes
+
+    def prepare(self, diff: np.ndarray) -> np.ndarray:
+        """Difference images (n, H, W, 3) as the regressor reads them
+        (:func:`prepare_diff`: no illumination change, markers filled)."""
+        return prepare_diff(diff, self.marker_level, self.px_per_mm)
+
     def contact_mask(self, diff: np.ndarray) -> np.ndarray:
-        """Pixels (n, H, W) of difference images (n, H, W, 3) whose colour change is above
-        the noise, grown by 0.3 mm."""
+        """Pixels (n, H, W) of difference images (n, H, W, 3) whose colour change, once
+        :meth:`prepare` d, is above the noise, grown by 0.3 mm."""
+        return self._contact_mask(self.prepare(diff))
+
+    def _contact_mask(self, prepared: np.ndarray) -> np.ndarray:
         grow = max(1, round(_MASK_GROW_MM * self.px_per_mm))
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
-        masks = np.empty(diff.shape[:3], dtype=bool)
-        for k in range(diff.shape[0]):
-            above = (contact_magnitude(diff[k]) > self.noise_level).astype(np.uint8)
+        masks = np.empty(prepared.shape[:3], dtype=bool)
+        for k in range(prepared.shape[0]):
+            above = (contact_magnitude(prepared[k]) > self.noise_level).astype(np.uint8)
             masks[k] = cv2.dilate(above, kernel) > 0
         return masks
 
@@ -287,11 +422,13 @@ class CalibratedDepthModel:
                 f"frames are {diff.shape[1]}x{diff.shape[2]} px, the depth model was "
                 f"calibrated on {self.frame_size[0]}x{self.frame_size[1]} px"
             )
-        slope_x, slope_y = self.slopes(diff)
-        mask = self.contact_mask(diff)
+        prepared = self.prepare(diff)
+        slope_x, slope_y = self.slopes(prepared)
+        zero_x, zero_y = self.zero_change_slopes()
+        mask = self._contact_mask(prepared)
         mm_per_px = np.float32(1.0 / self.px_per_mm)
-        gx = np.where(mask, slope_x, 0.0).astype(np.float32) * mm_per_px
-        gy = np.where(mask, slope_y, 0.0).astype(np.float32) * mm_per_px
+        gx = np.where(mask, slope_x - zero_x, 0.0).astype(np.float32) * mm_per_px
+        gy = np.where(mask, slope_y - zero_y, 0.0).astype(np.float32) * mm_per_px
         depth = poisson_depth(gx, gy)
         # Where no pixel shows contact nothing touches: the Poisson solution's leak there
         # (the fitted slopes are not exactly integrable) is not depth.
@@ -314,6 +451,7 @@ class CalibratedDepthModel:
             "frame_size": list(self.frame_size),
             "ball_radius_mm": float(self.ball_radius_mm),
             "noise_level": float(self.noise_level),
+            "marker_level": float(self.marker_level),
             "input_scale": [float(v) for v in self.input_scale],
             "layers": [
                 {"weight": weight.tolist(), "bias": bias.tolist()} for weight, bias in self.layers
@@ -351,6 +489,7 @@ class CalibratedDepthModel:
                 frame_size=(int(data["frame_size"][0]), int(data["frame_size"][1])),
                 ball_radius_mm=float(data["ball_radius_mm"]),
                 noise_level=float(data["noise_level"]),
+                marker_level=float(data["marker_level"]),
                 layers=layers,
                 input_scale=scale,
                 report=dict(data.get("report") or {}),
@@ -404,6 +543,13 @@ def fit_depth_model(
     if any(p.diff.shape[:2] != shape for p in presses):
         raise ValueError("all presses must have the same frame size")
     rng = np.random.default_rng(seed)
+    # What the regressor reads (prepare_diff): the marker level from the raw presses'
+    # untouched pixels, then every press without its illumination change and markers.
+    raw = np.stack([p.diff for p in presses]).astype(np.float32)
+    untouched = np.stack([_far_mask(shape, p.circle) for p in presses])
+    marker_level = marker_threshold(raw, untouched, px_per_mm)
+    prepared = prepare_diff(raw, marker_level, px_per_mm)
+    presses = [BallPress(diff, p.circle, p.name) for diff, p in zip(prepared, presses, strict=True)]
     inputs, targets, in_contact = [], [], []
     for press in presses:
         feats = _features(press.diff)[0]
@@ -446,6 +592,7 @@ def fit_depth_model(
         shape,
         ball_radius_mm=ball_radius_mm,
         px_per_mm=px_per_mm,
+        marker_level=marker_level,
     )
 
 
@@ -491,6 +638,7 @@ def _fitted_model(
     *,
     ball_radius_mm: float,
     px_per_mm: float,
+    marker_level: float,
 ) -> CalibratedDepthModel:
     """The fitted regressor as a :class:`CalibratedDepthModel`, with its fit report."""
     contact = np.concatenate(in_contact)
@@ -500,6 +648,7 @@ def _fitted_model(
         "background_pixels": int((~contact).sum()),
         "slope_rmse_contact": float(np.sqrt(np.mean(residual[contact] ** 2))),
         "slope_rmse_background": float(np.sqrt(np.mean(residual[~contact] ** 2))),
+        "markers": marker_level > 0,
     }
     return CalibratedDepthModel(
         px_per_mm=float(px_per_mm),
@@ -509,4 +658,5 @@ def _fitted_model(
         layers=layers,
         input_scale=input_scale,
         report=report,
+        marker_level=marker_level,
     )

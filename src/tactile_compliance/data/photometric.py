@@ -15,6 +15,7 @@ import scipy.fft
 
 __all__ = [
     "DepthModel",
+    "fill_masked",
     "poisson_depth",
     "reconstruct_depth",
 ]
@@ -68,8 +69,10 @@ def _inverse_eigenvalues(rows: int, cols: int) -> np.ndarray:
     return (1.0 / (ky[:, None] + kx[None, :])).astype(np.float32)
 
 
-def _fill_markers(grad: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
-    """Replace gradients under the mask by a normalised-convolution average around it.
+def fill_masked(grad: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
+    """Replace values under the mask by a normalised-convolution average around it (a box
+    of ``2 round(sigma) + 1`` px): the markers' fill of the dataset heuristic (on its
+    gradients) and of a calibrated depth model (on its difference images).
 
     ``grad`` and ``mask`` are (n, H, W); frames are blurred as the channels of one image.
     """
@@ -184,8 +187,8 @@ def reconstruct_depth(
             marker_mask = _resize_stack(marker_mask.astype(np.float32), small, cv2.INTER_AREA) > 0
     if marker_mask is not None:
         sigma = max(0.25 / _pixel_size_mm(gx.shape[2]), 1.0)
-        gx = _fill_markers(gx, marker_mask, sigma)
-        gy = _fill_markers(gy, marker_mask, sigma)
+        gx = fill_masked(gx, marker_mask, sigma)
+        gy = fill_masked(gy, marker_mask, sigma)
     depth = poisson_depth(gx, gy)
     if solve_scale < 1.0:
         depth = _resize_stack(depth, (h, w), cv2.INTER_LINEAR)
