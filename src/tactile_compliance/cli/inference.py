@@ -26,6 +26,7 @@ from tactile_compliance.cli.options import (
     FolderFpsOption,
     FolderTimesOption,
     ReadingsOption,
+    ReferenceOption,
     SourceArg,
     _open_source,
 )
@@ -159,13 +160,7 @@ def estimate(
     source: SourceArg,
     readings: ReadingsOption = None,
     calibration: CalibrationOption = None,
-    reference: Annotated[
-        Optional[Path],
-        typer.Option(
-            help="A no-contact frame (image file: a camera frame, or one already cut to the "
-            "sensor frame); replaces the calibration's reference and the first frame."
-        ),
-    ] = None,
+    reference: ReferenceOption = None,
     max_frames: Annotated[
         Optional[int], typer.Option(min=1, help="Stop after this many frames (default: release).")
     ] = None,

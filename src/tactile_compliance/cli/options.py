@@ -116,6 +116,13 @@ ReadingsOption = Annotated[
 ]
 
 
+ReferenceOption = Annotated[
+    Optional[Path],
+    typer.Option(
+        help="A no-contact frame (image file: a camera frame, or one already cut to the "
+        "sensor frame); replaces the calibration's reference and the first frame."
+    ),
+]
 FolderTimesOption = Annotated[
     Optional[Path],
     typer.Option("--timestamps", help="CSV of a folder's frame times (file,timestamp_s)."),

@@ -20,6 +20,7 @@ from tactile_compliance.cli.options import (
     FolderFpsOption,
     FolderTimesOption,
     ReadingsOption,
+    ReferenceOption,
     SourceArg,
     _open_source,
 )
@@ -316,13 +317,7 @@ def record(
     material: Annotated[str, typer.Option(help="Material, e.g. Rubber.")] = "",
     shape: Annotated[str, typer.Option(help="Shape, e.g. Sphere.")] = "",
     calibration: CalibrationOption = None,
-    reference: Annotated[
-        Optional[Path],
-        typer.Option(
-            help="A no-contact frame (image file: a camera frame, or one already cut to the "
-            "sensor frame); replaces the calibration's reference and the first frame."
-        ),
-    ] = None,
+    reference: ReferenceOption = None,
     markers_source: Annotated[
         Optional[str], typer.Option(help="A second sensor (the marker finger).")
     ] = None,
