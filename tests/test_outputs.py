@@ -98,7 +98,16 @@ def _commands(user: Path, user_file: Path, store: Path) -> dict[str, list[str]]:
             str(user),
         ],
         "report --out": ["report", str(store), "--out", str(user)],
-        "train --out": ["train", "--set", f"data.store={store}", "--out", str(user)],
+        # A frame size the model takes: only the output directory is wrong.
+        "train --out": [
+            "train",
+            "--set",
+            f"data.store={store}",
+            "--size",
+            "72x72",
+            "--out",
+            str(user),
+        ],
         "tune --out": [
             "tune",
             "top10nn",

@@ -319,7 +319,16 @@ def test_a_locked_run_directory_fails_at_once_and_a_dead_holders_lock_is_taken_o
         # The command line prints it as one line.
         result = CliRunner().invoke(
             app,
-            ["train", "--set", f"data.store={toy_store.path}", "--out", str(run_dir)],
+            # A frame size the model takes: only the lock stops it.
+            [
+                "train",
+                "--set",
+                f"data.store={toy_store.path}",
+                "--size",
+                "72x72",
+                "--out",
+                str(run_dir),
+            ],
         )
         assert result.exit_code == 2 and f"pid {holder.pid} " in result.output
         assert result.output.strip().count("\n") == 0, result.output

@@ -13,6 +13,7 @@ import warnings
 from pathlib import Path
 from typing import Annotated, Any
 
+import click
 import typer
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
@@ -270,22 +271,28 @@ def main(
     global _debug
     _debug = debug
     if not debug:  # --debug keeps Python's form (file:line: Category: message)
-        warnings.showwarning = _show_warning
+        # Only the text changes (formatwarning, not showwarning), so a caller that records
+        # warnings (warnings.catch_warnings, pytest.warns) still gets them; restored when
+        # the command ends, for a program that runs commands in its own process.
+        previous = warnings.formatwarning
+        warnings.formatwarning = _format_warning
+        ctx = click.get_current_context(silent=True)
+        if ctx is not None:
+            ctx.call_on_close(lambda: setattr(warnings, "formatwarning", previous))
 
 
-def _show_warning(
+def _format_warning(
     message: Warning | str,
     category: type[Warning],
     filename: str,
     lineno: int,
-    file: Any = None,
     line: str | None = None,
-) -> None:
+) -> str:
     """A warning as the command's one line, ``warning: MESSAGE``, not the file and line
     inside a library that raised it (pydantic's ``main.py:792: UserWarning``)."""
     text = " ".join(str(message).split())
     kind = "" if category is UserWarning else f" ({category.__name__})"
-    print(f"warning: {text}{kind}", file=file or sys.stderr)
+    return f"warning: {text}{kind}\n"
 
 
 def _existing_dir(path: Path, what: str) -> Path:
