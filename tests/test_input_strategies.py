@@ -31,7 +31,8 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Any:
 
 @pytest.fixture(scope="module")
 def runs(store: Any, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    torch.set_num_threads(1)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # small runs: one thread is faster; restored for later tests
     out = tmp_path_factory.mktemp("runs")
     made = {}
     for inputs in STRATEGIES:
@@ -46,6 +47,7 @@ def runs(store: Any, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path
             overrides += ["data.image_size=[72,72]", "training.lr=1e-3"]
         made[inputs] = out / inputs
         train(load_config("default", overrides), run_dir=made[inputs], progress=False)
+    torch.set_num_threads(threads)
     return made
 
 
