@@ -250,7 +250,8 @@ def import_burgess(
         image_size: (height, width) px to resize the dataset's majority-size frames to
             (samples of another size are skipped and reported); None keeps the size.
         strict: stop at the first problem instead of skipping and reporting it.
-        overwrite: replace an existing store (only a store).
+        overwrite: replace an existing store, and only a store: the new one replaces it
+            atomically once complete (``GraspStoreWriter``), so a failed import keeps it.
         source_name: recorded in the store header; default ``synthetic`` for trees written
             by the generator (they hold ``generation.json``), else ``burgess``.
         depth: keep each sample's three depth maps (its own finger's ``depth*.pkl``) in
