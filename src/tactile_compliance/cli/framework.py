@@ -13,7 +13,6 @@ import warnings
 from pathlib import Path
 from typing import Annotated, Any
 
-import click
 import typer
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
@@ -152,6 +151,14 @@ def _main_with_one_line_errors(main: Any, *args: Any, **kwargs: Any) -> Any:
     """Run click's ``main``; in standalone mode a usage error (an unknown option, a value
     that is not one of the choices, a missing argument) is one line on stderr, exit 2,
     like the commands' own errors, instead of typer's framed usage block."""
+    formatwarning = warnings.formatwarning  # the command may replace it (main callback)
+    try:
+        return _run_main(main, *args, **kwargs)
+    finally:
+        warnings.formatwarning = formatwarning
+
+
+def _run_main(main: Any, *args: Any, **kwargs: Any) -> Any:
     if not kwargs.get("standalone_mode", True):
         return main(*args, **kwargs)
     try:
@@ -274,11 +281,8 @@ def main(
         # Only the text changes (formatwarning, not showwarning), so a caller that records
         # warnings (warnings.catch_warnings, pytest.warns) still gets them; restored when
         # the command ends, for a program that runs commands in its own process.
-        previous = warnings.formatwarning
+        # (_main_with_one_line_errors puts the previous one back.)
         warnings.formatwarning = _format_warning
-        ctx = click.get_current_context(silent=True)
-        if ctx is not None:
-            ctx.call_on_close(lambda: setattr(warnings, "formatwarning", previous))
 
 
 def _format_warning(
