@@ -5,6 +5,7 @@ Build a model by name: ``create_model("res_tf", inputs="ImageFW")``; see docs/mo
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.metadata
 import pkgutil
@@ -53,6 +54,18 @@ _REGISTERED = re.compile(r"""@register_model\(\s*["']([A-Za-z0-9_.-]+)["']""")
 ENTRY_POINT_GROUP = "tactile_compliance.models"
 
 
+@functools.cache  # every config validates its model name: read the sources once
+def _declared_model_names() -> frozenset[str]:
+    """The names the package's modules and the entry points declare (see below)."""
+    names: set[str] = set()
+    for module in pkgutil.iter_modules(__path__):
+        path = Path(getattr(module.module_finder, "path", "")) / f"{module.name}.py"
+        if not module.name.startswith("_") and path.is_file():
+            names.update(_REGISTERED.findall(path.read_text(encoding="utf-8")))
+    names.update(e.name for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP))
+    return frozenset(names)
+
+
 def known_model_names() -> list[str]:
     """The model names ``create_model`` takes, sorted, without loading torch.
 
@@ -61,12 +74,7 @@ def known_model_names() -> list[str]:
     entry points (an entry point is named after its model), and, once the registry is
     loaded, any model a program registered. The registry's own list after
     ``discover_models`` is the same set (tests/test_models.py checks it)."""
-    names: set[str] = set()
-    for module in pkgutil.iter_modules(__path__):
-        path = Path(getattr(module.module_finder, "path", "")) / f"{module.name}.py"
-        if not module.name.startswith("_") and path.is_file():
-            names.update(_REGISTERED.findall(path.read_text(encoding="utf-8")))
-    names.update(e.name for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP))
+    names = set(_declared_model_names())
     registry = sys.modules.get(f"{__name__}.registry")
     if registry is not None:
         names.update(registry.list_models())
