@@ -329,12 +329,11 @@ def test_the_benchmark_scores_adapt_leave_one_object_out(wedge_grasps, object_ta
 
     from tactile_compliance.inference.adapt import GraspPrediction, leave_one_object_out
     from tactile_compliance.runs.output_calibration import DEFAULT_RIDGE
-    from test_recording import _checkpoint
 
     stems = ["golf_ball_1", "green_ball_softer_2", "purple_ball_hardest_1"]
     recordings = _subset(wedge_grasps, tmp_path, stems)
     (tmp_path / "tiny").mkdir()
-    ckpt = _checkpoint(tmp_path / "tiny" / "best.pt", inputs="ImageFW", size=(72, 72))
+    ckpt = top10nn_checkpoint(tmp_path / "tiny" / "best.pt", inputs="ImageFW", size=(72, 72))
     out = tmp_path / "out"
     result = real_grasps.run(
         out, recordings, object_table_csv, models=[ckpt], adapt=[ckpt], log=lambda *_: None
