@@ -104,6 +104,10 @@ def run_sim2real(
 ) -> Sim2RealSummary:
     """Generate, import and train under ``out_dir``; the model is ``out_dir/best.pt``.
 
+    No real grasp is read: the rig (a packaged one, or the file ``calibrate-rig`` fitted
+    on the user's own recordings) is the only thing fitted on real data. The same
+    ``seed`` and rig give the same generated grasps on any machine.
+
     Args:
         out_dir: created, or one that ``sim2real`` wrote before (it then continues:
             generated objects, the store and a finished or interrupted run are kept).

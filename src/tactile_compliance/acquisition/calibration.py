@@ -210,7 +210,13 @@ class SensorCalibration:
             raise ValueError(f"{path}: damaged sensor calibration ({err})") from err
 
     def open(self, spec: str, **options: Any) -> FrameSourceBase:
-        """Open ``spec`` (see ``sensors.open_source``) with this calibration's geometry."""
+        """Open ``spec`` (see ``sensors.open_source``) with this calibration's geometry.
+
+        The source's frames are warped, cropped and resized as at calibration time, and a
+        camera frame of another size than ``geometry.input_size`` raises ``FrameSizeError``
+        (another camera, or the same one at another resolution, would be differenced
+        against a reference it does not match).
+        """
         return open_source(spec, geometry=self.geometry, **options)
 
 

@@ -409,7 +409,9 @@ class CalibratedDepthModel:
 
     def depth_mm(self, diff: np.ndarray) -> np.ndarray:
         """Depth maps [mm] (n, H, W), positive into the gel, from difference images
-        (n, H, W, 3) BGR centred on 0.5 of this sensor.
+        (n, H, W, 3) BGR centred on 0.5 of this sensor. Outside the contact mask
+        (:meth:`contact_mask`) the depth is exactly 0: drift, a change of light and noise
+        away from the contact cannot integrate into bowls.
 
         Raises:
             ValueError: frames of another size than the model was calibrated on.

@@ -1,7 +1,18 @@
 """The raw layout of the GelSight Young's-modulus dataset (Burgess et al. 2024): its names,
 its one reader (``import burgess``, ``predict``) and its one writer (the generator,
 ``record``); every ``.pkl`` is read with the allow-list unpickler and checked against its
-file's plausibility rule (:data:`FILE_RULES`).
+file's plausibility rule (:data:`FILE_RULES`). The files and their units::
+
+    ROOT/{object}/metadata.json
+    ROOT/{object}/grasp={g}/units.json             estimator, depth model, px/mm (ours only)
+    ROOT/{object}/grasp={g}/augmentation={k}/RGB.pkl            (3, H, W, 3) BGR difference
+                                                                images in [0, 1]
+                                             RGB_markers.pkl    the same, the marker finger
+                                             depth.pkl, depth_markers.pkl   (3, H, W) mm
+                                             forces.pkl (3,) N, widths.pkl (3,) m
+                                             elastic_estimate.pkl, hertz_estimate.pkl  () Pa
+                                                 (absent where the fit failed)
+    ROOT/generation.json                     the generator's manifest (synthetic trees)
 
 See docs/data.md, "Importing the GelSight Young's-modulus dataset".
 """

@@ -265,6 +265,16 @@ def build_report(
 ) -> ReportSummary:
     """Build the report of a results store: tables, figures, and the documents.
 
+    Only rows with ``status == "complete"`` count. A part whose rows are missing, or that
+    fails, is skipped with a note in the report (and in ``ReportSummary.notes``) naming
+    the preset that produces it; the rest is still written. Files written under
+    ``out_dir`` (claimed: a directory ``report`` did not write is refused)::
+
+        report.md, report.html (self-contained), report.tex   as ``formats`` asks
+        report.json                  documents, figures, tables and notes
+        figures/*.png
+        tables/*.tex, tables/*.csv   one booktabs table and its tidy numbers per table
+
     Args:
         results_dir: the results store (``RESULTS/rows/*.json``), or one run directory
             (it holds ``metrics.json``): then the report is that run's metrics table and
