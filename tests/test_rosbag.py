@@ -179,15 +179,19 @@ def test_a_missing_rosbags_says_how_to_install_it(monkeypatch, bag):
 
 # ---------------------------------------------------------------------- real data
 def test_the_real_wedge_grasps_from_bags_give_the_video_estimates(reference_data_dir, tmp_path):
-    """All 15 real recordings: ``calibrate`` + ``estimate`` on ``wedge:VIDEO`` and on a bag
-    of its raw camera frames (bgr8, 640 x 480) give the same estimates."""
+    """The first recording of each of the 5 real objects: ``calibrate`` + ``estimate`` on
+    ``wedge:VIDEO`` and on a bag of its raw camera frames (bgr8, 640 x 480) give the same
+    estimates. (A bag takes the same path for every grasp; the objects differ in contact
+    size and force profile. All 15 took 38 s, a third of that is enough.)"""
     session = reference_data_dir / "real" / "wedge-grasps" / "2023-12-06"
     if not session.is_dir():
         pytest.skip(f"{session} is not present")
     geometry = ["--corners", WEDGE_CORNERS, "--warp-size", "300x400", "--frames", 3]
     videos = sorted(session.glob("*.avi"))
     assert len(videos) == 15
-    for video in videos:
+    first_of_each = [video for video in videos if video.stem.endswith("_1")]
+    assert len(first_of_each) == 5
+    for video in first_of_each:
         readings = video.with_name(f"{video.stem}_readings.csv")
         bag = bag_of(video, readings, tmp_path / f"{video.stem}_bag")
         cli("calibrate", f"wedge:{video}", "--out", tmp_path / "v.json", *geometry)
