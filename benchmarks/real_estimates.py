@@ -5,7 +5,11 @@ goes through the two commands a user runs, called in-process through the CLI (th
 helpers of ``benchmarks/real_grasps.py``: the same recordings, corners and labels):
 
 1. ``calibrate wedge:VIDEO --corners ... --warp-size 300x400 --frames 3``;
-2. ``estimate wedge:VIDEO --calibration CAL --readings CSV --json``.
+2. ``estimate wedge:VIDEO --calibration CAL --readings CSV --rig wedge-2023 --json``.
+
+The rig-corrected estimates use the packaged ``wedge-2023`` rig (``--rig``), whose
+stiffness ``calibrate-rig`` fitted on the golf ball's three grasps, which are among
+these recordings (docs/results.md, "What was fitted on what").
 
 Reported: per object the true E and the geometric mean of each estimate over its grasps,
 and per estimate the share of grasps within one decade of the truth, the N-MSE, the MAE
@@ -36,7 +40,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import real_grasps
 
-ESTIMATES = ("elastic", "hertz")
+ESTIMATES = ("elastic", "hertz", "elastic_rig", "hertz_rig")
+RIG = "wedge-2023"
 
 
 def run(
@@ -70,6 +75,7 @@ def run(
             calibrate += ["--warp-size", warp_size, "--frames", frames]
             real_grasps.run_cli(*calibrate)
             estimate = ["estimate", spec, "--calibration", calibration, "--readings", readings]
+            estimate += ["--rig", RIG]
             commands.append("tactile-compliance " + " ".join(map(str, estimate)))
             result = json.loads(real_grasps.run_cli(*estimate, "--json"))
             label = matched[stem]
@@ -80,6 +86,8 @@ def run(
                     "true_pa": float(table.loc[label]["modulus_pa"]),
                     "elastic": result["elastic_pa"],
                     "hertz": result["hertz_pa"],
+                    "elastic_rig": result["rig_corrected_pa"][0],
+                    "hertz_rig": result["rig_corrected_pa"][1],
                     "frame_indices": result["frame_indices"],
                 }
             )
@@ -89,7 +97,12 @@ def run(
         "n_grasps": len(grasps),
         "n_objects": len({g["object"] for g in grasps}),
         "estimators": list(ESTIMATES),
-        "names": {"elastic": "elastic (estimate)", "hertz": "Hertz (estimate)"},
+        "names": {
+            "elastic": "elastic (estimate)",
+            "hertz": "Hertz (estimate)",
+            "elastic_rig": f"elastic, rig-corrected ({RIG})",
+            "hertz_rig": f"Hertz, rig-corrected ({RIG})",
+        },
         "grasps": grasps,
         "objects": real_grasps.per_object(grasps, ESTIMATES),
         "summary": {key: real_grasps.score(grasps, key) for key in ESTIMATES},

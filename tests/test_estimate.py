@@ -52,6 +52,35 @@ def test_estimate_prints_the_estimates_record_stores(grasp, tmp_path):
     assert not (tmp_path / "nothing").exists()
 
 
+def test_estimate_with_a_rig_adds_the_rig_corrected_estimates_record_reports(grasp, tmp_path):
+    source = f"video:{grasp['video']}"
+    readings = ["--readings", grasp["readings"], "--rig", "dataset"]  # the grasp's own rig
+    estimated = json.loads(cli("estimate", source, *readings, "--json"))
+    recorded = json.loads(
+        cli(
+            "record", source, *readings, "--out", tmp_path / "data", "--object", "thing",
+            "--modulus", grasp["modulus_pa"], "--json",
+        )
+    )  # fmt: skip
+    rig = estimated["rig_corrected_pa"]
+    assert rig == recorded["rig_corrected_pa"] and all(v is not None and v > 0 for v in rig)
+    assert rig != estimated["estimates_pa"]  # the closure taken out changes them
+    # Taking out the rig's own closure leaves less of it to the object: stiffer estimates.
+    assert rig[0] > estimated["estimates_pa"][0]
+    assert "rig-corrected with the wedge-2023 rig" in estimated["accuracy"]["statement"]
+    text = cli("estimate", source, *readings)
+    assert f"Rig-corrected elastic E {rig[0]:.4g} Pa, Hertz E* {rig[1]:.4g} Pa" in text
+    assert (
+        json.loads(cli("estimate", source, "--readings", grasp["readings"], "--json"))[
+            "rig_corrected_pa"
+        ]
+        is None
+    )
+    # A wrong rig is refused before the source is read.
+    result = runner.invoke(app, ["estimate", "video:/no/such.avi", "--rig", "wedg-2023"])
+    assert result.exit_code != 0 and "unknown rig 'wedg-2023'" in result.output
+
+
 def test_estimate_without_readings_or_with_millimetres_says_why(grasp, tmp_path):
     result = runner.invoke(app, ["estimate", f"video:{grasp['video']}"])
     assert result.exit_code == 2 and "--readings CSV is required" in result.output
@@ -83,6 +112,27 @@ def test_live_without_a_checkpoint_streams_the_same_estimates(grasp):
     assert "modulus_pa" not in final  # no model, no single modulus
     text = cli("live", source, "--readings", grasp["readings"]).splitlines()
     assert text[-1].startswith("final       elastic E = ") and "Hertz E* = " in text[-1]
+    assert "rig-corrected" not in text[-1] and final["rig_corrected_pa"] is None
+
+
+def test_live_with_a_rig_streams_the_rig_corrected_estimates_of_estimate(grasp, tmp_path):
+    source = f"video:{grasp['video']}"
+    readings = ["--readings", grasp["readings"], "--rig", "dataset"]
+    estimated = json.loads(cli("estimate", source, *readings, "--json"))
+    result = runner.invoke(app, ["live", source, *map(str, readings), "--json"])
+    assert result.exit_code == 0, result.output
+    events = [json.loads(line) for line in result.stdout.splitlines()]
+    final = [e for e in events if e["event"] == "estimate"][-1]
+    assert final["final"] and final["estimates_pa"] == pytest.approx(
+        estimated["estimates_pa"], rel=1e-9
+    )
+    assert final["rig_corrected_pa"] == pytest.approx(estimated["rig_corrected_pa"], rel=1e-9)
+    assert "rig-corrected elastic E = " in cli("live", source, *readings).splitlines()[-1]
+    # A model gives its own estimate: --rig with a checkpoint is refused before it loads.
+    model = tmp_path / "best.pt"
+    model.write_bytes(b"not read")
+    result = runner.invoke(app, ["live", str(model), source, *map(str, readings)])
+    assert result.exit_code == 2 and "--rig adds the rig-corrected" in result.output
 
 
 def test_live_with_a_model_in_place_of_the_source_names_the_mistake(tmp_path):
@@ -112,7 +162,7 @@ def test_the_quoted_accuracy_is_what_the_benchmark_measures(reference_data_dir):
     assert (result["n_grasps"], result["n_objects"]) == (quoted["grasps"], quoted["objects"])
     truths = [g["true_pa"] for g in result["grasps"]]
     assert [min(truths), max(truths)] == pytest.approx(quoted["true_range_pa"], rel=1e-3)
-    for key in ("elastic", "hertz"):
+    for key in ("elastic", "hertz", "elastic_rig", "hertz_rig"):
         measured = result["summary"][key]
         within = measured["within_one_decade"] * measured["n_grasps"]
         assert math.isclose(within, quoted[key]["within_one_decade"]), key

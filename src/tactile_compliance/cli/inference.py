@@ -27,8 +27,10 @@ from tactile_compliance.cli.options import (
     FolderTimesOption,
     ReadingsOption,
     ReferenceOption,
+    RigCorrectionOption,
     SourceArg,
     _open_source,
+    rig_stiffness_n_per_m,
 )
 from tactile_compliance.devices import DEFAULT_DEVICE
 
@@ -166,6 +168,7 @@ def estimate(
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
+    rig: RigCorrectionOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """The analytical estimates of one grasp (elastic E, Hertz E*), without a model.
@@ -176,12 +179,18 @@ def estimate(
     from tactile_compliance.acquisition.estimates import estimate_recording
     from tactile_compliance.acquisition.readings import source_readings
 
+    rig_stiffness = rig_stiffness_n_per_m(rig)
     no_contact = None if reference is None else read_image(reference)
     frames, sensor = _open_source(source, calibration, fps, timestamps)
     with frames:
         table = source_readings(readings, frames)
         result = estimate_recording(
-            frames, table, calibration=sensor, reference=no_contact, max_frames=max_frames
+            frames,
+            table,
+            calibration=sensor,
+            reference=no_contact,
+            max_frames=max_frames,
+            rig_stiffness_n_per_m=rig_stiffness,
         )
     typer.echo(_json(result.to_dict()) if as_json else result.format())
 
@@ -264,6 +273,7 @@ def live(
     ] = 0.0,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
+    rig: RigCorrectionOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON lines.")] = False,
     device: DeviceOption = DEFAULT_DEVICE,
     weights: BackboneWeightsOption = None,
@@ -281,6 +291,12 @@ def live(
         raise typer.BadParameter(f"--window-s must be > 0 s, got {window_s}")
     if not 0 < level < 1:
         raise typer.BadParameter(f"--level must lie between 0 and 1 (exclusive), got {level}")
+    if checkpoints and rig is not None:
+        raise typer.BadParameter(
+            "--rig adds the rig-corrected analytical estimates to `live` without a model; a "
+            "model gives its own estimate (leave out --rig or the checkpoints)"
+        )
+    rig_stiffness = rig_stiffness_n_per_m(rig)
     no_camera = source.strip().lower() == NO_CAMERA
     if not checkpoints:  # `live SOURCE`: the analytical estimates, no model
         if no_camera:
@@ -318,6 +334,7 @@ def live(
             window_s=window_s,
             level=level,
             readings_offset_s=readings_offset_s,
+            rig_stiffness_n_per_m=rig_stiffness,
         ):
             if event["event"] == "no_estimate":
                 _fail(f"no estimate: {event['reason']}", EXIT_BAD_INPUT)

@@ -127,6 +127,24 @@ FolderTimesOption = Annotated[
     Optional[Path],
     typer.Option("--timestamps", help="CSV of a folder's frame times (file,timestamp_s)."),
 ]
+RigCorrectionOption = Annotated[
+    Optional[str],
+    typer.Option(
+        "--rig",
+        help="A rig file from calibrate-rig (or a rig name): also report the rig-corrected "
+        "analytical estimates, the rig's own closure taken out.",
+    ),
+]
+
+
+def rig_stiffness_n_per_m(rig: str | None) -> float | None:
+    """The stiffness [N/m] of ``--rig`` (a name or a rig file), None without one; resolved
+    before a source opens, so a wrong rig fails first (ValueError: unknown or invalid)."""
+    if rig is None:
+        return None
+    from tactile_compliance.synthetic.rig import resolve_rig
+
+    return resolve_rig(rig)[1].stiffness_n_per_m
 
 
 #: ``live``'s source for a frame-free model: no camera, the readings alone.

@@ -21,8 +21,10 @@ from tactile_compliance.cli.options import (
     FolderTimesOption,
     ReadingsOption,
     ReferenceOption,
+    RigCorrectionOption,
     SourceArg,
     _open_source,
+    rig_stiffness_n_per_m,
 )
 
 
@@ -329,13 +331,7 @@ def record(
     ] = None,
     fps: FolderFpsOption = None,
     timestamps: FolderTimesOption = None,
-    rig: Annotated[
-        Optional[str],
-        typer.Option(
-            help="A rig file from calibrate-rig (or a rig name): also report the "
-            "rig-corrected analytical estimates, the rig's own closure taken out."
-        ),
-    ] = None,
+    rig: RigCorrectionOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
 ) -> None:
     """Record one grasp into a dataset in the public dataset's raw layout.
@@ -355,11 +351,7 @@ def record(
         raise typer.BadParameter(str(err), param_hint="--modulus") from None
     info = ObjectInfo(object_name, modulus_pa, material, shape)
     no_contact = None if reference is None else read_image(reference)
-    rig_stiffness = None
-    if rig is not None:
-        from tactile_compliance.synthetic.rig import resolve_rig
-
-        rig_stiffness = resolve_rig(rig)[1].stiffness_n_per_m
+    rig_stiffness = rig_stiffness_n_per_m(rig)
     with ExitStack() as stack:
         frames, sensor = _open_source(source, calibration, fps, timestamps)
         stack.enter_context(frames)

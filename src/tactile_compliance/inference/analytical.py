@@ -26,6 +26,8 @@ class AnalyticalEstimate:
 
     Attributes:
         estimates_pa: (elastic E, Hertz E*) in Pa, in the units of the stream's estimator.
+        rig_corrected_pa: the same with the rig's own closure taken out of the widths (NaN
+            where not estimable), from the same frames; None for a stream without a rig.
         frame_indices, onset_frame, peak_frame, frames_seen, final, force_n, width_m,
         window, frame_times_s, window_s: as ``streaming.StreamEstimate``'s.
     """
@@ -41,11 +43,15 @@ class AnalyticalEstimate:
     window: int | None
     frame_times_s: tuple[float, float, float] | None = None
     window_s: float | None = None
+    rig_corrected_pa: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly dict (lists for tuples), with ``elastic_pa`` and ``hertz_pa``."""
+        """JSON-friendly dict (lists for tuples), with ``elastic_pa`` and ``hertz_pa``; a
+        rig-corrected estimate that could not be made is None."""
         data = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
         data["elastic_pa"], data["hertz_pa"] = self.estimates_pa
+        if self.rig_corrected_pa is not None:
+            data["rig_corrected_pa"] = [None if math.isnan(v) else v for v in self.rig_corrected_pa]
         return data
 
 
@@ -65,12 +71,30 @@ class AnalyticalStream(StreamingEstimator):
 
     Args:
         analytical_estimator: the estimator (``recording.recording_estimator(calibration)``).
+        rig_stiffness_n_per_m: the rig's stiffness [N/m] (``calibrate-rig``): each estimate
+            also carries the rig-corrected pair, as ``estimate --rig`` computes it.
         options: ``StreamingEstimator``'s (window, window_s, frame_kind, release_fraction,
             ...); ``depth_mm`` must come with every update.
     """
 
-    def __init__(self, analytical_estimator: AnalyticalEstimator, **options: Any) -> None:
+    def __init__(
+        self,
+        analytical_estimator: AnalyticalEstimator,
+        rig_stiffness_n_per_m: float | None = None,
+        **options: Any,
+    ) -> None:
         super().__init__(_NoModel(), analytical_estimator=analytical_estimator, **options)  # type: ignore[arg-type]
+        self.rig_stiffness_n_per_m = rig_stiffness_n_per_m
+
+    def _rig_corrected(self, selection: FrameSelection, final: bool) -> tuple[float, float]:
+        forces, widths, depths = self._estimation_series(selection, final)
+        try:
+            values = self.analytical_estimator.estimate(
+                forces, widths, depths, rig_stiffness_n_per_m=self.rig_stiffness_n_per_m
+            )
+        except ValueError:
+            return (math.nan, math.nan)  # as recording.grasp_estimates: no estimate
+        return (float(values[0]), float(values[1]))
 
     def _predict(
         self, selection: FrameSelection, estimates: np.ndarray | None, final: bool
@@ -90,4 +114,7 @@ class AnalyticalStream(StreamingEstimator):
             window=self.window,
             frame_times_s=selection.times_s,
             window_s=self.window_s,
+            rig_corrected_pa=None
+            if self.rig_stiffness_n_per_m is None
+            else self._rig_corrected(selection, final),
         )

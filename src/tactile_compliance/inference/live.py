@@ -70,6 +70,7 @@ def live_estimates(
     level: float = 0.8,
     scale: float = 1.0,
     readings_offset_s: float = 0.0,
+    rig_stiffness_n_per_m: float | None = None,
 ) -> Iterator[dict[str, Any]]:
     """Run ``source`` through streaming estimators; yield one dict per event:
     ``estimate``, ``skipped``, ``warning`` or ``no_estimate`` (``{"event": KIND, ...}``).
@@ -95,10 +96,18 @@ def live_estimates(
         window, window_s: ``StreamingEstimator``'s window in frames or seconds.
         level, scale: the ensemble interval (``EnsembleEstimator``).
         readings_offset_s: the readings' clock minus the source's, in s.
+        rig_stiffness_n_per_m: the rig's stiffness [N/m]; without members, each estimate
+            event also carries ``rig_corrected_pa`` (``estimate --rig``'s pair). Members
+            given: ValueError (a model has no rig-corrected estimate).
     """
     if not math.isfinite(readings_offset_s):
         raise ValueError(
             f"--readings-offset-s must be a finite number of s, got {readings_offset_s}"
+        )
+    if members and rig_stiffness_n_per_m is not None:
+        raise ValueError(
+            "--rig adds the rig-corrected analytical estimates to `live` without a model; "
+            "a model gives its own estimate (leave out --rig or the checkpoints)"
         )
     if source is None:
         if not members:
@@ -126,6 +135,7 @@ def live_estimates(
         ] or [
             AnalyticalStream(
                 recording_estimator(calibration),
+                rig_stiffness_n_per_m=rig_stiffness_n_per_m,
                 window=window,
                 window_s=window_s,
                 frame_kind="difference",
@@ -368,11 +378,17 @@ def format_live_event(event: dict[str, Any]) -> str:
     kind = "final      " if event["final"] else "provisional"
     when = "" if event["timestamp_s"] is None else f" t={event['timestamp_s']:.3f} s"
     if "estimates_pa" in event:  # no model: the analytical estimates
-        return (
+        line = (
             f"{kind} elastic E = {event['elastic_pa']:.4g} Pa, Hertz E* = "
             f"{event['hertz_pa']:.4g} Pa  frames {tuple(event['frame_indices'])} of "
             f"{event['frames_seen']}{when}"
         )
+        if event.get("rig_corrected_pa") is not None:
+            elastic, hertz = (
+                "-" if v is None else f"{v:.4g} Pa" for v in event["rig_corrected_pa"]
+            )
+            line += f"  rig-corrected elastic E = {elastic}, Hertz E* = {hertz}"
+        return line
     line = (
         f"{kind} E = {event['modulus_pa']:.4g} Pa (log10 {event['log10_modulus_pa']:.3f})"
         f"  frames {tuple(event['frame_indices'])} of {event['frames_seen']}{when}"

@@ -452,6 +452,16 @@ class StreamingEstimator:
     def _current_estimates(self, selection: FrameSelection, final: bool) -> np.ndarray | None:
         if self._estimates_pa is not None or not self._has_depth:
             return self._estimates_pa
+        forces, widths, depths = self._estimation_series(selection, final)
+        values = np.asarray(
+            self.analytical_estimator.estimate(forces, widths, depths), dtype=np.float64
+        )
+        return values if np.all(np.isfinite(values)) else None
+
+    def _estimation_series(
+        self, selection: FrameSelection, final: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The forces [N], widths [m] and depth maps [mm] the analytical estimator gets."""
         buf = self._buffer
         lo, hi = max(selection.window_start, buf.offset), selection.peak + 1
         press = self._press_start(np.asarray(buf.forces))
@@ -462,11 +472,7 @@ class StreamingEstimator:
             # refinements stop at the peak so they change only when the peak does.
             lo, hi = max(press, buf.offset), (len(buf.forces) if final else hi)
         depths = np.stack(buf.depths[lo - buf.offset : hi - buf.offset])  # type: ignore[arg-type]
-        forces, widths = np.asarray(buf.forces)[lo:hi], np.asarray(buf.widths)[lo:hi]
-        values = np.asarray(
-            self.analytical_estimator.estimate(forces, widths, depths), dtype=np.float64
-        )
-        return values if np.all(np.isfinite(values)) else None
+        return np.asarray(buf.forces)[lo:hi], np.asarray(buf.widths)[lo:hi], depths
 
     def _estimate(self, *, final: bool) -> StreamEstimate | None:
         selection = self._select()
