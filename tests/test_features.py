@@ -173,3 +173,35 @@ def test_a_crashed_computation_releases_the_lock_and_resumes(tmp_path):
         progress=False,
     )
     assert _logged(log)[1] == 3 * len(store)
+
+
+def test_depth_maps_have_their_own_cache_prepared_as_training_prepares_them(tmp_path):
+    from tactile_compliance.data.dataset import prepare_depth
+    from tactile_compliance.data.features import cache_key
+
+    store = make_toy_store(tmp_path / "store", n_objects=4, grasps=2, size=(16, 16), depth=True)
+    log = tmp_path / "forward.log"
+    constants = NormalisationConstants(depth_scale_mm=0.5)
+    backbone = CountingBackbone(log)
+    size = store.image_size
+    frames = cached_features(store, backbone, size, constants, progress=False)
+    depth = cached_features(
+        store, backbone, size, constants, image="depth", batch_size=BATCH_SIZE, progress=False
+    )
+    keys = {path.name for path in (store.path / FEATURES_DIR).iterdir()}
+    assert keys == {
+        cache_key(backbone, size, constants),
+        cache_key(backbone, size, constants, "depth"),
+    }
+    assert cache_key(backbone, size, constants, "depth") != cache_key(
+        backbone, size, NormalisationConstants(), "depth"
+    )  # another depth scale is another cache
+    x = prepare_depth(torch.from_numpy(store.read_depth(np.arange(len(store)))), constants, size)
+    with torch.no_grad():
+        expected = backbone(x.reshape(-1, *x.shape[2:])).reshape(len(store), 3, -1)
+    np.testing.assert_allclose(
+        np.asarray(depth, dtype=np.float32), expected.numpy(), rtol=2e-3, atol=2e-3
+    )
+    assert not np.allclose(np.asarray(depth), np.asarray(frames))
+    with pytest.raises(ValueError, match="no image input"):
+        cache_key(backbone, size, constants, "force")

@@ -242,8 +242,17 @@ def test_stream_input_errors(estimator_fw):
     stream.update(frames[0], force[0], width[0])
     with pytest.raises(ValueError, match="frame shape changed"):
         stream.update(frames[1][:20], force[1], width[1])
+    with pytest.raises(ValueError, match="frame shape changed"):
+        stream.update(frames[1].astype(np.float32) / 255, force[1], width[1])
     with pytest.raises(ValueError, match="uint8 camera images"):
         estimator_fw.stream(frame_kind="raw").update(frames[0] / 255.0, force[0], width[0])
+    # The first frame of a grasp meets predict's own rule at once, not at the press.
+    fresh = estimator_fw.stream()
+    with pytest.raises(ValueError, match="models need at least"):
+        fresh.update(frames[0][:4, :4], force[0], width[0])
+    with pytest.raises(ValueError, match="difference images in"):
+        fresh.update(np.full(frames[0].shape, 3.0, np.float32), force[0], width[0])
+    assert fresh.frames_seen == 0  # a refused frame is not added
     with pytest.raises(ValueError, match="window"):
         estimator_fw.stream(window=1)
     with pytest.raises(ValueError, match="frame_kind"):

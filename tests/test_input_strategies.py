@@ -234,3 +234,36 @@ def test_live_runs_a_frame_free_estimates_model_on_a_camera(runs, tmp_path) -> N
     # Without the estimates the same model says which input is missing.
     with pytest.raises(ValueError, match="needs `estimates`"):
         estimator.predict(force=final["force_n"], width=final["width_m"])
+
+
+def test_a_depth_model_trains_on_cached_frozen_features(store, tmp_path) -> None:
+    # The head learns from the depth maps' cached features; the estimator, which runs the
+    # rebuilt backbone on the depth maps, gives what the run predicted from the cache.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        overrides = [
+            f"data.store={store.path}",
+            f"output_dir={tmp_path}",
+            "inputs=DepthFW",
+            "model.freeze_backbone=true",
+            "augmentation.enabled=false",
+            "training.max_epochs=2",
+            "training.batch_size=16",
+            "data.image_size=[72,72]",
+            "training.lr=1e-3",
+        ]
+        run = tmp_path / "frozen"
+        train(load_config("default", overrides), run_dir=run, progress=False)
+    finally:
+        torch.set_num_threads(threads)
+    (cache,) = (store.path / "features").iterdir()
+    assert "-depth-" in cache.name
+    assert json.loads((cache / "meta.json").read_text())["image"] == "depth"
+    test = pd.read_csv(run / "predictions.csv").query("split == 'test'")
+    ids = test["sample_id"].to_numpy()
+    given = _given(store, ids)
+    estimator = ComplianceEstimator.from_checkpoint(run)
+    got = estimator.predict(**{n: given[n] for n in estimator.required_inputs})
+    # float16 features in training, float32 ones here
+    np.testing.assert_allclose(got.log10_modulus_pa, np.log10(test["pred_pa"]), atol=2e-3)

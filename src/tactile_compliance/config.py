@@ -341,10 +341,10 @@ class ExperimentConfig(_Section):
                 "data.source=yuan (Shore-hardness videos) has frames only; use inputs: Image"
             )
         image = self.strategy.image
-        if self.model.freeze_backbone and (image is None or image.name != "frames"):
+        if self.model.freeze_backbone and image is None:
             raise ValueError(
-                f"model.freeze_backbone caches RGB frame features, but inputs={self.inputs} "
-                f"takes {'no images' if image is None else image.name}; set it to false"
+                f"model.freeze_backbone caches image features, but inputs={self.inputs} "
+                f"takes no images; set it to false"
             )
         if image is None and self.model.finetune != "all":
             raise ValueError(

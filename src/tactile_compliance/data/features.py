@@ -1,5 +1,5 @@
-"""Frozen-backbone feature cache: image features computed once per store and backbone,
-under ``STORE/features/KEY/``.
+"""Frozen-backbone feature cache: image features (of the RGB frames or the depth maps)
+computed once per store, image input and backbone, under ``STORE/features/KEY/``.
 
 See docs/data.md, "The frozen-backbone feature cache".
 """
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from tactile_compliance.data.dataset import prepare_frames
+from tactile_compliance.data.dataset import prepare_images
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.store import GraspStore
 from tactile_compliance.devices import DEFAULT_DEVICE, resolve_device
@@ -39,15 +39,24 @@ def weights_fingerprint(module: torch.nn.Module) -> str:
 
 
 def cache_key(
-    backbone: torch.nn.Module, image_size: tuple[int, int], constants: NormalisationConstants
+    backbone: torch.nn.Module,
+    image_size: tuple[int, int],
+    constants: NormalisationConstants,
+    image: str = "frames",
 ) -> str:
-    """Directory name identifying (backbone, weights, resolution, image normalisation)."""
-    norm = hashlib.sha256(
-        json.dumps([constants.image_mean, constants.image_std]).encode()
-    ).hexdigest()[:8]
+    """Directory name identifying (backbone, weights, resolution, image input and its
+    normalisation): the frames' mean and std, or the depth maps' ``depth_scale_mm``."""
+    if image == "frames":
+        norm = json.dumps([constants.image_mean, constants.image_std])
+    elif image == "depth":
+        norm = json.dumps(["depth", constants.depth_scale_mm])
+    else:
+        raise ValueError(f"{image!r} is no image input")
+    digest = hashlib.sha256(norm.encode()).hexdigest()[:8]
     height, width = image_size
     name = type(backbone).__name__.lower()
-    return f"{name}-{weights_fingerprint(backbone)[:16]}-{height}x{width}-{norm}"
+    kind = "" if image == "frames" else f"{image}-"
+    return f"{name}-{weights_fingerprint(backbone)[:16]}-{height}x{width}-{kind}{digest}"
 
 
 @torch.no_grad()
@@ -57,6 +66,7 @@ def cached_features(
     image_size: tuple[int, int],
     constants: NormalisationConstants,
     *,
+    image: str = "frames",
     batch_size: int = 32,
     device: str | torch.device = DEFAULT_DEVICE,
     progress: bool = True,
@@ -64,8 +74,10 @@ def cached_features(
     """Features (N_store, 3, feature_dim) of every store sample, computed once and cached.
 
     Returns a read-only float16 memmap; callers convert batches to float32.
-    ``image_size`` (height, width) px is what frames are resized to (the run's
-    ``RunInputs.image_size``).
+    ``image`` is the image input the backbone reads (``"frames"`` or ``"depth"``, the
+    strategy's ``InputStrategy.image``), prepared as training prepares it
+    (``data.dataset.prepare_images``); ``image_size`` (height, width) px is what it is
+    resized to (the run's ``RunInputs.image_size``).
 
     The cache is keyed by :func:`cache_key` (the backbone's weights hash included), so
     other weights never reuse stale features. Safe for several processes at once: one
@@ -74,7 +86,9 @@ def cached_features(
     lock.
     """
     size = tuple(image_size)
-    directory = store.path / FEATURES_DIR / cache_key(backbone, size, constants)
+    directory = store.path / FEATURES_DIR / cache_key(backbone, size, constants, image)
+    if image == "depth":
+        store.require_depth()
     final, meta_path = directory / FEATURES_FILE, directory / META_FILE
     feature_dim = int(backbone.feature_dim)
     shape = (len(store), 3, feature_dim)
@@ -87,7 +101,16 @@ def cached_features(
         if not (final.exists() and meta_path.exists()):
             device = resolve_device(device)
             _compute(
-                store, backbone, size, constants, directory, shape, batch_size, device, progress
+                store,
+                backbone,
+                image,
+                size,
+                constants,
+                directory,
+                shape,
+                batch_size,
+                device,
+                progress,
             )
     return np.memmap(final, dtype=np.float16, mode="r", shape=shape)
 
@@ -95,6 +118,7 @@ def cached_features(
 def _compute(
     store: GraspStore,
     backbone: torch.nn.Module,
+    image: str,
     size: tuple[int, int],
     constants: NormalisationConstants,
     directory: Path,
@@ -121,8 +145,12 @@ def _compute(
             advance(done)
             for start in range(done, len(store), batch_size):
                 stop = min(start + batch_size, len(store))
-                frames = torch.from_numpy(store.read_block(start, stop).copy()).to(device)
-                x = prepare_frames(frames, constants, size)  # (B, 3, 3, h, w)
+                if image == "frames":
+                    raw = store.read_block(start, stop)  # uint8, one pread
+                else:
+                    raw = store.read_depth(np.arange(start, stop))  # mm
+                images = torch.from_numpy(np.array(raw, copy=True)).to(device)
+                x = prepare_images(image, images, constants, size)  # (B, 3, 3, h, w)
                 batch = x.shape[0]
                 out = backbone(x.reshape(batch * 3, *x.shape[2:])).reshape(batch, 3, -1)
                 array[start:stop] = out.float().cpu().numpy().astype(np.float16)
@@ -136,11 +164,13 @@ def _compute(
     meta: dict[str, Any] = {
         "backbone": type(backbone).__name__,
         "weights_sha256": weights_fingerprint(backbone),
+        "image": image,
         "image_size": list(size),
         "shape": list(shape),
         "dtype": "float16",
         "image_mean": list(constants.image_mean),
         "image_std": list(constants.image_std),
+        "depth_scale_mm": constants.depth_scale_mm,
         "store": str(store.path),
         "store_created": store.header.created,
     }

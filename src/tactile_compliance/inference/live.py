@@ -177,12 +177,15 @@ def live_estimates(
                 continue
             if reference is None:
                 reference = frame  # right if the grasp starts without contact (checked below)
-            if reference.shape != frame.shape:
-                raise FrameSizeError(
-                    f"the reference frame is {reference.shape}, the source's frames {frame.shape}"
-                )
             if first:
                 first = False
+                # Once: a source yields frames of one shape (acquisition.sensors), and each
+                # stream holds every later frame to the first one's.
+                if reference.shape != frame.shape:
+                    raise FrameSizeError(
+                        f"the reference frame is {reference.shape}, the source's frames "
+                        f"{frame.shape}"
+                    )
                 if calibration is not None and calibration.depth_model is not None:
                     problem = grey_frame_problem(frame, reference)
                     if problem:

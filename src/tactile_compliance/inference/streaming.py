@@ -46,25 +46,18 @@ def _check_frame_kind(frame_kind: str) -> FrameKind:
 def _as_difference_images(
     frames: np.ndarray, frame_kind: str, reference: np.ndarray | None
 ) -> np.ndarray:
-    """Selected frames (3, H, W, 3) as the model takes them: raw frames are differenced."""
+    """Selected frames (3, H, W, 3) as the model takes them: raw frames are differenced
+    (already checked by ``StreamingEstimator._check_frame``, so not checked again)."""
     if _check_frame_kind(frame_kind) == "difference":
         return frames
     assert reference is not None  # a raw stream keeps its first frame as the reference
-    return np.stack([difference_image(f, reference) for f in frames])
-
-
-def _image(value: Any, what: str) -> np.ndarray:
-    """The one shape rule of a streamed frame: one (H, W, 3) image."""
-    array = np.asarray(value)
-    if array.ndim != 3 or array.shape[-1] != 3:
-        raise ValueError(f"{what} (H, W, 3), got {array.dtype} {tuple(array.shape)}")
-    return array
+    return frames_to_uint8(difference_images(frames, reference))
 
 
 def _camera_frame(value: Any) -> np.ndarray:
-    """A raw camera frame: one (H, W, 3) uint8 image."""
-    array = _image(value, "raw frames must be uint8 camera images")
-    if array.dtype != np.uint8:
+    """The shape rule of a raw camera frame: one (H, W, 3) uint8 image."""
+    array = np.asarray(value)
+    if array.ndim != 3 or array.shape[-1] != 3 or array.dtype != np.uint8:
         raise ValueError(
             f"raw frames must be uint8 camera images (H, W, 3), got {array.dtype} "
             f"{tuple(array.shape)}"
@@ -75,7 +68,11 @@ def _camera_frame(value: Any) -> np.ndarray:
 def difference_image(frame: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Raw uint8 camera frame (H, W, 3) -> difference image against the no-contact
     ``reference`` (``data.image_ops.difference_images``), quantised like the importer
-    stores frames (``frames_to_uint8``), so the model sees the training frames' encoding."""
+    stores frames (``frames_to_uint8``), so the model sees the training frames' encoding.
+
+    Raises:
+        ValueError: either is not a uint8 (H, W, 3) image, or their shapes differ.
+    """
     frame, reference = _camera_frame(frame), _camera_frame(reference)
     if frame.shape != reference.shape:
         raise ValueError(f"raw frame {frame.shape} and reference {reference.shape} differ")
@@ -220,7 +217,8 @@ class StreamingEstimator:
         self._buffer = _Buffer()
         self._reference = self._initial_reference
         self._estimates_pa = self._initial_estimates
-        self._frame_shape: tuple[int, ...] | None = None
+        self._frame_shape: tuple[int, ...] | None = None  # the grasp's first frame's
+        self._frame_dtype: np.dtype | None = None
         self._last: StreamEstimate | None = None
         self._last_key: tuple[Any, ...] | None = None
         self._done = False
@@ -247,23 +245,38 @@ class StreamingEstimator:
 
     # ------------------------------------------------------------------ input checks
     def _check_frame(self, frame: Any) -> np.ndarray:
-        if self.frame_kind == "raw":
-            array = _camera_frame(frame)
+        """The frame as an array. The first frame of a grasp is checked whole, by the
+        rule ``predict`` applies (``input_checks.check_frames``: shape, dtype, range,
+        minimum size) or, raw, as a camera frame the size of the reference; later frames
+        only have to keep its shape and dtype (and floats be finite), so each frame's
+        shape is checked once on its way to the model."""
+        array = np.asarray(frame)
+        if self._frame_shape is not None:
+            if array.shape != self._frame_shape or array.dtype != self._frame_dtype:
+                raise ValueError(
+                    f"frame shape changed from {self._frame_dtype} {self._frame_shape} to "
+                    f"{array.dtype} {array.shape} within a grasp"
+                )
+        elif self.frame_kind == "raw":
+            _camera_frame(array)
+            if self._reference is not None and array.shape != self._reference.shape:
+                raise ValueError(
+                    f"raw frame {array.shape} and reference {self._reference.shape} differ"
+                )
         else:
-            array = _image(frame, "a streamed frame must be one difference image")
-            if array.dtype != np.uint8:
-                if not np.issubdtype(array.dtype, np.floating):
-                    raise ValueError(
-                        f"difference frames must be uint8 or float in [0, 1], got {array.dtype}"
-                    )
-                if not np.all(np.isfinite(array)):
-                    raise ValueError("frame contains NaN/inf values")
-        if self._frame_shape is None:
-            self._frame_shape = array.shape
-        elif array.shape != self._frame_shape:
-            raise ValueError(
-                f"frame shape changed from {self._frame_shape} to {array.shape} within a grasp"
+            from tactile_compliance.inference.input_checks import check_frames  # torch
+
+            if array.ndim != 3 or array.shape[-1] != 3:  # one frame; predict takes three
+                raise ValueError(
+                    f"a streamed frame must be one difference image (H, W, 3), got "
+                    f"{array.dtype} {tuple(array.shape)}"
+                )
+            check_frames(
+                np.broadcast_to(array, (NUM_FRAMES, *array.shape)),
+                channel_order=self.channel_order,
             )
+        if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
+            raise ValueError("frame contains NaN/inf values")
         return array
 
     @staticmethod
@@ -347,6 +360,8 @@ class StreamingEstimator:
         buf.forces.append(force)
         buf.widths.append(width)
         buf.frames.append(None if array is None else array.copy())
+        if array is not None and self._frame_shape is None:  # set once the frame is added
+            self._frame_shape, self._frame_dtype = array.shape, array.dtype
         buf.depths.append(np.asarray(depth_mm, dtype=np.float64) if has_depth else None)
         self._trim()
 

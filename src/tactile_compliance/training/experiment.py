@@ -120,7 +120,12 @@ def precompute_features(cfg_dicts: Sequence[dict[str, Any]], threads: int | None
         run_inputs = RunInputs.resolve(cfg, store, model)  # what train() resolves
         identity = (
             str(store.path.resolve()),
-            cache_key(model.backbone, run_inputs.image_size, run_inputs.constants),
+            cache_key(
+                model.backbone,
+                run_inputs.image_size,
+                run_inputs.constants,
+                run_inputs.inputs.image.name,
+            ),
         )
         if identity not in done:
             frozen_features(cfg, store, model, run_inputs, progress=False)

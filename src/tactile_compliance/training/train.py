@@ -207,6 +207,7 @@ def frozen_features(
         model.backbone,
         run_inputs.image_size,
         run_inputs.constants,
+        image=run_inputs.inputs.image.name,
         batch_size=max(8, cfg.training.batch_size),
         device="cuda" if _accelerator(cfg.training.device) == "gpu" else "cpu",
         progress=progress,
