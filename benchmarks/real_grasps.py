@@ -275,6 +275,21 @@ def format_tables(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def beyond_paper_mark(name: str) -> str:
+    """``name`` (a run name ``MODEL-INPUTS-...`` or a strategy) with `` (beyond the paper)``
+    when its input strategy is not one of the paper's four (``evaluation.tables``' mark)."""
+    from tactile_compliance.data.inputs import InputStrategy
+
+    parts = name.split("-")
+    for part in (name, *parts[1:2]):
+        try:
+            strategy = InputStrategy.parse(part)
+        except ValueError:
+            continue
+        return name if strategy.in_paper else f"{name} (beyond the paper)"
+    return name
+
+
 def figure_panels(result: dict[str, Any]) -> list[tuple[str, list[tuple[str, str]]]]:
     """The figure's panels: (title, [(key, label in the panel)]) per family, in order.
 
@@ -305,6 +320,8 @@ def figure_panels(result: dict[str, Any]) -> list[tuple[str, list[tuple[str, str
         labels = ["-".join(q[: len(q) - shared]) or family for q in parts]
         if len(set(labels)) < len(labels):
             labels = [result["names"][k] for k in keys]
+        else:
+            labels = [beyond_paper_mark(label) for label in labels]
         panels.append((display.get(family, family), list(zip(keys, labels, strict=True))))
     return panels
 
@@ -542,7 +559,7 @@ def run(
     keys = [*ANALYTICAL, *(RIG_CORRECTED if rig is not None else ()), *names, *adapted]
     display = {"elastic": "elastic (analytical)", "hertz": "Hertz (analytical)"}
     display |= {"elastic_rig": "elastic, rig-corrected", "hertz_rig": "Hertz, rig-corrected"}
-    display.update({n: n for n in names})
+    display.update({n: beyond_paper_mark(n) for n in names})
     display.update(
         {k: f"{k[: -len('-adapted-loo')]}, adapted (leave-one-object-out)" for k in adapted}
     )

@@ -440,7 +440,7 @@ def test_the_figure_has_one_panel_per_family_with_short_labels(tmp_path):
     (analytical, then each model), each member labelled by its input strategy."""
     models = [
         f"{m}-{i}-unseen-random-seed0" for m in ("top10nn", "res_tf") for i in ("Image", "ALL")
-    ]
+    ] + ["scalar_mlp-FW-unseen-random-seed0"]
     keys = ["elastic", "hertz", *models]
     rows = [
         {"object": name, "true_pa": true, "grasps": 3, **{k: true * 3.0 for k in keys}}
@@ -454,8 +454,13 @@ def test_the_figure_has_one_panel_per_family_with_short_labels(tmp_path):
         "grasps": [{}] * 6,
     }
     panels = real_grasps.figure_panels(result)
-    assert [title for title, _ in panels] == ["Analytical", "Top10NN", "Res-Tf"]
+    assert [title for title, _ in panels] == ["Analytical", "Top10NN", "Res-Tf", "Scalar MLP"]
     assert [label for _, label in panels[1][1]] == ["Image", "ALL"]
+    # Issue 39: rows beyond the paper's four strategies say so, in the figure and tables.
+    assert [label for _, label in panels[3][1]] == ["FW (beyond the paper)"]
+    assert real_grasps.beyond_paper_mark(models[0]) == models[0]
+    assert real_grasps.beyond_paper_mark(models[-1]) == f"{models[-1]} (beyond the paper)"
+    assert real_grasps.beyond_paper_mark("adapted-thing") == "adapted-thing"
     assert panels[0][1] == [("elastic", "elastic (analytical)"), ("hertz", "Hertz (analytical)")]
     path = real_grasps.draw_figure(result, tmp_path / "real_grasps.png")
     assert path.read_bytes().startswith(b"\x89PNG")
