@@ -21,6 +21,7 @@ from tactile_compliance.data.frame_selection import (
 )
 from tactile_compliance.data.image_ops import difference_images
 from tactile_compliance.data.store import frames_to_uint8, store_depth_maps
+from tactile_compliance.inference.input_checks import check_frames
 from tactile_compliance.models import NUM_FRAMES
 from tactile_compliance.physics.estimators import AnalyticalEstimator
 
@@ -264,8 +265,6 @@ class StreamingEstimator:
                     f"raw frame {array.shape} and reference {self._reference.shape} differ"
                 )
         else:
-            from tactile_compliance.inference.input_checks import check_frames  # torch
-
             if array.ndim != 3 or array.shape[-1] != 3:  # one frame; predict takes three
                 raise ValueError(
                     f"a streamed frame must be one difference image (H, W, 3), got "
