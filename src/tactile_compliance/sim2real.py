@@ -38,7 +38,7 @@ class Sim2RealPlan:
 
 
 PLANS: dict[str, Sim2RealPlan] = {
-    # ~7 minutes on 2 CPU cores (docs/results.md): many objects at a low resolution,
+    # ~10 minutes on 2 CPU cores (docs/results.md): many objects at a low resolution,
     # because the model sees 32 x 32 px and unseen objects are what it must handle.
     "full": Sim2RealPlan(n_objects=400, grasps_per_object=3, image_size=(64, 88)),
     # The same path in seconds, for the test suite.

@@ -23,7 +23,8 @@ from tactile_compliance.devices import DEFAULT_DEVICE
 def demo(
     out: Annotated[Path, typer.Option(help="Where everything is written.")] = Path("demo-output"),
     mode: Annotated[
-        DemoMode, typer.Option(help="full (a few minutes on 2 CPU cores) or ci (seconds, tiny).")
+        DemoMode,
+        typer.Option(help="full (6-25 minutes on 2 CPU cores, by CPU) or ci (seconds, tiny)."),
     ] = "full",
     workers: Annotated[
         Optional[int],
@@ -63,7 +64,7 @@ def sim2real(
         ),
     ] = "wedge-2023",
     mode: Annotated[
-        DemoMode, typer.Option(help="full (about 7 minutes on 2 CPU cores) or ci (seconds, tiny).")
+        DemoMode, typer.Option(help="full (about 10 minutes on 2 CPU cores) or ci (seconds, tiny).")
     ] = "full",
     seed: Annotated[int, typer.Option(min=0, help="Generation and training seed.")] = 0,
     workers: Annotated[
