@@ -276,18 +276,14 @@ def format_tables(result: dict[str, Any]) -> str:
 
 
 def beyond_paper_mark(name: str) -> str:
-    """``name`` (a run name ``MODEL-INPUTS-...`` or a strategy) with `` (beyond the paper)``
-    when its input strategy is not one of the paper's four (``evaluation.tables``' mark)."""
-    from tactile_compliance.data.inputs import InputStrategy
+    """``name`` (a strategy, or a run name ``MODEL-INPUTS-...``) with the tables' mark
+    `` (beyond the paper)`` when its input strategy is not one of the paper's four
+    (``evaluation.tables.inputs_label``, the one home of that mark)."""
+    from tactile_compliance.evaluation.tables import inputs_label
 
     parts = name.split("-")
-    for part in (name, *parts[1:2]):
-        try:
-            strategy = InputStrategy.parse(part)
-        except ValueError:
-            continue
-        return name if strategy.in_paper else f"{name} (beyond the paper)"
-    return name
+    inputs = parts[1] if len(parts) > 1 else name
+    return name + inputs_label(inputs)[len(inputs) :]
 
 
 def figure_panels(result: dict[str, Any]) -> list[tuple[str, list[tuple[str, str]]]]:

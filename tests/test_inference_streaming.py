@@ -253,6 +253,14 @@ def test_stream_input_errors(estimator_fw):
     with pytest.raises(ValueError, match="difference images in"):
         fresh.update(np.full(frames[0].shape, 3.0, np.float32), force[0], width[0])
     assert fresh.frames_seen == 0  # a refused frame is not added
+    nan = frames[0].astype(np.float32) / 255
+    nan[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN/inf"):  # the first frame, by check_frames
+        fresh.update(nan, force[0], width[0])
+    fresh.update(frames[0].astype(np.float32) / 255, force[0], width[0])
+    with pytest.raises(ValueError, match="NaN/inf"):  # a later one, by the stream
+        fresh.update(nan, force[1], width[1])
+    assert fresh.frames_seen == 1
     with pytest.raises(ValueError, match="window"):
         estimator_fw.stream(window=1)
     with pytest.raises(ValueError, match="frame_kind"):

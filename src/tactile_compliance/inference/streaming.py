@@ -258,6 +258,8 @@ class StreamingEstimator:
                     f"frame shape changed from {self._frame_dtype} {self._frame_shape} to "
                     f"{array.dtype} {array.shape} within a grasp"
                 )
+            if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
+                raise ValueError("frame contains NaN/inf values")
         elif self.frame_kind == "raw":
             _camera_frame(array)
             if self._reference is not None and array.shape != self._reference.shape:
@@ -273,9 +275,7 @@ class StreamingEstimator:
             check_frames(
                 np.broadcast_to(array, (NUM_FRAMES, *array.shape)),
                 channel_order=self.channel_order,
-            )
-        if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
-            raise ValueError("frame contains NaN/inf values")
+            )  # NaN/inf included
         return array
 
     @staticmethod
