@@ -1,4 +1,4 @@
-"""The strategies beyond the paper (FW, FWE, DepthFW) through every surface: train, the
+"""The strategies beyond the paper (FW, FWE, DepthFW, FWR) through every surface: train, the
 estimator API, ONNX, safetensors, ``predict`` and ``live`` (docs/models.md, "Input
 strategies")."""
 
@@ -18,15 +18,24 @@ from tactile_compliance.cli import app
 from tactile_compliance.config import load_config
 from tactile_compliance.data.inputs import INPUTS, InputStrategy
 from tactile_compliance.inference import ComplianceEstimator
+from tactile_compliance.synthetic.rig import DATASET_RIG
 from tactile_compliance.training.train import train
 from toy_store import make_toy_store
 
-STRATEGIES = ("FW", "FWE", "DepthFW")
+STRATEGIES = ("FW", "FWE", "DepthFW", "FWR")
+#: The toy store's rig: the dataset rig's stiffness, so `estimate --rig dataset` makes the
+#: rig-corrected estimates an FWR model trained on it takes (the replayed grasp's own rig).
+RIG_STIFFNESS_N_PER_M = DATASET_RIG.stiffness_n_per_m
 
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    return make_toy_store(tmp_path_factory.mktemp("depth") / "store", n_objects=8, depth=True)
+    return make_toy_store(
+        tmp_path_factory.mktemp("depth") / "store",
+        n_objects=8,
+        depth=True,
+        units={"rig_stiffness_n_per_m": RIG_STIFFNESS_N_PER_M},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +61,7 @@ def runs(store: Any, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path
 
 
 def test_a_frame_free_strategy_trains_the_frame_free_model_without_naming_it(runs) -> None:
-    for inputs in ("FW", "FWE"):
+    for inputs in ("FW", "FWE", "FWR"):
         config = json.loads((runs[inputs] / "metrics.json").read_text())
         assert config["model"] == "scalar_mlp", config
         assert config["image_size"] is None
@@ -168,7 +177,11 @@ def test_live_runs_a_frame_free_model_on_readings_alone(runs, tmp_path) -> None:
 
 @pytest.mark.parametrize(
     ("inputs", "cause"),
-    [("DepthFW", "reads depth, but the source `none` gives no camera"), ("FWE", "depth maps")],
+    [
+        ("DepthFW", "reads depth, but the source `none` gives no camera"),
+        ("FWE", "depth maps"),
+        ("FWR", "depth maps"),
+    ],
 )
 def test_live_none_with_a_model_that_needs_frames_says_why_in_one_line(
     runs, tmp_path, inputs: str, cause: str
@@ -267,3 +280,45 @@ def test_a_depth_model_trains_on_cached_frozen_features(store, tmp_path) -> None
     got = estimator.predict(**{n: given[n] for n in estimator.required_inputs})
     # float16 features in training, float32 ones here
     np.testing.assert_allclose(got.log10_modulus_pa, np.log10(test["pred_pa"]), atol=2e-3)
+
+
+def test_fwr_carries_the_stores_rig_stiffness_and_refuses_a_store_without_one(
+    runs, tmp_path
+) -> None:
+    estimator = ComplianceEstimator.from_checkpoint(runs["FWR"])
+    assert estimator.run_inputs.rig_stiffness_n_per_m == pytest.approx(RIG_STIFFNESS_N_PER_M)
+    # Strategies without the rig-corrected estimates carry no stiffness.
+    assert ComplianceEstimator.from_checkpoint(runs["FWE"]).run_inputs.rig_stiffness_n_per_m is None
+    plain = make_toy_store(tmp_path / "plain", n_objects=4, grasps=2)
+    overrides = [f"data.store={plain.path}", "inputs=FWR", "training.max_epochs=1"]
+    with pytest.raises(Exception, match=r"rig_estimates|rig-corrected"):
+        train(load_config("default", overrides), run_dir=tmp_path / "run", progress=False)
+
+
+def test_live_runs_an_fwr_model_on_a_camera_with_the_checkpoints_rig(runs, tmp_path) -> None:
+    """FWR with a camera: live computes the rig-corrected estimates from the video's depth
+    maps at the checkpoint's rig stiffness, the ones `estimate --rig` prints for that rig."""
+    from helpers import make_replay_grasp as make_grasp  # a replayable synthetic grasp
+
+    grasp = make_grasp(tmp_path / "grasp", (250, 350))  # the dataset's estimator's frame size
+    source = ["video:" + str(grasp["video"]), "--readings", str(grasp["readings"]), "--json"]
+    result = CliRunner().invoke(app, ["live", str(runs["FWR"]), *source])
+    assert result.exit_code == 0, result.output
+    events = [json.loads(line) for line in result.output.splitlines() if line.startswith("{")]
+    final = events[-1]
+    assert final["final"] and np.isfinite(final["modulus_pa"])
+    result = CliRunner().invoke(app, ["estimate", *source, "--rig", "dataset"])
+    assert result.exit_code == 0, result.output
+    analytical = json.loads(result.output)
+    assert analytical["frame_indices"] == final["frame_indices"]
+    assert analytical["rig_corrected_pa"] != analytical["estimates_pa"]
+    estimator = ComplianceEstimator.from_checkpoint(runs["FWR"])
+    direct = estimator.predict(
+        force=final["force_n"], width=final["width_m"], rig_estimates=analytical["rig_corrected_pa"]
+    )
+    assert final["log10_modulus_pa"] == pytest.approx(float(direct.log10_modulus_pa), abs=1e-6)
+    # The dataset's estimates in their place give another value: the input is the rig's.
+    other = estimator.predict(
+        force=final["force_n"], width=final["width_m"], rig_estimates=analytical["estimates_pa"]
+    )
+    assert float(other.log10_modulus_pa) != pytest.approx(final["log10_modulus_pa"], abs=1e-4)

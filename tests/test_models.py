@@ -133,6 +133,7 @@ def test_input_strategy_inputs() -> None:
         "FWE": ("force", "width", "estimates"),
         "DepthFW": ("depth", "force", "width"),
         "DepthALL": ("depth", "force", "width", "estimates"),
+        "FWR": ("force", "width", "rig_estimates"),
     }
     assert [s.value for s in InputStrategy] == list(table)
     for name, inputs in table.items():

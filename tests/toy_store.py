@@ -85,7 +85,9 @@ def make_toy_store(
     units: dict[str, object] | None = None,
 ) -> GraspStore:
     """The toy store; ``depth`` adds depth maps (:func:`toy_depth`) to every sample;
-    ``units``: the rows' unit columns (``store.UNIT_COLUMNS``); default the dataset's."""
+    ``units``: the rows' unit columns (``store.UNIT_COLUMNS``); default the dataset's. Units
+    with a ``rig_stiffness_n_per_m`` add rig-corrected estimates (the estimates x 3, drawing
+    nothing, so the other columns stay those of a store without them)."""
     rng = np.random.default_rng(seed)
     depth_size = depth_size_for(size) if depth else None
     with GraspStoreWriter(path, size, "toy", depth_size=depth_size) as writer:
@@ -94,6 +96,9 @@ def make_toy_store(
             for grasp in range(grasps):
                 for finger in ("markerless", "markers"):
                     frames, columns = make_sample(rng, log_e, size)
+                    if (units or {}).get("rig_stiffness_n_per_m") is not None:
+                        for name in ("elastic", "hertz"):
+                            columns[f"{name}_rig_estimate_pa"] = 3 * columns[f"{name}_estimate_pa"]
                     writer.append(
                         frames,
                         {

@@ -541,7 +541,7 @@ def write_grasp(
     out.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(out / LOCK_FILE, what=f"the dataset {out}"):
         claim_dataset_dir(out)
-        units = GraspUnits(computed.units, recording_estimator(sensor).name)
+        units = GraspUnits(computed.units, recording_estimator(sensor).name, rig_stiffness_n_per_m)
         _check_dataset_units(out, units)
         object_dir = out / info.name
         new_object = not object_dir.exists()
@@ -570,6 +570,7 @@ def write_grasp(
                     captured.force_n[sel],
                     captured.width_m[sel],
                     estimates,
+                    rig_estimates_pa=rig_corrected,
                 )
             # The grasp is committed only once the new object table is written whole
             # (just before it replaces the old one): a full disk leaves neither, so a
@@ -623,7 +624,7 @@ def _check_dataset_units(out: Path, units: GraspUnits) -> None:
         raise ValueError(
             f"{out} holds grasps with {earlier.describe()} (e.g. {grasps[0]}), this recording "
             f"has {units.describe()}: their estimates would be mixed; nothing written (record "
-            "into another dataset)"
+            "into another dataset, or with the --rig its grasps were recorded with)"
         )
 
 

@@ -25,7 +25,7 @@ Grouping = Literal["grasp", "per_sample"]  # config.SplitConfig.grouping
 
 
 Inputs = Literal[  # data.inputs.InputStrategy
-    "Image", "ImageF", "ImageFW", "ALL", "FW", "FWE", "DepthFW", "DepthALL"
+    "Image", "ImageF", "ImageFW", "ALL", "FW", "FWE", "DepthFW", "DepthALL", "FWR"
 ]
 
 

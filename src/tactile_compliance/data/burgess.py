@@ -33,6 +33,7 @@ from tactile_compliance.data.raw_layout import (
     FORCES_FILE,
     GRASP_DIR,
     METADATA_FILE,
+    RIG_ESTIMATE_FILES,
     SYNTHETIC_MANIFEST,
     WIDTHS_FILE,
     FingerChoice,
@@ -47,7 +48,12 @@ from tactile_compliance.data.raw_layout import (
     tree_units,
 )
 from tactile_compliance.data.safe_pickle import peek_array_shape
-from tactile_compliance.data.store import UNIT_COLUMNS, depth_size_for
+from tactile_compliance.data.store import (
+    ESTIMATE_COLUMNS,
+    RIG_ESTIMATE_COLUMNS,
+    UNIT_COLUMNS,
+    depth_size_for,
+)
 from tactile_compliance.data.store_writer import GraspStoreWriter
 from tactile_compliance.physics.estimators import DEFAULT_ESTIMATOR
 from tactile_compliance.progress import progress_bar
@@ -296,6 +302,10 @@ def import_burgess(
     report.units = found.units.describe()
     report.grasps_without_units = len(found.unnamed)
     unit_columns = dict(zip(UNIT_COLUMNS, found.units.to_row(), strict=True))
+    # Rig-corrected estimates mean something only at the stiffness the units name.
+    estimate_files = dict(zip(ESTIMATE_COLUMNS, ESTIMATE_FILES, strict=True))
+    if found.units.rig_stiffness_n_per_m is not None:
+        estimate_files |= dict(zip(RIG_ESTIMATE_COLUMNS, RIG_ESTIMATE_FILES, strict=True))
 
     def store_depth_size() -> tuple[int, int] | None:
         size = image_size or source_hw
@@ -330,7 +340,7 @@ def import_burgess(
             try:
                 forces_n = load_vector(aug_dir, FORCES_FILE)
                 widths_m = load_vector(aug_dir, WIDTHS_FILE)
-                elastic_pa, hertz_pa = (load_estimate(aug_dir, name) for name in ESTIMATE_FILES)
+                estimates = {c: load_estimate(aug_dir, f) for c, f in estimate_files.items()}
             except SampleError as err:
                 report.problem(aug_dir, str(err))
                 continue
@@ -355,8 +365,7 @@ def import_burgess(
                     "modulus_pa": label.modulus_pa,
                     **{f"force_n_{i}": forces_n[i] for i in range(3)},
                     **{f"width_m_{i}": widths_m[i] for i in range(3)},
-                    "elastic_estimate_pa": elastic_pa,
-                    "hertz_estimate_pa": hertz_pa,
+                    **estimates,
                     **{f"depth_max_mm_{i}": depth_max_mm[i] for i in range(3)},
                     **unit_columns,
                     "source_path": str((aug_dir / image_file).relative_to(src)),

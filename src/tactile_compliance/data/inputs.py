@@ -29,10 +29,16 @@ from tactile_compliance.data.plausibility import (
     WIDTH,
     PlausibleRange,
 )
-from tactile_compliance.data.store import ESTIMATE_COLUMNS, FORCE_COLUMNS, WIDTH_COLUMNS
+from tactile_compliance.data.store import (
+    ESTIMATE_COLUMNS,
+    FORCE_COLUMNS,
+    RIG_ESTIMATE_COLUMNS,
+    WIDTH_COLUMNS,
+)
 from tactile_compliance.suggest import did_you_mean
 
 __all__ = [
+    "ANALYTICAL_INPUTS",
     "INPUTS",
     "MIN_FRAME_SIDE_PX",
     "NUM_FRAMES",
@@ -156,8 +162,27 @@ INPUTS: dict[str, InputSpec] = {
             columns=ESTIMATE_COLUMNS,
             decades=True,
         ),
+        InputSpec(
+            name="rig_estimates",
+            kind="scalar",
+            meaning="rig-corrected analytical estimates (elastic E, Hertz E*): the rig's "
+            "own closure F / k_rig taken out of the widths",
+            shape="(2,)",
+            rule=ESTIMATE,
+            hint="`record --rig RIG.json` and the generator make them, at the stiffness the "
+            "checkpoint names; NaN means 'missing' and cannot be used by a model that takes "
+            "them",
+            normalise=normalise_estimates,
+            columns=RIG_ESTIMATE_COLUMNS,
+            decades=True,
+        ),
     )
 }
+
+
+#: The inputs the analytical estimators make from a grasp's depth maps, forces and widths
+#: (``physics.estimators``): ``live`` and the stream compute them on the fly.
+ANALYTICAL_INPUTS = frozenset({"estimates", "rig_estimates"})
 
 
 def scalar_inputs() -> tuple[InputSpec, ...]:
@@ -177,6 +202,7 @@ class InputStrategy(str, Enum):
     FWE = "FWE"
     DEPTH_FW = "DepthFW"
     DEPTH_ALL = "DepthALL"
+    FWR = "FWR"
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -252,6 +278,7 @@ _STRATEGY_INPUTS: dict[InputStrategy, tuple[str, ...]] = {
     InputStrategy.FWE: ("force", "width", "estimates"),
     InputStrategy.DEPTH_FW: ("depth", "force", "width"),
     InputStrategy.DEPTH_ALL: ("depth", "force", "width", "estimates"),
+    InputStrategy.FWR: ("force", "width", "rig_estimates"),
 }
 
 #: The paper's four strategies (Table I's rows), in its order.

@@ -17,6 +17,7 @@ from tactile_compliance.data.store import (
     DEPTH_COLUMNS,
     ESTIMATE_COLUMNS,
     FORCE_COLUMNS,
+    RIG_ESTIMATE_COLUMNS,
     WIDTH_COLUMNS,
 )
 
@@ -204,15 +205,19 @@ def _depth_trend(
     return first, last, note
 
 
-def _resolve_cfg(cfg: Any) -> tuple[Any, list[str] | None]:
-    """Accept FilterRules, a FilterConfig, an ExperimentConfig (its .filters and
-    .data.fingers) or None (the default rules)."""
+def _resolve_cfg(cfg: Any) -> tuple[Any, list[str] | None, tuple[str, ...]]:
+    """Accept FilterRules, a FilterConfig, an ExperimentConfig (its .filters, .data.fingers
+    and the estimate columns its inputs take) or None (the default rules); the third
+    element is the columns the missing-estimates rule judges."""
     if cfg is None:
-        return FilterRules(), None
+        return FilterRules(), None, ESTIMATE_COLUMNS
     if hasattr(cfg, "filters"):
         fingers = getattr(getattr(cfg, "data", None), "fingers", None)
-        return cfg.filters, (list(fingers) if fingers is not None else None)
-    return cfg, None
+        columns = ESTIMATE_COLUMNS
+        if cfg.strategy.uses("rig_estimates"):  # also drop grasps without them
+            columns += RIG_ESTIMATE_COLUMNS
+        return cfg.filters, (list(fingers) if fingers is not None else None), columns
+    return cfg, None, ESTIMATE_COLUMNS
 
 
 def filter_samples(
@@ -229,13 +234,14 @@ def filter_samples(
     Args:
         samples: the GraspStore's ``samples`` table (or any subset of it).
         cfg: :class:`FilterRules`, a ``FilterConfig``, an ``ExperimentConfig`` (its ``filters`` and
-            ``data.fingers`` are used) or None for the defaults.
+            ``data.fingers`` are used, and a strategy that takes the rig-corrected estimates
+            also drops grasps missing them) or None for the defaults.
         fingers: fingers to keep (overrides ``cfg.data.fingers``); None keeps all.
 
     Returns:
         The kept rows (original index and ``sample_id`` preserved) and a :class:`FilterReport`.
     """
-    fcfg, cfg_fingers = _resolve_cfg(cfg)
+    fcfg, cfg_fingers, estimate_columns = _resolve_cfg(cfg)
     if fingers is None:
         fingers = cfg_fingers
     require_columns(samples, ("sample_id", "object", "material"), "the sample filter")
@@ -275,7 +281,7 @@ def filter_samples(
         record(name, bool(listed_lower), True, ~values.isin(listed_lower), note)
 
     # 4. missing estimates ------------------------------------------------------------------
-    usable = _usable_columns(samples, ESTIMATE_COLUMNS)
+    usable = _usable_columns(samples, estimate_columns)
     if usable:
         keep = np.isfinite(df[usable].to_numpy(dtype=float)).all(axis=1)
         record("missing_estimates", fcfg.drop_missing_estimates, True, keep, ", ".join(usable))

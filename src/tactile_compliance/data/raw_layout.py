@@ -12,6 +12,9 @@ file's plausibility rule (:data:`FILE_RULES`). The files and their units::
                                              forces.pkl (3,) N, widths.pkl (3,) m
                                              elastic_estimate.pkl, hertz_estimate.pkl  () Pa
                                                  (absent where the fit failed)
+                                             elastic_estimate_rig.pkl, hertz_estimate_rig.pkl
+                                                 () Pa, rig-corrected (ours only; absent
+                                                 without a rig or where the fit failed)
     ROOT/generation.json                     the generator's manifest (synthetic trees)
 
 See docs/data.md, "Importing the GelSight Young's-modulus dataset".
@@ -67,6 +70,10 @@ FORCES_FILE = "forces.pkl"
 WIDTHS_FILE = "widths.pkl"
 #: (elastic E, Hertz E*) in Pa; a file is left out where its fit failed, as in the dataset.
 ESTIMATE_FILES = ("elastic_estimate.pkl", "hertz_estimate.pkl")
+#: The same pair with the rig's own closure taken out (``physics.contact.
+#: rig_corrected_widths_m``), at the stiffness the grasp's :data:`UNITS_FILE` names; the
+#: public dataset has none, the generator and ``record --rig`` write them.
+RIG_ESTIMATE_FILES = ("elastic_estimate_rig.pkl", "hertz_estimate_rig.pkl")
 METADATA_FILE = "metadata.json"
 #: Written by the generator at the root of a generated tree.
 SYNTHETIC_MANIFEST = "generation.json"
@@ -82,6 +89,7 @@ FILE_RULES: dict[str, PlausibleRange] = {
     FORCES_FILE: plausibility.FORCE,
     WIDTHS_FILE: plausibility.WIDTH,
     **dict.fromkeys(ESTIMATE_FILES, plausibility.ESTIMATE),
+    **dict.fromkeys(RIG_ESTIMATE_FILES, plausibility.ESTIMATE),
     **{image_file: plausibility.FRAME for image_file, _ in FINGER_FILES.values()},
 }
 GRASP_DIR = re.compile(r"^grasp=(\d+)$")
@@ -398,6 +406,7 @@ def write_sample(
     widths_m: np.ndarray,
     estimates_pa: tuple[float, float],
     dtype: str = "float32",
+    rig_estimates_pa: tuple[float, float] | None = None,
 ) -> None:
     """Write one ``grasp=g/augmentation=k`` directory (created; its parents too).
 
@@ -408,6 +417,8 @@ def write_sample(
             (3, H, W, 3) in [0, 1], depth maps (3, H, W) in mm).
         forces_n: (3,) gripper force in N; widths_m: (3,) gripper width in m.
         estimates_pa: (elastic E, Hertz E*) in Pa; a non-finite one gets no file.
+        rig_estimates_pa: the rig-corrected pair in Pa (:data:`RIG_ESTIMATE_FILES`, the
+            stiffness in the grasp's units); None or a non-finite one: no file.
         dtype: of the images and depth maps (:data:`ALLOWED_DTYPES`); float16 halves a
             tree and keeps a difference image well inside half a grey level.
     """
@@ -420,6 +431,9 @@ def write_sample(
         dump_numpy_pickle(directory / depth_file, np.asarray(depths).astype(dtype))
     dump_numpy_pickle(directory / FORCES_FILE, np.asarray(forces_n, dtype=np.float64))
     dump_numpy_pickle(directory / WIDTHS_FILE, np.asarray(widths_m, dtype=np.float64))
-    for name, value in zip(ESTIMATE_FILES, estimates_pa, strict=True):
+    named = list(zip(ESTIMATE_FILES, estimates_pa, strict=True))
+    if rig_estimates_pa is not None:
+        named += zip(RIG_ESTIMATE_FILES, rig_estimates_pa, strict=True)
+    for name, value in named:
         if math.isfinite(value):  # the dataset has no file for a failed fit
             dump_numpy_pickle(directory / name, np.array(value, dtype=np.float64))

@@ -67,12 +67,20 @@ MAX_ABS_DEPTH_MM = DEPTH.high
 FORCE_COLUMNS = ("force_n_0", "force_n_1", "force_n_2")
 WIDTH_COLUMNS = ("width_m_0", "width_m_1", "width_m_2")
 ESTIMATE_COLUMNS = ("elastic_estimate_pa", "hertz_estimate_pa")
+#: The same two estimates with the rig's own closure taken out of the widths
+#: (``physics.contact.rig_corrected_widths_m``) with the row's ``rig_stiffness_n_per_m``;
+#: NaN where the grasp has none (recorded without ``--rig``, or the fit failed).
+RIG_ESTIMATE_COLUMNS = ("elastic_rig_estimate_pa", "hertz_rig_estimate_pa")
 DEPTH_COLUMNS = ("depth_max_mm_0", "depth_max_mm_1", "depth_max_mm_2")
 #: What each row's analytical estimates were made with (``physics.estimators.GraspUnits``):
-#: the estimator's name, the depth model and the pixel density in px/mm (NaN: the
-#: estimator's own, the Wedge's). Every row carries them, so a store never relabels a
-#: grasp; :attr:`GraspStore.units` refuses a store whose rows disagree.
-UNIT_COLUMNS = ("analytical_estimator", "depth_model", "px_per_mm")
+#: the estimator's name, the depth model, the pixel density in px/mm (NaN: the
+#: estimator's own, the Wedge's) and the rig stiffness in N/m of the rig-corrected
+#: estimates (NaN: none). Every row carries them, so a store never relabels a grasp;
+#: :attr:`GraspStore.units` refuses a store whose rows disagree.
+UNIT_COLUMNS = ("analytical_estimator", "depth_model", "px_per_mm", "rig_stiffness_n_per_m")
+#: Columns a store written before the rig-corrected estimates lacks: reading it fills them
+#: with NaN (no rig-corrected estimates), so those stores keep opening.
+_LATER_COLUMNS = (*RIG_ESTIMATE_COLUMNS, "rig_stiffness_n_per_m")
 # Column order of samples.parquet. Units: forces in N, widths in m, moduli and
 # estimates in Pa, depths in mm. Missing values are NaN (e.g. the Shore-hardness
 # videos have no force, width, estimates or depth).
@@ -82,6 +90,7 @@ SAMPLE_COLUMNS: tuple[str, ...] = (
     *FORCE_COLUMNS,
     *WIDTH_COLUMNS,
     *ESTIMATE_COLUMNS,
+    *RIG_ESTIMATE_COLUMNS,
     *DEPTH_COLUMNS,
     *UNIT_COLUMNS,
     "source_path",
@@ -93,6 +102,7 @@ COLUMN_RULES: dict[str, PlausibleRange] = {
     **{column: FORCE for column in FORCE_COLUMNS},
     **{column: WIDTH for column in WIDTH_COLUMNS},
     **{column: ESTIMATE for column in ESTIMATE_COLUMNS},
+    **{column: ESTIMATE for column in RIG_ESTIMATE_COLUMNS},
 }
 _STRING_COLUMNS = (
     "object",
@@ -266,11 +276,13 @@ def validate_samples(samples: pd.DataFrame) -> list[str]:
     return problems
 
 
-def row_units(estimator: Any, depth_model: Any, px_per_mm: Any) -> GraspUnits:
+def row_units(
+    estimator: Any, depth_model: Any, px_per_mm: Any, rig_stiffness_n_per_m: Any
+) -> GraspUnits:
     """A row's :data:`UNIT_COLUMNS` as ``GraspUnits`` (ValueError: invalid values)."""
-    px = as_real_number(px_per_mm)
+    px, k = as_real_number(px_per_mm), as_real_number(rig_stiffness_n_per_m)
     sensor = SensorUnits(str(depth_model), None if math.isnan(px) else px)
-    return GraspUnits(sensor, str(estimator))
+    return GraspUnits(sensor, str(estimator), None if math.isnan(k) else k)
 
 
 def _unit_problems(samples: pd.DataFrame) -> list[tuple[np.ndarray, str]]:
@@ -478,9 +490,15 @@ def read_samples_table(path: str | Path) -> pd.DataFrame:
     """
     table = Path(path) / SAMPLES_FILE
     try:
-        return pd.read_parquet(table)
+        samples = pd.read_parquet(table)
     except Exception as err:  # missing, truncated or not parquet (pyarrow's errors vary)
         raise StoreError(f"{table}: cannot read the table ({err})") from err
+    if "sample_id" in samples.columns and not any(c in samples.columns for c in _LATER_COLUMNS):
+        # Written before the rig-corrected estimates: it has none.
+        for column in _LATER_COLUMNS:
+            samples[column] = np.nan
+        samples = samples[[c for c in SAMPLE_COLUMNS if c in samples.columns]]
+    return samples
 
 
 def _map_array(path: Path, dtype: type[np.generic], shape: tuple[int, ...], what: str) -> Any:

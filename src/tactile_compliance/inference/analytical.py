@@ -59,7 +59,7 @@ class _NoModel:
     """The model of a stream without one: it takes the force, the width and the estimates
     (so the stream asks for widths and computes the estimates from the depth maps)."""
 
-    required_inputs = frozenset({"force", "width", "estimates"})
+    required_inputs = ("force", "width", "estimates")
 
 
 class AnalyticalStream(StreamingEstimator):
@@ -97,9 +97,9 @@ class AnalyticalStream(StreamingEstimator):
         return (float(values[0]), float(values[1]))
 
     def _predict(
-        self, selection: FrameSelection, estimates: np.ndarray | None, final: bool
+        self, selection: FrameSelection, analytical: dict[str, np.ndarray], final: bool
     ) -> AnalyticalEstimate:  # type: ignore[override]
-        assert estimates is not None  # _estimate waits until both are finite
+        estimates = analytical["estimates"]  # _estimate waits until both are finite
         idx, buf = selection.indices, self._buffer
         widths = tuple(float(buf.widths[i]) for i in idx)
         return AnalyticalEstimate(

@@ -30,6 +30,7 @@ from tactile_compliance.acquisition.sensors import (
 )
 from tactile_compliance.data.depth_model import grey_frame_problem
 from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.inputs import ANALYTICAL_INPUTS
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.store import frames_to_uint8
 from tactile_compliance.devices import DEFAULT_DEVICE
@@ -145,7 +146,7 @@ def live_estimates(
         # Depth maps feed the analytical estimates and the depth-map models; both are in the
         # units of the depth model and pixel density they were made with.
         needs_depth = ensemble is None or bool(
-            {"estimates", "depth"} & set(ensemble.required_inputs)
+            {*ANALYTICAL_INPUTS, "depth"} & set(ensemble.required_inputs)
         )
         units = WEDGE_UNITS if calibration is None else calibration.units
         for member in members:
@@ -274,9 +275,9 @@ def _readings_only(
                 f"{member.inputs.image.name}, but the source `none` gives no camera: name a "
                 f"sensor or video, or use a frame-free checkpoint (FW, FWE)"
             )
-        if member.inputs.uses("estimates"):
+        if ANALYTICAL_INPUTS & set(member.inputs.input_names):
             raise ValueError(
-                f"checkpoint {member.source} (inputs={member.inputs.value}) takes the "
+                f"checkpoint {member.source} (inputs={member.inputs.value}) takes "
                 f"analytical estimates, which come from the frames' depth maps; the source "
                 f"`none` gives no camera: name a sensor or video (the model reads no frames "
                 f"itself), or use an FW checkpoint"
@@ -343,9 +344,10 @@ def _no_estimate_reason(
         )
     if needs_depth:
         return (
-            "the frames were selected, but the analytical estimates (ALL inputs) could not "
-            "be computed from the depth maps: too little contact area or depth at this frame "
-            "size and pixel density (calibrate the sensor's px/mm, docs/sensors.md), or use "
+            "the frames were selected, but the analytical estimates (ALL, FWE, FWR inputs) "
+            "could not be computed from the depth maps: too little contact area or depth at "
+            "this frame size and pixel density (calibrate the sensor's px/mm, docs/sensors.md), "
+            "or use "
             "an Image, ImageF or ImageFW checkpoint"
         )
     return f"the stream ended without a final estimate after {stream.frames_seen} frames"

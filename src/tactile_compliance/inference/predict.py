@@ -10,9 +10,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactile_compliance.data.inputs import scalar_inputs
 from tactile_compliance.data.raw_layout import FingerChoice
 from tactile_compliance.devices import DEFAULT_DEVICE
-from tactile_compliance.inference.sources import ROW_COLUMNS, read_source
+from tactile_compliance.inference.sources import ROW_COLUMNS, GraspBatch, read_source
 from tactile_compliance.models import InputStrategy
 from tactile_compliance.runs.metrics import compute_metrics
 
@@ -82,7 +83,7 @@ def predict_path(
             reasons[i] = f"missing {name} (NaN)"
         usable &= ~missing
     if len(source) and not usable.any():
-        _refuse_when_nothing_is_usable(path, estimator.source, estimator.inputs, reasons)
+        _refuse_when_nothing_is_usable(path, estimator.source, estimator.inputs, reasons, source)
     ids = np.flatnonzero(usable)
     pred_pa = np.full(len(source), np.nan)
     pred_log10 = np.full(len(source), np.nan)
@@ -134,11 +135,18 @@ def predict_path(
 
 
 def _refuse_when_nothing_is_usable(
-    path: str | Path, checkpoint: str, inputs: InputStrategy, reasons: list[str]
+    path: str | Path,
+    checkpoint: str,
+    inputs: InputStrategy,
+    reasons: list[str],
+    source: GraspBatch,
 ) -> None:
     """A ValueError naming why no sample of ``path`` can be predicted, and which input
-    strategies could."""
-    lacking = {name for name in inputs.scalar_names if any(name in r for r in reasons)}
+    strategies could: those whose scalar inputs ``source`` holds for some sample (its
+    image inputs are not judged)."""
+    names = {spec.name for spec in scalar_inputs()}
+    held = source.inputs(sorted(names))
+    lacking = {n for n in names if not np.all(np.isfinite(held[n]), axis=1).any()}
     could = [s.value for s in InputStrategy if not lacking & set(s.input_names)]
     raise ValueError(
         f"{path}: none of its {len(reasons)} samples can be predicted by {checkpoint} "

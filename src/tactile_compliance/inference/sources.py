@@ -18,6 +18,7 @@ from tactile_compliance.data.raw_layout import (
     ESTIMATE_FILES,
     FINGER_FILES,
     FORCES_FILE,
+    RIG_ESTIMATE_FILES,
     VIDEO_SUFFIXES,
     WIDTHS_FILE,
     FingerChoice,
@@ -34,6 +35,7 @@ from tactile_compliance.data.store import (
     ESTIMATE_COLUMNS,
     FORCE_COLUMNS,
     HEADER_FILE,
+    RIG_ESTIMATE_COLUMNS,
     WIDTH_COLUMNS,
     GraspStore,
     StoreError,
@@ -65,6 +67,8 @@ class GraspBatch:
         force_n: (B, 3) N, NaN where unknown.
         width_m: (B, 3) m, NaN where unknown.
         estimates_pa: (B, 2) Pa (elastic E, Hertz E*), NaN where unknown.
+        rig_estimates_pa: (B, 2) Pa, the rig-corrected pair (``record --rig``, the
+            generator), NaN where unknown; None: the source has none.
         rows: one row per grasp: ``ROW_COLUMNS`` + ``modulus_pa`` (truth, NaN if unknown).
         kind: ``store``, ``grasp_dir`` or ``video``.
         frame_kind: ``difference`` or ``raw`` (videos and Shore-hardness stores).
@@ -88,6 +92,7 @@ class GraspBatch:
     sensor_units: SensorUnits = WEDGE_UNITS
     depth_mm: np.ndarray | StoreDepth | None = None
     source_image_size: tuple[int, int] | None = None
+    rig_estimates_pa: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -101,6 +106,11 @@ class GraspBatch:
             "force": self.force_n,
             "width": self.width_m,
             "estimates": self.estimates_pa,
+            "rig_estimates": (
+                np.full((len(self), 2), np.nan)
+                if self.rig_estimates_pa is None
+                else self.rig_estimates_pa
+            ),
         }
         return {name: columns[name][slice(None) if ids is None else ids] for name in names}
 
@@ -152,6 +162,7 @@ def read_store(path: str | Path, ids: np.ndarray | list[int] | None = None) -> G
         force_n=samples[list(FORCE_COLUMNS)].to_numpy(np.float64),
         width_m=samples[list(WIDTH_COLUMNS)].to_numpy(np.float64),
         estimates_pa=samples[list(ESTIMATE_COLUMNS)].to_numpy(np.float64),
+        rig_estimates_pa=samples[list(RIG_ESTIMATE_COLUMNS)].to_numpy(np.float64),
         rows=rows,
         kind="store",
         frame_kind=str(store.header.creation_parameters.get("frame_kind", "difference")),
@@ -215,7 +226,7 @@ def read_grasp_dir(
             f"{root}: no grasp data found; expected an augmentation directory with RGB.pkl "
             f"and forces.pkl, or grasp=g/augmentation=k/ below it"
         )
-    frames, forces, widths, estimates, rows = [], [], [], [], []
+    frames, forces, widths, estimates, rig_estimates, rows = [], [], [], [], [], []
     unreadable: list[dict[str, Any]] = []
     native: tuple[int, int] | None = None
     for grasp, augmentation, directory in dirs:
@@ -240,6 +251,7 @@ def read_grasp_dir(
             forces.append(sample.force)
             widths.append(sample.width)
             estimates.append(sample.estimates)
+            rig_estimates.append(sample.rig_estimates)
             rows.append(
                 {
                     "sample_id": len(rows),
@@ -261,6 +273,7 @@ def read_grasp_dir(
         force_n=np.asarray(forces, dtype=np.float64),
         width_m=np.asarray(widths, dtype=np.float64),
         estimates_pa=np.asarray(estimates, dtype=np.float64),
+        rig_estimates_pa=np.asarray(rig_estimates, dtype=np.float64).reshape(-1, 2),
         rows=pd.DataFrame(rows, columns=[*ROW_COLUMNS, "modulus_pa"]),
         kind="grasp_dir",
         frame_kind="difference",
@@ -280,6 +293,7 @@ class _SampleDir:
     force: np.ndarray
     width: np.ndarray
     estimates: list[float]
+    rig_estimates: list[float]
     images: list[tuple[str, str, np.ndarray]]  # (finger, file name, uint8 frames)
     native_size: tuple[int, int] | None = None  # (H, W) px of the files, before any resize
 
@@ -301,6 +315,7 @@ def _read_sample_dir(
             force=load_vector(directory, FORCES_FILE, optional=True),
             width=load_vector(directory, WIDTHS_FILE, optional=True),
             estimates=[load_estimate(directory, name) for name in ESTIMATE_FILES],
+            rig_estimates=[load_estimate(directory, name) for name in RIG_ESTIMATE_FILES],
             images=[],
         )
         for finger in fingers:

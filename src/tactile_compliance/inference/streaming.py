@@ -20,6 +20,7 @@ from tactile_compliance.data.frame_selection import (
     select_frame_indices,
 )
 from tactile_compliance.data.image_ops import difference_images
+from tactile_compliance.data.inputs import ANALYTICAL_INPUTS, INPUTS
 from tactile_compliance.data.store import frames_to_uint8, store_depth_maps
 from tactile_compliance.inference.input_checks import check_frames
 from tactile_compliance.models import NUM_FRAMES
@@ -463,12 +464,26 @@ class StreamingEstimator:
             min_peak_force_n=0.0 if any_peak else self.min_peak_force_n,
         )
 
-    def _current_estimates(self, selection: FrameSelection, final: bool) -> np.ndarray | None:
-        if self._estimates_pa is not None or not self._has_depth:
+    def _current_estimates(
+        self, name: str, selection: FrameSelection, final: bool
+    ) -> np.ndarray | None:
+        """The analytical input ``name`` (``"estimates"`` or ``"rig_estimates"``, Pa) of
+        the frames so far: given ones (``estimates_pa``), else computed from the depth
+        maps (the rig-corrected pair at the checkpoint's rig stiffness); None when not
+        given and not (yet) computable."""
+        if name == "estimates" and self._estimates_pa is not None:
             return self._estimates_pa
+        if not self._has_depth:
+            return None
+        rig_stiffness = None
+        if name == "rig_estimates":
+            rig_stiffness = self.estimator.run_inputs.rig_stiffness_n_per_m
         forces, widths, depths = self._estimation_series(selection, final)
         values = np.asarray(
-            self.analytical_estimator.estimate(forces, widths, depths), dtype=np.float64
+            self.analytical_estimator.estimate(
+                forces, widths, depths, rig_stiffness_n_per_m=rig_stiffness
+            ),
+            dtype=np.float64,
         )
         return values if np.all(np.isfinite(values)) else None
 
@@ -492,29 +507,31 @@ class StreamingEstimator:
         selection = self._select()
         if selection is None:
             return None
-        needs_estimates = "estimates" in self.estimator.required_inputs
-        estimates = self._current_estimates(selection, final) if needs_estimates else None
-        if needs_estimates and estimates is None:
-            if self._has_depth:
-                return None  # not estimable yet from the depth maps; wait for more frames
-            raise ValueError(
-                f"this checkpoint uses inputs={self.estimator.inputs.value}: give the "
-                f"analytical estimates (elastic E, Hertz E*) in Pa as estimates_pa=, or "
-                f"depth_mm= with every frame"
-            )
-        key = (selection.indices, None if estimates is None else tuple(estimates))
+        analytical: dict[str, np.ndarray] = {}
+        for name in (n for n in self.estimator.required_inputs if n in ANALYTICAL_INPUTS):
+            values = self._current_estimates(name, selection, final)
+            if values is None:
+                if self._has_depth:
+                    return None  # not estimable yet from the depth maps; wait for more frames
+                given = "" if name == "rig_estimates" else "give estimates_pa= in Pa, or "
+                raise ValueError(
+                    f"this checkpoint uses inputs={self.estimator.inputs.value}, which takes "
+                    f"the {INPUTS[name].meaning}: {given}give depth_mm= with every frame"
+                )
+            analytical[name] = values
+        key = (selection.indices, tuple((n, tuple(v)) for n, v in analytical.items()))
         if key == self._last_key and self._last is not None:
             if not final:
                 return None
             # Same frames as the last refinement: the final estimate is that one.
             estimate = replace(self._last, final=True, frames_seen=self.frames_seen)
         else:
-            estimate = self._predict(selection, estimates, final)
+            estimate = self._predict(selection, analytical, final)
         self._last, self._last_key = estimate, key
         return estimate
 
     def _predict(
-        self, selection: FrameSelection, estimates: np.ndarray | None, final: bool
+        self, selection: FrameSelection, analytical: dict[str, np.ndarray], final: bool
     ) -> StreamEstimate:
         idx, buf = selection.indices, self._buffer
         forces = tuple(float(buf.forces[i]) for i in idx)
@@ -532,8 +549,8 @@ class StreamingEstimator:
         prediction: Prediction = self.estimator.predict(
             force=np.asarray(forces),
             width=None if widths is None else np.asarray(widths),
-            estimates=estimates,
             channel_order=self.channel_order,
+            **analytical,
             **images,
         )
         return StreamEstimate(

@@ -210,33 +210,61 @@ class GraspUnits:
     Attributes:
         sensor: depth model and pixel density (``physics.estimators.SensorUnits``).
         estimator: the analytical estimator's name (``physics.estimators``).
+        rig_stiffness_n_per_m: the rig stiffness [N/m] the grasp's rig-corrected
+            estimates were made with (``contact.rig_corrected_widths_m``); None: the grasp
+            has no rig-corrected estimates.
     """
 
     sensor: SensorUnits = WEDGE_UNITS
     estimator: str = DEFAULT_ESTIMATOR.name
+    rig_stiffness_n_per_m: float | None = None
 
     def __post_init__(self) -> None:
         AnalyticalEstimator(self.estimator)  # ValueError: unknown estimator
+        k = self.rig_stiffness_n_per_m
+        if k is not None:
+            if not (isinstance(k, (int, float)) and math.isfinite(k) and k > 0):
+                raise ValueError(f"rig_stiffness_n_per_m {k!r} in the units is not a stiffness")
+            object.__setattr__(self, "rig_stiffness_n_per_m", float(k))
 
     def to_dict(self) -> dict[str, Any]:
-        return {**self.sensor.to_dict(), "analytical_estimator": self.estimator}
+        """The ``units.json`` fields; ``rig_stiffness_n_per_m`` only when set, so grasps
+        without rig-corrected estimates keep the file they always had."""
+        data = {**self.sensor.to_dict(), "analytical_estimator": self.estimator}
+        if self.rig_stiffness_n_per_m is not None:
+            data["rig_stiffness_n_per_m"] = self.rig_stiffness_n_per_m
+        return data
 
-    def to_row(self) -> tuple[str, str, float]:
-        """(estimator, depth model, px/mm; NaN: the estimator's own), a store row's unit
-        columns in their order (``data.store.UNIT_COLUMNS``)."""
-        px = self.sensor.px_per_mm
-        return self.estimator, self.sensor.depth_model, math.nan if px is None else float(px)
+    def to_row(self) -> tuple[str, str, float, float]:
+        """(estimator, depth model, px/mm, rig stiffness N/m; NaN: the estimator's own
+        density, no rig-corrected estimates), a store row's unit columns in their order
+        (``data.store.UNIT_COLUMNS``)."""
+        px, k = self.sensor.px_per_mm, self.rig_stiffness_n_per_m
+        return (
+            self.estimator,
+            self.sensor.depth_model,
+            math.nan if px is None else float(px),
+            math.nan if k is None else k,
+        )
 
     @classmethod
     def from_dict(cls, data: Any) -> GraspUnits:
         """Read :meth:`to_dict` (ValueError: not a mapping, a field missing or invalid)."""
         if not isinstance(data, dict) or not {"depth_model", "analytical_estimator"} <= set(data):
             raise ValueError("expected depth_model, px_per_mm and analytical_estimator")
-        return cls(SensorUnits.from_dict(data), str(data["analytical_estimator"]))
+        return cls(
+            SensorUnits.from_dict(data),
+            str(data["analytical_estimator"]),
+            data.get("rig_stiffness_n_per_m"),
+        )
 
     def describe(self) -> str:
-        """E.g. ``the dataset estimator on a calibrated depth model at 11 px/mm``."""
-        return f"the {self.estimator} estimator on {self.sensor.describe()}"
+        """E.g. ``the dataset estimator on a calibrated depth model at 11 px/mm``, plus
+        ``, rig-corrected for a 3440 N/m rig`` when it has rig-corrected estimates."""
+        text = f"the {self.estimator} estimator on {self.sensor.describe()}"
+        if self.rig_stiffness_n_per_m is not None:
+            text += f", rig-corrected for a {self.rig_stiffness_n_per_m:.4g} N/m rig"
+        return text
 
 
 DATASET_UNITS = GraspUnits()

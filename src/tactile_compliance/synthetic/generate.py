@@ -141,13 +141,15 @@ def _run_object(job: _Job) -> tuple[int, int, int]:
         used_in_training=bool(spec.used_in_training),
     )
     rejected = samples = 0
+    units = replace(DATASET_UNITS, rig_stiffness_n_per_m=job.options.rig.stiffness_n_per_m)
     try:
         for g in range(spec.n_grasps):
             result = simulate_grasp(ctx, g)
             if not result.samples:
                 rejected += 1
-            else:  # the manifest's estimator, on the Wedge's units (as the dataset)
-                write_units_file(grasp_dir(partial, g), DATASET_UNITS)
+            else:  # the manifest's estimator on the Wedge's units (as the dataset), and
+                # the rig stiffness of the rig-corrected estimates
+                write_units_file(grasp_dir(partial, g), units)
             for k, sample in enumerate(result.samples):
                 fingers = {
                     "markerless": (sample.rgb, sample.depth),
@@ -155,7 +157,15 @@ def _run_object(job: _Job) -> tuple[int, int, int]:
                 }
                 estimates = (sample.elastic_estimate, sample.hertz_estimate)
                 directory = augmentation_dir(grasp_dir(partial, g), k)
-                write_sample(directory, fingers, sample.forces, sample.widths, estimates, job.dtype)
+                write_sample(
+                    directory,
+                    fingers,
+                    sample.forces,
+                    sample.widths,
+                    estimates,
+                    job.dtype,
+                    rig_estimates_pa=sample.rig_estimates,
+                )
                 samples += 1
         commit_path(partial, job.out_dir / spec.name)
     except BaseException:

@@ -173,6 +173,9 @@ class GraspSample:
         widths: measured gripper width at the three frames [m].
         elastic_estimate: Hooke estimate [Pa] (NaN if not estimable).
         hertz_estimate: Hertz/MDR estimate of E* [Pa] (NaN if not estimable).
+        rig_estimates: the same pair [Pa] with the rig's own closure taken out at the
+            rig's nominal stiffness (``GripperRig.stiffness_n_per_m``), as ``record --rig``
+            makes them on a real rig; NaN where not estimable.
     """
 
     rgb: np.ndarray
@@ -183,6 +186,7 @@ class GraspSample:
     widths: np.ndarray
     elastic_estimate: float
     hertz_estimate: float
+    rig_estimates: tuple[float, float] = (math.nan, math.nan)
 
 
 @dataclass
@@ -278,8 +282,10 @@ def _estimates(
     max_depth_mm: np.ndarray,
     frames: np.ndarray,
     width_px: int,
+    rig_stiffness_n_per_m: float | None = None,
 ) -> tuple[float, float]:
-    """Both analytical estimates as the dataset's code made them (``DEFAULT_ESTIMATOR``).
+    """Both analytical estimates as the dataset's code made them (``DEFAULT_ESTIMATOR``),
+    rig-corrected at ``rig_stiffness_n_per_m`` [N/m] when given.
 
     ``depth_mm`` holds the force-sensing finger's depth maps of the consecutive
     ``frames``; ``max_depth_mm`` (2, T) both fingers' maximum depth per frame of the
@@ -298,6 +304,7 @@ def _estimates(
             depth_mm[start - frames[0] : end - frames[0]],
             _estimator_constants(width_px),
             preprocess=False,
+            rig_stiffness_n_per_m=rig_stiffness_n_per_m,
         )
     except ValueError:
         return math.nan, math.nan
@@ -430,6 +437,9 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
     if selection is None:
         return GraspResult([], timeline, None, reference_mm)
     elastic, hertz = _estimates(timeline, seq[0], max_depth, seq_frames, est_size[1])
+    rig_estimates = _estimates(
+        timeline, seq[0], max_depth, seq_frames, est_size[1], opt.rig.stiffness_n_per_m
+    )
 
     # Full resolution, stored frames only.
     tex_rng = stream(*key, "texture")
@@ -465,6 +475,7 @@ def simulate_grasp(ctx: ObjectContext, grasp: int) -> GraspResult:
                 widths=timeline.width_m[fi].astype(np.float64),
                 elastic_estimate=elastic,
                 hertz_estimate=hertz,
+                rig_estimates=rig_estimates,
             )
         )
     return GraspResult(samples, timeline, selection, reference_mm)
