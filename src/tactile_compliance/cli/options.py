@@ -132,7 +132,8 @@ RigCorrectionOption = Annotated[
     typer.Option(
         "--rig",
         help="A rig file from calibrate-rig (or a rig name): also report the rig-corrected "
-        "analytical estimates, the rig's own closure taken out.",
+        "analytical estimates, the rig's own closure taken out (record also writes them, "
+        "the input of FWR models).",
     ),
 ]
 
