@@ -223,21 +223,29 @@ def test_tune_searches_the_frame_free_model() -> None:
     )
 
 
-def test_live_runs_a_frame_free_estimates_model_on_a_camera(runs, tmp_path) -> None:
-    """FWE with a camera: live takes force and width from the readings and the analytical
-    estimates from the video's depth maps, the ones `estimate` prints for the same grasp."""
+def _live_and_estimate(
+    run: Path, tmp_path: Path, *estimate_options: str
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """`live RUN` on a replayed synthetic grasp (its final event) and `estimate` with
+    ``estimate_options`` on the same recording (its JSON)."""
     from helpers import make_replay_grasp as make_grasp  # a replayable synthetic grasp
 
     grasp = make_grasp(tmp_path / "grasp", (250, 350))  # the dataset's estimator's frame size
     source = ["video:" + str(grasp["video"]), "--readings", str(grasp["readings"]), "--json"]
-    result = CliRunner().invoke(app, ["live", str(runs["FWE"]), *source])
+    result = CliRunner().invoke(app, ["live", str(run), *source])
     assert result.exit_code == 0, result.output
     events = [json.loads(line) for line in result.output.splitlines() if line.startswith("{")]
     final = events[-1]
     assert final["final"] and np.isfinite(final["modulus_pa"])
-    result = CliRunner().invoke(app, ["estimate", *source])
+    result = CliRunner().invoke(app, ["estimate", *source, *estimate_options])
     assert result.exit_code == 0, result.output
-    analytical = json.loads(result.output)
+    return final, json.loads(result.output)
+
+
+def test_live_runs_a_frame_free_estimates_model_on_a_camera(runs, tmp_path) -> None:
+    """FWE with a camera: live takes force and width from the readings and the analytical
+    estimates from the video's depth maps, the ones `estimate` prints for the same grasp."""
+    final, analytical = _live_and_estimate(runs["FWE"], tmp_path)
     assert analytical["frame_indices"] == final["frame_indices"]
     estimator = ComplianceEstimator.from_checkpoint(runs["FWE"])
     direct = estimator.predict(
@@ -298,18 +306,7 @@ def test_fwr_carries_the_stores_rig_stiffness_and_refuses_a_store_without_one(
 def test_live_runs_an_fwr_model_on_a_camera_with_the_checkpoints_rig(runs, tmp_path) -> None:
     """FWR with a camera: live computes the rig-corrected estimates from the video's depth
     maps at the checkpoint's rig stiffness, the ones `estimate --rig` prints for that rig."""
-    from helpers import make_replay_grasp as make_grasp  # a replayable synthetic grasp
-
-    grasp = make_grasp(tmp_path / "grasp", (250, 350))  # the dataset's estimator's frame size
-    source = ["video:" + str(grasp["video"]), "--readings", str(grasp["readings"]), "--json"]
-    result = CliRunner().invoke(app, ["live", str(runs["FWR"]), *source])
-    assert result.exit_code == 0, result.output
-    events = [json.loads(line) for line in result.output.splitlines() if line.startswith("{")]
-    final = events[-1]
-    assert final["final"] and np.isfinite(final["modulus_pa"])
-    result = CliRunner().invoke(app, ["estimate", *source, "--rig", "dataset"])
-    assert result.exit_code == 0, result.output
-    analytical = json.loads(result.output)
+    final, analytical = _live_and_estimate(runs["FWR"], tmp_path, "--rig", "dataset")
     assert analytical["frame_indices"] == final["frame_indices"]
     assert analytical["rig_corrected_pa"] != analytical["estimates_pa"]
     estimator = ComplianceEstimator.from_checkpoint(runs["FWR"])

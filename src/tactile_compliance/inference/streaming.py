@@ -308,7 +308,9 @@ class StreamingEstimator:
                 a model without frames (``FW``, ``FWE``: no camera needed), ignored by one.
             estimates_pa: (elastic E, Hertz E*) in Pa, replaces earlier values.
             depth_mm: (H', W') gel depth map in mm of this frame (give it with every frame
-                or never): the estimates are computed from it on the fly, and a depth-map
+                or never): the estimates are computed from it on the fly (the
+                rig-corrected pair of an ``FWR`` model at the checkpoint's
+                ``RunInputs.rig_stiffness_n_per_m``; it cannot be given), and a depth-map
                 model (``DepthFW``, ``DepthALL``) reads it, resized as the store keeps
                 depth maps (``data.store.store_depth_maps``).
             timestamp_s: capture time in s on a clock that only moves forward; with every
