@@ -17,7 +17,7 @@ from typing import Any, Literal, get_args, get_origin
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from tactile_compliance.data.inputs import InputStrategy
+from tactile_compliance.data.inputs import ANALYTICAL_INPUTS, InputStrategy
 from tactile_compliance.data.normalisation import NormalisationConstants
 from tactile_compliance.data.plausibility import check_size
 from tactile_compliance.data.preprocess import FilterRules
@@ -265,6 +265,13 @@ class TrainingConfig(_Section):
     batch_size: int = Field(32, ge=1)
     gamma: float | None = Field(None, gt=0.0, le=1.0, description="StepLR gamma; null = none")
     l2_weight: float = Field(5e-5, ge=0.0)
+    estimate_dropout: float = Field(
+        0.0,
+        ge=0.0,
+        lt=1.0,
+        description="share of training grasps whose analytical estimates are hidden as "
+        "missing, so the model also estimates grasps whose fits failed (NaN estimates)",
+    )
     precision: Literal["32", "bf16-mixed"] = "32"
     compile: bool = False
     num_workers: int = Field(0, ge=0)
@@ -350,6 +357,13 @@ class ExperimentConfig(_Section):
             raise ValueError(
                 f"model.finetune={self.model.finetune} needs a backbone, but "
                 f"inputs={self.inputs} takes no images; use finetune: all"
+            )
+        if self.training.estimate_dropout > 0 and not ANALYTICAL_INPUTS & set(
+            self.strategy.input_names
+        ):
+            raise ValueError(
+                f"training.estimate_dropout hides the analytical estimates, but "
+                f"inputs={self.inputs} takes none; set it to 0"
             )
         if self.split.condition == "unseen" and self.split.grouping == "per_sample":
             raise ValueError(

@@ -21,6 +21,7 @@ from torch.utils.data import (
 
 from tactile_compliance.data.inputs import InputStrategy
 from tactile_compliance.data.normalisation import (
+    MISSING_SCALAR,
     NormalisationConstants,
     normalise_depth,
     normalise_images,
@@ -64,7 +65,7 @@ def model_inputs(
     for spec in InputStrategy.parse(inputs).scalars:
         assert spec.normalise is not None  # every scalar has one (data.inputs checks)
         values = spec.normalise(rows[list(spec.columns)].to_numpy(dtype=np.float64), constants)
-        scalars[spec.name] = np.nan_to_num(np.asarray(values, dtype=np.float32), nan=0.0)
+        scalars[spec.name] = np.nan_to_num(np.asarray(values, dtype=np.float32), nan=MISSING_SCALAR)
     label = normalise_modulus(rows["modulus_pa"].to_numpy(dtype=np.float64), constants)
     return ModelInputs(ids, scalars, np.asarray(label, dtype=np.float32))
 

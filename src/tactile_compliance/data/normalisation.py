@@ -65,6 +65,7 @@ SCALE_BOUNDS: dict[str, tuple[float, float, str]] = {
 }
 
 __all__ = [
+    "MISSING_SCALAR",
     "SCALE_BOUNDS",
     "NormalisationConstants",
     "denormalise_images",
@@ -76,6 +77,12 @@ __all__ = [
     "normalise_modulus",
     "normalise_width",
 ]
+
+
+#: What a missing (NaN) scalar input is after normalisation, in training and at inference
+#: (a model trained with ``training.estimate_dropout`` learns it as "no estimate"). For
+#: the estimates it is the normalised clamp floor, 1e2 Pa, which no grasp's fit reaches.
+MISSING_SCALAR = 0.0
 
 
 @dataclass(frozen=True)

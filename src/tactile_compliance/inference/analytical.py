@@ -86,6 +86,9 @@ class AnalyticalStream(StreamingEstimator):
         super().__init__(_NoModel(), analytical_estimator=analytical_estimator, **options)  # type: ignore[arg-type]
         self.rig_stiffness_n_per_m = rig_stiffness_n_per_m
 
+    def _takes_missing_estimates(self) -> bool:
+        return False  # the estimates are the result: it waits until they can be made
+
     def _rig_corrected(self, selection: FrameSelection, final: bool) -> tuple[float, float]:
         forces, widths, depths = self._estimation_series(selection, final)
         try:

@@ -164,6 +164,7 @@ class BaseEstimator(ABC):
             constants=self.constants,
             channel_order=channel_order,
             describe=f"{self.kind} {self.source} ({self.model_name})",
+            missing_estimates=self.run_inputs.missing_estimates,
         )
         y = np.concatenate([self._forward(chunk) for chunk in prepared.chunks(batch_size)])
         return Prediction.from_normalised(y, self.constants, prepared.single)

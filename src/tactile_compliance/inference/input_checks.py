@@ -12,12 +12,13 @@ import numpy as np
 import torch
 
 from tactile_compliance.data.inputs import (
+    ANALYTICAL_INPUTS,
     INPUTS,
     MIN_FRAME_SIDE_PX,
     NUM_FRAMES,
     InputStrategy,
 )
-from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.data.normalisation import MISSING_SCALAR, NormalisationConstants
 from tactile_compliance.data.plausibility import (
     DEPTH,
     FRAME,
@@ -142,13 +143,17 @@ def check_frames(frames: Any, *, channel_order: str = "RGB") -> tuple[torch.Tens
     return tensor.contiguous(), single
 
 
-def check_scalar(name: str, value: Any, batch: int, single: bool) -> np.ndarray:
+def check_scalar(
+    name: str, value: Any, batch: int, single: bool, *, allow_nan: bool = False
+) -> np.ndarray:
     """Validate one scalar input in its physical unit; returns float64 ``(batch, size)``.
     Bool, complex, datetime and text are refused, never cast (a cast would drop an
-    imaginary part or turn a date into a number).
+    imaginary part or turn a date into a number). ``allow_nan``: NaN passes as missing
+    (a model trained with estimate dropout); infinity never does.
 
     Raises:
-        ValueError: not numeric, wrong shape, NaN/inf, or outside the plausible range.
+        ValueError: not numeric, wrong shape, NaN (unless allowed) or inf, or outside the
+            plausible range.
     """
     spec = INPUTS[name]
     rule = spec.rule
@@ -160,20 +165,20 @@ def check_scalar(name: str, value: Any, batch: int, single: bool) -> np.ndarray:
     if array.shape != expected:
         got = "a scalar" if array.ndim == 0 else f"shape {tuple(array.shape)}"
         raise ValueError(f"{what} must have shape {expected} to match the other inputs, got {got}")
-    finite = np.isfinite(array)
+    finite = np.isfinite(array) | (allow_nan & np.isnan(array))
     if not finite.all():
         raise ValueError(f"{what} contains NaN/inf ({int((~finite).sum())} values); {spec.hint}")
     plausible = f"plausible {rule.quantity} range {rule.interval()}"
     if rule.below(array).any():
         raise ValueError(
             f"{what} must be {rule.lower_bound()} ({plausible}), got min "
-            f"{format_number(float(array.min()))}; {spec.hint}"
+            f"{format_number(float(np.nanmin(array)))}; {spec.hint}"
         )
     upper = rule.upper_bound()
     if upper is not None and rule.above(array).any():
         raise ValueError(
             f"{what} must be {upper} ({plausible}), got max "
-            f"{format_number(float(array.max()))}; {spec.hint}"
+            f"{format_number(float(np.nanmax(array)))}; {spec.hint}"
         )
     return array.reshape(batch, spec.size)
 
@@ -249,6 +254,7 @@ def prepare_inputs(
     constants: NormalisationConstants,
     channel_order: str = "RGB",
     describe: str = "this model",
+    missing_estimates: bool = False,
 ) -> PreparedInputs:
     """Validate the inputs strategy ``inputs`` takes and normalise its scalars.
 
@@ -259,6 +265,8 @@ def prepare_inputs(
             validated: an ensemble passes every member the same inputs, and a member must
             not fail on an input only another member uses.
         describe: how error messages name the estimator.
+        missing_estimates: NaN analytical estimates are missing, not an error: they become
+            ``MISSING_SCALAR`` as in training (``RunInputs.missing_estimates``).
 
     Raises:
         ValueError: a missing input (named with its meaning, unit and shape), an unknown
@@ -286,9 +294,12 @@ def prepare_inputs(
         single = len(shape) <= 1
         size = 1 if single else int(shape[0])
     for spec in strategy.scalars:
-        physical = check_scalar(spec.name, given[spec.name], size, single)
+        allow_nan = missing_estimates and spec.name in ANALYTICAL_INPUTS
+        physical = check_scalar(spec.name, given[spec.name], size, single, allow_nan=allow_nan)
         assert spec.normalise is not None  # every scalar has one (data.inputs checks)
         # float64 normalisation then float32, exactly like model_inputs() on the store.
         normalised = np.asarray(spec.normalise(physical, constants), dtype=np.float32)
+        if allow_nan:
+            normalised = np.nan_to_num(normalised, nan=MISSING_SCALAR)
         batch[spec.name] = torch.from_numpy(normalised)
     return PreparedInputs(batch=batch, size=size, single=single)

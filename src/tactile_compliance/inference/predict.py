@@ -77,7 +77,12 @@ def predict_path(
     scalars = source.inputs(scalar_names)
     usable = np.ones(len(source), dtype=bool)
     reasons: list[str] = [""] * len(source)
+    run_inputs = estimator.run_inputs
+    # A model trained with estimate dropout estimates grasps whose fits failed.
+    may_miss = set(run_inputs.analytical_inputs) if run_inputs.missing_estimates else set()
     for name in scalar_names:
+        if name in may_miss:
+            continue
         missing = ~np.all(np.isfinite(scalars[name]), axis=1)
         for i in np.flatnonzero(missing & usable):
             reasons[i] = f"missing {name} (NaN)"

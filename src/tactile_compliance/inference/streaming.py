@@ -472,7 +472,8 @@ class StreamingEstimator:
         """The analytical input ``name`` (``"estimates"`` or ``"rig_estimates"``, Pa) of
         the frames so far: given ones (``estimates_pa``), else computed from the depth
         maps (the rig-corrected pair at the checkpoint's rig stiffness); None when not
-        given and not (yet) computable."""
+        given and not (yet) computable, unless the model takes missing estimates
+        (``RunInputs.missing_estimates``): it then gets the pair with its NaN."""
         if name == "estimates" and self._estimates_pa is not None:
             return self._estimates_pa
         if not self._has_depth:
@@ -487,7 +488,14 @@ class StreamingEstimator:
             ),
             dtype=np.float64,
         )
-        return values if np.all(np.isfinite(values)) else None
+        if np.all(np.isfinite(values)) or self._takes_missing_estimates():
+            return values
+        return None
+
+    def _takes_missing_estimates(self) -> bool:
+        """Whether the model estimates with NaN analytical inputs (``RunInputs.
+        missing_estimates``); else the stream waits until they can be computed."""
+        return self.estimator.run_inputs.missing_estimates
 
     def _estimation_series(
         self, selection: FrameSelection, final: bool

@@ -43,6 +43,10 @@ class RunInputs:
         rig_stiffness_n_per_m: the rig stiffness [N/m] of the training data's
             rig-corrected estimates, for a strategy that takes them (``FWR``; None
             otherwise): ``live`` and the stream compute them from depth maps with it.
+        missing_estimates: the model was trained with ``training.estimate_dropout``, so
+            it takes NaN analytical estimates as missing (``MISSING_SCALAR``, as training
+            hid them) and still estimates a grasp whose fits failed; False: NaN estimates
+            are refused (``predict`` skips such grasps).
     """
 
     image_size: tuple[int, int] | None
@@ -53,6 +57,7 @@ class RunInputs:
     estimator: AnalyticalEstimator = DEFAULT_ESTIMATOR
     channel_order: str = CHANNEL_ORDER
     rig_stiffness_n_per_m: float | None = None
+    missing_estimates: bool = False
 
     def __post_init__(self) -> None:
         set_field = object.__setattr__  # a frozen dataclass normalises its own fields
@@ -76,6 +81,17 @@ class RunInputs:
             )
         if k is not None and not (isinstance(k, (int, float)) and math.isfinite(k) and k > 0):
             raise ValueError(f"rig_stiffness_n_per_m must be a stiffness in N/m > 0, got {k!r}")
+        if self.missing_estimates and not self.analytical_inputs:
+            raise ValueError(
+                f"missing_estimates needs analytical estimates, and inputs={self.inputs.value} "
+                "takes none"
+            )
+
+    @property
+    def analytical_inputs(self) -> tuple[str, ...]:
+        """The analytical inputs its strategy takes (``data.inputs.ANALYTICAL_INPUTS``:
+        ``estimates``, ``rig_estimates``), in table order."""
+        return tuple(n for n in self.inputs.input_names if n in ANALYTICAL_INPUTS)
 
     @classmethod
     def resolve(
@@ -121,6 +137,7 @@ class RunInputs:
             sensor=store.sensor_units,
             estimator=store.analytical_estimator,
             rig_stiffness_n_per_m=rig_stiffness,
+            missing_estimates=cfg.training.estimate_dropout > 0,
         )
 
     def check_sensor(self, units: SensorUnits, *, trained: str, used: str) -> None:
@@ -131,7 +148,7 @@ class RunInputs:
         Raises:
             ValueError: one line naming ``trained`` and ``used`` and both units.
         """
-        if {*ANALYTICAL_INPUTS, "depth"} & set(self.inputs.input_names):
+        if self.analytical_inputs or self.inputs.uses("depth"):
             self.sensor.check_same(units, trained=trained, used=used)
 
     def source_mismatch(
@@ -179,6 +196,7 @@ class RunInputs:
                 if self.rig_stiffness_n_per_m is None
                 else {"rig_stiffness_n_per_m": self.rig_stiffness_n_per_m}
             ),
+            **({"missing_estimates": True} if self.missing_estimates else {}),
         }
 
     @classmethod
@@ -194,6 +212,7 @@ class RunInputs:
                 estimator=AnalyticalEstimator(data["analytical_estimator"]),
                 channel_order=data["channel_order"],
                 rig_stiffness_n_per_m=data.get("rig_stiffness_n_per_m"),
+                missing_estimates=bool(data.get("missing_estimates", False)),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             problem = f"missing {err}" if isinstance(err, KeyError) else str(err)

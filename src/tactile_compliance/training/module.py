@@ -12,11 +12,14 @@ from typing import Any
 import lightning as L
 import torch
 
+from tactile_compliance.data.normalisation import MISSING_SCALAR
 from tactile_compliance.runs.forward import forward_batch
 from tactile_compliance.runs.run_inputs import RunInputs
 
 #: Where a training checkpoint keeps the augmentation generator's state.
 AUGMENTATION_RNG_KEY = "augmentation_rng_state"
+#: Where it keeps the generator that picks the grasps whose estimates are hidden.
+ESTIMATE_DROPOUT_RNG_KEY = "estimate_dropout_rng_state"
 
 
 @torch.no_grad()
@@ -52,7 +55,13 @@ def last_block(backbone: torch.nn.Module) -> torch.nn.Module:
 
 
 class ComplianceModule(L.LightningModule):
-    """Wraps a compliance model for training; validation logs ``val_nmse`` per epoch."""
+    """Wraps a compliance model for training; validation logs ``val_nmse`` per epoch.
+
+    ``estimate_dropout``: the share of training grasps (drawn per batch, with a generator
+    seeded by ``seed``, so a resumed run draws as an uninterrupted one) whose analytical
+    inputs are set to ``MISSING_SCALAR``, what a NaN estimate becomes; validation and
+    test see them all.
+    """
 
     def __init__(
         self,
@@ -66,6 +75,8 @@ class ComplianceModule(L.LightningModule):
         freeze_backbone: bool = False,
         finetune: str = "all",
         compile_model: bool = False,
+        estimate_dropout: float = 0.0,
+        seed: int = 0,
     ) -> None:
         super().__init__()
         self.model = model
@@ -88,6 +99,8 @@ class ComplianceModule(L.LightningModule):
         )
         self._val_squared_errors: list[torch.Tensor] = []
         self._l2_norms: list[torch.Tensor] | None = None
+        self.estimate_dropout = float(estimate_dropout)
+        self._dropout_generator = torch.Generator().manual_seed(int(seed))
         self._reset_epoch_state()
 
     def _frozen_backbone_prefixes(self) -> tuple[str, ...]:
@@ -104,6 +117,8 @@ class ComplianceModule(L.LightningModule):
         generator = getattr(self.augmentation, "generator", None)
         if generator is not None:
             checkpoint[AUGMENTATION_RNG_KEY] = generator.get_state()
+        if self.estimate_dropout:
+            checkpoint[ESTIMATE_DROPOUT_RNG_KEY] = self._dropout_generator.get_state()
         # A frozen backbone is rebuilt by train() on resume (fixed seed or weights file),
         # so last.ckpt leaves it out: 0.53 GB less per save for VGG16.
         if self.freeze_backbone:
@@ -116,6 +131,8 @@ class ComplianceModule(L.LightningModule):
         generator = getattr(self.augmentation, "generator", None)
         if generator is not None and AUGMENTATION_RNG_KEY in checkpoint:
             generator.set_state(checkpoint[AUGMENTATION_RNG_KEY])
+        if ESTIMATE_DROPOUT_RNG_KEY in checkpoint:
+            self._dropout_generator.set_state(checkpoint[ESTIMATE_DROPOUT_RNG_KEY])
         # Put this module's own frozen backbone tensors back so Lightning's strict load
         # still checks every head key; a checkpoint that has them (older runs) keeps its.
         if self.freeze_backbone:
@@ -155,7 +172,24 @@ class ComplianceModule(L.LightningModule):
             self.augmentation if augment else None,
         )
 
+    def _hide_estimates(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The batch with the analytical inputs of a random ``estimate_dropout`` share of
+        its grasps set to ``MISSING_SCALAR`` (a new dict: the batch's tensors may be views
+        of the cached inputs, which later epochs read again)."""
+        names = self.run_inputs.analytical_inputs
+        if not self.estimate_dropout or not names:
+            return batch
+        draws = torch.rand(len(batch["label"]), generator=self._dropout_generator)
+        hidden = (draws < self.estimate_dropout).to(batch["label"].device)[:, None]
+        out = dict(batch)
+        for name in names:
+            out[name] = torch.where(
+                hidden, torch.full_like(batch[name], MISSING_SCALAR), batch[name]
+            )
+        return out
+
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        batch = self._hide_estimates(batch)
         prediction = self._predict(batch, augment=True).float()
         mse = torch.mean((prediction - batch["label"]) ** 2)
         loss = mse

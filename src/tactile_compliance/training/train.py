@@ -462,6 +462,8 @@ def _fit_and_evaluate(
         freeze_backbone=cfg.model.freeze_backbone,
         finetune=cfg.model.finetune,
         compile_model=cfg.training.compile,
+        estimate_dropout=cfg.training.estimate_dropout,
+        seed=cfg.seed,
     )
     config_dict = config_to_dict(cfg)
 
