@@ -137,3 +137,20 @@ def test_the_stream_gives_a_dropout_model_an_estimate_where_the_fits_fail() -> N
     )
     assert estimate.modulus_pa == pytest.approx(float(direct.modulus_pa), rel=1e-6)
     assert final(False)[0] is None  # without dropout the stream has nothing to give
+
+
+def test_the_onnx_export_keeps_taking_missing_estimates(runs, tmp_path) -> None:
+    from typer.testing import CliRunner
+
+    from tactile_compliance.cli import app
+    from tactile_compliance.inference.onnx import OnnxEstimator
+
+    path = tmp_path / "model.onnx"
+    result = CliRunner().invoke(app, ["export", str(runs[0.3]), "--onnx", str(path)])
+    assert result.exit_code == 0, result.output
+    onnx = OnnxEstimator(path)
+    assert onnx.run_inputs.missing_estimates
+    given = {"force": [8.0, 30.0, 58.0], "width": [0.05, 0.047, 0.044], "estimates": [np.nan, 2e5]}
+    expected = ComplianceEstimator.from_checkpoint(runs[0.3]).predict(**given)
+    got = onnx.predict(**given)
+    assert float(got.log10_modulus_pa) == pytest.approx(float(expected.log10_modulus_pa), abs=1e-4)
