@@ -50,7 +50,9 @@ def runs(store: Any, tmp_path_factory: pytest.TempPathFactory) -> dict[float, Pa
 
 def _module(dropout: float, seed: int = 0) -> ComplianceModule:
     model = create_model("scalar_mlp", inputs="FWE")
-    run_inputs = RunInputs(None, (32, 32), NormalisationConstants(), "FWE")
+    run_inputs = RunInputs(
+        None, (32, 32), NormalisationConstants(), "FWE", missing_estimates=dropout > 0
+    )
     return ComplianceModule(
         model, run_inputs, lr=1e-3, gamma=None, l2_weight=0.0, estimate_dropout=dropout, seed=seed
     )
@@ -74,6 +76,11 @@ def test_training_hides_a_share_of_the_estimates_and_leaves_the_batch_alone() ->
     assert torch.equal(again, out["estimates"])
     assert not torch.equal(_module(0.3, seed=1)._hide_estimates(batch)["estimates"], again)
     assert _module(0.0)._hide_estimates(batch) is batch
+    # The rate and the checkpoint's promise are one setting.
+    model = create_model("scalar_mlp", inputs="FWE")
+    plain = RunInputs(None, (32, 32), NormalisationConstants(), "FWE")
+    with pytest.raises(ValueError, match="one setting"):
+        ComplianceModule(model, plain, lr=1e-3, gamma=None, l2_weight=0.0, estimate_dropout=0.3)
 
 
 def test_the_config_refuses_dropout_for_inputs_without_estimates() -> None:
@@ -125,12 +132,18 @@ def test_the_stream_gives_a_dropout_model_an_estimate_where_the_fits_fail() -> N
             (72, 72), (72, 72), NormalisationConstants(), "ALL", missing_estimates=missing_estimates
         )
         stream = ComplianceEstimator(model, run_inputs).stream()
-        for i in range(len(force)):
+        emitted = [
             stream.update(frames[i], force[i], width[i], depth_mm=depth[i])
-        return stream.finish(), ComplianceEstimator(model, run_inputs)
+            for i in range(len(force))
+        ]
+        final_estimate = stream.finish()
+        return final_estimate, ComplianceEstimator(model, run_inputs), [e for e in emitted if e]
 
-    estimate, estimator = final(True)
+    estimate, estimator, emitted = final(True)
     assert estimate is not None and estimate.final and np.isfinite(estimate.modulus_pa)
+    # One estimate per new frame selection: a NaN estimate does not count as a change.
+    provisional = [e.frame_indices for e in emitted if not e.final]
+    assert provisional and len(provisional) == len(set(provisional))
     idx = list(estimate.frame_indices)
     direct = estimator.predict(
         frames[idx], force=force[idx], width=width[idx], estimates=[np.nan, np.nan]
@@ -148,6 +161,11 @@ def test_the_onnx_export_keeps_taking_missing_estimates(runs, tmp_path) -> None:
     path = tmp_path / "model.onnx"
     result = CliRunner().invoke(app, ["export", str(runs[0.3]), "--onnx", str(path)])
     assert result.exit_code == 0, result.output
+    result = CliRunner().invoke(
+        app, ["export", str(runs[0.3]), "--safetensors", str(tmp_path / "st")]
+    )
+    assert result.exit_code == 0, result.output
+    assert "Trained with estimate dropout" in (tmp_path / "st" / "README.md").read_text()
     onnx = OnnxEstimator(path)
     assert onnx.run_inputs.missing_estimates
     given = {"force": [8.0, 30.0, 58.0], "width": [0.05, 0.047, 0.044], "estimates": [np.nan, 2e5]}

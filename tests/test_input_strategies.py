@@ -141,6 +141,7 @@ def test_onnx_safetensors_and_predict_agree(runs, store, tmp_path, inputs: str) 
     np.testing.assert_array_equal(pretrained.predict(**needed).log10_modulus_pa, expected)
     card = (tmp_path / "st" / "README.md").read_text()
     assert f"**{inputs}**" in card and "predict(" + strategy.input_names[0] in card
+    assert ("N/m (`record --rig`)" in card) == (inputs == "FWR")
 
     # `predict` reads the store's inputs, depth maps included.
     result = runner.invoke(app, ["predict", str(runs[inputs]), str(store.path), "--json"])
@@ -319,3 +320,21 @@ def test_live_runs_an_fwr_model_on_a_camera_with_the_checkpoints_rig(runs, tmp_p
         force=final["force_n"], width=final["width_m"], rig_estimates=analytical["estimates_pa"]
     )
     assert float(other.log10_modulus_pa) != pytest.approx(final["log10_modulus_pa"], abs=1e-4)
+
+
+def test_predict_warns_when_the_stores_rig_is_not_the_models(runs, store, tmp_path) -> None:
+    from tactile_compliance.inference.predict import predict_path
+
+    assert not any("N/m" in w for w in predict_path(runs["FWR"], store.path)["warnings"])
+
+    other = make_toy_store(
+        tmp_path / "other", n_objects=3, grasps=1, units={"rig_stiffness_n_per_m": 1234.0}
+    )
+    report = predict_path(runs["FWR"], other.path)
+    assert report["summary"]["n_predicted"] == len(other)
+    assert any("at 1234 N/m: another rig" in w for w in report["warnings"]), report["warnings"]
+    # A store without rig-corrected estimates: every grasp skipped, and the refusal names
+    # the strategies that could predict it.
+    plain = make_toy_store(tmp_path / "plain", n_objects=3, grasps=1)
+    with pytest.raises(ValueError, match="missing rig_estimates"):
+        predict_path(runs["FWR"], plain.path)

@@ -634,7 +634,7 @@ def test_live_without_an_estimate_names_the_real_cause(grasp, tmp_path):
             all_ckpt,
             grasp["readings"],
             [],
-            "analytical estimates (ALL, FWE, FWR inputs) could not be",
+            "analytical estimates (ALL, FWE, DepthALL, FWR inputs) could not be",
         ),
         (fw_ckpt, grasp["readings"], ["--readings-offset-s", "100"], "--readings-offset-s"),
         (fw_ckpt, weak, [], "never reached the frame selection"),

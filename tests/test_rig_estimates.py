@@ -72,13 +72,28 @@ def test_record_with_a_rig_writes_them_and_import_carries_them_into_the_store(tm
     )
     assert store.units.rig_stiffness_n_per_m == pytest.approx(DATASET_RIG.stiffness_n_per_m)
 
-    # Another rig (or none) into the same dataset would mix estimates: refused, unwritten.
-    for rig_option in (["--rig", "wedge-2023"], []):
-        result = runner.invoke(
-            app, [str(a) for a in ("record", *source, *rig_option, "--object", "cube", *common)]
-        )
-        assert result.exit_code != 0 and "rig-corrected for a" in result.output, result.output
-        assert not (data / "cube").exists()
+    # A grasp of another rig goes in (the dataset's two estimates still mix), but the
+    # dataset's rig-corrected pairs are then not comparable: import leaves them out and
+    # says so, and the store names no rig.
+    cli("record", *source, "--rig", "wedge-2023", "--object", "cube", *common)
+    result = runner.invoke(
+        app,
+        [
+            "import",
+            "burgess",
+            str(data),
+            "--out",
+            str(tmp_path / "mixed"),
+            "--fingers",
+            "markerless",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "no rig-corrected estimates imported: the grasps name different rigs" in result.output
+    mixed = GraspStore.open(tmp_path / "mixed")
+    assert mixed.units.rig_stiffness_n_per_m is None
+    assert mixed.samples[list(RIG_ESTIMATE_COLUMNS)].isna().all().all()
+    assert set(mixed.samples["object"]) == {"ball", "cube"}
 
 
 def test_the_generator_writes_them_at_its_rigs_stiffness(tmp_path) -> None:

@@ -12,7 +12,7 @@ import os
 import re
 import shutil
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -619,12 +619,16 @@ def _check_dataset_units(out: Path, units: GraspUnits) -> None:
     ]
     if not grasps:
         return
-    earlier = tree_units(grasps).units
-    if earlier != units:
+    # The rig stiffness is left out, as import leaves it out (``tree_units``): a grasp
+    # recorded with another --rig, or without, only keeps the dataset's rig-corrected
+    # estimates out of its store (the import report says so).
+    earlier = replace(tree_units(grasps).units, rig_stiffness_n_per_m=None)
+    this = replace(units, rig_stiffness_n_per_m=None)
+    if earlier != this:
         raise ValueError(
             f"{out} holds grasps with {earlier.describe()} (e.g. {grasps[0]}), this recording "
-            f"has {units.describe()}: their estimates would be mixed; nothing written (record "
-            "into another dataset, or with the --rig its grasps were recorded with)"
+            f"has {this.describe()}: their estimates would be mixed; nothing written (record "
+            "into another dataset)"
         )
 
 

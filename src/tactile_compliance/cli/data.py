@@ -148,7 +148,8 @@ def info(
         )
     lines.append(
         f"Inputs      force/width: {summary['has_force_width']}  "
-        f"estimates: {summary['has_estimates']}"
+        f"estimates: {summary['has_estimates']}  rig-corrected estimates: "
+        + (", ".join(f"{k:.4g} N/m" for k in summary["rig_stiffnesses_n_per_m"]) or "none")
     )
     depth = summary["depth"]
     lines.append(

@@ -300,6 +300,14 @@ def import_burgess(
     except ValueError as err:
         raise ImportUnitsError(f"{src}: {err}; nothing was imported", report=report) from None
     report.units = found.units.describe()
+    if found.mixed_rigs:
+        rigs = ", ".join(
+            "none" if k is None else f"{k:.4g} N/m" for k in found.rig_stiffnesses_n_per_m
+        )
+        report.units += (
+            f"; no rig-corrected estimates imported: the grasps name different rigs ({rigs}), "
+            "so an FWR model cannot train on this store"
+        )
     report.grasps_without_units = len(found.unnamed)
     unit_columns = dict(zip(UNIT_COLUMNS, found.units.to_row(), strict=True))
     # Rig-corrected estimates mean something only at the stiffness the units name.

@@ -13,11 +13,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from tactile_compliance.data.inputs import ANALYTICAL_INPUTS, INPUTS
 from tactile_compliance.data.store import (
     DEPTH_COLUMNS,
     ESTIMATE_COLUMNS,
     FORCE_COLUMNS,
-    RIG_ESTIMATE_COLUMNS,
     WIDTH_COLUMNS,
 )
 
@@ -214,8 +214,9 @@ def _resolve_cfg(cfg: Any) -> tuple[Any, list[str] | None, tuple[str, ...]]:
     if hasattr(cfg, "filters"):
         fingers = getattr(getattr(cfg, "data", None), "fingers", None)
         columns = ESTIMATE_COLUMNS
-        if cfg.strategy.uses("rig_estimates"):  # also drop grasps without them
-            columns += RIG_ESTIMATE_COLUMNS
+        for name in ANALYTICAL_INPUTS - {"estimates"}:  # the others the strategy takes
+            if cfg.strategy.uses(name):
+                columns += INPUTS[name].columns
         return cfg.filters, (list(fingers) if fingers is not None else None), columns
     return cfg, None, ESTIMATE_COLUMNS
 

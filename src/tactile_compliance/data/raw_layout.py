@@ -26,7 +26,7 @@ import json
 import math
 import re
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -294,13 +294,24 @@ class TreeUnits:
     """The one set of units of a tree's grasps (:func:`tree_units`).
 
     Attributes:
-        units: what every grasp's estimates are in.
+        units: what every grasp's estimates are in; its ``rig_stiffness_n_per_m`` is the
+            one every grasp names, None when some name another or none (their
+            rig-corrected estimates are then not comparable, and not read).
         unnamed: the grasp directories without :data:`UNITS_FILE` (the public dataset's,
             or copied from one), taken to be in ``units`` by the dataset heuristic.
+        rig_stiffnesses_n_per_m: every rig stiffness [N/m] the grasps name (None: a grasp
+            without rig-corrected estimates), in the order first seen.
     """
 
     units: GraspUnits
     unnamed: tuple[Path, ...] = ()
+    rig_stiffnesses_n_per_m: tuple[float | None, ...] = (None,)
+
+    @property
+    def mixed_rigs(self) -> bool:
+        """Whether the grasps name more than one rig (or some none): no rig-corrected
+        estimates are taken from them."""
+        return len(self.rig_stiffnesses_n_per_m) > 1
 
 
 def tree_units(
@@ -313,6 +324,9 @@ def tree_units(
     A grasp without the file is taken, explicitly (:attr:`TreeUnits.unnamed`), to be in
     the public dataset's units: its depth heuristic at the Wedge's pixel density, with
     ``unnamed_estimator`` (a generated tree's manifest names it; else the dataset's own).
+    The rig stiffness of the rig-corrected estimates is not part of the comparison: the
+    dataset's two estimates of grasps of different rigs (or with none) still mix, and the
+    result names a stiffness only when every grasp names the same one.
 
     Raises:
         ValueError: grasps in two units (one line naming a grasp of each and both units),
@@ -321,11 +335,14 @@ def tree_units(
     heuristic = GraspUnits(WEDGE_UNITS, unnamed_estimator)
     first: tuple[Path, GraspUnits] | None = None
     unnamed: list[Path] = []
+    rigs: dict[float | None, None] = {}
     for directory in dict.fromkeys(Path(d) for d in grasp_directories):  # each grasp once
-        units = read_units_file(directory)
-        if units is None:
+        own = read_units_file(directory)
+        if own is None:
             unnamed.append(directory)
-            units = heuristic
+            own = heuristic
+        rigs[own.rig_stiffness_n_per_m] = None
+        units = replace(own, rig_stiffness_n_per_m=None)
         if first is None:
             first = (directory, units)
         elif units != first[1]:
@@ -339,7 +356,10 @@ def tree_units(
                 f"grasps in two units: {shown[0]}, {shown[1]}; their estimates cannot be "
                 "mixed: keep each sensor's grasps in a dataset of their own"
             )
-    return TreeUnits(first[1] if first else heuristic, tuple(unnamed))
+    stiffnesses = tuple(rigs) or (None,)
+    common = stiffnesses[0] if len(stiffnesses) == 1 else None
+    units = replace(first[1] if first else heuristic, rig_stiffness_n_per_m=common)
+    return TreeUnits(units, tuple(unnamed), stiffnesses)
 
 
 def sample_grasp_dir(sample_directory: Path) -> Path:

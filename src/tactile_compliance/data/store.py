@@ -750,6 +750,15 @@ class GraspStore:
             "modulus_pa_max": float(moduli.max()) if len(s) else None,
             "has_force_width": bool(s[list(FORCE_COLUMNS)].notna().any().any()),
             "has_estimates": bool(s[list(ESTIMATE_COLUMNS)].notna().any().any()),
+            # The rig stiffnesses [N/m] of the rig-corrected estimates (none: empty).
+            "rig_stiffnesses_n_per_m": sorted(
+                float(k)
+                for k in s.loc[
+                    s[list(RIG_ESTIMATE_COLUMNS)].notna().any(axis=1), "rig_stiffness_n_per_m"
+                ]
+                .dropna()
+                .unique()
+            ),
             "frames_bytes": int(np.prod(self.frames.shape)),
             # Samples with a depth file have a finite maximum depth in the table.
             "depth": (

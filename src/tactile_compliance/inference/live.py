@@ -30,7 +30,7 @@ from tactile_compliance.acquisition.sensors import (
 )
 from tactile_compliance.data.depth_model import grey_frame_problem
 from tactile_compliance.data.image_ops import difference_images
-from tactile_compliance.data.inputs import ANALYTICAL_INPUTS
+from tactile_compliance.data.inputs import ANALYTICAL_INPUTS, InputStrategy
 from tactile_compliance.data.photometric import reconstruct_depth
 from tactile_compliance.data.store import frames_to_uint8
 from tactile_compliance.devices import DEFAULT_DEVICE
@@ -343,12 +343,12 @@ def _no_estimate_reason(
             "pixel density (calibrate the sensor's px/mm, docs/sensors.md)"
         )
     if needs_depth:
+        takers = ", ".join(s.value for s in InputStrategy if ANALYTICAL_INPUTS & set(s.input_names))
         return (
-            "the frames were selected, but the analytical estimates (ALL, FWE, FWR inputs) "
+            f"the frames were selected, but the analytical estimates ({takers} inputs) "
             "could not be computed from the depth maps: too little contact area or depth at "
             "this frame size and pixel density (calibrate the sensor's px/mm, docs/sensors.md), "
-            "or use "
-            "an Image, ImageF or ImageFW checkpoint"
+            "or use an Image, ImageF or ImageFW checkpoint"
         )
     return f"the stream ended without a final estimate after {stream.frames_seen} frames"
 

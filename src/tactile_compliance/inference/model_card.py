@@ -162,6 +162,22 @@ def _image_lines(strategy: InputStrategy, config: dict[str, Any]) -> list[str]:
     ]
 
 
+def _analytical_lines(run_inputs: dict[str, Any]) -> list[str]:
+    """What the card says of the rig-corrected estimates and missing estimates."""
+    lines = []
+    if run_inputs.get("rig_stiffness_n_per_m") is not None:
+        lines.append(
+            "- Rig-corrected estimates (`rig_estimates`): made with the rig's own closure "
+            f"taken out at {run_inputs['rig_stiffness_n_per_m']:.4g} N/m (`record --rig`)."
+        )
+    if run_inputs.get("missing_estimates"):
+        lines.append(
+            "- Trained with estimate dropout: NaN analytical estimates are taken as missing "
+            "(a grasp whose fits failed still gets an estimate)."
+        )
+    return lines
+
+
 def model_card(
     config: dict[str, Any], *, files: tuple[str, str], parameters: int | None = None
 ) -> str:
@@ -246,6 +262,7 @@ def model_card(
         f"{norm['label_log10_max']}].",
         f"- Analytical estimator (for estimates computed at inference from depth maps): "
         f"`{run_inputs['analytical_estimator']}`.",
+        *_analytical_lines(run_inputs),
         "",
         "## Training data",
         "",

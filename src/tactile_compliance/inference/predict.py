@@ -73,7 +73,7 @@ def predict_path(
     )
     mismatch = estimator.run_inputs.source_mismatch(
         source.source_image_size, source.sensor_units, used=str(path)
-    )
+    ) + estimator.run_inputs.rig_mismatch(source.rig_stiffness_n_per_m, used=str(path))
     scalars = source.inputs(scalar_names)
     usable = np.ones(len(source), dtype=bool)
     reasons: list[str] = [""] * len(source)

@@ -69,6 +69,8 @@ class GraspBatch:
         estimates_pa: (B, 2) Pa (elastic E, Hertz E*), NaN where unknown.
         rig_estimates_pa: (B, 2) Pa, the rig-corrected pair (``record --rig``, the
             generator), NaN where unknown; None: the source has none.
+        rig_stiffness_n_per_m: the rig stiffness [N/m] they were made at; None: none
+            (or grasps of different rigs, whose pairs are then not read).
         rows: one row per grasp: ``ROW_COLUMNS`` + ``modulus_pa`` (truth, NaN if unknown).
         kind: ``store``, ``grasp_dir`` or ``video``.
         frame_kind: ``difference`` or ``raw`` (videos and Shore-hardness stores).
@@ -93,6 +95,7 @@ class GraspBatch:
     depth_mm: np.ndarray | StoreDepth | None = None
     source_image_size: tuple[int, int] | None = None
     rig_estimates_pa: np.ndarray | None = None
+    rig_stiffness_n_per_m: float | None = None
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -163,6 +166,7 @@ def read_store(path: str | Path, ids: np.ndarray | list[int] | None = None) -> G
         width_m=samples[list(WIDTH_COLUMNS)].to_numpy(np.float64),
         estimates_pa=samples[list(ESTIMATE_COLUMNS)].to_numpy(np.float64),
         rig_estimates_pa=samples[list(RIG_ESTIMATE_COLUMNS)].to_numpy(np.float64),
+        rig_stiffness_n_per_m=store.units.rig_stiffness_n_per_m,
         rows=rows,
         kind="store",
         frame_kind=str(store.header.creation_parameters.get("frame_kind", "difference")),
@@ -226,12 +230,16 @@ def read_grasp_dir(
             f"{root}: no grasp data found; expected an augmentation directory with RGB.pkl "
             f"and forces.pkl, or grasp=g/augmentation=k/ below it"
         )
+    # Each grasp's own units.json; ValueError: grasps in two units. The rig-corrected
+    # pairs are read only at one rig stiffness, as import reads them.
+    units = tree_units(sample_grasp_dir(d) for _, _, d in dirs).units
+    rig = units.rig_stiffness_n_per_m is not None
     frames, forces, widths, estimates, rig_estimates, rows = [], [], [], [], [], []
     unreadable: list[dict[str, Any]] = []
     native: tuple[int, int] | None = None
     for grasp, augmentation, directory in dirs:
         try:
-            sample = _read_sample_dir(directory, names, image_size)
+            sample = _read_sample_dir(directory, names, image_size, rig=rig)
             native = native or sample.native_size
         except ValueError as err:
             if len(dirs) == 1:
@@ -279,8 +287,8 @@ def read_grasp_dir(
         frame_kind="difference",
         unreadable=unreadable,
         source_image_size=native,
-        # Each grasp's own units.json; ValueError: grasps in two units.
-        sensor_units=tree_units(sample_grasp_dir(d) for _, _, d in dirs).units.sensor,
+        sensor_units=units.sensor,
+        rig_stiffness_n_per_m=units.rig_stiffness_n_per_m,
     )
 
 
@@ -299,9 +307,10 @@ class _SampleDir:
 
 
 def _read_sample_dir(
-    directory: Path, fingers: list[str], image_size: tuple[int, int] | None
+    directory: Path, fingers: list[str], image_size: tuple[int, int] | None, *, rig: bool
 ) -> _SampleDir:
-    """Read one augmentation directory like the importer does.
+    """Read one augmentation directory like the importer does; ``rig``: also its
+    rig-corrected pair (else NaN).
 
     Raises:
         ValueError: an unsafe or corrupt pickle, a wrong shape, no image of ``fingers``.
@@ -315,7 +324,9 @@ def _read_sample_dir(
             force=load_vector(directory, FORCES_FILE, optional=True),
             width=load_vector(directory, WIDTHS_FILE, optional=True),
             estimates=[load_estimate(directory, name) for name in ESTIMATE_FILES],
-            rig_estimates=[load_estimate(directory, name) for name in RIG_ESTIMATE_FILES],
+            rig_estimates=[
+                load_estimate(directory, name) if rig else math.nan for name in RIG_ESTIMATE_FILES
+            ],
             images=[],
         )
         for finger in fingers:

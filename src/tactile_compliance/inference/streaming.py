@@ -529,7 +529,8 @@ class StreamingEstimator:
                     f"the {INPUTS[name].meaning}: {given}give depth_mm= with every frame"
                 )
             analytical[name] = values
-        key = (selection.indices, tuple((n, tuple(v)) for n, v in analytical.items()))
+        # Bytes, not floats: a missing (NaN) estimate must equal itself here.
+        key = (selection.indices, tuple((n, v.tobytes()) for n, v in analytical.items()))
         if key == self._last_key and self._last is not None:
             if not final:
                 return None

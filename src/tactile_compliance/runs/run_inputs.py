@@ -181,6 +181,26 @@ class RunInputs:
             )
         return out
 
+    def rig_mismatch(self, rig_stiffness_n_per_m: float | None, *, used: str) -> list[str]:
+        """A warning (one line; none when they agree or the model takes no rig-corrected
+        estimates) for a source ``used`` whose rig-corrected estimates were made at
+        ``rig_stiffness_n_per_m`` [N/m] (None: it has none) where that differs from the
+        training data's (1e-6 relative): ``predict``'s check; ``live`` computes the pair
+        itself, at the checkpoint's stiffness."""
+        trained, given = self.rig_stiffness_n_per_m, rig_stiffness_n_per_m
+        if trained is None or (given is not None and math.isclose(trained, given, rel_tol=1e-6)):
+            return []
+        if given is None:
+            return [
+                f"the model takes rig-corrected estimates (made at {trained:.4g} N/m), and "
+                f"{used} has none: record with `record --rig RIG.json`"
+            ]
+        return [
+            f"the model was trained on rig-corrected estimates made at {trained:.4g} N/m, "
+            f"{used} has them at {given:.4g} N/m: another rig; check its estimates against "
+            "known objects"
+        ]
+
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON values; inverse of :meth:`from_dict`."""
         return {

@@ -99,6 +99,11 @@ class ComplianceModule(L.LightningModule):
         )
         self._val_squared_errors: list[torch.Tensor] = []
         self._l2_norms: list[torch.Tensor] | None = None
+        if bool(estimate_dropout) != run_inputs.missing_estimates:
+            raise ValueError(  # the checkpoint would promise what training did not do
+                f"estimate_dropout={estimate_dropout} but run_inputs.missing_estimates="
+                f"{run_inputs.missing_estimates}: they are one setting (RunInputs.resolve)"
+            )
         self.estimate_dropout = float(estimate_dropout)
         self._dropout_generator = torch.Generator().manual_seed(int(seed))
         self._reset_epoch_state()
