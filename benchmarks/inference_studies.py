@@ -52,6 +52,9 @@ def window_study(
     frames after contact the first estimate came), final_frames_after_onset, span
     (frames between the first and last selected frame).
     """
+    if "rig_estimates" in estimator.required_inputs:
+        # The trajectories carry the dataset's two estimates, not the rig-corrected pair.
+        raise ValueError("the window study streams the dataset's estimates; FWR models need depth")
     rows = []
     needs_estimates = "estimates" in estimator.required_inputs
     for trajectory in trajectories:
