@@ -13,7 +13,6 @@ from tactile_compliance.config import (
     ConfigError,
     ExperimentConfig,
     apply_overrides,
-    check_config_against_samples,
     config_from_dict,
     config_to_dict,
     list_presets,
@@ -22,6 +21,7 @@ from tactile_compliance.config import (
     save_config,
 )
 from tactile_compliance.data.normalisation import NormalisationConstants
+from tactile_compliance.runs.config_checks import check_config_against_samples
 
 
 def _keys(d: dict, prefix: str = "") -> set[str]:
@@ -209,7 +209,7 @@ def test_check_config_against_samples():
 def test_frames_too_small_for_a_built_in_model_are_refused_from_the_config(tmp_path):
     """``check_frame_size_early``: before torch, from data.image_size or the store header
     (the run's own check stays: tests/test_training.py)."""
-    from tactile_compliance.config import check_frame_size_early
+    from tactile_compliance.runs.config_checks import check_frame_size_early
     from toy_store import make_toy_store
 
     small = load_config("default", ["model.name=top10nn", "data.image_size=[48,48]"])

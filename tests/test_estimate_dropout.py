@@ -83,6 +83,21 @@ def test_training_hides_a_share_of_the_estimates_and_leaves_the_batch_alone() ->
         ComplianceModule(model, plain, lr=1e-3, gamma=None, l2_weight=0.0, estimate_dropout=0.3)
 
 
+def test_a_resumed_run_hides_the_grasps_an_uninterrupted_one_would() -> None:
+    # The resume checkpoint keeps the dropout generator's state (on_save_checkpoint).
+    batch = {"label": torch.rand(64), "estimates": torch.rand(64, 2) + 0.5}
+    first = _module(0.3)
+    first._hide_estimates(batch)  # an epoch or so before the interruption
+    checkpoint: dict[str, Any] = {"state_dict": {}}
+    first.on_save_checkpoint(checkpoint)
+    expected = first._hide_estimates(batch)["estimates"]
+    resumed = _module(0.3)
+    resumed.on_load_checkpoint(checkpoint)
+    assert torch.equal(resumed._hide_estimates(batch)["estimates"], expected)
+    # Without the state a fresh module would hide other grasps.
+    assert not torch.equal(_module(0.3)._hide_estimates(batch)["estimates"], expected)
+
+
 def test_the_config_refuses_dropout_for_inputs_without_estimates() -> None:
     with pytest.raises(ConfigError, match="estimate_dropout"):
         load_config("default", ["inputs=FW", "training.estimate_dropout=0.2"])

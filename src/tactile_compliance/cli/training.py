@@ -87,7 +87,8 @@ def train(
     sized = {"data.image_size": image_size} if image_size else None
     # The config first, before torch loads: a typo is reported at once.
     cfg = _load_config(config, [], overrides, sized)
-    from tactile_compliance.config import check_frame_size_early, use_split_file
+    from tactile_compliance.config import use_split_file
+    from tactile_compliance.runs.config_checks import check_frame_size_early
 
     if split_file is not None:
         cfg = use_split_file(cfg, split_file)  # type: ignore[arg-type]

@@ -68,16 +68,16 @@ def predict_path(
             f"a store imported with its depth maps (`import burgess SRC --out STORE`), or "
             f"run `live` with the sensor's --calibration"
         )
-    estimator.run_inputs.check_sensor(
+    run_inputs = estimator.run_inputs
+    run_inputs.check_sensor(
         source.sensor_units, trained=f"checkpoint {estimator.source}", used=str(path)
     )
-    mismatch = estimator.run_inputs.source_mismatch(
+    mismatch = run_inputs.source_mismatch(
         source.source_image_size, source.sensor_units, used=str(path)
-    ) + estimator.run_inputs.rig_mismatch(source.rig_stiffness_n_per_m, used=str(path))
+    ) + run_inputs.rig_mismatch(source.rig_stiffness_n_per_m, used=str(path))
     scalars = source.inputs(scalar_names)
     usable = np.ones(len(source), dtype=bool)
     reasons: list[str] = [""] * len(source)
-    run_inputs = estimator.run_inputs
     # A model trained with estimate dropout estimates grasps whose fits failed.
     may_miss = set(run_inputs.analytical_inputs) if run_inputs.missing_estimates else set()
     for name in scalar_names:

@@ -58,7 +58,7 @@ def min_frame_side(model: str) -> int | None:
 def too_small_message(model: str, minimum: int, origin: str, size: tuple[int, int]) -> str:
     """The one line for frames ``size`` (H, W) px below ``minimum`` px, ``origin`` saying
     where the size came from ("data.image_size is", "the store's frames are"): the text of
-    ``config.check_frame_size_early`` and ``training.train.check_frame_size``."""
+    ``runs.config_checks.check_frame_size_early`` and ``training.train.check_frame_size``."""
     height, width = size
     return (
         f"{model} needs frames of at least {minimum}x{minimum} px, but {origin} "

@@ -27,12 +27,7 @@ import torch
 from lightning.pytorch.callbacks import Callback, EarlyStopping
 from torch.utils.data import DataLoader
 
-from tactile_compliance.config import (
-    ExperimentConfig,
-    check_config_against_samples,
-    config_to_dict,
-    save_config,
-)
+from tactile_compliance.config import ExperimentConfig, config_to_dict, save_config
 from tactile_compliance.data.augment import GraspAugmentation
 from tactile_compliance.data.balance import balance_split
 from tactile_compliance.data.dataset import GraspDataset, batch_loader
@@ -58,6 +53,7 @@ from tactile_compliance.runs.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from tactile_compliance.runs.config_checks import check_config_against_samples
 from tactile_compliance.runs.forward import predict_dataset
 from tactile_compliance.runs.layout import (
     BEST_FILE,
